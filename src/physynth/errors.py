@@ -1,0 +1,20 @@
+"""Exceptions for user mistakes: the command line turns them into one line and exit code 2."""
+
+
+class PhySynthError(Exception):
+    """Bad input from the user (a scenario, a recording, a dataset, an argument).
+
+    The message is one line that names what is wrong; no traceback is shown for it.
+    """
+
+
+class ScenarioError(PhySynthError):
+    """A scenario file or object is invalid."""
+
+
+class DatasetError(PhySynthError):
+    """A dataset directory is missing, incomplete or unreadable."""
+
+
+class RecordingError(PhySynthError):
+    """A real recording cannot be imported."""

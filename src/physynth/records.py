@@ -1,0 +1,194 @@
+"""The one data model shared by real and synthetic traces (DESIGN.md section 1).
+
+A :class:`Trace` is one run of one tag: ground truth, IMU samples, UWB measurements and the anchor
+layout. Importers of real recordings and the generator produce exactly these records; calibration,
+validation and writers never ask where a trace came from. Synthetic traces carry extra labels
+(true range, NLOS flag, burst index, reason of a missing range); real traces leave them unknown
+(NaN true range, ``nlos_known`` False, burst -1).
+
+World frame ENU [m], time float64 seconds, shapes time-first then component: (T, 3).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .constants import IMU_FRAME
+
+
+class Reason(enum.IntEnum):
+    """Why a UWB row has (or has not) a range. Stored as a small integer in the ``reason`` column."""
+
+    OK = 0
+    DROPOUT = 1  # lost on its own (per-burst dropout)
+    OUTAGE = 2  # anchor in an outage period
+    NO_LINK = 3  # out of radio range / blocked (link-visibility model)
+    INVALID = 4  # real data: range present in the file but unusable (NaN, negative)
+
+
+def _f64(a: Any, shape_tail: tuple[int, ...], name: str) -> np.ndarray:
+    arr = np.ascontiguousarray(a, dtype=np.float64)
+    if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:
+        raise ValueError(f"{name}: expected shape (N, {', '.join(map(str, shape_tail))}), got {arr.shape}")
+    return arr
+
+
+def _check_time(t_s: np.ndarray, name: str) -> None:
+    if t_s.ndim != 1:
+        raise ValueError(f"{name}.t_s must be 1-D")
+    if t_s.size and not np.all(np.isfinite(t_s)):
+        raise ValueError(f"{name}.t_s contains NaN or infinite times")
+    if t_s.size > 1 and np.any(np.diff(t_s) < 0):
+        raise ValueError(f"{name}.t_s is not sorted")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Anchors:
+    """The anchor layout: ids (e.g. "A101"), display names and ENU positions (A, 3) [m]."""
+
+    ids: tuple[str, ...]
+    pos_enu_m: np.ndarray
+    names: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "ids", tuple(str(i) for i in self.ids))
+        object.__setattr__(self, "pos_enu_m", _f64(self.pos_enu_m, (3,), "anchors.pos_enu_m"))
+        if not self.names:
+            object.__setattr__(self, "names", self.ids)
+        if len(set(self.ids)) != len(self.ids):
+            raise ValueError(f"anchor ids are not unique: {self.ids}")
+        if len(self.ids) != self.pos_enu_m.shape[0] or len(self.names) != len(self.ids):
+            raise ValueError("anchors: ids, names and positions differ in length")
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def index(self, anchor_id: str) -> int:
+        return self.ids.index(anchor_id)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Truth:
+    """Ground truth: time [s], position (T, 3) [m] and velocity (T, 3) [m/s] in ENU."""
+
+    t_s: np.ndarray
+    pos_enu_m: np.ndarray
+    vel_enu_mps: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t_s", np.ascontiguousarray(self.t_s, dtype=np.float64))
+        _check_time(self.t_s, "truth")
+        object.__setattr__(self, "pos_enu_m", _f64(self.pos_enu_m, (3,), "truth.pos_enu_m"))
+        object.__setattr__(self, "vel_enu_mps", _f64(self.vel_enu_mps, (3,), "truth.vel_enu_mps"))
+        n = self.t_s.shape[0]
+        if self.pos_enu_m.shape[0] != n or self.vel_enu_mps.shape[0] != n:
+            raise ValueError("truth: t_s, pos_enu_m and vel_enu_mps differ in length")
+
+    def position_at(self, t_s: np.ndarray) -> np.ndarray:
+        """Truth position linearly interpolated at times ``t_s`` (N,) -> (N, 3) [m].
+
+        Rows where the truth position is NaN (masked dropouts of a real reference) are skipped, so
+        a query inside a masked span is interpolated across it; outside the truth span it is NaN.
+        """
+        t_s = np.asarray(t_s, dtype=np.float64)
+        ok = np.all(np.isfinite(self.pos_enu_m), axis=1)
+        tt, pp = self.t_s[ok], self.pos_enu_m[ok]
+        out = np.empty(t_s.shape + (3,))
+        for k in range(3):
+            out[..., k] = np.interp(t_s, tt, pp[:, k], left=np.nan, right=np.nan)
+        return out
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Imu:
+    """IMU samples: time [s] and acceleration (N, 3) [m s^-2] in ``frame`` (default ENU, gravity-free)."""
+
+    t_s: np.ndarray
+    acc_mps2: np.ndarray
+    frame: str = IMU_FRAME
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t_s", np.ascontiguousarray(self.t_s, dtype=np.float64))
+        _check_time(self.t_s, "imu")
+        object.__setattr__(self, "acc_mps2", _f64(self.acc_mps2, (3,), "imu.acc_mps2"))
+        if self.acc_mps2.shape[0] != self.t_s.shape[0]:
+            raise ValueError("imu: t_s and acc_mps2 differ in length")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Uwb:
+    """UWB ranging attempts, one row each, sorted by time.
+
+    ``anchor`` indexes the trace's :class:`Anchors`. ``range_m`` is NaN when no range was delivered
+    (``reason`` says why). Labels: ``true_range_m`` (NaN when unknown), ``nlos`` (meaningful only
+    when ``nlos_known``), ``burst`` (-1 when unknown).
+    """
+
+    t_s: np.ndarray
+    anchor: np.ndarray
+    range_m: np.ndarray
+    true_range_m: np.ndarray | None = None
+    nlos: np.ndarray | None = None
+    burst: np.ndarray | None = None
+    reason: np.ndarray | None = None
+    nlos_known: bool = False
+
+    def __post_init__(self) -> None:
+        t = np.ascontiguousarray(self.t_s, dtype=np.float64)
+        _check_time(t, "uwb")
+        n = t.shape[0]
+        object.__setattr__(self, "t_s", t)
+        object.__setattr__(self, "anchor", np.ascontiguousarray(self.anchor, dtype=np.int16))
+        object.__setattr__(self, "range_m", np.ascontiguousarray(self.range_m, dtype=np.float64))
+        defaults = {
+            "true_range_m": (np.float64, np.nan),
+            "nlos": (np.bool_, False),
+            "burst": (np.int64, -1),
+            "reason": (np.int8, None),
+        }
+        for name, (dtype, fill) in defaults.items():
+            value = getattr(self, name)
+            if value is None:
+                if name == "reason":
+                    value = np.where(np.isnan(self.range_m), Reason.INVALID, Reason.OK)
+                else:
+                    value = np.full(n, fill, dtype=dtype)
+            object.__setattr__(self, name, np.ascontiguousarray(value, dtype=dtype))
+        for name in ("anchor", "range_m", "true_range_m", "nlos", "burst", "reason"):
+            if getattr(self, name).shape != (n,):
+                raise ValueError(f"uwb.{name} has shape {getattr(self, name).shape}, expected ({n},)")
+
+    @property
+    def valid(self) -> np.ndarray:
+        """Mask of rows that carry a usable range."""
+        return np.isfinite(self.range_m)
+
+    def __len__(self) -> int:
+        return int(self.t_s.shape[0])
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Trace:
+    """One run of one tag. ``imu`` is None when the recording has no IMU."""
+
+    truth: Truth
+    uwb: Uwb
+    anchors: Anchors
+    imu: Imu | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if len(self.uwb) and int(self.uwb.anchor.max(initial=0)) >= len(self.anchors):
+            raise ValueError("uwb rows refer to an anchor index outside the anchor layout")
+
+    @property
+    def t0_s(self) -> float:
+        return float(self.truth.t_s[0])
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.truth.t_s[-1] - self.truth.t_s[0])
