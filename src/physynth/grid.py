@@ -62,9 +62,12 @@ def age_of_information(trace: Trace, t_s: np.ndarray) -> np.ndarray:
     aoi = np.empty((t_s.shape[0], len(trace.anchors)))
     for i in range(len(trace.anchors)):  # one pass per anchor, vectorised over time
         ti = uwb.t_s[ok & (uwb.anchor == i)]
+        if ti.size == 0:
+            aoi[:, i] = t_s - t0
+            continue
         j = np.searchsorted(ti, t_s + 1e-9, side="right") - 1
         last = np.where(j >= 0, ti[np.maximum(j, 0)], t0)
-        aoi[:, i] = t_s - np.maximum(last, t0) if ti.size else t_s - t0
+        aoi[:, i] = t_s - np.maximum(last, t0)
     return aoi
 
 

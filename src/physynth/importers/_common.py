@@ -1,0 +1,422 @@
+"""Shared machinery of the recording importers: tolerant table reading, cleaning rules and the report.
+
+Every importer follows the same rules (docs/recording-format.md):
+
+- a file that cannot be read, a missing file or column, a unit that is not the expected one and an
+  anchor without coordinates are errors: one :class:`~physynth.errors.RecordingError` line naming the
+  file and the problem;
+- everything else that is wrong with a row is repaired or dropped *with a count* in the
+  :class:`ImportReport`: truncated or corrupt CSV rows are skipped, rows with a NaN time or
+  coordinate are dropped, unsorted rows are sorted, exact duplicates are dropped, NaN and negative
+  ranges are kept as attempts with a NaN range and ``Reason.INVALID``. Nothing is dropped silently.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy.signal import savgol_filter
+
+from ..errors import RecordingError
+
+#: Unit suffixes that are recognised in column names and the unit PhySynth expects instead.
+_LENGTH_UNITS = ("mm", "cm", "dm", "km", "ft", "in", "um", "nm")
+_TIME_UNITS = ("ms", "us", "ns", "min", "h")
+_ACC_UNITS = ("g", "mg", "ug", "cmps2", "mmps2")
+_SPEED_UNITS = ("kmh", "kph", "mmps", "cmps")
+_EXPECTED_UNIT = {"m": _LENGTH_UNITS, "s": _TIME_UNITS, "mps2": _ACC_UNITS, "mps": _SPEED_UNITS}
+_UNIT_WORDS = {"m": "metres", "s": "seconds", "mps2": "m/s^2", "mps": "m/s"}
+
+MAX_PLAUSIBLE_RANGE_MEDIAN_M = 5000.0
+"""A median range above this is taken as a unit mistake (millimetres or centimetres) [m]."""
+
+MAX_PLAUSIBLE_TIME_S = 1e11
+"""Times above this are not seconds (Unix seconds are ~1.7e9; milli/micro/nanoseconds are larger)."""
+
+
+# --------------------------------------------------------------------------------------------------
+# The report
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ImportReport:
+    """What an importer read, kept, repaired, dropped and flagged, per input file.
+
+    ``rows_read`` counts the data rows (CSV lines after the header, or Parquet rows) of each file,
+    ``rows_kept`` those that reached the trace. ``dropped``, ``repaired`` and ``flagged`` map a file
+    name to ``{reason: count}``: dropped rows are gone from the trace, repaired rows were changed
+    (e.g. sorted), flagged rows are kept but marked (a NaN range with ``Reason.INVALID``, a masked
+    sample). ``notes`` are one-line remarks (e.g. the UWB/GNSS time lag not being corrected).
+    """
+
+    source: str
+    path: str
+    rows_read: Mapping[str, int] = field(default_factory=dict)
+    rows_kept: Mapping[str, int] = field(default_factory=dict)
+    dropped: Mapping[str, Mapping[str, int]] = field(default_factory=dict)
+    repaired: Mapping[str, Mapping[str, int]] = field(default_factory=dict)
+    flagged: Mapping[str, Mapping[str, int]] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+
+    @property
+    def n_dropped(self) -> int:
+        """Total number of dropped rows over all files and reasons."""
+        return sum(sum(d.values()) for d in self.dropped.values())
+
+    @property
+    def n_repaired(self) -> int:
+        """Total number of repaired rows over all files and reasons."""
+        return sum(sum(d.values()) for d in self.repaired.values())
+
+    @property
+    def n_flagged(self) -> int:
+        """Total number of flagged rows over all files and reasons."""
+        return sum(sum(d.values()) for d in self.flagged.values())
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able form (stored in ``dataset.json`` under ``import_report``)."""
+        return {
+            "source": self.source,
+            "path": self.path,
+            "rows_read": dict(self.rows_read),
+            "rows_kept": dict(self.rows_kept),
+            "dropped": {k: dict(v) for k, v in self.dropped.items()},
+            "repaired": {k: dict(v) for k, v in self.repaired.items()},
+            "flagged": {k: dict(v) for k, v in self.flagged.items()},
+            "notes": list(self.notes),
+        }
+
+    def summary_lines(self) -> list[str]:
+        """A few human-readable lines: per file rows read/kept and counts per reason."""
+        lines = [f"{self.source}: {self.path}"]
+        files = list(dict.fromkeys([*self.rows_read, *self.dropped, *self.repaired, *self.flagged]))
+        for f in files:
+            parts = [f"read {self.rows_read.get(f, 0)}", f"kept {self.rows_kept.get(f, 0)}"]
+            for label, table in (("dropped", self.dropped), ("repaired", self.repaired),
+                                 ("flagged", self.flagged)):
+                counts = table.get(f, {})
+                if counts:
+                    parts.append(f"{label} " + ", ".join(f"{k}={v}" for k, v in counts.items()))
+            lines.append(f"  {f}: " + "; ".join(parts))
+        lines += [f"  note: {n}" for n in self.notes]
+        return lines
+
+
+class ReportBuilder:
+    """Mutable collector of counts that :meth:`build` freezes into an :class:`ImportReport`."""
+
+    def __init__(self, source: str, path: str | os.PathLike) -> None:
+        self.source = source
+        self.path = str(path)
+        self.rows_read: dict[str, int] = {}
+        self.rows_kept: dict[str, int] = {}
+        self.dropped: dict[str, dict[str, int]] = {}
+        self.repaired: dict[str, dict[str, int]] = {}
+        self.flagged: dict[str, dict[str, int]] = {}
+        self.notes: list[str] = []
+
+    @staticmethod
+    def _add(table: dict[str, dict[str, int]], file: str, reason: str, n: int | np.integer) -> None:
+        n = int(n)
+        if n > 0:
+            per = table.setdefault(file, {})
+            per[reason] = per.get(reason, 0) + n
+
+    def read(self, file: str, n: int) -> None:
+        self.rows_read[file] = self.rows_read.get(file, 0) + int(n)
+
+    def kept(self, file: str, n: int) -> None:
+        self.rows_kept[file] = self.rows_kept.get(file, 0) + int(n)
+
+    def drop(self, file: str, reason: str, n: int | np.integer) -> None:
+        self._add(self.dropped, file, reason, n)
+
+    def repair(self, file: str, reason: str, n: int | np.integer) -> None:
+        self._add(self.repaired, file, reason, n)
+
+    def flag(self, file: str, reason: str, n: int | np.integer) -> None:
+        self._add(self.flagged, file, reason, n)
+
+    def note(self, text: str) -> None:
+        self.notes.append(text)
+
+    def build(self) -> ImportReport:
+        return ImportReport(
+            source=self.source, path=self.path, rows_read=dict(self.rows_read),
+            rows_kept=dict(self.rows_kept), dropped={k: dict(v) for k, v in self.dropped.items()},
+            repaired={k: dict(v) for k, v in self.repaired.items()},
+            flagged={k: dict(v) for k, v in self.flagged.items()}, notes=tuple(self.notes),
+        )
+
+
+# --------------------------------------------------------------------------------------------------
+# Reading tables
+# --------------------------------------------------------------------------------------------------
+
+
+def find_table(folder: Path, name: str, *, required: bool) -> Path | None:
+    """``folder/name.csv`` or ``folder/name.parquet``; an error when both or (if required) neither exist."""
+    csv, parquet = folder / f"{name}.csv", folder / f"{name}.parquet"
+    if csv.is_file() and parquet.is_file():
+        raise RecordingError(f"{folder}: both {csv.name} and {parquet.name} exist; keep only one")
+    if csv.is_file():
+        return csv
+    if parquet.is_file():
+        return parquet
+    if required:
+        raise RecordingError(f"{folder}: missing file {name}.csv (or {name}.parquet)")
+    return None
+
+
+def read_table(path: Path, report: ReportBuilder, *, str_columns: Sequence[str] = (),
+               skip_prefixes: Sequence[str] = ()) -> pd.DataFrame:
+    """Read a CSV or Parquet table, skipping (and counting) rows that cannot be parsed.
+
+    CSV rows with fewer fields than the header are skipped as ``truncated_row``, rows with more as
+    ``malformed_row``, rows holding NUL bytes as ``corrupt_row``, blank lines inside the file as
+    ``empty_row`` and rows starting with one of ``skip_prefixes`` as ``summary_row``; each count goes
+    to ``report`` under the file's name. Columns named in ``str_columns`` are read as text, the
+    others as pandas infers them (numeric conversion with counting is left to the caller).
+    """
+    name = path.name
+    if path.suffix == ".parquet":
+        try:
+            df = pd.read_parquet(path)
+        except Exception as exc:  # noqa: BLE001 - pyarrow raises many types; one clear line instead
+            raise RecordingError(f"{path}: cannot read Parquet file: {_first_line(exc)}") from None
+        df.columns = [str(c).strip() for c in df.columns]
+        report.read(name, len(df))
+        return df
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise RecordingError(f"{path}: cannot read file: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise RecordingError(f"{path}: not a UTF-8 text CSV file ({exc.reason} at byte {exc.start})") from None
+    lines = pd.Series(text.split("\n"), dtype=object).str.rstrip("\r")
+    if len(lines) and lines.iloc[-1] == "":
+        lines = lines.iloc[:-1]  # the newline that ends the last row
+    if len(lines) == 0 or not str(lines.iloc[0]).strip():
+        raise RecordingError(f"{path}: empty file or no header row")
+    header = str(lines.iloc[0])
+    body = lines.iloc[1:].astype(str)
+    report.read(name, len(body))
+    n_header = header.count(",") + 1
+    blank = body.str.strip() == ""
+    corrupt = body.str.contains("\x00", regex=False) & ~blank
+    summary = (body.str.startswith(tuple(skip_prefixes)) if skip_prefixes else pd.Series(False, body.index))
+    summary &= ~blank & ~corrupt
+    quoted = body.str.contains('"', regex=False)
+    n_fields = body.str.count(",") + 1
+    other = ~(blank | corrupt | summary | quoted)
+    truncated = other & (n_fields < n_header)
+    extra = other & (n_fields > n_header)
+    report.drop(name, "empty_row", blank.sum())
+    report.drop(name, "corrupt_row", corrupt.sum())
+    report.drop(name, "summary_row", summary.sum())
+    report.drop(name, "truncated_row", truncated.sum())
+    report.drop(name, "malformed_row", extra.sum())
+    keep = ~(blank | corrupt | summary | truncated | extra)
+    good = body[keep]
+    dtype = {c.strip(): str for c in header.split(",") if c.strip() in set(str_columns)}
+    try:
+        df = pd.read_csv(io.StringIO("\n".join([header, *good.tolist()]) + "\n"), dtype=dtype or None,
+                         on_bad_lines="skip", skip_blank_lines=True, skipinitialspace=True)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
+        raise RecordingError(f"{path}: cannot parse CSV: {_first_line(exc)}") from None
+    report.drop(name, "malformed_row", int(keep.sum()) - len(df))  # quoted rows pandas could not parse
+    df.columns = [str(c).strip() for c in df.columns]
+    return df
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def require_columns(df: pd.DataFrame, path: Path, required: Iterable[str], *,
+                    optional: Iterable[str] = ()) -> None:
+    """Error for a missing required column, or for a known column given in another unit.
+
+    A column ``range_mm`` where ``range_m`` is expected (or ``t_ms`` for ``t_s``) is reported as a
+    unit error rather than as a missing column, so the user knows what to convert.
+    """
+    cols = set(df.columns)
+    for col in [*required, *optional]:
+        if col in cols:
+            continue
+        base, _, unit = col.rpartition("_")
+        for other in _EXPECTED_UNIT.get(unit, ()):
+            if f"{base}_{other}" in cols:
+                raise RecordingError(
+                    f"{path}: column {base}_{other} is in {other}; PhySynth expects {col} in "
+                    f"{_UNIT_WORDS[unit]} (convert the values and rename the column)")
+    missing = [c for c in required if c not in cols]
+    if missing:
+        raise RecordingError(f"{path}: missing column(s) {', '.join(missing)} "
+                             f"(found: {', '.join(map(str, df.columns)) or 'none'})")
+
+
+def to_float(df: pd.DataFrame, cols: Sequence[str]) -> pd.DataFrame:
+    """Columns as float64: empty cells, text that is not a number and infinities become NaN.
+
+    The NaN values are counted where the caller drops or flags them (``nan_value``, ``nan_range``).
+    """
+    out = df.copy()
+    for c in cols:
+        num = pd.to_numeric(out[c], errors="coerce").astype(np.float64)
+        out[c] = num.mask(np.isinf(num.to_numpy()))
+    return out
+
+
+def drop_nan_rows(df: pd.DataFrame, cols: Sequence[str], file: str, report: ReportBuilder,
+                  reason: str = "nan_value") -> pd.DataFrame:
+    """Drop rows with a NaN in any of ``cols`` (counted under ``reason``)."""
+    bad = df[list(cols)].isna().any(axis=1)
+    report.drop(file, reason, int(bad.sum()))
+    return df.loc[~bad]
+
+
+def check_seconds(t_s: np.ndarray, path: Path, col: str) -> None:
+    """Error when a time column is evidently not in seconds."""
+    t = t_s[np.isfinite(t_s)]
+    if t.size and float(np.median(np.abs(t))) > MAX_PLAUSIBLE_TIME_S:
+        raise RecordingError(
+            f"{path}: {col} values around {np.median(t):.4g} are not seconds "
+            f"(milli-, micro- or nanoseconds?); convert to seconds")
+
+
+def check_range_metres(range_m: np.ndarray, path: Path, col: str) -> None:
+    """Error when the ranges are evidently not in metres (median above 5 km)."""
+    r = range_m[np.isfinite(range_m)]
+    if r.size and float(np.median(r)) > MAX_PLAUSIBLE_RANGE_MEDIAN_M:
+        raise RecordingError(
+            f"{path}: {col} has median {np.median(r):.4g}, implausible for metres "
+            f"(millimetres or centimetres?); convert ranges to metres")
+
+
+def sort_and_dedupe(df: pd.DataFrame, keys: Sequence[str], file: str, report: ReportBuilder) -> pd.DataFrame:
+    """Sort rows by ``keys`` (counting the rows that were out of order) and drop duplicates.
+
+    A row identical to an earlier one in every column is dropped as ``duplicate_row``; a row that
+    repeats the keys (time, or time and anchor) of an earlier one with other values is dropped as
+    ``duplicate_time_conflict`` (the first one is kept).
+    """
+    t = df[keys[0]].to_numpy()
+    n_unsorted = int(np.count_nonzero(np.diff(t) < 0)) if t.size > 1 else 0
+    if n_unsorted:
+        report.repair(file, "unsorted_rows", n_unsorted)
+    df = df.sort_values(list(keys), kind="stable")
+    exact = df.duplicated(keep="first")
+    report.drop(file, "duplicate_row", int(exact.sum()))
+    df = df.loc[~exact]
+    conflict = df.duplicated(subset=list(keys), keep="first")
+    report.drop(file, "duplicate_time_conflict", int(conflict.sum()))
+    return df.loc[~conflict]
+
+
+def flag_ranges(range_m: np.ndarray, file: str, report: ReportBuilder) -> np.ndarray:
+    """Ranges with NaN for negative values; counts ``nan_range`` and ``negative_range`` as flagged.
+
+    The rows stay in the trace as attempts whose ``reason`` is ``Reason.INVALID`` (see
+    :class:`~physynth.records.Uwb`, which derives it from the NaN).
+    """
+    r = np.asarray(range_m, dtype=np.float64).copy()
+    report.flag(file, "nan_range", int(np.count_nonzero(np.isnan(r))))
+    neg = r < 0
+    report.flag(file, "negative_range", int(np.count_nonzero(neg)))
+    r[neg] = np.nan
+    return r
+
+
+# --------------------------------------------------------------------------------------------------
+# Derived quantities
+# --------------------------------------------------------------------------------------------------
+
+
+def velocity_from_position(t_s: np.ndarray, pos_m: np.ndarray, *, window_s: float, polyorder: int = 2,
+                           max_gap_s: float = 1.0) -> np.ndarray:
+    """Velocity (T, 3) [m/s] by Savitzky-Golay differentiation of a position track (T, 3) [m].
+
+    The track is cut into segments at NaN positions and at time gaps longer than ``max_gap_s``; each
+    segment is resampled onto a uniform grid at its median step (linear interpolation), smoothed and
+    differentiated with a local polynomial of order ``polyorder`` over about ``window_s`` seconds
+    (at least ``polyorder + 3`` samples, odd), and interpolated back to the sample times. Velocity is
+    NaN where the position is NaN and on isolated single samples.
+    """
+    t_s = np.asarray(t_s, dtype=np.float64)
+    pos_m = np.asarray(pos_m, dtype=np.float64)
+    vel = np.full_like(pos_m, np.nan)
+    ok = np.all(np.isfinite(pos_m), axis=1)
+    if not ok.any():
+        return vel
+    idx = np.flatnonzero(ok)
+    new_seg = np.ones(idx.size, dtype=bool)
+    new_seg[1:] = (np.diff(idx) > 1) | (np.diff(t_s[idx]) > max_gap_s)
+    starts = np.flatnonzero(new_seg)
+    ends = np.append(starts[1:], idx.size)
+    for s, e in zip(starts, ends):  # one pass per contiguous segment, vectorised inside
+        rows = idx[s:e]
+        ts, ps = t_s[rows], pos_m[rows]
+        if rows.size < 2:
+            continue
+        dt = float(np.median(np.diff(ts)))
+        if not dt > 0:
+            continue
+        n_grid = int(np.round((ts[-1] - ts[0]) / dt)) + 1
+        tg = ts[0] + np.arange(n_grid) * dt
+        pg = np.stack([np.interp(tg, ts, ps[:, k]) for k in range(3)], axis=1)
+        win = max(int(np.round(window_s / dt)), polyorder + 3)
+        win += 1 - win % 2
+        if n_grid >= win:
+            vg = savgol_filter(pg, win, polyorder, deriv=1, delta=dt, axis=0, mode="interp")
+        else:
+            vg = np.gradient(pg, tg, axis=0)
+        vel[rows] = np.stack([np.interp(ts, tg, vg[:, k]) for k in range(3)], axis=1)
+    return vel
+
+
+def gap_bursts(t_s: np.ndarray, gap_s: float) -> np.ndarray:
+    """Burst index of time-sorted measurements: a new burst starts after a gap longer than ``gap_s``."""
+    t_s = np.asarray(t_s, dtype=np.float64)
+    if t_s.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    return np.concatenate([[0], np.cumsum(np.diff(t_s) > gap_s)]).astype(np.int64)
+
+
+def auto_burst_gap_s(t_s: np.ndarray, anchor: np.ndarray) -> float:
+    """Half the median interval between consecutive measurements of the same anchor [s]."""
+    order = np.lexsort((t_s, anchor))
+    a, t = anchor[order], t_s[order]
+    d = np.diff(t)[np.diff(a) == 0]
+    d = d[d > 0]
+    return float(np.median(d) / 2.0) if d.size else 0.05
+
+
+def per_anchor_rate_hz(t_s: np.ndarray, anchor: np.ndarray, valid: np.ndarray, ids: Sequence[str]) -> dict[str, float]:
+    """Effective rate [Hz] of valid ranges per anchor: (count - 1) / (last - first)."""
+    out = {}
+    for i, a in enumerate(ids):  # one pass per anchor
+        t = t_s[valid & (anchor == i)]
+        out[a] = float((t.size - 1) / (t[-1] - t[0])) if t.size > 1 and t[-1] > t[0] else float("nan")
+    return out
+
+
+def max_gap_per_anchor_s(t_s: np.ndarray, anchor: np.ndarray, valid: np.ndarray,
+                         ids: Sequence[str]) -> dict[str, float]:
+    """Longest interval between consecutive valid ranges of each anchor [s]."""
+    out = {}
+    for i, a in enumerate(ids):
+        t = t_s[valid & (anchor == i)]
+        out[a] = float(np.max(np.diff(t))) if t.size > 1 else float("nan")
+    return out

@@ -1,0 +1,116 @@
+"""Motion model: accelerate-cruise-decelerate speed profile -> s(t) -> kinematics at a fixed rate.
+
+The speed is ``v(t) = v_c * g(u)`` over normalised trip time u = t / T_trip, with a smooth shape g
+(max 1). Each run draws its cruise speed (+-12 %, uniform) and effective path length (+-5 %, uniform):
+the end stations stay fixed, so the length spread acts on the trip duration T = L_eff / (v_c * mean g)
+while the travelled geometry is always the station-to-station path.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.polynomial import polynomial as P
+from scipy.interpolate import make_smoothing_spline
+
+from .path import PathGeometry, PathPerturbation, perturbed
+from .scenario import MotionParams, SpeedProfileParams
+
+_TABLE_N = 4001
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SpeedShape:
+    """Tabulated speed shape over u in [0, 1]: g (max 1), dg/du and G(u) = integral of g."""
+
+    u: np.ndarray
+    g: np.ndarray
+    dg: np.ndarray
+    cum: np.ndarray
+
+    @property
+    def mean(self) -> float:
+        return float(self.cum[-1])
+
+
+def compile_speed_shape(params: SpeedProfileParams) -> SpeedShape:
+    """Tabulate a speed profile description."""
+    u = np.linspace(0.0, 1.0, _TABLE_N)
+    if params.kind == "trapezoid":
+        g = np.ones_like(u)
+        a, d = params.accel_frac, params.decel_frac
+        if a > 0:
+            up = u < a
+            g[up] = 0.5 * (1.0 - np.cos(np.pi * u[up] / a))
+        if d > 0:
+            down = u > 1.0 - d
+            g[down] = 0.5 * (1.0 - np.cos(np.pi * (1.0 - u[down]) / d))
+    elif params.kind == "polynomial":
+        g = np.clip(P.polyval(u, np.asarray(params.coeffs, dtype=float)), 0.0, None)
+    else:
+        samples = np.asarray(params.samples, dtype=float)
+        us = np.linspace(0.0, 1.0, samples.size)
+        spline = make_smoothing_spline(us, samples, lam=1e-5)  # smoothed before differentiation
+        g = np.clip(spline(u), 0.0, None)
+    peak = g.max()
+    if not peak > 0:
+        raise ValueError("speed profile is zero everywhere")
+    g = g / peak
+    dg = np.gradient(g, u)
+    cum = np.concatenate([[0.0], np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(u))])
+    return SpeedShape(u=u, g=g, dg=dg, cum=cum)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RunDraw:
+    """Per-run motion factors: cruise speed and effective path length relative to nominal."""
+
+    speed_factor: float
+    length_factor: float
+
+
+def draw_run(params: MotionParams, *, rng: np.random.Generator) -> RunDraw:
+    a, b = rng.uniform(-1.0, 1.0, 2)
+    return RunDraw(speed_factor=1.0 + a * params.cruise_speed_spread_frac,
+                   length_factor=1.0 + b * params.length_spread_frac)
+
+
+def trip_duration_s(length_m: float, params: MotionParams, shape: SpeedShape, run: RunDraw) -> float:
+    """Travel time between the stations [s], without the dwells."""
+    v_c = params.cruise_speed_mps * run.speed_factor
+    return length_m * run.length_factor / (v_c * shape.mean)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Kinematics:
+    """Truth at a fixed rate: t (T,), path coordinate s (T,) [m], pos/vel/acc (T, 3) ENU."""
+
+    t_s: np.ndarray
+    s_m: np.ndarray
+    pos_enu_m: np.ndarray
+    vel_enu_mps: np.ndarray
+    acc_enu_mps2: np.ndarray
+
+
+def kinematics(geometry: PathGeometry, pert: PathPerturbation, params: MotionParams, shape: SpeedShape,
+               run: RunDraw, *, rate_hz: float, reverse: bool = False,
+               lateral_dir: np.ndarray | None = None) -> Kinematics:
+    """Sample the run at ``rate_hz`` (dwell at the start station, trip, dwell at the end station)."""
+    trip = trip_duration_s(geometry.length_m, params, shape, run)
+    total = params.dwell_start_s + trip + params.dwell_end_s
+    t = np.arange(int(np.floor(total * rate_hz)) + 1) / rate_hz
+    u = np.clip((t - params.dwell_start_s) / trip, 0.0, 1.0)
+    moving = (t > params.dwell_start_s) & (t < params.dwell_start_s + trip)
+    scale = geometry.length_m / shape.mean
+    along = scale * np.interp(u, shape.u, shape.cum)  # distance travelled [m]
+    speed = np.where(moving, scale / trip * np.interp(u, shape.u, shape.g), 0.0)
+    accel = np.where(moving, scale / trip**2 * np.interp(u, shape.u, shape.dg), 0.0)
+    if reverse:
+        s, ds, dds = geometry.length_m - along, -speed, -accel
+    else:
+        s, ds, dds = along, speed, accel
+    p, d1, d2 = perturbed(geometry, pert, s, lateral_dir)
+    vel = d1 * ds[:, None]
+    acc = d2 * (ds * ds)[:, None] + d1 * dds[:, None]
+    return Kinematics(t_s=t, s_m=s, pos_enu_m=p, vel_enu_mps=vel, acc_enu_mps2=acc)

@@ -1,0 +1,102 @@
+"""Path model: 3-D ENU geometry p(s) over arc length s in [0, L], and run-to-run perturbation.
+
+Two kinds of geometry (see :class:`~physynth.scenario.PathParams`): a polynomial in normalised arc
+length (the paper's degree-10 cable fit) and a smooth spline through waypoints, re-parameterised by
+arc length so that any site can be described. Each run perturbs the cable with a lateral offset and
+a sag change shaped as a half-sine, so both end stations stay fixed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.polynomial import polynomial as P
+from scipy.interpolate import CubicSpline
+
+from .scenario import PathParams, PerturbationParams
+
+UP = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PathGeometry:
+    """A compiled path. ``evaluate(s)`` returns p, dp/ds, d2p/ds2, each (N, 3), for s in [0, L] [m]."""
+
+    length_m: float
+    coeffs_s: np.ndarray | None = None  # (deg+1, 3) power series in s [m]
+    spline: CubicSpline | None = None  # p(s), s in [0, L]
+
+    def evaluate(self, s_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        s_m = np.asarray(s_m, dtype=np.float64)
+        if self.spline is not None:
+            return self.spline(s_m), self.spline(s_m, 1), self.spline(s_m, 2)
+        c = self.coeffs_s
+        d1 = P.polyder(c, 1, axis=0)
+        d2 = P.polyder(c, 2, axis=0)
+        return P.polyval(s_m, c).T, P.polyval(s_m, d1).T, P.polyval(s_m, d2).T
+
+    def lateral_direction(self) -> np.ndarray:
+        """Horizontal unit vector normal to the chord between the end stations (E, N, 0)."""
+        p, _, _ = self.evaluate(np.array([0.0, self.length_m]))
+        chord = p[1] - p[0]
+        h = np.hypot(chord[0], chord[1])
+        if h < 1e-9:
+            return np.array([1.0, 0.0, 0.0])
+        return np.array([-chord[1] / h, chord[0] / h, 0.0])
+
+
+def arc_length_table(points_m: np.ndarray) -> np.ndarray:
+    """Cumulative arc length [m] along a polyline (N, 3)."""
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points_m, axis=0), axis=1))])
+
+
+def compile_path(params: PathParams) -> PathGeometry:
+    """Build the geometry of a path description."""
+    if params.kind == "polynomial":
+        length = float(params.length_m)
+        c_u = np.asarray(params.coeffs_enu_m, dtype=np.float64)  # (3, deg+1), rows may differ in length
+        deg = max(len(c) for c in params.coeffs_enu_m)
+        c = np.zeros((deg, 3))
+        for k, row in enumerate(params.coeffs_enu_m):
+            c[: len(row), k] = row
+        del c_u
+        c_s = c / (length ** np.arange(deg))[:, None]  # coefficients in s = u * L
+        return PathGeometry(length_m=length, coeffs_s=c_s)
+    w = np.asarray(params.waypoints_enu_m, dtype=np.float64)
+    chord = arc_length_table(w)
+    rough = CubicSpline(chord, w, bc_type="natural") if len(w) > 2 else None
+    if rough is None:  # straight segment
+        return PathGeometry(length_m=float(chord[-1]), spline=CubicSpline(chord, w, bc_type="natural"))
+    u = np.linspace(0.0, chord[-1], max(200, 40 * len(w)))
+    dense = rough(u)
+    s = arc_length_table(dense)
+    return PathGeometry(length_m=float(s[-1]), spline=CubicSpline(s, dense, bc_type="natural"))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PathPerturbation:
+    """One run's cable deformation: offsets at mid-span [m], zero at both stations."""
+
+    lateral_m: float
+    sag_m: float
+
+
+def draw_perturbation(params: PerturbationParams, *, rng: np.random.Generator) -> PathPerturbation:
+    """Random lateral offset N(0, lateral_std_m^2) and sag change N(0, sag_std_m^2)."""
+    lat, sag = rng.standard_normal(2)
+    return PathPerturbation(lateral_m=float(lat * params.lateral_std_m), sag_m=float(sag * params.sag_std_m))
+
+
+def perturbed(geometry: PathGeometry, pert: PathPerturbation, s_m: np.ndarray,
+              lateral_dir: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """p, dp/ds, d2p/ds2 of the perturbed path: p(s) + (lat * n + sag * up) * sin(pi s / L)."""
+    p, d1, d2 = geometry.evaluate(s_m)
+    if pert.lateral_m == 0.0 and pert.sag_m == 0.0:
+        return p, d1, d2
+    n = geometry.lateral_direction() if lateral_dir is None else lateral_dir
+    offset = pert.lateral_m * n + pert.sag_m * UP
+    k = np.pi / geometry.length_m
+    arg = k * np.asarray(s_m)
+    sin, cos = np.sin(arg)[:, None], np.cos(arg)[:, None]
+    return p + sin * offset, d1 + k * cos * offset, d2 - k * k * sin * offset
