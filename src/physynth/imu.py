@@ -30,75 +30,104 @@ _BIAS_KNOT_S = 0.1  # bias random-walk knot spacing [s]
 def white_noise(n: int, density_mps2_per_sqrt_hz: np.ndarray, rate_hz: float, *,
                 rng: np.random.Generator) -> np.ndarray:
     """(n, 3) white noise with per-axis density [m s^-2 Hz^-1/2] sampled at ``rate_hz``."""
-    std = np.asarray(density_mps2_per_sqrt_hz, dtype=float) * np.sqrt(rate_hz)
-    return rng.standard_normal((n, 3)) * std
+    return _white_noise_cf(n, density_mps2_per_sqrt_hz, rate_hz, rng=rng).T
+
+
+def _white_noise_cf(n: int, density: np.ndarray, rate_hz: float, *, rng: np.random.Generator) -> np.ndarray:
+    std = np.asarray(density, dtype=float) * np.sqrt(rate_hz)
+    out = rng.standard_normal((3, n))
+    out *= std[:, None]
+    return out
+
+
+def _knots(t_s: np.ndarray, spacing_s: float) -> np.ndarray:
+    """Uniform knots covering ``t_s``, spaced by a whole number of samples close to ``spacing_s``."""
+    dt = t_s[1] - t_s[0] if t_s.shape[0] > 1 else spacing_s
+    step = max(1, int(round(spacing_s / dt))) * dt
+    n = int(np.ceil((t_s[-1] - t_s[0]) / step - 1e-9)) + 2
+    return t_s[0] + np.arange(n) * step
+
+
+def upsample_linear(values_cf: np.ndarray, factor: int) -> np.ndarray:
+    """Linear interpolation of uniform samples (C, K) by an integer factor -> (C, (K-1)*factor+1)."""
+    c, k = values_cf.shape
+    out = np.empty((c, (k - 1) * factor + 1), dtype=values_cf.dtype)
+    inner = out[:, :-1].reshape(c, k - 1, factor)
+    np.multiply(np.diff(values_cf, axis=1)[:, :, None], np.arange(factor) / factor, out=inner)
+    inner += values_cf[:, :-1, None]
+    out[:, -1] = values_cf[:, -1]
+    return out
+
+
+def resample_cf(t_s: np.ndarray, knots_t: np.ndarray, values_cf: np.ndarray) -> np.ndarray:
+    """Linear interpolation of (C, K) values on uniform knots to uniform times -> (C, N)."""
+    if t_s.shape[0] > 1 and knots_t.shape[0] > 1:
+        ratio = (knots_t[1] - knots_t[0]) / (t_s[1] - t_s[0])
+        factor = int(round(ratio))
+        if factor >= 1 and abs(ratio - factor) < 1e-9 and abs(t_s[0] - knots_t[0]) < 1e-12:
+            up = upsample_linear(values_cf, factor)
+            if up.shape[1] >= t_s.shape[0]:
+                return up[:, : t_s.shape[0]]
+    return np.stack([np.interp(t_s, knots_t, v) for v in values_cf])
 
 
 def bias_random_walk(t_s: np.ndarray, sigma_mps2_per_sqrt_s: float, initial_std_mps2: float, *,
                      rng: np.random.Generator) -> np.ndarray:
-    """(N, 3) bias random walk at times ``t_s`` (knots every 0.1 s, linear in between)."""
-    t0, t1 = float(t_s[0]), float(t_s[-1])
-    n_knots = int(np.ceil((t1 - t0) / _BIAS_KNOT_S)) + 2
-    knots_t = t0 + np.arange(n_knots) * _BIAS_KNOT_S
-    steps = rng.standard_normal((n_knots, 3)) * (sigma_mps2_per_sqrt_s * np.sqrt(_BIAS_KNOT_S))
-    steps[0] = rng.standard_normal(3) * initial_std_mps2
-    walk = np.cumsum(steps, axis=0)
-    return _interp_rows(t_s, knots_t, walk)
+    """(N, 3) bias random walk at uniform times ``t_s`` (knots every ~0.1 s, linear in between)."""
+    return _bias_cf(t_s, sigma_mps2_per_sqrt_s, initial_std_mps2, rng=rng).T
 
 
-def _interp_rows(t: np.ndarray, tk: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """Linear interpolation of (K, C) values from uniform knots ``tk`` to times ``t`` -> (N, C)."""
-    dt = tk[1] - tk[0]
-    x = (t - tk[0]) / dt
-    i = np.clip(x.astype(np.int64), 0, len(tk) - 2)
-    f = (x - i)[:, None]
-    return values[i] * (1.0 - f) + values[i + 1] * f
+def _bias_cf(t_s, sigma, initial_std, *, rng):
+    knots_t = _knots(t_s, _BIAS_KNOT_S)
+    steps = rng.standard_normal((3, knots_t.shape[0])) * (sigma * np.sqrt(knots_t[1] - knots_t[0]))
+    steps[:, 0] = rng.standard_normal(3) * initial_std
+    return resample_cf(t_s, knots_t, np.cumsum(steps, axis=1))
 
 
-def vibration(t_s: np.ndarray, params: VibrationParams, axis_gain: np.ndarray | None = None, *,
-              rng: np.random.Generator) -> np.ndarray:
+def vibration(t_s: np.ndarray, params: VibrationParams, *, rng: np.random.Generator) -> np.ndarray:
     """(N, 3) narrow-band vibration at f0 and harmonics; RMS per axis ``amplitude_mps2``.
 
-    ``t_s`` must be uniformly spaced with a rate above twice the highest harmonic.
+    ``t_s`` must be uniformly spaced; harmonics at or above its Nyquist frequency are left out.
     """
+    return _vibration_cf(t_s, params, rng=rng).T
+
+
+def _vibration_cf(t_s: np.ndarray, params: VibrationParams, *, rng: np.random.Generator) -> np.ndarray:
     n = t_s.shape[0]
     w = np.asarray(params.harmonic_weights, dtype=float)
     if params.amplitude_mps2 == 0 or n < 2 or w.sum() == 0:
-        return np.zeros((n, 3))
-    harmonics = np.arange(1, w.size + 1)
+        return np.zeros((3, n))
+    nyquist = 0.5 / (t_s[1] - t_s[0])
+    freqs = params.fundamental_hz * np.arange(1, w.size + 1)
+    w = np.where(freqs < nyquist, w, 0.0)
+    if w.sum() == 0:
+        return np.zeros((3, n))
     amp = params.amplitude_mps2 * np.sqrt(2.0 * w / w.sum())  # Re(z e^{iwt}) has variance |z|^2 / 2
-    lam = np.pi * params.bandwidth_hz  # OU rate [1/s]
-    env_rate = max(8.0 * params.bandwidth_hz, 2.0)  # envelope knots [Hz], well above its bandwidth
-    dt_env = 1.0 / env_rate
-    n_env = int(np.ceil((t_s[-1] - t_s[0]) / dt_env)) + 2
-    rho = np.exp(-lam * dt_env)
-    innov = (rng.standard_normal((n_env, w.size * 3)) + 1j * rng.standard_normal((n_env, w.size * 3)))
-    innov *= np.sqrt(0.5)
-    # exact OU recursion z_k = rho z_{k-1} + sqrt(1 - rho^2) e_k, started in its stationary law
-    scaled = innov * np.sqrt(1.0 - rho**2)
-    scaled[0] = innov[0]
-    z = lfilter([1.0], [1.0, -rho], scaled, axis=0)
-    env = _interp_rows(t_s, t_s[0] + np.arange(n_env) * dt_env, z)  # (N, H*3)
-    phase = np.exp(1j * (2.0 * np.pi * params.fundamental_hz * (t_s - t_s[0]) + rng.uniform(0, 2 * np.pi)))
-    carrier = np.ones(n, dtype=complex)
-    out = np.zeros((n, 3))
-    for h in range(w.size):  # a handful of harmonics, vectorised over time
-        carrier = carrier * phase
-        if amp[h] == 0 or harmonics[h] * params.fundamental_hz * 2.0 >= 1.0 / (t_s[1] - t_s[0]):
-            continue
-        out += amp[h] * (env[:, 3 * h:3 * h + 3] * carrier[:, None]).real
-    if axis_gain is not None:
-        out *= axis_gain
+    n_h = int(np.count_nonzero(w))
+    env_t = _knots(t_s, 1.0 / max(8.0 * params.bandwidth_hz, 2.0))  # knots well above the line width
+    rho = np.exp(-np.pi * params.bandwidth_hz * (env_t[1] - env_t[0]))  # OU rate pi * bandwidth
+    # exact complex OU recursion z_k = rho z_{k-1} + sqrt(1 - rho^2) e_k, started in its stationary law
+    innov = rng.standard_normal((2 * 3 * n_h, env_t.shape[0])) * np.sqrt(0.5)
+    innov[:, 1:] *= np.sqrt(1.0 - rho**2)
+    env = resample_cf(t_s, env_t, lfilter([1.0], [1.0, -rho], innov, axis=1))  # (2*3*H, N): re, im
+    phase0 = rng.uniform(0.0, 2.0 * np.pi, n_h)
+    out = np.zeros((3, n))
+    tau = t_s - t_s[0]
+    for j, h in enumerate(np.flatnonzero(w)):  # a handful of spectral lines, vectorised over time
+        arg = 2.0 * np.pi * freqs[h] * tau + phase0[j]
+        re, im = env[6 * j:6 * j + 3], env[6 * j + 3:6 * j + 6]
+        out += amp[h] * (re * np.cos(arg) - im * np.sin(arg))
     return out
 
 
 def simulate_imu(kin: Kinematics, params: ImuParams, *, rng: np.random.Generator) -> Imu:
     """IMU samples at ``params.rate_hz`` over the kinematics' time span (ENU, gravity-free)."""
-    slow = kin.acc_enu_mps2.copy()
-    slow += vibration(kin.t_s, params.vibration, rng=rng)
-    slow += bias_random_walk(kin.t_s, params.bias_rw_mps2_per_sqrt_s, params.bias_initial_std_mps2, rng=rng)
-    t_imu = np.arange(int(np.floor(kin.t_s[-1] * params.rate_hz)) + 1) / params.rate_hz + kin.t_s[0]
-    acc = _interp_rows(t_imu, kin.t_s, slow)
-    acc += white_noise(t_imu.shape[0], np.asarray(params.white_noise_density_mps2_per_sqrt_hz),
-                       params.rate_hz, rng=rng)
-    return Imu(t_s=t_imu, acc_mps2=acc)
+    slow = np.ascontiguousarray(kin.acc_enu_mps2.T)
+    slow += _vibration_cf(kin.t_s, params.vibration, rng=rng)
+    slow += _bias_cf(kin.t_s, params.bias_rw_mps2_per_sqrt_s, params.bias_initial_std_mps2, rng=rng)
+    t_imu = np.arange(int(np.floor((kin.t_s[-1] - kin.t_s[0]) * params.rate_hz + 1e-9)) + 1) / params.rate_hz
+    t_imu += kin.t_s[0]
+    acc = _white_noise_cf(t_imu.shape[0], np.asarray(params.white_noise_density_mps2_per_sqrt_hz),
+                          params.rate_hz, rng=rng)
+    acc += resample_cf(t_imu, kin.t_s, slow)
+    return Imu(t_s=t_imu, acc_mps2=acc.T)

@@ -1,0 +1,9 @@
+"""``physynth validate``: command registered on the main app (work in progress)."""
+
+from __future__ import annotations
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``validate`` command to the main app."""
