@@ -11,7 +11,6 @@ import sys
 from pathlib import Path
 from typing import Optional
 
-import click
 import typer
 
 from .errors import PhySynthError
@@ -137,12 +136,12 @@ def main(argv: list[str] | None = None) -> None:
         app(args=argv, standalone_mode=False)
     except PhySynthError as exc:
         _fail(str(exc))
-    except click.exceptions.Abort:
+    except typer.Abort:
         print("physynth: aborted", file=sys.stderr)
         sys.exit(130)
-    except click.ClickException as exc:  # usage errors: unknown option, bad value, missing argument
+    except typer.TyperException as exc:  # usage errors: unknown option, bad value, missing argument
         _fail(exc.format_message())
-    except click.exceptions.Exit as exc:
+    except typer.Exit as exc:
         sys.exit(exc.exit_code)
     except KeyboardInterrupt:
         print("physynth: interrupted", file=sys.stderr)
