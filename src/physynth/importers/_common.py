@@ -181,10 +181,11 @@ def read_table(path: Path, report: ReportBuilder, *, str_columns: Sequence[str] 
     """Read a CSV or Parquet table, skipping (and counting) rows that cannot be parsed.
 
     CSV rows with fewer fields than the header are skipped as ``truncated_row``, rows with more as
-    ``malformed_row``, rows holding NUL bytes as ``corrupt_row``, blank lines inside the file as
-    ``empty_row`` and rows starting with one of ``skip_prefixes`` as ``summary_row``; each count goes
-    to ``report`` under the file's name. Columns named in ``str_columns`` are read as text, the
-    others as pandas infers them (numeric conversion with counting is left to the caller).
+    ``malformed_row``, rows holding NUL bytes as ``corrupt_row``, blank lines or lines of bare
+    separators inside the file as ``empty_row`` and rows starting with one of ``skip_prefixes`` as
+    ``summary_row``; each count goes to ``report`` under the file's name. Columns named in
+    ``str_columns`` are read as text, the others as pandas infers them (numeric conversion is left to
+    the caller, which counts the resulting NaN values where it drops or flags them).
     """
     name = path.name
     if path.suffix == ".parquet":
@@ -202,7 +203,8 @@ def read_table(path: Path, report: ReportBuilder, *, str_columns: Sequence[str] 
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
-        raise RecordingError(f"{path}: not a UTF-8 text CSV file ({exc.reason} at byte {exc.start})") from None
+        raise RecordingError(
+            f"{path}: not a UTF-8 text CSV file ({exc.reason} at byte {exc.start})") from None
     lines = pd.Series(text.split("\n"), dtype=object).str.rstrip("\r")
     if len(lines) and lines.iloc[-1] == "":
         lines = lines.iloc[:-1]  # the newline that ends the last row
@@ -212,7 +214,7 @@ def read_table(path: Path, report: ReportBuilder, *, str_columns: Sequence[str] 
     body = lines.iloc[1:].astype(str)
     report.read(name, len(body))
     n_header = header.count(",") + 1
-    blank = body.str.strip() == ""
+    blank = body.str.strip(", \t") == ""  # nothing, or only separators
     corrupt = body.str.contains("\x00", regex=False) & ~blank
     summary = (body.str.startswith(tuple(skip_prefixes)) if skip_prefixes else pd.Series(False, body.index))
     summary &= ~blank & ~corrupt
@@ -365,7 +367,7 @@ def velocity_from_position(t_s: np.ndarray, pos_m: np.ndarray, *, window_s: floa
     new_seg[1:] = (np.diff(idx) > 1) | (np.diff(t_s[idx]) > max_gap_s)
     starts = np.flatnonzero(new_seg)
     ends = np.append(starts[1:], idx.size)
-    for s, e in zip(starts, ends):  # one pass per contiguous segment, vectorised inside
+    for s, e in zip(starts, ends, strict=True):  # one pass per contiguous segment, vectorised inside
         rows = idx[s:e]
         ts, ps = t_s[rows], pos_m[rows]
         if rows.size < 2:
@@ -403,7 +405,8 @@ def auto_burst_gap_s(t_s: np.ndarray, anchor: np.ndarray) -> float:
     return float(np.median(d) / 2.0) if d.size else 0.05
 
 
-def per_anchor_rate_hz(t_s: np.ndarray, anchor: np.ndarray, valid: np.ndarray, ids: Sequence[str]) -> dict[str, float]:
+def per_anchor_rate_hz(t_s: np.ndarray, anchor: np.ndarray, valid: np.ndarray,
+                       ids: Sequence[str]) -> dict[str, float]:
     """Effective rate [Hz] of valid ranges per anchor: (count - 1) / (last - first)."""
     out = {}
     for i, a in enumerate(ids):  # one pass per anchor

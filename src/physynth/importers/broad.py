@@ -1,0 +1,136 @@
+"""Importer of BROAD trials (Laidig et al., Data 6(7):72, 2021, doi:10.3390/data6070072, CC BY 4.0).
+
+Loader facts (``data/broad-imu/SOURCE.md``): MATLAB v5 files with ``imu_acc`` (N, 3) [m/s^2, sensor
+frame], ``opt_quat`` (N, 4) scalar-first ``wxyz`` orientation of the IMU relative to an ENU-like lab
+frame, ``opt_pos`` (N, 3) [m], ``movement`` (N,) false during the rest phases and ``sampling_rate``
+[Hz]. Time is the sample index over the sampling rate. Optical dropouts are NaN runs; they are masked
+(NaN IMU and truth), never filled.
+
+The world-frame, gravity-free IMU acceleration is
+
+.. math:: a_w = R(q_{wb}) f_b - \\bar g_{rest},
+
+where :math:`\\bar g_{rest}` is the mean world-frame specific force over the rest phases (it absorbs
+gravity and the sensor's bias/scale error there: 9.82-9.90 m/s^2 in magnitude, not 9.80665).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.io import loadmat
+from scipy.spatial.transform import Rotation
+
+from ..errors import RecordingError
+from ..records import Anchors, Imu, Trace, Truth, Uwb
+from ._common import ImportReport, ReportBuilder, velocity_from_position
+
+CITATION = ("D. Laidig, M. Caruso, A. Cereatti, T. Seel, BROAD - A Benchmark for Robust Inertial "
+            "Orientation Estimation, Data 6(7):72, 2021, doi:10.3390/data6070072 (CC BY 4.0)")
+_KEYS = ("imu_acc", "opt_quat", "opt_pos", "movement", "sampling_rate")
+
+
+def import_broad(mat_file: str | os.PathLike, *, velocity_window_s: float = 0.1
+                 ) -> tuple[Trace, ImportReport]:
+    """Import one BROAD trial (``.mat``) as a Trace with IMU and optical truth, and no UWB.
+
+    Parameters
+    ----------
+    mat_file
+        A BROAD ``data_mat/<trial>.mat`` file.
+    velocity_window_s
+        Savitzky-Golay window [s] for the truth velocity from the optical position.
+
+    Returns
+    -------
+    (Trace, ImportReport)
+        ``imu.acc_mps2`` (N, 3): world-frame (lab, z up) acceleration with the rest-phase gravity
+        vector removed [m/s^2]; ``truth.pos_enu_m`` = ``opt_pos`` [m]; t = index / sampling_rate [s].
+        Samples whose ``opt_quat`` or ``opt_pos`` is NaN have NaN IMU acceleration and NaN truth
+        position and velocity (counted as ``optical_dropout`` in the report). Empty UWB, no anchors.
+    """
+    path = Path(mat_file)
+    if not path.is_file():
+        raise RecordingError(f"BROAD trial file {path} does not exist")
+    try:
+        mat = loadmat(path)
+    except Exception as exc:  # noqa: BLE001 - scipy raises several types for a bad file
+        why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise RecordingError(f"{path}: cannot read MATLAB file: {why}") from None
+    missing = [k for k in _KEYS if k not in mat]
+    if missing:
+        raise RecordingError(f"{path}: missing variable(s) {', '.join(missing)} (not a BROAD trial?)")
+    acc_b = np.asarray(mat["imu_acc"], dtype=np.float64)
+    quat = np.asarray(mat["opt_quat"], dtype=np.float64)
+    pos = np.asarray(mat["opt_pos"], dtype=np.float64)
+    moving = np.asarray(mat["movement"]).reshape(-1).astype(bool)
+    rate_hz = float(np.asarray(mat["sampling_rate"], dtype=np.float64).reshape(-1)[0])
+    n = acc_b.shape[0]
+    for name, arr, width in (("imu_acc", acc_b, 3), ("opt_quat", quat, 4), ("opt_pos", pos, 3)):
+        if arr.ndim != 2 or arr.shape != (n, width):
+            raise RecordingError(f"{path}: {name} has shape {arr.shape}, expected ({n}, {width})")
+    if moving.shape != (n,):
+        raise RecordingError(f"{path}: movement has {moving.size} samples, expected {n}")
+    if not (np.isfinite(rate_hz) and rate_hz > 0):
+        raise RecordingError(f"{path}: sampling_rate {rate_hz} is not a positive number")
+
+    name = path.name
+    rep = ReportBuilder("broad", path)
+    rep.read(name, n)
+    masked = ~np.all(np.isfinite(quat), axis=1) | ~np.all(np.isfinite(pos), axis=1)
+    bad_imu = ~np.all(np.isfinite(acc_b), axis=1) & ~masked
+    rep.flag(name, "optical_dropout", int(masked.sum()))
+    rep.flag(name, "nan_imu", int(bad_imu.sum()))
+    runs = np.diff(np.concatenate([[0], masked.astype(np.int8), [0]]))
+    run_len = np.flatnonzero(runs == -1) - np.flatnonzero(runs == 1)
+    if run_len.size:
+        rep.note(f"{run_len.size} optical NaN run(s), longest {run_len.max()} samples "
+                 f"({run_len.max() / rate_hz:.2f} s); IMU and truth masked (NaN) there, not filled")
+    rep.kept(name, n)
+
+    good = ~masked
+    acc_w = np.full((n, 3), np.nan)
+    q = quat[good]
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    acc_w[good] = Rotation.from_quat(q, scalar_first=True).apply(acc_b[good])
+    rest = ~moving & np.all(np.isfinite(acc_w), axis=1)
+    if rest.sum() < 10:
+        raise RecordingError(f"{path}: fewer than 10 rest samples (movement false) with optical data; "
+                             "cannot estimate gravity")
+    g_rest = acc_w[rest].mean(axis=0)
+    acc = acc_w - g_rest
+    truth_pos = np.where(good[:, None], pos, np.nan)
+    t = np.arange(n) / rate_hz
+    vel = velocity_from_position(t, truth_pos, window_s=velocity_window_s, max_gap_s=2.0 / rate_hz)
+
+    trial = path.stem
+    info = np.asarray(mat.get("info", np.array([""]))).reshape(-1)
+    meta: dict[str, Any] = {
+        "source": "broad",
+        "run": trial,
+        "path": str(path.resolve()),
+        "citation": CITATION,
+        "info": str(info[0]) if info.size else "",
+        "time_origin_s": 0.0,
+        "time_base": "sample index / sampling_rate (t = 0 at the first sample)",
+        "sampling_rate_hz": rate_hz,
+        "frame": "optical lab frame (ENU-like, z up) [m]",
+        "imu_processing": "world frame R(opt_quat) * imu_acc minus gravity_rest_mps2 (enu-gravity-free)",
+        "gravity_rest_mps2": g_rest.tolist(),
+        "gravity_rest_norm_mps2": float(np.linalg.norm(g_rest)),
+        "n_rest_samples": int(rest.sum()),
+        "optical_dropout_samples": int(masked.sum()),
+        "truth_velocity": f"Savitzky-Golay derivative of opt_pos (window {velocity_window_s} s, order 2), "
+                          "NaN where masked",
+    }
+    trace = Trace(
+        truth=Truth(t_s=t, pos_enu_m=truth_pos, vel_enu_mps=vel),
+        uwb=Uwb(t_s=np.zeros(0), anchor=np.zeros(0, np.int16), range_m=np.zeros(0)),
+        anchors=Anchors(ids=(), pos_enu_m=np.zeros((0, 3))),
+        imu=Imu(t_s=t, acc_mps2=acc),
+        meta=meta,
+    )
+    return trace, rep.build()

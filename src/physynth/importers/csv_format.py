@@ -1,0 +1,265 @@
+"""The generic recording format: a folder of CSV (or Parquet) tables users write from their own logs.
+
+See ``docs/recording-format.md`` for the columns, units, frames and time base. In short::
+
+    rec_dir/
+      anchors.csv   anchor_id, e_m, n_m, u_m [, name]
+      uwb.csv       t_s, anchor_id, range_m [, burst]
+      truth.csv     t_s, e_m, n_m, u_m [, ve_mps, vn_mps, vu_mps]
+      imu.csv       t_s, acc_e_mps2, acc_n_mps2, acc_u_mps2     (optional; ENU, gravity removed)
+      meta.json     any JSON object                               (optional)
+
+Each ``.csv`` may instead be a ``.parquet`` of the same name and columns.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ..errors import RecordingError
+from ..records import Anchors, Imu, Trace, Truth, Uwb
+from ._common import (
+    ImportReport,
+    ReportBuilder,
+    auto_burst_gap_s,
+    check_range_metres,
+    check_seconds,
+    drop_nan_rows,
+    find_table,
+    flag_ranges,
+    gap_bursts,
+    read_table,
+    require_columns,
+    sort_and_dedupe,
+    to_float,
+    velocity_from_position,
+)
+
+ENU = ("e", "n", "u")
+MAX_GRAVITY_LEFT_MPS2 = 5.0
+"""A mean vertical acceleration above this over a whole recording means gravity was not removed."""
+MAX_PLAUSIBLE_ACC_MEDIAN_MPS2 = 500.0
+"""A median |acceleration| above this is taken as a unit mistake (mg, mm/s^2) [m/s^2]."""
+
+
+def import_csv(rec_dir: str | os.PathLike, *, velocity_window_s: float = 0.5,
+               burst_gap_s: float | None = None) -> tuple[Trace, ImportReport]:
+    """Import a recording in the generic PhySynth format (docs/recording-format.md).
+
+    Parameters
+    ----------
+    rec_dir
+        Folder holding ``anchors``, ``uwb``, ``truth`` and optionally ``imu`` tables and ``meta.json``.
+    velocity_window_s
+        Smoothing window [s] of the Savitzky-Golay differentiation used when ``truth`` has no
+        velocity columns.
+    burst_gap_s
+        A new UWB burst starts after a gap longer than this [s] (used when ``uwb`` has no ``burst``
+        column). Default: half the median interval between consecutive ranges of the same anchor.
+
+    Returns
+    -------
+    (Trace, ImportReport)
+        Times are shifted so that the first kept truth sample is t = 0; the original time of that
+        sample is ``trace.meta["time_origin_s"]``.
+
+    Raises
+    ------
+    RecordingError
+        One line naming the file and the problem (missing file or column, unit mistake, anchor
+        without coordinates, UWB rows of an unknown anchor, tables that do not overlap in time).
+    """
+    rec = Path(rec_dir)
+    if not rec.exists():
+        raise RecordingError(f"recording folder {rec} does not exist")
+    if not rec.is_dir():
+        raise RecordingError(f"{rec} is not a folder (a recording is a folder of CSV/Parquet tables)")
+    rep = ReportBuilder("csv", rec)
+
+    anchors = _read_anchors(find_table(rec, "anchors", required=True), rep)
+    truth_path = find_table(rec, "truth", required=True)
+    t_truth, pos, vel = _read_truth(truth_path, rep)
+    uwb_path = find_table(rec, "uwb", required=True)
+    t_uwb, anchor, range_m, burst = _read_uwb(uwb_path, anchors, rep)
+    imu_path = find_table(rec, "imu", required=False)
+    imu_tab = _read_imu(imu_path, rep) if imu_path is not None else None
+    user_meta = _read_meta(rec / "meta.json")
+
+    t0 = float(t_truth[0])
+    t_truth = t_truth - t0
+    t_uwb = t_uwb - t0
+    _check_overlap(uwb_path, t_uwb, truth_path, t_truth)
+    meta: dict[str, Any] = {
+        "source": "csv",
+        "recording": rec.name,
+        "path": str(rec.resolve()),
+        "time_origin_s": t0,
+        "time_base": "t_s of the input tables minus time_origin_s (first kept truth sample at t = 0)",
+        "frame": "ENU [m] as given in the recording",
+    }
+    if vel is None:
+        vel = velocity_from_position(t_truth, pos, window_s=velocity_window_s)
+        meta["truth_velocity"] = (f"Savitzky-Golay derivative of position (window {velocity_window_s} s, "
+                                  "order 2)")
+    else:
+        meta["truth_velocity"] = "given in truth table"
+    if burst is None:
+        gap = burst_gap_s if burst_gap_s is not None else auto_burst_gap_s(t_uwb, anchor)
+        burst = gap_bursts(t_uwb, gap)
+        meta["uwb_burst"] = f"gap-based grouping, new burst after a gap > {gap:.4g} s"
+    else:
+        meta["uwb_burst"] = "given in uwb table"
+
+    imu = None
+    if imu_tab is not None:
+        t_imu, acc = imu_tab
+        t_imu = t_imu - t0
+        _check_overlap(imu_path, t_imu, truth_path, t_truth)
+        imu = Imu(t_s=t_imu, acc_mps2=acc)
+        meta["imu_processing"] = "as given: ENU, gravity removed (recording format)"
+    n_out = int(np.count_nonzero((t_uwb < t_truth[0]) | (t_uwb > t_truth[-1])))
+    if n_out:
+        rep.note(f"{n_out} UWB row(s) lie outside the truth time span (kept; no residual for them)")
+    if user_meta is not None:
+        meta["recording_meta"] = user_meta
+
+    trace = Trace(
+        truth=Truth(t_s=t_truth, pos_enu_m=pos, vel_enu_mps=vel),
+        uwb=Uwb(t_s=t_uwb, anchor=anchor, range_m=range_m, burst=burst),
+        anchors=anchors,
+        imu=imu,
+        meta=meta,
+    )
+    return trace, rep.build()
+
+
+def _read_anchors(path: Path, rep: ReportBuilder) -> Anchors:
+    df = read_table(path, rep, str_columns=("anchor_id", "name"))
+    cols = [f"{c}_m" for c in ENU]
+    require_columns(df, path, ["anchor_id", *cols])
+    df = to_float(df, cols)
+    ids = df["anchor_id"].astype("string").str.strip()
+    if ids.isna().any() or (ids == "").any():
+        raise RecordingError(f"{path}: {int((ids.isna() | (ids == '')).sum())} row(s) without anchor_id")
+    df = df.assign(anchor_id=ids.astype(str))
+    no_xyz = df[cols].isna().any(axis=1)
+    if no_xyz.any():
+        bad = ", ".join(df.loc[no_xyz, "anchor_id"].astype(str).unique()[:5])
+        raise RecordingError(f"{path}: anchor(s) {bad} have no coordinates "
+                             "(e_m, n_m, u_m empty or not a number)")
+    exact = df.duplicated(subset=["anchor_id", *cols], keep="first")
+    rep.drop(path.name, "duplicate_row", int(exact.sum()))
+    df = df.loc[~exact]
+    dup = df["anchor_id"].duplicated(keep=False)
+    if dup.any():
+        raise RecordingError(f"{path}: anchor id {df.loc[dup, 'anchor_id'].iloc[0]} appears more than once "
+                             "with different coordinates")
+    if df.empty:
+        raise RecordingError(f"{path}: no anchors")
+    names: tuple[str, ...] = ()
+    if "name" in df.columns:
+        nm = df["name"].astype("string").fillna("").str.strip()
+        names = tuple(np.where(nm == "", df["anchor_id"], nm).tolist())
+    rep.kept(path.name, len(df))
+    return Anchors(ids=tuple(df["anchor_id"].tolist()), names=names, pos_enu_m=df[cols].to_numpy())
+
+
+def _read_truth(path: Path, rep: ReportBuilder) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    df = read_table(path, rep)
+    pos_cols = [f"{c}_m" for c in ENU]
+    vel_cols = [f"v{c}_mps" for c in ENU]
+    require_columns(df, path, ["t_s", *pos_cols], optional=vel_cols)
+    has_vel = [c in df.columns for c in vel_cols]
+    if any(has_vel) and not all(has_vel):
+        missing = [c for c, h in zip(vel_cols, has_vel, strict=True) if not h]
+        raise RecordingError(f"{path}: velocity columns are incomplete (missing {', '.join(missing)}); "
+                             "give all of ve_mps, vn_mps, vu_mps or none")
+    num = ["t_s", *pos_cols, *(vel_cols if all(has_vel) else [])]
+    df = to_float(df, num)
+    check_seconds(df["t_s"].to_numpy(), path, "t_s")
+    df = drop_nan_rows(df, num, path.name, rep)
+    df = sort_and_dedupe(df[num], ["t_s"], path.name, rep)
+    if len(df) < 2:
+        raise RecordingError(f"{path}: fewer than 2 usable truth rows")
+    rep.kept(path.name, len(df))
+    vel = df[vel_cols].to_numpy() if all(has_vel) else None
+    return df["t_s"].to_numpy(), df[pos_cols].to_numpy(), vel
+
+
+def _read_uwb(path: Path, anchors: Anchors, rep: ReportBuilder
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    df = read_table(path, rep, str_columns=("anchor_id",))
+    require_columns(df, path, ["t_s", "anchor_id", "range_m"])
+    has_burst = "burst" in df.columns
+    df = to_float(df, ["t_s", "range_m", *(["burst"] if has_burst else [])])
+    check_seconds(df["t_s"].to_numpy(), path, "t_s")
+    check_range_metres(df["range_m"].to_numpy(), path, "range_m")
+    df = drop_nan_rows(df, ["t_s"], path.name, rep, reason="nan_time")
+    ids = df["anchor_id"].astype("string").str.strip()
+    no_id = ids.isna() | (ids == "")
+    rep.drop(path.name, "missing_anchor_id", int(no_id.sum()))
+    df, ids = df.loc[~no_id], ids[~no_id].astype(str)
+    lookup = pd.Series(np.arange(len(anchors)), index=list(anchors.ids))
+    idx = ids.map(lookup)
+    if idx.isna().any():
+        unknown = sorted(ids[idx.isna()].unique())
+        raise RecordingError(f"{path}: {int(idx.isna().sum())} row(s) refer to anchor(s) "
+                             f"{', '.join(unknown[:5])} that anchors table does not define")
+    cols = ["t_s", "anchor", "range_m", *(["burst"] if has_burst else [])]
+    df = df.assign(anchor=idx.astype(np.int16).to_numpy())[cols]
+    df = sort_and_dedupe(df, ["t_s", "anchor"], path.name, rep)
+    range_m = flag_ranges(df["range_m"].to_numpy(), path.name, rep)
+    rep.kept(path.name, len(df))
+    burst = df["burst"].fillna(-1).to_numpy().astype(np.int64) if has_burst else None
+    return df["t_s"].to_numpy(), df["anchor"].to_numpy(), range_m, burst
+
+
+def _read_imu(path: Path, rep: ReportBuilder) -> tuple[np.ndarray, np.ndarray]:
+    df = read_table(path, rep)
+    acc_cols = [f"acc_{c}_mps2" for c in ENU]
+    require_columns(df, path, ["t_s", *acc_cols])
+    df = to_float(df, ["t_s", *acc_cols])
+    check_seconds(df["t_s"].to_numpy(), path, "t_s")
+    df = drop_nan_rows(df, ["t_s", *acc_cols], path.name, rep)
+    df = sort_and_dedupe(df[["t_s", *acc_cols]], ["t_s"], path.name, rep)
+    if df.empty:
+        raise RecordingError(f"{path}: no usable IMU rows")
+    acc = df[acc_cols].to_numpy()
+    med = float(np.median(np.linalg.norm(acc, axis=1)))
+    if med > MAX_PLAUSIBLE_ACC_MEDIAN_MPS2:
+        raise RecordingError(f"{path}: median |acceleration| {med:.4g} is implausible for m/s^2 "
+                             "(milli-g or mm/s^2?); convert to m/s^2")
+    mean_u = float(np.mean(acc[:, 2]))
+    if abs(mean_u) > MAX_GRAVITY_LEFT_MPS2:
+        raise RecordingError(f"{path}: acc_u_mps2 averages {mean_u:.3g} m/s^2, so gravity is not removed; "
+                             "PhySynth expects gravity-free ENU acceleration")
+    rep.kept(path.name, len(df))
+    return df["t_s"].to_numpy(), acc
+
+
+def _read_meta(path: Path) -> dict[str, Any] | None:
+    if not path.is_file():
+        return None
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RecordingError(f"{path}: cannot read file: {exc}") from None
+    except json.JSONDecodeError as exc:
+        raise RecordingError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    if not isinstance(meta, dict):
+        raise RecordingError(f"{path}: must hold a JSON object")
+    return meta
+
+
+def _check_overlap(path: Path, t: np.ndarray, truth_path: Path, t_truth: np.ndarray) -> None:
+    if t.size and not np.any((t >= t_truth[0]) & (t <= t_truth[-1])):
+        raise RecordingError(
+            f"{path}: times {t[0]:.6g}..{t[-1]:.6g} s do not overlap {truth_path.name} "
+            f"({t_truth[0]:.6g}..{t_truth[-1]:.6g} s after the origin); "
+            "are both in the same time base and in seconds?")
