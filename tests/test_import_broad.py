@@ -1,0 +1,127 @@
+"""BROAD IMU trial importer, on the real trials in ../shared/data/broad-imu."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.io import loadmat, savemat
+from scipy.signal import butter, filtfilt
+
+from physynth.errors import DatasetError, RecordingError
+from physynth.importers import import_broad
+from physynth.io import read_dataset, write_dataset
+
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "broad-imu" / "data_mat"
+TRIAL15 = DATA / "15_undisturbed_fast_translation_A.mat"
+pytestmark = pytest.mark.skipif(not TRIAL15.is_file(), reason=f"real BROAD data not found at {DATA}")
+
+
+@pytest.fixture(scope="module")
+def trial15():
+    trace, report = import_broad(TRIAL15)
+    moving = loadmat(TRIAL15)["movement"].reshape(-1).astype(bool)
+    return trace, report, moving
+
+
+def test_layout_and_time(trial15):
+    trace, report, moving = trial15
+    n = moving.size
+    rate = trace.meta["sampling_rate_hz"]
+    assert rate == pytest.approx(285.714, rel=1e-4)
+    assert trace.imu is not None and trace.imu.t_s.size == n == trace.truth.t_s.size
+    np.testing.assert_allclose(np.diff(trace.imu.t_s), 1.0 / rate)
+    assert trace.imu.t_s[0] == 0.0
+    assert len(trace.uwb) == 0 and len(trace.anchors) == 0
+    assert trace.meta["source"] == "broad" and trace.meta["run"] == TRIAL15.stem
+    assert report.rows_read[TRIAL15.name] == n
+
+
+def test_gravity_estimated_from_rest_and_removed(trial15):
+    trace, _, moving = trial15
+    g = np.array(trace.meta["gravity_rest_mps2"])
+    assert 9.80 < np.linalg.norm(g) < 9.95 and abs(g[2]) > 9.8  # SOURCE.md: 9.82-9.90, not 9.80665
+    acc = trace.imu.acc_mps2
+    rest = ~moving & np.all(np.isfinite(acc), axis=1)
+    np.testing.assert_allclose(acc[rest].mean(axis=0), 0.0, atol=1e-9)
+    # the start and end rest phases each read ~0 on their own (orientation used, not a fixed vector)
+    half = moving.size // 2
+    for part in (slice(0, half), slice(half, None)):
+        sel = rest.copy()
+        sel[part] = False
+        assert np.all(np.abs(acc[sel].mean(axis=0)) < 0.05)
+
+
+def test_optical_dropouts_are_masked_not_filled(trial15):
+    trace, report, _ = trial15
+    raw = loadmat(TRIAL15)
+    masked = np.isnan(raw["opt_quat"]).any(axis=1) | np.isnan(raw["opt_pos"]).any(axis=1)
+    assert masked.sum() > 0
+    assert report.flagged[TRIAL15.name]["optical_dropout"] == masked.sum()
+    assert trace.meta["optical_dropout_samples"] == masked.sum()
+    assert np.isnan(trace.imu.acc_mps2[masked]).all()
+    assert np.isnan(trace.truth.pos_enu_m[masked]).all()
+    assert np.isnan(trace.truth.vel_enu_mps[masked]).all()
+    assert np.isfinite(trace.imu.acc_mps2[~masked]).all()
+    assert np.isfinite(trace.truth.pos_enu_m[~masked]).all()
+    assert any("NaN run" in n for n in report.notes)
+
+
+def test_imu_agrees_with_double_differentiated_optical_position(trial15):
+    trace, _, moving = trial15
+    t, fs = trace.imu.t_s, trace.meta["sampling_rate_hz"]
+    ok = np.all(np.isfinite(trace.truth.pos_enu_m), axis=1)
+    pos = np.stack([np.interp(t, t[ok], trace.truth.pos_enu_m[ok, k]) for k in range(3)], axis=1)
+    acc = np.stack([np.interp(t, t[ok], trace.imu.acc_mps2[ok, k]) for k in range(3)], axis=1)
+    b, a = butter(4, 10.0 / (fs / 2.0))
+    acc_lp = filtfilt(b, a, acc, axis=0)
+    dd = np.gradient(np.gradient(filtfilt(b, a, pos, axis=0), t, axis=0), t, axis=0)
+    sel = moving & ok
+    for k in range(3):
+        assert np.corrcoef(acc_lp[sel, k], dd[sel, k])[0, 1] > 0.9
+    # the remaining difference is the IMU error (SOURCE.md: 0.1-0.4 m/s^2 per axis)
+    assert np.all((acc_lp - dd)[sel].std(axis=0) < 0.6)
+
+
+def test_truth_velocity_matches_differentiated_position(trial15):
+    trace, _, moving = trial15
+    v = trace.truth.vel_enu_mps
+    t = trace.truth.t_s
+    fd = np.gradient(trace.truth.pos_enu_m, t, axis=0)
+    sel = moving & np.all(np.isfinite(v), axis=1) & np.all(np.isfinite(fd), axis=1)
+    for k in range(3):
+        assert np.corrcoef(v[sel, k], fd[sel, k])[0, 1] > 0.95
+
+
+def test_write_dataset(tmp_path, trial15):
+    trace, report, _ = trial15
+    path = write_dataset(tmp_path / "ds", [trace], meta={"kind": "real", "import_report": [report.to_dict()]})
+    assert (path / "imu.parquet").is_file()
+
+
+@pytest.mark.xfail(reason="io.dataset.read_dataset rejects a trace without anchors (IMU-only recording)",
+                   raises=DatasetError, strict=False)
+def test_dataset_round_trip(tmp_path, trial15):
+    trace, _, _ = trial15
+    back = read_dataset(write_dataset(tmp_path / "ds", [trace])).traces[0]
+    np.testing.assert_array_equal(back.imu.acc_mps2, trace.imu.acc_mps2)
+
+
+def test_bad_files(tmp_path):
+    with pytest.raises(RecordingError, match="does not exist"):
+        import_broad(tmp_path / "nope.mat")
+    junk = tmp_path / "junk.mat"
+    junk.write_bytes(b"this is not a MATLAB file")
+    with pytest.raises(RecordingError, match=r"junk\.mat: cannot read MATLAB file"):
+        import_broad(junk)
+    partial = tmp_path / "partial.mat"
+    savemat(partial, {"imu_acc": np.zeros((10, 3)), "sampling_rate": 100.0})
+    with pytest.raises(RecordingError,
+                       match=r"partial\.mat: missing variable\(s\) opt_quat, opt_pos, movement"):
+        import_broad(partial)
+    moving = tmp_path / "always_moving.mat"
+    savemat(moving, {"imu_acc": np.zeros((50, 3)), "opt_quat": np.tile([1.0, 0, 0, 0], (50, 1)),
+                     "opt_pos": np.zeros((50, 3)), "movement": np.ones(50, np.uint8), "sampling_rate": 100.0})
+    with pytest.raises(RecordingError, match="cannot estimate gravity"):
+        import_broad(moving)
