@@ -92,6 +92,13 @@ COMMON_IMU = {
 }
 
 
+# Heavy-NLOS anchors (A103, A105, A107; the paper's Fig. 5): a bimodal offset, a tight cluster near +16 m
+# and a wide cluster of gross errors of both signs, solved so that the pooled residual std, signed median,
+# |r| P95 and P99 land on the real descending column of Table II.
+HEAVY_NLOS = {"nlos_prob": 0.43, "nlos_modes": [{"weight": 0.23, "mean_m": -5.5, "std_m": 11.9},
+                                                {"weight": 0.77, "mean_m": 15.8, "std_m": 2.5}]}
+
+
 def descending(coeffs, positions) -> dict:
     return {
         "name": "cablecar-descending",
@@ -105,25 +112,26 @@ def descending(coeffs, positions) -> dict:
                                # with a plateau: g = 1 - (1 - 2u)^4
                                "coeffs": [0.0, 8.0, -24.0, 32.0, -16.0]}},
         "imu": COMMON_IMU,
-        "uwb": {"burst_rate_hz": 23.0, "burst_jitter_s": 0.003, "slot_s": 0.0015, "time_offset_s": 0.0,
+        "uwb": {"burst_rate_hz": 23.0, "burst_jitter_s": 0.003, "slot_s": 0.0005, "time_offset_s": 0.0,
                 "nlos_dwell_s": 0.6,
                 "zones": [{"s_m": 390.0, "half_width_m": 35.0, "nlos_prob": 0.5, "label": "support pylon"}]},
         "anchors": [{"id": a, "pos_enu_m": p} for a, p in positions.items()],
-        "channel": {"rate_hz": 18.5, "los_mean_m": 0.45, "los_std_m": 0.6, "range_bias_per_m": 0.0,
+        "channel": {"rate_hz": 18.5, "los_mean_m": 0.56, "los_std_m": 0.96, "range_bias_per_m": 0.0,
                     "nlos_prob": 0.06, "nlos_modes": [{"weight": 1.0, "mean_m": 3.0, "std_m": 1.5}],
-                    "max_range_m": 150.0, "edge_width_m": 10.0},
+                    "max_range_m": 500.0, "edge_width_m": 10.0},
         "channel_per_anchor": {
-            "A101": {"rate_hz": 17.2},
-            "A103": {"rate_hz": 18.0, "nlos_prob": 0.35, "nlos_modes": [
-                {"weight": 0.3, "mean_m": 4.0, "std_m": 2.0}, {"weight": 0.7, "mean_m": 17.0, "std_m": 3.0}]},
-            "A105": {"rate_hz": 18.8, "nlos_prob": 0.35, "nlos_modes": [
-                {"weight": 0.3, "mean_m": 4.0, "std_m": 2.0}, {"weight": 0.7, "mean_m": 17.0, "std_m": 3.0}]},
+            "A101": {"rate_hz": 17.2, "max_range_m": 250.0},
+            "A103": {"rate_hz": 18.0, **HEAVY_NLOS},
+            "A105": {"rate_hz": 18.8, **HEAVY_NLOS},
             "A106": {"rate_hz": 19.4},
-            "A107": {"rate_hz": 19.8, "nlos_prob": 0.35, "nlos_modes": [
-                {"weight": 0.3, "mean_m": 4.0, "std_m": 2.0}, {"weight": 0.7, "mean_m": 17.0, "std_m": 3.0}]},
-            "A108": {"rate_hz": 17.6},
+            "A107": {"rate_hz": 19.8, **HEAVY_NLOS},
+            "A108": {"rate_hz": 17.6, "max_range_m": 250.0},
         },
-        "availability": {"dropout_prob": 0.04, "outage_onset_prob": 0.003, "outage_mean_s": 16.0},
+        # paper defaults (p_d, p_o, 16 s); the three best-heard anchors have fewer outages (the paper
+        # calibrates availability per anchor), and a tag-level outage process makes all-anchor gaps
+        "availability": {"dropout_prob": 0.04, "outage_onset_prob": 0.003, "outage_mean_s": 16.0,
+                         "tag_outage_onset_prob": 0.0006, "tag_outage_mean_s": 20.0},
+        "availability_per_anchor": {a: {"outage_onset_prob": 0.002} for a in ("A105", "A106", "A107")},
         "truth_rate_hz": 100.0,
         "grid_rate_hz": 100.0,
     }
@@ -135,9 +143,13 @@ def ascending(coeffs, positions) -> dict:
     d["description"] = ("Same cable car, valley to mountain; same IMU/availability parameters, LOS-dominated "
                         "channel tuned to the paper's real ascending run (Table II).")
     d["path"]["reverse"] = True
+    d["motion"]["cruise_speed_mps"] = 7.89  # the ascending run is slower: 113.1 s against 102.1 s
     d["channel"] = {**d["channel"], "los_mean_m": 0.22, "los_std_m": 0.3, "nlos_prob": 0.03,
-                    "nlos_modes": [{"weight": 1.0, "mean_m": 0.9, "std_m": 0.3}]}
-    d["channel_per_anchor"] = {a: {"rate_hz": v["rate_hz"]} for a, v in d["channel_per_anchor"].items()}
+                    "nlos_modes": [{"weight": 0.88, "mean_m": 0.9, "std_m": 0.3},
+                                   {"weight": 0.12, "mean_m": 4.0, "std_m": 1.5}]}
+    d["availability"] = {**d["availability"], "tag_outage_onset_prob": 0.0005}
+    d["channel_per_anchor"] = {a: {k: v[k] for k in ("rate_hz", "max_range_m") if k in v}
+                               for a, v in d["channel_per_anchor"].items()}
     d["uwb"]["zones"] = [{"s_m": 390.0, "half_width_m": 35.0, "nlos_prob": 0.1, "label": "support pylon"}]
     return d
 

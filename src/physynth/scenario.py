@@ -185,11 +185,18 @@ class ChannelOverride(_Model):
 
 
 class AvailabilityParams(_Model):
-    """Per-anchor per-burst dropout, outage onset per burst, outage durations [s]."""
+    """Per-anchor per-burst dropout, outage onset per burst, outage durations [s].
+
+    ``tag_outage_*`` is an optional outage process of the tag itself (antenna shadowed by the carrier,
+    radio reset): while it lasts no anchor is heard. Real recordings show such all-anchor gaps
+    (Hanyang LOS Case_2 loses every anchor for ~22 s); per-anchor outages alone cannot make them.
+    """
 
     dropout_prob: Probability = 0.04
     outage_onset_prob: Probability = 0.003
     outage_mean_s: PositiveFloat = 16.0
+    tag_outage_onset_prob: Probability = 0.0
+    tag_outage_mean_s: PositiveFloat = 16.0
     start_stationary: bool = True
 
 

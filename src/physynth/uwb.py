@@ -148,13 +148,18 @@ def simulate_uwb(kin: Kinematics, scn: Scenario, ch: ChannelArrays, *, rng: np.r
     los_err = (ch.los_mean_m[anchor] + ch.range_bias_per_m[anchor] * true_range
                + ch.los_std_m[anchor] * rng.standard_normal(t_true.shape[0]))
     nlos_err = sample_nlos_offset(anchor, ch, rng=rng)
-    measured = true_range + np.where(nlos, nlos_err, los_err)
+    measured = np.maximum(true_range + np.where(nlos, nlos_err, los_err), 0.0)  # a range is never negative
 
     outage = np.zeros(t_true.shape[0], dtype=bool)
     for i in range(n_anchors):  # one outage process per anchor
         rows = np.flatnonzero(anchor == i)
         outage[rows] = outage_mask(t_true[rows], ch.outage_onset_prob[i], u.burst_rate_hz, ch.outage_mean_s[i],
                                    start_stationary=scn.availability.start_stationary, rng=rng_availability)
+    av = scn.availability
+    if av.tag_outage_onset_prob > 0:  # one process for the tag, applied to every anchor of a burst
+        tag_out = outage_mask(bursts, av.tag_outage_onset_prob, u.burst_rate_hz, av.tag_outage_mean_s,
+                              start_stationary=av.start_stationary, rng=rng_availability)
+        outage |= tag_out[b_idx]
     dropped = rng_availability.random(t_true.shape[0]) < ch.dropout_prob[anchor]
 
     reason = np.full(t_true.shape[0], Reason.OK, dtype=np.int8)
