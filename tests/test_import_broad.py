@@ -9,7 +9,7 @@ import pytest
 from scipy.io import loadmat, savemat
 from scipy.signal import butter, filtfilt
 
-from physynth.errors import DatasetError, RecordingError
+from physynth.errors import RecordingError
 from physynth.importers import import_broad
 from physynth.io import read_dataset, write_dataset
 
@@ -100,12 +100,12 @@ def test_write_dataset(tmp_path, trial15):
     assert (path / "imu.parquet").is_file()
 
 
-@pytest.mark.xfail(reason="io.dataset.read_dataset rejects a trace without anchors (IMU-only recording)",
-                   raises=DatasetError, strict=False)
 def test_dataset_round_trip(tmp_path, trial15):
     trace, _, _ = trial15
     back = read_dataset(write_dataset(tmp_path / "ds", [trace])).traces[0]
     np.testing.assert_array_equal(back.imu.acc_mps2, trace.imu.acc_mps2)
+    np.testing.assert_array_equal(back.truth.pos_enu_m, trace.truth.pos_enu_m)
+    assert len(back.anchors) == 0 and len(back.uwb) == 0
 
 
 def test_bad_files(tmp_path):

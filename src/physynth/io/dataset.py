@@ -273,10 +273,12 @@ def _read_table(path: Path, name: str) -> dict[str, np.ndarray]:
 
 def _split(cols: dict[str, np.ndarray]) -> dict[int, dict[str, np.ndarray]]:
     trace = cols["trace"]
+    if trace.size == 0:
+        return {}
     order = np.argsort(trace, kind="stable")
     keys, starts = np.unique(trace[order], return_index=True)
     ends = np.append(starts[1:], trace.size)
-    return {int(k): {c: v[order[s:e]] for c, v in cols.items()} for k, s, e in zip(keys, starts, ends)}
+    return {int(k): {c: v[order[s:e]] for c, v in cols.items()} for k, s, e in zip(keys, starts, ends, strict=True)}
 
 
 def read_dataset(path: str | os.PathLike) -> Dataset:
@@ -288,10 +290,11 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
     traces = []
     for idx in sorted(parts["truth"]):
         tr, an = parts["truth"][idx], parts["anchors"].get(idx)
-        if an is None:
-            raise DatasetError(f"dataset {path}: trace {idx} has no anchors")
-        anchors = Anchors(ids=tuple(an["anchor_id"]), names=tuple(an["name"]),
-                          pos_enu_m=np.stack([an[f"pos_{c}_m"] for c in "enu"], axis=1))
+        if an is None:  # an IMU-only recording (e.g. BROAD) has no anchors
+            anchors = Anchors(ids=(), pos_enu_m=np.zeros((0, 3)))
+        else:
+            anchors = Anchors(ids=tuple(an["anchor_id"]), names=tuple(an["name"]),
+                              pos_enu_m=np.stack([an[f"pos_{c}_m"] for c in "enu"], axis=1))
         truth = Truth(t_s=tr["t_s"], pos_enu_m=np.stack([tr[f"pos_{c}_m"] for c in "enu"], axis=1),
                       vel_enu_mps=np.stack([tr[f"vel_{c}_mps"] for c in "enu"], axis=1))
         im = parts["imu"].get(idx)

@@ -1,0 +1,28 @@
+# Two commands do all the set-up on a fresh machine (Python >= 3.10 with venv):
+#   make run    create .venv, install PhySynth, generate 20 traces of the default preset, print their metrics
+#   make test   create .venv, install PhySynth with its test extras, run the test suite
+PYTHON ?= python3
+VENV   ?= .venv
+BIN     = $(VENV)/bin
+
+.PHONY: run test bench clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+
+run: $(BIN)/python
+	$(BIN)/pip install --quiet -e .
+	$(BIN)/physynth generate --scenario cablecar-descending -n 20 --seed 2026 --out runs/default --overwrite
+	$(BIN)/physynth inspect runs/default
+
+test: $(BIN)/python
+	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/python -m pytest -q
+
+bench: $(BIN)/python
+	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/python benchmarks/bench_generate.py
+
+clean:
+	rm -rf $(VENV) runs build *.egg-info src/*.egg-info
