@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -42,7 +41,7 @@ def generate(
     scenario: str = typer.Option("cablecar-descending", "--scenario", "-s",
                                  help="Preset name or path to a scenario YAML file."),
     n: int = typer.Option(20, "-n", "--n-traces", help="Number of traces to generate."),
-    seed: Optional[int] = typer.Option(None, "--seed", help="Root seed (random when omitted; stored)."),
+    seed: int | None = typer.Option(None, "--seed", help="Root seed (random when omitted; stored)."),
     out: Path = typer.Option(Path("runs/default"), "--out", "-o", help="Output dataset directory."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
@@ -132,6 +131,9 @@ def _fail(message: str) -> None:
 def main(argv: list[str] | None = None) -> None:
     """Entry point: run the app, turning user mistakes into one line on stderr and exit code 2."""
     _register_optional_groups()
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv:
+        argv = ["--help"]
     try:
         app(args=argv, standalone_mode=False)
     except PhySynthError as exc:

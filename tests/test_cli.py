@@ -1,0 +1,92 @@
+"""The command line: exit codes, one-line errors, JSON output, progress-free quiet mode."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+import yaml
+
+from physynth.cli import main
+from physynth.io import read_dataset
+from physynth.metrics import METRIC_KEYS, compute_metrics
+from physynth.scenario import load_scenario, scenario_to_dict
+
+
+def run(capsys, *args):
+    with pytest.raises(SystemExit) as exc:
+        main([*map(str, args)])
+        raise SystemExit(0)
+    out = capsys.readouterr()
+    return exc.value.code or 0, out.out, out.err
+
+
+def test_generate_then_inspect_json(tmp_path, capsys):
+    code, out, _ = run(capsys, "generate", "-n", 2, "--seed", 5, "--out", tmp_path / "ds", "--quiet")
+    assert code == 0
+    code, out, _ = run(capsys, "inspect", tmp_path / "ds", "--json")
+    assert code == 0
+    d = json.loads(out)
+    assert set(d) == set(METRIC_KEYS) | {"per_anchor"}
+    assert len(d["imu_std_mps2"]) == 3
+    m = compute_metrics(read_dataset(tmp_path / "ds").traces)
+    assert d["uwb_ge1_frac"] == pytest.approx(m.uwb_ge1_frac)
+    assert set(d["per_anchor"]) == {"A101", "A103", "A105", "A106", "A107", "A108"}
+    code, out, _ = run(capsys, "inspect", tmp_path / "ds")
+    assert code == 0 and "uwb_ge1_frac" in out
+
+
+def test_generate_refuses_to_overwrite(tmp_path, capsys):
+    assert run(capsys, "generate", "-n", 1, "--out", tmp_path / "ds", "-q")[0] == 0
+    code, _, err = run(capsys, "generate", "-n", 1, "--out", tmp_path / "ds", "-q")
+    assert code == 2 and err.count("\n") == 1 and "already exists" in err
+    assert run(capsys, "generate", "-n", 1, "--out", tmp_path / "ds", "-q", "--overwrite")[0] == 0
+
+
+@pytest.mark.parametrize(("args", "needle"), [
+    (["generate", "-n", "0"], "-n must be at least 1"),
+    (["generate", "--scenario", "no-such-preset"], "unknown scenario"),
+    (["generate", "-n", "many"], "--n-traces"),
+    (["generate", "--frobnicate"], "No such option"),
+    (["inspect", "/nonexistent/dataset"], "does not exist"),
+    (["scenario", "show", "nope"], "unknown scenario"),
+])
+def test_user_mistakes_exit_2_with_one_line(tmp_path, capsys, args, needle):
+    code, out, err = run(capsys, *args)
+    assert code == 2
+    assert err.count("\n") == 1 and needle in err and "Traceback" not in err
+
+
+def test_bad_scenario_file(tmp_path, capsys):
+    bad = tmp_path / "bad.yaml"
+    d = scenario_to_dict(load_scenario("cablecar-descending"))
+    d["channel"]["los_std_m"] = -1
+    bad.write_text(yaml.safe_dump(d))
+    code, _, err = run(capsys, "generate", "--scenario", bad, "--out", tmp_path / "x", "-q")
+    assert code == 2 and "channel.los_std_m" in err and err.count("\n") == 1
+    assert not (tmp_path / "x").exists()
+
+
+def test_scenarios_and_show(capsys):
+    code, out, _ = run(capsys, "scenarios")
+    assert code == 0 and "cablecar-descending" in out and "cablecar-ascending" in out
+    code, out, _ = run(capsys, "scenario", "show", "cablecar-ascending")
+    assert code == 0
+    assert yaml.safe_load(out)["path"]["reverse"] is True
+
+
+def test_no_arguments_prints_help(capsys):
+    code, out, _ = run(capsys)
+    assert code == 0 and "generate" in out and "inspect" in out
+
+
+def test_console_script_entry_point(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "physynth.cli", "generate", "-n", "1", "--seed", "1", "--out",
+                           str(tmp_path / "ds")], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "wrote 1 trace" in proc.stdout
+    proc = subprocess.run([sys.executable, "-m", "physynth.cli", "inspect", str(tmp_path / "missing")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0 and "Traceback" not in proc.stderr

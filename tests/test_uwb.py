@@ -1,0 +1,159 @@
+"""UWB ranging and availability models against their analytic laws."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from helpers import binomial_tol, simple_scenario
+
+from physynth.availability import alternating_renewal, outage_mask, stationary_availability
+from physynth.generate import compile_scenario, generate_trace
+from physynth.records import Reason
+
+
+def _traces(scn, n, seed=1):
+    cs = compile_scenario(scn)
+    return [generate_trace(cs, i, seed) for i in range(n)]
+
+
+def test_noiseless_range_is_the_distance_to_the_anchor():
+    tr = _traces(simple_scenario(), 1)[0]
+    u = tr.uwb
+    assert np.all(u.reason == Reason.OK) and np.all(np.isfinite(u.range_m))
+    # independent oracle: truth interpolated at the stamp times, Euclidean distance to the anchor
+    pos = tr.truth.position_at(u.t_s)
+    dist = np.sqrt(((pos - tr.anchors.pos_enu_m[u.anchor]) ** 2).sum(axis=1))
+    np.testing.assert_allclose(u.range_m, dist, atol=1e-6)
+    np.testing.assert_allclose(u.true_range_m, dist, atol=1e-6)
+
+
+def test_burst_schedule_and_effective_rate():
+    scn = simple_scenario(**{"uwb.burst_rate_hz": 23.0, "uwb.burst_jitter_s": 0.002, "channel.rate_hz": 18.0})
+    tr = _traces(scn, 1)[0]
+    u = tr.uwb
+    span = tr.duration_s
+    n_bursts = np.unique(u.burst).size
+    # every burst with at least one attempt is seen; with 3 anchors at 18/23 that is all but (5/23)^3
+    assert n_bursts / span == pytest.approx(23.0 * (1 - (5 / 23) ** 3), rel=0.03)
+    for i in range(3):
+        n_i = np.count_nonzero(u.anchor == i)
+        assert n_i / span == pytest.approx(18.0, rel=binomial_tol(18 / 23, int(23 * span)) / (18 / 23) + 0.01)
+    assert np.all(np.diff(u.t_s) >= 0)
+
+
+def test_los_errors_are_gaussian_with_the_set_mean_and_std():
+    scn = simple_scenario(**{"channel.los_mean_m": 0.12, "channel.los_std_m": 0.08})
+    trs = _traces(scn, 4)
+    err = np.concatenate([t.uwb.range_m - t.uwb.true_range_m for t in trs])
+    n = err.size
+    assert err.mean() == pytest.approx(0.12, abs=5 * 0.08 / np.sqrt(n))
+    assert err.std() == pytest.approx(0.08, rel=5 * np.sqrt(1 / (2 * n)))
+
+
+def test_range_proportional_bias():
+    scn = simple_scenario(**{"channel.range_bias_per_m": 0.004, "channel.los_std_m": 0.01})
+    u = _traces(scn, 2)[0].uwb
+    slope = np.polyfit(u.true_range_m, u.range_m - u.true_range_m, 1)[0]
+    assert slope == pytest.approx(0.004, abs=5e-4)
+
+
+def test_nlos_fraction_and_bimodal_offsets():
+    modes = [{"weight": 0.3, "mean_m": 2.0, "std_m": 0.2}, {"weight": 0.7, "mean_m": 15.0, "std_m": 0.5}]
+    scn = simple_scenario(**{"channel.nlos_prob": 0.25, "channel.nlos_modes": modes, "uwb.nlos_dwell_s": 0.3})
+    trs = _traces(scn, 10)
+    nlos = np.concatenate([t.uwb.nlos for t in trs])
+    err = np.concatenate([t.uwb.range_m - t.uwb.true_range_m for t in trs])
+    duration = sum(t.duration_s for t in trs) * 3  # anchor-seconds
+    # NLOS episodes are correlated: the effective number of samples is the number of episodes
+    n_episodes = duration * 0.25 / 0.3
+    assert nlos.mean() == pytest.approx(0.25, abs=5 * np.sqrt(0.25 * 0.75 / n_episodes))
+    e = err[nlos]
+    high = e > 8.0
+    assert high.mean() == pytest.approx(0.7, abs=binomial_tol(0.7, e.size))
+    assert e[high].mean() == pytest.approx(15.0, abs=5 * 0.5 / np.sqrt(high.sum()))
+    assert e[~high].mean() == pytest.approx(2.0, abs=5 * 0.2 / np.sqrt((~high).sum()))
+    assert np.all(np.abs(err[~nlos]) < 1e-6)
+    # NLOS comes in bursts: the chance that the next attempt of an anchor is NLOS too is far above p
+    u = trs[0].uwb
+    a0 = u.nlos[u.anchor == 0]
+    stay = np.mean(a0[1:][a0[:-1]])
+    assert stay > 0.6
+
+
+def test_nlos_zone_raises_nlos_probability_near_the_pylon():
+    zone = [{"s_m": 150.0, "half_width_m": 20.0, "nlos_prob": 0.8}]
+    scn = simple_scenario(**{"uwb.zones": zone, "channel.nlos_modes": [{"weight": 1, "mean_m": 5, "std_m": 1}]})
+    trs = _traces(scn, 3)
+    inside, outside = [], []
+    for t in trs:
+        # path coordinate s of the straight-ish walk: distance travelled along the truth
+        seg = np.linalg.norm(np.diff(t.truth.pos_enu_m, axis=0), axis=1)
+        s = np.concatenate([[0.0], np.cumsum(seg)])
+        s_at = np.interp(t.uwb.t_s, t.truth.t_s, s)
+        inside.append(t.uwb.nlos[np.abs(s_at - 150.0) < 18.0])
+        outside.append(t.uwb.nlos[np.abs(s_at - 150.0) > 22.0])
+    inside, outside = np.concatenate(inside), np.concatenate(outside)
+    assert inside.mean() == pytest.approx(0.8, abs=binomial_tol(0.8, inside.size))
+    assert outside.mean() == 0.0
+
+
+def test_dropout_fraction():
+    scn = simple_scenario(**{"availability.dropout_prob": 0.04})
+    reason = np.concatenate([t.uwb.reason for t in _traces(scn, 8)])
+    frac = np.mean(reason == Reason.DROPOUT)
+    assert frac == pytest.approx(0.04, abs=binomial_tol(0.04, reason.size))
+    assert set(np.unique(reason)) <= {Reason.OK, Reason.DROPOUT}
+
+
+def test_link_model_silences_far_anchors():
+    scn = simple_scenario(**{"channel.max_range_m": 60.0, "channel.edge_width_m": 1.0})
+    u = _traces(scn, 2)[0].uwb
+    far, near = u.true_range_m > 70.0, u.true_range_m < 50.0
+    assert np.all(u.reason[far] == Reason.NO_LINK) and np.all(np.isnan(u.range_m[far]))
+    assert np.all(u.reason[near] == Reason.OK)
+
+
+def test_outage_durations_are_exponential_with_the_set_mean():
+    rng = np.random.default_rng(11)
+    rate, p_o, mean_s = 23.0, 0.003, 16.0
+    t = np.arange(0, 200_000.0, 1 / rate)
+    out = outage_mask(t, p_o, rate, mean_s, start_stationary=True, rng=rng)
+    edges = np.flatnonzero(np.diff(out.astype(np.int8)))
+    starts, ends = edges[out[edges + 1]] + 1, edges[~out[edges + 1]] + 1
+    if ends.size and starts.size and ends[0] < starts[0]:
+        ends = ends[1:]
+    m = min(starts.size, ends.size)
+    durations = (ends[:m] - starts[:m]) / rate
+    n = durations.size
+    assert durations.mean() == pytest.approx(mean_s, rel=5 / np.sqrt(n))
+    assert np.std(durations) == pytest.approx(mean_s, rel=8 / np.sqrt(n))  # exponential: std = mean
+    # onset: outages start at p_o per burst of up time
+    up_bursts = np.count_nonzero(~out)
+    assert n / up_bursts == pytest.approx(p_o, rel=5 / np.sqrt(n))
+    assert np.mean(~out) == pytest.approx(stationary_availability(p_o, rate, mean_s), abs=0.02)
+
+
+def test_outage_rows_keep_their_reason_and_a_nan_range():
+    scn = simple_scenario(**{"availability.outage_onset_prob": 0.01, "availability.outage_mean_s": 5.0})
+    u = _traces(scn, 2)[0].uwb
+    out = u.reason == Reason.OUTAGE
+    assert out.any() and np.all(np.isnan(u.range_m[out])) and np.all(np.isfinite(u.true_range_m[out]))
+
+
+def test_tag_outage_silences_every_anchor_at_once():
+    scn = simple_scenario(**{"availability.tag_outage_onset_prob": 0.01, "availability.tag_outage_mean_s": 4.0})
+    u = _traces(scn, 1, seed=3)[0].uwb
+    out_bursts = np.unique(u.burst[u.reason == Reason.OUTAGE])
+    assert out_bursts.size > 0
+    in_out = np.isin(u.burst, out_bursts)
+    assert np.all(u.reason[in_out] == Reason.OUTAGE)
+
+
+def test_alternating_renewal_long_run_fraction():
+    rng = np.random.default_rng(5)
+    t = np.linspace(0, 50_000, 500_001)
+    on = alternating_renewal(t, 3.0, 1.0, start_on_prob=0.75, rng=rng)
+    n_cycles = 50_000 / 4.0
+    assert on.mean() == pytest.approx(0.75, abs=5 * np.sqrt(0.75 * 0.25 / n_cycles))
+    with pytest.raises(ValueError):
+        alternating_renewal(t, 0.0, 1.0, start_on_prob=0.5, rng=rng)
