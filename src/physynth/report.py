@@ -1,0 +1,710 @@
+"""Validation report files: ``report.json``, ``report.md`` (the paper's Tables I-II), ``report.html``
+(one self-contained page, figures embedded as base64 PNG) and the figures as PNG files.
+
+The numbers come from a :class:`~physynth.validate.ValidationReport`; the figures from the
+:class:`~physynth.validate.Evidence` it carries. matplotlib (the ``report`` extra) is imported only
+when figures are drawn, through the Agg canvas (no pyplot, no global backend switch).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+import os
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import PhySynthError
+from .io.dataset import atomic_write_text
+from .validate import EXTENDED_STATISTICS, Evidence, SideEvidence, ValidationReport
+
+REAL_COLOR = "#222222"
+SYNTH_COLOR = "#1f77b4"
+NLOS_COLOR = "#d62728"
+
+FIGURES: dict[str, str] = {
+    "paths": "Path projections East-North and East-Up: synthetic ensemble (blue) over the real path(s) "
+             "(black); anchors as red triangles (paper Fig. 3).",
+    "speed": "Speed profiles: synthetic ensemble (blue) and real run(s) (black) (paper Fig. 4, left).",
+    "ranges": "Measured ranges over time per anchor: the first real trace (left) and the first synthetic "
+              "trace (right); grey line = geometric range from the truth, red crosses = NLOS rows where "
+              "known (paper Fig. 4, right).",
+    "residual_cdf": "Empirical CDF of |residual|, real vs synthetic, log x (paper section IV.A).",
+    "residual_per_anchor": "Signed residual distributions per anchor, real vs synthetic, with the "
+                           "per-anchor KS statistic; values beyond the pooled 0.5-99.5 % range are drawn "
+                           "in the edge bins (paper Fig. 5).",
+    "availability": "Availability: grid steps by number of fresh anchors, per-anchor fraction of fresh "
+                    "grid steps, and fresh anchors over time (1 s moving mean; synthetic median and "
+                    "10-90 % band).",
+    "aoi": "Age of information: mean AoI over anchors along the run (synthetic median and 10-90 % band) "
+           "and the CDF of all AoI values.",
+    "outages": "Gap lengths between consecutive valid ranges of one anchor: complementary CDF, log-log "
+               "(dropouts at the left, outages in the tail).",
+    "residual_acf": "Residual autocorrelation at lags 1..10 measurements within each anchor's sequence.",
+    "imu_spectrum": "Acceleration power spectral density per axis (Welch, 100 Hz grid), real vs synthetic.",
+    "allan": "Overlapping Allan deviation of the acceleration per axis, real vs synthetic.",
+}
+"""Figure file stem -> caption, in report order. The IMU figures appear only when both sides have IMU."""
+
+REPORT_FILES = ("report.json", "report.md", "report.html")
+
+
+# ---------------------------------------------------------------- matplotlib, lazily
+def _matplotlib() -> tuple[Any, Any]:
+    """(Figure, FigureCanvasAgg) classes; a clear PhySynthError when matplotlib is missing."""
+    try:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+    except ImportError:
+        raise PhySynthError("figures need matplotlib, which is not installed: install physynth[report] "
+                            "(pip install 'physynth[report]') or pass --no-figures") from None
+    return Figure, FigureCanvasAgg
+
+
+def _png(fig: Any, canvas_cls: Any) -> bytes:
+    canvas_cls(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100, metadata={"Software": None})
+    return buf.getvalue()
+
+
+# ---------------------------------------------------------------- figure helpers
+def _nan_band(series: Sequence[np.ndarray], q: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """Percentiles across traces of per-step series of unequal length -> (steps, (len(q), K))."""
+    k = max(s.size for s in series)
+    mat = np.full((len(series), k), np.nan)
+    for i, s in enumerate(series):  # one row per trace
+        mat[i, :s.size] = s
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN tail columns
+        return np.arange(k), np.nanpercentile(mat, q, axis=0)
+
+
+def _moving_mean(x: np.ndarray, n: int) -> np.ndarray:
+    if x.size < n or n <= 1:
+        return x.astype(float)
+    c = np.concatenate([[0.0], np.cumsum(x, dtype=float)])
+    out = np.empty(x.size)
+    half = n // 2
+    lo = np.clip(np.arange(x.size) - half, 0, x.size)
+    hi = np.clip(np.arange(x.size) + n - half, 0, x.size)
+    out[:] = (c[hi] - c[lo]) / (hi - lo)
+    return out
+
+
+def _ecdf(x: np.ndarray, max_points: int = 4000) -> tuple[np.ndarray, np.ndarray]:
+    xs = np.sort(x)
+    p = np.arange(1, xs.size + 1) / xs.size
+    if xs.size > max_points:
+        idx = np.unique(np.linspace(0, xs.size - 1, max_points).astype(np.int64))
+        xs, p = xs[idx], p[idx]
+    return xs, p
+
+
+def _fmt(x: Any, digits: int = 3) -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "—"
+    if isinstance(x, (int, np.integer)):
+        return str(int(x))
+    return f"{x:.{digits}f}"
+
+
+def _anchor_positions(ev: SideEvidence) -> tuple[tuple[str, ...], np.ndarray]:
+    return ev.anchors.ids, ev.anchors.pos_enu_m
+
+
+# ---------------------------------------------------------------- figures
+def _fig_paths(Figure, ev: Evidence) -> Any:
+    fig = Figure(figsize=(11, 4.4), layout="constrained")
+    ax_en, ax_eu = fig.subplots(1, 2)
+    for p in ev.synthetic.paths_enu_m:
+        ax_en.plot(p[:, 0], p[:, 1], color=SYNTH_COLOR, lw=0.6, alpha=0.35)
+        ax_eu.plot(p[:, 0], p[:, 2], color=SYNTH_COLOR, lw=0.6, alpha=0.35)
+    for p in ev.real.paths_enu_m:
+        ax_en.plot(p[:, 0], p[:, 1], color=REAL_COLOR, lw=1.6)
+        ax_eu.plot(p[:, 0], p[:, 2], color=REAL_COLOR, lw=1.6)
+    ids, pos = _anchor_positions(ev.real)
+    for ax, c in ((ax_en, 1), (ax_eu, 2)):
+        ax.scatter(pos[:, 0], pos[:, c], marker="^", color=NLOS_COLOR, zorder=5, s=40)
+        for a, q in zip(ids, pos, strict=True):
+            ax.annotate(a, (q[0], q[c]), textcoords="offset points", xytext=(4, 4), fontsize=8)
+        ax.grid(alpha=0.3)
+        ax.set_xlabel("East [m]")
+    ax_en.set_ylabel("North [m]")
+    ax_en.set_aspect("equal", adjustable="datalim")
+    ax_eu.set_ylabel("Up [m]")
+    ax_en.set_title("East-North")
+    ax_eu.set_title("East-Up")
+    ax_en.plot([], [], color=SYNTH_COLOR, label=f"synthetic ({ev.synthetic.n_traces})")
+    ax_en.plot([], [], color=REAL_COLOR, label=f"real ({ev.real.n_traces})")
+    ax_en.legend(fontsize=8, loc="best")
+    return fig
+
+
+def _fig_speed(Figure, ev: Evidence) -> Any:
+    fig = Figure(figsize=(9, 3.8), layout="constrained")
+    ax = fig.subplots()
+    for t, v in ev.synthetic.speeds:
+        ax.plot(t, v, color=SYNTH_COLOR, lw=0.6, alpha=0.35)
+    for t, v in ev.real.speeds:
+        ax.plot(t, v, color=REAL_COLOR, lw=1.4)
+    ax.plot([], [], color=SYNTH_COLOR, label="synthetic")
+    ax.plot([], [], color=REAL_COLOR, label="real")
+    ax.set_xlabel("time since start [s]")
+    ax.set_ylabel("speed [m/s]")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    return fig
+
+
+def _fig_ranges(Figure, ev: Evidence) -> Any:
+    ids = list(ev.real.anchors.ids)
+    n = len(ids)
+    fig = Figure(figsize=(11, 1.6 + 1.5 * n), layout="constrained")
+    axes = np.atleast_2d(fig.subplots(n, 2, sharex="col", sharey="row", squeeze=False))
+    for col, (side, name) in enumerate(((ev.real, "real"), (ev.synthetic, "synthetic"))):
+        tr = side.sample
+        u = tr.uwb
+        t0 = tr.t0_s
+        t_truth = tr.truth.t_s
+        for row, a in enumerate(ids):
+            ax = axes[row, col]
+            if a in tr.anchors.ids:
+                j = tr.anchors.index(a)
+                geom = np.linalg.norm(tr.truth.pos_enu_m - tr.anchors.pos_enu_m[j], axis=1)
+                ax.plot(t_truth - t0, geom, color="0.6", lw=1.0)
+                rows = (u.anchor == j) & u.valid
+                ax.plot(u.t_s[rows] - t0, u.range_m[rows], ".", ms=1.5,
+                        color=REAL_COLOR if col == 0 else SYNTH_COLOR)
+                if u.nlos_known:
+                    nl = rows & u.nlos
+                    ax.plot(u.t_s[nl] - t0, u.range_m[nl], "x", ms=3, color=NLOS_COLOR)
+            ax.grid(alpha=0.3)
+            if col == 0:
+                ax.set_ylabel(f"{a}\nrange [m]")
+            if row == 0:
+                ax.set_title(f"{name} trace 0" + ("" if u.nlos_known else " (NLOS unknown)"))
+        axes[-1, col].set_xlabel("time since start [s]")
+    return fig
+
+
+def _fig_residual_cdf(Figure, ev: Evidence, report: ValidationReport) -> Any:
+    fig = Figure(figsize=(7, 4.2), layout="constrained")
+    ax = fig.subplots()
+    for side, color, name in ((ev.real, REAL_COLOR, "real"), (ev.synthetic, SYNTH_COLOR, "synthetic")):
+        a = np.abs(side.residual_m)
+        a = a[a > 0]
+        if a.size:
+            x, p = _ecdf(a)
+            ax.step(x, p, where="post", color=color, label=f"{name} (n={side.residual_m.size})")
+    ax.set_xscale("log")
+    ax.set_xlabel("|residual| [m]")
+    ax.set_ylabel("CDF")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8, loc="lower right")
+    ax.set_title(f"KS = {_fmt(report.ks_statistic)}, W1 = "
+                 f"{_fmt(report.extended.get('residual_wasserstein_m'), 4)} m", fontsize=10)
+    return fig
+
+
+def _fig_residual_per_anchor(Figure, ev: Evidence, report: ValidationReport) -> Any:
+    ids = list(report.per_anchor)
+    ncol = min(3, len(ids))
+    nrow = int(math.ceil(len(ids) / ncol))
+    fig = Figure(figsize=(3.7 * ncol, 2.8 * nrow), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(nrow, ncol, squeeze=False)).ravel()
+    for ax, a in zip(axes, ids, strict=False):
+        r = ev.real.residual_m[ev.real.residual_anchor == a]
+        s = ev.synthetic.residual_m[ev.synthetic.residual_anchor == a]
+        both = np.concatenate([r, s])
+        if both.size:
+            lo, hi = np.percentile(both, [0.5, 99.5])
+            if hi <= lo:
+                lo, hi = lo - 0.5, hi + 0.5
+            bins = np.linspace(lo, hi, 60)
+            for x, color, name in ((r, REAL_COLOR, "real"), (s, SYNTH_COLOR, "synthetic")):
+                if x.size:
+                    ax.hist(np.clip(x, lo, hi), bins=bins, density=True, histtype="step", color=color,
+                            lw=1.3, label=name)
+        ax.set_title(f"{a}: KS {_fmt(report.per_anchor[a]['ks_statistic'])}", fontsize=10)
+        ax.set_xlabel("residual [m]")
+        ax.grid(alpha=0.3)
+    for ax in axes[len(ids):]:
+        ax.set_visible(False)
+    axes[0].legend(fontsize=8)
+    return fig
+
+
+def _fig_availability(Figure, ev: Evidence, report: ValidationReport) -> Any:
+    fig = Figure(figsize=(13, 3.9), layout="constrained")
+    ax_k, ax_a, ax_t = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1, 1, 1.6]})
+    kmax = max(ev.real.n_fresh_counts.size, ev.synthetic.n_fresh_counts.size)
+    k = np.arange(kmax)
+    for off, side, color, name in ((-0.2, ev.real, REAL_COLOR, "real"), (0.2, ev.synthetic, SYNTH_COLOR, "synthetic")):
+        c = np.pad(side.n_fresh_counts, (0, kmax - side.n_fresh_counts.size)).astype(float)
+        ax_k.bar(k + off, c / max(c.sum(), 1), width=0.4, color=color, label=name)
+    ax_k.set_yscale("log")
+    ax_k.set_xlabel("fresh anchors in a grid step")
+    ax_k.set_ylabel("fraction of grid steps")
+    ax_k.set_xticks(k)
+    ax_k.legend(fontsize=8)
+    ids = list(report.per_anchor)
+    x = np.arange(len(ids))
+    for off, key, color in ((-0.2, "real", REAL_COLOR), (0.2, "synthetic", SYNTH_COLOR)):
+        vals = [(report.per_anchor[a][key] or {}).get("fresh_frac") for a in ids]
+        ax_a.bar(x + off, [np.nan if v is None else v for v in vals], width=0.4, color=color, label=key)
+    ax_a.set_xticks(x, ids, fontsize=8)
+    ax_a.set_ylabel("fraction of grid steps fresh")
+    ax_a.set_title("per anchor", fontsize=10)
+    rate = ev.real.rate_hz
+    win = max(int(round(rate)), 1)
+    if ev.synthetic.n_fresh_series:
+        steps, band = _nan_band([_moving_mean(s, win) for s in ev.synthetic.n_fresh_series], [10, 50, 90])
+        ax_t.fill_between(steps / rate, band[0], band[2], color=SYNTH_COLOR, alpha=0.25, lw=0)
+        ax_t.plot(steps / rate, band[1], color=SYNTH_COLOR, label="synthetic median, 10-90 %")
+    for s in ev.real.n_fresh_series:
+        ax_t.plot(np.arange(s.size) / rate, _moving_mean(s, win), color=REAL_COLOR, lw=1.0)
+    ax_t.plot([], [], color=REAL_COLOR, label="real")
+    ax_t.set_xlabel("time since start [s]")
+    ax_t.set_ylabel("fresh anchors per step (1 s mean)")
+    ax_t.legend(fontsize=8)
+    for ax in (ax_k, ax_a, ax_t):
+        ax.grid(alpha=0.3)
+    return fig
+
+
+def _fig_aoi(Figure, ev: Evidence, report: ValidationReport) -> Any:
+    fig = Figure(figsize=(12, 3.9), layout="constrained")
+    ax_t, ax_c = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.6, 1]})
+    rate = ev.real.rate_hz
+    if ev.synthetic.mean_aoi_series:
+        steps, band = _nan_band(list(ev.synthetic.mean_aoi_series), [10, 50, 90])
+        ax_t.fill_between(steps / rate, band[0], band[2], color=SYNTH_COLOR, alpha=0.25, lw=0)
+        ax_t.plot(steps / rate, band[1], color=SYNTH_COLOR, label="synthetic median, 10-90 %")
+    for s in ev.real.mean_aoi_series:
+        ax_t.plot(np.arange(s.size) / rate, s, color=REAL_COLOR, lw=1.0)
+    ax_t.plot([], [], color=REAL_COLOR, label="real")
+    ax_t.set_yscale("symlog", linthresh=0.1)
+    ax_t.set_xlabel("time since start [s]")
+    ax_t.set_ylabel("mean AoI over anchors [s]")
+    ax_t.legend(fontsize=8)
+    for side, color, name in ((ev.real, REAL_COLOR, "real"), (ev.synthetic, SYNTH_COLOR, "synthetic")):
+        a = side.aoi_s[side.aoi_s > 0]
+        if a.size:
+            x, p = _ecdf(a)
+            ax_c.step(x, p, where="post", color=color, label=name)
+    ax_c.set_xscale("log")
+    ax_c.set_xlim(left=1e-3)
+    ax_c.set_xlabel("AoI [s]")
+    ax_c.set_ylabel("CDF")
+    ax_c.set_title(f"KS = {_fmt(report.extended.get('aoi_ks_statistic'))}", fontsize=10)
+    ax_c.legend(fontsize=8, loc="lower right")
+    for ax in (ax_t, ax_c):
+        ax.grid(alpha=0.3, which="both")
+    return fig
+
+
+def _fig_outages(Figure, ev: Evidence, report: ValidationReport) -> Any:
+    fig = Figure(figsize=(7, 4.2), layout="constrained")
+    ax = fig.subplots()
+    for side, color, name in ((ev.real, REAL_COLOR, "real"), (ev.synthetic, SYNTH_COLOR, "synthetic")):
+        g = side.gap_s[side.gap_s > 0]
+        if g.size:
+            x, p = _ecdf(g)
+            ax.step(x, np.clip(1.0 - p + 1.0 / g.size, 1.0 / g.size, 1.0), where="post", color=color,
+                    label=f"{name} ({g.size} gaps, max {g.max():.1f} s)")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("gap between consecutive valid ranges of an anchor [s]")
+    ax.set_ylabel("P(gap >= x)")
+    ax.set_title(f"gap KS = {_fmt(report.extended.get('gap_ks_statistic'))}", fontsize=10)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    return fig
+
+
+def _fig_acf(Figure, ev: Evidence, report: ValidationReport) -> Any:
+    fig = Figure(figsize=(7, 3.8), layout="constrained")
+    ax = fig.subplots()
+    lags = np.arange(1, ev.real.acf.size + 1)
+    ax.plot(lags, ev.real.acf, "o-", color=REAL_COLOR, label="real")
+    ax.plot(lags, ev.synthetic.acf, "s--", color=SYNTH_COLOR, label="synthetic")
+    ax.axhline(0.0, color="0.5", lw=0.8)
+    ax.set_xticks(lags)
+    ax.set_xlabel("lag [measurements of the same anchor]")
+    ax.set_ylabel("residual autocorrelation")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    return fig
+
+
+def _fig_imu_spectrum(Figure, ev: Evidence, report: ValidationReport) -> Any:
+    fig = Figure(figsize=(13, 3.8), layout="constrained")
+    axes = fig.subplots(1, 3, sharey=True)
+    for c, (ax, axis) in enumerate(zip(axes, ("East", "North", "Up"), strict=True)):
+        for side, color, name in ((ev.real, REAL_COLOR, "real"), (ev.synthetic, SYNTH_COLOR, "synthetic")):
+            f, p = side.psd_f_hz, side.psd_mps2_sq_per_hz
+            ax.loglog(f[1:], p[c, 1:], color=color, lw=1.0, label=name)
+        ax.set_title(axis)
+        ax.set_xlabel("frequency [Hz]")
+        ax.grid(alpha=0.3, which="both")
+    axes[0].set_ylabel("PSD [(m/s²)²/Hz]")
+    axes[0].legend(fontsize=8)
+    return fig
+
+
+def _fig_allan(Figure, ev: Evidence, report: ValidationReport) -> Any:
+    fig = Figure(figsize=(13, 3.8), layout="constrained")
+    axes = fig.subplots(1, 3, sharey=True)
+    for c, (ax, axis) in enumerate(zip(axes, ("East", "North", "Up"), strict=True)):
+        for side, color, ls, name in ((ev.real, REAL_COLOR, "-", "real"),
+                                      (ev.synthetic, SYNTH_COLOR, "--", "synthetic")):
+            ax.loglog(side.allan_tau_s, side.allan_dev_mps2[c], ls, color=color, label=name)
+        for tau in (0.1, 1.0, 10.0):
+            ax.axvline(tau, color="0.7", lw=0.7)
+        ax.set_title(axis)
+        ax.set_xlabel("tau [s]")
+        ax.grid(alpha=0.3, which="both")
+    axes[0].set_ylabel("Allan deviation [m/s²]")
+    axes[0].legend(fontsize=8)
+    return fig
+
+
+_DRAW: dict[str, Callable[..., Any]] = {
+    "paths": lambda F, ev, rep: _fig_paths(F, ev),
+    "speed": lambda F, ev, rep: _fig_speed(F, ev),
+    "ranges": lambda F, ev, rep: _fig_ranges(F, ev),
+    "residual_cdf": _fig_residual_cdf,
+    "residual_per_anchor": _fig_residual_per_anchor,
+    "availability": _fig_availability,
+    "aoi": _fig_aoi,
+    "outages": _fig_outages,
+    "residual_acf": _fig_acf,
+    "imu_spectrum": _fig_imu_spectrum,
+    "allan": _fig_allan,
+}
+
+
+def available_figures(evidence: Evidence) -> list[str]:
+    """Stems of the figures this evidence supports (IMU figures only when both sides have IMU)."""
+    names = [n for n in FIGURES if n not in ("imu_spectrum", "allan")]
+    r, s = evidence.real, evidence.synthetic
+    if r.psd_mps2_sq_per_hz is not None and s.psd_mps2_sq_per_hz is not None \
+            and np.array_equal(r.psd_f_hz, s.psd_f_hz):
+        names.append("imu_spectrum")
+    if r.allan_dev_mps2 is not None and s.allan_dev_mps2 is not None:
+        names.append("allan")
+    return names
+
+
+def render_figures(report: ValidationReport, names: Sequence[str] | None = None) -> dict[str, bytes]:
+    """The report's figures as PNG bytes, keyed by file stem (order of :data:`FIGURES`).
+
+    Raises
+    ------
+    PhySynthError
+        When the report carries no evidence (read back from JSON) or matplotlib is missing.
+    """
+    if report.evidence is None:
+        raise PhySynthError("this report has no evidence to draw figures from (it was read back from JSON)")
+    Figure, Canvas = _matplotlib()
+    ev = report.evidence
+    wanted = available_figures(ev) if names is None else [n for n in available_figures(ev) if n in names]
+    return {name: _png(_DRAW[name](Figure, ev, report), Canvas) for name in wanted}
+
+
+# ---------------------------------------------------------------- tables (one model, two renderings)
+@dataclass(frozen=True, slots=True)
+class _Table:
+    title: str
+    headers: tuple[str, ...]
+    rows: tuple[tuple[str, ...], ...]
+    note: str = ""
+    text_columns: tuple[int, ...] = (0,)  # left-aligned; the others are numbers (right-aligned)
+
+
+def _pct(x: Any) -> str:
+    return _fmt(x, 1)
+
+
+def table_imu(report: ValidationReport) -> _Table | None:
+    """The paper's Table I: IMU acceleration std per axis (100 Hz grid), or None without IMU on a side."""
+    real, synth = report.real["imu_std_mps2"], report.synthetic["imu_std_mps2"]
+    r = np.array([np.nan if v is None else v for v in real], dtype=float)
+    s = np.array([np.nan if v is None else v for v in synth], dtype=float)
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(s))):
+        return None
+    d = np.abs(s - r)
+    rel = d / np.abs(r) * 100.0
+    rows = [(axis, _fmt(r[i]), _fmt(s[i]), _fmt(d[i]), _pct(rel[i]))
+            for i, axis in enumerate(("East", "North", "Up"))]
+    rows.append(("Mean", _fmt(r.mean()), _fmt(s.mean()), _fmt(d.mean()), _pct(rel.mean())))
+    return _Table("Table I. IMU acceleration noise: real vs synthetic",
+                  ("Axis", "σ_real (m/s²)", "σ_synth (m/s²)", "|Δσ| (m/s²)", "Rel. (%)"), tuple(rows),
+                  "Standard deviation per axis of the acceleration on the 100 Hz grid (mean of the samples "
+                  "in each 10 ms bin). Rel. = |σ_synth − σ_real| / σ_real × 100; the mean row averages "
+                  "each column, as in the paper.")
+
+
+_TABLE2_ROWS = (
+    ("Duration (s)", "duration_s", 1),
+    ("UWB ≥ 1 (frac.)", "uwb_ge1_frac", 3),
+    ("UWB ≥ 2 (frac.)", "uwb_ge2_frac", 3),
+    ("Residual std (m)", "residual_std_m", 3),
+    ("Residual med. (m)", "residual_median_m", 3),
+    ("|r| P95 (m)", "abs_residual_p95_m", 3),
+    ("|r| P99 (m)", "abs_residual_p99_m", 3),
+    ("KS statistic", None, 3),
+    ("Mean AoI (s)", "mean_aoi_s", 2),
+)
+
+
+def table_validation(report: ValidationReport) -> _Table:
+    """The paper's Table II layout: real, synthetic and relative deviation per metric."""
+    rows = []
+    for label, key, digits in _TABLE2_ROWS:
+        if key is None:
+            rows.append((label, "—", _fmt(report.ks_statistic), "—"))
+        else:
+            rows.append((label, _fmt(report.real[key], digits), _fmt(report.synthetic[key], digits),
+                         _pct(report.relative_deviation_pct[key])))
+    rows.append(("Fidelity score S", "—", _fmt(report.fidelity_score), "—"))
+    return _Table("Table II. Generator validation", ("Metric", "Real", "Synth", "%"), tuple(rows),
+                  "% = |Synth − Real| / |Real| × 100. Metrics as defined in DESIGN.md section 5 "
+                  "(100 Hz grid; residuals pooled over anchors and traces; KS of the signed residuals). "
+                  "S = Δavail + Δmed/10 + ΔP95/20 (lower is better).")
+
+
+def _extended_value(name: str, value: Any) -> str:
+    if value is None:
+        return "—"
+    if name == "gap_quantiles_s":
+        return ("real " + " / ".join(_fmt(v, 2) for v in value["real"]) + "; synth "
+                + " / ".join(_fmt(v, 2) for v in value["synthetic"]) + " (P50/P95/P99/max)")
+    if name == "residual_acf":
+        return ("lag 1,2,5,10 real " + ", ".join(_fmt(value["real"][i], 2) for i in (0, 1, 4, 9))
+                + "; synth " + ", ".join(_fmt(value["synthetic"][i], 2) for i in (0, 1, 4, 9)))
+    if name == "imu_allan_ratio":
+        taus = value["tau_s"]
+        return "; ".join(f"{ax.upper()}: " + ", ".join(f"{_fmt(r, 2)}@{t:g}s" for r, t in zip(row, taus, strict=True))
+                         for ax, row in zip(value["axes"], value["ratio"], strict=True))
+    if name == "imu_log_spectral_distance_db":
+        return (" / ".join(_fmt(v, 2) for v in value["per_axis"]) + f" (E/N/U); mean {_fmt(value['mean'], 2)}")
+    return _fmt(value, 4)
+
+
+def table_extended(report: ValidationReport) -> _Table:
+    rows = []
+    for name, (unit, meaning) in EXTENDED_STATISTICS.items():
+        rows.append((name, _extended_value(name, report.extended.get(name)), unit, meaning))
+    note = report.extended.get("imu_note", "")
+    return _Table("Extended fidelity statistics", ("Statistic", "Value", "Unit", "Meaning"), tuple(rows), note,
+                  text_columns=(0, 1, 2, 3))
+
+
+def table_per_anchor(report: ValidationReport) -> _Table:
+    rows = []
+    for a, d in report.per_anchor.items():
+        r, s = d.get("real") or {}, d.get("synthetic") or {}
+        rows.append((a, f"{r.get('n_ranges', '—')} / {s.get('n_ranges', '—')}",
+                     f"{_fmt(r.get('fresh_frac'))} / {_fmt(s.get('fresh_frac'))}",
+                     f"{_fmt(r.get('mean_aoi_s'), 2)} / {_fmt(s.get('mean_aoi_s'), 2)}",
+                     f"{_fmt(r.get('residual_median_m'))} / {_fmt(s.get('residual_median_m'))}",
+                     f"{_fmt(r.get('abs_residual_p95_m'))} / {_fmt(s.get('abs_residual_p95_m'))}",
+                     _fmt(d.get("ks_statistic")), _fmt(d.get("residual_wasserstein_m"), 4),
+                     _fmt(d.get("gap_ks_statistic"))))
+    return _Table("Per anchor (real / synthetic)",
+                  ("Anchor", "ranges", "fresh frac.", "mean AoI (s)", "residual med. (m)", "|r| P95 (m)",
+                   "KS", "W1 (m)", "gap KS"), tuple(rows),
+                  "KS and W1: signed residuals of this anchor; gap KS: gaps between its consecutive valid ranges.")
+
+
+def _inputs_lines(report: ValidationReport) -> list[str]:
+    inp = report.inputs
+    real = inp.get("real", {})
+    syn = inp.get("synthetic", {})
+    n = inp.get("n_traces", {})
+    lines = [f"Real: {real.get('path', '?')} ({n.get('real', '?')} trace(s); anchors "
+             f"{', '.join(real.get('anchors', []))})"]
+    if "scenario" in syn:
+        lines.append(f"Synthetic: {n.get('synthetic', '?')} trace(s) generated from scenario "
+                     f"'{syn.get('scenario_name')}' ({syn.get('scenario')}), root seed {syn.get('root_seed')}"
+                     + (", transferred to the real run's geometry (--transfer)" if syn.get("transfer") else ""))
+    else:
+        lines.append(f"Synthetic: {syn.get('path', '?')} ({n.get('synthetic', '?')} trace(s); scenario "
+                     f"{syn.get('scenario_name')}, root seed {syn.get('root_seed')})")
+    nres = inp.get("n_residuals", {})
+    lines.append(f"Residuals: {nres.get('real', '?')} real, {nres.get('synthetic', '?')} synthetic; "
+                 f"grid {inp.get('grid_rate_hz', '?')} Hz; physynth {inp.get('physynth_version', '?')}; "
+                 f"created {inp.get('created_utc', '?')}")
+    src = str(real.get("source") or "")
+    if "hanyang" in src.lower():
+        lines.append("Real data: Hanyang outdoor UWB dataset (ADIP lab, Hanyang University), "
+                     "DOI 10.5281/zenodo.15226105, Apache-2.0.")
+    return lines
+
+
+def _transfer_lines(report: ValidationReport) -> list[str]:
+    t = report.transfer
+    if not t:
+        return []
+    lines = [f"Policy: {t.get('policy')}.",
+             f"Taken from the real dataset ({t.get('real_dataset')}): {', '.join(t.get('from_real', []))}.",
+             f"Kept from scenario '{t.get('scenario')}': {', '.join(t.get('from_scenario', []))}.",
+             f"Sections that actually changed: {', '.join(t.get('changed_sections', [])) or 'none'}."]
+    if t.get("unexpected_changes"):
+        lines.append(f"WARNING: sections outside the policy changed: {', '.join(t['unexpected_changes'])}.")
+    an = t.get("anchors", {})
+    lines.append(f"Anchors: scenario {', '.join(an.get('scenario', []))} -> transferred "
+                 f"{', '.join(an.get('transferred', []))} (real {', '.join(an.get('real', []))}).")
+    return lines
+
+
+def _tables(report: ValidationReport) -> list[_Table]:
+    t1 = table_imu(report)
+    return [t for t in (t1, table_validation(report), table_extended(report), table_per_anchor(report))
+            if t is not None]
+
+
+# ---------------------------------------------------------------- markdown and HTML
+def _md_escape(s: str) -> str:
+    return s.replace("|", "\\|")
+
+
+def _md_table(t: _Table) -> str:
+    out = [f"## {t.title}", "", "| " + " | ".join(map(_md_escape, t.headers)) + " |",
+           "|" + "|".join("---" if i in t.text_columns else "---:" for i in range(len(t.headers))) + "|"]
+    out += ["| " + " | ".join(map(_md_escape, row)) + " |" for row in t.rows]
+    if t.note:
+        out += ["", t.note]
+    return "\n".join(out) + "\n"
+
+
+def render_markdown(report: ValidationReport, figure_files: Mapping[str, str] | None = None) -> str:
+    """``report.md``: provenance, Tables I-II, extended and per-anchor tables, figure links."""
+    parts = ["# PhySynth validation report", ""]
+    parts += [f"- {line}" for line in _inputs_lines(report)]
+    parts.append("")
+    if table_imu(report) is None:
+        parts += ["Table I left out: " + (report.extended.get("imu_note") or "IMU data missing on a side") + ".", ""]
+    for t in _tables(report):
+        parts.append(_md_table(t))
+    tl = _transfer_lines(report)
+    if tl:
+        parts += ["## Transfer without retuning (paper section IV.C)", ""] + [f"- {x}" for x in tl] + [""]
+    if figure_files:
+        parts += ["## Figures", ""]
+        for name, file in figure_files.items():
+            parts += [f"![{name}]({file})", "", f"*{FIGURES.get(name, name)}*", ""]
+    return "\n".join(parts).rstrip() + "\n"
+
+
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;
+color:#222;line-height:1.4}
+h1{font-size:1.6em}h2{font-size:1.2em;margin-top:1.8em;border-bottom:1px solid #ddd}
+table{border-collapse:collapse;margin:.6em 0;font-size:.9em}
+th,td{border:1px solid #ccc;padding:.25em .6em;vertical-align:top}
+th{background:#f3f3f3}td.num{text-align:right;font-variant-numeric:tabular-nums}
+p.note{font-size:.85em;color:#555}figure{margin:1.2em 0}img{max-width:100%;height:auto;border:1px solid #eee}
+figcaption{font-size:.85em;color:#444}ul.meta{font-size:.9em}
+"""
+
+
+def _html_table(t: _Table) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in t.headers)
+    body = []
+    for row in t.rows:
+        cells = [f"<td>{html.escape(c)}</td>" if i in t.text_columns else f'<td class="num">{html.escape(c)}</td>'
+                 for i, c in enumerate(row)]
+        body.append("<tr>" + "".join(cells) + "</tr>")
+    note = f'<p class="note">{html.escape(t.note)}</p>' if t.note else ""
+    return (f"<h2>{html.escape(t.title)}</h2><table><thead><tr>{head}</tr></thead>"
+            f"<tbody>{''.join(body)}</tbody></table>{note}")
+
+
+def render_html(report: ValidationReport, figures: Mapping[str, bytes] | None = None) -> str:
+    """``report.html``: one self-contained page; figures embedded as base64 PNG."""
+    parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+             "<title>PhySynth validation report</title>", f"<style>{_CSS}</style></head><body>",
+             "<h1>PhySynth validation report</h1>", '<ul class="meta">']
+    parts += [f"<li>{html.escape(line)}</li>" for line in _inputs_lines(report)]
+    parts.append("</ul>")
+    if table_imu(report) is None:
+        parts.append(f'<p class="note">Table I left out: '
+                     f'{html.escape(report.extended.get("imu_note") or "IMU data missing on a side")}.</p>')
+    parts += [_html_table(t) for t in _tables(report)]
+    tl = _transfer_lines(report)
+    if tl:
+        parts.append("<h2>Transfer without retuning (paper section IV.C)</h2><ul>"
+                     + "".join(f"<li>{html.escape(x)}</li>" for x in tl) + "</ul>")
+    if figures:
+        parts.append("<h2>Figures</h2>")
+        for name, png in figures.items():
+            b64 = base64.b64encode(png).decode("ascii")
+            parts.append(f'<figure id="fig-{html.escape(name)}"><img alt="{html.escape(name)}" '
+                         f'src="data:image/png;base64,{b64}"><figcaption>{html.escape(FIGURES.get(name, name))}'
+                         "</figcaption></figure>")
+    parts.append("</body></html>")
+    return "\n".join(parts) + "\n"
+
+
+# ---------------------------------------------------------------- writing
+def _atomic_write_bytes(path: Path, data: bytes) -> None:
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def write_report(report: ValidationReport, out_dir: str | Path, *, figures: bool = True,
+                 overwrite: bool = False) -> dict[str, Path]:
+    """Write ``report.json``, ``report.md``, ``report.html``, the figure PNGs and, when the synthetic
+    side was generated from a scenario, that scenario as ``scenario.yaml``.
+
+    Each file is written atomically. Returns name -> path of every file written.
+
+    Raises
+    ------
+    PhySynthError
+        When ``out_dir`` already holds a report and ``overwrite`` is False, cannot be created, or
+        figures are asked for without matplotlib.
+    """
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise PhySynthError(f"{out} exists and is not a directory")
+    if (out / "report.json").exists() and not overwrite:
+        raise PhySynthError(f"{out} already holds a report (use --overwrite to replace it)")
+    pngs = render_figures(report) if figures else {}  # before touching the folder: fails cleanly
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        written: dict[str, Path] = {}
+        for stale in FIGURES:  # a figure of an earlier report that this one does not have
+            if stale not in pngs and (out / f"{stale}.png").exists():
+                (out / f"{stale}.png").unlink()
+        for name, data in pngs.items():
+            written[f"{name}.png"] = out / f"{name}.png"
+            _atomic_write_bytes(out / f"{name}.png", data)
+        atomic_write_text(out / "report.json", report.to_json() + "\n")
+        written["report.json"] = out / "report.json"
+        atomic_write_text(out / "report.md", render_markdown(report, {n: f"{n}.png" for n in pngs}))
+        written["report.md"] = out / "report.md"
+        atomic_write_text(out / "report.html", render_html(report, pngs))
+        written["report.html"] = out / "report.html"
+        config = report.inputs.get("synthetic", {}).get("scenario_config")
+        if config:
+            import yaml
+
+            atomic_write_text(out / "scenario.yaml",
+                              "# scenario the synthetic traces of this report were generated from\n"
+                              + yaml.safe_dump(config, sort_keys=False, default_flow_style=None, width=100))
+            written["scenario.yaml"] = out / "scenario.yaml"
+    except OSError as exc:
+        raise PhySynthError(f"cannot write the report to {out}: {exc.strerror or exc}") from None
+    return written

@@ -1,0 +1,791 @@
+"""Validation: real traces against synthetic traces -> a frozen, JSON-able :class:`ValidationReport`.
+
+The paper's tables (section IV, Tables I-II) are computed with :mod:`physynth.metrics` (DESIGN.md
+section 5, written once there): pooled section-5 metrics of each side, their relative deviations,
+the KS statistic of the pooled signed residuals and the fidelity score. On top of them the report
+holds *extended* statistics that a reviewer of synthetic data asks for (docs/validation.md):
+
+- distances between the residual distributions beyond KS: Wasserstein-1 and Anderson-Darling;
+- KS of the gap lengths between consecutive valid measurements of an anchor and of the AoI values;
+- residual autocorrelation at lags 1..10 measurements (per anchor sequence, pooled);
+- IMU Allan-deviation ratio at tau = 0.1, 1, 10 s and the log-spectral distance of the acceleration
+  power spectral densities (only when both sides have IMU data).
+
+Traces are reduced one at a time (:class:`_SideAccumulator`), so the synthetic ensemble is never
+held in memory as a whole; the arrays that the figures need travel with the report as
+:class:`Evidence` (not part of the JSON form).
+
+All computations are vectorised over samples; the loops that remain run over anchors, lags or
+averaging times.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import warnings
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import signal, stats
+
+from . import __version__
+from .constants import DEFAULT_GRID_RATE_HZ
+from .errors import PhySynthError
+from .grid import age_of_information, fresh_mask, grid_times
+from .metrics import (
+    METRIC_KEYS,
+    Metrics,
+    TraceSummary,
+    fidelity_score,
+    ks_statistic,
+    pool,
+    relative_deviation_pct,
+    summarize,
+)
+from .records import Anchors, Trace
+
+ACF_MAX_LAG = 10
+"""Residual autocorrelation is reported at lags 1..ACF_MAX_LAG measurements of one anchor."""
+
+ALLAN_TAUS_S = (0.1, 1.0, 10.0)
+"""Averaging times [s] at which the IMU Allan-deviation ratio synthetic / real is reported."""
+
+WELCH_SEGMENT_S = 5.12
+"""Welch segment length [s] of the IMU acceleration spectrum (512 samples on the 100 Hz grid)."""
+
+IMU_MIN_FINITE_FRAC = 0.8
+"""A trace's IMU enters the spectrum and Allan deviation only when this fraction of its grid bins
+holds at least one sample; the empty bins are filled by linear interpolation."""
+
+MAX_PLOT_TRACES = 100
+"""At most this many traces per side keep their path, speed and per-step series for the figures."""
+
+TRANSFER_FROM_REAL = ("path", "motion", "anchors")
+"""Scenario sections that ``--transfer`` takes from the real dataset (paper section IV.C)."""
+
+EXTENDED_STATISTICS: dict[str, tuple[str, str]] = {
+    "residual_wasserstein_m": (
+        "m", "Wasserstein-1 (earth mover's) distance between the pooled signed residuals: the mean "
+             "shift, in metres, needed to turn one distribution into the other (0 = identical)."),
+    "residual_anderson_darling": (
+        "-", "Anderson-Darling k-sample statistic of the pooled signed residuals (scipy midrank "
+             "variant): like KS but weighted towards the tails; larger = more different."),
+    "residual_anderson_darling_pvalue": (
+        "-", "Its tabulated p-value, floored at 0.001 and capped at 0.25 by scipy (residuals of one "
+             "run are correlated, so read it as a scale, not as a test)."),
+    "gap_ks_statistic": (
+        "-", "KS statistic between the gap lengths (time between consecutive valid ranges of one "
+             "anchor), pooled over anchors and traces: do outages and dropouts last as long?"),
+    "gap_quantiles_s": (
+        "s", "Median, P95, P99 and maximum gap length, real and synthetic."),
+    "aoi_ks_statistic": (
+        "-", "KS statistic between the AoI values of all anchors and 100 Hz grid steps."),
+    "residual_acf": (
+        "-", "Autocorrelation of the residuals at lags 1..10 measurements within each anchor's "
+             "sequence (mean removed per trace and anchor, pooled), real and synthetic."),
+    "residual_acf_max_abs_diff": (
+        "-", "Largest |ACF_synthetic - ACF_real| over lags 1..10: is the error correlated alike?"),
+    "imu_allan_ratio": (
+        "-", "Allan deviation of the acceleration, synthetic / real, per axis (E, N, U) at tau = 0.1, "
+             "1 and 10 s (overlapping estimator on the 100 Hz grid); 1 = equal."),
+    "imu_log_spectral_distance_db": (
+        "dB", "Log-spectral distance sqrt(mean_f (10 log10(P_synth / P_real))^2) between the Welch "
+              "acceleration PSDs per axis (E, N, U) and their mean; 0 = equal spectra."),
+}
+"""Name -> (unit, one-line meaning) of every entry of ``report.json["extended"]`` (docs/validation.md)."""
+
+
+# ---------------------------------------------------------------- small numeric helpers
+def _jsonable(obj: Any) -> Any:
+    """Plain JSON values: numpy scalars and arrays to Python, NaN and inf to None."""
+    if isinstance(obj, Mapping):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def _num(x: Any) -> float:
+    """A JSON number back to float (None -> NaN)."""
+    return float("nan") if x is None else float(x)
+
+
+def overlapping_allan_variance_sums(y: np.ndarray, m: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Sums of squared second differences of the overlapping Allan variance, for pooling.
+
+    Parameters
+    ----------
+    y : (N,) or (N, C) array
+        Uniformly sampled signal (e.g. acceleration [m s^-2]); must be finite.
+    m : (M,) int array
+        Averaging factors; tau = m / rate_hz [s].
+    rate_hz : float
+        Sample rate [Hz].
+
+    Returns
+    -------
+    sums : (C, M) array
+        sum_k (x_{k+2m} - 2 x_{k+m} + x_k)^2 / (2 tau^2), with the phase x = [0, cumsum(y)] / rate_hz.
+    counts : (M,) int array
+        Number of terms, N - 2m + 1 (0 when the signal is too short).
+
+    The overlapping Allan variance is ``sums / counts``; adding sums and counts of several traces
+    pools them.
+    """
+    y2 = np.asarray(y, dtype=np.float64)
+    y2 = y2[:, None] if y2.ndim == 1 else y2
+    n = y2.shape[0]
+    dt = 1.0 / rate_hz
+    x = np.concatenate([np.zeros((1, y2.shape[1])), np.cumsum(y2, axis=0) * dt])  # (N+1, C)
+    m = np.asarray(m, dtype=np.int64)
+    sums = np.zeros((y2.shape[1], m.size))
+    counts = np.maximum(n - 2 * m + 1, 0)
+    for j, mj in enumerate(m):  # one vectorised pass per averaging time
+        if counts[j] == 0:
+            continue
+        d = x[2 * mj:] - 2.0 * x[mj:n + 1 - mj] + x[:n + 1 - 2 * mj]
+        tau = mj * dt
+        sums[:, j] = np.einsum("kc,kc->c", d, d) / (2.0 * tau * tau)
+    return sums, counts
+
+
+def allan_deviation(y: np.ndarray, rate_hz: float, tau_s: Sequence[float] | np.ndarray) -> np.ndarray:
+    """Overlapping Allan deviation of a uniformly sampled signal.
+
+    Parameters
+    ----------
+    y : (N,) or (N, C) array
+        Signal, e.g. acceleration [m s^-2] at ``rate_hz``.
+    rate_hz : float
+        Sample rate [Hz].
+    tau_s : sequence of float
+        Averaging times [s]; each is rounded to a whole number of samples (at least 1).
+
+    Returns
+    -------
+    (C, M) array (or (M,) for a 1-D ``y``)
+        sigma(tau) in the unit of ``y``; NaN where the signal is shorter than 2 tau.
+
+    .. math:: \\sigma^2(\\tau) = \\frac{1}{2\\tau^2 (N - 2m + 1)} \\sum_k (x_{k+2m} - 2x_{k+m} + x_k)^2
+
+    with ``x`` the running integral of ``y`` and tau = m / rate. White noise of per-sample standard
+    deviation s gives sigma(tau) = s / sqrt(m); a random walk of increment density K gives
+    K sqrt(tau / 3).
+    """
+    m = np.maximum(np.round(np.asarray(tau_s, dtype=float) * rate_hz).astype(np.int64), 1)
+    sums, counts = overlapping_allan_variance_sums(y, m, rate_hz)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        adev = np.sqrt(sums / np.where(counts > 0, counts, np.nan))
+    return adev[0] if np.ndim(y) == 1 else adev
+
+
+def _fill_gaps(y: np.ndarray) -> np.ndarray | None:
+    """(K, 3) grid IMU with NaN rows -> linearly filled copy, or None when too few rows are finite."""
+    ok = np.all(np.isfinite(y), axis=1)
+    if y.shape[0] < 2 or ok.mean() < IMU_MIN_FINITE_FRAC:
+        return None
+    if ok.all():
+        return y
+    k = np.arange(y.shape[0])
+    return np.stack([np.interp(k, k[ok], y[ok, c]) for c in range(y.shape[1])], axis=1)
+
+
+def _allan_m_grid(rate_hz: float) -> np.ndarray:
+    """Averaging factors: log-spaced from one grid step to ~300 s, plus the reported taus exactly."""
+    top = max(np.log10(300.0 * rate_hz), 1.0)
+    m = np.round(np.logspace(0.0, top, int(10 * top) + 1))
+    m = np.concatenate([m, np.round(np.asarray(ALLAN_TAUS_S) * rate_hz)])
+    return np.unique(np.maximum(m, 1)).astype(np.int64)
+
+
+def _ks(a: np.ndarray, b: np.ndarray) -> float:
+    return ks_statistic(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
+
+
+def _wasserstein(a: np.ndarray, b: np.ndarray) -> float:
+    if a.size == 0 or b.size == 0:
+        return float("nan")
+    return float(stats.wasserstein_distance(a, b))
+
+
+def _anderson_darling(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """(statistic, tabulated p-value) of scipy's k-sample Anderson-Darling test (midrank variant)."""
+    if a.size < 2 or b.size < 2 or np.unique(np.concatenate([a, b])).size < 2:
+        return float("nan"), float("nan")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "p-value capped/floored" and the 1.17 `midrank` deprecation
+        try:
+            res = stats.anderson_ksamp([a, b], variant="midrank")
+        except TypeError:  # scipy < 1.17 has no `variant`; midrank is its default
+            res = stats.anderson_ksamp([a, b])
+    return float(res.statistic), float(res.pvalue)
+
+
+# ---------------------------------------------------------------- evidence (arrays for the figures)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SideEvidence:
+    """Everything the figures need about one side (real or synthetic), reduced from its traces.
+
+    Positions ENU [m], times [s] since each trace's start, residuals [m]. Per-trace lists hold at
+    most :data:`MAX_PLOT_TRACES` entries.
+    """
+
+    n_traces: int
+    anchors: Anchors
+    metrics: Metrics
+    residual_m: np.ndarray
+    residual_anchor: np.ndarray  # (R,) anchor id (object) of each residual
+    gap_s: np.ndarray
+    gap_anchor: np.ndarray  # (G,) anchor id (object) of each gap
+    aoi_s: np.ndarray  # every AoI value of every anchor and grid step, pooled
+    n_fresh_counts: np.ndarray  # (A+1,) grid steps with 0..A fresh anchors
+    paths_enu_m: tuple[np.ndarray, ...]  # decimated truth positions, (T', 3) each
+    speeds: tuple[tuple[np.ndarray, np.ndarray], ...]  # (t_s, speed_mps) each, decimated
+    mean_aoi_series: tuple[np.ndarray, ...]  # per grid step, mean AoI over anchors [s]
+    n_fresh_series: tuple[np.ndarray, ...]  # per grid step, number of fresh anchors
+    sample: Trace  # the first trace, for the range-versus-time figure
+    acf: np.ndarray  # (ACF_MAX_LAG,)
+    psd_f_hz: np.ndarray | None
+    psd_mps2_sq_per_hz: np.ndarray | None  # (3, F)
+    allan_tau_s: np.ndarray | None
+    allan_dev_mps2: np.ndarray | None  # (3, M), NaN where no trace is long enough
+    rate_hz: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Evidence:
+    """The arrays behind a report (for :mod:`physynth.report`); never serialised."""
+
+    real: SideEvidence
+    synthetic: SideEvidence
+
+
+class _SideAccumulator:
+    """Reduces traces one at a time to their summaries and the extended-statistics ingredients."""
+
+    def __init__(self, rate_hz: float) -> None:
+        self.rate_hz = rate_hz
+        self.summaries: list[TraceSummary] = []
+        self.gaps: list[np.ndarray] = []
+        self.gap_anchor: list[np.ndarray] = []
+        self.aoi: list[np.ndarray] = []
+        self.n_fresh_counts = np.zeros(1, dtype=np.int64)
+        self.paths: list[np.ndarray] = []
+        self.speeds: list[tuple[np.ndarray, np.ndarray]] = []
+        self.mean_aoi_series: list[np.ndarray] = []
+        self.n_fresh_series: list[np.ndarray] = []
+        self.sample: Trace | None = None
+        self.anchors: Anchors | None = None
+        self.acf_num = np.zeros(ACF_MAX_LAG)
+        self.acf_den = 0.0
+        self.allan_m = _allan_m_grid(rate_hz)
+        self.allan_sums = np.zeros((3, self.allan_m.size))
+        self.allan_counts = np.zeros(self.allan_m.size, dtype=np.int64)
+        self.nperseg = max(int(round(WELCH_SEGMENT_S * rate_hz)), 8)
+        self.psd_sum: np.ndarray | None = None
+        self.psd_f: np.ndarray | None = None
+        self.psd_weight = 0.0
+
+    def add(self, trace: Trace) -> None:
+        rate = self.rate_hz
+        if self.sample is None:
+            self.sample, self.anchors = trace, trace.anchors
+        s = summarize(trace, rate)  # the section-5 ingredients, from physynth.metrics
+        self.summaries.append(s)
+        ids = np.asarray(trace.anchors.ids, dtype=object)
+
+        # grid: fresh anchors per step and AoI (physynth.grid, the one definition)
+        t = grid_times(trace.t0_s, trace.duration_s, rate)
+        fresh = fresh_mask(trace, t, rate)
+        aoi = age_of_information(trace, t)
+        n_fresh = fresh.sum(axis=1)
+        counts = np.bincount(n_fresh, minlength=len(trace.anchors) + 1)
+        if counts.size > self.n_fresh_counts.size:
+            self.n_fresh_counts = np.pad(self.n_fresh_counts, (0, counts.size - self.n_fresh_counts.size))
+        self.n_fresh_counts[:counts.size] += counts
+        self.aoi.append(aoi.ravel())
+
+        # gaps between consecutive valid ranges of one anchor
+        uwb = trace.uwb
+        ok = uwb.valid
+        tv, av = uwb.t_s[ok], uwb.anchor[ok]
+        order = np.lexsort((tv, av))
+        tv, av = tv[order], av[order]
+        same = av[1:] == av[:-1]
+        self.gaps.append(np.diff(tv)[same])
+        self.gap_anchor.append(ids[av[1:][same]] if same.any() else np.array([], dtype=object))
+
+        # residual autocorrelation within each anchor's (time-ordered) sequence
+        if s.residual_m.size:
+            _, a_idx = np.unique(s.residual_anchor.astype(str), return_inverse=True)
+            order = np.argsort(a_idx, kind="stable")  # keeps time order within an anchor
+            x, a = s.residual_m[order], a_idx[order]
+            x = x - (np.bincount(a, weights=x) / np.bincount(a))[a]
+            self.acf_den += float(x @ x)
+            for k in range(1, ACF_MAX_LAG + 1):
+                if x.size > k:
+                    same_k = a[k:] == a[:-k]
+                    self.acf_num[k - 1] += float(np.dot(x[k:][same_k], x[:-k][same_k]))
+
+        # IMU: Allan variance and Welch spectrum of the 100 Hz-grid acceleration
+        y = _fill_gaps(s.imu_grid_mps2) if trace.imu is not None else None
+        if y is not None:
+            sums, cnt = overlapping_allan_variance_sums(y, self.allan_m, rate)
+            self.allan_sums += sums
+            self.allan_counts += cnt
+            if y.shape[0] >= self.nperseg:
+                f, p = signal.welch(y, fs=rate, nperseg=self.nperseg, axis=0, detrend="constant")
+                w = y.shape[0] / self.nperseg
+                self.psd_sum = p.T * w if self.psd_sum is None else self.psd_sum + p.T * w
+                self.psd_f = f
+                self.psd_weight += w
+
+        # per-trace series for the figures (capped)
+        if len(self.paths) < MAX_PLOT_TRACES:
+            step = max(1, trace.truth.t_s.size // 1500)
+            tt = trace.truth.t_s[::step]
+            self.paths.append(trace.truth.pos_enu_m[::step].copy())
+            self.speeds.append((tt - trace.t0_s, np.linalg.norm(trace.truth.vel_enu_mps[::step], axis=1)))
+            self.mean_aoi_series.append(aoi.mean(axis=1).astype(np.float32))
+            self.n_fresh_series.append(n_fresh.astype(np.int8))
+
+    def finish(self) -> tuple[SideEvidence, np.ndarray]:
+        metrics, r = pool(self.summaries)  # exactly what metrics.compute_metrics returns
+        assert self.sample is not None and self.anchors is not None
+        r_anchor = np.concatenate([s.residual_anchor for s in self.summaries])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            acf = self.acf_num / self.acf_den if self.acf_den > 0 else np.full(ACF_MAX_LAG, np.nan)
+            allan = np.sqrt(self.allan_sums / np.where(self.allan_counts > 0, self.allan_counts, np.nan))
+        has_allan = bool(np.any(self.allan_counts > 0))
+        ev = SideEvidence(
+            n_traces=len(self.summaries),
+            anchors=self.anchors,
+            metrics=metrics,
+            residual_m=r,
+            residual_anchor=r_anchor,
+            gap_s=np.concatenate(self.gaps),
+            gap_anchor=np.concatenate(self.gap_anchor),
+            aoi_s=np.concatenate(self.aoi),
+            n_fresh_counts=self.n_fresh_counts,
+            paths_enu_m=tuple(self.paths),
+            speeds=tuple(self.speeds),
+            mean_aoi_series=tuple(self.mean_aoi_series),
+            n_fresh_series=tuple(self.n_fresh_series),
+            sample=self.sample,
+            acf=acf,
+            psd_f_hz=self.psd_f,
+            psd_mps2_sq_per_hz=None if self.psd_sum is None else self.psd_sum / self.psd_weight,
+            allan_tau_s=self.allan_m / self.rate_hz if has_allan else None,
+            allan_dev_mps2=allan if has_allan else None,
+            rate_hz=self.rate_hz,
+        )
+        return ev, r
+
+
+# ---------------------------------------------------------------- the report
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ValidationReport:
+    """Real versus synthetic: the paper's tables plus extended fidelity statistics.
+
+    Every field except ``evidence`` is plain JSON data (NaN written as null); :meth:`to_dict` is
+    the content of ``report.json`` and :meth:`from_dict` reads it back (without evidence).
+
+    Attributes
+    ----------
+    real, synthetic : dict
+        ``physynth.metrics.Metrics.to_dict()`` of each side (keys :data:`~physynth.metrics.METRIC_KEYS`
+        plus ``per_anchor``).
+    relative_deviation_pct : dict
+        |synth - real| / |real| * 100 per metric key; ``imu_std_mps2`` gives one value per axis.
+    ks_statistic : float
+        KS statistic of the pooled signed residuals (DESIGN.md section 5).
+    fidelity_score : float
+        S = d_avail + d_med / 10 + d_p95 / 20 (lower is better).
+    extended : dict
+        The statistics of :data:`EXTENDED_STATISTICS`.
+    per_anchor : dict
+        Per anchor id: real and synthetic per-anchor metrics, their deviations, residual KS and W1.
+    inputs : dict
+        Provenance: datasets, scenario, seed, number of traces, grid rate, version, time.
+    transfer : dict or None
+        With ``--transfer``: which scenario sections came from the real dataset and which from the
+        scenario.
+    """
+
+    real: dict[str, Any]
+    synthetic: dict[str, Any]
+    relative_deviation_pct: dict[str, Any]
+    ks_statistic: float | None
+    fidelity_score: float | None
+    extended: dict[str, Any]
+    per_anchor: dict[str, Any]
+    inputs: dict[str, Any] = field(default_factory=dict)
+    transfer: dict[str, Any] | None = None
+    evidence: Evidence | None = field(default=None, repr=False, compare=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON form (``report.json``)."""
+        return _jsonable({
+            "real": self.real,
+            "synthetic": self.synthetic,
+            "relative_deviation_pct": self.relative_deviation_pct,
+            "ks_statistic": self.ks_statistic,
+            "fidelity_score": self.fidelity_score,
+            "extended": self.extended,
+            "per_anchor": self.per_anchor,
+            "inputs": self.inputs,
+            "transfer": self.transfer,
+        })
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=1, allow_nan=False)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> ValidationReport:
+        """A report from its JSON form (``evidence`` is None)."""
+        try:
+            return cls(real=dict(data["real"]), synthetic=dict(data["synthetic"]),
+                       relative_deviation_pct=dict(data["relative_deviation_pct"]),
+                       ks_statistic=data["ks_statistic"], fidelity_score=data.get("fidelity_score"),
+                       extended=dict(data["extended"]), per_anchor=dict(data["per_anchor"]),
+                       inputs=dict(data.get("inputs") or {}), transfer=data.get("transfer"))
+        except (KeyError, TypeError) as exc:
+            raise PhySynthError(f"not a validation report: missing or bad field {exc}") from None
+
+
+def read_report(path: str | Path) -> ValidationReport:
+    """Read ``report.json`` (or a report directory holding it)."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / "report.json"
+    try:
+        return ValidationReport.from_dict(json.loads(p.read_text(encoding="utf-8")))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise PhySynthError(f"cannot read validation report {p}: {exc}") from None
+
+
+def _deviations(real: Mapping[str, Any], synth: Mapping[str, Any], keys: Iterable[str]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k in keys:
+        a, b = real.get(k), synth.get(k)
+        if isinstance(a, (list, tuple)):
+            out[k] = [relative_deviation_pct(_num(x), _num(y)) for x, y in zip(a, b, strict=True)]
+        else:
+            out[k] = relative_deviation_pct(_num(a), _num(b))
+    return out
+
+
+def _quantiles(x: np.ndarray) -> list[float]:
+    if x.size == 0:
+        return [float("nan")] * 4
+    return [float(v) for v in np.percentile(x, [50.0, 95.0, 99.0])] + [float(x.max())]
+
+
+def _extended(real: SideEvidence, synth: SideEvidence) -> dict[str, Any]:
+    ad, ad_p = _anderson_darling(real.residual_m, synth.residual_m)
+    ext: dict[str, Any] = {
+        "residual_wasserstein_m": _wasserstein(real.residual_m, synth.residual_m),
+        "residual_anderson_darling": ad,
+        "residual_anderson_darling_pvalue": ad_p,
+        "gap_ks_statistic": _ks(real.gap_s, synth.gap_s),
+        "gap_quantiles_s": {"quantiles": ["p50", "p95", "p99", "max"],
+                            "real": _quantiles(real.gap_s), "synthetic": _quantiles(synth.gap_s)},
+        "aoi_ks_statistic": _ks(real.aoi_s, synth.aoi_s),
+        "residual_acf": {"lags": list(range(1, ACF_MAX_LAG + 1)), "real": real.acf.tolist(),
+                         "synthetic": synth.acf.tolist()},
+        "residual_acf_max_abs_diff": float(np.max(np.abs(synth.acf - real.acf))),
+    }
+    both_imu = real.allan_dev_mps2 is not None and synth.allan_dev_mps2 is not None
+    if both_imu:
+        m = np.round(np.asarray(ALLAN_TAUS_S) * real.rate_hz).astype(np.int64)
+        idx = np.searchsorted(np.round(real.allan_tau_s * real.rate_hz).astype(np.int64), m)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = synth.allan_dev_mps2[:, idx] / real.allan_dev_mps2[:, idx]  # (3, len(taus))
+        ext["imu_allan_ratio"] = {"tau_s": list(ALLAN_TAUS_S), "axes": ["e", "n", "u"],
+                                  "ratio": ratio.tolist(),
+                                  "real_mps2": real.allan_dev_mps2[:, idx].tolist(),
+                                  "synthetic_mps2": synth.allan_dev_mps2[:, idx].tolist()}
+    else:
+        ext["imu_allan_ratio"] = None
+    if both_imu and real.psd_mps2_sq_per_hz is not None and synth.psd_mps2_sq_per_hz is not None \
+            and np.array_equal(real.psd_f_hz, synth.psd_f_hz):
+        f = real.psd_f_hz
+        band = f > 0
+        tiny = np.finfo(float).tiny
+        ratio_db = 10.0 * np.log10(np.maximum(synth.psd_mps2_sq_per_hz[:, band], tiny)
+                                   / np.maximum(real.psd_mps2_sq_per_hz[:, band], tiny))
+        lsd = np.sqrt(np.mean(ratio_db**2, axis=1))
+        ext["imu_log_spectral_distance_db"] = {"axes": ["e", "n", "u"], "per_axis": lsd.tolist(),
+                                               "mean": float(lsd.mean()),
+                                               "band_hz": [float(f[band][0]), float(f[band][-1])]}
+    else:
+        ext["imu_log_spectral_distance_db"] = None
+    if not both_imu:
+        ext["imu_note"] = ("IMU statistics left out: "
+                           + ("neither side" if real.allan_dev_mps2 is None and synth.allan_dev_mps2 is None
+                              else "the real data" if real.allan_dev_mps2 is None else "the synthetic data")
+                           + " has IMU samples")
+    return ext
+
+
+PER_ANCHOR_DEVIATION_KEYS = ("fresh_frac", "mean_aoi_s", "residual_std_m", "residual_median_m",
+                             "abs_residual_p95_m", "abs_residual_p99_m")
+
+
+def _per_anchor(real: SideEvidence, synth: SideEvidence) -> dict[str, Any]:
+    ids = list(real.metrics.per_anchor) + [a for a in synth.metrics.per_anchor if a not in real.metrics.per_anchor]
+    out: dict[str, Any] = {}
+    for a in ids:
+        ra = real.residual_m[real.residual_anchor == a]
+        sa = synth.residual_m[synth.residual_anchor == a]
+        pr, ps = real.metrics.per_anchor.get(a), synth.metrics.per_anchor.get(a)
+        out[a] = {
+            "real": pr,
+            "synthetic": ps,
+            "relative_deviation_pct": (_deviations(pr, ps, PER_ANCHOR_DEVIATION_KEYS)
+                                       if pr is not None and ps is not None else None),
+            "ks_statistic": _ks(ra, sa),
+            "residual_wasserstein_m": _wasserstein(ra, sa),
+            "gap_ks_statistic": _ks(real.gap_s[real.gap_anchor == a], synth.gap_s[synth.gap_anchor == a]),
+        }
+    return out
+
+
+def compare(real: Iterable[Trace], synthetic: Iterable[Trace], *, rate_hz: float = DEFAULT_GRID_RATE_HZ,
+            inputs: Mapping[str, Any] | None = None, transfer: Mapping[str, Any] | None = None,
+            on_trace: Any = None) -> ValidationReport:
+    """Compare real traces with synthetic traces.
+
+    Parameters
+    ----------
+    real, synthetic : iterable of Trace
+        Consumed once, one trace at a time (a generator of synthetic traces is never held whole).
+    rate_hz : float
+        Evaluation grid rate [Hz] (DESIGN.md section 5: 100 Hz).
+    inputs, transfer : mapping, optional
+        Provenance copied into the report.
+    on_trace : callable, optional
+        Called with no argument after each synthetic trace (progress display).
+
+    Returns
+    -------
+    ValidationReport
+        With :class:`Evidence` attached for :func:`physynth.report.write_report`.
+
+    Raises
+    ------
+    PhySynthError
+        When a side holds no trace.
+    """
+    sides = {}
+    for name, traces in (("real", real), ("synthetic", synthetic)):
+        acc = _SideAccumulator(rate_hz)
+        for tr in traces:
+            acc.add(tr)
+            if name == "synthetic" and on_trace is not None:
+                on_trace()
+        if not acc.summaries:
+            raise PhySynthError(f"the {name} side holds no traces")
+        sides[name] = acc.finish()
+    (ev_r, r_real), (ev_s, r_synth) = sides["real"], sides["synthetic"]
+    m_real, m_synth = ev_r.metrics.to_dict(), ev_s.metrics.to_dict()
+    info = {
+        "n_traces": {"real": ev_r.n_traces, "synthetic": ev_s.n_traces},
+        "n_residuals": {"real": int(r_real.size), "synthetic": int(r_synth.size)},
+        "grid_rate_hz": float(rate_hz),
+        "physynth_version": __version__,
+        "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        **(dict(inputs) if inputs else {}),
+    }
+    return ValidationReport(
+        real=m_real,
+        synthetic=m_synth,
+        relative_deviation_pct=_deviations(m_real, m_synth, METRIC_KEYS),
+        ks_statistic=ks_statistic(r_real, r_synth),
+        fidelity_score=fidelity_score(ev_r.metrics, ev_s.metrics),
+        extended=_extended(ev_r, ev_s),
+        per_anchor=_per_anchor(ev_r, ev_s),
+        inputs=_jsonable(info),
+        transfer=_jsonable(dict(transfer)) if transfer is not None else None,
+        evidence=Evidence(real=ev_r, synthetic=ev_s),
+    )
+
+
+# ---------------------------------------------------------------- datasets and scenarios (the CLI's entry)
+def _anchor_ids(traces: Sequence[Trace]) -> list[str]:
+    ids: list[str] = []
+    for tr in traces:
+        ids += [a for a in tr.anchors.ids if a not in ids]
+    return ids
+
+
+def _check_real(traces: Sequence[Trace], where: str) -> None:
+    """Refuse real data that cannot be validated against: no truth, no anchors, no valid range."""
+    from .metrics import residuals
+
+    for i, tr in enumerate(traces):
+        n_truth = int(np.count_nonzero(np.all(np.isfinite(tr.truth.pos_enu_m), axis=1)))
+        if n_truth < 2:
+            raise PhySynthError(f"{where}: trace {i} has no ground truth ({n_truth} finite truth position(s)); "
+                                "validation needs truth to compute range residuals")
+        if len(tr.anchors) == 0:
+            raise PhySynthError(f"{where}: trace {i} has no UWB anchors (an IMU-only recording cannot be "
+                                "validated)")
+    if not any(residuals(tr)[0].size for tr in traces):
+        raise PhySynthError(f"{where} has no valid UWB range inside the truth time span: nothing to compare")
+
+
+def _read(reader: Any, path: str | Path, role: str) -> Any:
+    """Read a dataset; its one-line error names the role (real or synthetic)."""
+    try:
+        return reader(path)
+    except PhySynthError as exc:
+        raise PhySynthError(f"{role} dataset: {exc}") from None
+    except ValueError as exc:  # a table that reads but does not make valid records (unsorted times, ...)
+        raise PhySynthError(f"{role} dataset {path}: invalid content: {exc}") from None
+
+
+def _describe_mismatch(real_ids: Sequence[str], other_ids: Sequence[str], other: str) -> str | None:
+    only_real = [a for a in real_ids if a not in other_ids]
+    only_other = [a for a in other_ids if a not in real_ids]
+    if not only_real and not only_other:
+        return None
+    parts = []
+    if only_real:
+        parts.append(f"only in the real dataset: {', '.join(only_real)}")
+    if only_other:
+        parts.append(f"only in {other}: {', '.join(only_other)}")
+    return f"anchor ids differ between the real dataset and {other} ({'; '.join(parts)})"
+
+
+def _transfer_record(before: Any, after: Any, real_path: str, real_ids: Sequence[str]) -> dict[str, Any]:
+    """What ``--transfer`` took from the real dataset and what it kept from the scenario."""
+    from .scenario import scenario_to_dict
+
+    b, a = scenario_to_dict(before), scenario_to_dict(after)
+    bookkeeping = ("name", "description", "provenance")
+    sections = [k for k in a if k not in bookkeeping]
+    changed = [k for k in sections if a.get(k) != b.get(k)]
+    return {
+        "policy": "paper section IV.C: path geometry, motion and anchor layout from the real dataset; "
+                  "every sensor, channel and availability parameter as in the scenario",
+        "scenario": before.name,
+        "real_dataset": real_path,
+        "from_real": [k for k in sections if k in TRANSFER_FROM_REAL],
+        "from_scenario": [k for k in sections if k not in TRANSFER_FROM_REAL],
+        "changed_sections": changed,
+        "unexpected_changes": [k for k in changed if k not in TRANSFER_FROM_REAL],
+        "anchors": {"scenario": list(before.anchor_ids), "real": list(real_ids),
+                    "transferred": list(after.anchor_ids)},
+    }
+
+
+def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None, scenario: Any = None,
+                      n: int = 50, seed: int | None = None, transfer: bool = False,
+                      rate_hz: float = DEFAULT_GRID_RATE_HZ, progress: bool = False) -> ValidationReport:
+    """Validate a real dataset against a synthetic dataset or against traces generated from a scenario.
+
+    Parameters
+    ----------
+    real : path
+        Dataset directory of real traces (with ground truth).
+    synthetic : path, optional
+        Dataset directory of synthetic traces. Exactly one of ``synthetic`` and ``scenario``.
+    scenario : str, path or Scenario, optional
+        Preset name, scenario file or object; ``n`` traces are generated from root seed ``seed``
+        (drawn from OS entropy and recorded when None).
+    transfer : bool
+        Take path geometry, motion and anchor layout from the real dataset
+        (:func:`physynth.calibrate.transfer_scenario`) and keep every sensor, channel and
+        availability parameter of the scenario (paper section IV.C). Needs ``scenario``.
+    rate_hz : float
+        Evaluation grid rate [Hz].
+    progress : bool
+        Show a progress bar (rich, on stderr) while the synthetic traces are generated and reduced.
+
+    Raises
+    ------
+    PhySynthError
+        One line for every kind of bad input: both or neither of ``synthetic``/``scenario``,
+        ``transfer`` without a scenario, ``n < 1``, unreadable or empty datasets, a real dataset
+        without truth, anchors or valid ranges, and anchor ids that differ (without ``transfer``).
+    """
+    from .io.dataset import read_dataset
+    from .rng import new_root_seed
+    from .scenario import Scenario, load_scenario, scenario_to_dict
+
+    if (synthetic is None) == (scenario is None):
+        raise PhySynthError("give exactly one of --synthetic DATASET and --scenario SCENARIO "
+                            f"({'both' if synthetic is not None else 'neither'} given)")
+    if transfer and scenario is None:
+        raise PhySynthError("--transfer needs --scenario (it builds a scenario for the real run's geometry)")
+    if scenario is not None and n < 1:
+        raise PhySynthError(f"-n must be at least 1, got {n}")
+    real_ds = _read(read_dataset, real, "real")
+    real_traces = real_ds.traces
+    _check_real(real_traces, f"real dataset {real}")
+    real_ids = _anchor_ids(real_traces)
+    inputs: dict[str, Any] = {"real": {"path": str(real), "kind": real_ds.meta.get("kind"),
+                                       "source": real_ds.meta.get("source"), "anchors": real_ids}}
+    transfer_info = None
+
+    if synthetic is not None:
+        synth_ds = _read(read_dataset, synthetic, "synthetic")
+        synth_ids = _anchor_ids(synth_ds.traces)
+        problem = _describe_mismatch(real_ids, synth_ids, f"the synthetic dataset {synthetic}")
+        if problem:
+            raise PhySynthError(problem)
+        if not any(s.uwb.valid.any() for s in synth_ds.traces):
+            raise PhySynthError(f"synthetic dataset {synthetic} has no valid UWB range: nothing to compare")
+        inputs["synthetic"] = {"path": str(synthetic), "kind": synth_ds.meta.get("kind"),
+                               "scenario_name": synth_ds.meta.get("scenario_name"),
+                               "root_seed": synth_ds.meta.get("root_seed"), "n_traces": len(synth_ds)}
+        synth_iter: Iterable[Trace] = synth_ds.traces
+        total = len(synth_ds)
+    else:
+        scn = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+        source = scn.name if isinstance(scenario, Scenario) else str(scenario)
+        if transfer:
+            try:
+                from .calibrate import transfer_scenario
+            except ImportError as exc:
+                raise PhySynthError(f"--transfer is not available in this install ({exc})") from None
+            original = scn
+            scn = transfer_scenario(original, real_traces)
+            transfer_info = _transfer_record(original, scn, str(real), real_ids)
+        else:
+            problem = _describe_mismatch(real_ids, list(scn.anchor_ids), f"scenario '{scn.name}'")
+            if problem:
+                raise PhySynthError(problem + "; use --transfer to take the anchor layout from the real dataset")
+        from .generate import compile_scenario, generate_traces
+
+        root = new_root_seed() if seed is None else int(seed)
+        inputs["synthetic"] = {"scenario": source, "scenario_name": scn.name, "n_traces": int(n),
+                               "root_seed": root, "transfer": bool(transfer),
+                               "scenario_config": scenario_to_dict(scn)}
+        synth_iter = generate_traces(compile_scenario(scn), n, seed=root)
+        total = n
+
+    if not progress:
+        return compare(real_traces, synth_iter, rate_hz=rate_hz, inputs=inputs, transfer=transfer_info)
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn, TimeRemainingColumn
+
+    verb = "generating + reducing" if synthetic is None else "reducing"
+    with Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), TimeRemainingColumn(), transient=True,
+                  console=Console(stderr=True)) as bar:
+        task = bar.add_task(f"{verb} synthetic traces", total=total)
+        return compare(real_traces, synth_iter, rate_hz=rate_hz, inputs=inputs, transfer=transfer_info,
+                       on_trace=lambda: bar.advance(task))
