@@ -49,14 +49,15 @@ def _knots(t_s: np.ndarray, spacing_s: float) -> np.ndarray:
 
 
 def upsample_linear(values_cf: np.ndarray, factor: int) -> np.ndarray:
-    """Linear interpolation of uniform samples (C, K) by an integer factor -> (C, (K-1)*factor+1)."""
+    """Linear interpolation of uniform samples (C, K) by an integer factor -> (C, (K-1)*factor).
+
+    Output sample j sits at knot position j / factor; the last knot itself is not repeated.
+    """
     c, k = values_cf.shape
-    out = np.empty((c, (k - 1) * factor + 1), dtype=values_cf.dtype)
-    inner = out[:, :-1].reshape(c, k - 1, factor)
+    inner = np.empty((c, k - 1, factor), dtype=values_cf.dtype)  # contiguous: fast broadcasting
     np.multiply(np.diff(values_cf, axis=1)[:, :, None], np.arange(factor) / factor, out=inner)
     inner += values_cf[:, :-1, None]
-    out[:, -1] = values_cf[:, -1]
-    return out
+    return inner.reshape(c, -1)
 
 
 def resample_cf(t_s: np.ndarray, knots_t: np.ndarray, values_cf: np.ndarray) -> np.ndarray:
@@ -64,10 +65,9 @@ def resample_cf(t_s: np.ndarray, knots_t: np.ndarray, values_cf: np.ndarray) -> 
     if t_s.shape[0] > 1 and knots_t.shape[0] > 1:
         ratio = (knots_t[1] - knots_t[0]) / (t_s[1] - t_s[0])
         factor = int(round(ratio))
-        if factor >= 1 and abs(ratio - factor) < 1e-9 and abs(t_s[0] - knots_t[0]) < 1e-12:
-            up = upsample_linear(values_cf, factor)
-            if up.shape[1] >= t_s.shape[0]:
-                return up[:, : t_s.shape[0]]
+        if (factor >= 1 and abs(ratio - factor) < 1e-9 and abs(t_s[0] - knots_t[0]) < 1e-12
+                and (knots_t.shape[0] - 1) * factor >= t_s.shape[0]):
+            return upsample_linear(values_cf, factor)[:, : t_s.shape[0]]
     return np.stack([np.interp(t_s, knots_t, v) for v in values_cf])
 
 
@@ -112,11 +112,17 @@ def _vibration_cf(t_s: np.ndarray, params: VibrationParams, *, rng: np.random.Ge
     env = resample_cf(t_s, env_t, lfilter([1.0], [1.0, -rho], innov, axis=1))  # (2*3*H, N): re, im
     phase0 = rng.uniform(0.0, 2.0 * np.pi, n_h)
     out = np.zeros((3, n))
-    tau = t_s - t_s[0]
-    for j, h in enumerate(np.flatnonzero(w)):  # a handful of spectral lines, vectorised over time
-        arg = 2.0 * np.pi * freqs[h] * tau + phase0[j]
+    base = np.exp(1j * 2.0 * np.pi * params.fundamental_hz * (t_s - t_s[0]))  # harmonics by powers
+    carrier = np.ones(n, dtype=complex)
+    j = 0
+    for h in range(w.size):  # a handful of spectral lines, vectorised over time
+        carrier = carrier * base
+        if w[h] == 0:
+            continue
+        c = carrier * np.exp(1j * phase0[j])
         re, im = env[6 * j:6 * j + 3], env[6 * j + 3:6 * j + 6]
-        out += amp[h] * (re * np.cos(arg) - im * np.sin(arg))
+        out += amp[h] * (re * c.real - im * c.imag)
+        j += 1
     return out
 
 
@@ -125,8 +131,9 @@ def simulate_imu(kin: Kinematics, params: ImuParams, *, rng: np.random.Generator
     slow = np.ascontiguousarray(kin.acc_enu_mps2.T)
     slow += _vibration_cf(kin.t_s, params.vibration, rng=rng)
     slow += _bias_cf(kin.t_s, params.bias_rw_mps2_per_sqrt_s, params.bias_initial_std_mps2, rng=rng)
-    t_imu = np.arange(int(np.floor((kin.t_s[-1] - kin.t_s[0]) * params.rate_hz + 1e-9)) + 1) / params.rate_hz
-    t_imu += kin.t_s[0]
+    # IMU samples cover [t0, t_end) of the truth; the last truth instant itself has no IMU sample
+    n_imu = int(np.ceil((kin.t_s[-1] - kin.t_s[0]) * params.rate_hz - 1e-9))
+    t_imu = kin.t_s[0] + np.arange(n_imu) / params.rate_hz
     acc = _white_noise_cf(t_imu.shape[0], np.asarray(params.white_noise_density_mps2_per_sqrt_hz),
                           params.rate_hz, rng=rng)
     acc += resample_cf(t_imu, kin.t_s, slow)

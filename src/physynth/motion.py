@@ -14,7 +14,7 @@ import numpy as np
 from numpy.polynomial import polynomial as P
 from scipy.interpolate import make_smoothing_spline
 
-from .path import PathGeometry, PathPerturbation, perturbed
+from .path import PathGeometry, PathPerturbation, perturbed_cf
 from .scenario import MotionParams, SpeedProfileParams
 
 _TABLE_N = 4001
@@ -51,7 +51,7 @@ def compile_speed_shape(params: SpeedProfileParams) -> SpeedShape:
     else:
         samples = np.asarray(params.samples, dtype=float)
         us = np.linspace(0.0, 1.0, samples.size)
-        spline = make_smoothing_spline(us, samples, lam=1e-5)  # smoothed before differentiation
+        spline = make_smoothing_spline(us, samples, lam=params.smoothing)  # smoothed before differentiation
         g = np.clip(spline(u), 0.0, None)
     peak = g.max()
     if not peak > 0:
@@ -110,7 +110,7 @@ def kinematics(geometry: PathGeometry, pert: PathPerturbation, params: MotionPar
         s, ds, dds = geometry.length_m - along, -speed, -accel
     else:
         s, ds, dds = along, speed, accel
-    p, d1, d2 = perturbed(geometry, pert, s, lateral_dir)
-    vel = d1 * ds[:, None]
-    acc = d2 * (ds * ds)[:, None] + d1 * dds[:, None]
-    return Kinematics(t_s=t, s_m=s, pos_enu_m=p, vel_enu_mps=vel, acc_enu_mps2=acc)
+    p, d1, d2 = perturbed_cf(geometry, pert, s, lateral_dir)  # (3, T): fast broadcasting over time
+    vel = d1 * ds
+    acc = d2 * (ds * ds) + d1 * dds
+    return Kinematics(t_s=t, s_m=s, pos_enu_m=p.T, vel_enu_mps=vel.T, acc_enu_mps2=acc.T)

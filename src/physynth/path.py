@@ -28,13 +28,17 @@ class PathGeometry:
     spline: CubicSpline | None = None  # p(s), s in [0, L]
 
     def evaluate(self, s_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        p, d1, d2 = self.evaluate_cf(s_m)
+        return p.T, d1.T, d2.T
+
+    def evaluate_cf(self, s_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Component-first variant of :meth:`evaluate`: three (3, N) arrays."""
         s_m = np.asarray(s_m, dtype=np.float64)
         if self.spline is not None:
-            return self.spline(s_m), self.spline(s_m, 1), self.spline(s_m, 2)
+            return self.spline(s_m).T, self.spline(s_m, 1).T, self.spline(s_m, 2).T
         c = self.coeffs_s
-        d1 = P.polyder(c, 1, axis=0)
-        d2 = P.polyder(c, 2, axis=0)
-        return P.polyval(s_m, c).T, P.polyval(s_m, d1).T, P.polyval(s_m, d2).T
+        return (P.polyval(s_m, c), P.polyval(s_m, P.polyder(c, 1, axis=0)),
+                P.polyval(s_m, P.polyder(c, 2, axis=0)))
 
     def lateral_direction(self) -> np.ndarray:
         """Horizontal unit vector normal to the chord between the end stations (E, N, 0)."""
@@ -90,13 +94,20 @@ def draw_perturbation(params: PerturbationParams, *, rng: np.random.Generator) -
 
 def perturbed(geometry: PathGeometry, pert: PathPerturbation, s_m: np.ndarray,
               lateral_dir: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """p, dp/ds, d2p/ds2 of the perturbed path: p(s) + (lat * n + sag * up) * sin(pi s / L)."""
-    p, d1, d2 = geometry.evaluate(s_m)
+    """p, dp/ds, d2p/ds2 (each (N, 3)) of the perturbed path p(s) + (lat * n + sag * up) * sin(pi s / L)."""
+    p, d1, d2 = perturbed_cf(geometry, pert, s_m, lateral_dir)
+    return p.T, d1.T, d2.T
+
+
+def perturbed_cf(geometry: PathGeometry, pert: PathPerturbation, s_m: np.ndarray,
+                 lateral_dir: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Component-first variant of :func:`perturbed`: three (3, N) arrays."""
+    p, d1, d2 = geometry.evaluate_cf(s_m)
     if pert.lateral_m == 0.0 and pert.sag_m == 0.0:
         return p, d1, d2
     n = geometry.lateral_direction() if lateral_dir is None else lateral_dir
-    offset = pert.lateral_m * n + pert.sag_m * UP
+    offset = (pert.lateral_m * n + pert.sag_m * UP)[:, None]
     k = np.pi / geometry.length_m
     arg = k * np.asarray(s_m)
-    sin, cos = np.sin(arg)[:, None], np.cos(arg)[:, None]
-    return p + sin * offset, d1 + k * cos * offset, d2 - k * k * sin * offset
+    sin, cos = np.sin(arg), np.cos(arg)
+    return p + offset * sin, d1 + (k * offset) * cos, d2 - (k * k * offset) * sin
