@@ -79,7 +79,9 @@ class SpeedProfileParams(_Model):
     ``trapezoid``: accelerate over ``accel_frac`` of the trip, cruise, decelerate over ``decel_frac``
     (raised-cosine ramps, so acceleration is continuous). ``polynomial``: power-series coefficients
     in u (the paper fits degree 4 to the real speed). ``empirical``: ``samples`` of g at equally
-    spaced u (calibration uses it when a polynomial fits poorly).
+    spaced u (calibration uses it when a polynomial fits poorly), smoothed before differentiation by
+    a smoothing spline over u in [0, 1] with penalty ``smoothing`` (``lam`` of
+    scipy.interpolate.make_smoothing_spline; smaller keeps more detail, e.g. the stops of a walk).
     """
 
     kind: Literal["trapezoid", "polynomial", "empirical"] = "trapezoid"
@@ -87,6 +89,7 @@ class SpeedProfileParams(_Model):
     decel_frac: Probability = 0.15
     coeffs: list[FiniteFloat] | None = None
     samples: list[NonNegFloat] | None = None
+    smoothing: PositiveFloat = 1e-5
 
     @model_validator(mode="after")
     def _check(self) -> SpeedProfileParams:
