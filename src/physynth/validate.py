@@ -677,6 +677,11 @@ def _transfer_record(before: Any, after: Any, real_path: str, real_ids: Sequence
     bookkeeping = ("name", "description", "provenance")
     sections = [k for k in a if k not in bookkeeping]
     changed = [k for k in sections if a.get(k) != b.get(k)]
+    per_anchor_maps = ("channel_per_anchor", "availability_per_anchor")
+    # a per-anchor map restricted to the real anchors is still the scenario's: only new or altered
+    # entries are a change of sensor/channel/availability parameters
+    unexpected = [k for k in changed if k not in TRANSFER_FROM_REAL
+                  and not (k in per_anchor_maps and all(b[k].get(i) == v for i, v in a[k].items()))]
     return {
         "policy": "paper section IV.C: path geometry, motion and anchor layout from the real dataset; "
                   "every sensor, channel and availability parameter as in the scenario",
@@ -685,9 +690,10 @@ def _transfer_record(before: Any, after: Any, real_path: str, real_ids: Sequence
         "from_real": [k for k in sections if k in TRANSFER_FROM_REAL],
         "from_scenario": [k for k in sections if k not in TRANSFER_FROM_REAL],
         "changed_sections": changed,
-        "unexpected_changes": [k for k in changed if k not in TRANSFER_FROM_REAL],
+        "unexpected_changes": unexpected,
         "anchors": {"scenario": list(before.anchor_ids), "real": list(real_ids),
                     "transferred": list(after.anchor_ids)},
+        "fit": (after.provenance or {}).get("transfer"),
     }
 
 

@@ -1,0 +1,352 @@
+"""Tests of ``physynth validate``: report files, metrics against physynth.metrics, self-consistency,
+separation of different scenarios, transfer, the Allan deviation against its analytic laws, and every
+bad-input class through the CLI (one line on stderr, exit code 2)."""
+
+from __future__ import annotations
+
+import base64
+import json
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from helpers import simple_scenario_dict
+
+from physynth.cli import main
+from physynth.generate import generate_trace, generate_traces
+from physynth.io import read_dataset, write_dataset
+from physynth.metrics import METRIC_KEYS, compute_metrics
+from physynth.records import Trace, Truth, Uwb
+from physynth.scenario import scenario_from_dict
+from physynth.validate import (
+    EXTENDED_STATISTICS,
+    allan_deviation,
+    read_report,
+    validate_datasets,
+)
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+HANYANG = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "hanyang-uwb"
+
+
+def _scenario_dict(**updates) -> dict:
+    """A short (about 35 s) run past three anchors with every error term on."""
+    base = {
+        "motion.cruise_speed_mps": 10.0,
+        "motion.cruise_speed_spread_frac": 0.1,
+        "path.perturbation": {"lateral_std_m": 1.0, "sag_std_m": 0.5},
+        "imu.white_noise_density_mps2_per_sqrt_hz": [0.1, 0.06, 0.08],
+        "imu.bias_rw_mps2_per_sqrt_s": 0.002,
+        "imu.vibration": {"amplitude_mps2": 0.1},
+        "channel": {"rate_hz": 15.0, "los_mean_m": 0.05, "los_std_m": 0.1, "nlos_prob": 0.1,
+                    "nlos_modes": [{"weight": 1.0, "mean_m": 1.0, "std_m": 0.4}], "max_range_m": 1e6},
+        "availability": {"dropout_prob": 0.05, "outage_onset_prob": 0.003, "outage_mean_s": 2.0},
+    }
+    base.update(updates)
+    return simple_scenario_dict(**base)
+
+
+def _real_meta() -> dict:
+    return {"kind": "real", "source": "test"}
+
+
+def _run(argv: list[str]) -> int:
+    try:
+        main(argv)
+    except SystemExit as exc:
+        return int(exc.code or 0)
+    return 0
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    """A 'real' dataset (one trace), a synthetic dataset (three traces) and scenario files."""
+    root = tmp_path_factory.mktemp("validate")
+    scn_a = scenario_from_dict(_scenario_dict(), "a")
+    write_dataset(root / "real", [generate_trace(scn_a, 0, 101)], meta=_real_meta())
+    write_dataset(root / "synth", list(generate_traces(scn_a, 3, seed=7)), meta={"kind": "synthetic"})
+    (root / "a.yaml").write_text(yaml.safe_dump(_scenario_dict()), encoding="utf-8")
+    far = _scenario_dict(channel={"rate_hz": 15.0, "los_mean_m": 1.5, "los_std_m": 0.6, "nlos_prob": 0.0,
+                                  "max_range_m": 1e6})
+    (root / "b.yaml").write_text(yaml.safe_dump(far), encoding="utf-8")
+    return root
+
+
+@pytest.fixture(scope="module")
+def full_report(data):
+    """One complete report through the CLI, with figures."""
+    out = data / "report"
+    code = _run(["validate", "--real", str(data / "real"), "--scenario", str(data / "a.yaml"), "-n", "3",
+                 "--seed", "11", "--out", str(out), "--quiet"])
+    assert code == 0
+    return out
+
+
+# ---------------------------------------------------------------- report files
+def test_report_files_exist_and_parse(full_report):
+    rep = json.loads((full_report / "report.json").read_text())
+    for key in ("real", "synthetic", "relative_deviation_pct", "ks_statistic", "extended", "per_anchor"):
+        assert key in rep
+    assert set(rep["real"]) == set(METRIC_KEYS) | {"per_anchor"}
+    assert set(rep["synthetic"]) == set(METRIC_KEYS) | {"per_anchor"}
+    assert set(rep["relative_deviation_pct"]) == set(METRIC_KEYS)
+    assert set(EXTENDED_STATISTICS) <= set(rep["extended"])
+    assert set(rep["per_anchor"]) == {"A1", "A2", "A3"}
+    assert 0.0 <= rep["ks_statistic"] <= 1.0
+    assert rep["inputs"]["synthetic"]["root_seed"] == 11
+    assert rep["inputs"]["n_traces"] == {"real": 1, "synthetic": 3}
+    assert read_report(full_report).to_dict() == rep  # matched write/read pair
+    scn = yaml.safe_load((full_report / "scenario.yaml").read_text())
+    assert scn["name"] == "test-line"
+
+    md = (full_report / "report.md").read_text()
+    assert "Table I." in md and "Table II." in md
+    for label in ("Duration (s)", "UWB ≥ 1", "UWB ≥ 2", "Residual std", "Residual med.", "P95", "P99",
+                  "KS statistic", "Mean AoI", "| East |", "| North |", "| Up |", "| Mean |"):
+        assert label in md, label
+
+
+def test_figures_are_pngs_and_embedded(full_report):
+    pngs = sorted(full_report.glob("*.png"))
+    names = {p.stem for p in pngs}
+    assert {"paths", "speed", "ranges", "residual_cdf", "residual_per_anchor", "availability", "aoi", "outages",
+            "imu_spectrum", "allan"} <= names
+    html = (full_report / "report.html").read_text()
+    embedded = re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', html)
+    assert len(embedded) == len(pngs)
+    for p in pngs:
+        data = p.read_bytes()
+        assert data[:8] == PNG_SIGNATURE and len(data) > 5_000, p.name
+        assert base64.b64encode(data).decode() in embedded, p.name
+    assert "<table>" in html and "http" not in html.replace("http-equiv", "")  # self-contained
+    md = (full_report / "report.md").read_text()
+    assert all(f"({p.name})" in md for p in pngs)
+
+
+def test_metrics_equal_physynth_metrics(data, full_report):
+    rep = read_report(full_report)
+    real = compute_metrics(read_dataset(data / "real").traces).to_dict()
+    assert _same(rep.real, real)
+    synth = validate_datasets(data / "real", synthetic=data / "synth").synthetic
+    assert _same(synth, compute_metrics(read_dataset(data / "synth").traces).to_dict())
+
+
+def _same(a, b) -> bool:
+    """Equal up to the JSON form (NaN <-> None, tuples <-> lists)."""
+    return json.loads(json.dumps(a, allow_nan=True).replace("NaN", "null")) == \
+        json.loads(json.dumps(b, allow_nan=True).replace("NaN", "null"))
+
+
+def test_dataset_against_itself_is_perfect(data):
+    rep = validate_datasets(data / "synth", synthetic=data / "synth")
+    assert rep.ks_statistic == 0.0
+    for key, value in rep.relative_deviation_pct.items():
+        assert value == ([0.0, 0.0, 0.0] if key == "imu_std_mps2" else 0.0), key
+    ext = rep.extended
+    assert ext["residual_wasserstein_m"] == 0.0
+    assert ext["gap_ks_statistic"] == 0.0 and ext["aoi_ks_statistic"] == 0.0
+    assert ext["residual_acf_max_abs_diff"] == 0.0
+    assert np.allclose(ext["imu_allan_ratio"]["ratio"], 1.0)
+    assert ext["imu_log_spectral_distance_db"]["mean"] == 0.0
+    assert rep.fidelity_score == 0.0
+    assert all(d["ks_statistic"] == 0.0 for d in rep.per_anchor.values())
+
+
+def test_different_scenarios_give_large_ks(data):
+    rep = validate_datasets(data / "real", scenario=str(data / "b.yaml"), n=2, seed=3)
+    assert rep.ks_statistic > 0.3
+    assert rep.extended["residual_wasserstein_m"] > 0.5
+    same = validate_datasets(data / "real", scenario=str(data / "a.yaml"), n=2, seed=3)
+    assert same.ks_statistic < 0.15 < rep.ks_statistic
+
+
+def test_no_figures_and_overwrite(data, tmp_path):
+    out = tmp_path / "rep"
+    args = ["validate", "--real", str(data / "real"), "--synthetic", str(data / "synth"), "--out", str(out),
+            "--no-figures", "-q"]
+    assert _run(args) == 0
+    assert not list(out.glob("*.png"))
+    assert "data:image/png" not in (out / "report.html").read_text()
+    assert _run(args) == 2  # a report is there already
+    assert _run(args + ["--overwrite"]) == 0
+
+
+def test_imu_statistics_left_out_without_real_imu(data, tmp_path):
+    tr = read_dataset(data / "real").traces[0]
+    no_imu = Trace(truth=tr.truth, uwb=tr.uwb, anchors=tr.anchors, imu=None)
+    write_dataset(tmp_path / "real", [no_imu], meta=_real_meta())
+    rep = validate_datasets(tmp_path / "real", synthetic=data / "synth")
+    assert rep.extended["imu_allan_ratio"] is None
+    assert rep.extended["imu_log_spectral_distance_db"] is None
+    assert "real data" in rep.extended["imu_note"]
+    from physynth.report import available_figures, render_markdown
+
+    assert "allan" not in available_figures(rep.evidence)
+    assert "Table I left out" in render_markdown(rep)
+
+
+# ---------------------------------------------------------------- transfer
+def test_transfer_keeps_parameters_and_takes_geometry(data, tmp_path):
+    pytest.importorskip("physynth.calibrate", reason="calibration module not installed")
+    from physynth.calibrate import transfer_scenario  # noqa: F401  (the function --transfer uses)
+
+    # the real run: another path, other speed, other anchors (ids and positions)
+    other = _scenario_dict(**{
+        "path.waypoints_enu_m": [[20, -30, 2], [120, 40, 4], [260, 60, 3]],
+        "motion.cruise_speed_mps": 7.0,
+        "anchors": [{"id": "B1", "pos_enu_m": [40, 10, 3]}, {"id": "B2", "pos_enu_m": [150, 0, 3]},
+                    {"id": "B3", "pos_enu_m": [230, 80, 3]}, {"id": "B4", "pos_enu_m": [100, 80, 3]}],
+    })
+    real_trace = generate_trace(scenario_from_dict(other, "real"), 0, 5)
+    write_dataset(tmp_path / "real", [real_trace], meta=_real_meta())
+    scn = scenario_from_dict(_scenario_dict(), "a")
+
+    assert _run(["validate", "--real", str(tmp_path / "real"), "--scenario", str(data / "a.yaml"), "-n", "2",
+                 "--out", str(tmp_path / "no-transfer"), "-q", "--no-figures"]) == 2
+    rep = validate_datasets(tmp_path / "real", scenario=str(data / "a.yaml"), n=2, seed=4, transfer=True)
+
+    t = rep.transfer
+    assert set(t["from_real"]) == {"path", "motion", "anchors"}
+    assert {"imu", "uwb", "channel", "availability"} <= set(t["from_scenario"])
+    assert t["unexpected_changes"] == []
+    assert t["anchors"]["transferred"] == ["B1", "B2", "B3", "B4"]
+    moved = scenario_from_dict(rep.inputs["synthetic"]["scenario_config"], "transferred")
+    # every sensor, channel and availability parameter as in the scenario
+    for section in ("imu", "uwb", "channel", "availability", "truth_rate_hz", "grid_rate_hz"):
+        assert getattr(moved, section) == getattr(scn, section), section
+    for a in moved.anchor_ids:
+        assert moved.channel_for(a) == scn.channel
+        assert moved.availability_for(a) == scn.availability
+    assert moved.path.perturbation == scn.path.perturbation
+    # geometry from the real run
+    assert moved.anchor_ids == real_trace.anchors.ids
+    assert np.allclose([a.pos_enu_m for a in moved.anchors], real_trace.anchors.pos_enu_m)
+    gen = generate_trace(moved, 0, rep.inputs["synthetic"]["root_seed"])
+    real_pos = real_trace.truth.pos_enu_m
+    assert np.linalg.norm(gen.truth.pos_enu_m[0] - real_pos[0]) < 3.0
+    assert np.linalg.norm(gen.truth.pos_enu_m[-1] - real_pos[-1]) < 3.0
+    assert abs(gen.duration_s - real_trace.duration_s) / real_trace.duration_s < 0.25
+    assert rep.real["duration_s"] == pytest.approx(real_trace.duration_s)
+
+
+@pytest.mark.skipif(not HANYANG.is_dir(), reason=f"real data folder {HANYANG} is absent")
+def test_transfer_onto_real_hanyang_run(tmp_path):
+    pytest.importorskip("physynth.calibrate", reason="calibration module not installed")
+    from physynth.importers import import_hanyang
+
+    trace, _ = import_hanyang(HANYANG / "Dynamic_measurements" / "LOS" / "Trajectory_A" / "Case_1")
+    write_dataset(tmp_path / "real", [trace], meta={"kind": "real", "source": "hanyang-uwb"})
+    rep = validate_datasets(tmp_path / "real", scenario="cablecar-ascending", n=2, seed=1, transfer=True)
+    assert rep.transfer["anchors"]["transferred"] == list(trace.anchors.ids)
+    assert rep.transfer["unexpected_changes"] == []
+    assert rep.real["duration_s"] == pytest.approx(trace.duration_s)
+    assert 0.0 <= rep.ks_statistic <= 1.0
+
+
+# ---------------------------------------------------------------- Allan deviation against analytic laws
+def test_allan_deviation_white_noise_and_random_walk():
+    rng = np.random.default_rng(0)
+    rate, n = 100.0, 200_000
+    white = rng.normal(0.0, 0.5, n)
+    taus = np.array([0.01, 0.1, 1.0, 10.0])
+    adev = allan_deviation(white, rate, taus)
+    expected = 0.5 / np.sqrt(taus * rate)  # sigma / sqrt(m)
+    assert np.allclose(adev, expected, rtol=0.08)
+    k = 0.02  # random-walk density [unit / sqrt(s)]
+    walk = np.cumsum(rng.normal(0.0, k / np.sqrt(rate), n))
+    adev_rw = allan_deviation(walk, rate, [10.0, 50.0])
+    assert np.allclose(adev_rw, k * np.sqrt(np.array([10.0, 50.0]) / 3.0), rtol=0.2)
+    assert np.isnan(allan_deviation(white[:100], rate, [1.0])[0])  # too short for 2 tau
+    both = allan_deviation(np.stack([white, 2 * white], axis=1), rate, [0.1])
+    assert both.shape == (2, 1) and both[1, 0] == pytest.approx(2 * both[0, 0])
+
+
+# ---------------------------------------------------------------- bad input: one line, exit code 2
+def _bad(argv: list[str], capsys, *needles: str) -> str:
+    assert _run(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert err.startswith("physynth: error:"), err
+    for needle in needles:
+        assert needle in err, err
+    return err
+
+
+def test_bad_input_synthetic_scenario_choice(data, tmp_path, capsys):
+    base = ["validate", "--real", str(data / "real"), "--out", str(tmp_path / "r"), "-q"]
+    _bad(base, capsys, "neither")
+    _bad(base + ["--synthetic", str(data / "synth"), "--scenario", str(data / "a.yaml")], capsys, "both")
+    _bad(base + ["--synthetic", str(data / "synth"), "--transfer"], capsys, "--transfer needs --scenario")
+    _bad(base + ["--scenario", str(data / "a.yaml"), "-n", "0"], capsys, "-n must be at least 1")
+    assert not (tmp_path / "r").exists()
+
+
+def test_bad_input_mismatched_anchors(data, tmp_path, capsys):
+    base = ["validate", "--real", str(data / "real"), "--out", str(tmp_path / "r"), "-q"]
+    _bad(base + ["--scenario", "cablecar-descending"], capsys, "anchor ids differ",
+         "only in the real dataset: A1, A2, A3", "A101", "--transfer")
+    other = scenario_from_dict(_scenario_dict(anchors=[{"id": "A1", "pos_enu_m": [50, 20, 3]},
+                                                       {"id": "A9", "pos_enu_m": [150, -20, 3]}]), "o")
+    write_dataset(tmp_path / "other", list(generate_traces(other, 1, seed=1)))
+    _bad(base + ["--synthetic", str(tmp_path / "other")], capsys, "only in the real dataset: A2, A3",
+         "A9")
+
+
+def test_bad_input_empty_datasets(data, tmp_path, capsys):
+    write_dataset(tmp_path / "empty", [], meta=_real_meta())
+    out = ["--out", str(tmp_path / "r"), "-q"]
+    _bad(["validate", "--real", str(tmp_path / "empty"), "--synthetic", str(data / "synth")] + out, capsys,
+         "real dataset", "no traces")
+    _bad(["validate", "--real", str(data / "real"), "--synthetic", str(tmp_path / "empty")] + out, capsys,
+         "synthetic dataset", "no traces")
+    tr = read_dataset(data / "real").traces[0]
+    silent = Trace(truth=tr.truth, anchors=tr.anchors, imu=tr.imu,
+                   uwb=Uwb(t_s=tr.uwb.t_s, anchor=tr.uwb.anchor, range_m=np.full(len(tr.uwb), np.nan)))
+    write_dataset(tmp_path / "silent", [silent], meta=_real_meta())
+    _bad(["validate", "--real", str(tmp_path / "silent"), "--synthetic", str(data / "synth")] + out, capsys,
+         "no valid UWB range")
+
+
+def test_bad_input_real_without_truth(data, tmp_path, capsys):
+    tr = read_dataset(data / "real").traces[0]
+    nan = np.full_like(tr.truth.pos_enu_m, np.nan)
+    blind = Trace(truth=Truth(t_s=tr.truth.t_s, pos_enu_m=nan, vel_enu_mps=nan), uwb=tr.uwb,
+                  anchors=tr.anchors, imu=tr.imu)
+    write_dataset(tmp_path / "blind", [blind], meta=_real_meta())
+    _bad(["validate", "--real", str(tmp_path / "blind"), "--synthetic", str(data / "synth"), "--out",
+          str(tmp_path / "r"), "-q"], capsys, "no ground truth")
+
+
+def test_bad_input_unreadable_files(data, tmp_path, capsys):
+    out = ["--out", str(tmp_path / "r"), "-q"]
+    _bad(["validate", "--real", str(tmp_path / "missing"), "--synthetic", str(data / "synth")] + out, capsys,
+         "real dataset", "does not exist")
+    broken = tmp_path / "broken"
+    write_dataset(broken, read_dataset(data / "real").traces, meta=_real_meta())
+    (broken / "uwb.parquet").write_bytes(b"not a parquet file")
+    _bad(["validate", "--real", str(broken), "--synthetic", str(data / "synth")] + out, capsys,
+         "real dataset", "uwb.parquet")
+    bad_json = tmp_path / "badjson"
+    write_dataset(bad_json, read_dataset(data / "synth").traces)
+    (bad_json / "dataset.json").write_text("{ nope", encoding="utf-8")
+    _bad(["validate", "--real", str(data / "real"), "--synthetic", str(bad_json)] + out, capsys,
+         "synthetic dataset", "dataset.json")
+    (tmp_path / "bad.yaml").write_text("name: [unclosed", encoding="utf-8")
+    _bad(["validate", "--real", str(data / "real"), "--scenario", str(tmp_path / "bad.yaml")] + out, capsys,
+         "bad.yaml")
+    _bad(["validate", "--real", str(data / "real"), "--scenario", str(tmp_path / "none.yaml")] + out, capsys,
+         "none.yaml")
+
+
+def test_missing_matplotlib_is_one_clear_line(data, tmp_path, capsys, monkeypatch):
+    for name in [m for m in sys.modules if m == "matplotlib" or m.startswith("matplotlib.")]:
+        monkeypatch.setitem(sys.modules, name, None)
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    _bad(["validate", "--real", str(data / "real"), "--synthetic", str(data / "synth"), "--out",
+          str(tmp_path / "r"), "-q"], capsys, "physynth[report]")
+    assert not (tmp_path / "r").exists()
+    assert _run(["validate", "--real", str(data / "real"), "--synthetic", str(data / "synth"), "--out",
+                 str(tmp_path / "r"), "-q", "--no-figures"]) == 0
