@@ -44,7 +44,8 @@ def main() -> None:
         for i in range(args.n):
             generate_trace(cs, i, r)
         best_mem = max(best_mem, args.n / (time.perf_counter() - t0))
-    print(f"in memory : {best_mem:8.1f} traces/s  ({1e3 / best_mem:.2f} ms per trace, best of {args.repeat} x {args.n})")
+    print(f"in memory : {best_mem:8.1f} traces/s  ({1e3 / best_mem:.2f} ms per trace, "
+          f"best of {args.repeat} x {args.n})")
 
     tmp = Path(tempfile.mkdtemp(prefix="physynth-bench-"))
     best_pq = 0.0
