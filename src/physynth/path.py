@@ -26,6 +26,13 @@ class PathGeometry:
     length_m: float
     coeffs_s: np.ndarray | None = None  # (deg+1, 3) power series in s [m]
     spline: CubicSpline | None = None  # p(s), s in [0, L]
+    _d1: np.ndarray | None = None  # derivative coefficients, cached
+    _d2: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.coeffs_s is not None:
+            object.__setattr__(self, "_d1", P.polyder(self.coeffs_s, 1, axis=0))
+            object.__setattr__(self, "_d2", P.polyder(self.coeffs_s, 2, axis=0))
 
     def evaluate(self, s_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         p, d1, d2 = self.evaluate_cf(s_m)
@@ -36,9 +43,7 @@ class PathGeometry:
         s_m = np.asarray(s_m, dtype=np.float64)
         if self.spline is not None:
             return self.spline(s_m).T, self.spline(s_m, 1).T, self.spline(s_m, 2).T
-        c = self.coeffs_s
-        return (P.polyval(s_m, c), P.polyval(s_m, P.polyder(c, 1, axis=0)),
-                P.polyval(s_m, P.polyder(c, 2, axis=0)))
+        return P.polyval(s_m, self.coeffs_s), P.polyval(s_m, self._d1), P.polyval(s_m, self._d2)
 
     def lateral_direction(self) -> np.ndarray:
         """Horizontal unit vector normal to the chord between the end stations (E, N, 0)."""

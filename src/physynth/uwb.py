@@ -136,19 +136,20 @@ def simulate_uwb(kin: Kinematics, scn: Scenario, ch: ChannelArrays, *, rng: np.r
     scheduled = rng.random((bursts.shape[0], n_anchors)) < ch.attempt_prob
     b_idx, anchor = np.nonzero(scheduled)  # row-major: sorted by burst, then anchor slot
     t_true = bursts[b_idx] + anchor * u.slot_s
-    pos = np.empty((t_true.shape[0], 3))
-    for k in range(3):
-        pos[:, k] = np.interp(t_true, kin.t_s, kin.pos_enu_m[:, k])
+    sq = np.zeros(t_true.shape[0])
+    for k in range(3):  # |p(t) - a_i|, one ENU component at a time (contiguous, no (N, 3) temporaries)
+        d = np.interp(t_true, kin.t_s, kin.pos_enu_m[:, k]) - ch.anchor_pos_enu_m[:, k][anchor]
+        sq += d * d
+    true_range = np.sqrt(sq)
     s_m = np.interp(t_true, kin.t_s, kin.s_m)
-    true_range = np.linalg.norm(pos - ch.anchor_pos_enu_m[anchor], axis=1)
 
     linked = rng.random(t_true.shape[0]) < link_probability(true_range, ch.max_range_m[anchor],
                                                             ch.edge_width_m[anchor])
     nlos = nlos_states(t_true, anchor, s_m, ch, u.nlos_dwell_s, rng=rng)
-    los_err = (ch.los_mean_m[anchor] + ch.range_bias_per_m[anchor] * true_range
-               + ch.los_std_m[anchor] * rng.standard_normal(t_true.shape[0]))
-    nlos_err = sample_nlos_offset(anchor, ch, rng=rng)
-    measured = np.maximum(true_range + np.where(nlos, nlos_err, los_err), 0.0)  # a range is never negative
+    err = (ch.los_mean_m[anchor] + ch.range_bias_per_m[anchor] * true_range
+           + ch.los_std_m[anchor] * rng.standard_normal(t_true.shape[0]))
+    err[nlos] = sample_nlos_offset(anchor[nlos], ch, rng=rng)  # NLOS replaces the LOS error (eq. 3)
+    measured = np.maximum(true_range + err, 0.0)  # a range is never negative
 
     outage = np.zeros(t_true.shape[0], dtype=bool)
     for i in range(n_anchors):  # one outage process per anchor
