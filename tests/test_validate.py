@@ -181,11 +181,11 @@ def test_imu_statistics_left_out_without_real_imu(data, tmp_path):
     rep = validate_datasets(tmp_path / "real", synthetic=data / "synth")
     assert rep.extended["imu_allan_ratio"] is None
     assert rep.extended["imu_log_spectral_distance_db"] is None
-    assert "real data" in rep.extended["imu_note"]
+    assert rep.extended["imu_note"] == "the real data has no usable IMU samples"
     from physynth.report import available_figures, render_markdown
 
     assert "allan" not in available_figures(rep.evidence)
-    assert "Table I left out" in render_markdown(rep)
+    assert "Table I and the IMU statistics left out: the real data has no usable IMU samples" in render_markdown(rep)
 
 
 # ---------------------------------------------------------------- transfer
@@ -350,3 +350,10 @@ def test_missing_matplotlib_is_one_clear_line(data, tmp_path, capsys, monkeypatc
     assert not (tmp_path / "r").exists()
     assert _run(["validate", "--real", str(data / "real"), "--synthetic", str(data / "synth"), "--out",
                  str(tmp_path / "r"), "-q", "--no-figures"]) == 0
+
+
+def test_docs_explain_every_extended_statistic():
+    doc = Path(__file__).resolve().parents[1] / "docs" / "validation.md"
+    text = doc.read_text(encoding="utf-8")
+    for name in EXTENDED_STATISTICS:
+        assert f"`{name}`" in text, name

@@ -504,7 +504,7 @@ def table_extended(report: ValidationReport) -> _Table:
     rows = []
     for name, (unit, meaning) in EXTENDED_STATISTICS.items():
         rows.append((name, _extended_value(name, report.extended.get(name)), unit, meaning))
-    note = report.extended.get("imu_note", "")
+    note = ("IMU statistics left out: " + report.extended["imu_note"] + ".") if report.extended.get("imu_note") else ""
     return _Table("Extended fidelity statistics", ("Statistic", "Value", "Unit", "Meaning"), tuple(rows), note,
                   text_columns=(0, 1, 2, 3))
 
@@ -593,7 +593,8 @@ def render_markdown(report: ValidationReport, figure_files: Mapping[str, str] | 
     parts += [f"- {line}" for line in _inputs_lines(report)]
     parts.append("")
     if table_imu(report) is None:
-        parts += ["Table I left out: " + (report.extended.get("imu_note") or "IMU data missing on a side") + ".", ""]
+        parts += ["Table I and the IMU statistics left out: "
+                  + (report.extended.get("imu_note") or "IMU data missing on a side") + ".", ""]
     for t in _tables(report):
         parts.append(_md_table(t))
     tl = _transfer_lines(report)
@@ -638,7 +639,7 @@ def render_html(report: ValidationReport, figures: Mapping[str, bytes] | None = 
     parts += [f"<li>{html.escape(line)}</li>" for line in _inputs_lines(report)]
     parts.append("</ul>")
     if table_imu(report) is None:
-        parts.append(f'<p class="note">Table I left out: '
+        parts.append(f'<p class="note">Table I and the IMU statistics left out: '
                      f'{html.escape(report.extended.get("imu_note") or "IMU data missing on a side")}.</p>')
     parts += [_html_table(t) for t in _tables(report)]
     tl = _transfer_lines(report)

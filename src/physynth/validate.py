@@ -532,10 +532,9 @@ def _extended(real: SideEvidence, synth: SideEvidence) -> dict[str, Any]:
     else:
         ext["imu_log_spectral_distance_db"] = None
     if not both_imu:
-        ext["imu_note"] = ("IMU statistics left out: "
-                           + ("neither side" if real.allan_dev_mps2 is None and synth.allan_dev_mps2 is None
-                              else "the real data" if real.allan_dev_mps2 is None else "the synthetic data")
-                           + " has IMU samples")
+        ext["imu_note"] = (("neither side has" if real.allan_dev_mps2 is None and synth.allan_dev_mps2 is None
+                            else "the real data has no" if real.allan_dev_mps2 is None
+                            else "the synthetic data has no") + " usable IMU samples")
     return ext
 
 
