@@ -142,6 +142,9 @@ def main(argv: list[str] | None = None) -> None:
         print("physynth: aborted", file=sys.stderr)
         sys.exit(130)
     except typer.TyperException as exc:  # usage errors: unknown option, bad value, missing argument
+        if type(exc).__name__ == "NoArgsIsHelpError":  # a command group without its sub-command
+            print(exc.format_message(), file=sys.stderr)
+            sys.exit(2)
         _fail(exc.format_message())
     except typer.Exit as exc:
         sys.exit(exc.exit_code)
