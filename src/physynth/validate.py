@@ -25,10 +25,10 @@ import datetime as _dt
 import json
 import math
 import warnings
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy import signal, stats
@@ -48,6 +48,9 @@ from .metrics import (
     summarize,
 )
 from .records import Anchors, Trace
+
+if TYPE_CHECKING:
+    from .scenario import Scenario
 
 ACF_MAX_LAG = 10
 """Residual autocorrelation is reported at lags 1..ACF_MAX_LAG measurements of one anchor."""
@@ -563,7 +566,7 @@ def _per_anchor(real: SideEvidence, synth: SideEvidence) -> dict[str, Any]:
 
 def compare(real: Iterable[Trace], synthetic: Iterable[Trace], *, rate_hz: float = DEFAULT_GRID_RATE_HZ,
             inputs: Mapping[str, Any] | None = None, transfer: Mapping[str, Any] | None = None,
-            on_trace: Any = None) -> ValidationReport:
+            on_trace: Callable[[], None] | None = None) -> ValidationReport:
     """Compare real traces with synthetic traces.
 
     Parameters
@@ -645,7 +648,7 @@ def _check_real(traces: Sequence[Trace], where: str) -> None:
         raise PhySynthError(f"{where} has no valid UWB range inside the truth time span: nothing to compare")
 
 
-def _read(reader: Any, path: str | Path, role: str) -> Any:
+def _read(reader: Callable[[str | Path], Any], path: str | Path, role: str) -> Any:
     """Read a dataset; its one-line error names the role (real or synthetic)."""
     try:
         return reader(path)
@@ -668,7 +671,7 @@ def _describe_mismatch(real_ids: Sequence[str], other_ids: Sequence[str], other:
     return f"anchor ids differ between the real dataset and {other} ({'; '.join(parts)})"
 
 
-def _transfer_record(before: Any, after: Any, real_path: str, real_ids: Sequence[str]) -> dict[str, Any]:
+def _transfer_record(before: Scenario, after: Scenario, real_path: str, real_ids: Sequence[str]) -> dict[str, Any]:
     """What ``--transfer`` took from the real dataset and what it kept from the scenario."""
     from .scenario import scenario_to_dict
 
@@ -696,7 +699,8 @@ def _transfer_record(before: Any, after: Any, real_path: str, real_ids: Sequence
     }
 
 
-def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None, scenario: Any = None,
+def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
+                      scenario: str | Path | Scenario | None = None,
                       n: int = 50, seed: int | None = None, transfer: bool = False,
                       rate_hz: float = DEFAULT_GRID_RATE_HZ, progress: bool = False) -> ValidationReport:
     """Validate a real dataset against a synthetic dataset or against traces generated from a scenario.
