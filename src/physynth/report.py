@@ -205,6 +205,10 @@ def _fig_residual_cdf(Figure, ev: Evidence, report: ValidationReport) -> Any:
             x, p = _ecdf(a)
             ax.step(x, p, where="post", color=color, label=f"{name} (n={side.residual_m.size})")
     ax.set_xscale("log")
+    pooled = np.abs(np.concatenate([ev.real.residual_m, ev.synthetic.residual_m]))
+    pooled = pooled[pooled > 0]
+    if pooled.size:
+        ax.set_xlim(left=float(np.percentile(pooled, 0.2)))  # no decade of empty left tail
     ax.set_xlabel("|residual| [m]")
     ax.set_ylabel("CDF")
     ax.grid(alpha=0.3, which="both")
