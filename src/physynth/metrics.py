@@ -15,8 +15,8 @@ import numpy as np
 from scipy import stats
 
 from .constants import DEFAULT_GRID_RATE_HZ
-from .grid import fresh_mask, grid_times, imu_on_grid
 from .grid import age_of_information as _aoi
+from .grid import fresh_mask, grid_times, imu_on_grid
 from .records import Trace
 
 METRIC_KEYS = (
