@@ -106,6 +106,9 @@ def _vibration_cf(t_s: np.ndarray, params: VibrationParams, *, rng: np.random.Ge
     n_h = int(np.count_nonzero(w))
     env_t = _knots(t_s, 1.0 / max(8.0 * params.bandwidth_hz, 2.0))  # knots well above the line width
     rho = np.exp(-np.pi * params.bandwidth_hz * (env_t[1] - env_t[0]))  # OU rate pi * bandwidth
+    # linear interpolation between knots keeps on average a share 2/3 + rho/3 of the envelope variance:
+    # scale it back so that the vibration RMS is amplitude_mps2
+    amp = amp / np.sqrt(2.0 / 3.0 + rho / 3.0)
     # exact complex OU recursion z_k = rho z_{k-1} + sqrt(1 - rho^2) e_k, started in its stationary law
     innov = rng.standard_normal((2 * 3 * n_h, env_t.shape[0])) * np.sqrt(0.5)
     innov[:, 1:] *= np.sqrt(1.0 - rho**2)
