@@ -52,7 +52,7 @@ def as_trace_list(traces: Trace | Sequence[Trace]) -> list[Trace]:
 def trace_label(trace: Trace, index: int) -> str:
     """A short name of a trace for messages and reports."""
     m = trace.meta or {}
-    for key in ("run", "label", "path"):
+    for key in ("label", "run", "path"):
         if m.get(key):
             return str(m[key])
     return f"trace {index}"

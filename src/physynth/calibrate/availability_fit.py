@@ -1,0 +1,495 @@
+"""Calibration of availability: link range, per-burst dropout, outage onset and duration, tag outages.
+
+The generator (:mod:`physynth.availability`, :mod:`physynth.uwb`) lets each anchor alternate between
+*up* and *outage* in continuous time (onset rate ``outage_onset_prob * burst_rate_hz`` per second of
+up time, exponential outages of mean ``outage_mean_s``), drops each attempt while up with probability
+``dropout_prob``, and refuses the link with probability ``1 - 1 / (1 + exp((r - max_range_m) /
+edge_width_m))`` at range r. A tag-level process of the same kind silences every anchor at once.
+
+Estimation, per anchor, from its sequence of ranging attempts (recorded attempt rows when the trace
+has them, e.g. synthetic traces; otherwise one attempt per burst of the tag's burst schedule, bursts
+with no row at all included):
+
+1. the link model by maximum likelihood on (range, heard) of every attempt, with a free loss floor;
+   when the anchor is heard at every range seen the limit is *not identifiable* and ``max_range_m``
+   is put above the largest range;
+2. attempts the link model gives less than 99.9 % are unobserved for the availability process, and
+   so are the bursts of a detected tag outage;
+3. dropout and outage by exact maximum likelihood of the alternating process *sampled at the
+   attempts*: a two-state hidden Markov chain whose transition matrix over one attempt interval T is
+   expm(Q T), Q the generator of the up/outage process, and whose *up* state is heard with probability
+   1 - dropout_prob. Between two heard attempts the chain restarts from *up*, so the likelihood only
+   needs the lengths of the runs of missed attempts; a run cut off by the end of the data (or by
+   unobserved attempts) is censored. For long outages this reduces to the exponential MLE
+   sum(durations incl. censored) / n_uncensored; for short ones it accounts for outages too short to
+   cover an attempt and for dropouts next to outages.
+
+A descriptive table of observed outages (runs of >= 2 missed attempts) is reported beside the fit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.optimize import minimize
+from scipy.special import expit, logit
+
+from ..records import Reason, Trace
+from ._base import Fit, trace_label
+from .uwb_fit import burst_ids, geometric_range
+
+LINK_IN_RANGE_PROB = 0.999
+"""Attempts with a modelled link probability below this are left out of dropout/outage fitting."""
+MIN_ATTEMPTS_BEYOND_HORIZON = 30
+"""A radio horizon is identifiable only with at least this many attempts beyond it (r > R + w)."""
+OBSERVED_OUTAGE_MIN_MISSES = 2
+"""Descriptive outage table: runs of at least this many consecutive missed attempts."""
+TAG_OUTAGE_MIN_S = 1.0
+"""A tag outage lasts at least this long [s] and at least 5 x the longest per-anchor outage mean."""
+
+
+# --------------------------------------------------------------------------------------------------
+# Attempts
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class AttemptTable:
+    """Ranging attempts of one trace on its burst grid: times (B,), attempted/heard (B, A)."""
+
+    t_s: np.ndarray
+    attempted: np.ndarray
+    heard: np.ndarray
+    recorded: bool  # True: attempt rows were in the data; False: inferred from the burst schedule
+    burst_rate_hz: float
+
+
+def has_attempt_rows(trace: Trace) -> bool:
+    """Whether a trace records failed attempts (dropout/outage/no-link rows), as synthetic traces do."""
+    r = trace.uwb.reason
+    return bool(np.isin(r, (Reason.DROPOUT, Reason.OUTAGE, Reason.NO_LINK)).any())
+
+
+def attempt_table(trace: Trace, burst_rate_hz: float) -> AttemptTable:
+    """The (burst x anchor) attempt and heard matrices of a trace.
+
+    With recorded attempt rows, every row is an attempt of its burst. Without, every anchor is taken
+    as attempted in every burst (SOURCE.md: all Hanyang anchors are ranged in one burst) and bursts
+    missing from the data (no row at all) are filled in on the burst period.
+    """
+    u = trace.uwb
+    n_a = len(trace.anchors)
+    b = burst_ids(trace)
+    ids, inv = np.unique(b, return_inverse=True)
+    nb = ids.size
+    start = np.full(nb, np.inf)
+    np.minimum.at(start, inv, u.t_s)
+    recorded = has_attempt_rows(trace)
+    if recorded:
+        attempted = np.zeros((nb, n_a), dtype=bool)
+        heard = np.zeros((nb, n_a), dtype=bool)
+        attempted[inv, u.anchor] = True
+        ok = u.valid
+        heard[inv[ok], u.anchor[ok]] = True
+        return AttemptTable(t_s=start, attempted=attempted, heard=heard, recorded=True,
+                            burst_rate_hz=burst_rate_hz)
+    ok = u.valid
+    has_valid = np.zeros(nb, dtype=bool)
+    has_valid[inv[ok]] = True
+    # bursts with no valid row are not evidence of a burst: rebuild the grid from bursts with data
+    keep = np.flatnonzero(has_valid)
+    st = start[keep]
+    period = 1.0 / burst_rate_hz
+    k = np.maximum(np.round(np.diff(st) / period).astype(np.int64), 1)
+    n_new = np.concatenate([[1], k])  # grid slots from the previous kept burst to this one
+    pos = np.cumsum(n_new) - 1  # grid index of each kept burst
+    total = int(pos[-1]) + 1
+    grid_t = np.interp(np.arange(total), pos, st)
+    remap = np.full(nb, -1)
+    remap[keep] = pos
+    heard = np.zeros((total, n_a), dtype=bool)
+    rows = ok & (remap[inv] >= 0)
+    heard[remap[inv[rows]], u.anchor[rows]] = True
+    return AttemptTable(t_s=grid_t, attempted=np.ones((total, n_a), dtype=bool), heard=heard, recorded=False,
+                        burst_rate_hz=burst_rate_hz)
+
+
+# --------------------------------------------------------------------------------------------------
+# Link range
+# --------------------------------------------------------------------------------------------------
+
+
+def _link_nll(theta: np.ndarray, r: np.ndarray, h: np.ndarray) -> float:
+    big_r, log_w, lg_e = theta
+    w = np.exp(log_w)
+    x = np.clip((r - big_r) / w, -50, 50)
+    p = expit(-x) * (1.0 - expit(lg_e))
+    p = np.clip(p, 1e-12, 1 - 1e-12)
+    return float(-np.sum(np.where(h, np.log(p), np.log1p(-p))))
+
+
+def fit_link(range_m: np.ndarray, heard: np.ndarray) -> dict[str, Any]:
+    """Maximum-likelihood soft radio horizon P(heard) = (1 - e) / (1 + exp((r - R) / w)).
+
+    Compared by a likelihood-ratio test with a range-independent loss; when the anchor is heard
+    equally at all ranges seen (LR < 10) or R lies beyond them, R is not identifiable.
+    """
+    ok = np.isfinite(range_m)
+    r, h = range_m[ok], heard[ok]
+    out: dict[str, Any] = {"n_attempts": int(r.size), "max_range_seen_m": float(r.max()) if r.size else None,
+                           "max_range_heard_m": float(r[h].max()) if h.any() else None}
+    if r.size < 20 or h.all() or not h.any():
+        out.update(identifiable=False, why="heard at every range seen" if h.all() else "too few attempts")
+        return out
+    e0 = 1.0 - h.mean()
+    nll0 = _link_nll(np.array([1e9, 0.0, logit(np.clip(e0, 1e-6, 1 - 1e-6))]), r, h)
+    best = None
+    heard_r = r[h]
+    for q in (0.9, 0.99, 1.0):  # a few starts, each a small vectorised optimisation
+        x0 = np.array([np.quantile(heard_r, q), np.log(max(np.ptp(r) / 50.0, 0.5)),
+                       logit(np.clip(e0 / 2, 1e-4, 0.5))])
+        res = minimize(_link_nll, x0, args=(r, h), method="Nelder-Mead",
+                       options={"xatol": 1e-4, "fatol": 1e-6, "maxiter": 2000})
+        if best is None or res.fun < best.fun:
+            best = res
+    lr = 2.0 * (nll0 - best.fun)
+    big_r, w = float(best.x[0]), float(np.exp(best.x[1]))
+    beyond = r > big_r + w
+    n_beyond = int(beyond.sum())
+    heard_beyond = float(h[beyond].mean()) if n_beyond else float("nan")
+    out.update(lr_statistic=float(lr), max_range_m=big_r, edge_width_m=w, loss_floor=float(expit(best.x[2])),
+               n_attempts_beyond=n_beyond, heard_frac_beyond=heard_beyond)
+    if lr < 10.0:
+        out.update(identifiable=False, why=f"no range dependence (LR {lr:.1f} < 10)")
+    elif n_beyond < MIN_ATTEMPTS_BEYOND_HORIZON:
+        out.update(identifiable=False, why=f"only {n_beyond} attempts beyond the fitted horizon "
+                   f"({big_r:.1f} m; at least {MIN_ATTEMPTS_BEYOND_HORIZON} needed)")
+    else:
+        out["identifiable"] = True
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# Dropout / outage: the sampled alternating process as a hidden Markov chain
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(slots=True)
+class RunStats:
+    """Run-length statistics of one anchor's observed attempt blocks (pooled over traces)."""
+
+    internal: list[np.ndarray] = field(default_factory=list)  # misses between two heard attempts
+    leading: list[np.ndarray] = field(default_factory=list)  # misses before the first heard of a block
+    trailing: list[np.ndarray] = field(default_factory=list)  # misses after the last heard of a block
+    full: list[np.ndarray] = field(default_factory=list)  # blocks without any heard attempt
+    n_attempts: int = 0
+    n_heard: int = 0
+    span_s: float = 0.0
+    durations_s: list[np.ndarray] = field(default_factory=list)  # descriptive: gaps of runs >= 2 misses
+    censored_s: list[np.ndarray] = field(default_factory=list)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        def cat(x: list[np.ndarray]) -> np.ndarray:
+            return np.concatenate(x).astype(np.int64) if x else np.zeros(0, np.int64)
+
+        return cat(self.internal), cat(self.leading), cat(self.trailing), cat(self.full)
+
+
+def add_runs(stats: RunStats, t_s: np.ndarray, code: np.ndarray) -> None:
+    """Add one anchor's attempt sequence: code 1 heard, 0 missed, -1 unobserved (splits blocks)."""
+    obs = code >= 0
+    if not obs.any():
+        return
+    stats.n_attempts += int(obs.sum())
+    stats.n_heard += int((code == 1).sum())
+    start_flag = obs & ~np.concatenate([[False], obs[:-1]])
+    end_flag = obs & ~np.concatenate([obs[1:], [False]])
+    b_start, b_end = np.flatnonzero(start_flag), np.flatnonzero(end_flag) + 1
+    block = np.cumsum(start_flag) - 1  # block id of each (observed) position
+    heard_idx = np.flatnonzero(code == 1)
+    hb = block[heard_idx]
+    # internal runs: consecutive heard positions in the same block
+    same = np.diff(hb) == 0
+    stats.internal.append((np.diff(heard_idx) - 1)[same])
+    gaps_t = np.diff(t_s[heard_idx])[same]
+    m_int = (np.diff(heard_idx) - 1)[same]
+    stats.durations_s.append(gaps_t[m_int >= OBSERVED_OUTAGE_MIN_MISSES])
+    # first / last heard per block
+    first = np.full(b_start.size, -1)
+    last = np.full(b_start.size, -1)
+    if heard_idx.size:
+        uniq, fi = np.unique(hb, return_index=True)
+        first[uniq] = heard_idx[fi]
+        _, li = np.unique(hb[::-1], return_index=True)
+        last[uniq] = heard_idx[::-1][li]
+    has = first >= 0
+    stats.leading.append((first - b_start)[has])
+    trail = (b_end - 1 - last)[has]
+    stats.trailing.append(trail)
+    cens = trail >= OBSERVED_OUTAGE_MIN_MISSES
+    stats.censored_s.append((t_s[np.minimum(b_end - 1, t_s.size - 1)] - t_s[last])[has][cens])
+    stats.full.append((b_end - b_start)[~has])
+    stats.span_s += float(np.sum(t_s[b_end - 1] - t_s[b_start]))
+
+
+def _matpow_rows(b: np.ndarray, v: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """v B^m for a 2x2 matrix B, a row vector v (2,) and integer powers m (N,) -> (N, 2) (Sylvester)."""
+    tr, det = np.trace(b), np.linalg.det(b)
+    disc = max(tr * tr / 4.0 - det, 0.0)
+    l1, l2 = tr / 2.0 + np.sqrt(disc), tr / 2.0 - np.sqrt(disc)
+    vb = v @ b
+    m = m.astype(float)
+    if abs(l1 - l2) < 1e-12:
+        # repeated eigenvalue: B^m = l^(m-1) (m B - (m-1) l I)
+        lm1 = np.where(m > 0, l1 ** np.maximum(m - 1, 0), 0.0)
+        return np.where(m[:, None] == 0, v, lm1[:, None] * (m[:, None] * vb - (m - 1)[:, None] * l1 * v))
+    p1, p2 = l1**m, l2**m
+    return ((p1[:, None] * (vb - l2 * v) - p2[:, None] * (vb - l1 * v)) / (l1 - l2))
+
+
+def _chain(alpha: float, beta: float, pd: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    a = np.array([[1.0 - alpha, alpha], [beta, 1.0 - beta]])
+    dm = np.diag([pd, 1.0])
+    dh = np.array([1.0 - pd, 0.0])
+    pi = np.array([beta, alpha]) / (alpha + beta) if alpha + beta > 0 else np.array([1.0, 0.0])
+    return a, dm, dh, pi
+
+
+def _hmm_loglik(alpha: float, beta: float, pd: float, runs: tuple[np.ndarray, ...]) -> float:
+    internal, leading, trailing, full = runs
+    a, dm, dh, pi = _chain(alpha, beta, pd)
+    b = a @ dm
+    up = np.array([1.0, 0.0])
+    ahd = a @ dh
+    ll = 0.0
+    if internal.size:
+        vals, cnt = np.unique(internal, return_counts=True)
+        ll += float(np.sum(cnt * np.log(np.maximum(_matpow_rows(b, up, vals) @ ahd, 1e-300))))
+    if leading.size:
+        vals, cnt = np.unique(leading, return_counts=True)
+        start = pi @ dm  # leading run l >= 1: pi Dm B^(l-1) A Dh 1; l = 0: pi Dh 1
+        p = np.where(vals == 0, pi @ dh, _matpow_rows(b, start, np.maximum(vals - 1, 0)) @ ahd)
+        ll += float(np.sum(cnt * np.log(np.maximum(p, 1e-300))))
+    if trailing.size:
+        vals, cnt = np.unique(trailing, return_counts=True)
+        ll += float(np.sum(cnt * np.log(np.maximum(_matpow_rows(b, up, vals).sum(axis=1), 1e-300))))
+    if full.size:
+        vals, cnt = np.unique(full, return_counts=True)
+        p = _matpow_rows(b, pi @ dm, np.maximum(vals - 1, 0)).sum(axis=1)
+        ll += float(np.sum(cnt * np.log(np.maximum(p, 1e-300))))
+    return ll
+
+
+def _to_rates(alpha: float, beta: float, period_s: float) -> tuple[float, float]:
+    """(onset rate [1/s], outage mean [s]) of the continuous process whose T-step matrix has alpha, beta."""
+    s = alpha + beta
+    if alpha <= 0:
+        return 0.0, float("inf")
+    total = -np.log(max(1.0 - s, 1e-300)) / period_s
+    lam = alpha / s * total
+    nu = beta / s * total
+    return float(lam), float(1.0 / nu) if nu > 0 else float("inf")
+
+
+def _from_rates(lam: float, mean_s: float, period_s: float) -> tuple[float, float]:
+    nu = 1.0 / mean_s
+    s = lam + nu
+    f = 1.0 - np.exp(-s * period_s)
+    return lam / s * f, nu / s * f
+
+
+def fit_dropout_outage(stats: RunStats, period_s: float, burst_rate_hz: float) -> dict[str, Any]:
+    """ML dropout probability, outage onset per burst and outage mean from run-length statistics."""
+    runs = stats.arrays()
+    n_att, n_heard = stats.n_attempts, stats.n_heard
+    out: dict[str, Any] = {"n_attempts": n_att, "n_heard": n_heard, "attempt_period_s": period_s}
+    if n_att == 0:
+        out["identifiable"] = False
+        return out
+    miss_frac = 1.0 - n_heard / n_att
+    # dropout-only model (alpha = 0): closed form
+    pd0 = float(np.clip(miss_frac, 1e-9, 1 - 1e-9))
+    ll0 = (n_att - n_heard) * np.log(pd0) + n_heard * np.log(1 - pd0)
+
+    def nll(theta: np.ndarray) -> float:
+        al, be, pd = expit(theta)
+        return -_hmm_loglik(al, be, pd, runs)
+
+    best = None
+    for a0, b0, d0 in ((0.01, 0.3, 0.5 * miss_frac), (0.001, 0.05, 0.8 * miss_frac), (0.05, 0.6, 0.1 * miss_frac),
+                       (1e-4, 0.005, 0.5 * miss_frac)):  # a few starts of a 3-parameter optimisation
+        x0 = logit(np.clip([a0, b0, d0], 1e-6, 1 - 1e-6))
+        res = minimize(nll, x0, method="Nelder-Mead", options={"xatol": 1e-7, "fatol": 1e-9, "maxiter": 4000})
+        if best is None or res.fun < best.fun:
+            best = res
+    alpha, beta, pd = (float(x) for x in expit(best.x))
+    lr = 2.0 * (-best.fun - ll0)
+    lam, mean_s = _to_rates(alpha, beta, period_s)
+    out.update(log_likelihood=float(-best.fun), log_likelihood_dropout_only=float(ll0), lr_outage=float(lr),
+               missed_frac=miss_frac)
+    if lr < 10.0 or not np.isfinite(mean_s):
+        out.update(identifiable=False, dropout_prob=pd0, outage_onset_prob=0.0, outage_mean_s=None,
+                   why=f"no evidence of outages beyond independent dropouts (LR {lr:.1f} < 10)")
+        out["dropout_prob_se"] = float(np.sqrt(pd0 * (1 - pd0) / n_att))
+        return out
+    onset = lam / burst_rate_hz
+    out.update(identifiable=True, dropout_prob=pd, outage_onset_prob=onset, outage_mean_s=mean_s)
+    out.update(_hmm_standard_errors(pd, onset, mean_s, period_s, burst_rate_hz, runs))
+    return out
+
+
+def _hmm_standard_errors(pd: float, onset: float, mean_s: float, period_s: float, burst_rate_hz: float,
+                         runs: tuple[np.ndarray, ...]) -> dict[str, float]:
+    """Standard errors from the inverse numerical Hessian of the log-likelihood in log-parameters."""
+    x0 = np.log([max(pd, 1e-9), onset, mean_s])
+
+    def ll(x: np.ndarray) -> float:
+        p, o, m = np.exp(x)
+        if p >= 1:
+            return -1e300
+        al, be = _from_rates(o * burst_rate_hz, m, period_s)
+        return _hmm_loglik(al, be, p, runs)
+
+    h = 1e-3
+    n = 3
+    hess = np.zeros((n, n))
+    f0 = ll(x0)
+    for i in range(n):  # 3 x 3 finite differences
+        for j in range(i, n):
+            ei, ej = np.eye(n)[i] * h, np.eye(n)[j] * h
+            if i == j:
+                v = (ll(x0 + ei) - 2 * f0 + ll(x0 - ei)) / h**2
+            else:
+                v = (ll(x0 + ei + ej) - ll(x0 + ei - ej) - ll(x0 - ei + ej) + ll(x0 - ei - ej)) / (4 * h * h)
+            hess[i, j] = hess[j, i] = v
+    try:
+        cov = np.linalg.inv(-hess)
+        rel = np.sqrt(np.clip(np.diag(cov), 0, None))
+    except np.linalg.LinAlgError:
+        rel = np.full(n, np.nan)
+    if pd < 1e-6:
+        rel[0] = np.nan
+    return {"dropout_prob_se": float(pd * rel[0]), "outage_onset_prob_se": float(onset * rel[1]),
+            "outage_mean_s_se": float(mean_s * rel[2])}
+
+
+# --------------------------------------------------------------------------------------------------
+# Per-anchor and tag-level availability of a set of traces
+# --------------------------------------------------------------------------------------------------
+
+
+def _dark_runs(tab: AttemptTable, in_range: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Runs of bursts where no anchor is heard although at least one is in link range.
+
+    Returns (start index, end index exclusive, censored) of each run.
+    """
+    any_heard = tab.heard.any(axis=1)
+    any_in = (in_range & tab.attempted).any(axis=1)
+    dark = ~any_heard & any_in
+    x = np.concatenate([[0], dark.astype(np.int8), [0]])
+    d = np.diff(x)
+    s, e = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    cens = (s == 0) | (e == dark.size)
+    return s, e, cens
+
+
+def fit_availability(traces: Sequence[Trace], offset_s: float, burst_rate_hz: float,
+                     anchor_ids: Sequence[str]) -> Fit[dict[str, Any]]:
+    """Link range, attempt rate, dropout and outages per anchor, and tag outages, pooled over traces."""
+    tabs = [attempt_table(t, burst_rate_hz) for t in traces]
+    period = 1.0 / burst_rate_hz
+    per_anchor: dict[str, dict[str, Any]] = {}
+    ranges: dict[str, list[np.ndarray]] = {a: [] for a in anchor_ids}
+    heards: dict[str, list[np.ndarray]] = {a: [] for a in anchor_ids}
+    att_count = dict.fromkeys(anchor_ids, 0)
+    burst_count = dict.fromkeys(anchor_ids, 0)
+    rng_tab = []
+    for tr, tab in zip(traces, tabs, strict=True):
+        r_all = np.full(tab.heard.shape, np.nan)
+        for j, aid in enumerate(tr.anchors.ids):  # one pass per anchor
+            att = tab.attempted[:, j]
+            r = geometric_range(tr, tab.t_s - offset_s, np.full(tab.t_s.size, j))
+            r_all[:, j] = r
+            ranges[aid].append(r[att])
+            heards[aid].append(tab.heard[att, j])
+            att_count[aid] += int(att.sum())
+            burst_count[aid] += tab.t_s.size
+        rng_tab.append(r_all)
+    links = {a: fit_link(np.concatenate(ranges[a]), np.concatenate(heards[a])) for a in anchor_ids
+             if ranges[a]}
+    in_range = []
+    for tr, r_all in zip(traces, rng_tab, strict=True):
+        ok = np.isfinite(r_all)
+        for j, aid in enumerate(tr.anchors.ids):
+            lk = links.get(aid, {})
+            if lk.get("identifiable"):
+                lim = lk["max_range_m"] - lk["edge_width_m"] * np.log(LINK_IN_RANGE_PROB / (1 - LINK_IN_RANGE_PROB))
+                ok[:, j] &= r_all[:, j] <= lim
+        in_range.append(ok)
+
+    def per_anchor_runs(exclude: list[np.ndarray]) -> dict[str, RunStats]:
+        stats = {a: RunStats() for a in anchor_ids}
+        for tr, tab, ok, ex in zip(traces, tabs, in_range, exclude, strict=True):
+            for j, aid in enumerate(tr.anchors.ids):
+                att = tab.attempted[:, j]
+                code = np.where(tab.heard[:, j], 1, 0)
+                code = np.where(ok[:, j] & ~ex, code, -1)[att]
+                add_runs(stats[aid], tab.t_s[att], code)
+        return stats
+
+    no_ex = [np.zeros(t.t_s.size, dtype=bool) for t in tabs]
+    stats = per_anchor_runs(no_ex)
+    att_period = {a: period * burst_count[a] / max(att_count[a], 1) for a in anchor_ids}
+    fits = {a: fit_dropout_outage(stats[a], att_period[a], burst_rate_hz) for a in anchor_ids}
+    # tag-level outages: long runs of bursts where no in-range anchor is heard
+    longest = max([f["outage_mean_s"] for f in fits.values() if f.get("outage_mean_s")] or [0.0])
+    tag_min_s = max(TAG_OUTAGE_MIN_S, 5.0 * longest)
+    tag_durations, tag_censored, excl = [], [], []
+    up_bursts = 0
+    for tab, ok in zip(tabs, in_range, strict=True):
+        s, e, cens = _dark_runs(tab, ok)
+        dur = (e - s) * period
+        long = dur >= tag_min_s
+        ex = np.zeros(tab.t_s.size, dtype=bool)
+        for a, b in zip(s[long], e[long], strict=True):  # a handful of long dark runs
+            ex[a:b] = True
+        excl.append(ex)
+        tag_durations.append(dur[long & ~cens])
+        tag_censored.append(dur[long & cens])
+        up_bursts += int((~ex).sum())
+    td, tc = np.concatenate(tag_durations), np.concatenate(tag_censored)
+    tag: dict[str, Any] = {"min_duration_s": tag_min_s, "n_outages": int(td.size), "n_censored": int(tc.size),
+                           "durations_s": td.tolist(), "censored_s": tc.tolist()}
+    if td.size + tc.size:
+        tag["onset_prob"] = float((td.size + tc.size) / max(up_bursts, 1))
+        tag["mean_s"] = float((td.sum() + tc.sum()) / max(td.size, 1))
+        tag["method"] = ("dark runs (no in-range anchor heard) of at least min_duration_s; onset = n / up bursts, "
+                         "mean = sum(durations incl. censored) / n_uncensored")
+        stats = per_anchor_runs(excl)
+        fits = {a: fit_dropout_outage(stats[a], att_period[a], burst_rate_hz) for a in anchor_ids}
+    else:
+        tag["onset_prob"] = 0.0
+        tag["note"] = f"no run of >= {tag_min_s:.3g} s without any in-range anchor: no tag outage"
+    for a in anchor_ids:
+        st = stats[a]
+        dur = np.concatenate(st.durations_s) if st.durations_s else np.zeros(0)
+        cen = np.concatenate(st.censored_s) if st.censored_s else np.zeros(0)
+        observed = {"min_missed_attempts": OBSERVED_OUTAGE_MIN_MISSES, "n": int(dur.size), "n_censored": int(cen.size),
+                    "mean_gap_s": float(dur.mean()) if dur.size else None,
+                    "censored_mle_mean_s": float((dur.sum() + cen.sum()) / dur.size) if dur.size else None}
+        per_anchor[a] = {
+            "attempts": att_count[a],
+            "bursts": burst_count[a],
+            "attempts_recorded": all(t.recorded for t in tabs),
+            "attempt_prob": att_count[a] / max(burst_count[a], 1),
+            "link": links.get(a, {"identifiable": False, "why": "no attempts"}),
+            "dropout_outage": fits[a],
+            "observed_outages": observed,
+        }
+    n = int(sum(att_count.values()))
+    return Fit(params={"per_anchor": per_anchor, "tag": tag}, n_samples=n,
+               diagnostics={"attempts_recorded": [t.recorded for t in tabs],
+                            "labels": [trace_label(t, i) for i, t in enumerate(traces)]})
