@@ -1,9 +1,107 @@
-"""``physynth calibrate``: command registered on the main app (work in progress)."""
+"""``physynth calibrate``: fit a scenario to one or several recorded datasets.
+
+    physynth calibrate DATASET_DIR [DATASET_DIR...] --out scenario.yaml [--report fit.json]
+                       [--path-kind auto|polynomial|waypoints] [--name NAME]
+                       [--anchor-layout strict|first] [--static-sweeps DIR] [--range-bias dynamic|static]
+                       [--overwrite] [--quiet]
+
+The command parses, calls :func:`physynth.calibrate.calibrate_datasets`, writes the scenario with
+:func:`physynth.scenario.save_scenario` (it loads back with ``load_scenario`` and feeds
+``physynth generate``) and the JSON fit report, and prints a short summary table. Bad input raises
+:class:`~physynth.errors.PhySynthError`, which ``physynth.cli.main`` prints as one line (exit code 2).
+"""
 
 from __future__ import annotations
+
+import json
+from pathlib import Path
 
 import typer
 
 
 def register(app: typer.Typer) -> None:
     """Add the ``calibrate`` command to the main app."""
+    app.command("calibrate")(calibrate_cmd)
+
+
+def calibrate_cmd(
+    datasets: list[Path] = typer.Argument(..., help="Dataset directories (real or synthetic), pooled."),
+    out: Path = typer.Option(..., "--out", "-o", help="Scenario YAML file to write."),
+    report: Path | None = typer.Option(None, "--report", help="JSON fit report to write (default: none)."),
+    path_kind: str = typer.Option("auto", "--path-kind",
+                                  help="Path geometry: auto, polynomial (degree 10, cable) or waypoints (walk)."),
+    name: str | None = typer.Option(None, "--name", help="Scenario name (default: the output file's stem)."),
+    anchor_layout: str = typer.Option("strict", "--anchor-layout",
+                                      help="strict: an anchor placed differently by two datasets is an error; "
+                                           "first: write the first dataset's layout."),
+    static_sweeps: Path | None = typer.Option(None, "--static-sweeps",
+                                              help="Hanyang Static_measurements folder: also fit the range "
+                                                   "bias on the static sweeps."),
+    range_bias: str = typer.Option("dynamic", "--range-bias",
+                                   help="dynamic: range bias per anchor from the recordings; static: the "
+                                        "static-sweep slope for every anchor (needs --static-sweeps)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress display or summary."),
+) -> None:
+    """Calibrate a scenario (path, motion, IMU, UWB, availability) on recorded datasets."""
+    from .calibrate import calibrate_datasets
+    from .calibrate._base import jsonable
+    from .errors import PhySynthError
+    from .scenario import save_scenario
+
+    choices = {"--path-kind": (path_kind, ("auto", "polynomial", "waypoints")),
+               "--anchor-layout": (anchor_layout, ("strict", "first")),
+               "--range-bias": (range_bias, ("dynamic", "static"))}
+    for opt, (value, allowed) in choices.items():
+        if value not in allowed:
+            raise PhySynthError(f"{opt} must be one of {', '.join(allowed)}, got {value!r}")
+    for target in [out] + ([report] if report else []):
+        if target.exists() and not overwrite:
+            raise PhySynthError(f"{target} already exists (use --overwrite to replace it)")
+        if not target.parent.exists():
+            raise PhySynthError(f"output folder {target.parent} does not exist")
+    kwargs = dict(name=name or out.stem, path_kind=path_kind, anchor_policy=anchor_layout,
+                  static_sweeps=static_sweeps, range_bias=range_bias)
+    if quiet:
+        result = calibrate_datasets(datasets, **kwargs)
+    else:
+        from rich.console import Console
+
+        console = Console(stderr=True)
+        with console.status("calibrating") as status:
+            def progress(msg: str) -> None:
+                status.update(f"calibrating: {msg}")
+                console.print(f"  - {msg}", highlight=False)
+
+            status.update("reading datasets")
+            result = calibrate_datasets(datasets, progress=progress, **kwargs)
+    header = (f"Calibrated by physynth calibrate on {', '.join(str(d) for d in datasets)}\n"
+              f"Fit report: {report if report else '(not written; use --report)'}")
+    save_scenario(result.scenario, out, header=header)
+    if report:
+        from .io.dataset import atomic_write_text
+
+        atomic_write_text(report, json.dumps(jsonable(result.report), indent=1))
+    if quiet:
+        return
+    _print_summary(result, out, report)
+
+
+def _print_summary(result, out: Path, report: Path | None) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"calibrated scenario '{result.scenario.name}'")
+    table.add_column("parameter")
+    table.add_column("value", justify="right")
+    table.add_column("uncertainty / samples", justify="right")
+    for key, value, unc in result.summary_rows():
+        table.add_row(key, value, unc)
+    console = Console()
+    console.print(table)
+    missing = result.report.get("not_identifiable", [])
+    if missing:
+        console.print(f"not identifiable ({len(missing)}): " + "; ".join(missing))
+    for w in result.report.get("warnings", []):
+        console.print(f"warning: {w}")
+    console.print(f"wrote {out}" + (f" and {report}" if report else ""))

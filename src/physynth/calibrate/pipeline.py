@@ -114,6 +114,99 @@ def _dwell_from_runs(lengths: np.ndarray, period_s: float) -> float | None:
     return float(-period_s / np.log(1.0 - 1.0 / mean_n))
 
 
+@dataclass(slots=True)
+class _Channels:
+    pooled_r: np.ndarray
+    pooled_fit: MixtureFit
+    pooled_sel: dict[str, Any]
+    mix: dict[str, MixtureFit]
+    mix_diag: dict[str, Any]
+    flags: dict[str, list[np.ndarray]]
+    per_anchor_rows: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]  # residual, range, range rate
+    notes: list[str]
+
+    def los_masks(self) -> dict[str, np.ndarray]:
+        return {a: self.mix[a].nlos_resp < 0.5 for a in self.per_anchor_rows}
+
+
+def _fit_channels(trs: Sequence[Trace], offset: float, ids: Sequence[str], fixed_slope: float | None) -> _Channels:
+    """Per-anchor LOS/NLOS mixtures (and the pooled one) at a given time offset."""
+    res = [corrected_residuals(t, offset) for t in trs]
+    pooled_r = np.concatenate([r.residual_m for r in res])
+    pooled_g = np.concatenate([r.range_m for r in res])
+    if pooled_r.size < MIN_ANCHOR_ROWS:
+        raise CalibrationError(f"only {pooled_r.size} UWB ranges fall inside the ground-truth time span; "
+                               f"at least {MIN_ANCHOR_ROWS} are needed")
+    pooled_fit, pooled_sel = select_mixture(pooled_r, pooled_g, fixed_slope=fixed_slope)
+    mix: dict[str, MixtureFit] = {}
+    mix_diag: dict[str, Any] = {}
+    flags: dict[str, list[np.ndarray]] = {}
+    rows: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    notes: list[str] = []
+    for aid in ids:  # one mixture per anchor, pooled over the traces
+        parts = [(r.residual_m[m], r.range_m[m], r.range_rate_mps[m])
+                 for t, r in zip(trs, res, strict=True) if aid in t.anchors.ids
+                 for m in [r.anchor == t.anchors.index(aid)]]
+        sizes = [p[0].size for p in parts]
+        ra = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0)
+        ga = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0)
+        if ra.size < MIN_ANCHOR_ROWS:
+            mix[aid] = pooled_fit
+            mix_diag[aid] = {"n": int(ra.size), "note": f"fewer than {MIN_ANCHOR_ROWS} ranges: pooled channel used"}
+            notes.append(f"channel of {aid} (too few ranges; pooled values used)")
+            flags[aid] = []
+            continue
+        f, sel = select_mixture(ra, ga, fixed_slope=fixed_slope)
+        mix[aid] = f
+        mix_diag[aid] = {"n": int(ra.size), **sel, "converged": f.converged,
+                         "range_span_m": [float(ga.min()), float(ga.max())]}
+        bounds = np.cumsum([0] + sizes)
+        flags[aid] = [f.nlos_resp[a:b] > 0.5 for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+        rows[aid] = (ra, ga, np.concatenate([p[2] for p in parts]))
+    return _Channels(pooled_r=pooled_r, pooled_fit=pooled_fit, pooled_sel=pooled_sel, mix=mix, mix_diag=mix_diag,
+                     flags=flags, per_anchor_rows=rows, notes=notes)
+
+
+def refine_time_offset(rows: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
+                       los: dict[str, np.ndarray]) -> dict[str, Any] | None:
+    """Least-squares correction of the time offset from the LOS rows.
+
+    With r(offset) = range - g(t - offset), r(offset0 + d) ~ r(offset0) + g'(t) d; regressing r(offset0)
+    on per-anchor intercepts and range slopes and on -g' gives d with its standard error (LOS errors
+    independent and Gaussian), a far more efficient estimate than the robust grid search.
+    Also returns, per anchor, the sensitivity of the LOS mean and slope to the offset.
+    """
+    keys = [a for a in rows if los[a].sum() > 10]
+    if not keys:
+        return None
+    blocks_r, blocks_x, rates = [], [], []
+    n_a = len(keys)
+    for j, a in enumerate(keys):
+        r, g, gd = (x[los[a]] for x in rows[a])
+        x = np.zeros((r.size, 2 * n_a + 1))
+        x[:, 2 * j] = 1.0
+        x[:, 2 * j + 1] = g
+        x[:, -1] = -gd
+        blocks_r.append(r)
+        blocks_x.append(x)
+        rates.append(gd)
+    y = np.concatenate(blocks_r)
+    x = np.concatenate(blocks_x)
+    if np.ptp(x[:, -1]) == 0:
+        return None
+    coef, *_ = np.linalg.lstsq(x, y, rcond=None)
+    resid = y - x @ coef
+    s2 = float(resid @ resid / max(y.size - x.shape[1], 1))
+    cov = np.linalg.pinv(x.T @ x) * s2
+    sens = {}
+    for a in keys:
+        r, g, gd = (v[los[a]] for v in rows[a])
+        b, m = np.polyfit(g, gd, 1) if np.ptp(g) > 0 else (0.0, float(np.mean(gd)))
+        sens[a] = {"d_los_mean_per_s": float(m), "d_range_bias_per_s": float(b)}
+    return {"correction_s": float(coef[-1]), "std_error_s": float(np.sqrt(cov[-1, -1])), "n_los_rows": int(y.size),
+            "sensitivity": sens}
+
+
 def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path_kind: PathKind = "auto",
               anchor_policy: Literal["strict", "first"] = "strict",
               static_sweeps: str | os.PathLike | None = None, range_bias: Literal["dynamic", "static"] = "dynamic",
@@ -246,38 +339,24 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
     fixed_slope = static["range_bias_per_m"] if (static is not None and range_bias == "static") else None
     if range_bias == "static" and static is None:
         raise CalibrationError("range_bias='static' needs static_sweeps (the Static_measurements folder)")
-    res = [corrected_residuals(t, offset) for t in trs]
-    pooled_r = np.concatenate([r.residual_m for r in res])
-    pooled_g = np.concatenate([r.range_m for r in res])
-    if pooled_r.size < MIN_ANCHOR_ROWS:
-        raise CalibrationError(f"only {pooled_r.size} UWB ranges fall inside the ground-truth time span; "
-                               f"at least {MIN_ANCHOR_ROWS} are needed")
-    pooled_fit, pooled_sel = select_mixture(pooled_r, pooled_g, fixed_slope=fixed_slope)
-    mix: dict[str, MixtureFit] = {}
-    mix_diag: dict[str, Any] = {}
-    flags: dict[str, list[np.ndarray]] = {}
-    for aid in ids:
-        parts_r, parts_g, parts_i = [], [], []
-        for t, r in zip(trs, res, strict=True):
-            if aid in t.anchors.ids:
-                m = r.anchor == t.anchors.index(aid)
-                parts_r.append(r.residual_m[m])
-                parts_g.append(r.range_m[m])
-                parts_i.append(m.sum())
-        ra = np.concatenate(parts_r) if parts_r else np.zeros(0)
-        ga = np.concatenate(parts_g) if parts_g else np.zeros(0)
-        if ra.size < MIN_ANCHOR_ROWS:
-            mix[aid] = pooled_fit
-            mix_diag[aid] = {"n": int(ra.size), "note": f"fewer than {MIN_ANCHOR_ROWS} ranges: pooled channel used"}
-            notes.append(f"channel of {aid} (too few ranges; pooled values used)")
-            flags[aid] = []
-            continue
-        f, sel = select_mixture(ra, ga, fixed_slope=fixed_slope)
-        mix[aid] = f
-        mix_diag[aid] = {"n": int(ra.size), **sel, "converged": f.converged,
-                         "range_span_m": [float(ga.min()), float(ga.max())]}
-        bounds = np.cumsum([0] + parts_i)
-        flags[aid] = [f.nlos_resp[a:b] > 0.5 for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    chan = _fit_channels(trs, offset, ids, fixed_slope)
+    ref = refine_time_offset(chan.per_anchor_rows, chan.los_masks())
+    report["time_offset"]["grid_offset_s"] = offset
+    report["time_offset"]["refinement"] = ref
+    if of.diagnostics["identifiable"] and ref is not None:
+        offset = offset + ref["correction_s"]
+        chan = _fit_channels(trs, offset, ids, fixed_slope)
+        se_off = float(np.hypot(ref["std_error_s"], of.diagnostics["std_error_s"]
+                                if len(trs) >= 2 else 0.0))
+        report["time_offset"]["offset_s"] = offset
+        report["time_offset"]["std_error_s"] = se_off
+        _param(report, "uwb.time_offset_s", offset, se=se_off, n=of.n_samples, summary=True,
+               note="grid search on the robust spread, refined by least squares on the LOS rows")
+    else:
+        se_off = float(of.diagnostics["std_error_s"])
+    pooled_r, pooled_fit, pooled_sel = chan.pooled_r, chan.pooled_fit, chan.pooled_sel
+    mix, mix_diag, flags = chan.mix, chan.mix_diag, chan.flags
+    notes += chan.notes
 
     # ---------------------------------------------------------------- availability
     say("fitting availability (link range, dropouts, outages)")
@@ -323,6 +402,11 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
             range_bias_per_m=rounded(f.range_bias_per_m, 5), nlos_prob=rounded(f.nlos_prob, 5), nlos_modes=modes,
             max_range_m=rounded(max_range, 5), edge_width_m=rounded(edge, 4))
         se = dict(f.se)
+        sens = ((ref or {}).get("sensitivity") or {}).get(aid)
+        if sens:  # the LOS mean and slope move with the time offset: add its uncertainty
+            se["los_mean_m"] = float(np.hypot(se["los_mean_m"], sens["d_los_mean_per_s"] * se_off))
+            se["range_bias_per_m"] = float(np.hypot(se["range_bias_per_m"], sens["d_range_bias_per_s"] * se_off))
+            se["includes_time_offset_uncertainty"] = True
         if f.nlos_prob > 0:
             # NLOS comes in episodes: Var(p) ~ 2 p (1 - p) tau_c / T_obs with tau_c = dwell (1 - p)
             t_obs = mix_diag[aid]["n"] * periods[aid]

@@ -30,8 +30,9 @@ OFFSET_FINE_STEP_S = 0.001
 MAX_NLOS_MODES = 3
 """Largest number of Gaussian NLOS modes tried (the order is chosen by BIC)."""
 LOS_LIKE_SIGMAS = 3.0
-"""An NLOS mode whose mean lies within this many LOS sigmas of the LOS mean and whose spread is below
-this many LOS sigmas is indistinguishable from LOS; a mixture with such a mode is not accepted."""
+"""An NLOS mode whose mean lies within this many LOS sigmas of the LOS mean (at the median range) is
+not an offset distribution but a reshaping of the LOS peak (narrower core, heavier tails); a mixture
+with such a mode is not accepted, whatever its width."""
 MIN_ANCHOR_ROWS = 30
 """Fewer valid rows than this and an anchor keeps the pooled (default) channel."""
 GRID_BIN_S = 0.01
@@ -57,17 +58,20 @@ class Residuals:
     range_m: np.ndarray
     anchor: np.ndarray
     t_s: np.ndarray
+    range_rate_mps: np.ndarray  # d/dt of the geometric range at t - offset
 
 
-def corrected_residuals(trace: Trace, offset_s: float) -> Residuals:
+def corrected_residuals(trace: Trace, offset_s: float, rate_step_s: float = 0.02) -> Residuals:
     """Residuals ``range - |p(t - offset) - a_i|`` of the valid rows inside the truth span."""
     u = trace.uwb
     ok = u.valid
     t, a = u.t_s[ok], u.anchor[ok].astype(np.intp)
     g = geometric_range(trace, t - offset_s, a)
+    gd = (geometric_range(trace, t - offset_s + rate_step_s, a)
+          - geometric_range(trace, t - offset_s - rate_step_s, a)) / (2.0 * rate_step_s)
     r = u.range_m[ok] - g
-    keep = np.isfinite(r)
-    return Residuals(residual_m=r[keep], range_m=g[keep], anchor=a[keep], t_s=t[keep])
+    keep = np.isfinite(r) & np.isfinite(gd)
+    return Residuals(residual_m=r[keep], range_m=g[keep], anchor=a[keep], t_s=t[keep], range_rate_mps=gd[keep])
 
 
 def _mad_curve(trace: Trace, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -315,8 +319,7 @@ def fit_mixture(r: np.ndarray, g: np.ndarray, k: int, *, fit_slope: bool = True,
 
 def _los_like(fit: MixtureFit, g: np.ndarray) -> bool:
     centre = fit.los_mean_m + fit.range_bias_per_m * float(np.median(g))
-    return any(abs(m - centre) < LOS_LIKE_SIGMAS * fit.los_std_m and s < LOS_LIKE_SIGMAS * fit.los_std_m
-               for _, m, s in fit.modes)
+    return any(abs(m - centre) < LOS_LIKE_SIGMAS * fit.los_std_m for _, m, _s in fit.modes)
 
 
 def select_mixture(r: np.ndarray, g: np.ndarray, *, max_modes: int = MAX_NLOS_MODES, fit_slope: bool = True,

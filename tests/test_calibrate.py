@@ -1,0 +1,325 @@
+"""Calibration: round trip on synthetic traces, transfer, scenario output, bad input.
+
+Round trip: traces generated from a known scenario (fixed seed) are calibrated and every parameter is
+recovered within a tolerance derived from the number of samples behind it (k standard errors, stated
+per parameter below, plus a small stated allowance for the known approximations of the estimator).
+With k = 4 a correct estimator fails a single check with probability ~6e-5.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from physynth.calibrate import (
+    CalibrationError,
+    calibrate,
+    fit_motion,
+    fit_path,
+    transfer_scenario,
+)
+from physynth.cli import main as cli_main
+from physynth.errors import PhySynthError
+from physynth.generate import compile_scenario, generate_trace
+from physynth.io import write_dataset
+from physynth.records import Anchors, Trace, Truth, Uwb
+from physynth.scenario import load_scenario, save_scenario, scenario_from_dict
+
+K = 4.0  # standard errors allowed per check
+
+TRUE = {
+    "burst_rate_hz": 20.0, "slot_s": 0.002, "time_offset_s": 0.12, "rate_hz": 16.0, "los_mean_m": 0.1,
+    "los_std_m": 0.08, "range_bias_per_m": 0.004, "nlos_prob": 0.1, "modes": [(0.6, 1.5, 0.4), (0.4, 5.0, 1.0)],
+    "nlos_dwell_s": 0.5, "dropout_prob": 0.05, "outage_onset_prob": 0.005, "outage_mean_s": 3.0,
+    "white": [0.05, 0.08, 0.1], "vib_hz": 4.0, "vib_amp": 0.1, "cruise_speed_mps": 5.0, "max_range_m": 150.0,
+}
+
+
+def roundtrip_dict() -> dict:
+    """A 400 m gently curved cable past four anchors, every model term switched on."""
+    return {
+        "name": "roundtrip",
+        "path": {"kind": "polynomial", "length_m": 400.0,
+                 "coeffs_enu_m": [[0.0, 390.0, 0.0], [0.0, 80.0, -80.0], [60.0, -50.0, 0.0]],
+                 "perturbation": {"lateral_std_m": 0.0, "sag_std_m": 0.0}},
+        "motion": {"cruise_speed_mps": TRUE["cruise_speed_mps"], "cruise_speed_spread_frac": 0.0,
+                   "length_spread_frac": 0.0, "dwell_start_s": 5.0, "dwell_end_s": 4.0,
+                   "profile": {"kind": "polynomial", "coeffs": [0.0, 8.0, -24.0, 32.0, -16.0]}},
+        "imu": {"rate_hz": 200.0, "white_noise_density_mps2_per_sqrt_hz": TRUE["white"],
+                "bias_rw_mps2_per_sqrt_s": 0.001,
+                "vibration": {"fundamental_hz": TRUE["vib_hz"], "amplitude_mps2": TRUE["vib_amp"],
+                              "harmonic_weights": [1.0, 0.5], "bandwidth_hz": 0.3}},
+        "uwb": {"burst_rate_hz": TRUE["burst_rate_hz"], "burst_jitter_s": 0.002, "slot_s": TRUE["slot_s"],
+                "time_offset_s": TRUE["time_offset_s"], "nlos_dwell_s": TRUE["nlos_dwell_s"]},
+        "anchors": [{"id": "A1", "pos_enu_m": [50.0, 40.0, 40.0]}, {"id": "A2", "pos_enu_m": [150.0, 10.0, 30.0]},
+                    {"id": "A3", "pos_enu_m": [250.0, 40.0, 20.0]}, {"id": "A4", "pos_enu_m": [350.0, 5.0, 10.0]}],
+        "channel": {"rate_hz": TRUE["rate_hz"], "los_mean_m": TRUE["los_mean_m"], "los_std_m": TRUE["los_std_m"],
+                    "range_bias_per_m": TRUE["range_bias_per_m"], "nlos_prob": TRUE["nlos_prob"],
+                    "nlos_modes": [{"weight": w, "mean_m": m, "std_m": s} for w, m, s in TRUE["modes"]],
+                    "max_range_m": TRUE["max_range_m"], "edge_width_m": 5.0},
+        "availability": {"dropout_prob": TRUE["dropout_prob"], "outage_onset_prob": TRUE["outage_onset_prob"],
+                         "outage_mean_s": TRUE["outage_mean_s"]},
+    }
+
+
+N_TRACES = 8
+
+
+@pytest.fixture(scope="module")
+def roundtrip():
+    scn = scenario_from_dict(roundtrip_dict(), "roundtrip")
+    cs = compile_scenario(scn)
+    traces = [generate_trace(cs, i, 20240611) for i in range(N_TRACES)]
+    return scn, traces, calibrate(traces, name="rt")
+
+
+def _per_anchor(result, field: str) -> np.ndarray:
+    return np.array([getattr(result.scenario.channel_for(a), field) for a in result.scenario.anchor_ids])
+
+
+def _se(result, key: str) -> float:
+    return float(result.report["parameters"][key]["std_error"])
+
+
+def test_roundtrip_path_and_motion(roundtrip):
+    scn, traces, res = roundtrip
+    s = res.scenario
+    # degree-10 polynomial of an exactly polynomial (degree-2) noise-free path: cross-track RMSE is the
+    # smoothing/resampling error only; 2 cm is 10x what it is, and 0.05 % of the 400 m length
+    assert s.path.kind == "polynomial"
+    assert res.report["path"]["rmse_m"] < 0.02
+    # cruise speed: the true cruise speed is the truth's peak speed (the declared length_m of the
+    # polynomial differs from its arc length, so it is not exactly 5.0); noise-free truth: 1 %
+    peak = np.mean([np.max(np.linalg.norm(t.truth.vel_enu_mps, axis=1)) for t in traces])
+    assert s.motion.cruise_speed_mps == pytest.approx(peak, rel=0.01)
+    assert s.motion.profile.kind == "polynomial"
+    assert res.report["motion"]["speed_poly_r2"] > 0.999
+    # dwells: stop detection at 0.1 % of the peak speed of a polynomial ramp loses < 0.2 s
+    assert s.motion.dwell_start_s == pytest.approx(5.0, abs=0.2)
+    assert s.motion.dwell_end_s == pytest.approx(4.0, abs=0.2)
+    # no spread in the scenario: 8 runs must show (almost) none
+    assert s.motion.cruise_speed_spread_frac < 0.01
+
+
+def test_roundtrip_uwb_timing(roundtrip):
+    _, _, res = roundtrip
+    s = res.scenario
+    se = _se(res, "uwb.time_offset_s")
+    assert s.uwb.time_offset_s == pytest.approx(TRUE["time_offset_s"], abs=K * se + 0.001)
+    # burst period: median of ~17,000 jittered periods (jitter 2 ms): SE ~ 2e-5 s; 0.1 % is > 10 SE
+    assert s.uwb.burst_rate_hz == pytest.approx(TRUE["burst_rate_hz"], rel=1e-3)
+    # grid-equivalent slot: fraction of ~17,000 bursts split over 10 ms bins (binomial, p ~ 0.5):
+    # relative SE ~ 1 %, plus the random phase of each trace: 20 %
+    assert s.uwb.slot_s == pytest.approx(TRUE["slot_s"], rel=0.2)
+    # effective rate: attempts / bursts per anchor, ~7,000 bursts each: SE = 20 sqrt(q(1-q)/n) ~ 0.1 Hz
+    n_bursts = res.report["availability"]["per_anchor"]["A1"]["bursts"]
+    se_rate = TRUE["burst_rate_hz"] * np.sqrt(0.8 * 0.2 / n_bursts)
+    assert np.all(np.abs(_per_anchor(res, "rate_hz") - TRUE["rate_hz"]) < K * se_rate)
+
+
+def test_roundtrip_ranging_errors(roundtrip):
+    _, _, res = roundtrip
+    for a in res.scenario.anchor_ids:
+        c = res.scenario.channel_for(a)
+        pre = f"channel_per_anchor.{a}"
+        # LOS mean, slope and spread: regression standard errors from n ~ 5,000 LOS rows per anchor
+        assert c.los_mean_m == pytest.approx(TRUE["los_mean_m"], abs=K * _se(res, f"{pre}.los_mean_m"))
+        assert c.range_bias_per_m == pytest.approx(TRUE["range_bias_per_m"],
+                                                   abs=K * _se(res, f"{pre}.range_bias_per_m"))
+        # sigma: SE sigma / sqrt(2 n); allowance 2 % for the EM's share of LOS-NLOS overlap
+        assert c.los_std_m == pytest.approx(TRUE["los_std_m"], abs=K * _se(res, f"{pre}.los_std_m") + 0.0016)
+        # NLOS probability: episodes of 0.5 s make rows dependent; SE from the episode count
+        assert c.nlos_prob == pytest.approx(TRUE["nlos_prob"], abs=K * _se(res, f"{pre}.nlos_prob"))
+        # two NLOS modes found by BIC, means within K SE (sd / sqrt(n_mode)) + 0.05 m
+        assert len(c.nlos_modes) == 2
+        modes = sorted((m.mean_m, m.std_m, m.weight) for m in c.nlos_modes)
+        se_means = res.report["parameters"][f"{pre}.nlos_modes"]["std_error"]
+        for (mean, _, w), (tw, tm, _), se in zip(modes, sorted(TRUE["modes"], key=lambda x: x[1]),
+                                                 sorted(se_means), strict=True):
+            assert mean == pytest.approx(tm, abs=K * se + 0.05)
+            assert w == pytest.approx(tw, abs=0.1)  # weights: ~500 NLOS rows per anchor, SE ~ 0.02
+        # radio horizon: identifiable here (the path leaves the 150 m range of every anchor)
+        assert c.max_range_m == pytest.approx(TRUE["max_range_m"], abs=5.0)
+    # NLOS dwell: ~1,000 episodes pooled; the geometric-run estimator is biased by LOS rows labelled
+    # NLOS and vice versa: 30 %
+    assert res.scenario.uwb.nlos_dwell_s == pytest.approx(TRUE["nlos_dwell_s"], rel=0.3)
+
+
+def test_roundtrip_availability(roundtrip):
+    _, _, res = roundtrip
+    s = res.scenario
+    ids = s.anchor_ids
+    drop = np.array([s.availability_for(a).dropout_prob for a in ids])
+    onset = np.array([s.availability_for(a).outage_onset_prob for a in ids])
+    mean = np.array([s.availability_for(a).outage_mean_s for a in ids])
+    se = {k: np.array([_se(res, f"availability_per_anchor.{a}.{k}") for a in ids])
+          for k in ("dropout_prob", "outage_onset_prob", "outage_mean_s")}
+    # per anchor: HMM likelihood standard errors (~5,000 attempts, ~40 outages per anchor);
+    # allowance 0.005 on the dropout for attempts lost at the soft edge of the radio horizon
+    assert np.all(np.abs(drop - TRUE["dropout_prob"]) < K * se["dropout_prob"] + 0.005)
+    assert np.all(np.abs(onset - TRUE["outage_onset_prob"]) < K * se["outage_onset_prob"])
+    assert np.all(np.abs(mean - TRUE["outage_mean_s"]) < K * se["outage_mean_s"])
+    # pooled over the four anchors the errors shrink by 2: 2.5 SE of the mean
+    assert abs(onset.mean() - TRUE["outage_onset_prob"]) < 2.5 * np.sqrt(np.sum(se["outage_onset_prob"] ** 2)) / 4
+    assert abs(mean.mean() - TRUE["outage_mean_s"]) < 2.5 * np.sqrt(np.sum(se["outage_mean_s"] ** 2)) / 4
+    assert s.availability.tag_outage_onset_prob == 0.0
+
+
+def test_roundtrip_imu(roundtrip):
+    _, _, res = roundtrip
+    imu = res.scenario.imu
+    d = res.report["imu"]
+    # white density from the median of ~4,000 Welch bins x 100 averages: relative SE < 0.5 %;
+    # 3 % allows for the median-of-chi2 bias and the vibration tails
+    assert np.allclose(imu.white_noise_density_mps2_per_sqrt_hz, TRUE["white"], rtol=0.03)
+    # vibration: frequency within 2 Welch bins (20 s segments: 0.05 Hz), amplitude within 20 %
+    # (the 0.1 m/s^2 lines sit below a white floor of ~1 m/s^2 per sample)
+    df = d["vibration"]["frequency_resolution_hz"]
+    assert imu.vibration.fundamental_hz == pytest.approx(TRUE["vib_hz"], abs=2 * df)
+    assert imu.vibration.amplitude_mps2 == pytest.approx(TRUE["vib_amp"], rel=0.2)
+    assert len(imu.vibration.harmonic_weights) == 2
+    assert imu.rate_hz == pytest.approx(200.0)
+    assert "allan_deviation" in d and len(d["allan_deviation"]["tau_s"]) > 10
+
+
+def test_report_has_uncertainty_or_count_for_every_parameter(roundtrip):
+    _, _, res = roundtrip
+    rep = res.report
+    json.dumps(rep)  # JSON-able
+    for key, item in rep["parameters"].items():
+        assert item.get("std_error") is not None or item.get("n_samples") is not None, key
+    for key in ("path", "motion", "time_offset", "burst_schedule", "channel", "availability", "imu"):
+        assert key in rep
+    assert min(rep["time_offset"]["search_curve"]["robust_spread_m"]) == pytest.approx(
+        rep["time_offset"]["spread_at_offset_m"], rel=0.05)
+    for a in res.scenario.anchor_ids:
+        assert rep["channel"]["per_anchor"][a]["bic_per_order"]["2"]["admissible"]
+
+
+def test_scenario_round_trips_through_yaml_and_generates(roundtrip, tmp_path):
+    _, _, res = roundtrip
+    path = save_scenario(res.scenario, tmp_path / "cal.yaml")
+    back = load_scenario(path)
+    assert back == res.scenario
+    assert back.provenance["calibrated_by"].startswith("physynth")
+    tr = generate_trace(compile_scenario(back), 0, 1)
+    assert len(tr.uwb) > 0 and tr.imu is not None
+
+
+def test_one_run_keeps_default_spreads_and_says_so():
+    scn = scenario_from_dict(roundtrip_dict(), "roundtrip")
+    tr = generate_trace(compile_scenario(scn), 0, 3)
+    fit = fit_motion(tr)
+    assert fit.params.cruise_speed_spread_frac == 0.12 and fit.params.length_spread_frac == 0.05
+    assert "cruise_speed_spread_frac" in fit.diagnostics["not_identifiable"]
+
+
+def test_spreads_from_several_runs():
+    d = roundtrip_dict()
+    d["motion"]["cruise_speed_spread_frac"] = 0.12
+    d["imu"]["vibration"]["amplitude_mps2"] = 0.0
+    scn = scenario_from_dict(d, "spread")
+    cs = compile_scenario(scn)
+    traces = [generate_trace(cs, i, 5) for i in range(12)]
+    fit = fit_motion(traces)
+    # uniform +-12 %: the half-width from 12 runs via sqrt(3) std has a relative SE of ~20 %
+    assert fit.params.cruise_speed_spread_frac == pytest.approx(0.12, rel=0.45)
+    speeds = [t.meta["speed_factor"] * 5.0 for t in traces]
+    per_run = [r["cruise_speed_mps"] for r in fit.diagnostics["per_run"].values()]
+    assert np.corrcoef(speeds, per_run)[0, 1] > 0.99
+
+
+def test_fit_path_preset_polynomial_and_waypoints():
+    scn = load_scenario("cablecar-descending")
+    tr = generate_trace(compile_scenario(scn), 0, 11)
+    fit = fit_path(tr)
+    assert fit.params.kind == "polynomial"
+    assert fit.diagnostics["rmse_m"] < 0.05  # noise-free 710 m cable: paper reached 0.087 m on GNSS truth
+    assert fit.diagnostics["length_m"] == pytest.approx(710.2, rel=0.01)
+    way = fit_path(tr, "waypoints")
+    assert way.params.kind == "waypoints" and way.diagnostics["rmse_m"] < 0.1
+    assert len(way.params.waypoints_enu_m) < 100
+
+
+def test_transfer_scenario_keeps_sensor_models():
+    base = load_scenario("cablecar-descending")
+    real = generate_trace(compile_scenario(scenario_from_dict(roundtrip_dict(), "rt")), 0, 2)
+    out = transfer_scenario(base, [real])
+    assert out.anchor_ids == ("A1", "A2", "A3", "A4")
+    assert out.imu == base.imu and out.uwb == base.uwb and out.channel == base.channel
+    assert out.availability == base.availability
+    assert out.channel_per_anchor == {} and out.availability_per_anchor == {}  # preset ids are not in real
+    assert out.path.perturbation == base.path.perturbation
+    assert out.motion.cruise_speed_spread_frac == base.motion.cruise_speed_spread_frac
+    assert out.motion.dwell_start_s == pytest.approx(5.0, abs=0.2)
+    # anchors the scenario has overrides for keep them
+    d = roundtrip_dict()
+    d["channel_per_anchor"] = {"A2": {"los_std_m": 0.5}, "A9": {"los_std_m": 0.7}}
+    d["anchors"].append({"id": "A9", "pos_enu_m": [0.0, 0.0, 0.0]})
+    out2 = transfer_scenario(scenario_from_dict(d, "with-overrides"), [real])
+    assert set(out2.channel_per_anchor) == {"A2"}
+
+
+# ------------------------------------------------------------------------------------ bad input
+
+
+def _trace(n_truth=100, uwb_rows=True, anchors=(("A1", (0.0, 0.0, 0.0)),)):
+    t = np.arange(n_truth) * 0.1
+    pos = np.stack([t, np.zeros_like(t), np.zeros_like(t)], axis=1)
+    truth = Truth(t_s=t, pos_enu_m=pos, vel_enu_mps=np.tile([1.0, 0.0, 0.0], (n_truth, 1)))
+    n = 50 if uwb_rows else 0
+    uwb = Uwb(t_s=np.linspace(0, 9, n), anchor=np.zeros(n, np.int16), range_m=np.linspace(0, 9, n))
+    a = Anchors(ids=tuple(x[0] for x in anchors), pos_enu_m=np.array([x[1] for x in anchors]))
+    return Trace(truth=truth, uwb=uwb, anchors=a, meta={"run": "bad"})
+
+
+def test_bad_input_messages():
+    with pytest.raises(CalibrationError, match="no traces"):
+        calibrate([])
+    with pytest.raises(CalibrationError, match="no UWB rows"):
+        calibrate(_trace(uwb_rows=False))
+    with pytest.raises(CalibrationError, match="no usable ground truth"):
+        calibrate(_trace(n_truth=3))
+    a = _trace(anchors=(("A1", (0.0, 0.0, 0.0)),))
+    b = _trace(anchors=(("A1", (5.0, 0.0, 0.0)),))
+    with pytest.raises(CalibrationError, match="conflicting anchors.*A1"):
+        calibrate([a, b])
+    assert issubclass(CalibrationError, PhySynthError)
+
+
+def test_cli_bad_input_exit_code_2(tmp_path, capsys):
+    def run(*args):
+        with pytest.raises(SystemExit) as exc:
+            cli_main(list(args))
+        return exc.value.code, capsys.readouterr().err
+
+    code, err = run("calibrate", str(tmp_path / "missing"), "--out", str(tmp_path / "s.yaml"))
+    assert code == 2 and "does not exist" in err and err.count("\n") == 1
+    (tmp_path / "empty").mkdir()
+    code, err = run("calibrate", str(tmp_path / "empty"), "--out", str(tmp_path / "s.yaml"))
+    assert code == 2 and "not a PhySynth dataset" in err
+    write_dataset(tmp_path / "no_uwb", [_trace(uwb_rows=False)])
+    code, err = run("calibrate", str(tmp_path / "no_uwb"), "--out", str(tmp_path / "s.yaml"))
+    assert code == 2 and "no UWB rows" in err
+    write_dataset(tmp_path / "d1", [_trace(anchors=(("A1", (0.0, 0.0, 0.0)),))])
+    write_dataset(tmp_path / "d2", [_trace(anchors=(("A1", (5.0, 0.0, 0.0)),))])
+    code, err = run("calibrate", str(tmp_path / "d1"), str(tmp_path / "d2"), "--out", str(tmp_path / "s.yaml"))
+    assert code == 2 and "conflicting anchors" in err and "--anchor-layout first" in err
+    code, err = run("calibrate", str(tmp_path / "d1"), "--out", str(tmp_path / "s.yaml"), "--path-kind", "spline")
+    assert code == 2 and "--path-kind" in err
+
+
+def test_cli_calibrate_end_to_end(roundtrip, tmp_path, capsys):
+    _, traces, _ = roundtrip
+    write_dataset(tmp_path / "ds", traces[:3])
+    out, rep = tmp_path / "cal.yaml", tmp_path / "fit.json"
+    cli_main(["calibrate", str(tmp_path / "ds"), "--out", str(out), "--report", str(rep), "--name", "mine", "-q"])
+    scn = load_scenario(out)
+    assert scn.name == "mine" and str(tmp_path / "ds") in scn.provenance["datasets"]
+    report = json.loads(rep.read_text())
+    assert report["parameters"]["uwb.time_offset_s"]["value"] == pytest.approx(0.12, abs=0.01)
+    # generate accepts the file directly
+    cli_main(["generate", "-s", str(out), "-n", "1", "--seed", "1", "--out", str(tmp_path / "gen"), "-q"])
+    assert (tmp_path / "gen" / "dataset.json").is_file()

@@ -1,0 +1,115 @@
+"""Calibration against real recordings (../shared/data): Hanyang UWB run and BROAD IMU trial.
+
+These tests check the generator *against reality* (not against itself): calibrate on a real recording,
+generate from the result, and compare the section-5 metrics (physynth.metrics) of the synthetic traces
+with those of the real recording, computed the same way.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.signal import welch
+
+from physynth.availability import stationary_availability
+from physynth.calibrate import calibrate, fit_static_range_bias
+from physynth.calibrate.imu_fit import fit_imu, imu_error, simulate_imu_on, truth_acceleration
+from physynth.generate import compile_scenario, generate_trace
+from physynth.importers import import_broad, import_hanyang
+from physynth.metrics import compute_metrics, relative_deviation_pct
+from physynth.records import Trace
+
+SHARED = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+HANYANG = SHARED / "hanyang-uwb"
+LOS1 = HANYANG / "Dynamic_measurements" / "LOS" / "Trajectory_A" / "Case_1"
+STATIC = HANYANG / "Static_measurements"
+BROAD15 = SHARED / "broad-imu" / "data_mat" / "15_undisturbed_fast_translation_A.mat"
+
+needs_hanyang = pytest.mark.skipif(not LOS1.is_dir(), reason=f"real Hanyang data not found at {LOS1}")
+needs_broad = pytest.mark.skipif(not BROAD15.is_file(), reason=f"real BROAD data not found at {BROAD15}")
+
+
+@pytest.fixture(scope="module")
+def hanyang_los1():
+    # crop_to_uwb: the UWB logging of this run stopped 2.4 s before the GNSS logging (importer note).
+    # Left in, those 2.4 s count as a tag outage in the real metrics (mean AoI +16 %) that no
+    # availability parameter can be fitted to (one censored event); cropping them is the importer's
+    # own remedy. Real and synthetic metrics are then computed the same way on the imported trace.
+    trace, _ = import_hanyang(LOS1, crop_to_uwb=True)
+    return trace, calibrate(trace, name="hanyang-los1")
+
+
+@needs_hanyang
+def test_hanyang_calibration_values(hanyang_los1):
+    _, res = hanyang_los1
+    s = res.scenario
+    # SOURCE.md: the UWB stamps lag the GNSS by 0.15-0.20 s; ~10 Hz bursts of all four anchors
+    assert 0.15 <= s.uwb.time_offset_s <= 0.20
+    assert s.uwb.burst_rate_hz == pytest.approx(10.0, rel=0.01)
+    assert s.uwb.slot_s < 0.002  # one ~3 ms burst, phase-locked to the 10 ms grid bins in this run
+    for a in s.anchor_ids:
+        c = s.channel_for(a)
+        av = s.availability_for(a)
+        up = stationary_availability(av.outage_onset_prob, s.uwb.burst_rate_hz, av.outage_mean_s)
+        assert 8.0 <= c.rate_hz * (1 - av.dropout_prob) * up <= 9.6  # effective rate 8-9.5 Hz (SOURCE.md)
+        assert 0.003 <= c.range_bias_per_m <= 0.007  # ~+0.3 to +0.5 cm/m (static sweeps), 0.55 here
+        assert 0.04 <= c.los_std_m <= 0.12  # robust sigma ~0.1 m before removing the range bias
+        assert c.nlos_prob < 0.06  # LOS run: what is not LOS-Gaussian is a few % at most
+        assert c.max_range_m > 50.0  # heard at every range of the walk: horizon not identifiable
+    assert s.path.kind == "waypoints" and res.report["path"]["rmse_m"] < 0.1
+    assert s.motion.profile.kind == "empirical"  # a walk with stops at every corner
+    assert res.report["motion"]["speed_poly_r2"] < 0.5
+    assert any("max_range_m" in n for n in res.report["not_identifiable"])
+
+
+@needs_hanyang
+def test_hanyang_synthetic_metrics_match_real(hanyang_los1):
+    real, res = hanyang_los1
+    cs = compile_scenario(res.scenario)
+    synth = [generate_trace(cs, i, 20240611) for i in range(10)]
+    mr, ms = compute_metrics([real]), compute_metrics(synth)
+    dev = {k: relative_deviation_pct(mr.scalar(k), ms.scalar(k))
+           for k in ("uwb_ge1_frac", "uwb_ge2_frac", "residual_median_m", "abs_residual_p95_m", "mean_aoi_s")}
+    msg = {k: (round(mr.scalar(k), 4), round(ms.scalar(k), 4), round(d, 1)) for k, d in dev.items()}
+    assert dev["uwb_ge1_frac"] <= 5.0, msg
+    assert dev["uwb_ge2_frac"] <= 5.0, msg
+    assert dev["residual_median_m"] <= 10.0, msg
+    assert dev["abs_residual_p95_m"] <= 10.0, msg
+    assert dev["mean_aoi_s"] <= 10.0, msg
+
+
+@pytest.mark.skipif(not STATIC.is_dir(), reason=f"Hanyang static sweeps not found at {STATIC}")
+def test_static_sweep_range_bias():
+    fit = fit_static_range_bias(STATIC)
+    # SOURCE.md: about +0.3 to +0.5 cm per metre; ~400 sweep files give an SE of ~0.1 mm/m
+    assert 0.003 <= fit["range_bias_per_m"] <= 0.006
+    assert fit["std_error"] < 0.0005
+
+
+@needs_broad
+def test_broad_imu_noise_reproduced_along_real_truth():
+    real, _ = import_broad(BROAD15)
+    fit = fit_imu(real)
+    fc = fit.diagnostics["truth_cutoff_hz"]
+    # the generator's IMU error model applied to the real trial's truth-derived acceleration
+    tg, acc, valid = truth_acceleration(real.truth.t_s, real.truth.pos_enu_m, cutoff_hz=fc)
+    filled = np.stack([np.interp(tg, tg[valid], acc[valid, k]) for k in range(3)], axis=1)
+    imu = simulate_imu_on(tg, filled, fit.params, rng=np.random.default_rng(20240611))
+    synth = Trace(truth=real.truth, uwb=real.uwb, anchors=real.anchors, imu=imu)
+    e_real, ok_real, _ = imu_error(real, fc)
+    e_syn, ok_syn, _ = imu_error(synth, fc)
+    std_real, std_syn = np.std(e_real[ok_real], axis=0), np.std(e_syn[ok_syn], axis=0)
+    rel = np.abs(std_syn / std_real - 1.0)
+    assert np.all(rel <= 0.10), (std_real, std_syn)
+    # spectral shape: correlation of the log10 Welch PSDs (8192-sample segments, 0.2 Hz to 0.95 x
+    # Nyquist) above 0.9 on every axis (masked samples set to zero in both)
+    fs = fit.params.rate_hz
+    f, p_real = welch(np.where(ok_real[:, None], e_real, 0.0), fs=fs, nperseg=8192, axis=0)
+    _, p_syn = welch(np.where(ok_syn[:, None], e_syn, 0.0), fs=fs, nperseg=8192, axis=0)
+    band = (f > 0.2) & (f < 0.95 * fs / 2)
+    for k in range(3):
+        lr, ls = np.log10(p_real[band, k]), np.log10(p_syn[band, k])
+        assert np.corrcoef(lr, ls)[0, 1] > 0.9, k
+        assert np.sqrt(np.mean((10.0 * (lr - ls)) ** 2)) < 6.0, k  # log-spectral distance [dB]
