@@ -103,13 +103,16 @@ def test_broad_imu_noise_reproduced_along_real_truth():
     std_real, std_syn = np.std(e_real[ok_real], axis=0), np.std(e_syn[ok_syn], axis=0)
     rel = np.abs(std_syn / std_real - 1.0)
     assert np.all(rel <= 0.10), (std_real, std_syn)
-    # spectral shape: correlation of the log10 Welch PSDs (8192-sample segments, 0.2 Hz to 0.95 x
-    # Nyquist) above 0.9 on every axis (masked samples set to zero in both)
+    # spectral shape, per axis, on the log10 Welch PSDs (8192-sample segments, 0.2 Hz to 0.95 x Nyquist,
+    # masked samples set to zero in both): correlation above 0.88 and log-spectral distance below 5 dB.
+    # Measured: correlation 0.93 / 0.96 / 0.905, distance 4.4 / 2.8 / 3.6 dB. What keeps them from
+    # being higher is a 1-2 Hz error peak that follows the hand motion (scale factor / misalignment),
+    # which the generator's error model (white, bias walk, one vibration comb) does not have.
     fs = fit.params.rate_hz
     f, p_real = welch(np.where(ok_real[:, None], e_real, 0.0), fs=fs, nperseg=8192, axis=0)
     _, p_syn = welch(np.where(ok_syn[:, None], e_syn, 0.0), fs=fs, nperseg=8192, axis=0)
     band = (f > 0.2) & (f < 0.95 * fs / 2)
     for k in range(3):
         lr, ls = np.log10(p_real[band, k]), np.log10(p_syn[band, k])
-        assert np.corrcoef(lr, ls)[0, 1] > 0.9, k
-        assert np.sqrt(np.mean((10.0 * (lr - ls)) ** 2)) < 6.0, k  # log-spectral distance [dB]
+        assert np.corrcoef(lr, ls)[0, 1] > 0.88, k
+        assert np.sqrt(np.mean((10.0 * (lr - ls)) ** 2)) < 5.0, k  # log-spectral distance [dB]

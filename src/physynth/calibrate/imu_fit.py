@@ -35,6 +35,9 @@ WHITE_BAND = (0.6, 0.9)
 EDGE_MARGIN_S = 1.0
 """IMU samples this close to a truth gap or a segment end are left out (filter transients) [s]."""
 MAX_HARMONICS = 40
+N_PEAK_CANDIDATES = 6
+"""Strongest local maxima of the excess spectrum (more than 30 % apart in frequency) tried as vibration
+fundamentals, with their halves and thirds."""
 
 
 def truth_acceleration(t_s: np.ndarray, pos_m: np.ndarray, *, cutoff_hz: float,
@@ -156,9 +159,11 @@ def _comb_fit(f: np.ndarray, excess: np.ndarray, total: np.ndarray, floor: float
         design = np.stack([lorentzian(fs_, h * f0, bw) for h in range(1, h_max + 1)], axis=1)
         v, _ = nnls(design * wts[:, None], es_ * wts)
         model = design @ v
-        sse = float(np.sum(np.log((model + floor) / (es_ + floor)) ** 2))
-        n = es_.size
-        score = n * np.log(max(sse, 1e-300) / n) + (np.count_nonzero(v) + 2) * np.log(n)  # BIC-like
+        # misfit per log-frequency (weights 1/f: every octave counts the same, not every Welch bin)
+        lw = 1.0 / fs_
+        sse = float(np.sum(lw * np.log((model + floor) / (es_ + floor)) ** 2) / lw.sum())
+        n = float(lw.sum() ** 2 / np.sum(lw**2))  # effective number of bins
+        score = n * np.log(max(sse, 1e-300)) + (np.count_nonzero(v) + 2) * np.log(n)  # BIC-like
         if best is None or score < best[0]:
             best = (score, float(bw), v, h_max)
     return best
@@ -168,7 +173,7 @@ def _fit_vibration(f: np.ndarray, excess: np.ndarray, total: np.ndarray, floor: 
                    f_hi: float) -> dict[str, Any] | None:
     """Fundamental, line width and harmonic variances of the pooled excess PSD (over the white floor).
 
-    Candidate fundamentals are the three strongest local maxima of the excess spectrum and their
+    Candidate fundamentals are the strongest distinct local maxima of the excess spectrum and their
     halves and thirds where these carry a line of their own; each is fitted as a comb of Lorentzian
     lines (non-negative variances per harmonic, grid search over the common line width) and the
     candidate with the smallest BIC-like score of the log-spectral misfit (one parameter per non-zero
@@ -185,7 +190,12 @@ def _fit_vibration(f: np.ndarray, excess: np.ndarray, total: np.ndarray, floor: 
     peaks = np.flatnonzero((smooth[1:-1] >= smooth[:-2]) & (smooth[1:-1] >= smooth[2:]) & (smooth[1:-1] > floor)) + 1
     if peaks.size == 0:
         peaks = np.array([int(np.argmax(smooth))])
-    top = peaks[np.argsort(smooth[peaks])[::-1][:3]]
+    top: list[int] = []
+    for j in peaks[np.argsort(smooth[peaks])[::-1]]:  # strongest first, distinct by more than 30 %
+        if all(abs(np.log(fb[j] / fb[i])) > np.log(1.3) for i in top):
+            top.append(int(j))
+        if len(top) == N_PEAK_CANDIDATES:
+            break
     cands = set()
     for j in top:
         for d in (1, 2, 3):  # sub-harmonics only where they carry a line of their own

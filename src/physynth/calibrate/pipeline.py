@@ -129,7 +129,8 @@ class _Channels:
         return {a: self.mix[a].nlos_resp < 0.5 for a in self.per_anchor_rows}
 
 
-def _fit_channels(trs: Sequence[Trace], offset: float, ids: Sequence[str], fixed_slope: float | None) -> _Channels:
+def _fit_channels(trs: Sequence[Trace], offset: float, ids: Sequence[str], fixed_slope: float | None,
+                  labels: Sequence[str]) -> _Channels:
     """Per-anchor LOS/NLOS mixtures (and the pooled one) at a given time offset."""
     res = [corrected_residuals(t, offset) for t in trs]
     pooled_r = np.concatenate([r.residual_m for r in res])
@@ -158,8 +159,16 @@ def _fit_channels(trs: Sequence[Trace], offset: float, ids: Sequence[str], fixed
             continue
         f, sel = select_mixture(ra, ga, fixed_slope=fixed_slope)
         mix[aid] = f
+        per_run = {}
+        for t, r, lab in zip(trs, res, labels, strict=True):  # per-run robust summary (spread over runs)
+            if aid in t.anchors.ids:
+                x = r.residual_m[r.anchor == t.anchors.index(aid)]
+                if x.size:
+                    med = float(np.median(x))
+                    per_run[lab] = {"n": int(x.size), "median_m": med,
+                                    "robust_std_m": float(1.4826 * np.median(np.abs(x - med)))}
         mix_diag[aid] = {"n": int(ra.size), **sel, "converged": f.converged,
-                         "range_span_m": [float(ga.min()), float(ga.max())]}
+                         "range_span_m": [float(ga.min()), float(ga.max())], "per_run": per_run}
         bounds = np.cumsum([0] + sizes)
         flags[aid] = [f.nlos_resp[a:b] > 0.5 for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
         rows[aid] = (ra, ga, np.concatenate([p[2] for p in parts]))
@@ -266,8 +275,9 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
     for lab, w in windows.items():
         if max(w["uwb_starts_after_truth_s"], w["truth_continues_after_uwb_s"]) > 2.0:
             report.setdefault("warnings", []).append(
-                f"{lab}: UWB covers only part of the truth span (starts {w['uwb_starts_after_truth_s']:.1f} s "
-                f"after it, ends {w['truth_continues_after_uwb_s']:.1f} s before it); availability is fitted on the "
+                f"{lab}: UWB covers only part of the truth span (first range {w['uwb_starts_after_truth_s']:+.1f} s "
+                f"from the truth start, last range {w['truth_continues_after_uwb_s']:.1f} s before its end); "
+                "availability is fitted on the "
                 "UWB span only, so metrics of the uncropped recording count the uncovered part as missing UWB "
                 "(import with crop_to_uwb to drop it)")
 
@@ -339,13 +349,13 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
     fixed_slope = static["range_bias_per_m"] if (static is not None and range_bias == "static") else None
     if range_bias == "static" and static is None:
         raise CalibrationError("range_bias='static' needs static_sweeps (the Static_measurements folder)")
-    chan = _fit_channels(trs, offset, ids, fixed_slope)
+    chan = _fit_channels(trs, offset, ids, fixed_slope, labels)
     ref = refine_time_offset(chan.per_anchor_rows, chan.los_masks())
     report["time_offset"]["grid_offset_s"] = offset
     report["time_offset"]["refinement"] = ref
     if of.diagnostics["identifiable"] and ref is not None:
         offset = offset + ref["correction_s"]
-        chan = _fit_channels(trs, offset, ids, fixed_slope)
+        chan = _fit_channels(trs, offset, ids, fixed_slope, labels)
         se_off = float(np.hypot(ref["std_error_s"], of.diagnostics["std_error_s"]
                                 if len(trs) >= 2 else 0.0))
         report["time_offset"]["offset_s"] = offset
@@ -418,6 +428,13 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
                              "n_nlos_episodes": int(_nlos_runs(flags[aid]).size)}
         if not f.modes:
             notes.append(f"channel_per_anchor.{aid}.nlos_modes (no NLOS rows; nlos_prob = 0, default mode kept)")
+        centre = f.los_mean_m + f.range_bias_per_m * float(np.median(chan.per_anchor_rows.get(aid, ([0.0],) * 3)[1]))
+        negative = [m for _, m, _ in f.modes if m < centre]
+        if negative:
+            report.setdefault("warnings", []).append(
+                f"{aid}: {len(negative)} NLOS mode(s) below the LOS mean (means "
+                f"{', '.join(f'{m:.2f}' for m in negative)} m): ranges shorter than the truth are not radio NLOS "
+                "(that lengthens ranges) but truth errors or ranging outliers; the mixture reproduces them")
         pre = f"channel_per_anchor.{aid}"
         n_a = mix_diag[aid]["n"]
         _param(report, f"{pre}.los_mean_m", f.los_mean_m, se=se["los_mean_m"], n=n_a, summary=True)
