@@ -110,6 +110,8 @@ def test_roundtrip_uwb_timing(roundtrip):
     assert s.uwb.time_offset_s == pytest.approx(TRUE["time_offset_s"], abs=K * se + 0.001)
     # burst period: median of ~17,000 jittered periods (jitter 2 ms): SE ~ 2e-5 s; 0.1 % is > 10 SE
     assert s.uwb.burst_rate_hz == pytest.approx(TRUE["burst_rate_hz"], rel=1e-3)
+    # jitter: robust (MAD) spread of ~17,000 periods; relative SE of a MAD ~ 1.17 / sqrt(2 n) < 1 %
+    assert s.uwb.burst_jitter_s == pytest.approx(0.002, rel=0.05)
     # grid-equivalent slot: fraction of ~17,000 bursts split over 10 ms bins (binomial, p ~ 0.5):
     # relative SE ~ 1 %, plus the random phase of each trace: 20 %
     assert s.uwb.slot_s == pytest.approx(TRUE["slot_s"], rel=0.2)

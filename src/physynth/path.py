@@ -64,12 +64,10 @@ def compile_path(params: PathParams) -> PathGeometry:
     """Build the geometry of a path description."""
     if params.kind == "polynomial":
         length = float(params.length_m)
-        c_u = np.asarray(params.coeffs_enu_m, dtype=np.float64)  # (3, deg+1), rows may differ in length
-        deg = max(len(c) for c in params.coeffs_enu_m)
+        deg = max(len(c) for c in params.coeffs_enu_m)  # rows (E, N, U) may differ in length
         c = np.zeros((deg, 3))
         for k, row in enumerate(params.coeffs_enu_m):
             c[: len(row), k] = row
-        del c_u
         c_s = c / (length ** np.arange(deg))[:, None]  # coefficients in s = u * L
         return PathGeometry(length_m=length, coeffs_s=c_s)
     w = np.asarray(params.waypoints_enu_m, dtype=np.float64)

@@ -81,12 +81,21 @@ def channel_arrays(scn: Scenario) -> ChannelArrays:
 
 def burst_times(t_start_s: float, t_end_s: float, burst_rate_hz: float, jitter_s: float, min_period_s: float,
                 *, rng: np.random.Generator) -> np.ndarray:
-    """Tag burst start times in [t_start, t_end): jittered period, random phase at the start."""
+    """Tag burst start times in [t_start, t_end).
+
+    The tag's clock locks the bursts to a fixed period (random phase at the start); each burst is
+    displaced by its own Gaussian jitter of standard deviation ``jitter_s``, so consecutive periods
+    scatter by ``sqrt(2) * jitter_s`` without the schedule drifting. Bursts keep at least
+    ``min_period_s`` apart (room for every anchor slot).
+    """
     period = 1.0 / burst_rate_hz
-    n = int(np.ceil((t_end_s - t_start_s) * burst_rate_hz * 1.2)) + 8
-    periods = np.maximum(period + jitter_s * rng.standard_normal(n), min_period_s)
-    t = t_start_s + rng.uniform(0.0, period) + np.concatenate([[0.0], np.cumsum(periods[:-1])])
-    return t[t < t_end_s]
+    n = int(np.ceil((t_end_s - t_start_s) * burst_rate_hz)) + 2
+    t = t_start_s + rng.uniform(0.0, period) + period * np.arange(n)
+    if jitter_s > 0:
+        t = t + np.clip(jitter_s * rng.standard_normal(n), -0.45 * period, 0.45 * period)
+        gap = np.maximum(np.diff(t), min_period_s)
+        t = np.concatenate([t[:1], t[0] + np.cumsum(gap)])
+    return t[(t >= t_start_s) & (t < t_end_s)]
 
 
 def link_probability(range_m: np.ndarray, max_range_m: np.ndarray, edge_width_m: np.ndarray) -> np.ndarray:

@@ -412,7 +412,14 @@ def burst_schedule(trace: Trace, grid_bin_s: float = GRID_BIN_S) -> BurstSchedul
     mult = np.maximum(np.round(d / p0), 1.0)
     single = d[mult == 1]
     period = float(np.median(single)) if single.size else p0
-    jit = float(1.4826 * np.median(np.abs(single - period))) if single.size > 2 else 0.0
+    # jitter from one anchor's consecutive bursts (same slot, so the slot offsets cancel); the
+    # generator's bursts are clock-locked with independent jitter per burst, so these periods
+    # scatter by sqrt(2) * jitter
+    order = np.lexsort((u.t_s, u.anchor))
+    a_sorted, t_sorted, b_sorted = u.anchor[order], u.t_s[order], inv[order]
+    same = (a_sorted[1:] == a_sorted[:-1]) & (np.diff(b_sorted) == 1)
+    dt = np.diff(t_sorted)[same]
+    jit = (float(1.4826 * np.median(np.abs(dt - np.median(dt))) / np.sqrt(2.0)) if dt.size > 2 else 0.0)
     ok = u.valid
     lo = np.full(nb, np.iinfo(np.int64).max)
     hi = np.full(nb, -1)
