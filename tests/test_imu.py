@@ -110,3 +110,12 @@ def test_imu_noise_in_generated_trace_matches_density():
     err = noisy - clean
     n = err.shape[0]
     np.testing.assert_allclose(err.std(axis=0), np.array([0.161, 0.086, 0.106]) * 20.0, rtol=5 * np.sqrt(1 / (2 * n)))
+
+
+def test_vibration_axis_gain_scales_each_axis():
+    params = VibrationParams(amplitude_mps2=0.2, axis_gain=[1.0, 0.5, 0.0], bandwidth_hz=0.5)
+    t = np.arange(0, 3000.0, 0.01)
+    x = vibration(t, params, rng=np.random.default_rng(8))
+    n_eff = params.bandwidth_hz * t[-1]
+    np.testing.assert_allclose(x.std(axis=0)[:2], [0.2, 0.1], rtol=5 / np.sqrt(n_eff))
+    assert np.all(x[:, 2] == 0.0)

@@ -126,6 +126,9 @@ def _vibration_cf(t_s: np.ndarray, params: VibrationParams, *, rng: np.random.Ge
         re, im = env[6 * j:6 * j + 3], env[6 * j + 3:6 * j + 6]
         out += amp[h] * (re * c.real - im * c.imag)
         j += 1
+    gain = np.asarray(params.axis_gain, dtype=float)
+    if np.any(gain != 1.0):
+        out *= gain[:, None]
     return out
 
 

@@ -117,8 +117,9 @@ class MotionParams(_Model):
 class VibrationParams(_Model):
     """Band-limited vibration: narrow-band noise at ``fundamental_hz`` and harmonics.
 
-    ``amplitude_mps2`` is the RMS per axis of the whole vibration; ``harmonic_weights`` split its
-    variance between the fundamental and its harmonics; ``bandwidth_hz`` is the -3 dB width of
+    ``amplitude_mps2`` is the RMS per axis of the whole vibration, times ``axis_gain`` (E, N, U) where
+    the axes vibrate unequally; ``harmonic_weights`` split its variance between the fundamental and
+    its harmonics; ``bandwidth_hz`` is the -3 dB width of
     each spectral line.
     """
 
@@ -126,6 +127,7 @@ class VibrationParams(_Model):
     amplitude_mps2: NonNegFloat = 0.12
     harmonic_weights: list[NonNegFloat] = Field(default=[1.0, 0.5, 0.25], min_length=1)
     bandwidth_hz: PositiveFloat = 0.3
+    axis_gain: Annotated[list[NonNegFloat], Field(min_length=3, max_length=3)] = [1.0, 1.0, 1.0]
 
 
 class ImuParams(_Model):

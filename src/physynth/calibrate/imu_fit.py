@@ -356,14 +356,17 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
             amp = float(np.sqrt(vib["comb_variance"]))
             amp_method = ("white noise dominates the error variance: amplitude from the variance of the fitted "
                           "spectral lines (axis-mean spectrum)")
+            gain = np.ones(3)
         else:
-            amp = float(np.sqrt(resid_std.min() * resid_std.max())) if resid_std.min() > 0 else float(resid_std.max())
-            amp_method = ("sqrt(min x max) of the per-axis error std left after white noise and bias walk: one "
-                          "amplitude for all axes with the smallest largest relative error")
+            amp = float(resid_std.max())
+            gain = resid_std / amp
+            amp_method = ("per-axis error std left after white noise and bias walk: amplitude of the strongest "
+                          "axis, axis_gain for the others")
         vibration = VibrationParams(fundamental_hz=rounded(f0, 5), amplitude_mps2=rounded(amp, 5),
                                     harmonic_weights=[rounded(x, 4) for x in w],
-                                    bandwidth_hz=rounded(vib["bandwidth_hz"], 4))
-        rel = (np.sqrt(amp**2 + other_var) / err_std - 1.0)
+                                    bandwidth_hz=rounded(vib["bandwidth_hz"], 4),
+                                    axis_gain=[rounded(float(g), 4) for g in gain])
+        rel = (np.sqrt((amp * gain) ** 2 + other_var) / err_std - 1.0)
         vib_diag = {"fundamental_hz": f0, "bandwidth_hz": vib["bandwidth_hz"], "amplitude_mps2": amp,
                     "harmonic_weights": w.tolist(), "n_harmonics_fitted": vib["n_harmonics"],
                     "frequency_resolution_hz": vib["resolution_hz"], "log_misfit": vib["log_misfit"],
