@@ -82,13 +82,14 @@ def inspect(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
 ) -> None:
     """Section-5 metrics of a dataset, pooled over its traces."""
+    from ._json import jsonable
     from .io import read_dataset
     from .metrics import compute_metrics
 
     ds = read_dataset(dataset)
     m = compute_metrics(ds.traces)
     if as_json:
-        typer.echo(json.dumps(_nan_to_none(m.to_dict()), indent=1))
+        typer.echo(json.dumps(jsonable(m.to_dict()), indent=1))
         return
     from rich.console import Console
     from rich.table import Table
@@ -110,16 +111,6 @@ def inspect(
                          ("n_ranges", "fresh_frac", "mean_aoi_s", "residual_std_m", "residual_median_m",
                           "abs_residual_p95_m")))
     Console().print(per)
-
-
-def _nan_to_none(obj):
-    if isinstance(obj, dict):
-        return {k: _nan_to_none(v) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [_nan_to_none(v) for v in obj]
-    if isinstance(obj, float) and obj != obj:
-        return None
-    return obj
 
 
 def _fail(message: str) -> None:

@@ -268,15 +268,7 @@ def _fig_availability(Figure, ev: Evidence, report: ValidationReport) -> Any:
     ax_a.set_xticks(x, ids, fontsize=8)
     ax_a.set_ylabel("fraction of grid steps fresh")
     ax_a.set_title("per anchor", fontsize=10)
-    rate = ev.real.rate_hz
-    win = max(int(round(rate)), 1)
-    if ev.synthetic.n_fresh_series:
-        steps, band = _nan_band([_moving_mean(s, win) for s in ev.synthetic.n_fresh_series], [10, 50, 90])
-        ax_t.fill_between(steps / rate, band[0], band[2], color=SYNTH_COLOR, alpha=0.25, lw=0)
-        ax_t.plot(steps / rate, band[1], color=SYNTH_COLOR, label="synthetic median, 10-90 %")
-    for s in ev.real.n_fresh_series:
-        ax_t.plot(np.arange(s.size) / rate, _moving_mean(s, win), color=REAL_COLOR, lw=1.0)
-    ax_t.plot([], [], color=REAL_COLOR, label="real")
+    _plot_time_band(ax_t, ev.real.n_fresh_series, ev.synthetic.n_fresh_series, ev.real.rate_hz)
     ax_t.set_xlabel("time since start [s]")
     ax_t.set_ylabel("fresh anchors per step (1 s mean)")
     ax_t.legend(fontsize=8)
@@ -285,18 +277,22 @@ def _fig_availability(Figure, ev: Evidence, report: ValidationReport) -> Any:
     return fig
 
 
+def _plot_time_band(ax, real_series, synth_series, rate: float) -> None:
+    """1 s moving means over time: the synthetic median with its 10-90 % band, each real trace as a line."""
+    win = max(int(round(rate)), 1)
+    if synth_series:
+        steps, band = _nan_band([_moving_mean(s, win) for s in synth_series], [10, 50, 90])
+        ax.fill_between(steps / rate, band[0], band[2], color=SYNTH_COLOR, alpha=0.25, lw=0)
+        ax.plot(steps / rate, band[1], color=SYNTH_COLOR, label="synthetic median, 10-90 %")
+    for s in real_series:
+        ax.plot(np.arange(s.size) / rate, _moving_mean(s, win), color=REAL_COLOR, lw=1.0)
+    ax.plot([], [], color=REAL_COLOR, label="real")
+
+
 def _fig_aoi(Figure, ev: Evidence, report: ValidationReport) -> Any:
     fig = Figure(figsize=(12, 3.9), layout="constrained")
     ax_t, ax_c = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.6, 1]})
-    rate = ev.real.rate_hz
-    win = max(int(round(rate)), 1)
-    if ev.synthetic.mean_aoi_series:
-        steps, band = _nan_band([_moving_mean(s, win) for s in ev.synthetic.mean_aoi_series], [10, 50, 90])
-        ax_t.fill_between(steps / rate, band[0], band[2], color=SYNTH_COLOR, alpha=0.25, lw=0)
-        ax_t.plot(steps / rate, band[1], color=SYNTH_COLOR, label="synthetic median, 10-90 %")
-    for s in ev.real.mean_aoi_series:
-        ax_t.plot(np.arange(s.size) / rate, _moving_mean(s, win), color=REAL_COLOR, lw=1.0)
-    ax_t.plot([], [], color=REAL_COLOR, label="real")
+    _plot_time_band(ax_t, ev.real.mean_aoi_series, ev.synthetic.mean_aoi_series, ev.real.rate_hz)
     ax_t.set_yscale("log")
     ax_t.set_xlabel("time since start [s]")
     ax_t.set_ylabel("mean AoI over anchors, 1 s mean [s]")

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
-import math
 import warnings
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -34,6 +33,7 @@ import numpy as np
 from scipy import signal, stats
 
 from . import __version__
+from ._json import jsonable
 from .constants import DEFAULT_GRID_RATE_HZ
 from .errors import PhySynthError
 from .grid import age_of_information, fresh_mask, grid_times
@@ -104,21 +104,6 @@ EXTENDED_STATISTICS: dict[str, tuple[str, str]] = {
 
 
 # ---------------------------------------------------------------- small numeric helpers
-def _jsonable(obj: Any) -> Any:
-    """Plain JSON values: numpy scalars and arrays to Python, NaN and inf to None."""
-    if isinstance(obj, Mapping):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
 def _num(x: Any) -> float:
     """A JSON number back to float (None -> NaN)."""
     return float("nan") if x is None else float(x)
@@ -439,7 +424,7 @@ class ValidationReport:
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON form (``report.json``)."""
-        return _jsonable({
+        return jsonable({
             "real": self.real,
             "synthetic": self.synthetic,
             "relative_deviation_pct": self.relative_deviation_pct,
@@ -618,8 +603,8 @@ def compare(real: Iterable[Trace], synthetic: Iterable[Trace], *, rate_hz: float
         fidelity_score=fidelity_score(ev_r.metrics, ev_s.metrics),
         extended=_extended(ev_r, ev_s),
         per_anchor=_per_anchor(ev_r, ev_s),
-        inputs=_jsonable(info),
-        transfer=_jsonable(dict(transfer)) if transfer is not None else None,
+        inputs=jsonable(info),
+        transfer=jsonable(dict(transfer)) if transfer is not None else None,
         evidence=Evidence(real=ev_r, synthetic=ev_s),
     )
 

@@ -13,6 +13,7 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 from scipy.signal import savgol_filter
 
+from .._json import jsonable  # noqa: F401 (re-exported for the calibration modules)
 from ..errors import PhySynthError
 from ..records import Trace
 
@@ -110,23 +111,6 @@ def smooth_track(t_s: np.ndarray, pos_m: np.ndarray, *, window_s: float = 1.0, o
     ps = savgol_filter(pg, win, order, axis=0, mode="interp")
     vs = savgol_filter(pg, win, order, deriv=1, delta=dt, axis=0, mode="interp")
     return tg, ps, vs
-
-
-def jsonable(obj: Any) -> Any:
-    """Plain JSON types: numpy scalars/arrays converted, non-finite floats as None."""
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        return jsonable(obj.item())
-    if isinstance(obj, float):
-        return obj if np.isfinite(obj) else None
-    if hasattr(obj, "model_dump"):
-        return jsonable(obj.model_dump(mode="json"))
-    return obj
 
 
 def rounded(x: float, digits: int = 6) -> float:

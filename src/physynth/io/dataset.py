@@ -22,6 +22,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from .. import __version__
+from .._json import jsonable
 from ..constants import IMU_FRAME, SCHEMA_VERSION
 from ..errors import DatasetError
 from ..records import Anchors, Imu, Trace, Truth, Uwb
@@ -86,20 +87,6 @@ def _tables_of(trace: Trace, index: int) -> dict[str, pa.Table]:
     return out
 
 
-def _jsonable(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj
-
-
 def atomic_write_text(path: Path, text: str) -> None:
     """Write a text file atomically (temporary name in the same folder, then rename)."""
     path = Path(path)
@@ -146,7 +133,7 @@ class DatasetWriter:
         index = len(self._trace_meta) if index is None else int(index)
         for name, table in _tables_of(trace, index).items():
             self._pending[name].append(table)
-        self._trace_meta.append({"trace": index, **_jsonable(trace.meta)})
+        self._trace_meta.append({"trace": index, **jsonable(trace.meta)})
         if len(self._pending["truth"]) >= self._row_group_traces:
             self._flush()
 
@@ -169,7 +156,7 @@ class DatasetWriter:
             "units": UNITS,
             "frames": FRAMES,
             "uwb_reason_codes": REASONS,
-            **_jsonable(self.meta),
+            **jsonable(self.meta),
             "n_traces": len(self._trace_meta),
             "traces": self._trace_meta,
         }
