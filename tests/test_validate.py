@@ -209,14 +209,19 @@ def test_transfer_keeps_parameters_and_takes_geometry(data, tmp_path):
     rep = validate_datasets(tmp_path / "real", scenario=str(data / "a.yaml"), n=2, seed=4, transfer=True)
 
     t = rep.transfer
-    assert set(t["from_real"]) == {"path", "motion", "anchors"}
+    assert set(t["from_real"]) == {"path", "motion", "anchors", "uwb.burst_phase_s"}
     assert {"imu", "uwb", "channel", "availability"} <= set(t["from_scenario"])
     assert t["unexpected_changes"] == []
     assert t["anchors"]["transferred"] == ["B1", "B2", "B3", "B4"]
     moved = scenario_from_dict(rep.inputs["synthetic"]["scenario_config"], "transferred")
     # every sensor, channel and availability parameter as in the scenario
-    for section in ("imu", "uwb", "channel", "availability", "truth_rate_hz", "grid_rate_hz"):
+    for section in ("imu", "channel", "availability", "truth_rate_hz", "grid_rate_hz"):
         assert getattr(moved, section) == getattr(scn, section), section
+    # the UWB acquisition too, but for the burst clock's alignment, which is the real run's
+    assert moved.uwb.model_copy(update={"burst_phase_s": None}) == scn.uwb.model_copy(update={"burst_phase_s": None})
+    real_start = real_trace.uwb.t_s[0] - real_trace.t0_s
+    period = 1.0 / scn.uwb.burst_rate_hz
+    assert moved.uwb.burst_phase_s == pytest.approx(real_start % period, abs=0.003)
     for a in moved.anchor_ids:
         assert moved.channel_for(a) == scn.channel
         assert moved.availability_for(a) == scn.availability

@@ -217,11 +217,16 @@ class UwbParams(_Model):
     The tag ranges in bursts near ``burst_rate_hz`` (period jitter ``burst_jitter_s``); within a burst
     anchor j is ranged ``j * slot_s`` after the burst start, and only with probability
     rate_hz / burst_rate_hz (effective per-anchor rate). Stamps lag true time by ``time_offset_s``.
+    The bursts are locked to the tag clock; ``burst_phase_s`` is the stamp time of the first burst
+    after the trace start, modulo the period (``None``: drawn uniformly per trace, the usual choice for
+    training data; a number: a recording's own alignment, which decides how often a burst straddles
+    two 10 ms grid bins and so the grid availability metrics).
     NLOS episodes last ``nlos_dwell_s`` on average.
     """
 
     burst_rate_hz: PositiveFloat = 23.0
     burst_jitter_s: NonNegFloat = 0.003
+    burst_phase_s: NonNegFloat | None = None
     slot_s: NonNegFloat = 0.0015
     time_offset_s: FiniteFloat = 0.0
     nlos_dwell_s: PositiveFloat = 0.5

@@ -80,7 +80,7 @@ def channel_arrays(scn: Scenario) -> ChannelArrays:
 
 
 def burst_times(t_start_s: float, t_end_s: float, burst_rate_hz: float, jitter_s: float, min_period_s: float,
-                *, rng: np.random.Generator) -> np.ndarray:
+                *, rng: np.random.Generator, phase_s: float | None = None) -> np.ndarray:
     """Tag burst start times in [t_start, t_end).
 
     The tag's clock locks the bursts to a fixed period (random phase at the start); each burst is
@@ -90,7 +90,8 @@ def burst_times(t_start_s: float, t_end_s: float, burst_rate_hz: float, jitter_s
     """
     period = 1.0 / burst_rate_hz
     n = int(np.ceil((t_end_s - t_start_s) * burst_rate_hz)) + 2
-    t = t_start_s + rng.uniform(0.0, period) + period * np.arange(n)
+    first = rng.uniform(0.0, period) if phase_s is None else float(phase_s) % period
+    t = t_start_s + first + period * np.arange(n)
     if jitter_s > 0:
         t = t + np.clip(jitter_s * rng.standard_normal(n), -0.45 * period, 0.45 * period)
         gap = np.maximum(np.diff(t), min_period_s)
@@ -140,8 +141,9 @@ def simulate_uwb(kin: Kinematics, scn: Scenario, ch: ChannelArrays, *, rng: np.r
     u = scn.uwb
     n_anchors = ch.anchor_pos_enu_m.shape[0]
     t_end = float(kin.t_s[-1]) - n_anchors * u.slot_s - abs(u.time_offset_s)
+    phase = None if u.burst_phase_s is None else u.burst_phase_s - u.time_offset_s  # stamp -> true time
     bursts = burst_times(float(kin.t_s[0]), t_end, u.burst_rate_hz, u.burst_jitter_s,
-                         n_anchors * u.slot_s + 1e-4, rng=rng)
+                         n_anchors * u.slot_s + 1e-4, rng=rng, phase_s=phase)
     scheduled = rng.random((bursts.shape[0], n_anchors)) < ch.attempt_prob
     b_idx, anchor = np.nonzero(scheduled)  # row-major: sorted by burst, then anchor slot
     t_true = bursts[b_idx] + anchor * u.slot_s

@@ -70,6 +70,8 @@ MAX_PLOT_TRACES = 100
 
 TRANSFER_FROM_REAL = ("path", "motion", "anchors")
 """Scenario sections that ``--transfer`` takes from the real dataset (paper section IV.C)."""
+TRANSFER_FROM_REAL_FIELDS = {"uwb": ("burst_phase_s",)}
+"""Single fields taken from the real run: the burst clock's alignment with the recording's time base."""
 
 EXTENDED_STATISTICS: dict[str, tuple[str, str]] = {
     "residual_wasserstein_m": (
@@ -664,6 +666,10 @@ def _transfer_record(before: Scenario, after: Scenario, real_path: str, real_ids
     bookkeeping = ("name", "description", "provenance")
     sections = [k for k in a if k not in bookkeeping]
     changed = [k for k in sections if a.get(k) != b.get(k)]
+    for sec, fields in TRANSFER_FROM_REAL_FIELDS.items():  # compare those sections without the run's fields
+        if sec in changed and {k: v for k, v in a[sec].items() if k not in fields} == {
+                k: v for k, v in b[sec].items() if k not in fields}:
+            changed.remove(sec)
     per_anchor_maps = ("channel_per_anchor", "availability_per_anchor")
     # a per-anchor map restricted to the real anchors is still the scenario's: only new or altered
     # entries are a change of sensor/channel/availability parameters
@@ -674,7 +680,8 @@ def _transfer_record(before: Scenario, after: Scenario, real_path: str, real_ids
                   "every sensor, channel and availability parameter as in the scenario",
         "scenario": before.name,
         "real_dataset": real_path,
-        "from_real": [k for k in sections if k in TRANSFER_FROM_REAL],
+        "from_real": [k for k in sections if k in TRANSFER_FROM_REAL]
+        + [f"{sec}.{f}" for sec, fields in TRANSFER_FROM_REAL_FIELDS.items() for f in fields],
         "from_scenario": [k for k in sections if k not in TRANSFER_FROM_REAL],
         "changed_sections": changed,
         "unexpected_changes": unexpected,

@@ -522,7 +522,8 @@ def transfer_scenario(scn: Scenario, real_traces: Trace | Sequence[Trace], *, pa
     the anchors (ids and positions, :func:`anchor_layout`) come from ``real_traces``; every sensor,
     UWB acquisition, channel and availability parameter stays as in ``scn``, and so do the run-to-run
     variability of the installation (``path.perturbation``, ``motion.cruise_speed_spread_frac`` and
-    ``motion.length_spread_frac``). Anchors of the real data without a channel or availability
+    ``motion.length_spread_frac``). The burst clock's phase (``uwb.burst_phase_s``, the run's alignment
+    with its own time base) is taken from the real run too. Anchors of the real data without a channel or availability
     override in ``scn`` use its defaults; overrides for anchors the real data lacks are dropped.
     """
     trs = as_trace_list(real_traces)
@@ -539,6 +540,12 @@ def transfer_scenario(scn: Scenario, real_traces: Trace | Sequence[Trace], *, pa
     motion["length_spread_frac"] = scn.motion.length_spread_frac
     data["motion"] = motion
     data["anchors"] = [a.model_dump(mode="json", exclude_none=True) for a in anchors]
+    # the burst clock's alignment with the recording is a property of the run, like its geometry (it
+    # decides how often bursts straddle grid bins); the acquisition parameters themselves stay
+    from .uwb_fit import fit_burst_schedule
+
+    phase = fit_burst_schedule(trs).params["burst_phase_s"] if any(len(t.uwb) for t in trs) else None
+    data["uwb"]["burst_phase_s"] = None if phase is None else round(float(phase), 5)
     data["channel_per_anchor"] = {a: v for a, v in data["channel_per_anchor"].items() if a in ids}
     data["availability_per_anchor"] = {a: v for a, v in data["availability_per_anchor"].items() if a in ids}
     data["provenance"] = {
@@ -550,6 +557,7 @@ def transfer_scenario(scn: Scenario, real_traces: Trace | Sequence[Trace], *, pa
             "path_rmse_m": path_fit.diagnostics["rmse_m"],
             "speed_profile": motion_fit.params.profile.kind,
             "anchor_conflicts": layout["conflicts"],
+            "burst_phase_s": data["uwb"]["burst_phase_s"],
         },
     }
     return scenario_from_dict(data, source=f"transfer of {scn.name}")

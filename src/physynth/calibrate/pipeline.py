@@ -337,6 +337,9 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
     _param(report, "uwb.burst_rate_hz", burst_rate, n=bf.n_samples, summary=True)
     _param(report, "uwb.burst_jitter_s", bf.params["burst_jitter_s"], n=bf.n_samples)
     _param(report, "uwb.slot_s", bf.params["slot_s"], n=bf.n_samples, note=bf.diagnostics["slot_method"])
+    _param(report, "uwb.burst_phase_s", bf.params["burst_phase_s"], n=bf.n_samples,
+           note="clock alignment of the single run" if bf.params["burst_phase_s"] is not None
+           else "several runs: drawn per trace")
 
     # ---------------------------------------------------------------- ranging errors
     say("fitting LOS/NLOS ranging errors per anchor")
@@ -530,8 +533,10 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
         notes.append("imu (no IMU data; defaults kept)")
 
     # ---------------------------------------------------------------- scenario
+    phase = bf.params["burst_phase_s"]
     uwb = UwbParams(burst_rate_hz=burst_rate, burst_jitter_s=rounded(bf.params["burst_jitter_s"], 4),
-                    slot_s=rounded(bf.params["slot_s"], 4), time_offset_s=rounded(offset, 5),
+                    burst_phase_s=None if phase is None else rounded(phase, 5),
+                    slot_s=rounded(bf.params["slot_s"], 5), time_offset_s=rounded(offset, 5),
                     nlos_dwell_s=rounded(nlos_dwell, 4), zones=[])
     notes.append("uwb.zones (NLOS zones along the path are not fitted)")
     provenance = {

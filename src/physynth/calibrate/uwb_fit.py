@@ -391,6 +391,7 @@ class BurstSchedule:
     starts_s: np.ndarray  # burst start times (B,)
     period_s: float
     jitter_s: float
+    phase_s: float  # stamp time of the clock-locked schedule's first burst after the trace start, mod period
     n_single: int  # number of one-period intervals used
     within_offset_s: np.ndarray  # row time minus its burst start (N,)
     index_span: np.ndarray  # per burst: (max - min) anchor index of its valid rows
@@ -412,6 +413,21 @@ def burst_schedule(trace: Trace, grid_bin_s: float = GRID_BIN_S) -> BurstSchedul
     mult = np.maximum(np.round(d / p0), 1.0)
     single = d[mult == 1]
     period = float(np.median(single)) if single.size else p0
+    # the tag clock locks the bursts: least squares of start = a + k P over burst numbers k gives the
+    # period to ~1e-8 s (a median of periods is only good to ~1e-6 s, i.e. ms of drift over a run)
+    # and the phase; a second pass leaves out bursts that started late (first anchor missing)
+    k = np.round((start - start[0]) / period)
+    keep = np.ones(start.size, dtype=bool)
+    for _ in range(2):
+        if np.count_nonzero(keep) < 3 or np.ptp(k[keep]) == 0:
+            break
+        slope, icpt = np.polyfit(k[keep], start[keep], 1)
+        res = start - (icpt + slope * k)
+        mad = 1.4826 * np.median(np.abs(res[keep] - np.median(res[keep])))
+        keep = np.abs(res - np.median(res[keep])) <= max(3.0 * mad, 1e-5)
+    else:
+        period = float(slope)
+    phase = float((np.median(start[keep] - period * k[keep]) - trace.t0_s) % period)
     # jitter from one anchor's consecutive bursts (same slot, so the slot offsets cancel); the
     # generator's bursts are clock-locked with independent jitter per burst, so these periods
     # scatter by sqrt(2) * jitter
@@ -432,20 +448,20 @@ def burst_schedule(trace: Trace, grid_bin_s: float = GRID_BIN_S) -> BurstSchedul
     np.minimum.at(kmin, inv[ok], k[ok])
     np.maximum.at(kmax, inv[ok], k[ok])
     has = hi >= 0
-    return BurstSchedule(starts_s=start, period_s=period, jitter_s=jit, n_single=int(single.size),
+    return BurstSchedule(starts_s=start, period_s=period, jitter_s=jit, phase_s=phase, n_single=int(single.size),
                          within_offset_s=u.t_s - start[inv], index_span=(hi - lo)[has],
                          split=(kmax > kmin)[has])
 
 
 def fit_burst_schedule(traces: Sequence[Trace]) -> Fit[dict[str, float]]:
-    """Burst rate, period jitter and slot spacing pooled over runs.
+    """Burst rate, period jitter, slot spacing and clock phase pooled over runs.
 
-    ``slot_s`` is the *grid-equivalent* slot: the generator ranges anchor j at j * slot_s after the
-    burst start, so a burst whose anchors span (j_max - j_min) slots is split over two 10 ms grid bins
-    with probability (j_max - j_min) slot_s / 10 ms when its phase is random; slot_s is chosen so that
-    the expected fraction of split bursts equals the observed one. The direct intra-burst spacing
-    (median time between consecutive rows of a burst) is reported beside it; with many runs of random
-    phase both agree, with one run the grid-equivalent value reproduces that run's grid statistics.
+    The bursts are locked to the tag clock: the period and phase come from a least-squares line through
+    the burst start times. ``slot_s`` is the direct intra-burst spacing (median time between
+    consecutive rows of a burst). With one run its phase is kept (``burst_phase_s``): how often a burst
+    straddles two 10 ms grid bins, and so the grid availability metrics, depends on it. The
+    *grid-equivalent* slot (the spacing that would give the observed fraction of split bursts under a
+    random phase) is reported as a diagnostic.
     """
     scheds = [burst_schedule(t) for t in traces]
     w = np.array([s.n_single for s in scheds], dtype=float)
@@ -456,7 +472,7 @@ def fit_burst_schedule(traces: Sequence[Trace]) -> Fit[dict[str, float]]:
     span = np.concatenate([s.index_span for s in scheds]).astype(float)
     split_frac = float(split.mean()) if split.size else 0.0
     mean_span = float(span.mean()) if span.size else 0.0
-    slot_grid = split_frac * GRID_BIN_S / mean_span if mean_span > 0 else 0.0
+    slot_grid = split_frac * GRID_BIN_S / mean_span if mean_span > 0 else 0.0  # diagnostic only
     direct = []
     for t in traces:
         u = t.uwb
@@ -465,20 +481,28 @@ def fit_burst_schedule(traces: Sequence[Trace]) -> Fit[dict[str, float]]:
         direct.append(np.diff(u.t_s)[same])
     dd = np.concatenate(direct) if direct else np.zeros(0)
     slot_direct = float(np.median(dd)) if dd.size else 0.0
+    # with one run its own clock alignment is kept (it decides the grid statistics); pooled runs have
+    # unrelated alignments, so the generator then draws one per trace
+    phase = float(scheds[0].phase_s) if len(scheds) == 1 else None
     diag = {
         "burst_rate_hz": 1.0 / period,
         "period_s": period,
         "burst_jitter_s": jitter,
-        "slot_s": slot_grid,
-        "slot_method": "grid-equivalent: matches the observed fraction of bursts split over 10 ms grid bins",
+        "burst_phase_s": phase,
+        "burst_phase_per_run_s": [s.phase_s for s in scheds],
+        "slot_s": slot_direct,
+        "slot_method": "direct: median time between consecutive rows of one burst",
+        "slot_grid_equivalent_s": slot_grid,
         "split_burst_frac": split_frac,
         "mean_anchor_index_span": mean_span,
         "slot_direct_s": slot_direct,
         "per_run": {trace_label(t, i): {"burst_rate_hz": 1.0 / s.period_s, "jitter_s": s.jitter_s,
+                                        "phase_s": s.phase_s,
                                         "split_burst_frac": float(s.split.mean()) if s.split.size else None,
                                         "n_bursts": int(s.starts_s.size)}
                     for i, (t, s) in enumerate(zip(traces, scheds, strict=True))},
         "n_bursts": int(sum(s.starts_s.size for s in scheds)),
     }
-    return Fit(params={"burst_rate_hz": 1.0 / period, "burst_jitter_s": jitter, "slot_s": slot_grid},
+    return Fit(params={"burst_rate_hz": 1.0 / period, "burst_jitter_s": jitter, "slot_s": slot_direct,
+                       "burst_phase_s": phase},
                n_samples=diag["n_bursts"], diagnostics=diag)
