@@ -123,6 +123,7 @@ def test_roundtrip_uwb_timing(roundtrip):
 
 def test_roundtrip_ranging_errors(roundtrip):
     _, _, res = roundtrip
+    mode_dwells = []
     for a in res.scenario.anchor_ids:
         c = res.scenario.channel_for(a)
         pre = f"channel_per_anchor.{a}"
@@ -138,12 +139,22 @@ def test_roundtrip_ranging_errors(roundtrip):
         assert len(c.nlos_modes) == 2
         modes = sorted((m.mean_m, m.std_m, m.weight) for m in c.nlos_modes)
         se_means = res.report["parameters"][f"{pre}.nlos_modes"]["std_error"]
+        # an NLOS episode keeps its mode: the weights are known to the number of episodes, not of rows
+        n_ep = sum(res.report["channel"]["per_anchor"][a]["nlos_mode_episodes"])
         for (mean, _, w), (tw, tm, _), se in zip(modes, sorted(TRUE["modes"], key=lambda x: x[1]),
                                                  sorted(se_means), strict=True):
             assert mean == pytest.approx(tm, abs=K * se + 0.05)
-            assert w == pytest.approx(tw, abs=0.1)  # weights: ~500 NLOS rows per anchor, SE ~ 0.02
+            assert w == pytest.approx(tw, abs=K * np.sqrt(tw * (1 - tw) / n_ep) + 0.02)
+        for m, n in zip(c.nlos_modes, res.report["channel"]["per_anchor"][a]["nlos_mode_episodes"], strict=True):
+            mode_dwells.append((m.dwell_s, n))
         # radio horizon: identifiable here (the path leaves the 150 m range of every anchor)
         assert c.max_range_m == pytest.approx(TRUE["max_range_m"], abs=5.0)
+    # each mode's episode length (both 0.5 s here), pooled over anchors and modes weighted by episodes:
+    # geometric runs have std ~ mean, so the SE is 1/sqrt(episodes); runs are counted in delivered rows
+    # (dropouts and labelling errors shorten them): allowance 25 %
+    d, n = np.array(mode_dwells, dtype=float).T
+    pooled = float(np.sum(d * n) / n.sum())
+    assert pooled == pytest.approx(TRUE["nlos_dwell_s"], rel=K / np.sqrt(n.sum()) + 0.25)
     # NLOS dwell: ~1,000 episodes pooled; the geometric-run estimator is biased by LOS rows labelled
     # NLOS and vice versa: 30 %
     assert res.scenario.uwb.nlos_dwell_s == pytest.approx(TRUE["nlos_dwell_s"], rel=0.3)

@@ -157,3 +157,36 @@ def test_alternating_renewal_long_run_fraction():
     assert on.mean() == pytest.approx(0.75, abs=5 * np.sqrt(0.75 * 0.25 / n_cycles))
     with pytest.raises(ValueError):
         alternating_renewal(t, 0.0, 1.0, start_on_prob=0.5, rng=rng)
+
+
+def test_nlos_episode_keeps_its_mode_and_modes_have_their_own_dwell():
+    modes = [{"weight": 0.5, "mean_m": 2.0, "std_m": 0.2, "dwell_s": 2.0},
+             {"weight": 0.5, "mean_m": 15.0, "std_m": 0.5, "dwell_s": 0.2}]
+    scn = simple_scenario(**{"channel.nlos_prob": 0.3, "channel.nlos_modes": modes})
+    trs = _traces(scn, 10)
+    runs = {True: [], False: []}
+    n_pairs = n_switch = 0
+    for t in trs:
+        u = t.uwb
+        for i in range(3):
+            rows = u.anchor == i
+            e = (u.range_m - u.true_range_m)[rows]
+            nl = u.nlos[rows]
+            high = e > 8.0
+            # consecutive NLOS rows switch reflector only where two episodes touch between attempts
+            both = nl[1:] & nl[:-1]
+            n_pairs += int(both.sum())
+            n_switch += int(np.sum(high[1:][both] != high[:-1][both]))
+            # episode lengths per mode
+            x = np.concatenate([[0], nl.astype(np.int8), [0]])
+            starts, ends = np.flatnonzero(np.diff(x) == 1), np.flatnonzero(np.diff(x) == -1)
+            for a, b in zip(starts, ends, strict=True):
+                runs[bool(high[a])].append((b - a) / 20.0)  # 20 attempts per second
+    assert n_switch / n_pairs < 0.05  # modes drawn per row would switch in about half of the pairs
+    long_mode, short_mode = np.mean(runs[False]), np.mean(runs[True])
+    # a geometric run of mean dwell * rate samples: ~2.0 s and ~0.2 s (+ one sample of discretisation)
+    assert long_mode == pytest.approx(2.0, rel=5 / np.sqrt(len(runs[False])))
+    assert short_mode < 0.35
+    # weights are shares of NLOS time: both modes hold about half of the NLOS rows
+    e_all = np.concatenate([(t.uwb.range_m - t.uwb.true_range_m)[t.uwb.nlos] for t in trs])
+    assert np.mean(e_all > 8.0) == pytest.approx(0.5, abs=0.1)

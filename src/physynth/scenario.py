@@ -147,11 +147,16 @@ class ImuParams(_Model):
 
 # ---------------------------------------------------------------- UWB
 class NlosMode(_Model):
-    """One Gaussian component of the NLOS range offset delta [m]."""
+    """One Gaussian component of the NLOS range offset delta [m].
+
+    ``weight`` is the share of NLOS measurements in this mode. An NLOS episode keeps one mode (one
+    reflector) for its whole length, of mean ``dwell_s`` (default: ``uwb.nlos_dwell_s``).
+    """
 
     weight: PositiveFloat
     mean_m: FiniteFloat
     std_m: PositiveFloat
+    dwell_s: PositiveFloat | None = None
 
 
 class NlosZone(_Model):

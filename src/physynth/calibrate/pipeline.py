@@ -104,6 +104,32 @@ def _nlos_runs(flags: list[np.ndarray]) -> np.ndarray:
     return np.concatenate(lengths) if lengths else np.zeros(0, np.int64)
 
 
+MIN_MODE_EPISODES = 2
+"""A mixture mode gets its own NLOS episode length from at least this many episodes (else uwb.nlos_dwell_s)."""
+
+
+def _mode_runs(residual_m: np.ndarray, flags: list[np.ndarray], modes: Sequence[tuple[float, float, float]]
+               ) -> list[np.ndarray]:
+    """Run lengths of consecutive NLOS rows in the same mixture mode (most likely mode per row), per mode."""
+    if not modes or not flags:
+        return [np.zeros(0, np.int64) for _ in modes]
+    w, m, sd = (np.array(x) for x in zip(*modes, strict=True))
+    r = np.asarray(residual_m)
+    best = np.argmax(np.log(w)[None, :] - np.log(sd)[None, :] - 0.5 * ((r[:, None] - m) / sd) ** 2, axis=1)
+    out: list[list[np.ndarray]] = [[] for _ in modes]
+    start = 0
+    for f in flags:  # one pass per trace, vectorised over its rows
+        lab = np.where(f, best[start:start + f.size], -1)
+        start += f.size
+        edges = np.flatnonzero(np.diff(lab)) + 1
+        seg_start = np.concatenate([[0], edges])
+        seg_len = np.diff(np.concatenate([seg_start, [lab.size]]))
+        seg_lab = lab[seg_start] if lab.size else lab
+        for j in range(len(modes)):
+            out[j].append(seg_len[seg_lab == j])
+    return [np.concatenate(x) if x else np.zeros(0, np.int64) for x in out]
+
+
 def _dwell_from_runs(lengths: np.ndarray, period_s: float) -> float | None:
     """Mean NLOS episode [s] from run lengths n >= 1 of samples every ``period_s`` (geometric MLE)."""
     if lengths.size == 0:
@@ -406,7 +432,15 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
             max_range, edge = 2.0 * seen + 10.0, 5.0
             notes.append(f"channel_per_anchor.{aid}.max_range_m ({link.get('why', 'not identifiable')}; "
                          f"set to {max_range:.0f} m, above the largest range {seen:.1f} m)")
-        modes = [NlosMode(weight=rounded(w, 4), mean_m=rounded(m, 5), std_m=rounded(s, 4)) for w, m, s in f.modes]
+        # each mode keeps its own episode length (an episode keeps one reflector): a long, small offset at
+        # rest and short gross outliers are different processes
+        mode_runs = _mode_runs(chan.per_anchor_rows[aid][0], flags[aid], f.modes) if aid in chan.per_anchor_rows \
+            else [np.zeros(0)] * len(f.modes)
+        mode_dwell = [_dwell_from_runs(x, periods[aid]) if x.size >= MIN_MODE_EPISODES else None for x in mode_runs]
+        modes = [NlosMode(weight=rounded(w, 4), mean_m=rounded(m, 5), std_m=rounded(s, 4),
+                          dwell_s=None if d is None else rounded(d, 4))
+                 for (w, m, s), d in zip(f.modes, mode_dwell, strict=True)]
+        mode_episodes = [int(x.size) for x in mode_runs]
         if not modes:
             modes = ChannelParams().nlos_modes
         per_channel[aid] = ChannelParams(
@@ -428,6 +462,7 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
                                         np.sqrt(2.0 * f.nlos_prob * (1.0 - f.nlos_prob) * tau / max(t_obs, 1e-9))))
             se["nlos_prob_method"] = "episodes: sqrt(2 p (1-p) dwell (1-p) / T_obs), at least the binomial SE"
         channel_diag[aid] = {**mix_diag[aid], "std_errors": se, "nlos_dwell_s": per_anchor_dwell[aid],
+                             "nlos_mode_episodes": mode_episodes, "nlos_mode_dwell_s": mode_dwell,
                              "n_nlos_episodes": int(_nlos_runs(flags[aid]).size)}
         if not f.modes:
             notes.append(f"channel_per_anchor.{aid}.nlos_modes (no NLOS rows; nlos_prob = 0, default mode kept)")
