@@ -339,3 +339,25 @@ def test_cli_calibrate_end_to_end(roundtrip, tmp_path, capsys):
     # generate accepts the file directly
     cli_main(["generate", "-s", str(out), "-n", "1", "--seed", "1", "--out", str(tmp_path / "gen"), "-q"])
     assert (tmp_path / "gen" / "dataset.json").is_file()
+
+
+def test_imu_only_recording_joins_a_uwb_calibration(roundtrip):
+    """A UWB recording without IMU plus an IMU-only recording (e.g. a lab trial): the IMU noise comes
+    from the second, everything else from the first."""
+    scn, traces, _ = roundtrip
+    uwb_only = [Trace(truth=t.truth, uwb=t.uwb, anchors=t.anchors, meta={**t.meta, "run": f"uwb{i}"})
+                for i, t in enumerate(traces[:2])]
+    d = roundtrip_dict()
+    d["imu"] = {"white_noise_density_mps2_per_sqrt_hz": [0.05, 0.08, 0.12], "bias_rw_mps2_per_sqrt_s": 0.0,
+                "vibration": {"amplitude_mps2": 0.0}}
+    lab = generate_trace(compile_scenario(scenario_from_dict(d, "lab")), 0, 3)
+    imu_only = Trace(truth=lab.truth, imu=lab.imu, anchors=Anchors(ids=(), pos_enu_m=np.zeros((0, 3))),
+                     uwb=Uwb(t_s=np.array([]), anchor=np.array([], np.int16), range_m=np.array([])),
+                     meta={"run": "lab"})
+    res = calibrate([*uwb_only, imu_only])
+    assert res.report["imu_only_recordings"] == ["lab"]
+    assert res.scenario.anchor_ids == scn.anchor_ids
+    # white density from the high band of the error PSD of ~40,000 samples: a few % of the true value
+    np.testing.assert_allclose(res.scenario.imu.white_noise_density_mps2_per_sqrt_hz, [0.05, 0.08, 0.12], rtol=0.1)
+    with pytest.raises(CalibrationError, match="no recording with UWB"):
+        calibrate([imu_only])

@@ -273,13 +273,27 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
         trs = [Trace(truth=t.truth, uwb=t.uwb, anchors=t.anchors, imu=t.imu, meta={**t.meta, "label": lab})
                for t, lab in zip(trs, labels, strict=True)]
     say("checking the recordings")
+    imu_only: list[Trace] = []  # IMU recordings without UWB (e.g. a lab trial): they inform the IMU fit only
+    imu_only_labels: list[str] = []
     for t, lab in zip(trs, labels, strict=True):
         require_truth(t, lab)
-        if len(t.uwb) == 0 or not t.uwb.valid.any():
-            raise CalibrationError(f"{lab}: no UWB rows with a range; calibration needs UWB measurements "
-                                   "(for IMU-only recordings use physynth.calibrate.fit_imu)")
+        has_uwb = len(t.uwb) > 0 and bool(t.uwb.valid.any())
+        has_imu = t.imu is not None and t.imu.t_s.size > 100
+        if not has_uwb and has_imu:
+            imu_only.append(t)
+            imu_only_labels.append(lab)
+            continue
+        if not has_uwb:
+            raise CalibrationError(f"{lab}: no UWB rows with a range and no IMU samples: nothing to calibrate on")
         if len(t.anchors) == 0:
             raise CalibrationError(f"{lab}: no anchors")
+    if imu_only:
+        keep = [i for i, lab in enumerate(labels) if lab not in imu_only_labels]
+        trs, labels = [trs[i] for i in keep], [labels[i] for i in keep]
+        if not trs:
+            raise CalibrationError("no recording with UWB measurements: a scenario needs at least one "
+                                   "(IMU-only recordings can join a UWB recording to calibrate the IMU; "
+                                   "alone, use physynth.calibrate.imu_fit.fit_imu)")
     anchors, layout = anchor_layout(trs, policy=anchor_policy, labels=labels)
     windows = {}
     for t, lab in zip(trs, labels, strict=True):
@@ -291,6 +305,7 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
         "physynth_version": __version__,
         "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "recordings": labels,
+        "imu_only_recordings": imu_only_labels,
         "sources": list(sources or []),
         "anchor_layout": layout,
         "recording_windows": windows,
@@ -547,7 +562,7 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
                n=tag["n_outages"], note="uncensored tag outages")
 
     # ---------------------------------------------------------------- IMU
-    imu_traces = [t for t in trs if t.imu is not None and t.imu.t_s.size > 100]
+    imu_traces = [t for t in trs if t.imu is not None and t.imu.t_s.size > 100] + imu_only
     if imu_traces:
         say("fitting IMU noise")
         from .imu_fit import fit_imu
@@ -579,6 +594,7 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
         "created_utc": report["created_utc"],
         "datasets": list(sources or []),
         "recordings": labels,
+        "imu_only_recordings": imu_only_labels,
         "command": "physynth calibrate",
     }
     data = {
