@@ -62,3 +62,8 @@ def test_unreadable_and_unknown_scenarios(tmp_path):
         load_scenario(_write(tmp_path, "name: [unclosed\n"))
     with pytest.raises(ScenarioError, match="expected a mapping"):
         load_scenario(_write(tmp_path, "- 1\n- 2\n", "list.yaml"))
+
+
+def test_a_directory_is_not_a_scenario(tmp_path):
+    with pytest.raises(ScenarioError, match="is a directory"):
+        load_scenario(tmp_path)

@@ -139,6 +139,10 @@ def main(argv: list[str] | None = None) -> None:
         _fail(exc.format_message())
     except typer.Exit as exc:
         sys.exit(exc.exit_code)
+    except OSError as exc:  # the machine, not the input: disk full, permission denied, ...
+        where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
+        print(f"physynth: error: {exc.strerror or exc}{where}", file=sys.stderr)
+        sys.exit(1)
     except KeyboardInterrupt:
         print("physynth: interrupted", file=sys.stderr)
         sys.exit(130)

@@ -357,6 +357,8 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         text = resources.files("physynth").joinpath(PRESET_DIR, f"{name_or_path}.yaml").read_text("utf-8")
         source = f"preset '{name_or_path}'"
     elif p.suffix.lower() in (".yaml", ".yml", ".json") or p.exists():
+        if p.is_dir():
+            raise ScenarioError(f"scenario {p} is a directory, not a scenario file")
         if not p.is_file():
             raise ScenarioError(f"scenario file {p} does not exist")
         try:
