@@ -336,11 +336,18 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
                                           sag_std_m=rounded(pert["sag_std_m"], 4))
         report["path_perturbation"] = pert
         note = "std over runs of the half-sine amplitudes"
-    else:
+    elif pf.params.kind == "polynomial":  # a cable: the paper's deformation is the prior
         perturbation = PerturbationParams()
-        report["path_perturbation"] = {"note": "one run: run-to-run deformation not identifiable, defaults kept"}
-        notes.append("path.perturbation (one run; defaults kept)")
+        report["path_perturbation"] = {"note": "one run: run-to-run deformation not identifiable, cable "
+                                               "defaults kept (2 m lateral, 1 m sag; paper III.C)"}
+        notes.append("path.perturbation (one run; cable defaults kept)")
         note = "default (one run)"
+    else:  # a general path (a walk, a vehicle): a cable's sag has no meaning and nothing else is known
+        perturbation = PerturbationParams(lateral_std_m=0.0, sag_std_m=0.0)
+        report["path_perturbation"] = {"note": "one run of a general path: run-to-run deformation not "
+                                               "identifiable; none claimed (set path.perturbation to add some)"}
+        notes.append("path.perturbation (one run of a general path; set to 0)")
+        note = "0 (one run, general path)"
     _param(report, "path.perturbation.lateral_std_m", perturbation.lateral_std_m, n=len(trs), note=note)
     _param(report, "path.perturbation.sag_std_m", perturbation.sag_std_m, n=len(trs), note=note)
     path = pf.params.model_copy(update={"perturbation": perturbation})
