@@ -11,15 +11,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.signal import welch
 
 from physynth.availability import stationary_availability
 from physynth.calibrate import calibrate, fit_static_range_bias
-from physynth.calibrate.imu_fit import fit_imu, imu_error, simulate_imu_on, truth_acceleration
+from physynth.calibrate.imu_fit import compare_imu_along_truth, fit_imu
 from physynth.generate import compile_scenario, generate_trace
 from physynth.importers import import_broad, import_hanyang
 from physynth.metrics import compute_metrics, relative_deviation_pct
-from physynth.records import Trace
 
 SHARED = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 HANYANG = SHARED / "hanyang-uwb"
@@ -92,27 +90,14 @@ def test_static_sweep_range_bias():
 def test_broad_imu_noise_reproduced_along_real_truth():
     real, _ = import_broad(BROAD15)
     fit = fit_imu(real)
-    fc = fit.diagnostics["truth_cutoff_hz"]
     # the generator's IMU error model applied to the real trial's truth-derived acceleration
-    tg, acc, valid = truth_acceleration(real.truth.t_s, real.truth.pos_enu_m, cutoff_hz=fc)
-    filled = np.stack([np.interp(tg, tg[valid], acc[valid, k]) for k in range(3)], axis=1)
-    imu = simulate_imu_on(tg, filled, fit.params, rng=np.random.default_rng(20240611))
-    synth = Trace(truth=real.truth, uwb=real.uwb, anchors=real.anchors, imu=imu)
-    e_real, ok_real, _ = imu_error(real, fc)
-    e_syn, ok_syn, _ = imu_error(synth, fc)
-    std_real, std_syn = np.std(e_real[ok_real], axis=0), np.std(e_syn[ok_syn], axis=0)
-    rel = np.abs(std_syn / std_real - 1.0)
-    assert np.all(rel <= 0.10), (std_real, std_syn)
-    # spectral shape, per axis, on the log10 Welch PSDs (8192-sample segments, 0.2 Hz to 0.95 x Nyquist,
-    # masked samples set to zero in both): correlation above 0.88 and log-spectral distance below 5 dB.
-    # Measured: correlation 0.93 / 0.96 / 0.905, distance 4.4 / 2.8 / 3.6 dB. What keeps them from
-    # being higher is a 1-2 Hz error peak that follows the hand motion (scale factor / misalignment),
-    # which the generator's error model (white, bias walk, one vibration comb) does not have.
-    fs = fit.params.rate_hz
-    f, p_real = welch(np.where(ok_real[:, None], e_real, 0.0), fs=fs, nperseg=8192, axis=0)
-    _, p_syn = welch(np.where(ok_syn[:, None], e_syn, 0.0), fs=fs, nperseg=8192, axis=0)
-    band = (f > 0.2) & (f < 0.95 * fs / 2)
-    for k in range(3):
-        lr, ls = np.log10(p_real[band, k]), np.log10(p_syn[band, k])
-        assert np.corrcoef(lr, ls)[0, 1] > 0.88, k
-        assert np.sqrt(np.mean((10.0 * (lr - ls)) ** 2)) < 5.0, k  # log-spectral distance [dB]
+    c = compare_imu_along_truth(real, fit.params, fit.diagnostics["truth_cutoff_hz"],
+                                rng=np.random.default_rng(20240611))
+    rel = np.abs(c["std_synth"] / c["std_real"] - 1.0)
+    assert np.all(rel <= 0.10), (c["std_real"], c["std_synth"])
+    # spectral shape, per axis, on the log10 Welch PSDs: correlation above 0.88 and log-spectral distance
+    # below 5 dB. Measured: correlation 0.93 / 0.96 / 0.90, distance 4.6 / 2.8 / 3.7 dB. What keeps them
+    # from being higher is a 1-2 Hz error peak that follows the hand motion (scale factor /
+    # misalignment), which the generator's error model (white, bias walk, vibration comb) does not have.
+    assert np.all(c["log_psd_corr"] > 0.88), c["log_psd_corr"]
+    assert np.all(c["lsd_db"] < 5.0), c["lsd_db"]
