@@ -20,8 +20,9 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from physynth.generate import compile_scenario, generate_dataset, generate_trace  # noqa: E402
-from physynth.scenario import load_scenario  # noqa: E402
+from physynth.generate import compile_scenario, generate_trace  # noqa: E402
+from physynth.io.scenario_file import load_scenario  # noqa: E402
+from physynth.workflows import generate_dataset  # noqa: E402
 
 
 def main() -> None:

@@ -25,9 +25,9 @@ from pathlib import Path  # noqa: E402
 
 from physynth.generate import generate_trace  # noqa: E402
 from physynth.io import write_dataset  # noqa: E402
-from physynth.report import write_report  # noqa: E402
-from physynth.scenario import load_scenario  # noqa: E402
-from physynth.validate import validate_datasets  # noqa: E402
+from physynth.io.scenario_file import load_scenario  # noqa: E402
+from physynth.validate.render import write_report  # noqa: E402
+from physynth.workflows import validate_datasets  # noqa: E402
 
 
 def main() -> None:

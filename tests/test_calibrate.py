@@ -13,19 +13,14 @@ import json
 import numpy as np
 import pytest
 
-from physynth.calibrate import (
-    CalibrationError,
-    calibrate,
-    fit_motion,
-    fit_path,
-    transfer_scenario,
-)
+from physynth.calibrate import CalibrationError, calibrate, fit_motion, fit_path, transfer_scenario
 from physynth.cli import main as cli_main
 from physynth.errors import PhySynthError
 from physynth.generate import compile_scenario, generate_trace
 from physynth.io import write_dataset
+from physynth.io.scenario_file import load_scenario, save_scenario
 from physynth.records import Anchors, Trace, Truth, Uwb
-from physynth.scenario import load_scenario, save_scenario, scenario_from_dict
+from physynth.scenario import scenario_from_dict
 
 K = 4.0  # standard errors allowed per check
 
@@ -322,7 +317,7 @@ def test_cli_bad_input_exit_code_2(tmp_path, capsys):
     write_dataset(tmp_path / "d1", [_trace(anchors=(("A1", (0.0, 0.0, 0.0)),))])
     write_dataset(tmp_path / "d2", [_trace(anchors=(("A1", (5.0, 0.0, 0.0)),))])
     code, err = run("calibrate", str(tmp_path / "d1"), str(tmp_path / "d2"), "--out", str(tmp_path / "s.yaml"))
-    assert code == 2 and "conflicting anchors" in err and "--anchor-layout first" in err
+    assert code == 2 and "conflicting anchors" in err and "layout policy 'first'" in err
     code, err = run("calibrate", str(tmp_path / "d1"), "--out", str(tmp_path / "s.yaml"), "--path-kind", "spline")
     assert code == 2 and "--path-kind" in err
 

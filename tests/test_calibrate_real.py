@@ -12,12 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from physynth.availability import stationary_availability
 from physynth.calibrate import calibrate, fit_static_range_bias
 from physynth.calibrate.imu_fit import compare_imu_along_truth, fit_imu
+from physynth.evaluate.metrics import compute_metrics, relative_deviation_pct
 from physynth.generate import compile_scenario, generate_trace
-from physynth.importers import import_broad, import_hanyang
-from physynth.metrics import compute_metrics, relative_deviation_pct
+from physynth.io.importers import import_broad, import_hanyang
+from physynth.models.availability import stationary_availability
 
 SHARED = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 HANYANG = SHARED / "hanyang-uwb"

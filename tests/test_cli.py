@@ -10,9 +10,10 @@ import pytest
 import yaml
 
 from physynth.cli import main
+from physynth.evaluate.metrics import METRIC_KEYS, compute_metrics
 from physynth.io import read_dataset
-from physynth.metrics import METRIC_KEYS, compute_metrics
-from physynth.scenario import load_scenario, scenario_to_dict
+from physynth.io.scenario_file import load_scenario
+from physynth.scenario import scenario_to_dict
 
 
 def run(capsys, *args):
@@ -46,7 +47,7 @@ def test_generate_refuses_to_overwrite(tmp_path, capsys):
 
 
 @pytest.mark.parametrize(("args", "needle"), [
-    (["generate", "-n", "0"], "-n must be at least 1"),
+    (["generate", "-n", "0"], "greater than or equal to 1"),
     (["generate", "--scenario", "no-such-preset"], "unknown scenario"),
     (["generate", "-n", "many"], "--n-traces"),
     (["generate", "--frobnicate"], "No such option"),

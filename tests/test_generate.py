@@ -9,10 +9,11 @@ import pyarrow.parquet as pq
 import pytest
 from helpers import simple_scenario
 
-from physynth.errors import DatasetError
-from physynth.generate import compile_scenario, generate_dataset, generate_trace, generate_traces
+from physynth.errors import DatasetError, OutputExistsError
+from physynth.generate import compile_scenario, generate_trace, generate_traces
 from physynth.io import DatasetWriter, read_dataset
-from physynth.scenario import load_scenario
+from physynth.io.scenario_file import load_scenario
+from physynth.workflows import generate_dataset
 
 
 @pytest.fixture(scope="module")
@@ -110,7 +111,7 @@ def test_dataset_round_trip(tmp_path):
 def test_refuses_to_overwrite_and_overwrites_when_asked(tmp_path):
     scn = simple_scenario()
     generate_dataset(scn, 1, tmp_path / "ds", seed=1)
-    with pytest.raises(DatasetError, match="already exists"):
+    with pytest.raises(OutputExistsError, match="already exists"):
         generate_dataset(scn, 1, tmp_path / "ds", seed=2)
     generate_dataset(scn, 2, tmp_path / "ds", seed=2, overwrite=True)
     assert len(read_dataset(tmp_path / "ds")) == 2
@@ -142,7 +143,7 @@ def test_reading_a_broken_dataset_gives_one_clear_error(tmp_path):
 
 
 def test_polynomial_rows_of_different_degree():
-    from physynth.path import compile_path
+    from physynth.models.path import compile_path
     from physynth.scenario import PathParams
 
     geo = compile_path(PathParams(kind="polynomial", length_m=100.0,
@@ -154,7 +155,7 @@ def test_polynomial_rows_of_different_degree():
 
 
 def test_bursts_are_clock_locked_with_independent_jitter():
-    from physynth.uwb import burst_times
+    from physynth.models.uwb import burst_times
 
     t = burst_times(0.0, 2000.0, 20.0, 0.002, 0.0, rng=np.random.default_rng(1))
     k = np.round((t - t[0]) / 0.05)

@@ -6,8 +6,14 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from physynth.grid import make_grid
-from physynth.metrics import compute_metrics, fidelity_score, ks_statistic, relative_deviation_pct, residuals
+from physynth.evaluate.grid import make_grid
+from physynth.evaluate.metrics import (
+    compute_metrics,
+    fidelity_score,
+    ks_statistic,
+    relative_deviation_pct,
+    residuals,
+)
 from physynth.records import Anchors, Imu, Trace, Truth, Uwb
 
 

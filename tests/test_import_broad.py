@@ -10,8 +10,8 @@ from scipy.io import loadmat, savemat
 from scipy.signal import butter, filtfilt
 
 from physynth.errors import RecordingError
-from physynth.importers import import_broad
 from physynth.io import read_dataset, write_dataset
+from physynth.io.importers import import_broad
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "broad-imu" / "data_mat"
 TRIAL15 = DATA / "15_undisturbed_fast_translation_A.mat"

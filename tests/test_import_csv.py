@@ -11,8 +11,8 @@ import pytest
 
 from physynth import Reason
 from physynth.errors import RecordingError
-from physynth.importers import ImportReport, import_csv
-from physynth.metrics import residuals
+from physynth.evaluate.metrics import residuals
+from physynth.io.importers import ImportReport, import_csv
 
 T0_UNIX_S = 1_700_000_000.0
 RADIUS_M, OMEGA_RADPS = 5.0, 0.5

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from physynth.errors import RecordingError
-from physynth.importers import import_hanyang, import_hanyang_static
+from physynth.evaluate.metrics import residuals
 from physynth.io import read_dataset, write_dataset
-from physynth.metrics import residuals
+from physynth.io.importers import import_hanyang, import_hanyang_static
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hanyang-uwb"
 DYN = DATA / "Dynamic_measurements"

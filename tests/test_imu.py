@@ -8,7 +8,7 @@ from helpers import simple_scenario
 from scipy import signal
 
 from physynth.generate import compile_scenario, generate_trace
-from physynth.imu import bias_random_walk, vibration, white_noise
+from physynth.models.imu import bias_random_walk, vibration, white_noise
 from physynth.scenario import VibrationParams
 
 

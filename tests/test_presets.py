@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import pytest
 
+from physynth.evaluate.metrics import compute_metrics
 from physynth.generate import compile_scenario, generate_trace
-from physynth.metrics import compute_metrics
-from physynth.scenario import list_presets, load_scenario
+from physynth.io.scenario_file import list_presets, load_scenario
 
 REAL = {
     "cablecar-descending": {

@@ -7,7 +7,7 @@ import yaml
 from helpers import simple_scenario_dict
 
 from physynth.errors import ScenarioError
-from physynth.scenario import load_scenario, save_scenario, scenario_to_yaml
+from physynth.io.scenario_file import load_scenario, save_scenario, scenario_to_yaml
 
 
 def _write(tmp_path, data, name="s.yaml"):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from helpers import binomial_tol, simple_scenario
 
-from physynth.availability import alternating_renewal, outage_mask, stationary_availability
 from physynth.generate import compile_scenario, generate_trace
+from physynth.models.availability import alternating_renewal, outage_mask, stationary_availability
 from physynth.records import Reason
 
 

@@ -16,17 +16,14 @@ import yaml
 from helpers import simple_scenario_dict
 
 from physynth.cli import main
+from physynth.evaluate.metrics import METRIC_KEYS, compute_metrics
+from physynth.evaluate.stats import allan_deviation
 from physynth.generate import generate_trace, generate_traces
 from physynth.io import read_dataset, write_dataset
-from physynth.metrics import METRIC_KEYS, compute_metrics
 from physynth.records import Trace, Truth, Uwb
 from physynth.scenario import scenario_from_dict
-from physynth.validate import (
-    EXTENDED_STATISTICS,
-    allan_deviation,
-    read_report,
-    validate_datasets,
-)
+from physynth.validate.compare import EXTENDED_STATISTICS, read_report
+from physynth.workflows import validate_datasets
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 HANYANG = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "hanyang-uwb"
@@ -182,7 +179,7 @@ def test_imu_statistics_left_out_without_real_imu(data, tmp_path):
     assert rep.extended["imu_allan_ratio"] is None
     assert rep.extended["imu_log_spectral_distance_db"] is None
     assert rep.extended["imu_note"] == "the real data has no usable IMU samples"
-    from physynth.report import available_figures, render_markdown
+    from physynth.validate.render import available_figures, render_markdown
 
     assert "allan" not in available_figures(rep.evidence)
     assert "Table I and the IMU statistics left out: the real data has no usable IMU samples" in render_markdown(rep)
@@ -240,7 +237,7 @@ def test_transfer_keeps_parameters_and_takes_geometry(data, tmp_path):
 @pytest.mark.skipif(not HANYANG.is_dir(), reason=f"real data folder {HANYANG} is absent")
 def test_transfer_onto_real_hanyang_run(tmp_path):
     pytest.importorskip("physynth.calibrate", reason="calibration module not installed")
-    from physynth.importers import import_hanyang
+    from physynth.io.importers import import_hanyang
 
     trace, _ = import_hanyang(HANYANG / "Dynamic_measurements" / "LOS" / "Trajectory_A" / "Case_1")
     write_dataset(tmp_path / "real", [trace], meta={"kind": "real", "source": "hanyang-uwb"})
@@ -285,7 +282,7 @@ def test_bad_input_synthetic_scenario_choice(data, tmp_path, capsys):
     _bad(base, capsys, "neither")
     _bad(base + ["--synthetic", str(data / "synth"), "--scenario", str(data / "a.yaml")], capsys, "both")
     _bad(base + ["--synthetic", str(data / "synth"), "--transfer"], capsys, "--transfer needs --scenario")
-    _bad(base + ["--scenario", str(data / "a.yaml"), "-n", "0"], capsys, "-n must be at least 1")
+    _bad(base + ["--scenario", str(data / "a.yaml"), "-n", "0"], capsys, "greater than or equal to 1")
     assert not (tmp_path / "r").exists()
 
 
@@ -346,7 +343,7 @@ def test_bad_input_unreadable_files(data, tmp_path, capsys):
          "none.yaml")
 
 
-def test_missing_matplotlib_is_one_clear_line(data, tmp_path, capsys, monkeypatch):
+def test_missingrequire_matplotlib_is_one_clear_line(data, tmp_path, capsys, monkeypatch):
     for name in [m for m in sys.modules if m == "matplotlib" or m.startswith("matplotlib.")]:
         monkeypatch.setitem(sys.modules, name, None)
     monkeypatch.setitem(sys.modules, "matplotlib", None)

@@ -16,9 +16,9 @@ import numpy as np
 
 from physynth.calibrate import calibrate
 from physynth.calibrate.imu_fit import compare_imu_along_truth, fit_imu
+from physynth.evaluate.metrics import compute_metrics, relative_deviation_pct
 from physynth.generate import compile_scenario, generate_trace
-from physynth.importers import import_broad, import_hanyang
-from physynth.metrics import compute_metrics, relative_deviation_pct
+from physynth.io.importers import import_broad, import_hanyang
 
 KEYS = ("uwb_ge1_frac", "uwb_ge2_frac", "residual_median_m", "abs_residual_p95_m", "mean_aoi_s")
 

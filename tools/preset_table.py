@@ -9,9 +9,9 @@ import argparse
 
 import numpy as np
 
+from physynth.evaluate.metrics import compute_metrics, relative_deviation_pct
 from physynth.generate import compile_scenario, generate_trace
-from physynth.metrics import compute_metrics, relative_deviation_pct
-from physynth.scenario import load_scenario
+from physynth.io.scenario_file import load_scenario
 
 REAL = {  # the paper's real columns, Tables I-II
     "cablecar-descending": dict(duration_s=102.1, uwb_ge1_frac=0.178, uwb_ge2_frac=0.112, residual_std_m=7.485,

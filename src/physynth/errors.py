@@ -18,3 +18,18 @@ class DatasetError(PhySynthError):
 
 class RecordingError(PhySynthError):
     """A real recording cannot be imported."""
+
+
+class AnchorMismatchError(PhySynthError):
+    """Two inputs that must share their anchors (real and synthetic traces) do not."""
+
+
+class OutputExistsError(PhySynthError):
+    """An output (dataset, report, file) exists and the caller did not ask to replace it.
+
+    ``path`` names it; the command line adds how to replace it.
+    """
+
+    def __init__(self, path: object, what: str = "") -> None:
+        self.path = path
+        super().__init__(f"{path} already {what or 'exists'}")

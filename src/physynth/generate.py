@@ -1,5 +1,7 @@
 """The generator: a scenario composed through path -> motion -> IMU -> UWB -> availability -> Trace.
 
+Each model sees only its own parameters; this module hands each one its slice of the scenario.
+
 Trace ``i`` draws every component from its own stream ``SeedSequence(root, spawn_key=(i, component))``
 (:mod:`physynth.rng`), so it is the same whether 5 or 500 traces are generated, in any order.
 """
@@ -9,19 +11,19 @@ from __future__ import annotations
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from . import __version__
 from .constants import IMU_FRAME
-from .imu import simulate_imu
-from .motion import SpeedShape, compile_speed_shape, draw_run, kinematics
-from .path import PathGeometry, compile_path, draw_perturbation
+from .models.availability import AvailabilityArrays, availability_arrays, simulate_availability
+from .models.imu import simulate_imu
+from .models.motion import SpeedShape, compile_speed_shape, draw_run, kinematics
+from .models.path import PathGeometry, compile_path, draw_perturbation
+from .models.uwb import ChannelArrays, channel_arrays, simulate_uwb, uwb_record
 from .records import Anchors, Trace, Truth
 from .rng import component_rng, new_root_seed
 from .scenario import Scenario, scenario_to_dict
-from .uwb import ChannelArrays, channel_arrays, simulate_uwb
 
 
 @dataclass(frozen=True, slots=True)
@@ -32,6 +34,7 @@ class CompiledScenario:
     geometry: PathGeometry
     shape: SpeedShape
     channel: ChannelArrays
+    availability: AvailabilityArrays
     anchors: Anchors
     lateral_dir: np.ndarray
 
@@ -41,7 +44,8 @@ def compile_scenario(scn: Scenario) -> CompiledScenario:
         scenario=scn,
         geometry=(geometry := compile_path(scn.path)),
         shape=compile_speed_shape(scn.motion.profile),
-        channel=channel_arrays(scn),
+        channel=channel_arrays(scn.uwb, scn.anchors, [scn.channel_for(a) for a in scn.anchor_ids]),
+        availability=availability_arrays(scn.availability, [scn.availability_for(a) for a in scn.anchor_ids]),
         anchors=Anchors(ids=scn.anchor_ids, names=tuple(a.name or a.id for a in scn.anchors),
                         pos_enu_m=np.array([a.pos_enu_m for a in scn.anchors], dtype=float)),
         lateral_dir=geometry.lateral_direction(),
@@ -61,8 +65,10 @@ def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int)
     kin = kinematics(cs.geometry, pert, s.motion, cs.shape, run, rate_hz=s.truth_rate_hz,
                      reverse=s.path.reverse, lateral_dir=cs.lateral_dir)
     imu = simulate_imu(kin, s.imu, rng=component_rng(root_seed, index, "imu"))
-    uwb = simulate_uwb(kin, s, cs.channel, rng=component_rng(root_seed, index, "uwb"),
-                       rng_availability=component_rng(root_seed, index, "availability"))
+    att = simulate_uwb(kin, s.uwb, cs.channel, rng=component_rng(root_seed, index, "uwb"))
+    outage, dropped = simulate_availability(att.t_true_s, att.anchor, att.burst, att.bursts_s, cs.availability,
+                                            s.uwb.burst_rate_hz, rng=component_rng(root_seed, index, "availability"))
+    uwb = uwb_record(att, s.uwb, outage=outage, dropped=dropped)
     meta = {
         "source": "physynth",
         "root_seed": int(root_seed),
@@ -96,30 +102,3 @@ def dataset_meta(scn: Scenario, root_seed: int) -> dict:
         "imu_frame": IMU_FRAME,
         "provenance": {"generator": f"physynth {__version__}", "pid": os.getpid()},
     }
-
-
-def generate_dataset(scn: Scenario, n: int, out: str | Path, *, seed: int | None = None,
-                     overwrite: bool = False, progress: bool = False) -> tuple[Path, int]:
-    """Generate ``n`` traces and write them as a dataset directory (atomically).
-
-    Returns the dataset path and the root seed used (drawn from OS entropy when ``seed`` is None).
-    """
-    from .io.dataset import DatasetWriter
-
-    root = new_root_seed() if seed is None else int(seed)
-    cs = compile_scenario(scn)
-    with DatasetWriter(out, meta=dataset_meta(scn, root), overwrite=overwrite) as writer:
-        indices = range(n)
-        if progress:
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
-
-            with Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
-                          TimeRemainingColumn(), transient=True) as bar:
-                task = bar.add_task(f"generating {scn.name}", total=n)
-                for i in indices:
-                    writer.add(generate_trace(cs, i, root), index=i)
-                    bar.advance(task)
-        else:
-            for i in indices:
-                writer.add(generate_trace(cs, i, root), index=i)
-    return Path(out), root

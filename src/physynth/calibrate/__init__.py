@@ -1,5 +1,6 @@
 """Calibration: real (or synthetic) traces -> a Scenario whose generator reproduces them, plus a fit
-report (DESIGN.md section 2, paper sections III.C-G).
+report (paper sections III.C-G). Reading datasets for it is
+:func:`physynth.workflows.calibrate_datasets`.
 
 Each model has its own fit returning a :class:`Fit` (fitted parameters, sample count, diagnostics):
 
@@ -9,14 +10,14 @@ Each model has its own fit returning a :class:`Fit` (fitted parameters, sample c
 - :func:`select_mixture`: per-anchor LOS regression + NLOS Gaussian mixture chosen by BIC
 - :func:`fit_availability`: link range, dropout, outages (exact HMM likelihood), tag outages
 - :func:`fit_static_range_bias`: range-proportional bias from static sweeps
-- :func:`calibrate`, :func:`calibrate_datasets`: everything at once -> :class:`CalibrationResult`
+- :func:`calibrate`: everything at once -> :class:`CalibrationResult`
 - :func:`transfer_scenario`: a scenario moved onto the geometry, motion and anchors of real runs
 """
 
 from ._base import CalibrationError, Fit
 from .availability_fit import fit_availability
 from .geometry import anchor_layout, fit_motion, fit_path, fit_path_perturbation, transfer_scenario
-from .pipeline import CalibrationResult, calibrate, calibrate_datasets, read_recordings
+from .pipeline import CalibrationResult, calibrate
 from .static_bias import fit_static_range_bias
 from .uwb_fit import corrected_residuals, fit_burst_schedule, fit_time_offset, select_mixture
 
@@ -26,7 +27,6 @@ __all__ = [
     "Fit",
     "anchor_layout",
     "calibrate",
-    "calibrate_datasets",
     "corrected_residuals",
     "fit_availability",
     "fit_burst_schedule",
@@ -35,7 +35,6 @@ __all__ = [
     "fit_path_perturbation",
     "fit_static_range_bias",
     "fit_time_offset",
-    "read_recordings",
     "select_mixture",
     "transfer_scenario",
 ]

@@ -21,17 +21,10 @@ from typing import Any, Literal
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..motion import compile_speed_shape
-from ..path import compile_path
+from ..models.motion import compile_speed_shape
+from ..models.path import compile_path
 from ..records import Trace
-from ..scenario import (
-    AnchorSpec,
-    MotionParams,
-    PathParams,
-    Scenario,
-    SpeedProfileParams,
-    scenario_from_dict,
-)
+from ..scenario import AnchorSpec, MotionParams, PathParams, Scenario, SpeedProfileParams, scenario_from_dict
 from ._base import (
     CalibrationError,
     Fit,
@@ -504,7 +497,7 @@ def anchor_layout(traces: Sequence[Trace], *, policy: Literal["strict", "first"]
                        f"{np.round(p, 3).tolist()} in {lab} ({dist:.2f} m apart)")
                 if policy == "strict":
                     raise CalibrationError(f"conflicting anchors across the recordings: {msg}; calibrate them "
-                                           "separately or take the first layout (--anchor-layout first)")
+                                           "separately or take the first layout (anchor layout policy 'first')")
                 conflicts.append(msg)
     if not pos:
         raise CalibrationError("the recordings have no anchors (no UWB anchor layout to calibrate)")

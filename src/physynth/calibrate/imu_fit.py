@@ -24,8 +24,9 @@ import numpy as np
 from scipy.optimize import nnls
 from scipy.signal import butter, sosfiltfilt, welch
 
-from ..imu import simulate_imu
-from ..motion import Kinematics
+from ..evaluate.stats import allan_deviation
+from ..models.imu import simulate_imu
+from ..models.motion import Kinematics
 from ..records import Imu, Trace
 from ..scenario import ImuParams, VibrationParams
 from ._base import CalibrationError, Fit, median_step_s, rounded, segments, trace_label
@@ -128,20 +129,6 @@ def lorentzian(f: np.ndarray, centre_hz: float, bandwidth_hz: float) -> np.ndarr
     """One-sided spectral shape (integral 1) of a narrow-band line of -3 dB width ``bandwidth_hz``."""
     g = 0.5 * bandwidth_hz
     return (g / np.pi) / (g * g + (f - centre_hz) ** 2)
-
-
-def allan_deviation(x: np.ndarray, fs: float, taus_s: np.ndarray) -> np.ndarray:
-    """Overlapping Allan deviation (T, C) of rate samples x (N, C) at sample rate ``fs`` [Hz]."""
-    c = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)]) / fs
-    out = np.full((taus_s.size, x.shape[1]), np.nan)
-    n = x.shape[0]
-    for i, tau in enumerate(taus_s):  # one pass per tau, vectorised over samples
-        m = int(round(tau * fs))
-        if m < 1 or 2 * m >= n:
-            continue
-        d = c[2 * m:] - 2 * c[m:-m] + c[:-2 * m]
-        out[i] = np.sqrt(np.mean(d * d, axis=0) / (2.0 * (m / fs) ** 2))
-    return out
 
 
 def _comb_fit(f: np.ndarray, excess: np.ndarray, total: np.ndarray, floor: float, f0: float, f_lo: float,
@@ -317,7 +304,7 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
     x = e0[a:b]
     dur = (b - a) / fs
     taus = np.geomspace(2.0 / fs, max(dur / 5.0, 4.0 / fs), 25)
-    adev = allan_deviation(x, fs, taus)
+    adev = allan_deviation(x, fs, taus).T  # (T, 3)
     white_avar = (density**2)[None, :] / taus[:, None]
     long = taus >= taus[-1] / 4.0
     k2 = 3.0 * (adev[long] ** 2 - white_avar[long]) / taus[long, None]

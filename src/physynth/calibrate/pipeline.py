@@ -14,7 +14,6 @@ import datetime as _dt
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -622,26 +621,3 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
     }
     scn = scenario_from_dict(data, source="calibration result")
     return CalibrationResult(scenario=scn, report=jsonable(report))
-
-
-def read_recordings(paths: Sequence[str | os.PathLike]) -> tuple[list[Trace], list[str]]:
-    """Traces of one or several dataset directories, labelled ``<dataset>/<run or trace index>``."""
-    from ..io.dataset import read_dataset
-
-    if not paths:
-        raise CalibrationError("no dataset directories given")
-    traces, sources = [], []
-    for p in paths:
-        ds = read_dataset(p)
-        sources.append(str(Path(p)))
-        for i, t in enumerate(ds.traces):
-            lab = f"{Path(p).name}/{t.meta.get('run') or f'trace {i}'}"
-            traces.append(Trace(truth=t.truth, uwb=t.uwb, anchors=t.anchors, imu=t.imu,
-                                meta={**t.meta, "label": lab}))
-    return traces, sources
-
-
-def calibrate_datasets(paths: Sequence[str | os.PathLike], **kwargs: Any) -> CalibrationResult:
-    """:func:`calibrate` on every trace of one or several dataset directories, pooled."""
-    traces, sources = read_recordings(paths)
-    return calibrate(traces, sources=sources, **kwargs)

@@ -31,7 +31,7 @@ def fit_static_range_bias(sweeps: str | os.PathLike | pd.DataFrame, *, environme
     if isinstance(sweeps, pd.DataFrame):
         df = sweeps
     else:
-        from ..importers import import_hanyang_static
+        from ..io.importers import import_hanyang_static
 
         df, _ = import_hanyang_static(sweeps)
     if environment != "all":

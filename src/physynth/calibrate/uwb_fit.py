@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 from scipy.special import logsumexp
 
+from ..models.uwb import range_error_log_components
 from ..records import Trace
 from ._base import CalibrationError, Fit, trace_label
 
@@ -220,10 +221,6 @@ class MixtureFit:
     converged: bool
 
 
-def _norm_logpdf(x: np.ndarray, mean: np.ndarray | float, std: np.ndarray | float) -> np.ndarray:
-    return -0.5 * ((x - mean) / std) ** 2 - np.log(std) - 0.5 * np.log(2.0 * np.pi)
-
-
 def _robust_line(r: np.ndarray, g: np.ndarray, fit_slope: bool) -> tuple[float, float, float, np.ndarray]:
     """Iteratively trimmed least-squares line r = mu + beta g; returns mu, beta, sigma, inlier mask."""
     med = np.median(r)
@@ -270,10 +267,8 @@ def fit_mixture(r: np.ndarray, g: np.ndarray, k: int, *, fit_slope: bool = True,
     converged = False
     x = np.stack([np.ones(n), g], axis=1)
     for _ in range(max_iter):  # EM iterations, each vectorised over rows
-        comp = [np.log(max(1.0 - p, 1e-300)) + _norm_logpdf(r, mu + beta * g, sig)]
-        for j in range(k):
-            comp.append(np.log(max(p * w[j], 1e-300)) + _norm_logpdf(r, means[j], stds[j]))
-        lp = np.stack(comp)
+        lp = range_error_log_components(r, g, los_mean_m=mu, range_bias_per_m=beta, los_std_m=sig, nlos_prob=p,
+                                        mode_weights=w, mode_mean_m=means, mode_std_m=stds)
         tot = logsumexp(lp, axis=0)
         ll = float(tot.sum())
         resp = np.exp(lp - tot)

@@ -24,8 +24,9 @@ import pyarrow.parquet as pq
 from .. import __version__
 from .._json import jsonable
 from ..constants import IMU_FRAME, SCHEMA_VERSION
-from ..errors import DatasetError
+from ..errors import DatasetError, OutputExistsError
 from ..records import Anchors, Imu, Trace, Truth, Uwb
+from .atomic import temp_sibling
 
 TABLES = ("truth", "imu", "uwb", "anchors")
 
@@ -87,14 +88,6 @@ def _tables_of(trace: Trace, index: int) -> dict[str, pa.Table]:
     return out
 
 
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write a text file atomically (temporary name in the same folder, then rename)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
-
-
 class DatasetWriter:
     """Streams traces into a new dataset directory; the directory appears only on :meth:`close`.
 
@@ -107,12 +100,12 @@ class DatasetWriter:
                  overwrite: bool = False, row_group_traces: int = 64) -> None:
         self.path = Path(path)
         if self.path.exists() and not overwrite:
-            raise DatasetError(f"{self.path} already exists (use --overwrite to replace it)")
+            raise OutputExistsError(self.path)
         if self.path.exists() and not self.path.is_dir():
             raise DatasetError(f"{self.path} exists and is not a directory")
         self.overwrite = overwrite
         self.meta = dict(meta or {})
-        self.tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
+        self.tmp = temp_sibling(self.path)
         if self.tmp.exists():
             shutil.rmtree(self.tmp)
         try:

@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 from scipy.signal import savgol_filter
 
-from ..errors import RecordingError
+from ...errors import RecordingError
 
 #: Unit suffixes that are recognised in column names and the unit PhySynth expects instead.
 _LENGTH_UNITS = ("mm", "cm", "dm", "km", "ft", "in", "um", "nm")

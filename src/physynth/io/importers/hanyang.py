@@ -26,8 +26,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..errors import RecordingError
-from ..records import Anchors, Trace, Truth, Uwb
+from ...errors import RecordingError
+from ...records import Anchors, Trace, Truth, Uwb
 from ._common import (
     ImportReport,
     ReportBuilder,

@@ -12,7 +12,6 @@ import base64
 import html
 import io
 import math
-import os
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -21,9 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from .errors import PhySynthError
-from .io.dataset import atomic_write_text
-from .validate import EXTENDED_STATISTICS, Evidence, SideEvidence, ValidationReport
+from ..errors import OutputExistsError, PhySynthError
+from ..io.atomic import atomic_write_bytes, atomic_write_text
+from ..io.scenario_file import mapping_to_yaml
+from .compare import EXTENDED_STATISTICS, Evidence, SideEvidence, ValidationReport
 
 REAL_COLOR = "#222222"
 SYNTH_COLOR = "#1f77b4"
@@ -57,14 +57,14 @@ REPORT_FILES = ("report.json", "report.md", "report.html")
 
 
 # ---------------------------------------------------------------- matplotlib, lazily
-def _matplotlib() -> tuple[Any, Any]:
+def require_matplotlib() -> tuple[Any, Any]:
     """(Figure, FigureCanvasAgg) classes; a clear PhySynthError when matplotlib is missing."""
     try:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.figure import Figure
     except ImportError:
         raise PhySynthError("figures need matplotlib, which is not installed: install physynth[report] "
-                            "(pip install 'physynth[report]') or pass --no-figures") from None
+                            "(pip install 'physynth[report]') or ask for no figures") from None
     return Figure, FigureCanvasAgg
 
 
@@ -416,7 +416,7 @@ def render_figures(report: ValidationReport, names: Sequence[str] | None = None)
     """
     if report.evidence is None:
         raise PhySynthError("this report has no evidence to draw figures from (it was read back from JSON)")
-    Figure, Canvas = _matplotlib()
+    Figure, Canvas = require_matplotlib()
     ev = report.evidence
     wanted = available_figures(ev) if names is None else [n for n in available_figures(ev) if n in names]
     return {name: _png(_DRAW[name](Figure, ev, report), Canvas) for name in wanted}
@@ -538,7 +538,7 @@ def _inputs_lines(report: ValidationReport) -> list[str]:
     if "scenario" in syn:
         lines.append(f"Synthetic: {n.get('synthetic', '?')} trace(s) generated from scenario "
                      f"'{syn.get('scenario_name')}' ({syn.get('scenario')}), root seed {syn.get('root_seed')}"
-                     + (", transferred to the real run's geometry (--transfer)" if syn.get("transfer") else ""))
+                     + (", transferred to the real run's geometry" if syn.get("transfer") else ""))
     else:
         lines.append(f"Synthetic: {syn.get('path', '?')} ({n.get('synthetic', '?')} trace(s); scenario "
                      f"{syn.get('scenario_name')}, root seed {syn.get('root_seed')})")
@@ -660,12 +660,6 @@ def render_html(report: ValidationReport, figures: Mapping[str, bytes] | None = 
 
 
 # ---------------------------------------------------------------- writing
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
-
-
 def write_report(report: ValidationReport, out_dir: str | Path, *, figures: bool = True,
                  overwrite: bool = False) -> dict[str, Path]:
     """Write ``report.json``, ``report.md``, ``report.html``, the figure PNGs and, when the synthetic
@@ -683,7 +677,7 @@ def write_report(report: ValidationReport, out_dir: str | Path, *, figures: bool
     if out.exists() and not out.is_dir():
         raise PhySynthError(f"{out} exists and is not a directory")
     if (out / "report.json").exists() and not overwrite:
-        raise PhySynthError(f"{out} already holds a report (use --overwrite to replace it)")
+        raise OutputExistsError(out, "holds a report")
     pngs = render_figures(report) if figures else {}  # before touching the folder: fails cleanly
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -693,7 +687,7 @@ def write_report(report: ValidationReport, out_dir: str | Path, *, figures: bool
                 (out / f"{stale}.png").unlink()
         for name, data in pngs.items():
             written[f"{name}.png"] = out / f"{name}.png"
-            _atomic_write_bytes(out / f"{name}.png", data)
+            atomic_write_bytes(out / f"{name}.png", data)
         atomic_write_text(out / "report.json", report.to_json() + "\n")
         written["report.json"] = out / "report.json"
         atomic_write_text(out / "report.md", render_markdown(report, {n: f"{n}.png" for n in pngs}))
@@ -702,11 +696,9 @@ def write_report(report: ValidationReport, out_dir: str | Path, *, figures: bool
         written["report.html"] = out / "report.html"
         config = report.inputs.get("synthetic", {}).get("scenario_config")
         if config:
-            import yaml
-
             atomic_write_text(out / "scenario.yaml",
                               "# scenario the synthetic traces of this report were generated from\n"
-                              + yaml.safe_dump(config, sort_keys=False, default_flow_style=None, width=100))
+                              + mapping_to_yaml(config))
             written["scenario.yaml"] = out / "scenario.yaml"
     except OSError as exc:
         raise PhySynthError(f"cannot write the report to {out}: {exc.strerror or exc}") from None

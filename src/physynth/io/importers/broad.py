@@ -24,8 +24,8 @@ import numpy as np
 from scipy.io import loadmat
 from scipy.spatial.transform import Rotation
 
-from ..errors import RecordingError
-from ..records import Anchors, Imu, Trace, Truth, Uwb
+from ...errors import RecordingError
+from ...records import Anchors, Imu, Trace, Truth, Uwb
 from ._common import ImportReport, ReportBuilder, velocity_from_position
 
 CITATION = ("D. Laidig, M. Caruso, A. Cereatti, T. Seel, BROAD - A Benchmark for Robust Inertial "

@@ -14,14 +14,93 @@ out-of-link attempts keep a NaN range and their :class:`~physynth.records.Reason
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
+from pydantic import Field
 
-from .availability import outage_mask
+from ..records import Reason, Uwb
+from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Probability, Vec3
 from .motion import Kinematics
-from .records import Reason, Uwb
-from .scenario import Scenario
+from .renewal import initial_pairs, switch_counts
+
+
+class NlosMode(ParamsModel):
+    """One Gaussian component of the NLOS range offset delta [m].
+
+    ``weight`` is the share of NLOS measurements in this mode. An NLOS episode keeps one mode (one
+    reflector) for its whole length, of mean ``dwell_s`` (default: ``uwb.nlos_dwell_s``).
+    """
+
+    weight: PositiveFloat
+    mean_m: FiniteFloat
+    std_m: PositiveFloat
+    dwell_s: PositiveFloat | None = None
+
+
+class NlosZone(ParamsModel):
+    """A stretch of path (e.g. around a support pylon) where NLOS probability rises."""
+
+    s_m: NonNegFloat
+    half_width_m: PositiveFloat
+    nlos_prob: Probability
+    label: str = "pylon"
+
+
+class ChannelParams(ParamsModel):
+    """Ranging channel of one anchor: LOS Gaussian, NLOS mixture, effective rate and link range."""
+
+    rate_hz: PositiveFloat = 18.5
+    los_mean_m: FiniteFloat = 0.0
+    los_std_m: PositiveFloat = 0.1
+    range_bias_per_m: FiniteFloat = 0.0
+    nlos_prob: Probability = 0.0
+    nlos_modes: list[NlosMode] = Field(default=[NlosMode(weight=1.0, mean_m=1.0, std_m=0.5)], min_length=1)
+    max_range_m: PositiveFloat = 300.0
+    edge_width_m: PositiveFloat = 5.0
+
+
+class ChannelOverride(ParamsModel):
+    """Per-anchor changes to the default channel; fields left out keep the default."""
+
+    rate_hz: PositiveFloat | None = None
+    los_mean_m: FiniteFloat | None = None
+    los_std_m: PositiveFloat | None = None
+    range_bias_per_m: FiniteFloat | None = None
+    nlos_prob: Probability | None = None
+    nlos_modes: list[NlosMode] | None = None
+    max_range_m: PositiveFloat | None = None
+    edge_width_m: PositiveFloat | None = None
+
+
+class UwbParams(ParamsModel):
+    """Burst-based acquisition shared by all anchors.
+
+    The tag ranges in bursts near ``burst_rate_hz`` (period jitter ``burst_jitter_s``); within a burst
+    anchor j is ranged ``j * slot_s`` after the burst start, and only with probability
+    rate_hz / burst_rate_hz (effective per-anchor rate). Stamps lag true time by ``time_offset_s``.
+    The bursts are locked to the tag clock; ``burst_phase_s`` is the stamp time of the first burst
+    after the trace start, modulo the period (``None``: drawn uniformly per trace, the usual choice for
+    training data; a number: a recording's own alignment, which decides how often a burst straddles
+    two 10 ms grid bins and so the grid availability metrics).
+    NLOS episodes last ``nlos_dwell_s`` on average.
+    """
+
+    burst_rate_hz: PositiveFloat = 23.0
+    burst_jitter_s: NonNegFloat = 0.003
+    burst_phase_s: NonNegFloat | None = None
+    slot_s: NonNegFloat = 0.0015
+    time_offset_s: FiniteFloat = 0.0
+    nlos_dwell_s: PositiveFloat = 0.5
+    zones: list[NlosZone] = []
+
+
+class AnchorSpec(ParamsModel):
+    id: Annotated[str, Field(min_length=1)]
+    pos_enu_m: Vec3
+    name: str | None = None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -40,34 +119,32 @@ class ChannelArrays:
     mode_dwell_s: np.ndarray  # (A, M) mean NLOS episode length per mode
     max_range_m: np.ndarray
     edge_width_m: np.ndarray
-    dropout_prob: np.ndarray
-    outage_onset_prob: np.ndarray
-    outage_mean_s: np.ndarray
     zone_s_m: np.ndarray  # (Z,)
     zone_half_width_m: np.ndarray
     zone_nlos_prob: np.ndarray
 
 
-def channel_arrays(scn: Scenario) -> ChannelArrays:
-    chans = [scn.channel_for(a) for a in scn.anchor_ids]
-    avs = [scn.availability_for(a) for a in scn.anchor_ids]
+def channel_arrays(params: UwbParams, anchors: Sequence[AnchorSpec],
+                   channels: Sequence[ChannelParams]) -> ChannelArrays:
+    """Arrays of the per-anchor channels (``channels`` resolved per anchor, in anchor order)."""
+    chans = list(channels)
     m = max(len(c.nlos_modes) for c in chans)
     cumw = np.ones((len(chans), m))
     mean = np.zeros((len(chans), m))
     std = np.ones((len(chans), m))
-    dwell = np.full((len(chans), m), scn.uwb.nlos_dwell_s)
+    dwell = np.full((len(chans), m), params.nlos_dwell_s)
     for i, c in enumerate(chans):
         w = np.array([mode.weight for mode in c.nlos_modes])
         k = w.size
         cumw[i, :k] = np.cumsum(w) / w.sum()
         mean[i, :k] = [mode.mean_m for mode in c.nlos_modes]
         std[i, :k] = [mode.std_m for mode in c.nlos_modes]
-        dwell[i, :k] = [mode.dwell_s or scn.uwb.nlos_dwell_s for mode in c.nlos_modes]
+        dwell[i, :k] = [mode.dwell_s or params.nlos_dwell_s for mode in c.nlos_modes]
         mean[i, k:], std[i, k:], dwell[i, k:] = mean[i, k - 1], std[i, k - 1], dwell[i, k - 1]
-    z = scn.uwb.zones
+    z = params.zones
     return ChannelArrays(
-        anchor_pos_enu_m=np.array([a.pos_enu_m for a in scn.anchors], dtype=float),
-        attempt_prob=np.array([c.rate_hz for c in chans]) / scn.uwb.burst_rate_hz,
+        anchor_pos_enu_m=np.array([a.pos_enu_m for a in anchors], dtype=float),
+        attempt_prob=np.array([c.rate_hz for c in chans]) / params.burst_rate_hz,
         los_mean_m=np.array([c.los_mean_m for c in chans]),
         los_std_m=np.array([c.los_std_m for c in chans]),
         range_bias_per_m=np.array([c.range_bias_per_m for c in chans]),
@@ -75,9 +152,6 @@ def channel_arrays(scn: Scenario) -> ChannelArrays:
         mode_cumw=cumw, mode_mean_m=mean, mode_std_m=std, mode_dwell_s=dwell,
         max_range_m=np.array([c.max_range_m for c in chans]),
         edge_width_m=np.array([c.edge_width_m for c in chans]),
-        dropout_prob=np.array([a.dropout_prob for a in avs]),
-        outage_onset_prob=np.array([a.outage_onset_prob for a in avs]),
-        outage_mean_s=np.array([a.outage_mean_s for a in avs]),
         zone_s_m=np.array([q.s_m for q in z]), zone_half_width_m=np.array([q.half_width_m for q in z]),
         zone_nlos_prob=np.array([q.nlos_prob for q in z]),
     )
@@ -121,6 +195,46 @@ def sample_nlos_offset(anchor: np.ndarray, ch: ChannelArrays, *, rng: np.random.
     return ch.mode_mean_m[anchor, mode] + ch.mode_std_m[anchor, mode] * rng.standard_normal(anchor.shape[0])
 
 
+def los_error_mean(true_range_m: np.ndarray, los_mean_m: np.ndarray | float,
+                   range_bias_per_m: np.ndarray | float) -> np.ndarray:
+    """Mean LOS range error mu_i + beta_i r [m]."""
+    return los_mean_m + range_bias_per_m * true_range_m
+
+
+def _norm_logpdf(x: np.ndarray, mean: np.ndarray | float, std: np.ndarray | float) -> np.ndarray:
+    return -0.5 * ((x - mean) / std) ** 2 - np.log(std) - 0.5 * np.log(2.0 * np.pi)
+
+
+def range_error_log_components(err_m: np.ndarray, true_range_m: np.ndarray, *, los_mean_m: float,
+                               range_bias_per_m: float, los_std_m: float, nlos_prob: float,
+                               mode_weights: np.ndarray, mode_mean_m: np.ndarray,
+                               mode_std_m: np.ndarray) -> np.ndarray:
+    """Log joint density of each error component, shape (1 + K, N): row 0 LOS, rows 1.. the NLOS modes.
+
+    This is the distribution :func:`range_error` samples from (eq. 3: NLOS replaces the LOS error),
+    written as a mixture over the rows' marginal NLOS probability; the calibration's EM fit
+    maximises its log-sum-exp.
+    """
+    comp = [np.log(max(1.0 - nlos_prob, 1e-300))
+            + _norm_logpdf(err_m, los_error_mean(true_range_m, los_mean_m, range_bias_per_m), los_std_m)]
+    for w, m, sd in zip(mode_weights, mode_mean_m, mode_std_m, strict=True):
+        comp.append(np.log(max(nlos_prob * w, 1e-300)) + _norm_logpdf(err_m, m, sd))
+    return np.stack(comp)
+
+
+def range_error(true_range_m: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, mode: np.ndarray,
+                ch: ChannelArrays, *, rng: np.random.Generator) -> np.ndarray:
+    """Range errors [m] of rows: LOS Gaussian N(mu_i + beta_i r, sigma_i^2), replaced where NLOS by the
+    offset of the episode's mixture mode (rows made NLOS by a zone alone draw a mode by weight)."""
+    err = (los_error_mean(true_range_m, ch.los_mean_m[anchor], ch.range_bias_per_m[anchor])
+           + ch.los_std_m[anchor] * rng.standard_normal(true_range_m.shape[0]))
+    in_episode = mode >= 0
+    zone_only = nlos & ~in_episode
+    err[in_episode] = sample_nlos_offset(anchor[in_episode], ch, rng=rng, mode=mode[in_episode])
+    err[zone_only] = sample_nlos_offset(anchor[zone_only], ch, rng=rng)
+    return err
+
+
 def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_s: np.ndarray, *,
                   rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """NLOS state and mode at sorted times of one anchor: an alternating renewal process in which each
@@ -134,21 +248,18 @@ def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_
     q = q / q.sum()
     mean_on = float(np.sum(q * dwell_s))
     mean_off = mean_on * (1.0 - nlos_prob) / nlos_prob
-    t0, span = float(t_s[0]), float(t_s[-1] - t_s[0])
     start_on = bool(rng.random() < nlos_prob)
-    n_pairs = int(2.0 * span / (mean_on + mean_off)) + 8
-    while True:
-        modes = np.minimum(np.searchsorted(np.cumsum(q), rng.random(n_pairs), side="right"), q.size - 1)
-        on = rng.exponential(1.0, n_pairs) * dwell_s[modes]
-        off = rng.exponential(mean_off, n_pairs)
-        pairs = np.stack([on, off] if start_on else [off, on], axis=1)  # memoryless: a stationary start
-        switches = t0 + np.cumsum(pairs.ravel())
-        if switches[-1] > t_s[-1]:
-            break
-        n_pairs *= 2
-    k = np.searchsorted(switches, t_s, side="right")  # switches at or before t
+    cum_q = np.cumsum(q)
+
+    def draw(n: int) -> tuple[np.ndarray, np.ndarray]:
+        modes = np.minimum(np.searchsorted(cum_q, rng.random(n), side="right"), q.size - 1)
+        on = rng.exponential(1.0, n) * dwell_s[modes]
+        off = rng.exponential(mean_off, n)
+        return np.stack([on, off] if start_on else [off, on], axis=1), modes
+
+    k, modes = switch_counts(t_s, draw, initial_pairs(float(t_s[-1] - t_s[0]), mean_on + mean_off))
     nlos = (k % 2 == 0) == start_on
-    return nlos, np.where(nlos, modes[np.minimum(k // 2, n_pairs - 1)], -1)
+    return nlos, np.where(nlos, modes[np.minimum(k // 2, modes.size - 1)], -1)
 
 
 def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: ChannelArrays, *,
@@ -176,10 +287,23 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
     return nlos, mode
 
 
-def simulate_uwb(kin: Kinematics, scn: Scenario, ch: ChannelArrays, *, rng: np.random.Generator,
-                 rng_availability: np.random.Generator) -> Uwb:
-    """All ranging attempts of one run (rows sorted by time)."""
-    u = scn.uwb
+@dataclass(frozen=True, slots=True, kw_only=True)
+class UwbAttempts:
+    """Every scheduled ranging attempt of one run before availability: rows sorted by true time."""
+
+    bursts_s: np.ndarray  # (B,) true start time of every tag burst
+    burst: np.ndarray  # (N,) burst index of each attempt
+    anchor: np.ndarray  # (N,) anchor index
+    t_true_s: np.ndarray  # (N,) true time of the attempt
+    true_range_m: np.ndarray
+    measured_m: np.ndarray  # range the radio would report (never negative)
+    nlos: np.ndarray
+    linked: np.ndarray  # inside the radio horizon
+
+
+def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: np.random.Generator) -> UwbAttempts:
+    """All ranging attempts of one run with their true and measured ranges and NLOS state."""
+    u = params
     n_anchors = ch.anchor_pos_enu_m.shape[0]
     t_end = float(kin.t_s[-1]) - n_anchors * u.slot_s - abs(u.time_offset_s)
     phase = None if u.burst_phase_s is None else u.burst_phase_s - u.time_offset_s  # stamp -> true time
@@ -198,32 +322,18 @@ def simulate_uwb(kin: Kinematics, scn: Scenario, ch: ChannelArrays, *, rng: np.r
     linked = rng.random(t_true.shape[0]) < link_probability(true_range, ch.max_range_m[anchor],
                                                             ch.edge_width_m[anchor])
     nlos, mode = nlos_states(t_true, anchor, s_m, ch, rng=rng)
-    err = (ch.los_mean_m[anchor] + ch.range_bias_per_m[anchor] * true_range
-           + ch.los_std_m[anchor] * rng.standard_normal(t_true.shape[0]))
-    # NLOS replaces the LOS error (eq. 3); an episode keeps its reflector (its mode's offset), rows
-    # made NLOS by a zone alone draw a mode by weight
-    in_episode = mode >= 0
-    zone_only = nlos & ~in_episode
-    err[in_episode] = sample_nlos_offset(anchor[in_episode], ch, rng=rng, mode=mode[in_episode])
-    err[zone_only] = sample_nlos_offset(anchor[zone_only], ch, rng=rng)
+    err = range_error(true_range, anchor, nlos, mode, ch, rng=rng)
     measured = np.maximum(true_range + err, 0.0)  # a range is never negative
+    return UwbAttempts(bursts_s=bursts, burst=b_idx, anchor=anchor, t_true_s=t_true, true_range_m=true_range,
+                       measured_m=measured, nlos=nlos, linked=linked)
 
-    outage = np.zeros(t_true.shape[0], dtype=bool)
-    for i in range(n_anchors):  # one outage process per anchor
-        rows = np.flatnonzero(anchor == i)
-        outage[rows] = outage_mask(t_true[rows], ch.outage_onset_prob[i], u.burst_rate_hz, ch.outage_mean_s[i],
-                                   start_stationary=scn.availability.start_stationary, rng=rng_availability)
-    av = scn.availability
-    if av.tag_outage_onset_prob > 0:  # one process for the tag, applied to every anchor of a burst
-        tag_out = outage_mask(bursts, av.tag_outage_onset_prob, u.burst_rate_hz, av.tag_outage_mean_s,
-                              start_stationary=av.start_stationary, rng=rng_availability)
-        outage |= tag_out[b_idx]
-    dropped = rng_availability.random(t_true.shape[0]) < ch.dropout_prob[anchor]
 
-    reason = np.full(t_true.shape[0], Reason.OK, dtype=np.int8)
+def uwb_record(att: UwbAttempts, params: UwbParams, *, outage: np.ndarray, dropped: np.ndarray) -> Uwb:
+    """The ``uwb`` record of a run: attempts with the availability applied and stamps on the tag clock."""
+    reason = np.full(att.t_true_s.shape[0], Reason.OK, dtype=np.int8)
     reason[dropped] = Reason.DROPOUT
     reason[outage] = Reason.OUTAGE
-    reason[~linked] = Reason.NO_LINK
-    range_m = np.where(reason == Reason.OK, measured, np.nan)
-    return Uwb(t_s=t_true + u.time_offset_s, anchor=anchor, range_m=range_m, true_range_m=true_range,
-               nlos=nlos, burst=b_idx, reason=reason, nlos_known=True)
+    reason[~att.linked] = Reason.NO_LINK
+    range_m = np.where(reason == Reason.OK, att.measured_m, np.nan)
+    return Uwb(t_s=att.t_true_s + params.time_offset_s, anchor=att.anchor, range_m=range_m,
+               true_range_m=att.true_range_m, nlos=att.nlos, burst=att.burst, reason=reason, nlos_known=True)

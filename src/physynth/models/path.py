@@ -9,12 +9,54 @@ a sag change shaped as a half-sine, so both end stations stay fixed.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from numpy.polynomial import polynomial as P
+from pydantic import model_validator
 from scipy.interpolate import CubicSpline
 
-from .scenario import PathParams, PerturbationParams
+from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Vec3
+
+
+class PerturbationParams(ParamsModel):
+    """Run-to-run cable deformation that keeps both end stations fixed (a half-sine along the path)."""
+
+    lateral_std_m: NonNegFloat = 2.0
+    sag_std_m: NonNegFloat = 1.0
+
+
+class PathParams(ParamsModel):
+    """Geometry p(s), s in [0, length_m], in ENU metres.
+
+    ``polynomial``: ``coeffs_enu_m`` holds three power-series coefficient lists (E, N, U, lowest order
+    first) in the normalised arc length u = s / length_m (the paper fits degree 10 to GNSS truth).
+    ``waypoints``: a smooth cubic spline through ``waypoints_enu_m``, re-parameterised by arc length.
+    ``reverse`` travels the path from its end to its start (e.g. the ascending run of a cable car).
+    """
+
+    kind: Literal["polynomial", "waypoints"]
+    length_m: PositiveFloat | None = None
+    coeffs_enu_m: list[list[FiniteFloat]] | None = None
+    waypoints_enu_m: list[Vec3] | None = None
+    reverse: bool = False
+    perturbation: PerturbationParams = PerturbationParams()
+
+    @model_validator(mode="after")
+    def _check_kind(self) -> PathParams:
+        if self.kind == "polynomial":
+            if self.coeffs_enu_m is None or self.length_m is None:
+                raise ValueError("a polynomial path needs length_m and coeffs_enu_m")
+            if len(self.coeffs_enu_m) != 3 or not all(len(c) >= 2 for c in self.coeffs_enu_m):
+                raise ValueError("coeffs_enu_m needs three coefficient lists (E, N, U) of length >= 2")
+        else:
+            if self.waypoints_enu_m is None or len(self.waypoints_enu_m) < 2:
+                raise ValueError("a waypoints path needs at least 2 waypoints_enu_m")
+            w = np.asarray(self.waypoints_enu_m)
+            if np.any(np.linalg.norm(np.diff(w, axis=0), axis=1) <= 0):
+                raise ValueError("waypoints_enu_m has two consecutive identical waypoints")
+        return self
+
 
 UP = np.array([0.0, 0.0, 1.0])
 

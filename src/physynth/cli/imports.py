@@ -16,6 +16,11 @@ import typer
 
 app = typer.Typer(help="Import real recordings as PhySynth datasets.", no_args_is_help=True)
 
+
+def register(main_app: typer.Typer) -> None:
+    """Add the ``import`` command group to the main app."""
+    main_app.add_typer(app, name="import")
+
 _OUT = typer.Option(..., "--out", "-o", help="Output dataset directory.")
 _OVERWRITE = typer.Option(False, "--overwrite", help="Replace an existing dataset.")
 _QUIET = typer.Option(False, "--quiet", "-q", help="No summary.")
@@ -23,7 +28,7 @@ _QUIET = typer.Option(False, "--quiet", "-q", help="No summary.")
 
 def _run(importer: Callable[[Path], tuple[Any, Any]], inputs: Sequence[Path], out: Path, *,
          source: str, overwrite: bool, quiet: bool) -> None:
-    from .io import write_dataset
+    from ..io import write_dataset
 
     traces, reports = [], []
     for path in inputs:
@@ -53,7 +58,7 @@ def import_csv_cmd(
     quiet: bool = _QUIET,
 ) -> None:
     """Import recording folder(s) in the generic format (docs/recording-format.md)."""
-    from .importers import import_csv
+    from ..io.importers import import_csv
 
     _run(import_csv, rec_dirs, out, source="csv", overwrite=overwrite, quiet=quiet)
 
@@ -69,7 +74,7 @@ def import_hanyang_cmd(
     quiet: bool = _QUIET,
 ) -> None:
     """Import dynamic runs of the Hanyang outdoor UWB dataset (one trace per run)."""
-    from .importers import import_hanyang
+    from ..io.importers import import_hanyang
 
     _run(lambda p: import_hanyang(p, crop_to_uwb=crop_to_uwb), run_dirs, out, source="hanyang-uwb",
          overwrite=overwrite, quiet=quiet)
@@ -84,6 +89,6 @@ def import_broad_cmd(
     quiet: bool = _QUIET,
 ) -> None:
     """Import BROAD IMU trials (IMU + optical truth, no UWB; one trace per trial)."""
-    from .importers import import_broad
+    from ..io.importers import import_broad
 
     _run(import_broad, trials, out, source="broad", overwrite=overwrite, quiet=quiet)

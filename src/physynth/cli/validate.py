@@ -3,8 +3,8 @@
     physynth validate --real DATASET (--synthetic DATASET | --scenario S [-n N] [--seed S]) [--transfer]
                       --out REPORT_DIR [--no-figures] [--overwrite] [--quiet]
 
-The command parses, calls :func:`physynth.validate.validate_datasets` and
-:func:`physynth.report.write_report`, prints a short summary and exits. Bad input raises
+The command parses, calls :func:`physynth.workflows.validate_datasets` and
+:func:`physynth.validate.render.write_report`, prints a short summary and exits. Bad input raises
 :class:`~physynth.errors.PhySynthError`, which ``physynth.cli.main`` prints as one line (exit code 2).
 """
 
@@ -13,6 +13,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
+
+from ._common import progress_bar
 
 
 def register(app: typer.Typer) -> None:
@@ -26,7 +28,7 @@ def validate_cmd(
                                              help="Dataset directory of synthetic traces to compare."),
     scenario: str | None = typer.Option(None, "--scenario", "-s",
                                            help="Preset name or scenario YAML: generate the synthetic traces."),
-    n: int = typer.Option(50, "-n", "--n-traces", help="Traces to generate with --scenario."),
+    n: int = typer.Option(50, "-n", "--n-traces", min=1, help="Traces to generate with --scenario."),
     seed: int | None = typer.Option(None, "--seed", help="Root seed for --scenario (random when omitted; "
                                                              "recorded in the report)."),
     transfer: bool = typer.Option(False, "--transfer",
@@ -41,16 +43,26 @@ def validate_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Validate synthetic traces against a real dataset (paper section IV: Tables I-II, KS, figures)."""
-    from .errors import PhySynthError
-    from .report import _matplotlib, write_report
-    from .validate import validate_datasets
+    from ..errors import AnchorMismatchError, OutputExistsError, PhySynthError
+    from ..validate.render import require_matplotlib, write_report
+    from ..workflows import validate_datasets
 
     if (out / "report.json").exists() and not overwrite:  # fail before the (long) generation
-        raise PhySynthError(f"{out} already holds a report (use --overwrite to replace it)")
+        raise OutputExistsError(out, "holds a report")
+    if (synthetic is None) == (scenario is None):
+        raise PhySynthError("give exactly one of --synthetic DATASET and --scenario SCENARIO "
+                            f"({'both' if synthetic is not None else 'neither'} given)")
+    if transfer and scenario is None:
+        raise PhySynthError("--transfer needs --scenario (it builds a scenario for the real run's geometry)")
     if figures:
-        _matplotlib()  # a missing matplotlib is reported before any work is done
-    report = validate_datasets(real, synthetic=synthetic, scenario=scenario, n=n, seed=seed, transfer=transfer,
-                               progress=not quiet)
+        require_matplotlib()  # a missing matplotlib is reported before any work is done
+    try:
+        with progress_bar(not quiet) as progress:
+            report = validate_datasets(real, synthetic=synthetic, scenario=scenario, n=n, seed=seed,
+                                       transfer=transfer, progress=progress)
+    except AnchorMismatchError as exc:
+        hint = "; use --transfer to take the anchor layout from the real dataset" if scenario else ""
+        raise PhySynthError(str(exc).split("; transfer the scenario")[0] + hint) from None
     written = write_report(report, out, figures=figures, overwrite=overwrite)
     if quiet:
         return

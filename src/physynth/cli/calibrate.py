@@ -5,8 +5,8 @@
                        [--anchor-layout strict|first] [--static-sweeps DIR] [--range-bias dynamic|static]
                        [--overwrite] [--quiet]
 
-The command parses, calls :func:`physynth.calibrate.calibrate_datasets`, writes the scenario with
-:func:`physynth.scenario.save_scenario` (it loads back with ``load_scenario`` and feeds
+The command parses, calls :func:`physynth.workflows.calibrate_datasets`, writes the scenario with
+:func:`physynth.io.scenario_file.save_scenario` (it loads back with ``load_scenario`` and feeds
 ``physynth generate``) and the JSON fit report, and prints a short summary table. Bad input raises
 :class:`~physynth.errors.PhySynthError`, which ``physynth.cli.main`` prints as one line (exit code 2).
 """
@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Literal
 
 import typer
 
@@ -28,36 +29,30 @@ def calibrate_cmd(
     datasets: list[Path] = typer.Argument(..., help="Dataset directories (real or synthetic), pooled."),
     out: Path = typer.Option(..., "--out", "-o", help="Scenario YAML file to write."),
     report: Path | None = typer.Option(None, "--report", help="JSON fit report to write (default: none)."),
-    path_kind: str = typer.Option("auto", "--path-kind",
+    path_kind: Literal["auto", "polynomial", "waypoints"] = typer.Option("auto", "--path-kind",
                                   help="Path geometry: auto, polynomial (degree 10, cable) or waypoints (walk)."),
     name: str | None = typer.Option(None, "--name", help="Scenario name (default: the output file's stem)."),
-    anchor_layout: str = typer.Option("strict", "--anchor-layout",
+    anchor_layout: Literal["strict", "first"] = typer.Option("strict", "--anchor-layout",
                                       help="strict: an anchor placed differently by two datasets is an error; "
                                            "first: write the first dataset's layout."),
     static_sweeps: Path | None = typer.Option(None, "--static-sweeps",
                                               help="Hanyang Static_measurements folder: also fit the range "
                                                    "bias on the static sweeps."),
-    range_bias: str = typer.Option("dynamic", "--range-bias",
+    range_bias: Literal["dynamic", "static"] = typer.Option("dynamic", "--range-bias",
                                    help="dynamic: range bias per anchor from the recordings; static: the "
                                         "static-sweep slope for every anchor (needs --static-sweeps)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress display or summary."),
 ) -> None:
     """Calibrate a scenario (path, motion, IMU, UWB, availability) on recorded datasets."""
-    from .calibrate import calibrate_datasets
-    from .calibrate._base import jsonable
-    from .errors import PhySynthError
-    from .scenario import save_scenario
+    from .._json import jsonable
+    from ..errors import OutputExistsError, PhySynthError
+    from ..io.scenario_file import save_scenario
+    from ..workflows import calibrate_datasets
 
-    choices = {"--path-kind": (path_kind, ("auto", "polynomial", "waypoints")),
-               "--anchor-layout": (anchor_layout, ("strict", "first")),
-               "--range-bias": (range_bias, ("dynamic", "static"))}
-    for opt, (value, allowed) in choices.items():
-        if value not in allowed:
-            raise PhySynthError(f"{opt} must be one of {', '.join(allowed)}, got {value!r}")
     for target in [out] + ([report] if report else []):
         if target.exists() and not overwrite:
-            raise PhySynthError(f"{target} already exists (use --overwrite to replace it)")
+            raise OutputExistsError(target)
         if not target.parent.exists():
             raise PhySynthError(f"output folder {target.parent} does not exist")
     kwargs = dict(name=name or out.stem, path_kind=path_kind, anchor_policy=anchor_layout,
@@ -79,7 +74,7 @@ def calibrate_cmd(
               f"Fit report: {report if report else '(not written; use --report)'}")
     save_scenario(result.scenario, out, header=header)
     if report:
-        from .io.dataset import atomic_write_text
+        from ..io.atomic import atomic_write_text
 
         atomic_write_text(report, json.dumps(jsonable(result.report), indent=1))
     if quiet:

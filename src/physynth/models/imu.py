@@ -17,12 +17,47 @@ IMU rate; only the white noise is drawn per IMU sample.
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import numpy as np
+from pydantic import Field
 from scipy.signal import lfilter
 
+from ..records import Imu
+from ._params import NonNegFloat, ParamsModel, PositiveFloat, Vec3
 from .motion import Kinematics
-from .records import Imu
-from .scenario import ImuParams, VibrationParams
+
+
+class VibrationParams(ParamsModel):
+    """Band-limited vibration: narrow-band noise at ``fundamental_hz`` and harmonics.
+
+    ``amplitude_mps2`` is the RMS per axis of the whole vibration, times ``axis_gain`` (E, N, U) where
+    the axes vibrate unequally; ``harmonic_weights`` split its variance between the fundamental and
+    its harmonics; ``bandwidth_hz`` is the -3 dB width of
+    each spectral line.
+    """
+
+    fundamental_hz: PositiveFloat = 2.8
+    amplitude_mps2: NonNegFloat = 0.12
+    harmonic_weights: list[NonNegFloat] = Field(default=[1.0, 0.5, 0.25], min_length=1)
+    bandwidth_hz: PositiveFloat = 0.3
+    axis_gain: Annotated[list[NonNegFloat], Field(min_length=3, max_length=3)] = [1.0, 1.0, 1.0]
+
+
+class ImuParams(ParamsModel):
+    """Accelerometer in ENU, gravity-free [m s^-2].
+
+    White noise of density ``white_noise_density_mps2_per_sqrt_hz`` per axis (per-sample standard
+    deviation density * sqrt(rate_hz)); bias random walk whose standard deviation grows as
+    ``bias_rw_mps2_per_sqrt_s`` * sqrt(t); vibration as above.
+    """
+
+    rate_hz: PositiveFloat = 400.0
+    white_noise_density_mps2_per_sqrt_hz: Vec3 = [0.161, 0.086, 0.106]
+    bias_rw_mps2_per_sqrt_s: NonNegFloat = 0.002
+    bias_initial_std_mps2: NonNegFloat = 0.0
+    vibration: VibrationParams = VibrationParams()
+
 
 _BIAS_KNOT_S = 0.1  # bias random-walk knot spacing [s]
 

@@ -9,13 +9,56 @@ while the travelled geometry is always the station-to-station path.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated, Literal
 
 import numpy as np
 from numpy.polynomial import polynomial as P
+from pydantic import Field, model_validator
 from scipy.interpolate import make_smoothing_spline
 
+from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Probability
 from .path import PathGeometry, PathPerturbation, perturbed_cf
-from .scenario import MotionParams, SpeedProfileParams
+
+
+class SpeedProfileParams(ParamsModel):
+    """Shape g(u) of the speed over normalised trip time u in [0, 1], scaled so max g = 1.
+
+    ``trapezoid``: accelerate over ``accel_frac`` of the trip, cruise, decelerate over ``decel_frac``
+    (raised-cosine ramps, so acceleration is continuous). ``polynomial``: power-series coefficients
+    in u (the paper fits degree 4 to the real speed). ``empirical``: ``samples`` of g at equally
+    spaced u (calibration uses it when a polynomial fits poorly), smoothed before differentiation by
+    a smoothing spline over u in [0, 1] with penalty ``smoothing`` (``lam`` of
+    scipy.interpolate.make_smoothing_spline; smaller keeps more detail, e.g. the stops of a walk).
+    """
+
+    kind: Literal["trapezoid", "polynomial", "empirical"] = "trapezoid"
+    accel_frac: Probability = 0.15
+    decel_frac: Probability = 0.15
+    coeffs: list[FiniteFloat] | None = None
+    samples: list[NonNegFloat] | None = None
+    smoothing: PositiveFloat = 1e-5
+
+    @model_validator(mode="after")
+    def _check(self) -> SpeedProfileParams:
+        if self.kind == "trapezoid" and self.accel_frac + self.decel_frac > 1:
+            raise ValueError("accel_frac + decel_frac must not exceed 1")
+        if self.kind == "polynomial" and not self.coeffs:
+            raise ValueError("a polynomial speed profile needs coeffs")
+        if self.kind == "empirical" and (not self.samples or len(self.samples) < 3):
+            raise ValueError("an empirical speed profile needs at least 3 samples")
+        return self
+
+
+class MotionParams(ParamsModel):
+    """Trip kinematics: cruise speed, per-run spread (uniform +-frac), rests at the stations."""
+
+    cruise_speed_mps: PositiveFloat
+    profile: SpeedProfileParams = SpeedProfileParams()
+    cruise_speed_spread_frac: Annotated[float, Field(ge=0, lt=1)] = 0.12
+    length_spread_frac: Annotated[float, Field(ge=0, lt=1)] = 0.05
+    dwell_start_s: NonNegFloat = 0.0
+    dwell_end_s: NonNegFloat = 0.0
+
 
 _TABLE_N = 4001
 

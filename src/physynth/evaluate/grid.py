@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .constants import DEFAULT_GRID_RATE_HZ
-from .records import Trace
+from ..constants import DEFAULT_GRID_RATE_HZ
+from ..records import Trace
 
 _EPS_BIN = 1e-6  # tolerance, in bins, for a time that sits exactly on a grid step
 

@@ -23,34 +23,38 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
-import warnings
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy import signal, stats
+from scipy import signal
 
-from . import __version__
-from ._json import jsonable
-from .constants import DEFAULT_GRID_RATE_HZ
-from .errors import PhySynthError
-from .grid import age_of_information, fresh_mask, grid_times
-from .metrics import (
+from .. import __version__
+from .._json import jsonable
+from ..constants import DEFAULT_GRID_RATE_HZ
+from ..errors import PhySynthError
+from ..evaluate.grid import age_of_information, fresh_mask, grid_times
+from ..evaluate.metrics import (
     METRIC_KEYS,
     Metrics,
     TraceSummary,
     fidelity_score,
-    ks_statistic,
     pool,
     relative_deviation_pct,
     summarize,
 )
-from .records import Anchors, Trace
+from ..evaluate.stats import (
+    anderson_darling,
+    ks_statistic,
+    overlapping_allan_variance_sums,
+    wasserstein,
+)
+from ..records import Anchors, Trace
 
 if TYPE_CHECKING:
-    from .scenario import Scenario
+    from ..scenario import Scenario
 
 ACF_MAX_LAG = 10
 """Residual autocorrelation is reported at lags 1..ACF_MAX_LAG measurements of one anchor."""
@@ -111,75 +115,6 @@ def _num(x: Any) -> float:
     return float("nan") if x is None else float(x)
 
 
-def overlapping_allan_variance_sums(y: np.ndarray, m: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
-    """Sums of squared second differences of the overlapping Allan variance, for pooling.
-
-    Parameters
-    ----------
-    y : (N,) or (N, C) array
-        Uniformly sampled signal (e.g. acceleration [m s^-2]); must be finite.
-    m : (M,) int array
-        Averaging factors; tau = m / rate_hz [s].
-    rate_hz : float
-        Sample rate [Hz].
-
-    Returns
-    -------
-    sums : (C, M) array
-        sum_k (x_{k+2m} - 2 x_{k+m} + x_k)^2 / (2 tau^2), with the phase x = [0, cumsum(y)] / rate_hz.
-    counts : (M,) int array
-        Number of terms, N - 2m + 1 (0 when the signal is too short).
-
-    The overlapping Allan variance is ``sums / counts``; adding sums and counts of several traces
-    pools them.
-    """
-    y2 = np.asarray(y, dtype=np.float64)
-    y2 = y2[:, None] if y2.ndim == 1 else y2
-    n = y2.shape[0]
-    dt = 1.0 / rate_hz
-    x = np.concatenate([np.zeros((1, y2.shape[1])), np.cumsum(y2, axis=0) * dt])  # (N+1, C)
-    m = np.asarray(m, dtype=np.int64)
-    sums = np.zeros((y2.shape[1], m.size))
-    counts = np.maximum(n - 2 * m + 1, 0)
-    for j, mj in enumerate(m):  # one vectorised pass per averaging time
-        if counts[j] == 0:
-            continue
-        d = x[2 * mj:] - 2.0 * x[mj:n + 1 - mj] + x[:n + 1 - 2 * mj]
-        tau = mj * dt
-        sums[:, j] = np.einsum("kc,kc->c", d, d) / (2.0 * tau * tau)
-    return sums, counts
-
-
-def allan_deviation(y: np.ndarray, rate_hz: float, tau_s: Sequence[float] | np.ndarray) -> np.ndarray:
-    """Overlapping Allan deviation of a uniformly sampled signal.
-
-    Parameters
-    ----------
-    y : (N,) or (N, C) array
-        Signal, e.g. acceleration [m s^-2] at ``rate_hz``.
-    rate_hz : float
-        Sample rate [Hz].
-    tau_s : sequence of float
-        Averaging times [s]; each is rounded to a whole number of samples (at least 1).
-
-    Returns
-    -------
-    (C, M) array (or (M,) for a 1-D ``y``)
-        sigma(tau) in the unit of ``y``; NaN where the signal is shorter than 2 tau.
-
-    .. math:: \\sigma^2(\\tau) = \\frac{1}{2\\tau^2 (N - 2m + 1)} \\sum_k (x_{k+2m} - 2x_{k+m} + x_k)^2
-
-    with ``x`` the running integral of ``y`` and tau = m / rate. White noise of per-sample standard
-    deviation s gives sigma(tau) = s / sqrt(m); a random walk of increment density K gives
-    K sqrt(tau / 3).
-    """
-    m = np.maximum(np.round(np.asarray(tau_s, dtype=float) * rate_hz).astype(np.int64), 1)
-    sums, counts = overlapping_allan_variance_sums(y, m, rate_hz)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        adev = np.sqrt(sums / np.where(counts > 0, counts, np.nan))
-    return adev[0] if np.ndim(y) == 1 else adev
-
-
 def _fill_gaps(y: np.ndarray) -> np.ndarray | None:
     """(K, 3) grid IMU with NaN rows -> linearly filled copy, or None when too few rows are finite."""
     ok = np.all(np.isfinite(y), axis=1)
@@ -197,29 +132,6 @@ def _allan_m_grid(rate_hz: float) -> np.ndarray:
     m = np.round(np.logspace(0.0, top, int(10 * top) + 1))
     m = np.concatenate([m, np.round(np.asarray(ALLAN_TAUS_S) * rate_hz)])
     return np.unique(np.maximum(m, 1)).astype(np.int64)
-
-
-def _ks(a: np.ndarray, b: np.ndarray) -> float:
-    return ks_statistic(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
-
-
-def _wasserstein(a: np.ndarray, b: np.ndarray) -> float:
-    if a.size == 0 or b.size == 0:
-        return float("nan")
-    return float(stats.wasserstein_distance(a, b))
-
-
-def _anderson_darling(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
-    """(statistic, tabulated p-value) of scipy's k-sample Anderson-Darling test (midrank variant)."""
-    if a.size < 2 or b.size < 2 or np.unique(np.concatenate([a, b])).size < 2:
-        return float("nan"), float("nan")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # "p-value capped/floored" and the 1.17 `midrank` deprecation
-        try:
-            res = stats.anderson_ksamp([a, b], variant="midrank")
-        except TypeError:  # scipy < 1.17 has no `variant`; midrank is its default
-            res = stats.anderson_ksamp([a, b])
-    return float(res.statistic), float(res.pvalue)
 
 
 # ---------------------------------------------------------------- evidence (arrays for the figures)
@@ -483,15 +395,15 @@ def _quantiles(x: np.ndarray) -> list[float]:
 
 
 def _extended(real: SideEvidence, synth: SideEvidence) -> dict[str, Any]:
-    ad, ad_p = _anderson_darling(real.residual_m, synth.residual_m)
+    ad, ad_p = anderson_darling(real.residual_m, synth.residual_m)
     ext: dict[str, Any] = {
-        "residual_wasserstein_m": _wasserstein(real.residual_m, synth.residual_m),
+        "residual_wasserstein_m": wasserstein(real.residual_m, synth.residual_m),
         "residual_anderson_darling": ad,
         "residual_anderson_darling_pvalue": ad_p,
-        "gap_ks_statistic": _ks(real.gap_s, synth.gap_s),
+        "gap_ks_statistic": ks_statistic(real.gap_s, synth.gap_s),
         "gap_quantiles_s": {"quantiles": ["p50", "p95", "p99", "max"],
                             "real": _quantiles(real.gap_s), "synthetic": _quantiles(synth.gap_s)},
-        "aoi_ks_statistic": _ks(real.aoi_s, synth.aoi_s),
+        "aoi_ks_statistic": ks_statistic(real.aoi_s, synth.aoi_s),
         "residual_acf": {"lags": list(range(1, ACF_MAX_LAG + 1)), "real": real.acf.tolist(),
                          "synthetic": synth.acf.tolist()},
         "residual_acf_max_abs_diff": float(np.max(np.abs(synth.acf - real.acf))),
@@ -544,9 +456,9 @@ def _per_anchor(real: SideEvidence, synth: SideEvidence) -> dict[str, Any]:
             "synthetic": ps,
             "relative_deviation_pct": (_deviations(pr, ps, PER_ANCHOR_DEVIATION_KEYS)
                                        if pr is not None and ps is not None else None),
-            "ks_statistic": _ks(ra, sa),
-            "residual_wasserstein_m": _wasserstein(ra, sa),
-            "gap_ks_statistic": _ks(real.gap_s[real.gap_anchor == a], synth.gap_s[synth.gap_anchor == a]),
+            "ks_statistic": ks_statistic(ra, sa),
+            "residual_wasserstein_m": wasserstein(ra, sa),
+            "gap_ks_statistic": ks_statistic(real.gap_s[real.gap_anchor == a], synth.gap_s[synth.gap_anchor == a]),
         }
     return out
 
@@ -612,16 +524,16 @@ def compare(real: Iterable[Trace], synthetic: Iterable[Trace], *, rate_hz: float
 
 
 # ---------------------------------------------------------------- datasets and scenarios (the CLI's entry)
-def _anchor_ids(traces: Sequence[Trace]) -> list[str]:
+def anchor_ids(traces: Sequence[Trace]) -> list[str]:
     ids: list[str] = []
     for tr in traces:
         ids += [a for a in tr.anchors.ids if a not in ids]
     return ids
 
 
-def _check_real(traces: Sequence[Trace], where: str) -> None:
+def check_real(traces: Sequence[Trace], where: str) -> None:
     """Refuse real data that cannot be validated against: no truth, no anchors, no valid range."""
-    from .metrics import residuals
+    from ..evaluate.metrics import residuals
 
     for i, tr in enumerate(traces):
         n_truth = int(np.count_nonzero(np.all(np.isfinite(tr.truth.pos_enu_m), axis=1)))
@@ -635,17 +547,7 @@ def _check_real(traces: Sequence[Trace], where: str) -> None:
         raise PhySynthError(f"{where} has no valid UWB range inside the truth time span: nothing to compare")
 
 
-def _read(reader: Callable[[str | Path], Any], path: str | Path, role: str) -> Any:
-    """Read a dataset; its one-line error names the role (real or synthetic)."""
-    try:
-        return reader(path)
-    except PhySynthError as exc:
-        raise PhySynthError(f"{role} dataset: {exc}") from None
-    except ValueError as exc:  # a table that reads but does not make valid records (unsorted times, ...)
-        raise PhySynthError(f"{role} dataset {path}: invalid content: {exc}") from None
-
-
-def _describe_mismatch(real_ids: Sequence[str], other_ids: Sequence[str], other: str) -> str | None:
+def describe_anchor_mismatch(real_ids: Sequence[str], other_ids: Sequence[str], other: str) -> str | None:
     only_real = [a for a in real_ids if a not in other_ids]
     only_other = [a for a in other_ids if a not in real_ids]
     if not only_real and not only_other:
@@ -658,9 +560,9 @@ def _describe_mismatch(real_ids: Sequence[str], other_ids: Sequence[str], other:
     return f"anchor ids differ between the real dataset and {other} ({'; '.join(parts)})"
 
 
-def _transfer_record(before: Scenario, after: Scenario, real_path: str, real_ids: Sequence[str]) -> dict[str, Any]:
+def transfer_record(before: Scenario, after: Scenario, real_path: str, real_ids: Sequence[str]) -> dict[str, Any]:
     """What ``--transfer`` took from the real dataset and what it kept from the scenario."""
-    from .scenario import scenario_to_dict
+    from ..scenario import scenario_to_dict
 
     b, a = scenario_to_dict(before), scenario_to_dict(after)
     bookkeeping = ("name", "description", "provenance")
@@ -689,104 +591,3 @@ def _transfer_record(before: Scenario, after: Scenario, real_path: str, real_ids
                     "transferred": list(after.anchor_ids)},
         "fit": (after.provenance or {}).get("transfer"),
     }
-
-
-def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
-                      scenario: str | Path | Scenario | None = None,
-                      n: int = 50, seed: int | None = None, transfer: bool = False,
-                      rate_hz: float = DEFAULT_GRID_RATE_HZ, progress: bool = False) -> ValidationReport:
-    """Validate a real dataset against a synthetic dataset or against traces generated from a scenario.
-
-    Parameters
-    ----------
-    real : path
-        Dataset directory of real traces (with ground truth).
-    synthetic : path, optional
-        Dataset directory of synthetic traces. Exactly one of ``synthetic`` and ``scenario``.
-    scenario : str, path or Scenario, optional
-        Preset name, scenario file or object; ``n`` traces are generated from root seed ``seed``
-        (drawn from OS entropy and recorded when None).
-    transfer : bool
-        Take path geometry, motion and anchor layout from the real dataset
-        (:func:`physynth.calibrate.transfer_scenario`) and keep every sensor, channel and
-        availability parameter of the scenario (paper section IV.C). Needs ``scenario``.
-    rate_hz : float
-        Evaluation grid rate [Hz].
-    progress : bool
-        Show a progress bar (rich, on stderr) while the synthetic traces are generated and reduced.
-
-    Raises
-    ------
-    PhySynthError
-        One line for every kind of bad input: both or neither of ``synthetic``/``scenario``,
-        ``transfer`` without a scenario, ``n < 1``, unreadable or empty datasets, a real dataset
-        without truth, anchors or valid ranges, and anchor ids that differ (without ``transfer``).
-    """
-    from .io.dataset import read_dataset
-    from .rng import new_root_seed
-    from .scenario import Scenario, load_scenario, scenario_to_dict
-
-    if (synthetic is None) == (scenario is None):
-        raise PhySynthError("give exactly one of --synthetic DATASET and --scenario SCENARIO "
-                            f"({'both' if synthetic is not None else 'neither'} given)")
-    if transfer and scenario is None:
-        raise PhySynthError("--transfer needs --scenario (it builds a scenario for the real run's geometry)")
-    if scenario is not None and n < 1:
-        raise PhySynthError(f"-n must be at least 1, got {n}")
-    real_ds = _read(read_dataset, real, "real")
-    real_traces = real_ds.traces
-    _check_real(real_traces, f"real dataset {real}")
-    real_ids = _anchor_ids(real_traces)
-    inputs: dict[str, Any] = {"real": {"path": str(real), "kind": real_ds.meta.get("kind"),
-                                       "source": real_ds.meta.get("source"), "anchors": real_ids}}
-    transfer_info = None
-
-    if synthetic is not None:
-        synth_ds = _read(read_dataset, synthetic, "synthetic")
-        synth_ids = _anchor_ids(synth_ds.traces)
-        problem = _describe_mismatch(real_ids, synth_ids, f"the synthetic dataset {synthetic}")
-        if problem:
-            raise PhySynthError(problem)
-        if not any(s.uwb.valid.any() for s in synth_ds.traces):
-            raise PhySynthError(f"synthetic dataset {synthetic} has no valid UWB range: nothing to compare")
-        inputs["synthetic"] = {"path": str(synthetic), "kind": synth_ds.meta.get("kind"),
-                               "scenario_name": synth_ds.meta.get("scenario_name"),
-                               "root_seed": synth_ds.meta.get("root_seed"), "n_traces": len(synth_ds)}
-        synth_iter: Iterable[Trace] = synth_ds.traces
-        total = len(synth_ds)
-    else:
-        scn = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-        source = scn.name if isinstance(scenario, Scenario) else str(scenario)
-        if transfer:
-            try:
-                from .calibrate import transfer_scenario
-            except ImportError as exc:
-                raise PhySynthError(f"--transfer is not available in this install ({exc})") from None
-            original = scn
-            scn = transfer_scenario(original, real_traces)
-            transfer_info = _transfer_record(original, scn, str(real), real_ids)
-        else:
-            problem = _describe_mismatch(real_ids, list(scn.anchor_ids), f"scenario '{scn.name}'")
-            if problem:
-                raise PhySynthError(problem + "; use --transfer to take the anchor layout from the real dataset")
-        from .generate import compile_scenario, generate_traces
-
-        root = new_root_seed() if seed is None else int(seed)
-        inputs["synthetic"] = {"scenario": source, "scenario_name": scn.name, "n_traces": int(n),
-                               "root_seed": root, "transfer": bool(transfer),
-                               "scenario_config": scenario_to_dict(scn)}
-        synth_iter = generate_traces(compile_scenario(scn), n, seed=root)
-        total = n
-
-    if not progress:
-        return compare(real_traces, synth_iter, rate_hz=rate_hz, inputs=inputs, transfer=transfer_info)
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn, TimeRemainingColumn
-
-    verb = "generating + reducing" if synthetic is None else "reducing"
-    with Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
-                  TimeElapsedColumn(), TimeRemainingColumn(), transient=True,
-                  console=Console(stderr=True)) as bar:
-        task = bar.add_task(f"{verb} synthetic traces", total=total)
-        return compare(real_traces, synth_iter, rate_hz=rate_hz, inputs=inputs, transfer=transfer_info,
-                       on_trace=lambda: bar.advance(task))

@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..errors import RecordingError
-from ..records import Anchors, Imu, Trace, Truth, Uwb
+from ...errors import RecordingError
+from ...records import Anchors, Imu, Trace, Truth, Uwb
 from ._common import (
     ImportReport,
     ReportBuilder,

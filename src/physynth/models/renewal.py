@@ -1,0 +1,40 @@
+"""The one alternating-renewal sampler: a two-state process with random holding times.
+
+Both the availability model (anchor and tag outages) and the UWB model (NLOS episodes) are
+alternating renewal processes observed at sorted times. They differ only in how a pair of holding
+times is drawn (exponential on both sides, or an episode of a mixture mode with its own mean length),
+so the drawing is passed in and the switching logic lives here once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+PairDraw = Callable[[int], tuple[np.ndarray, Any]]
+"""``draw(n) -> (durations (n, 2), payload)``: n pairs of holding times in order of occurrence (first
+the state the process starts in, then the other one), plus anything drawn with them (e.g. a mode per
+pair). It is called again with twice as many pairs until the switches cover the time span."""
+
+
+def switch_counts(t_s: np.ndarray, draw: PairDraw, n_pairs: int) -> tuple[np.ndarray, Any]:
+    """Number of state switches at or before each of the sorted times ``t_s`` (and the payload).
+
+    The first holding time is drawn like every other: with exponential times, memorylessness makes the
+    start stationary. Even counts mean the process is in its starting state.
+    """
+    t0 = float(t_s[0])
+    while True:
+        durations, payload = draw(n_pairs)
+        switches = t0 + np.cumsum(durations.ravel())
+        if switches[-1] > t_s[-1]:
+            break
+        n_pairs *= 2
+    return np.searchsorted(switches, t_s, side="right"), payload
+
+
+def initial_pairs(span_s: float, mean_cycle_s: float) -> int:
+    """A first guess of the number of (on, off) pairs that covers ``span_s`` (doubled while short)."""
+    return int(2.0 * span_s / mean_cycle_s) + 8
