@@ -343,7 +343,7 @@ def test_bad_input_unreadable_files(data, tmp_path, capsys):
          "none.yaml")
 
 
-def test_missingrequire_matplotlib_is_one_clear_line(data, tmp_path, capsys, monkeypatch):
+def test_missing_matplotlib_is_one_clear_line(data, tmp_path, capsys, monkeypatch):
     for name in [m for m in sys.modules if m == "matplotlib" or m.startswith("matplotlib.")]:
         monkeypatch.setitem(sys.modules, name, None)
     monkeypatch.setitem(sys.modules, "matplotlib", None)

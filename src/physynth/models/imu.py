@@ -169,7 +169,7 @@ def _vibration_cf(t_s: np.ndarray, params: VibrationParams, *, rng: np.random.Ge
 
 def simulate_imu(kin: Kinematics, params: ImuParams, *, rng: np.random.Generator) -> Imu:
     """IMU samples at ``params.rate_hz`` over the kinematics' time span (ENU, gravity-free)."""
-    slow = np.ascontiguousarray(kin.acc_enu_mps2.T)
+    slow = np.array(kin.acc_enu_mps2.T, order="C")  # a copy: the caller's kinematics stay untouched
     slow += _vibration_cf(kin.t_s, params.vibration, rng=rng)
     slow += _bias_cf(kin.t_s, params.bias_rw_mps2_per_sqrt_s, params.bias_initial_std_mps2, rng=rng)
     # IMU samples cover [t0, t_end) of the truth; the last truth instant itself has no IMU sample
