@@ -87,3 +87,18 @@ def test_writer_leaves_no_temporary_folder(tmp_path):
     write_dataset(tmp_path / "ds", [_real_like_trace()])
     assert [p.name for p in tmp_path.iterdir()] == ["ds"]
     assert not any(n.startswith(".") for n in os.listdir(tmp_path / "ds"))
+
+
+def test_top_level_names_resolve_lazily():
+    import subprocess
+    import sys
+
+    code = ("import sys, physynth; assert 'scipy' not in sys.modules; "
+            "s = physynth.load_scenario('cablecar-ascending'); t = next(physynth.generate_traces(s, n=1, seed=2)); "
+            "print(type(t).__name__, physynth.compute_metrics([t]).n_traces)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["Trace", "1"]
+    import physynth
+
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        physynth.nope  # noqa: B018
