@@ -86,6 +86,12 @@ class UwbParams(ParamsModel):
     training data; a number: a recording's own alignment, which decides how often a burst straddles
     two 10 ms grid bins and so the grid availability metrics).
     NLOS episodes last ``nlos_dwell_s`` on average.
+
+    Run-to-run ranging offsets: each trace adds one offset ~ N(0, ``run_offset_std_m``^2) to every
+    range of every anchor (a truth-system or tag-antenna offset that changes from run to run) and one
+    offset ~ N(0, ``run_anchor_offset_std_m``^2) per anchor (an anchor re-placed and re-surveyed for
+    each run). Both are 0 by default; they are drawn after every other draw of the trace's UWB
+    stream, so a scenario without them generates exactly what it did before they existed.
     """
 
     burst_rate_hz: PositiveFloat = 23.0
@@ -95,6 +101,8 @@ class UwbParams(ParamsModel):
     time_offset_s: FiniteFloat = 0.0
     nlos_dwell_s: PositiveFloat = 0.5
     zones: list[NlosZone] = []
+    run_offset_std_m: NonNegFloat = 0.0
+    run_anchor_offset_std_m: NonNegFloat = 0.0
 
 
 class AnchorSpec(ParamsModel):
@@ -287,6 +295,19 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
     return nlos, mode
 
 
+def run_offsets(n_anchors: int, params: UwbParams, *, rng: np.random.Generator) -> np.ndarray:
+    """Per-trace ranging offsets [m] of the anchors, (A,): a common one plus one per anchor.
+
+    Draws nothing (and returns zeros) when both spreads are 0, so that the stream is unchanged.
+    """
+    out = np.zeros(n_anchors)
+    if params.run_offset_std_m > 0:
+        out += params.run_offset_std_m * rng.standard_normal()
+    if params.run_anchor_offset_std_m > 0:
+        out += params.run_anchor_offset_std_m * rng.standard_normal(n_anchors)
+    return out
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class UwbAttempts:
     """Every scheduled ranging attempt of one run before availability: rows sorted by true time."""
@@ -323,6 +344,7 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
                                                             ch.edge_width_m[anchor])
     nlos, mode = nlos_states(t_true, anchor, s_m, ch, rng=rng)
     err = range_error(true_range, anchor, nlos, mode, ch, rng=rng)
+    err += run_offsets(n_anchors, u, rng=rng)[anchor]
     measured = np.maximum(true_range + err, 0.0)  # a range is never negative
     return UwbAttempts(bursts_s=bursts, burst=b_idx, anchor=anchor, t_true_s=t_true, true_range_m=true_range,
                        measured_m=measured, nlos=nlos, linked=linked)
