@@ -9,7 +9,7 @@
 4. :func:`fit_ranging` -> :class:`RangingFit`: per-anchor LOS/NLOS errors pooled over runs (each run
    against its own anchor positions), the refined time offset and the run-to-run ranging offsets;
 5. :func:`fit_link_availability` -> :class:`AvailabilityFit` (link range, dropout, outages, tag
-   outages);
+   outages, rates with their Gamma posteriors);
 6. :func:`assemble_channels` -> :class:`ChannelSet`: per-anchor channel parameters with NLOS modes
    and their episode lengths;
 7. :func:`assemble_availability` -> :class:`AvailabilitySet`;
@@ -32,7 +32,7 @@ from typing import Any, Literal
 import numpy as np
 
 from .. import __version__
-from ..models.availability import AvailabilityOverride
+from ..models.availability import AvailabilityOverride, RatePosterior, gamma_rate_posterior
 from ..progress import ProgressCallback, no_progress
 from ..records import Trace
 from ..scenario import (
@@ -156,27 +156,126 @@ MIN_MODE_EPISODES = 2
 """A mixture mode gets its own NLOS episode length from at least this many episodes (else uwb.nlos_dwell_s)."""
 
 
-def _mode_runs(residual_m: np.ndarray, flags: list[np.ndarray], modes: Sequence[ModeFit]) -> list[np.ndarray]:
-    """Run lengths of consecutive NLOS rows in the same mixture mode (most likely mode per row), per mode."""
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ModeEpisodes:
+    """The episodes of one NLOS mode: runs of consecutive rows of one anchor most likely in that mode."""
+
+    lengths: np.ndarray  # (E,) rows per episode
+    within_std_m: float | None  # pooled std of the residuals around their episode mean (episodes of >= 2 rows)
+    n_within: int  # rows behind within_std_m
+
+
+def _mode_episodes(residual_m: np.ndarray, flags: list[np.ndarray], modes: Sequence[ModeFit]) -> list[ModeEpisodes]:
+    """Episodes of each mode, with the spread of the residuals inside an episode (is the offset held?)."""
+    lengths = _mode_runs(residual_m, flags, modes, keep_ids=True)
+    out = []
+    for run_len, run_id in lengths:
+        if run_id is None or run_len.size == 0:
+            out.append(ModeEpisodes(lengths=run_len, within_std_m=None, n_within=0))
+            continue
+        r = np.asarray(residual_m)[run_id >= 0]
+        ids = run_id[run_id >= 0]
+        counts = np.bincount(ids)
+        means = np.bincount(ids, weights=r) / np.maximum(counts, 1)
+        multi = counts[ids] >= 2
+        dof = int(np.sum(counts[counts >= 2] - 1))
+        within = float(np.sqrt(np.sum((r[multi] - means[ids[multi]]) ** 2) / dof)) if dof > 0 else None
+        out.append(ModeEpisodes(lengths=run_len, within_std_m=within, n_within=dof))
+    return out
+
+
+def _mode_runs(residual_m: np.ndarray, flags: list[np.ndarray], modes: Sequence[ModeFit], *, keep_ids: bool = False
+               ) -> list[Any]:
+    """Run lengths of consecutive NLOS rows in the same mixture mode (most likely mode per row), per mode.
+
+    With ``keep_ids``: per mode (lengths, run id of every row (N,), -1 for rows of other modes or LOS).
+    """
     if not modes or not flags:
-        return [np.zeros(0, np.int64) for _ in modes]
+        return [(np.zeros(0, np.int64), None) if keep_ids else np.zeros(0, np.int64) for _ in modes]
     w = np.array([m.weight for m in modes])
     mu = np.array([m.mean_m for m in modes])
     sd = np.array([m.std_m for m in modes])
     r = np.asarray(residual_m)
     best = np.argmax(np.log(w)[None, :] - np.log(sd)[None, :] - 0.5 * ((r[:, None] - mu) / sd) ** 2, axis=1)
     out: list[list[np.ndarray]] = [[] for _ in modes]
+    run_id = [np.full(r.size, -1, dtype=np.int64) for _ in modes]
+    n_runs = [0] * len(modes)
     start = 0
     for f in flags:  # one pass per trace, vectorised over its rows
         lab = np.where(f, best[start:start + f.size], -1)
-        start += f.size
         edges = np.flatnonzero(np.diff(lab)) + 1
         seg_start = np.concatenate([[0], edges])
         seg_len = np.diff(np.concatenate([seg_start, [lab.size]]))
         seg_lab = lab[seg_start] if lab.size else lab
+        seg_of_row = np.repeat(np.arange(seg_start.size), seg_len)
         for j in range(len(modes)):
-            out[j].append(seg_len[seg_lab == j])
-    return [np.concatenate(x) if x else np.zeros(0, np.int64) for x in out]
+            sel = seg_lab == j
+            out[j].append(seg_len[sel])
+            if keep_ids and sel.any():
+                local = np.cumsum(sel) - 1 + n_runs[j]  # run number of each segment of mode j
+                rows = np.flatnonzero(lab == j)
+                run_id[j][start + rows] = local[seg_of_row[rows]]
+                n_runs[j] += int(sel.sum())
+        start += f.size
+    lengths = [np.concatenate(x) if x else np.zeros(0, np.int64) for x in out]
+    return [(x, i) for x, i in zip(lengths, run_id, strict=True)] if keep_ids else lengths
+
+
+SHORT_EPISODE_MAX_ROWS = 5.0
+"""Modes whose episodes last at most this many rows on average are *short* (gross outliers)."""
+
+
+def _is_short(ep: ModeEpisodes) -> bool:
+    return ep.lengths.size < MIN_MODE_EPISODES or float(ep.lengths.mean()) <= SHORT_EPISODE_MAX_ROWS
+
+
+def _pool_episodes(eps: Sequence[ModeEpisodes]) -> ModeEpisodes:
+    """Episodes of several modes as one sample (within-episode variances pooled by degrees of freedom)."""
+    lengths = np.concatenate([e.lengths for e in eps]) if eps else np.zeros(0, np.int64)
+    dof = sum(e.n_within for e in eps if e.within_std_m is not None)
+    ss = sum(e.n_within * e.within_std_m**2 for e in eps if e.within_std_m is not None)
+    return ModeEpisodes(lengths=lengths, within_std_m=float(np.sqrt(ss / dof)) if dof else None, n_within=dof)
+
+
+HELD_MAX_STD_RATIO = 0.3
+"""A mode's offset is *held* over an episode when the residuals inside its episodes scatter by less than
+this fraction of the mode's std (one reflector or one wrong range per episode, not a fresh draw per row)."""
+FIXED_MAX_VAR_RATIO = 0.5
+"""Episodes of a mode have a *fixed* length when the variance of their lengths (in rows) is below this
+fraction of the geometric variance m (m - 1) at the same mean m (exponential episodes give ~1)."""
+
+
+def _episode_shape(mode: ModeFit, ep: ModeEpisodes, attempt_period_s: float, burst_period_s: float
+                   ) -> dict[str, Any]:
+    """Episode length law and offset holding of one NLOS mode, from its episodes.
+
+    Exponential episodes (default) get the geometric MLE of their mean. Episodes of nearly constant
+    length (variance test :data:`FIXED_MAX_VAR_RATIO`, at least :data:`MIN_MODE_EPISODES` + 1 episodes)
+    are a wrong range the radio repeats for K bursts: K is the most common episode length in rows (lost
+    attempts shorten some episodes, never lengthen them) and the episode lasts K burst periods. The
+    offset is held when the within-episode scatter passes :data:`HELD_MAX_STD_RATIO`.
+    """
+    n = ep.lengths
+    out: dict[str, Any] = {"n_episodes": int(n.size), "dwell_s": None, "fixed_dwell": False, "held_jitter_m": None,
+                           "within_episode_std_m": ep.within_std_m}
+    if n.size < MIN_MODE_EPISODES:
+        return out
+    m = float(n.mean())
+    var = float(n.var(ddof=1)) if n.size > 1 else 0.0
+    geo = m * (m - 1.0)
+    out["length_mean_rows"], out["length_var_rows"], out["geometric_var_rows"] = m, var, geo
+    if n.size > MIN_MODE_EPISODES and m > 1.5 and var < FIXED_MAX_VAR_RATIO * geo:
+        counts = np.bincount(n.astype(np.int64))
+        k = int(np.flatnonzero(counts == counts.max())[-1])  # modal length (ties: the longer)
+        out["fixed_dwell"] = True
+        out["hold_bursts"] = k
+        out["dwell_s"] = k * burst_period_s
+    else:
+        out["dwell_s"] = _dwell_from_runs(n, attempt_period_s)
+    if ep.within_std_m is not None and ep.n_within >= MIN_MODE_EPISODES \
+            and ep.within_std_m < HELD_MAX_STD_RATIO * mode.std_m:
+        out["held_jitter_m"] = max(ep.within_std_m, 1e-3)
+    return out
 
 
 def _dwell_from_runs(lengths: np.ndarray, period_s: float) -> float | None:
@@ -634,6 +733,19 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
     dwell = _dwell_from_runs(all_runs, float(np.mean(list(periods.values()))))
     nlos_dwell = dwell if dwell is not None else UwbParams().nlos_dwell_s
 
+    # episodes of every mode; the short ones (gross outliers: a device behaviour, a few per anchor) are
+    # pooled over modes and anchors to learn their length law and whether their offset is held
+    empty = ModeEpisodes(lengths=np.zeros(0, np.int64), within_std_m=None, n_within=0)
+    episodes_of = {aid: (_mode_episodes(chan.per_anchor_rows[aid][0], flags[aid], mix[aid].modes)
+                         if aid in chan.per_anchor_rows else [empty] * len(mix[aid].modes)) for aid in ids}
+    short_pool = _pool_episodes([e for eps in episodes_of.values() for e in eps if _is_short(e)])
+    rep.sections["short_nlos_episodes"] = {
+        "rule": f"modes whose episodes last at most {SHORT_EPISODE_MAX_ROWS} rows on average, or with fewer "
+                f"than {MIN_MODE_EPISODES} episodes, share one episode law fitted on all their episodes",
+        "n_episodes": int(short_pool.lengths.size),
+        "length_histogram_rows": np.bincount(short_pool.lengths.astype(np.int64)).tolist()
+        if short_pool.lengths.size else [],
+        "within_episode_std_m": short_pool.within_std_m}
     channel_diag: dict[str, Any] = {}
     per_channel: dict[str, ChannelParams] = {}
     for aid in ids:
@@ -650,12 +762,16 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
                                         f"set to {max_range:.0f} m, above the largest range {seen:.1f} m)")
         # each mode keeps its own episode length (an episode keeps one reflector): a long, small offset at
         # rest and short gross outliers are different processes
-        mode_runs = (_mode_runs(chan.per_anchor_rows[aid][0], flags[aid], f.modes) if aid in chan.per_anchor_rows
-                     else [np.zeros(0)] * len(f.modes))
-        mode_dwell = [_dwell_from_runs(x, periods[aid]) if x.size >= MIN_MODE_EPISODES else None for x in mode_runs]
+        episodes = episodes_of[aid]
+        mode_runs = [e.lengths for e in episodes]
+        shapes = [_episode_shape(m, short_pool if _is_short(e) else e, periods[aid], 1.0 / burst_rate)
+                  for m, e in zip(f.modes, episodes, strict=True)]
+        mode_dwell = [sh["dwell_s"] for sh in shapes]
         modes = [NlosMode(weight=rounded(m.weight, 4), mean_m=rounded(m.mean_m, 5), std_m=rounded(m.std_m, 4),
-                          dwell_s=None if d is None else rounded(d, 4))
-                 for m, d in zip(f.modes, mode_dwell, strict=True)]
+                          dwell_s=None if sh["dwell_s"] is None else rounded(sh["dwell_s"], 4),
+                          fixed_dwell=sh["fixed_dwell"],
+                          held_jitter_m=None if sh["held_jitter_m"] is None else rounded(sh["held_jitter_m"], 4))
+                 for m, sh in zip(f.modes, shapes, strict=True)]
         if not modes:
             modes = ChannelParams().nlos_modes
         per_channel[aid] = ChannelParams(
@@ -678,6 +794,7 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
             se["nlos_prob_method"] = "episodes: sqrt(2 p (1-p) dwell (1-p) / T_obs), at least the binomial SE"
         channel_diag[aid] = {**mix_diag[aid], "std_errors": se, "nlos_dwell_s": per_anchor_dwell[aid],
                              "nlos_mode_episodes": [int(x.size) for x in mode_runs], "nlos_mode_dwell_s": mode_dwell,
+                             "nlos_mode_episode_shape": shapes,
                              "n_nlos_episodes": int(_nlos_runs(flags[aid]).size)}
         if not f.modes:
             rep.not_identifiable.append(f"channel_per_anchor.{aid}.nlos_modes (no NLOS rows; nlos_prob = 0, "
@@ -722,20 +839,47 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
     return ChannelSet(pooled=pooled, per_anchor=per_channel, nlos_dwell_s=nlos_dwell)
 
 
+THIN_DATA_EVENTS = 10
+"""A rate estimated from fewer events than this is drawn per synthetic trace from its Gamma posterior."""
+
+
+def _rate_report(rep: ReportBuilder, key: str, post: RatePosterior, burst_rate_hz: float, note: str,
+                 se: float | None = None) -> None:
+    lo, hi = post.interval_per_s(0.05, 0.95)
+    rep.param(key, post.mean_per_s / burst_rate_hz, n=int(round(post.events)), summary=True, se=se,
+              interval=[lo / burst_rate_hz, hi / burst_rate_hz],
+              note=f"{note}; Gamma posterior mean per burst, 90 % interval (prior Gamma({post.prior_shape:g}, "
+                   f"{post.prior_rate_s:g} s)), {post.events:.3g} events in {post.exposure_s:.4g} s")
+
+
 def assemble_availability(inp: CalibrationInputs, avail: AvailabilityFit, timing: TimingFit,
                           report: ReportBuilder) -> AvailabilitySet:
-    """Availability parameters: dropout and outages per anchor, tag outages."""
+    """Availability parameters: dropout per anchor, outage and tag-outage rates with Gamma posteriors.
+
+    An outage onset rate is estimated from a handful of events, so it is reported as the posterior of
+    a Poisson rate under the prior :data:`physynth.models.availability.RATE_PRIOR_SHAPE` (Jeffreys,
+    no prior exposure): Gamma(prior + events, exposure). The scenario gets the posterior mean and,
+    when fewer than :data:`THIN_DATA_EVENTS` events back it, the posterior shape, so that each
+    synthetic trace draws its own rate (``*_onset_shape``). A process never observed is not generated
+    (its interval is still reported).
+    """
     ids, av, tag, rep = inp.anchor_ids, avail.per_anchor, avail.tag, report
+    burst_rate = timing.burst_rate_hz
     per_anchor: dict[str, AvailabilityOverride] = {}
     for aid in ids:
         do = av[aid]["dropout_outage"]
         pre = f"availability_per_anchor.{aid}"
         if do.get("identifiable"):
+            rate_s = do["outage_onset_prob"] * burst_rate
+            mean_s = do["outage_mean_s"]
+            up_s = do["n_attempts"] * do["attempt_period_s"] * (1.0 / (1.0 + rate_s * mean_s))
+            post = gamma_rate_posterior(events=rate_s * up_s, exposure_s=up_s)
+            shape = rounded(post.shape, 5) if post.events < THIN_DATA_EVENTS else None
             p = AvailabilityOverride(dropout_prob=rounded(do["dropout_prob"], 5),
-                                     outage_onset_prob=rounded(do["outage_onset_prob"], 5),
-                                     outage_mean_s=rounded(do["outage_mean_s"], 5))
-            rep.param(f"{pre}.outage_onset_prob", p.outage_onset_prob, se=do.get("outage_onset_prob_se"),
-                      n=do["n_attempts"], summary=True)
+                                     outage_onset_prob=rounded(post.mean_per_s / burst_rate, 5),
+                                     outage_mean_s=rounded(mean_s, 5), outage_onset_shape=shape)
+            _rate_report(rep, f"{pre}.outage_onset_prob", post, burst_rate, "HMM events (rate x up time)",
+                         se=do.get("outage_onset_prob_se"))
             rep.param(f"{pre}.outage_mean_s", p.outage_mean_s, se=do.get("outage_mean_s_se"),
                       n=do["n_attempts"], summary=True)
         else:
@@ -749,15 +893,28 @@ def assemble_availability(inp: CalibrationInputs, avail: AvailabilityFit, timing
     weights = np.array([av[a]["dropout_outage"]["n_attempts"] for a in ids], dtype=float)
     weights = weights / weights.sum() if weights.sum() > 0 else np.full(len(ids), 1.0 / len(ids))
     means = [p.outage_mean_s for p in per_anchor.values() if p.outage_onset_prob > 0]
+    # tag outages: n events over the up bursts of every run
+    n_tag = tag["n_outages"] + tag["n_censored"]
+    up_s = tag["up_bursts"] / burst_rate
+    tag_post = gamma_rate_posterior(events=float(n_tag), exposure_s=max(up_s, 1e-9))
+    if n_tag:
+        tag_onset = rounded(tag_post.mean_per_s / burst_rate, 5)
+        tag_shape = rounded(tag_post.shape, 5) if n_tag < THIN_DATA_EVENTS else None
+    else:
+        tag_onset, tag_shape = 0.0, None
     pooled = AvailabilityParams(
         dropout_prob=rounded(float(np.dot(weights, [p.dropout_prob for p in per_anchor.values()])), 5),
         outage_onset_prob=rounded(float(np.dot(weights, [p.outage_onset_prob for p in per_anchor.values()])), 5),
         outage_mean_s=rounded(float(np.median(means)) if means else AvailabilityParams().outage_mean_s, 5),
-        tag_outage_onset_prob=rounded(tag.get("onset_prob", 0.0), 5),
+        tag_outage_onset_prob=tag_onset,
         tag_outage_mean_s=rounded(tag["mean_s"], 5) if tag.get("mean_s") else AvailabilityParams().tag_outage_mean_s,
+        tag_outage_onset_shape=tag_shape,
     )
-    rep.param("availability.tag_outage_onset_prob", pooled.tag_outage_onset_prob,
-              n=tag["n_outages"] + tag["n_censored"], note="number of tag outages", summary=True)
+    if up_s > 0:
+        _rate_report(rep, "availability.tag_outage_onset_prob", tag_post, burst_rate,
+                     "tag outages" + ("" if n_tag else " (none seen: not generated)"))
+    else:
+        rep.param("availability.tag_outage_onset_prob", 0.0, n=0, note="no up time", summary=True)
     if tag.get("mean_s"):
         rep.param("availability.tag_outage_mean_s", pooled.tag_outage_mean_s, n=tag["n_outages"],
                   note="uncensored tag outages")
