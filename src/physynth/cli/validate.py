@@ -75,8 +75,13 @@ def validate_cmd(
     typer.echo(f"KS {_f(report.ks_statistic)}  fidelity S {_f(report.fidelity_score)}  "
                f"W1 {_f(report.extended.get('residual_wasserstein_m'))} m")
     for key in ("uwb_ge1_frac", "residual_median_m", "abs_residual_p95_m", "mean_aoi_s"):
-        typer.echo(f"  {key:20s} real {_f(report.real[key])}  synth {_f(report.synthetic[key])}  "
-                   f"({_f(dev[key], 1)} %)")
+        c = report.comparison.get(key, {})
+        delta = (f"{c['deviation']:+.3f} m" if c.get("deviation_kind") == "absolute" and c.get("deviation") is not None
+                 else f"{_f(dev.get(key), 1)} %")
+        band = c.get("band_5_95")
+        inside = "" if band is None else (f"  synth 5-95 % [{_f(band[0])}, {_f(band[1])}]"
+                                          + (" (real inside)" if c.get("real_in_band") else " (real OUTSIDE)"))
+        typer.echo(f"  {key:20s} real {_f(report.real[key])}  synth {_f(report.synthetic[key])}  ({delta}){inside}")
     typer.echo(f"wrote {len(written)} file(s) to {out} (open {out / 'report.html'})")
 
 

@@ -31,13 +31,21 @@ class NlosMode(ParamsModel):
     """One Gaussian component of the NLOS range offset delta [m].
 
     ``weight`` is the share of NLOS measurements in this mode. An NLOS episode keeps one mode (one
-    reflector) for its whole length, of mean ``dwell_s`` (default: ``uwb.nlos_dwell_s``).
+    reflector) for its whole length, of mean ``dwell_s`` (default: ``uwb.nlos_dwell_s``), exponential
+    unless ``fixed_dwell`` (every episode lasts exactly ``dwell_s``: a wrong range that the radio keeps
+    reporting for a fixed hold time, as the Hanyang gross outliers do for ~3 attempts).
+
+    ``held_jitter_m``: when set, an episode draws its offset N(mean_m, std_m^2) once and keeps it
+    (one reflector, one excess path), each row adding only N(0, held_jitter_m^2); when None (default)
+    every row of the episode draws its own offset.
     """
 
     weight: PositiveFloat
     mean_m: FiniteFloat
     std_m: PositiveFloat
     dwell_s: PositiveFloat | None = None
+    fixed_dwell: bool = False
+    held_jitter_m: PositiveFloat | None = None
 
 
 class NlosZone(ParamsModel):
@@ -86,6 +94,12 @@ class UwbParams(ParamsModel):
     training data; a number: a recording's own alignment, which decides how often a burst straddles
     two 10 ms grid bins and so the grid availability metrics).
     NLOS episodes last ``nlos_dwell_s`` on average.
+
+    Run-to-run ranging offsets: each trace adds one offset ~ N(0, ``run_offset_std_m``^2) to every
+    range of every anchor (a truth-system or tag-antenna offset that changes from run to run) and one
+    offset ~ N(0, ``run_anchor_offset_std_m``^2) per anchor (an anchor re-placed and re-surveyed for
+    each run). Both are 0 by default; they are drawn after every other draw of the trace's UWB
+    stream, so a scenario without them generates exactly what it did before they existed.
     """
 
     burst_rate_hz: PositiveFloat = 23.0
@@ -95,6 +109,8 @@ class UwbParams(ParamsModel):
     time_offset_s: FiniteFloat = 0.0
     nlos_dwell_s: PositiveFloat = 0.5
     zones: list[NlosZone] = []
+    run_offset_std_m: NonNegFloat = 0.0
+    run_anchor_offset_std_m: NonNegFloat = 0.0
 
 
 class AnchorSpec(ParamsModel):
@@ -117,6 +133,8 @@ class ChannelArrays:
     mode_mean_m: np.ndarray  # (A, M)
     mode_std_m: np.ndarray  # (A, M)
     mode_dwell_s: np.ndarray  # (A, M) mean NLOS episode length per mode
+    mode_fixed_dwell: np.ndarray  # (A, M) bool: episodes of exactly mode_dwell_s
+    mode_held_jitter_m: np.ndarray  # (A, M) per-row jitter of a held offset; NaN: offset drawn per row
     max_range_m: np.ndarray
     edge_width_m: np.ndarray
     zone_s_m: np.ndarray  # (Z,)
@@ -133,6 +151,8 @@ def channel_arrays(params: UwbParams, anchors: Sequence[AnchorSpec],
     mean = np.zeros((len(chans), m))
     std = np.ones((len(chans), m))
     dwell = np.full((len(chans), m), params.nlos_dwell_s)
+    fixed = np.zeros((len(chans), m), dtype=bool)
+    jitter = np.full((len(chans), m), np.nan)
     for i, c in enumerate(chans):
         w = np.array([mode.weight for mode in c.nlos_modes])
         k = w.size
@@ -140,7 +160,10 @@ def channel_arrays(params: UwbParams, anchors: Sequence[AnchorSpec],
         mean[i, :k] = [mode.mean_m for mode in c.nlos_modes]
         std[i, :k] = [mode.std_m for mode in c.nlos_modes]
         dwell[i, :k] = [mode.dwell_s or params.nlos_dwell_s for mode in c.nlos_modes]
+        fixed[i, :k] = [mode.fixed_dwell for mode in c.nlos_modes]
+        jitter[i, :k] = [np.nan if mode.held_jitter_m is None else mode.held_jitter_m for mode in c.nlos_modes]
         mean[i, k:], std[i, k:], dwell[i, k:] = mean[i, k - 1], std[i, k - 1], dwell[i, k - 1]
+        fixed[i, k:], jitter[i, k:] = fixed[i, k - 1], jitter[i, k - 1]
     z = params.zones
     return ChannelArrays(
         anchor_pos_enu_m=np.array([a.pos_enu_m for a in anchors], dtype=float),
@@ -149,7 +172,8 @@ def channel_arrays(params: UwbParams, anchors: Sequence[AnchorSpec],
         los_std_m=np.array([c.los_std_m for c in chans]),
         range_bias_per_m=np.array([c.range_bias_per_m for c in chans]),
         nlos_prob=np.array([c.nlos_prob for c in chans]),
-        mode_cumw=cumw, mode_mean_m=mean, mode_std_m=std, mode_dwell_s=dwell,
+        mode_cumw=cumw, mode_mean_m=mean, mode_std_m=std, mode_dwell_s=dwell, mode_fixed_dwell=fixed,
+        mode_held_jitter_m=jitter,
         max_range_m=np.array([c.max_range_m for c in chans]),
         edge_width_m=np.array([c.edge_width_m for c in chans]),
         zone_s_m=np.array([q.s_m for q in z]), zone_half_width_m=np.array([q.half_width_m for q in z]),
@@ -223,26 +247,43 @@ def range_error_log_components(err_m: np.ndarray, true_range_m: np.ndarray, *, l
 
 
 def range_error(true_range_m: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, mode: np.ndarray,
-                ch: ChannelArrays, *, rng: np.random.Generator) -> np.ndarray:
+                ch: ChannelArrays, *, rng: np.random.Generator, episode: np.ndarray | None = None) -> np.ndarray:
     """Range errors [m] of rows: LOS Gaussian N(mu_i + beta_i r, sigma_i^2), replaced where NLOS by the
-    offset of the episode's mixture mode (rows made NLOS by a zone alone draw a mode by weight)."""
+    offset of the episode's mixture mode (rows made NLOS by a zone alone draw a mode by weight).
+
+    Rows of an episode (``episode``: one id per episode, -1 outside) of a mode with a held offset
+    share one draw of the offset plus their own jitter; these draws come after all others, so a
+    scenario without held modes draws exactly as before.
+    """
     err = (los_error_mean(true_range_m, ch.los_mean_m[anchor], ch.range_bias_per_m[anchor])
            + ch.los_std_m[anchor] * rng.standard_normal(true_range_m.shape[0]))
     in_episode = mode >= 0
     zone_only = nlos & ~in_episode
     err[in_episode] = sample_nlos_offset(anchor[in_episode], ch, rng=rng, mode=mode[in_episode])
     err[zone_only] = sample_nlos_offset(anchor[zone_only], ch, rng=rng)
+    if episode is not None and in_episode.any():
+        jit = np.full(err.shape[0], np.nan)
+        jit[in_episode] = ch.mode_held_jitter_m[anchor[in_episode], mode[in_episode]]
+        held = np.isfinite(jit)
+        if held.any():
+            ids, first, inv = np.unique(episode[held], return_index=True, return_inverse=True)
+            a_ep, m_ep = anchor[held][first], mode[held][first]
+            value = ch.mode_mean_m[a_ep, m_ep] + ch.mode_std_m[a_ep, m_ep] * rng.standard_normal(ids.size)
+            err[held] = value[inv] + jit[held] * rng.standard_normal(int(held.sum()))
     return err
 
 
 def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_s: np.ndarray, *,
-                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+                  rng: np.random.Generator, fixed_dwell: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """NLOS state and mode at sorted times of one anchor: an alternating renewal process in which each
     NLOS episode keeps one mode m for an exponential time of mean ``dwell_s[m]``.
 
     Episodes pick mode m with probability proportional to weight_m / dwell_m, so that ``weights`` is
     the share of NLOS *time* in each mode; LOS gaps are exponential with the mean that makes the
-    long-run NLOS fraction ``nlos_prob``. Returns (nlos (N,) bool, mode (N,) int, -1 where LOS).
+    long-run NLOS fraction ``nlos_prob``. A mode with ``fixed_dwell`` lasts exactly ``dwell_s`` (the
+    exponential draw is still made, so the stream does not depend on the flag). Returns (nlos (N,)
+    bool, mode (N,) int, -1 where LOS, episode (N,) int: index of the episode, -1 where LOS).
     """
     q = weights / dwell_s
     q = q / q.sum()
@@ -254,22 +295,28 @@ def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_
     def draw(n: int) -> tuple[np.ndarray, np.ndarray]:
         modes = np.minimum(np.searchsorted(cum_q, rng.random(n), side="right"), q.size - 1)
         on = rng.exponential(1.0, n) * dwell_s[modes]
+        if fixed_dwell is not None:
+            on = np.where(fixed_dwell[modes], dwell_s[modes], on)
         off = rng.exponential(mean_off, n)
         return np.stack([on, off] if start_on else [off, on], axis=1), modes
 
     k, modes = switch_counts(t_s, draw, initial_pairs(float(t_s[-1] - t_s[0]), mean_on + mean_off))
     nlos = (k % 2 == 0) == start_on
-    return nlos, np.where(nlos, modes[np.minimum(k // 2, modes.size - 1)], -1)
+    pair = np.minimum(k // 2, modes.size - 1)
+    return nlos, np.where(nlos, modes[pair], -1), np.where(nlos, pair, -1)
 
 
 def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: ChannelArrays, *,
-                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """NLOS indicator and mode of each row: per-anchor episodes, raised inside NLOS zones.
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """NLOS indicator, mode and episode id of each row: per-anchor episodes, raised inside NLOS zones.
 
     Rows made NLOS by a zone (and not by an episode) draw their mode by weight (mode -1 marks them).
+    Episode ids are unique over anchors (-1 outside an episode).
     """
     nlos = np.zeros(t_s.shape[0], dtype=bool)
     mode = np.full(t_s.shape[0], -1, dtype=np.int64)
+    episode = np.full(t_s.shape[0], -1, dtype=np.int64)
+    base = 0
     for i in range(ch.nlos_prob.shape[0]):  # one renewal process per anchor
         p = ch.nlos_prob[i]
         rows = np.flatnonzero(anchor == i)
@@ -279,12 +326,28 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
         if p >= 1:
             nlos[rows] = True
             continue
-        nlos[rows], mode[rows] = nlos_episodes(t_s[rows], p, weights, ch.mode_dwell_s[i], rng=rng)
+        nlos[rows], mode[rows], ep = nlos_episodes(t_s[rows], p, weights, ch.mode_dwell_s[i], rng=rng,
+                                                   fixed_dwell=ch.mode_fixed_dwell[i])
+        episode[rows] = np.where(ep >= 0, ep + base, -1)
+        base += int(ep.max()) + 1 if ep.size else 0
     if ch.zone_s_m.size:
         dist = np.abs(s_m[:, None] - ch.zone_s_m[None, :])
         p_zone = np.where(dist <= ch.zone_half_width_m, ch.zone_nlos_prob, 0.0).max(axis=1)
         nlos |= rng.random(t_s.shape[0]) < p_zone
-    return nlos, mode
+    return nlos, mode, episode
+
+
+def run_offsets(n_anchors: int, params: UwbParams, *, rng: np.random.Generator) -> np.ndarray:
+    """Per-trace ranging offsets [m] of the anchors, (A,): a common one plus one per anchor.
+
+    Draws nothing (and returns zeros) when both spreads are 0, so that the stream is unchanged.
+    """
+    out = np.zeros(n_anchors)
+    if params.run_offset_std_m > 0:
+        out += params.run_offset_std_m * rng.standard_normal()
+    if params.run_anchor_offset_std_m > 0:
+        out += params.run_anchor_offset_std_m * rng.standard_normal(n_anchors)
+    return out
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -321,8 +384,9 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
 
     linked = rng.random(t_true.shape[0]) < link_probability(true_range, ch.max_range_m[anchor],
                                                             ch.edge_width_m[anchor])
-    nlos, mode = nlos_states(t_true, anchor, s_m, ch, rng=rng)
-    err = range_error(true_range, anchor, nlos, mode, ch, rng=rng)
+    nlos, mode, episode = nlos_states(t_true, anchor, s_m, ch, rng=rng)
+    err = range_error(true_range, anchor, nlos, mode, ch, rng=rng, episode=episode)
+    err += run_offsets(n_anchors, u, rng=rng)[anchor]
     measured = np.maximum(true_range + err, 0.0)  # a range is never negative
     return UwbAttempts(bursts_s=bursts, burst=b_idx, anchor=anchor, t_true_s=t_true, true_range_m=true_range,
                        measured_m=measured, nlos=nlos, linked=linked)

@@ -59,6 +59,13 @@ if TYPE_CHECKING:
 ACF_MAX_LAG = 10
 """Residual autocorrelation is reported at lags 1..ACF_MAX_LAG measurements of one anchor."""
 
+SIGNED_METRICS = ("residual_median_m",)
+"""Metrics that are signed and may lie near zero: compared by their absolute difference synth - real
+(a relative deviation of a 1 cm median is meaningless); ``relative_deviation_pct`` holds None for them."""
+
+BAND_PERCENTILES = (5.0, 95.0)
+"""The synthetic ensemble's band of a metric: these percentiles of its per-trace values."""
+
 ALLAN_TAUS_S = (0.1, 1.0, 10.0)
 """Averaging times [s] at which the IMU Allan-deviation ratio synthetic / real is reported."""
 
@@ -163,6 +170,7 @@ class SideEvidence:
     allan_tau_s: np.ndarray | None
     allan_dev_mps2: np.ndarray | None  # (3, M), NaN where no trace is long enough
     rate_hz: float
+    per_trace: tuple[dict[str, Any], ...]  # each trace's own metrics (Metrics.to_dict without per_anchor)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -291,6 +299,8 @@ class _SideAccumulator:
             allan_tau_s=self.allan_m / self.rate_hz if has_allan else None,
             allan_dev_mps2=allan if has_allan else None,
             rate_hz=self.rate_hz,
+            per_trace=tuple({k: v for k, v in pool([s])[0].to_dict().items() if k != "per_anchor"}
+                            for s in self.summaries),
         )
         return ev, r
 
@@ -323,6 +333,11 @@ class ValidationReport:
     transfer : dict or None
         With ``--transfer``: which scenario sections came from the real dataset and which from the
         scenario.
+    comparison : dict
+        Per metric key: real and synthetic values, ``difference`` (synth - real), ``deviation`` and
+        ``deviation_kind`` (``relative_pct`` or, for :data:`SIGNED_METRICS`, ``absolute`` in the
+        metric's unit), the synthetic ensemble's per-trace ``band_5_95`` and ``real_in_band``
+        (docs/validation.md). Lists per axis for ``imu_std_mps2``.
     """
 
     real: dict[str, Any]
@@ -334,6 +349,7 @@ class ValidationReport:
     per_anchor: dict[str, Any]
     inputs: dict[str, Any] = field(default_factory=dict)
     transfer: dict[str, Any] | None = None
+    comparison: dict[str, Any] = field(default_factory=dict)
     evidence: Evidence | None = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -348,6 +364,7 @@ class ValidationReport:
             "per_anchor": self.per_anchor,
             "inputs": self.inputs,
             "transfer": self.transfer,
+            "comparison": self.comparison,
         })
 
     def to_json(self) -> str:
@@ -361,7 +378,8 @@ class ValidationReport:
                        relative_deviation_pct=dict(data["relative_deviation_pct"]),
                        ks_statistic=data["ks_statistic"], fidelity_score=data.get("fidelity_score"),
                        extended=dict(data["extended"]), per_anchor=dict(data["per_anchor"]),
-                       inputs=dict(data.get("inputs") or {}), transfer=data.get("transfer"))
+                       inputs=dict(data.get("inputs") or {}), transfer=data.get("transfer"),
+                       comparison=dict(data.get("comparison") or {}))
         except (KeyError, TypeError) as exc:
             raise PhySynthError(f"not a validation report: missing or bad field {exc}") from None
 
@@ -380,12 +398,47 @@ def read_report(path: str | Path) -> ValidationReport:
 def _deviations(real: Mapping[str, Any], synth: Mapping[str, Any], keys: Iterable[str]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for k in keys:
+        if k in SIGNED_METRICS:
+            out[k] = None
+            continue
         a, b = real.get(k), synth.get(k)
         if isinstance(a, (list, tuple)):
             out[k] = [relative_deviation_pct(_num(x), _num(y)) for x, y in zip(a, b, strict=True)]
         else:
             out[k] = relative_deviation_pct(_num(a), _num(b))
     return out
+
+
+def _compare_one(real: float, synth: float, values: np.ndarray, signed: bool) -> dict[str, Any]:
+    vals = values[np.isfinite(values)]
+    band = [float(v) for v in np.percentile(vals, BAND_PERCENTILES)] if vals.size else [float("nan")] * 2
+    diff = synth - real
+    return {"real": real, "synthetic": synth, "difference": diff,
+            "deviation": diff if signed else relative_deviation_pct(real, synth),
+            "deviation_kind": "absolute" if signed else "relative_pct",
+            "band_5_95": band, "n_traces_in_band": int(vals.size),
+            "real_in_band": bool(band[0] <= real <= band[1]) if np.isfinite(real) and vals.size else None}
+
+
+def comparison_table(real: Mapping[str, Any], synth: Mapping[str, Any], per_trace: Sequence[Mapping[str, Any]],
+                     keys: Iterable[str] = METRIC_KEYS) -> dict[str, Any]:
+    """Per metric: both values, the deviation (absolute for signed metrics) and the synthetic 5-95 % band.
+
+    ``per_trace`` holds the metrics of every synthetic trace on its own; the band is the
+    :data:`BAND_PERCENTILES` of their values, so it shows how far one synthetic run strays from
+    another, and ``real_in_band`` whether the real run could be one of them.
+    """
+    out: dict[str, Any] = {}
+    for k in keys:
+        a, b = real.get(k), synth.get(k)
+        signed = k in SIGNED_METRICS
+        if isinstance(a, (list, tuple)):
+            vals = np.array([[_num(x) for x in t[k]] for t in per_trace], dtype=float).reshape(len(per_trace), -1)
+            out[k] = [_compare_one(_num(x), _num(y), vals[:, i], signed)
+                      for i, (x, y) in enumerate(zip(a, b, strict=True))]
+        else:
+            out[k] = _compare_one(_num(a), _num(b), np.array([_num(t[k]) for t in per_trace], dtype=float), signed)
+    return jsonable(out)
 
 
 def _quantiles(x: np.ndarray) -> list[float]:
@@ -519,6 +572,7 @@ def compare(real: Iterable[Trace], synthetic: Iterable[Trace], *, rate_hz: float
         per_anchor=_per_anchor(ev_r, ev_s),
         inputs=jsonable(info),
         transfer=jsonable(dict(transfer)) if transfer is not None else None,
+        comparison=comparison_table(m_real, m_synth, ev_s.per_trace),
         evidence=Evidence(real=ev_r, synthetic=ev_s),
     )
 
