@@ -298,3 +298,117 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
                                                 "trace restricted to the first k anchors of the order"},
         timing_s={"reference": t_ref - t_start, "cells": t_end - t_ref, "total": t_end - t_start},
     )
+
+
+# ---------------------------------------------------------------- outputs
+STUDY_FILES = ("table.json", "table.md", "anchors.png")
+
+
+def _fmt(x: Any, digits: int = 3) -> str:
+    return "-" if not isinstance(x, (int, float)) or not math.isfinite(x) else f"{x:.{digits}f}"
+
+
+def anchor_table_md(study: AnchorStudy) -> str:
+    """Table III of the paper for this study (rows: anchor count, descending; columns: regimes, mean)."""
+    regimes = list(study.scores)
+    counts = sorted(study.counts, reverse=True)
+    ref = study.reference
+    how = "given" if ref["order_source"] == "given" else f"decreasing availability on the {ref['order_source']}"
+    lines = [f"# Anchor study: {study.inputs['scenario']}", "",
+             f"Fidelity score S = d_avail + d_med/10 + d_P95/20 against the {ref['kind']} "
+             f"({ref['n_traces']} trace(s), anchors {', '.join(ref['anchors'])}); lower is better. "
+             f"{study.inputs['n_traces_per_cell']} synthetic traces per cell, root seed {study.inputs['root_seed']}.",
+             f"Anchors added in this order ({how}): "
+             + ", ".join(f"{a} ({_fmt(study.order_availability.get(a))})" for a in study.order) + ".", "",
+             "| Anchors | " + " | ".join(r.capitalize() for r in regimes) + " | Mean |",
+             "|---|" + "---|" * (len(regimes) + 1)]
+    for k in counts:
+        row = [study.scores[r][k] for r in regimes]
+        lines.append(f"| {k} | " + " | ".join(_fmt(v) for v in row) + f" | {_fmt(float(np.mean(row)))} |")
+    means = [float(np.mean([study.scores[r][k] for k in counts])) for r in regimes]
+    lines.append("| Mean | " + " | ".join(_fmt(v) for v in means) + " | - |")
+    lines += ["", f"Availability (fraction of 10 ms grid bins with >= 1 / >= 2 fresh anchors); reference "
+                  f"{_fmt(ref['ge1'])} / {_fmt(ref['ge2'])}.", "",
+              "| Anchors | " + " | ".join(f"{r} >=1 | {r} >=2" for r in regimes) + " |",
+              "|---|" + "---|---|" * len(regimes)]
+    for k in counts:
+        cells = [f"{_fmt(study.availability[r][str(k)]['ge1'])} | {_fmt(study.availability[r][str(k)]['ge2'])}"
+                 for r in regimes]
+        lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    lines += ["", "GDOP along the path (median; fraction of time <= 5): with every anchor of the cell, and with the "
+                  "anchors heard in the last second ('fresh'). '-' = no 3-D fix for at least half of the time.", "",
+              "| Anchors | " + " | ".join(f"{r} GDOP | {r} fresh" for r in regimes) + " |",
+              "|---|" + "---|---|" * len(regimes)]
+    for k in counts:
+        cells = []
+        for r in regimes:
+            c = study.columns[r][k]
+            cells.append(f"{_fmt(c.get('gdop_median'), 1)} ({_fmt(c.get('gdop_le5_frac'), 2)}) | "
+                         f"{_fmt(c.get('fresh_gdop_median'), 1)} ({_fmt(c.get('fresh_gdop_le5_frac'), 2)})")
+        lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    lines += ["", "Regimes:", ""]
+    for r, d in study.regimes.items():
+        lines.append(f"- {r}: {d['summary']} ({'; '.join(d['changes']) or 'no change'})")
+    lines += ["", f"Run time {study.timing_s.get('total', float('nan')):.1f} s on {study.inputs['workers']} "
+                  "worker process(es).", ""]
+    return "\n".join(lines)
+
+
+def anchor_figure_png(study: AnchorStudy) -> bytes:
+    """Figure 6 of the paper: (left) S against anchor count per regime; (right) >= 1 and >= 2
+    availability against count per regime, the reference as horizontal lines."""
+    from ..validate.render import _png, require_matplotlib
+
+    figure_cls, canvas_cls = require_matplotlib()
+    fig = figure_cls(figsize=(10, 4))
+    ax1, ax2 = fig.subplots(1, 2)
+    counts = study.counts
+    colors = {"nominal": "k", "dense": "tab:blue", "sparse": "tab:orange", "degraded": "tab:red"}
+    for r in study.scores:
+        c = colors.get(r)
+        ax1.plot(counts, [study.scores[r][k] for k in counts], "o-", color=c, label=r)
+        ax2.plot(counts, [study.availability[r][str(k)]["ge1"] for k in counts], "o-", color=c, label=f"{r} >= 1")
+        ax2.plot(counts, [study.availability[r][str(k)]["ge2"] for k in counts], "s--", color=c, label=f"{r} >= 2")
+    ref = study.reference
+    ax2.axhline(ref["ge1"], color="0.3", lw=1.5, label=f"{ref['kind']} >= 1")
+    ax2.axhline(ref["ge2"], color="0.3", lw=1.5, ls=":", label=f"{ref['kind']} >= 2")
+    ax1.set_xlabel("anchors")
+    ax1.set_ylabel("fidelity score S (lower is better)")
+    ax1.set_title("S against anchor count")
+    ax1.legend()
+    ax2.set_xlabel("anchors")
+    ax2.set_ylabel("fraction of 10 ms bins")
+    ax2.set_title(">= 1 and >= 2 fresh anchors")
+    ax2.legend(fontsize=7, ncol=2)
+    for ax in (ax1, ax2):
+        ax.set_xticks(counts)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return _png(fig, canvas_cls)
+
+
+def write_anchor_study(study: AnchorStudy, out: str | os.PathLike, *, figures: bool = True,
+                       overwrite: bool = False) -> list[str]:
+    """Write ``table.json``, ``table.md`` and (with ``figures``) ``anchors.png`` into ``out`` (atomically).
+
+    Raises :class:`~physynth.errors.OutputExistsError` when ``out`` holds a table and not ``overwrite``.
+    """
+    import json
+    from pathlib import Path
+
+    from ..errors import OutputExistsError
+    from ..io.atomic import atomic_write_bytes, atomic_write_text
+
+    out = Path(out)
+    if (out / "table.json").exists() and not overwrite:
+        raise OutputExistsError(out, "holds an anchor study")
+    if out.exists() and not out.is_dir():
+        raise PhySynthError(f"output {out} exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "table.json", json.dumps(study.to_dict(), indent=1) + "\n")
+    atomic_write_text(out / "table.md", anchor_table_md(study))
+    written = ["table.json", "table.md"]
+    if figures:
+        atomic_write_bytes(out / "anchors.png", anchor_figure_png(study))
+        written.append("anchors.png")
+    return written
