@@ -79,15 +79,17 @@ class LinkBudgetParams(ParamsModel):
     antenna heights h_a, h_t above the ground plane U = ``ground_u_m`` and horizontal distance d, the
     ground path is longer by Delta = sqrt(d^2 + (h_a + h_t)^2) - sqrt(d^2 + (h_a - h_t)^2) and
     G_ground = 20 log10 |1 - rho e^(-j 2 pi Delta / wavelength_m)| with rho = ``ground_reflection``.
-    Defaults: Hanyang static sweeps, channel 5 (:func:`physynth.calibrate.link_budget.fit_link_budget`;
-    docs/anchors.md).
+    Defaults: a free-space budget of a DW1000-class radio on channel 5 at the regulatory limit
+    (-41.3 dBm/MHz over 500 MHz, 48.7 dB free-space loss at 1 m: P0 = -63 dBm; sensitivity -106 dBm in
+    the 110 kb/s mode; 4 dB outdoor shadowing): 50 % detection near 140 m. A fit to a recording:
+    :func:`physynth.calibrate.link_budget.fit_link_budget_hanyang_static` (docs/anchors.md).
     """
 
-    ref_power_dbm: FiniteFloat = -76.0
+    ref_power_dbm: FiniteFloat = -63.0
     ref_distance_m: PositiveFloat = 1.0
     path_loss_exponent: PositiveFloat = 2.0
-    sensitivity_dbm: FiniteFloat = -100.0
-    shadowing_std_db: NonNegFloat = 2.0
+    sensitivity_dbm: FiniteFloat = -106.0
+    shadowing_std_db: NonNegFloat = 4.0
     ground_reflection: Probability = 0.0
     ground_u_m: FiniteFloat = 0.0
     wavelength_m: PositiveFloat = 0.0462
