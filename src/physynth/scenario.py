@@ -17,12 +17,14 @@ from .models._params import ParamsModel, PositiveFloat
 from .models.availability import AvailabilityOverride, AvailabilityParams
 from .models.imu import ImuParams, VibrationParams
 from .models.motion import MotionParams, SpeedProfileParams
+from .models.obstacles import BoxObstacle, PrismObstacle, TerrainGrid, WallObstacle
 from .models.path import PathParams, PerturbationParams
-from .models.uwb import AnchorSpec, ChannelOverride, ChannelParams, NlosMode, NlosZone, UwbParams
+from .models.uwb import AnchorSpec, ChannelOverride, ChannelParams, LinkBudgetParams, NlosMode, NlosZone, UwbParams
 
-__all__ = ["AnchorSpec", "AvailabilityOverride", "AvailabilityParams", "ChannelOverride", "ChannelParams",
-           "ImuParams", "MotionParams", "NlosMode", "NlosZone", "PathParams", "PerturbationParams", "Scenario",
-           "SpeedProfileParams", "UwbParams", "VibrationParams", "scenario_from_dict", "scenario_to_dict"]
+__all__ = ["AnchorSpec", "AvailabilityOverride", "AvailabilityParams", "BoxObstacle", "ChannelOverride",
+           "ChannelParams", "ImuParams", "LinkBudgetParams", "MotionParams", "NlosMode", "NlosZone", "PathParams",
+           "PerturbationParams", "PrismObstacle", "Scenario", "SpeedProfileParams", "TerrainGrid", "UwbParams",
+           "VibrationParams", "WallObstacle", "scenario_from_dict", "scenario_to_dict"]
 
 
 class Scenario(ParamsModel):

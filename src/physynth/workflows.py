@@ -90,7 +90,8 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
                       scenario: str | Path | Scenario | None = None,
                       n: int = 50, seed: int | None = None, transfer: bool = False,
                       rate_hz: float = DEFAULT_GRID_RATE_HZ,
-                      progress: ProgressCallback | None = None) -> ValidationReport:
+                      progress: ProgressCallback | None = None,
+                      anchors: Sequence[str] | None = None) -> ValidationReport:
     """Validate a real dataset against a synthetic dataset or against traces generated from a scenario.
 
     Parameters
@@ -110,6 +111,11 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
         Evaluation grid rate [Hz].
     progress : callable, optional
         ``progress(message, done, total)`` after each synthetic trace is generated and reduced.
+    anchors : sequence of str, optional
+        Relaxed subset comparison (the anchor study's): the synthetic traces keep only these anchors
+        (each trace restricted to them, :func:`physynth.studies.subset.restrict_to_anchors`, so a
+        scenario's traces are those of the anchor study's cell) and the real dataset is compared on
+        its full set. The ids must be anchors of both sides.
 
     Raises
     ------
@@ -134,12 +140,22 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
                                        "source": real_ds.meta.get("source"), "anchors": real_ids}}
     transfer_info = None
 
+    subset = None
+    if anchors is not None:
+        from .studies.subset import check_subset, restrict_to_anchors
+
+        subset = check_subset(anchors, real_ids, "--anchors (the real dataset's anchors)")
+        inputs["anchor_subset"] = subset
+
     if synthetic is not None:
         synth_ds = _read(read_dataset, synthetic, "synthetic")
         synth_ids = anchor_ids(synth_ds.traces)
-        problem = describe_anchor_mismatch(real_ids, synth_ids, f"the synthetic dataset {synthetic}")
-        if problem:
-            raise AnchorMismatchError(problem)
+        if subset is not None:
+            check_subset(subset, synth_ids, f"--anchors (the synthetic dataset {synthetic})")
+        else:
+            problem = describe_anchor_mismatch(real_ids, synth_ids, f"the synthetic dataset {synthetic}")
+            if problem:
+                raise AnchorMismatchError(problem)
         if not any(s.uwb.valid.any() for s in synth_ds.traces):
             raise PhySynthError(f"synthetic dataset {synthetic} has no valid UWB range: nothing to compare")
         inputs["synthetic"] = {"path": str(synthetic), "kind": synth_ds.meta.get("kind"),
@@ -147,6 +163,8 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
                                "root_seed": synth_ds.meta.get("root_seed"), "n_traces": len(synth_ds)}
         synth_iter: Iterable[Trace] = synth_ds.traces
         total = len(synth_ds)
+        if subset is not None:
+            synth_iter = (restrict_to_anchors(t, subset) for t in synth_ds.traces if set(subset) <= set(t.anchors.ids))
     else:
         scn = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
         source = scn.name if isinstance(scenario, Scenario) else str(scenario)
@@ -158,6 +176,8 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
             original = scn
             scn = transfer_scenario(original, real_traces)
             transfer_info = transfer_record(original, scn, str(real), real_ids)
+        elif subset is not None:
+            check_subset(subset, list(scn.anchor_ids), f"--anchors (scenario '{scn.name}')")
         else:
             problem = describe_anchor_mismatch(real_ids, list(scn.anchor_ids), f"scenario '{scn.name}'")
             if problem:
@@ -168,6 +188,8 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
                                "root_seed": root, "transfer": bool(transfer),
                                "scenario_config": scenario_to_dict(scn)}
         synth_iter = generate_traces(compile_scenario(scn), n, seed=root)
+        if subset is not None:
+            synth_iter = (restrict_to_anchors(t, subset) for t in synth_iter)
         total = n
 
     if progress is None:
@@ -182,3 +204,46 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
 
     progress(f"{verb} synthetic traces", 0, total)
     return compare(real_traces, synth_iter, rate_hz=rate_hz, inputs=inputs, transfer=transfer_info, on_trace=on_trace)
+
+
+# ---------------------------------------------------------------- studies
+def _scenario(scenario: str | Path | Scenario) -> Scenario:
+    return scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+
+
+def anchor_study(scenario: str | Path | Scenario, *, real: str | Path | None = None, n: int = 50,
+                 seed: int | None = None, counts: Sequence[int] | None = None,
+                 regimes: Sequence[str] = ("dense", "sparse", "degraded"), order: Sequence[str] | None = None,
+                 workers: int | None = None, progress: ProgressCallback | None = None) -> Any:
+    """:func:`physynth.studies.anchors.run_anchor_study` on a scenario (preset, file or object) and,
+    optionally, a real dataset directory (its traces need truth and valid ranges).
+
+    ``seed=None`` draws a root seed from OS entropy; it is recorded in the result.
+    """
+    from .studies.anchors import run_anchor_study
+
+    scn = _scenario(scenario)
+    real_traces = None
+    if real is not None:
+        real_traces = _read(read_dataset, real, "real").traces
+        check_real(real_traces, f"real dataset {real}")
+    root = new_root_seed() if seed is None else int(seed)
+    study = run_anchor_study(scn, real=real_traces, n=n, seed=root, counts=counts, regimes=regimes, order=order,
+                             workers=workers, progress=progress)
+    if real is not None:
+        study.reference["path"] = str(real)
+    return study
+
+
+def placement_study(scenario: str | Path | Scenario, candidates: str | Path, *, k: int, objective: str = "ge1",
+                    n: int = 20, seed: int | None = None, regime: str = "nominal", workers: int | None = None,
+                    progress: ProgressCallback | None = None) -> Any:
+    """:func:`physynth.studies.placement.greedy_placement` with candidates read from a file."""
+    from .studies.placement import greedy_placement, read_candidates
+    from .studies.regimes import apply_regime
+
+    scn = apply_regime(_scenario(scenario), regime)
+    cands = read_candidates(candidates)
+    root = new_root_seed() if seed is None else int(seed)
+    return greedy_placement(scn, cands, k=k, objective=objective, n=n, seed=root, workers=workers,
+                            progress=progress)

@@ -38,9 +38,9 @@ def _register_commands() -> None:
     global _registered
     if _registered:
         return
-    from . import calibrate, generate, imports, validate
+    from . import calibrate, generate, imports, study, validate
 
-    for module in (generate, imports, calibrate, validate):
+    for module in (generate, imports, calibrate, validate, study):
         module.register(app)
     _registered = True
 

@@ -28,6 +28,8 @@ def generate_cmd(
     seed: int | None = typer.Option(None, "--seed", help="Root seed (random when omitted; stored)."),
     out: Path = typer.Option(Path("runs/default"), "--out", "-o", help="Output dataset directory."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset."),
+    regime: str | None = typer.Option(None, "--regime", help="Channel regime applied to the scenario: nominal, "
+                                                             "dense, sparse or degraded (docs/anchors.md)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Generate N synthetic traces from a scenario and write them as a Parquet dataset."""
@@ -35,6 +37,10 @@ def generate_cmd(
     from ..workflows import generate_dataset
 
     scn = load_scenario(scenario)
+    if regime is not None:
+        from ..studies.regimes import apply_regime
+
+        scn = apply_regime(scn, regime)
     with progress_bar(not quiet) as progress:
         path, root = generate_dataset(scn, n, out, seed=seed, overwrite=overwrite, progress=progress)
     if not quiet:

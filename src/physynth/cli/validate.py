@@ -1,7 +1,7 @@
 """``physynth validate``: compare a real dataset with synthetic traces and write a report folder.
 
     physynth validate --real DATASET (--synthetic DATASET | --scenario S [-n N] [--seed S]) [--transfer]
-                      --out REPORT_DIR [--no-figures] [--overwrite] [--quiet]
+                      [--anchors A,B,...] --out REPORT_DIR [--no-figures] [--overwrite] [--quiet]
 
 The command parses, calls :func:`physynth.workflows.validate_datasets` and
 :func:`physynth.validate.render.write_report`, prints a short summary and exits. Bad input raises
@@ -35,6 +35,10 @@ def validate_cmd(
                                   help="Take path geometry, motion and anchor layout from the real dataset; keep "
                                        "every sensor, channel and availability parameter of the scenario "
                                        "(paper IV.C)."),
+    anchors: str | None = typer.Option(None, "--anchors",
+                                       help="Comma-separated anchor ids: the synthetic side uses only these "
+                                            "anchors and the real dataset is compared on its full set (the "
+                                            "anchor study's relaxed comparison)."),
     out: Path = typer.Option(..., "--out", "-o", help="Report directory (report.json, report.md, report.html, "
                                                       "figures)."),
     figures: bool = typer.Option(True, "--figures/--no-figures",
@@ -59,7 +63,8 @@ def validate_cmd(
     try:
         with progress_bar(not quiet) as progress:
             report = validate_datasets(real, synthetic=synthetic, scenario=scenario, n=n, seed=seed,
-                                       transfer=transfer, progress=progress)
+                                       transfer=transfer, progress=progress,
+                                       anchors=None if anchors is None else [a.strip() for a in anchors.split(",")])
     except AnchorMismatchError as exc:
         hint = "; use --transfer to take the anchor layout from the real dataset" if scenario else ""
         raise PhySynthError(str(exc).split("; transfer the scenario")[0] + hint) from None

@@ -10,6 +10,20 @@ mode's own ``dwell_s``, and long-run probability ``nlos_prob``); an episode keep
 (one reflector) throughout. z is forced up with probability ``zone.nlos_prob`` while the tag is in
 an NLOS zone along the path (support pylons). Every scheduled attempt is a row: dropped, outage and
 out-of-link attempts keep a NaN range and their :class:`~physynth.records.Reason`.
+
+Geometry-aware parts, each optional and off by default (a scenario without them draws exactly the
+same numbers as before they existed):
+
+- obstacles (``uwb.obstacles``: boxes, walls, prisms; ``uwb.terrain``: a height grid,
+  :mod:`physynth.models.obstacles`): an attempt whose tag-anchor segment meets one is NLOS (z = 1)
+  for exactly as long as the segment crosses it, with an offset drawn from the anchor's NLOS mixture;
+- a link budget (``channel.link_budget``, :class:`LinkBudgetParams`): the received first-path power
+  P(r) = P0 - 10 n log10(r / r0) + G_ant + G_ground - L_obst [dBm] and the detection probability
+  Phi((P(r) - sensitivity) / sigma_shadow), multiplied into the soft radio horizon;
+- per-anchor antenna orientation (``AnchorSpec.boresight_enu``, ``front_back_db``: a cardioid-like
+  gain -front_back_db * (1 - cos theta) / 2) and height (the two-ray ground reflection of the link
+  budget, ``ground_reflection``: interference nulls where the ground path is a whole number of
+  wavelengths longer, the pattern the Hanyang static sweeps show at every antenna height).
 """
 
 from __future__ import annotations
@@ -24,6 +38,7 @@ from pydantic import Field
 from ..records import Reason, Uwb
 from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Probability, Vec3
 from .motion import Kinematics
+from .obstacles import Obstacle, TerrainGrid, obstacle_losses
 from .renewal import initial_pairs, switch_counts
 
 
@@ -57,8 +72,43 @@ class NlosZone(ParamsModel):
     label: str = "pylon"
 
 
+class LinkBudgetParams(ParamsModel):
+    """Detection probability from a link budget (log-distance path loss, shadowing, sensitivity).
+
+    The first-path power received at range r [m] is
+
+        P(r) = ref_power_dbm - 10 * path_loss_exponent * log10(max(r, ref_distance_m) / ref_distance_m)
+               + G_antenna + G_ground - L_obstacles   [dBm]
+
+    and an attempt is detected with probability Phi((P(r) - sensitivity_dbm) / shadowing_std_db)
+    (log-normal shadowing, independent per attempt; a step when ``shadowing_std_db`` is 0). ``G_antenna``
+    is the anchor's orientation gain (:class:`AnchorSpec`), ``L_obstacles`` the ``loss_db`` of the
+    obstacles met. ``G_ground`` is the two-ray ground term, on when ``ground_reflection`` > 0: with
+    antenna heights h_a, h_t above the ground plane U = ``ground_u_m`` and horizontal distance d, the
+    ground path is longer by Delta = sqrt(d^2 + (h_a + h_t)^2) - sqrt(d^2 + (h_a - h_t)^2) and
+    G_ground = 20 log10 |1 - rho e^(-j 2 pi Delta / wavelength_m)| with rho = ``ground_reflection``.
+    Defaults: a free-space budget of a DW1000-class radio on channel 5 at the regulatory limit
+    (-41.3 dBm/MHz over 500 MHz, 48.7 dB free-space loss at 1 m: P0 = -63 dBm; sensitivity -106 dBm in
+    the 110 kb/s mode; 4 dB outdoor shadowing): 50 % detection near 140 m. A fit to a recording:
+    :func:`physynth.calibrate.link_budget.fit_link_budget_hanyang_static` (docs/anchors.md).
+    """
+
+    ref_power_dbm: FiniteFloat = -63.0
+    ref_distance_m: PositiveFloat = 1.0
+    path_loss_exponent: PositiveFloat = 2.0
+    sensitivity_dbm: FiniteFloat = -106.0
+    shadowing_std_db: NonNegFloat = 4.0
+    ground_reflection: Probability = 0.0
+    ground_u_m: FiniteFloat = 0.0
+    wavelength_m: PositiveFloat = 0.0462
+
+
 class ChannelParams(ParamsModel):
-    """Ranging channel of one anchor: LOS Gaussian, NLOS mixture, effective rate and link range."""
+    """Ranging channel of one anchor: LOS Gaussian, NLOS mixture, effective rate and link range.
+
+    ``link_budget`` (optional, off by default) makes detection fall with distance, antenna gain and
+    obstacle loss (:class:`LinkBudgetParams`).
+    """
 
     rate_hz: PositiveFloat = 18.5
     los_mean_m: FiniteFloat = 0.0
@@ -68,6 +118,7 @@ class ChannelParams(ParamsModel):
     nlos_modes: list[NlosMode] = Field(default=[NlosMode(weight=1.0, mean_m=1.0, std_m=0.5)], min_length=1)
     max_range_m: PositiveFloat = 300.0
     edge_width_m: PositiveFloat = 5.0
+    link_budget: LinkBudgetParams | None = None
 
 
 class ChannelOverride(ParamsModel):
@@ -81,6 +132,7 @@ class ChannelOverride(ParamsModel):
     nlos_modes: list[NlosMode] | None = None
     max_range_m: PositiveFloat | None = None
     edge_width_m: PositiveFloat | None = None
+    link_budget: LinkBudgetParams | None = None
 
 
 class UwbParams(ParamsModel):
@@ -100,6 +152,8 @@ class UwbParams(ParamsModel):
     offset ~ N(0, ``run_anchor_offset_std_m``^2) per anchor (an anchor re-placed and re-surveyed for
     each run). Both are 0 by default; they are drawn after every other draw of the trace's UWB
     stream, so a scenario without them generates exactly what it did before they existed.
+    ``obstacles`` and ``terrain`` (optional) block the line of sight: an attempt whose tag-anchor
+    segment meets one is NLOS (:mod:`physynth.models.obstacles`), in addition to the ``zones``.
     """
 
     burst_rate_hz: PositiveFloat = 23.0
@@ -111,12 +165,24 @@ class UwbParams(ParamsModel):
     zones: list[NlosZone] = []
     run_offset_std_m: NonNegFloat = 0.0
     run_anchor_offset_std_m: NonNegFloat = 0.0
+    obstacles: list[Obstacle] = []
+    terrain: TerrainGrid | None = None
 
 
 class AnchorSpec(ParamsModel):
+    """One anchor: id, antenna position in ENU [m] and (optionally) its antenna orientation.
+
+    ``boresight_enu`` (a direction, normalised here) and ``front_back_db`` give the antenna gain
+    G(theta) = -front_back_db * (1 - cos theta) / 2 [dB] towards a tag seen at angle theta from the
+    boresight: 0 dB in front, -front_back_db behind (an anchor on a wall or a mast facing the route).
+    It enters the link budget only (:class:`LinkBudgetParams`); without one it has no effect.
+    """
+
     id: Annotated[str, Field(min_length=1)]
     pos_enu_m: Vec3
     name: str | None = None
+    boresight_enu: Vec3 | None = None
+    front_back_db: NonNegFloat = 0.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -140,6 +206,44 @@ class ChannelArrays:
     zone_s_m: np.ndarray  # (Z,)
     zone_half_width_m: np.ndarray
     zone_nlos_prob: np.ndarray
+    link: LinkBudgetArrays | None = None  # None: no anchor has a link budget
+    obstacles: tuple = ()
+    terrain: TerrainGrid | None = None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LinkBudgetArrays:
+    """Per-anchor link budgets (A,); anchors without one have ``enabled`` False (detection 1)."""
+
+    enabled: np.ndarray
+    ref_power_dbm: np.ndarray
+    ref_distance_m: np.ndarray
+    path_loss_exponent: np.ndarray
+    sensitivity_dbm: np.ndarray
+    shadowing_std_db: np.ndarray
+    ground_reflection: np.ndarray
+    ground_u_m: np.ndarray
+    wavelength_m: np.ndarray
+    boresight_enu: np.ndarray  # (A, 3) unit vectors, zeros where omnidirectional
+    front_back_db: np.ndarray
+
+
+def _link_arrays(anchors: Sequence[AnchorSpec], chans: Sequence[ChannelParams]) -> LinkBudgetArrays | None:
+    if all(c.link_budget is None for c in chans):
+        return None
+    lbs = [c.link_budget or LinkBudgetParams() for c in chans]
+    bore = np.zeros((len(anchors), 3))
+    for i, a in enumerate(anchors):
+        if a.boresight_enu is not None:
+            v = np.asarray(a.boresight_enu, dtype=float)
+            norm = np.linalg.norm(v)
+            bore[i] = v / norm if norm > 0 else 0.0
+    return LinkBudgetArrays(
+        enabled=np.array([c.link_budget is not None for c in chans]),
+        **{f: np.array([getattr(lb, f) for lb in lbs], dtype=float) for f in LinkBudgetParams.model_fields},
+        boresight_enu=bore,
+        front_back_db=np.array([a.front_back_db for a in anchors], dtype=float),
+    )
 
 
 def channel_arrays(params: UwbParams, anchors: Sequence[AnchorSpec],
@@ -178,6 +282,9 @@ def channel_arrays(params: UwbParams, anchors: Sequence[AnchorSpec],
         edge_width_m=np.array([c.edge_width_m for c in chans]),
         zone_s_m=np.array([q.s_m for q in z]), zone_half_width_m=np.array([q.half_width_m for q in z]),
         zone_nlos_prob=np.array([q.nlos_prob for q in z]),
+        link=_link_arrays(anchors, chans),
+        obstacles=tuple(params.obstacles),
+        terrain=params.terrain,
     )
 
 
@@ -205,6 +312,63 @@ def link_probability(range_m: np.ndarray, max_range_m: np.ndarray, edge_width_m:
     """Soft radio horizon: 1 / (1 + exp((r - max_range) / edge_width))."""
     x = np.clip((range_m - max_range_m) / edge_width_m, -50.0, 50.0)
     return 1.0 / (1.0 + np.exp(x))
+
+
+def ground_gain_db(horiz_m: np.ndarray, h_anchor_m: np.ndarray, h_tag_m: np.ndarray, reflection: np.ndarray,
+                   wavelength_m: np.ndarray) -> np.ndarray:
+    """Two-ray ground term 20 log10 |1 - rho exp(-j 2 pi Delta / lambda)| [dB] (0 where rho is 0).
+
+    Heights above the ground plane [m] are clipped at 1 cm; Delta is the extra length of the ground path.
+    """
+    ha = np.maximum(h_anchor_m, 0.01)
+    ht = np.maximum(h_tag_m, 0.01)
+    delta = np.hypot(horiz_m, ha + ht) - np.hypot(horiz_m, ha - ht)
+    phase = 2.0 * np.pi * delta / wavelength_m
+    mag = np.hypot(1.0 - reflection * np.cos(phase), reflection * np.sin(phase))
+    return 20.0 * np.log10(np.maximum(mag, 1e-6))
+
+
+def received_power_dbm(tag_enu_m: np.ndarray, anchor: np.ndarray, ch: ChannelArrays,
+                       obstacle_loss_db: np.ndarray | float = 0.0) -> np.ndarray:
+    """Mean first-path power [dBm] of rows (tag (N, 3) [m], anchor index (N,)) under the link budget."""
+    lb = ch.link
+    assert lb is not None
+    d = tag_enu_m - ch.anchor_pos_enu_m[anchor]  # anchor -> tag
+    r = np.sqrt(np.einsum("ij,ij->i", d, d))
+    r0 = lb.ref_distance_m[anchor]
+    p = lb.ref_power_dbm[anchor] - 10.0 * lb.path_loss_exponent[anchor] * np.log10(np.maximum(r, r0) / r0)
+    bore = lb.boresight_enu[anchor]
+    cos_t = np.einsum("ij,ij->i", bore, d) / np.maximum(r, 1e-9)
+    has_bore = np.any(bore != 0.0, axis=1)
+    p = p - np.where(has_bore, lb.front_back_db[anchor] * (1.0 - cos_t) / 2.0, 0.0)
+    rho = lb.ground_reflection[anchor]
+    if np.any(rho > 0):
+        g = lb.ground_u_m[anchor]
+        p = p + ground_gain_db(np.hypot(d[:, 0], d[:, 1]), ch.anchor_pos_enu_m[anchor, 2] - g, tag_enu_m[:, 2] - g,
+                               rho, lb.wavelength_m[anchor])
+    return p - obstacle_loss_db
+
+
+def detection_probability(power_dbm: np.ndarray, sensitivity_dbm: np.ndarray,
+                          shadowing_std_db: np.ndarray) -> np.ndarray:
+    """P(power + shadowing > sensitivity) = Phi((power - sensitivity) / sigma) (a step where sigma is 0)."""
+    from scipy.special import ndtr
+
+    margin = power_dbm - sensitivity_dbm
+    with np.errstate(divide="ignore", invalid="ignore"):
+        soft = ndtr(margin / np.where(shadowing_std_db > 0, shadowing_std_db, 1.0))
+    return np.where(shadowing_std_db > 0, soft, (margin >= 0).astype(float))
+
+
+def link_detection_probability(tag_enu_m: np.ndarray, anchor: np.ndarray, ch: ChannelArrays,
+                               obstacle_loss_db: np.ndarray | float = 0.0) -> np.ndarray:
+    """Per-row detection probability of the link budget (1 for anchors without one)."""
+    lb = ch.link
+    if lb is None:
+        return np.ones(anchor.shape[0])
+    p = detection_probability(received_power_dbm(tag_enu_m, anchor, ch, obstacle_loss_db),
+                              lb.sensitivity_dbm[anchor], lb.shadowing_std_db[anchor])
+    return np.where(lb.enabled[anchor], p, 1.0)
 
 
 def sample_nlos_offset(anchor: np.ndarray, ch: ChannelArrays, *, rng: np.random.Generator,
@@ -307,11 +471,13 @@ def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_
 
 
 def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: ChannelArrays, *,
-                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """NLOS indicator, mode and episode id of each row: per-anchor episodes, raised inside NLOS zones.
+                rng: np.random.Generator, blocked: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """NLOS indicator, mode and episode id of each row: per-anchor episodes, raised inside NLOS zones and
+    where ``blocked`` (the line of sight meets an obstacle).
 
-    Rows made NLOS by a zone (and not by an episode) draw their mode by weight (mode -1 marks them).
-    Episode ids are unique over anchors (-1 outside an episode).
+    Rows made NLOS by a zone or an obstacle (and not by an episode) draw their mode by weight (mode -1
+    marks them). Episode ids are unique over anchors (-1 outside an episode).
     """
     nlos = np.zeros(t_s.shape[0], dtype=bool)
     mode = np.full(t_s.shape[0], -1, dtype=np.int64)
@@ -334,6 +500,8 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
         dist = np.abs(s_m[:, None] - ch.zone_s_m[None, :])
         p_zone = np.where(dist <= ch.zone_half_width_m, ch.zone_nlos_prob, 0.0).max(axis=1)
         nlos |= rng.random(t_s.shape[0]) < p_zone
+    if blocked is not None:
+        nlos |= blocked
     return nlos, mode, episode
 
 
@@ -382,9 +550,16 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
     true_range = np.sqrt(sq)
     s_m = np.interp(t_true, kin.t_s, kin.s_m)
 
-    linked = rng.random(t_true.shape[0]) < link_probability(true_range, ch.max_range_m[anchor],
-                                                            ch.edge_width_m[anchor])
-    nlos, mode, episode = nlos_states(t_true, anchor, s_m, ch, rng=rng)
+    p_link = link_probability(true_range, ch.max_range_m[anchor], ch.edge_width_m[anchor])
+    blocked = None
+    if ch.obstacles or ch.terrain is not None or ch.link is not None:  # geometry-aware parts (optional)
+        tag = np.stack([np.interp(t_true, kin.t_s, kin.pos_enu_m[:, k]) for k in range(3)], axis=1)
+        loss: np.ndarray | float = 0.0
+        if ch.obstacles or ch.terrain is not None:
+            blocked, loss = obstacle_losses(tag, ch.anchor_pos_enu_m[anchor], ch.obstacles, ch.terrain)
+        p_link = p_link * link_detection_probability(tag, anchor, ch, loss)
+    linked = rng.random(t_true.shape[0]) < p_link
+    nlos, mode, episode = nlos_states(t_true, anchor, s_m, ch, rng=rng, blocked=blocked)
     err = range_error(true_range, anchor, nlos, mode, ch, rng=rng, episode=episode)
     err += run_offsets(n_anchors, u, rng=rng)[anchor]
     measured = np.maximum(true_range + err, 0.0)  # a range is never negative
