@@ -23,19 +23,27 @@ import pyarrow.parquet as pq
 
 from .. import __version__
 from .._json import jsonable
-from ..constants import IMU_FRAME, SCHEMA_VERSION
+from ..constants import IMU_BODY_FRAME, IMU_FRAME, SCHEMA_VERSION
 from ..errors import DatasetError, OutputExistsError
 from ..records import Anchors, Imu, Trace, Truth, Uwb
 from .atomic import temp_sibling
 
 TABLES = ("truth", "imu", "uwb", "anchors")
 
+OPTIONAL_COLUMNS = {
+    "truth": {"quat_wxyz": [f"quat_{c}" for c in "wxyz"], "omega_body_radps": [f"omega_{c}_radps" for c in "xyz"]},
+    "imu": {"acc_mps2": [f"acc_{c}_mps2" for c in "enu"], "acc_body_mps2": [f"acc_{c}_mps2" for c in "xyz"],
+            "gyro_body_radps": [f"gyro_{c}_radps" for c in "xyz"]},
+}
+"""Column groups that a trace may lack: written as nulls, read back as None (and absent in old datasets)."""
+
 SCHEMAS = {
     "truth": pa.schema([("trace", pa.int32()), ("t_s", pa.float64())]
                        + [(f"pos_{c}_m", pa.float64()) for c in "enu"]
-                       + [(f"vel_{c}_mps", pa.float64()) for c in "enu"]),
+                       + [(f"vel_{c}_mps", pa.float64()) for c in "enu"]
+                       + [(c, pa.float64()) for cols in OPTIONAL_COLUMNS["truth"].values() for c in cols]),
     "imu": pa.schema([("trace", pa.int32()), ("t_s", pa.float64())]
-                     + [(f"acc_{c}_mps2", pa.float64()) for c in "enu"]),
+                     + [(c, pa.float64()) for cols in OPTIONAL_COLUMNS["imu"].values() for c in cols]),
     "uwb": pa.schema([("trace", pa.int32()), ("t_s", pa.float64()), ("anchor_id", pa.string()),
                       ("range_m", pa.float64()), ("true_range_m", pa.float64()), ("nlos", pa.bool_()),
                       ("burst", pa.int64()), ("reason", pa.int8())]),
@@ -44,12 +52,18 @@ SCHEMAS = {
 }
 
 UNITS = {
-    "t_s": "s", "pos_*_m": "m (ENU)", "vel_*_mps": "m/s (ENU)", "acc_*_mps2": "m/s^2",
+    "t_s": "s", "pos_*_m": "m (ENU)", "vel_*_mps": "m/s (ENU)", "acc_[enu]_mps2": "m/s^2 (ENU, gravity removed)",
+    "acc_[xyz]_mps2": "m/s^2 (body FLU, specific force incl. gravity)", "gyro_[xyz]_radps": "rad/s (body FLU)",
+    "quat_[wxyz]": "unit quaternion body (FLU) -> ENU, Hamilton, scalar first",
+    "omega_[xyz]_radps": "rad/s (body angular velocity, body frame, constant over [t_k, t_k+1))",
     "range_m": "m", "true_range_m": "m",
 }
 FRAMES = {
     "world": "ENU (east, north, up), metres, origin as in the anchors table",
     "imu": f"{IMU_FRAME}: acceleration in the world ENU frame with gravity removed",
+    "imu_body": f"{IMU_BODY_FRAME}: specific force (gravity included) and angular rate in the sensor body frame, "
+                "x forward, y left, z up",
+    "body": "FLU (x forward, y left, z up); truth quat_* rotates body vectors into ENU",
 }
 REASONS = {"0": "ok", "1": "dropout", "2": "outage", "3": "no link (range/visibility)", "4": "invalid"}
 
@@ -62,13 +76,13 @@ def _tables_of(trace: Trace, index: int) -> dict[str, pa.Table]:
         cols[f"pos_{c}_m"] = tr.pos_enu_m[:, k]
     for k, c in enumerate("enu"):
         cols[f"vel_{c}_mps"] = tr.vel_enu_mps[:, k]
+    _optional_columns(cols, tr, "truth", n)
     out = {"truth": pa.Table.from_pydict(cols, schema=SCHEMAS["truth"])}
 
     if trace.imu is not None:
         im = trace.imu
         cols = {"trace": np.full(im.t_s.shape[0], index, np.int32), "t_s": im.t_s}
-        for k, c in enumerate("enu"):
-            cols[f"acc_{c}_mps2"] = im.acc_mps2[:, k]
+        _optional_columns(cols, im, "imu", im.t_s.shape[0])
         out["imu"] = pa.Table.from_pydict(cols, schema=SCHEMAS["imu"])
 
     u = trace.uwb
@@ -86,6 +100,25 @@ def _tables_of(trace: Trace, index: int) -> dict[str, pa.Table]:
         cols[f"pos_{c}_m"] = a.pos_enu_m[:, k]
     out["anchors"] = pa.Table.from_pydict(cols, schema=SCHEMAS["anchors"])
     return out
+
+
+def _optional_columns(cols: dict[str, Any], record: Any, table: str, n: int) -> None:
+    """Columns of the optional groups of ``record``: values, or nulls where the record has none."""
+    for attr, names in OPTIONAL_COLUMNS[table].items():
+        value = getattr(record, attr)
+        for k, c in enumerate(names):
+            cols[c] = pa.nulls(n, pa.float64()) if value is None else value[:, k]
+
+
+def _optional_group(cols: dict[str, np.ndarray], table: str, attr: str) -> np.ndarray | None:
+    """A group of optional columns read back as (N, k), or None when absent or null throughout."""
+    names = OPTIONAL_COLUMNS[table][attr]
+    if any(c not in cols for c in names):
+        return None
+    arr = np.stack([cols[c] for c in names], axis=1).astype(np.float64)
+    if arr.size and np.all(np.isnan(arr)):
+        return None
+    return arr
 
 
 class DatasetWriter:
@@ -120,6 +153,8 @@ class DatasetWriter:
         self._pending: dict[str, list[pa.Table]] = {name: [] for name in TABLES}
         self._row_group_traces = row_group_traces
         self._trace_meta: list[dict[str, Any]] = []
+        self._frames: set[str] = set()
+        self._attitude = False
         self._closed = False
 
     def add(self, trace: Trace, index: int | None = None) -> None:
@@ -127,6 +162,9 @@ class DatasetWriter:
         for name, table in _tables_of(trace, index).items():
             self._pending[name].append(table)
         self._trace_meta.append({"trace": index, **jsonable(trace.meta)})
+        if trace.imu is not None:
+            self._frames.update(trace.imu.frames)
+        self._attitude = self._attitude or trace.truth.has_attitude
         if len(self._pending["truth"]) >= self._row_group_traces:
             self._flush()
 
@@ -150,6 +188,8 @@ class DatasetWriter:
             "frames": FRAMES,
             "uwb_reason_codes": REASONS,
             **jsonable(self.meta),
+            "imu_frames": [f for f in (IMU_FRAME, IMU_BODY_FRAME) if f in self._frames],
+            "truth_attitude": self._attitude,
             "n_traces": len(self._trace_meta),
             "traces": self._trace_meta,
         }
@@ -233,11 +273,16 @@ def _read_table(path: Path, name: str) -> dict[str, np.ndarray]:
         table = pq.read_table(f)
     except (OSError, pa.ArrowException) as exc:
         raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
-    missing = [c for c in SCHEMAS[name].names if c not in table.column_names]
+    optional = {c for group in OPTIONAL_COLUMNS.get(name, {}).values() for c in group}
+    if name == "imu" and not any(c in table.column_names for c in optional):
+        raise DatasetError(f"{f}: no acceleration or angular-rate column")
+    missing = [c for c in SCHEMAS[name].names if c not in table.column_names and c not in optional]
     if missing:
         raise DatasetError(f"{f}: missing column(s) {', '.join(missing)}")
     cols = {}
     for c in SCHEMAS[name].names:
+        if c not in table.column_names:
+            continue
         col = table.column(c)
         if c == "nlos":
             cols["nlos_known"] = ~np.asarray(col.is_null().to_numpy(zero_copy_only=False))
@@ -276,10 +321,16 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
             anchors = Anchors(ids=tuple(an["anchor_id"]), names=tuple(an["name"]),
                               pos_enu_m=np.stack([an[f"pos_{c}_m"] for c in "enu"], axis=1))
         truth = Truth(t_s=tr["t_s"], pos_enu_m=np.stack([tr[f"pos_{c}_m"] for c in "enu"], axis=1),
-                      vel_enu_mps=np.stack([tr[f"vel_{c}_mps"] for c in "enu"], axis=1))
+                      vel_enu_mps=np.stack([tr[f"vel_{c}_mps"] for c in "enu"], axis=1),
+                      quat_wxyz=_optional_group(tr, "truth", "quat_wxyz"),
+                      omega_body_radps=_optional_group(tr, "truth", "omega_body_radps"))
         im = parts["imu"].get(idx)
-        imu = (Imu(t_s=im["t_s"], acc_mps2=np.stack([im[f"acc_{c}_mps2"] for c in "enu"], axis=1),
-                   frame=meta.get("imu_frame", IMU_FRAME)) if im is not None else None)
+        imu = None
+        if im is not None:
+            groups = {a: _optional_group(im, "imu", a) for a in OPTIONAL_COLUMNS["imu"]}
+            if all(g is None for g in groups.values()):
+                raise DatasetError(f"dataset {path}: trace {idx} has IMU rows without any value")
+            imu = Imu(t_s=im["t_s"], frame=meta.get("imu_frame", IMU_FRAME), **groups)
         uw = parts["uwb"].get(idx)
         if uw is None:
             uwb = Uwb(t_s=np.array([]), anchor=np.array([], np.int16), range_m=np.array([]))
