@@ -225,14 +225,19 @@ def read_meta(path: str | os.PathLike) -> dict[str, Any]:
     return meta
 
 
-def _read_table(path: Path, name: str) -> dict[str, np.ndarray]:
-    f = path / f"{name}.parquet"
-    if not f.is_file():
+def table_files(path: Path, name: str) -> list[Path]:
+    """The Parquet files of table ``name``: ``<name>.parquet``, or the parts ``<name>/part-*.parquet`` of
+    a dataset generated in shards (:mod:`physynth.io.shards`), in trace order."""
+    single = path / f"{name}.parquet"
+    if single.is_file():
+        return [single]
+    parts = sorted((path / name).glob("part-*.parquet")) if (path / name).is_dir() else []
+    if not parts:
         raise DatasetError(f"dataset {path} is incomplete: {name}.parquet is missing")
-    try:
-        table = pq.read_table(f)
-    except (OSError, pa.ArrowException) as exc:
-        raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
+    return parts
+
+
+def _columns(table: pa.Table, name: str, f: Path) -> dict[str, np.ndarray]:
     missing = [c for c in SCHEMAS[name].names if c not in table.column_names]
     if missing:
         raise DatasetError(f"{f}: missing column(s) {', '.join(missing)}")
@@ -247,8 +252,18 @@ def _read_table(path: Path, name: str) -> dict[str, np.ndarray]:
             cols[c] = (np.asarray(enc.dictionary.to_pylist(), dtype=object)[enc.indices.to_numpy()]
                        if enc is not None else np.array([], dtype=object))
         else:
-            cols[c] = col.to_numpy()
+            cols[c] = col.to_numpy().astype(np.float64) if pa.types.is_float32(col.type) else col.to_numpy()
     return cols
+
+
+def _read_table(path: Path, name: str) -> dict[str, np.ndarray]:
+    parts = []
+    for f in table_files(path, name):
+        try:
+            parts.append(_columns(pq.read_table(f), name, f))
+        except (OSError, pa.ArrowException) as exc:
+            raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
+    return {c: np.concatenate([p[c] for p in parts]) for c in parts[0]}
 
 
 def _split(cols: dict[str, np.ndarray]) -> dict[int, dict[str, np.ndarray]]:
@@ -261,40 +276,116 @@ def _split(cols: dict[str, np.ndarray]) -> dict[int, dict[str, np.ndarray]]:
     return {int(k): {c: v[order[s:e]] for c, v in cols.items()} for k, s, e in zip(keys, starts, ends, strict=True)}
 
 
+def _row_groups_sorted(files: list[Path]) -> bool:
+    """True when the row groups of ``files``, in order, hold non-decreasing trace indices (statistics)."""
+    last = -1
+    for f in files:
+        md = pq.ParquetFile(f).metadata
+        col = md.schema.names.index("trace") if md.num_columns else -1
+        for g in range(md.num_row_groups):
+            if md.row_group(g).num_rows == 0:
+                continue
+            st = md.row_group(g).column(col).statistics
+            if st is None or not st.has_min_max or st.min < last:
+                return False
+            last = st.max
+    return True
+
+
+def _table_stream(path: Path, name: str) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
+    """(trace index, columns) of one table, read one row group at a time, in trace order."""
+    files = table_files(path, name)
+    try:
+        if not _row_groups_sorted(files):  # not written by DatasetWriter: read it whole, once
+            yield from sorted(_split(_read_table(path, name)).items())
+            return
+        pending: tuple[int, dict[str, np.ndarray]] | None = None
+        for f in files:
+            pf = pq.ParquetFile(f)
+            for g in range(pf.metadata.num_row_groups):
+                groups = sorted(_split(_columns(pf.read_row_group(g), name, f)).items())
+                if pending is not None and groups and groups[0][0] == pending[0]:  # a trace across groups
+                    groups[0] = (pending[0], {c: np.concatenate([pending[1][c], v])
+                                              for c, v in groups[0][1].items()})
+                elif pending is not None:
+                    yield pending
+                pending = groups.pop() if groups else pending
+                yield from groups
+        if pending is not None:
+            yield pending
+    except (OSError, pa.ArrowException) as exc:
+        raise DatasetError(f"cannot read dataset {path} ({name}): {str(exc).splitlines()[0]}") from None
+
+
+def _trace_of(idx: int, tr: dict, an: dict | None, im: dict | None, uw: dict | None,
+              meta: dict[str, Any], trace_meta: dict[str, Any], path: Path) -> Trace:
+    if an is None:  # an IMU-only recording (e.g. BROAD) has no anchors
+        anchors = Anchors(ids=(), pos_enu_m=np.zeros((0, 3)))
+    else:
+        anchors = Anchors(ids=tuple(an["anchor_id"]), names=tuple(an["name"]),
+                          pos_enu_m=np.stack([an[f"pos_{c}_m"] for c in "enu"], axis=1))
+    truth = Truth(t_s=tr["t_s"], pos_enu_m=np.stack([tr[f"pos_{c}_m"] for c in "enu"], axis=1),
+                  vel_enu_mps=np.stack([tr[f"vel_{c}_mps"] for c in "enu"], axis=1))
+    imu = (Imu(t_s=im["t_s"], acc_mps2=np.stack([im[f"acc_{c}_mps2"] for c in "enu"], axis=1),
+               frame=meta.get("imu_frame", IMU_FRAME)) if im is not None else None)
+    if uw is None:
+        uwb = Uwb(t_s=np.array([]), anchor=np.array([], np.int16), range_m=np.array([]))
+    else:
+        names, inverse = np.unique(uw["anchor_id"].astype(str), return_inverse=True)
+        unknown = sorted(set(names) - set(anchors.ids))
+        if unknown:
+            raise DatasetError(f"dataset {path}: trace {idx} has UWB rows of unknown anchor(s) {unknown}")
+        to_index = np.array([anchors.index(a) for a in names], dtype=np.int16)
+        uwb = Uwb(t_s=uw["t_s"], anchor=to_index[inverse] if len(names) else np.array([], np.int16),
+                  range_m=uw["range_m"], true_range_m=uw["true_range_m"], nlos=uw["nlos"],
+                  burst=uw["burst"], reason=uw["reason"],
+                  nlos_known=bool(uw["nlos_known"].all()) if len(uw["nlos_known"]) else False)
+    m = {k: v for k, v in trace_meta.items() if k != "trace"}
+    return Trace(truth=truth, uwb=uwb, anchors=anchors, imu=imu, meta=m)
+
+
+def iter_traces(path: str | os.PathLike, meta: dict[str, Any] | None = None) -> Iterator[Trace]:
+    """The traces of a dataset directory, one at a time, in trace order.
+
+    Every table is read one row group at a time (a row group holds a few dozen traces), so memory
+    does not grow with the number of traces. ``meta`` is the dataset's ``dataset.json`` when already
+    read (:func:`read_meta`).
+    """
+    path = Path(path)
+    meta = read_meta(path) if meta is None else meta
+    trace_meta = {int(m["trace"]): m for m in meta.get("traces", [])}
+    streams = {name: _table_stream(path, name) for name in TABLES}
+    heads: dict[str, tuple[int, dict] | None] = {name: next(streams[name], None) for name in TABLES if name != "truth"}
+
+    def take(name: str, idx: int) -> dict | None:
+        while heads[name] is not None and heads[name][0] < idx:  # rows of a trace without truth: skipped
+            heads[name] = next(streams[name], None)
+        head = heads[name]
+        if head is not None and head[0] == idx:
+            heads[name] = next(streams[name], None)
+            return head[1]
+        return None
+
+    n = 0
+    for idx, tr in streams["truth"]:
+        n += 1
+        yield _trace_of(idx, tr, take("anchors", idx), take("imu", idx), take("uwb", idx), meta,
+                        trace_meta.get(idx, {}), path)
+    if n == 0:
+        raise DatasetError(f"dataset {path} holds no traces")
+
+
+def n_traces(meta: dict[str, Any]) -> int | None:
+    """Number of traces recorded in a dataset's ``dataset.json`` (None when it does not say)."""
+    n = meta.get("n_traces")
+    return int(n) if isinstance(n, int) else None
+
+
 def read_dataset(path: str | os.PathLike) -> Dataset:
-    """Read a dataset directory back into Trace records (same values as written)."""
+    """Read a whole dataset directory back into Trace records (same values as written).
+
+    Holds every trace in memory; :func:`iter_traces` streams them instead.
+    """
     path = Path(path)
     meta = read_meta(path)
-    parts = {name: _split(_read_table(path, name)) for name in TABLES}
-    trace_meta = {int(m["trace"]): m for m in meta.get("traces", [])}
-    traces = []
-    for idx in sorted(parts["truth"]):
-        tr, an = parts["truth"][idx], parts["anchors"].get(idx)
-        if an is None:  # an IMU-only recording (e.g. BROAD) has no anchors
-            anchors = Anchors(ids=(), pos_enu_m=np.zeros((0, 3)))
-        else:
-            anchors = Anchors(ids=tuple(an["anchor_id"]), names=tuple(an["name"]),
-                              pos_enu_m=np.stack([an[f"pos_{c}_m"] for c in "enu"], axis=1))
-        truth = Truth(t_s=tr["t_s"], pos_enu_m=np.stack([tr[f"pos_{c}_m"] for c in "enu"], axis=1),
-                      vel_enu_mps=np.stack([tr[f"vel_{c}_mps"] for c in "enu"], axis=1))
-        im = parts["imu"].get(idx)
-        imu = (Imu(t_s=im["t_s"], acc_mps2=np.stack([im[f"acc_{c}_mps2"] for c in "enu"], axis=1),
-                   frame=meta.get("imu_frame", IMU_FRAME)) if im is not None else None)
-        uw = parts["uwb"].get(idx)
-        if uw is None:
-            uwb = Uwb(t_s=np.array([]), anchor=np.array([], np.int16), range_m=np.array([]))
-        else:
-            names, inverse = np.unique(uw["anchor_id"].astype(str), return_inverse=True)
-            unknown = sorted(set(names) - set(anchors.ids))
-            if unknown:
-                raise DatasetError(f"dataset {path}: trace {idx} has UWB rows of unknown anchor(s) {unknown}")
-            to_index = np.array([anchors.index(a) for a in names], dtype=np.int16)
-            uwb = Uwb(t_s=uw["t_s"], anchor=to_index[inverse] if len(names) else np.array([], np.int16),
-                      range_m=uw["range_m"], true_range_m=uw["true_range_m"], nlos=uw["nlos"],
-                      burst=uw["burst"], reason=uw["reason"],
-                      nlos_known=bool(uw["nlos_known"].all()) if len(uw["nlos_known"]) else False)
-        m = {k: v for k, v in trace_meta.get(idx, {}).items() if k != "trace"}
-        traces.append(Trace(truth=truth, uwb=uwb, anchors=anchors, imu=imu, meta=m))
-    if not traces:
-        raise DatasetError(f"dataset {path} holds no traces")
-    return Dataset(meta=meta, traces=traces)
+    return Dataset(meta=meta, traces=list(iter_traces(path, meta)))
