@@ -16,8 +16,9 @@ from .calibrate import CalibrationResult, calibrate
 from .calibrate._base import CalibrationError
 from .constants import DEFAULT_GRID_RATE_HZ
 from .errors import AnchorMismatchError, PhySynthError
+from .evaluate.metrics import Metrics, compute_metrics
 from .generate import compile_scenario, dataset_meta, generate_trace, generate_traces
-from .io.dataset import DatasetWriter, read_dataset
+from .io.dataset import DatasetWriter, iter_traces, n_traces, read_dataset, read_meta, table_files
 from .io.scenario_file import load_scenario
 from .progress import ProgressCallback
 from .records import Trace
@@ -60,9 +61,8 @@ def read_recordings(paths: Sequence[str | os.PathLike]) -> tuple[list[Trace], li
         raise CalibrationError("no dataset directories given")
     traces, sources = [], []
     for p in paths:
-        ds = read_dataset(p)
         sources.append(str(Path(p)))
-        for i, t in enumerate(ds.traces):
+        for i, t in enumerate(iter_traces(p)):  # streamed; calibration itself needs the traces together
             lab = f"{Path(p).name}/{t.meta.get('run') or f'trace {i}'}"
             traces.append(Trace(truth=t.truth, uwb=t.uwb, anchors=t.anchors, imu=t.imu,
                                 meta={**t.meta, "label": lab}))
@@ -73,6 +73,42 @@ def calibrate_datasets(paths: Sequence[str | os.PathLike], **kwargs: Any) -> Cal
     """:func:`calibrate` on every trace of one or several dataset directories, pooled."""
     traces, sources = read_recordings(paths)
     return calibrate(traces, sources=sources, **kwargs)
+
+
+# ---------------------------------------------------------------- inspect
+def inspect_dataset(path: str | Path, *, rate_hz: float = DEFAULT_GRID_RATE_HZ,
+                    progress: ProgressCallback | None = None) -> tuple[Metrics, dict[str, Any]]:
+    """Pooled section-5 metrics of a dataset, streamed trace by trace, and its ``dataset.json``.
+
+    Memory does not grow with the number of traces (:func:`physynth.io.dataset.iter_traces`,
+    :class:`physynth.evaluate.metrics.MetricsAccumulator`). ``progress`` is called after each trace.
+    """
+    meta = read_meta(path)
+    total = n_traces(meta)
+    done = 0
+
+    def on_trace() -> None:
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress("reading traces", done, total)
+
+    try:
+        return compute_metrics(iter_traces(path, meta), rate_hz, on_trace=on_trace), meta
+    except ValueError as exc:  # a table that reads but does not make valid records
+        raise PhySynthError(f"dataset {path}: invalid content: {exc}") from None
+
+
+def _anchor_ids_of(path: str | Path) -> list[str]:
+    """Anchor ids of a dataset from its (small) anchors table, in order of first appearance."""
+    import pyarrow.parquet as pq
+
+    ids: list[str] = []
+    for f in table_files(Path(path), "anchors"):
+        for a in pq.read_table(f, columns=["anchor_id"]).column("anchor_id").to_pylist():
+            if a not in ids:
+                ids.append(a)
+    return ids
 
 
 # ---------------------------------------------------------------- validate
@@ -135,18 +171,18 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
     transfer_info = None
 
     if synthetic is not None:
-        synth_ds = _read(read_dataset, synthetic, "synthetic")
-        synth_ids = anchor_ids(synth_ds.traces)
+        synth_meta = _read(read_meta, synthetic, "synthetic")
+        if synth_meta.get("n_traces") == 0:
+            raise PhySynthError(f"synthetic dataset: dataset {synthetic} holds no traces")
+        synth_ids = _read(_anchor_ids_of, synthetic, "synthetic")
         problem = describe_anchor_mismatch(real_ids, synth_ids, f"the synthetic dataset {synthetic}")
         if problem:
             raise AnchorMismatchError(problem)
-        if not any(s.uwb.valid.any() for s in synth_ds.traces):
-            raise PhySynthError(f"synthetic dataset {synthetic} has no valid UWB range: nothing to compare")
-        inputs["synthetic"] = {"path": str(synthetic), "kind": synth_ds.meta.get("kind"),
-                               "scenario_name": synth_ds.meta.get("scenario_name"),
-                               "root_seed": synth_ds.meta.get("root_seed"), "n_traces": len(synth_ds)}
-        synth_iter: Iterable[Trace] = synth_ds.traces
-        total = len(synth_ds)
+        total = n_traces(synth_meta)
+        inputs["synthetic"] = {"path": str(synthetic), "kind": synth_meta.get("kind"),
+                               "scenario_name": synth_meta.get("scenario_name"),
+                               "root_seed": synth_meta.get("root_seed"), "n_traces": total}
+        synth_iter: Iterable[Trace] = _checked_stream(synthetic, synth_meta)
     else:
         scn = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
         source = scn.name if isinstance(scenario, Scenario) else str(scenario)
@@ -161,7 +197,8 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
         else:
             problem = describe_anchor_mismatch(real_ids, list(scn.anchor_ids), f"scenario '{scn.name}'")
             if problem:
-                raise AnchorMismatchError(problem + "; transfer the scenario to take the anchor layout from the real dataset")
+                raise AnchorMismatchError(
+                    problem + "; transfer the scenario to take the anchor layout from the real dataset")
         root = new_root_seed() if seed is None else int(seed)
         inputs["synthetic"] = {"scenario": source, "scenario_name": scn.name, "n_traces": int(n),
                                "root_seed": root, "transfer": bool(transfer),
@@ -169,15 +206,35 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
         synth_iter = generate_traces(compile_scenario(scn), n, seed=root)
         total = n
 
-    if progress is None:
-        return compare(real_traces, synth_iter, rate_hz=rate_hz, inputs=inputs, transfer=transfer_info)
     verb = "generating + reducing" if synthetic is None else "reducing"
     done = 0
 
     def on_trace() -> None:
         nonlocal done
         done += 1
-        progress(f"{verb} synthetic traces", done, total)
+        if progress is not None:
+            progress(f"{verb} synthetic traces", done, total)
 
-    progress(f"{verb} synthetic traces", 0, total)
-    return compare(real_traces, synth_iter, rate_hz=rate_hz, inputs=inputs, transfer=transfer_info, on_trace=on_trace)
+    if progress is not None:
+        progress(f"{verb} synthetic traces", 0, total)
+    try:
+        report = compare(real_traces, synth_iter, rate_hz=rate_hz, inputs=inputs, transfer=transfer_info,
+                         on_trace=on_trace)
+    except ValueError as exc:  # a streamed table that reads but does not make valid records
+        raise PhySynthError(f"synthetic dataset {synthetic}: invalid content: {exc}") from None
+    if synthetic is not None and not report.inputs["n_residuals"]["synthetic"]:
+        raise PhySynthError(f"synthetic dataset {synthetic} has no valid UWB range: nothing to compare")
+    return report
+
+
+def _checked_stream(path: str | Path, meta: dict[str, Any]) -> Iterable[Trace]:
+    """The traces of a synthetic dataset, streamed; read errors name the role."""
+    stream = iter_traces(path, meta)
+    while True:
+        try:
+            trace = next(stream)
+        except StopIteration:
+            return
+        except PhySynthError as exc:
+            raise PhySynthError(f"synthetic dataset: {exc}") from None
+        yield trace

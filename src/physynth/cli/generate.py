@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from ._common import progress_bar
+from ._common import format_table, progress_bar
 
 scenario_app = typer.Typer(help="Show built-in scenarios.", no_args_is_help=True)
 
@@ -60,32 +60,27 @@ def scenario_show_cmd(name: str = typer.Argument(..., help="Preset name or scena
 def inspect_cmd(
     dataset: Path = typer.Argument(..., help="Dataset directory."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
-    """Section-5 metrics of a dataset, pooled over its traces."""
+    """Section-5 metrics of a dataset, pooled over its traces (streamed: any number of traces)."""
     from .._json import jsonable
-    from ..evaluate.metrics import compute_metrics
-    from ..io import read_dataset
+    from ..workflows import inspect_dataset
 
-    ds = read_dataset(dataset)
-    m = compute_metrics(ds.traces)
+    with progress_bar(not quiet) as progress:
+        m, _ = inspect_dataset(dataset, progress=progress)
     if as_json:
         typer.echo(json.dumps(jsonable(m.to_dict()), indent=1))
         return
-    from rich.console import Console
-    from rich.table import Table
-
-    table = Table(title=f"{dataset} - {len(ds)} trace(s)")
-    table.add_column("metric")
-    table.add_column("value", justify="right")
+    typer.echo(f"{dataset} - {m.n_traces} trace(s), {m.n_residuals} range residual(s)")
+    rows = []
     for key, value in m.to_dict().items():
         if key == "per_anchor":
             continue
-        table.add_row(key, " / ".join(f"{v:.3f}" for v in value) if isinstance(value, list) else f"{value:.4g}")
-    Console().print(table)
+        rows.append((key, " / ".join(f"{v:.3f}" for v in value) if isinstance(value, list) else f"{value:.4g}"))
+    typer.echo(format_table(("metric", "value"), rows))
     cols = ("n_ranges", "fresh_frac", "mean_aoi_s", "residual_std_m", "residual_median_m", "abs_residual_p95_m")
-    per = Table(title="per anchor")
-    for col in ("anchor", *cols):
-        per.add_column(col, justify="right")
-    for a, d in m.per_anchor.items():
-        per.add_row(a, *(f"{d[c]:.4g}" if isinstance(d[c], float) else str(d[c]) for c in cols))
-    Console().print(per)
+    heads = ("anchor", "ranges", "fresh", "AoI s", "std m", "med m", "p95 m")
+    per = [(a, *(f"{d[c]:.4g}" if isinstance(d[c], float) else str(d[c]) for c in cols))
+           for a, d in m.per_anchor.items()]
+    typer.echo("\nper anchor (fresh = fraction of 100 Hz bins with a range; |residual| P95)")
+    typer.echo(format_table(heads, per))

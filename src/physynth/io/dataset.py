@@ -280,41 +280,52 @@ def _row_groups_sorted(files: list[Path]) -> bool:
     """True when the row groups of ``files``, in order, hold non-decreasing trace indices (statistics)."""
     last = -1
     for f in files:
-        md = pq.ParquetFile(f).metadata
-        col = md.schema.names.index("trace") if md.num_columns else -1
+        md = _parquet_file(f).metadata
+        col = md.schema.names.index("trace") if "trace" in md.schema.names else -1
         for g in range(md.num_row_groups):
             if md.row_group(g).num_rows == 0:
                 continue
-            st = md.row_group(g).column(col).statistics
+            st = md.row_group(g).column(col).statistics if col >= 0 else None
             if st is None or not st.has_min_max or st.min < last:
                 return False
             last = st.max
     return True
 
 
+def _parquet_file(f: Path) -> pq.ParquetFile:
+    try:
+        return pq.ParquetFile(f)
+    except (OSError, pa.ArrowException) as exc:
+        raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
+
+
+def _row_group(pf: pq.ParquetFile, g: int, name: str, f: Path) -> dict[str, np.ndarray]:
+    try:
+        return _columns(pf.read_row_group(g), name, f)
+    except (OSError, pa.ArrowException) as exc:
+        raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
+
+
 def _table_stream(path: Path, name: str) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
     """(trace index, columns) of one table, read one row group at a time, in trace order."""
     files = table_files(path, name)
-    try:
-        if not _row_groups_sorted(files):  # not written by DatasetWriter: read it whole, once
-            yield from sorted(_split(_read_table(path, name)).items())
-            return
-        pending: tuple[int, dict[str, np.ndarray]] | None = None
-        for f in files:
-            pf = pq.ParquetFile(f)
-            for g in range(pf.metadata.num_row_groups):
-                groups = sorted(_split(_columns(pf.read_row_group(g), name, f)).items())
-                if pending is not None and groups and groups[0][0] == pending[0]:  # a trace across groups
-                    groups[0] = (pending[0], {c: np.concatenate([pending[1][c], v])
-                                              for c, v in groups[0][1].items()})
-                elif pending is not None:
-                    yield pending
-                pending = groups.pop() if groups else pending
-                yield from groups
-        if pending is not None:
-            yield pending
-    except (OSError, pa.ArrowException) as exc:
-        raise DatasetError(f"cannot read dataset {path} ({name}): {str(exc).splitlines()[0]}") from None
+    if not _row_groups_sorted(files):  # not written by DatasetWriter: read it whole, once
+        yield from sorted(_split(_read_table(path, name)).items())
+        return
+    pending: tuple[int, dict[str, np.ndarray]] | None = None
+    for f in files:
+        pf = _parquet_file(f)
+        for g in range(pf.metadata.num_row_groups):
+            groups = sorted(_split(_row_group(pf, g, name, f)).items())
+            if pending is not None and groups and groups[0][0] == pending[0]:  # a trace across groups
+                groups[0] = (pending[0], {c: np.concatenate([pending[1][c], v]) for c, v in groups[0][1].items()})
+            elif pending is not None and groups:
+                yield pending
+            if groups:
+                pending = groups.pop()
+            yield from groups
+    if pending is not None:
+        yield pending
 
 
 def _trace_of(idx: int, tr: dict, an: dict | None, im: dict | None, uw: dict | None,
