@@ -17,9 +17,11 @@ from .calibrate._base import CalibrationError
 from .constants import DEFAULT_GRID_RATE_HZ
 from .errors import AnchorMismatchError, PhySynthError
 from .evaluate.metrics import Metrics, compute_metrics
-from .generate import compile_scenario, dataset_meta, generate_trace, generate_traces
-from .io.dataset import DatasetWriter, iter_traces, n_traces, read_dataset, read_meta, table_files
+from .generate import compile_scenario, dataset_meta, generate_traces
+from .io.dataset import iter_traces, n_traces, read_dataset, read_meta, table_files
 from .io.scenario_file import load_scenario
+from .io.shards import DEFAULT_SHARD_TRACES
+from .parallel import run_shards
 from .progress import ProgressCallback
 from .records import Trace
 from .rng import new_root_seed
@@ -36,22 +38,53 @@ from .validate.compare import (
 
 # ---------------------------------------------------------------- generate
 def generate_dataset(scn: Scenario, n: int, out: str | Path, *, seed: int | None = None,
-                     overwrite: bool = False, progress: ProgressCallback | None = None) -> tuple[Path, int]:
-    """Generate ``n`` traces and write them as a dataset directory (atomically).
+                     overwrite: bool = False, progress: ProgressCallback | None = None, workers: int = 1,
+                     scheduler: str | None = None, resume: bool = False,
+                     shard_traces: int = DEFAULT_SHARD_TRACES) -> tuple[Path, int]:
+    """Generate ``n`` traces and write them as a dataset directory (atomically), in shards.
 
-    Returns the dataset path and the root seed used (drawn from OS entropy when ``seed`` is None).
-    ``progress(message, done, total)`` is called after every trace.
+    Parameters
+    ----------
+    workers : int
+        Worker processes (an embedded Dask cluster when > 1; :mod:`physynth.parallel`).
+    scheduler : str, optional
+        Address of an existing Dask scheduler to run the shards on instead.
+    resume : bool
+        Complete an unfinished (killed) run of ``out``: complete shards are kept, the others written.
+        Without ``seed`` the unfinished run's root seed is used.
+    shard_traces : int
+        Traces per shard (:mod:`physynth.io.shards`). The output is the same for any ``workers``.
+
+    Returns the dataset path and the root seed used (drawn from OS entropy when ``seed`` is None and
+    there is nothing to resume). ``progress(message, done, total)`` reports traces written.
     """
+    from .io import shards
+
     if n < 1:
         raise PhySynthError(f"the number of traces must be at least 1, got {n}")
+    if shard_traces < 1:
+        raise PhySynthError(f"traces per shard must be at least 1, got {shard_traces}")
+    if workers < 1:
+        raise PhySynthError(f"the number of workers must be at least 1, got {workers}")
+    out = Path(out)
+    previous = shards.read_plan(out) if resume else None
+    if seed is None and previous is not None:
+        seed = previous.get("root_seed")
     root = new_root_seed() if seed is None else int(seed)
-    cs = compile_scenario(scn)
-    with DatasetWriter(out, meta=dataset_meta(scn, root), overwrite=overwrite) as writer:
-        for i in range(n):
-            writer.add(generate_trace(cs, i, root), index=i)
-            if progress is not None:
-                progress(f"generating {scn.name}", i + 1, n)
-    return Path(out), root
+    plan = shards.ShardPlan(n, shard_traces)
+    partial, complete = shards.prepare(out, shards.plan_record(scenario_to_dict(scn), root, n, shard_traces),
+                                       resume=resume, overwrite=overwrite)
+    todo = [k for k in range(plan.n_shards) if k not in complete]
+    already = sum(plan.bounds(k)[1] - plan.bounds(k)[0] for k in complete)
+    message = f"generating {scn.name}"
+    if progress is not None:
+        if complete:
+            progress(f"resuming: {len(complete)} of {plan.n_shards} shard(s) already complete")
+        progress(message, already, n)
+    meta = dataset_meta(scn, root)
+    run_shards(scn, root, partial, plan, todo, meta, workers=workers, scheduler=scheduler,
+               progress=None if progress is None else (lambda done: progress(message, already + done, n)))
+    return shards.finalize(out, partial, plan, meta), root
 
 
 # ---------------------------------------------------------------- calibrate

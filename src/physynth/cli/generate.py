@@ -27,18 +27,45 @@ def generate_cmd(
     n: int = typer.Option(20, "-n", "--n-traces", min=1, help="Number of traces to generate."),
     seed: int | None = typer.Option(None, "--seed", help="Root seed (random when omitted; stored)."),
     out: Path = typer.Option(Path("runs/default"), "--out", "-o", help="Output dataset directory."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset (or discard an "
+                                                              "unfinished run of it)."),
+    workers: int = typer.Option(0, "--workers", "-w", min=0,
+                                help="Worker processes (0 = all cores). More than one runs an embedded Dask "
+                                     "cluster (physynth[scale]); the output is the same for any number."),
+    scheduler: str | None = typer.Option(None, "--scheduler", metavar="ADDRESS",
+                                         help="Run on an existing Dask cluster (e.g. tcp://host:8786) whose "
+                                              "workers see --out at the same path."),
+    resume: bool = typer.Option(False, "--resume", help="Complete a killed run of --out: keep its complete "
+                                                        "shards, write the others (same seed unless --seed)."),
+    shard_traces: int = typer.Option(128, "--shard-traces", min=1,
+                                     help="Traces per shard (the unit of work, of atomic writes and of --resume)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Generate N synthetic traces from a scenario and write them as a Parquet dataset."""
+    from ..errors import PhySynthError
     from ..io.scenario_file import load_scenario
+    from ..parallel import available_cores
     from ..workflows import generate_dataset
 
     scn = load_scenario(scenario)
-    with progress_bar(not quiet) as progress:
-        path, root = generate_dataset(scn, n, out, seed=seed, overwrite=overwrite, progress=progress)
+    n_workers = workers or available_cores()
+    try:
+        with progress_bar(not quiet) as progress:
+            path, root = generate_dataset(scn, n, out, seed=seed, overwrite=overwrite, progress=progress,
+                                          workers=n_workers, scheduler=scheduler, resume=resume,
+                                          shard_traces=shard_traces)
+    except PhySynthError as exc:
+        msg = str(exc)
+        msg = msg.replace("; resume it or overwrite to start over", "; add --resume to complete it or "
+                          "--overwrite to start over")
+        raise PhySynthError(msg) from None
+    except KeyboardInterrupt:
+        typer.echo(f"physynth: interrupted; complete shards are kept: run the same command with --resume "
+                   f"to finish {out}", err=True)
+        raise typer.Exit(130) from None
     if not quiet:
-        typer.echo(f"wrote {n} trace(s) of '{scn.name}' to {path} (root seed {root})")
+        where = f"on {scheduler}" if scheduler else f"{min(n_workers, -(-n // shard_traces))} worker(s)"
+        typer.echo(f"wrote {n} trace(s) of '{scn.name}' to {path} (root seed {root}, {where})")
 
 
 def scenarios_cmd() -> None:
