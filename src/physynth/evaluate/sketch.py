@@ -11,8 +11,9 @@ Pooled metrics over a dataset of any size are combined from per-trace parts:
   folds the values into a logarithmic histogram (the DDSketch construction) of relative accuracy
   :data:`RELATIVE_ACCURACY`: every quantile it returns is within 0.01 % (relative) of a sample
   value of that rank, and values of magnitude below :data:`ZERO_TOLERANCE` count as 0. Its size is
-  bounded by the dynamic range of the values (about 23,000 bins per decade and sign), not by their
-  number.
+  bounded by the dynamic range of the values, not by their number: at most 23,000 bins (16 bytes
+  each) per decade between 1e-6 and the largest magnitude, per sign, e.g. 6.4 MB for residuals up to
+  1 km.
 
 Two-sample statistics on sketched data (KS, Wasserstein-1, Anderson-Darling in validation) are
 computed on :meth:`QuantileSketch.values`: the exact values while exact, otherwise
@@ -31,8 +32,8 @@ RELATIVE_ACCURACY = 1e-4
 """Relative accuracy alpha of a folded sketch: a returned quantile q' of a true quantile q has
 |q' - q| <= alpha |q|."""
 
-ZERO_TOLERANCE = 1e-9
-"""Values with |x| below this count as exactly 0 in a folded sketch."""
+ZERO_TOLERANCE = 1e-6
+"""Values with |x| below this (1 um for a residual, 1 us for a time) count as 0 in a folded sketch."""
 
 REPRESENTATIVES = 100_000
 """Number of evenly spaced quantiles that stand for a folded sketch in two-sample statistics."""
