@@ -10,10 +10,8 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from .calibrate import CalibrationResult, calibrate
-from .calibrate._base import CalibrationError
 from .constants import DEFAULT_GRID_RATE_HZ
 from .errors import AnchorMismatchError, PhySynthError
 from .evaluate.metrics import Metrics, compute_metrics
@@ -26,14 +24,10 @@ from .progress import ProgressCallback
 from .records import Trace
 from .rng import new_root_seed
 from .scenario import Scenario, scenario_to_dict
-from .validate.compare import (
-    ValidationReport,
-    anchor_ids,
-    check_real,
-    compare,
-    describe_anchor_mismatch,
-    transfer_record,
-)
+
+if TYPE_CHECKING:
+    from .calibrate import CalibrationResult
+    from .validate.compare import ValidationReport
 
 
 # ---------------------------------------------------------------- generate
@@ -90,6 +84,8 @@ def generate_dataset(scn: Scenario, n: int, out: str | Path, *, seed: int | None
 # ---------------------------------------------------------------- calibrate
 def read_recordings(paths: Sequence[str | os.PathLike]) -> tuple[list[Trace], list[str]]:
     """Traces of one or several dataset directories, labelled ``<dataset>/<run or trace index>``."""
+    from .calibrate._base import CalibrationError
+
     if not paths:
         raise CalibrationError("no dataset directories given")
     traces, sources = [], []
@@ -103,7 +99,9 @@ def read_recordings(paths: Sequence[str | os.PathLike]) -> tuple[list[Trace], li
 
 
 def calibrate_datasets(paths: Sequence[str | os.PathLike], **kwargs: Any) -> CalibrationResult:
-    """:func:`calibrate` on every trace of one or several dataset directories, pooled."""
+    """:func:`physynth.calibrate.calibrate` on every trace of one or several dataset directories, pooled."""
+    from .calibrate import calibrate
+
     traces, sources = read_recordings(paths)
     return calibrate(traces, sources=sources, **kwargs)
 
@@ -187,6 +185,8 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
         ``transfer`` without a scenario, ``n < 1``, unreadable or empty datasets, a real dataset
         without truth, anchors or valid ranges, and anchor ids that differ (without ``transfer``).
     """
+
+    from .validate.compare import anchor_ids, check_real, compare, describe_anchor_mismatch, transfer_record
 
     if (synthetic is None) == (scenario is None):
         raise PhySynthError("give exactly one of a synthetic dataset and a scenario "
