@@ -12,7 +12,7 @@ import datetime as _dt
 import json
 import os
 import shutil
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -78,6 +78,20 @@ def _arrow(values: Any, typ: pa.DataType) -> pa.Array:
     return pa.array(values, type=typ)
 
 
+def _strings_at(values: Sequence[str], index: np.ndarray) -> pa.Array:
+    """Arrow strings ``values[index]`` gathered with NumPy (``cast``/``take`` would import pyarrow.compute)."""
+    enc = [str(v).encode("utf-8") for v in values]
+    lens = np.array([len(b) for b in enc], dtype=np.int64)
+    blob = np.frombuffer(b"".join(enc), dtype=np.uint8)
+    starts = np.concatenate([[0], np.cumsum(lens)[:-1]]).astype(np.int64)
+    index = np.asarray(index, dtype=np.intp)
+    row_lens = lens[index] if lens.size else np.zeros(0, np.int64)
+    offsets = np.concatenate([[0], np.cumsum(row_lens)]).astype(np.int32)
+    src = np.repeat(starts[index] - offsets[:-1], row_lens) + np.arange(offsets[-1]) if index.size else np.zeros(0, int)
+    data = blob[src] if src.size else np.zeros(0, np.uint8)
+    return pa.Array.from_buffers(pa.string(), index.size, [None, pa.py_buffer(offsets), pa.py_buffer(data)])
+
+
 def _table(name: str, cols: list[Any]) -> pa.Table:
     """A table of ``SCHEMAS[name]`` from NumPy columns."""
     schema = SCHEMAS[name]
@@ -94,8 +108,7 @@ def _tables_of(trace: Trace, index: int) -> dict[str, pa.Table]:
         out["imu"] = _table("imu", [np.full(im.t_s.shape[0], index, np.int32), im.t_s, *im.acc_mps2.T])
     u = trace.uwb
     nlos = (_arrow(u.nlos, pa.bool_()) if u.nlos_known else pa.nulls(len(u), pa.bool_()))
-    anchor_id = pa.DictionaryArray.from_arrays(_arrow(u.anchor, pa.int32()),
-                                               _arrow(trace.anchors.ids, pa.string())).cast(pa.string())
+    anchor_id = _strings_at(trace.anchors.ids, u.anchor)
     out["uwb"] = _table("uwb", [np.full(len(u), index, np.int32), u.t_s, anchor_id, u.range_m, u.true_range_m,
                                 nlos, u.burst, u.reason])
     a = trace.anchors
