@@ -101,7 +101,7 @@ def test_iter_traces_streams_parts_and_row_groups(scn, tmp_path):
     for i, t in enumerate(streamed):
         ref = generate_trace(cs, i, SEED)
         assert np.array_equal(t.uwb.range_m, ref.uwb.range_m, equal_nan=True)
-        assert np.array_equal(t.imu.acc_mps2, ref.imu.acc_mps2)
+        assert np.array_equal(t.imu.acc_mps2, ref.imu.acc_mps2.astype(np.float32))  # stored as float32
         assert np.array_equal(t.truth.pos_enu_m, ref.truth.pos_enu_m)
     m, meta = inspect_dataset(path)
     assert meta["n_traces"] == 7 and m.n_traces == 7

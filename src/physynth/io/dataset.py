@@ -43,6 +43,18 @@ SCHEMAS = {
                          + [(f"pos_{c}_m", pa.float64()) for c in "enu"]),
 }
 
+FLOAT32_COLUMNS = ("acc_e_mps2", "acc_n_mps2", "acc_u_mps2", "vel_e_mps", "vel_n_mps", "vel_u_mps")
+"""Columns that generated datasets store as float32 (``DatasetWriter(compact=True)``): IMU acceleration
+(float32 keeps 7 significant digits, about 1e-6 m/s^2 at 10 m/s^2, against a per-sample noise of metres
+per second squared) and truth velocity (1e-6 m/s at 10 m/s). Times, positions, ranges and anchor
+positions stay float64: times may be epoch seconds, positions are training labels (float32 would round
+them to 0.2 mm at 2 km) and range residuals are the metric of the paper. Readers return float64."""
+
+SCHEMAS_COMPACT = {
+    name: pa.schema([pa.field(f.name, pa.float32()) if f.name in FLOAT32_COLUMNS else f for f in schema])
+    for name, schema in SCHEMAS.items()
+}
+
 UNITS = {
     "t_s": "s", "pos_*_m": "m (ENU)", "vel_*_mps": "m/s (ENU)", "acc_*_mps2": "m/s^2",
     "range_m": "m", "true_range_m": "m",
@@ -92,20 +104,20 @@ def _strings_at(values: Sequence[str], index: np.ndarray) -> pa.Array:
     return pa.Array.from_buffers(pa.string(), index.size, [None, pa.py_buffer(offsets), pa.py_buffer(data)])
 
 
-def _table(name: str, cols: list[Any]) -> pa.Table:
-    """A table of ``SCHEMAS[name]`` from NumPy columns."""
-    schema = SCHEMAS[name]
+def _table(name: str, cols: list[Any], compact: bool = False) -> pa.Table:
+    """A table of ``SCHEMAS[name]`` (or ``SCHEMAS_COMPACT[name]``) from NumPy columns."""
+    schema = (SCHEMAS_COMPACT if compact else SCHEMAS)[name]
     return pa.Table.from_arrays([_arrow(c, f.type) for c, f in zip(cols, schema, strict=True)], schema=schema)
 
 
-def _tables_of(trace: Trace, index: int) -> dict[str, pa.Table]:
+def _tables_of(trace: Trace, index: int, compact: bool = False) -> dict[str, pa.Table]:
     tr = trace.truth
     n = tr.t_s.shape[0]
     out = {"truth": _table("truth", [np.full(n, index, np.int32), tr.t_s,
-                                     *tr.pos_enu_m.T, *tr.vel_enu_mps.T])}
+                                     *tr.pos_enu_m.T, *tr.vel_enu_mps.T], compact)}
     if trace.imu is not None:
         im = trace.imu
-        out["imu"] = _table("imu", [np.full(im.t_s.shape[0], index, np.int32), im.t_s, *im.acc_mps2.T])
+        out["imu"] = _table("imu", [np.full(im.t_s.shape[0], index, np.int32), im.t_s, *im.acc_mps2.T], compact)
     u = trace.uwb
     nlos = (_arrow(u.nlos, pa.bool_()) if u.nlos_known else pa.nulls(len(u), pa.bool_()))
     anchor_id = _strings_at(trace.anchors.ids, u.anchor)
@@ -125,7 +137,7 @@ class DatasetWriter:
     """
 
     def __init__(self, path: str | os.PathLike, *, meta: dict[str, Any] | None = None,
-                 overwrite: bool = False, row_group_traces: int = 64) -> None:
+                 overwrite: bool = False, row_group_traces: int = 64, compact: bool = False) -> None:
         self.path = Path(path)
         if self.path.exists() and not overwrite:
             raise OutputExistsError(self.path)
@@ -141,7 +153,8 @@ class DatasetWriter:
         except OSError as exc:
             raise DatasetError(f"cannot create {self.path}: {exc.strerror}") from None
         self._writers = {
-            name: pq.ParquetWriter(self.tmp / f"{name}.parquet", SCHEMAS[name], compression="snappy",
+            name: pq.ParquetWriter(self.tmp / f"{name}.parquet", (SCHEMAS_COMPACT if compact else SCHEMAS)[name],
+                                   compression="snappy",
                                    use_dictionary=["anchor_id", "name"], write_statistics=["trace"])
             for name in TABLES
         }
@@ -149,10 +162,13 @@ class DatasetWriter:
         self._row_group_traces = row_group_traces
         self._trace_meta: list[dict[str, Any]] = []
         self._closed = False
+        self.compact = compact  # float32 for FLOAT32_COLUMNS (generated data)
+        if compact:
+            self.meta.setdefault("float32_columns", list(FLOAT32_COLUMNS))
 
     def add(self, trace: Trace, index: int | None = None) -> None:
         index = len(self._trace_meta) if index is None else int(index)
-        for name, table in _tables_of(trace, index).items():
+        for name, table in _tables_of(trace, index, self.compact).items():
             self._pending[name].append(table)
         self._trace_meta.append({"trace": index, **jsonable(trace.meta)})
         if len(self._pending["truth"]) >= self._row_group_traces:

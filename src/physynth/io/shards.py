@@ -79,7 +79,7 @@ def write_shard(partial: str | os.PathLike, k: int, traces: Any, meta: dict[str,
     if dest.is_dir():
         return 0
     n = 0
-    with DatasetWriter(dest, meta=meta, row_group_traces=ROW_GROUP_TRACES) as w:
+    with DatasetWriter(dest, meta=meta, row_group_traces=ROW_GROUP_TRACES, compact=True) as w:
         for index, trace in traces:
             w.add(trace, index=index)
             n += 1
