@@ -11,11 +11,15 @@ fast)::
     physynth.compute_metrics(physynth.read_dataset("runs/default").traces)
 """
 
+from __future__ import annotations
+
+from typing import Any
+
 __version__ = "0.1.0"
 
-from .records import Anchors, Imu, Reason, Trace, Truth, Uwb  # noqa: E402
-
+_RECORDS = ("Anchors", "Imu", "Reason", "Trace", "Truth", "Uwb")
 _LAZY = {
+    **{name: "physynth.records" for name in _RECORDS},
     "Scenario": "physynth.scenario",
     "load_scenario": "physynth.io.scenario_file",
     "save_scenario": "physynth.io.scenario_file",
@@ -32,7 +36,8 @@ _LAZY = {
 }
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> Any:
+    """Imported on first use, so ``import physynth`` (and ``physynth --help``) does not pay for NumPy."""
     if name in _LAZY:
         import importlib
 
@@ -40,4 +45,4 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'physynth' has no attribute {name!r}")
 
 
-__all__ = ["Anchors", "Imu", "Reason", "Trace", "Truth", "Uwb", "__version__", *_LAZY]
+__all__ = ["__version__", *_LAZY]

@@ -10,59 +10,88 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from .calibrate import CalibrationResult, calibrate
-from .calibrate._base import CalibrationError
 from .constants import DEFAULT_GRID_RATE_HZ
 from .errors import AnchorMismatchError, PhySynthError
-from .generate import compile_scenario, dataset_meta, generate_trace, generate_traces
-from .io.dataset import DatasetWriter, read_dataset
+from .evaluate.metrics import Metrics, compute_metrics
+from .generate import compile_scenario, dataset_meta, generate_traces
+from .io.dataset import iter_traces, n_traces, read_dataset, read_meta, table_files
 from .io.scenario_file import load_scenario
+from .io.shards import DEFAULT_SHARD_TRACES
+from .parallel import run_shards
 from .progress import ProgressCallback
 from .records import Trace
 from .rng import new_root_seed
 from .scenario import Scenario, scenario_to_dict
-from .validate.compare import (
-    ValidationReport,
-    anchor_ids,
-    check_real,
-    compare,
-    describe_anchor_mismatch,
-    transfer_record,
-)
+
+if TYPE_CHECKING:
+    from .calibrate import CalibrationResult
+    from .validate.compare import ValidationReport
 
 
 # ---------------------------------------------------------------- generate
 def generate_dataset(scn: Scenario, n: int, out: str | Path, *, seed: int | None = None,
-                     overwrite: bool = False, progress: ProgressCallback | None = None) -> tuple[Path, int]:
-    """Generate ``n`` traces and write them as a dataset directory (atomically).
+                     overwrite: bool = False, progress: ProgressCallback | None = None, workers: int = 1,
+                     scheduler: str | None = None, resume: bool = False,
+                     shard_traces: int = DEFAULT_SHARD_TRACES) -> tuple[Path, int]:
+    """Generate ``n`` traces and write them as a dataset directory (atomically), in shards.
 
-    Returns the dataset path and the root seed used (drawn from OS entropy when ``seed`` is None).
-    ``progress(message, done, total)`` is called after every trace.
+    Parameters
+    ----------
+    workers : int
+        Worker processes (an embedded Dask cluster when > 1; :mod:`physynth.parallel`).
+    scheduler : str, optional
+        Address of an existing Dask scheduler to run the shards on instead.
+    resume : bool
+        Complete an unfinished (killed) run of ``out``: complete shards are kept, the others written.
+        Without ``seed`` the unfinished run's root seed is used.
+    shard_traces : int
+        Traces per shard (:mod:`physynth.io.shards`). The output is the same for any ``workers``.
+
+    Returns the dataset path and the root seed used (drawn from OS entropy when ``seed`` is None and
+    there is nothing to resume). ``progress(message, done, total)`` reports traces written.
     """
+    from .io import shards
+
     if n < 1:
         raise PhySynthError(f"the number of traces must be at least 1, got {n}")
+    if shard_traces < 1:
+        raise PhySynthError(f"traces per shard must be at least 1, got {shard_traces}")
+    if workers < 1:
+        raise PhySynthError(f"the number of workers must be at least 1, got {workers}")
+    out = Path(out)
+    previous = shards.read_plan(out) if resume else None
+    if seed is None and previous is not None:
+        seed = previous.get("root_seed")
     root = new_root_seed() if seed is None else int(seed)
-    cs = compile_scenario(scn)
-    with DatasetWriter(out, meta=dataset_meta(scn, root), overwrite=overwrite) as writer:
-        for i in range(n):
-            writer.add(generate_trace(cs, i, root), index=i)
-            if progress is not None:
-                progress(f"generating {scn.name}", i + 1, n)
-    return Path(out), root
+    plan = shards.ShardPlan(n, shard_traces)
+    partial, complete = shards.prepare(out, shards.plan_record(scenario_to_dict(scn), root, n, shard_traces),
+                                       resume=resume, overwrite=overwrite)
+    todo = [k for k in range(plan.n_shards) if k not in complete]
+    already = sum(plan.bounds(k)[1] - plan.bounds(k)[0] for k in complete)
+    message = f"generating {scn.name}"
+    if progress is not None:
+        if complete:
+            progress(f"resuming: {len(complete)} of {plan.n_shards} shard(s) already complete")
+        progress(message, already, n)
+    meta = dataset_meta(scn, root)
+    run_shards(scn, root, partial, plan, todo, meta, workers=workers, scheduler=scheduler,
+               progress=None if progress is None else (lambda done: progress(message, already + done, n)))
+    return shards.finalize(out, partial, plan, meta), root
 
 
 # ---------------------------------------------------------------- calibrate
 def read_recordings(paths: Sequence[str | os.PathLike]) -> tuple[list[Trace], list[str]]:
     """Traces of one or several dataset directories, labelled ``<dataset>/<run or trace index>``."""
+    from .calibrate._base import CalibrationError
+
     if not paths:
         raise CalibrationError("no dataset directories given")
     traces, sources = [], []
     for p in paths:
-        ds = read_dataset(p)
         sources.append(str(Path(p)))
-        for i, t in enumerate(ds.traces):
+        for i, t in enumerate(iter_traces(p)):  # streamed; calibration itself needs the traces together
             lab = f"{Path(p).name}/{t.meta.get('run') or f'trace {i}'}"
             traces.append(Trace(truth=t.truth, uwb=t.uwb, anchors=t.anchors, imu=t.imu,
                                 meta={**t.meta, "label": lab}))
@@ -70,9 +99,47 @@ def read_recordings(paths: Sequence[str | os.PathLike]) -> tuple[list[Trace], li
 
 
 def calibrate_datasets(paths: Sequence[str | os.PathLike], **kwargs: Any) -> CalibrationResult:
-    """:func:`calibrate` on every trace of one or several dataset directories, pooled."""
+    """:func:`physynth.calibrate.calibrate` on every trace of one or several dataset directories, pooled."""
+    from .calibrate import calibrate
+
     traces, sources = read_recordings(paths)
     return calibrate(traces, sources=sources, **kwargs)
+
+
+# ---------------------------------------------------------------- inspect
+def inspect_dataset(path: str | Path, *, rate_hz: float = DEFAULT_GRID_RATE_HZ,
+                    progress: ProgressCallback | None = None) -> tuple[Metrics, dict[str, Any]]:
+    """Pooled section-5 metrics of a dataset, streamed trace by trace, and its ``dataset.json``.
+
+    Memory does not grow with the number of traces (:func:`physynth.io.dataset.iter_traces`,
+    :class:`physynth.evaluate.metrics.MetricsAccumulator`). ``progress`` is called after each trace.
+    """
+    meta = read_meta(path)
+    total = n_traces(meta)
+    done = 0
+
+    def on_trace() -> None:
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress("reading traces", done, total)
+
+    try:
+        return compute_metrics(iter_traces(path, meta), rate_hz, on_trace=on_trace), meta
+    except ValueError as exc:  # a table that reads but does not make valid records
+        raise PhySynthError(f"dataset {path}: invalid content: {exc}") from None
+
+
+def _anchor_ids_of(path: str | Path) -> list[str]:
+    """Anchor ids of a dataset from its (small) anchors table, in order of first appearance."""
+    import pyarrow.parquet as pq
+
+    ids: list[str] = []
+    for f in table_files(Path(path), "anchors"):
+        for a in pq.read_table(f, columns=["anchor_id"]).column("anchor_id").to_pylist():
+            if a not in ids:
+                ids.append(a)
+    return ids
 
 
 # ---------------------------------------------------------------- validate
@@ -125,6 +192,8 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
         without truth, anchors or valid ranges, and anchor ids that differ (without ``transfer``).
     """
 
+    from .validate.compare import anchor_ids, check_real, compare, describe_anchor_mismatch, transfer_record
+
     if (synthetic is None) == (scenario is None):
         raise PhySynthError("give exactly one of a synthetic dataset and a scenario "
                             f"({'both' if synthetic is not None else 'neither'} given)")
@@ -144,27 +213,27 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
     if anchors is not None:
         from .studies.subset import check_subset, restrict_to_anchors
 
-        subset = check_subset(anchors, real_ids, "--anchors (the real dataset's anchors)")
+        subset = check_subset(anchors, real_ids, "the anchor subset (the real dataset's anchors)")
         inputs["anchor_subset"] = subset
 
     if synthetic is not None:
-        synth_ds = _read(read_dataset, synthetic, "synthetic")
-        synth_ids = anchor_ids(synth_ds.traces)
+        synth_meta = _read(read_meta, synthetic, "synthetic")
+        if synth_meta.get("n_traces") == 0:
+            raise PhySynthError(f"synthetic dataset: dataset {synthetic} holds no traces")
+        synth_ids = _read(_anchor_ids_of, synthetic, "synthetic")
         if subset is not None:
-            check_subset(subset, synth_ids, f"--anchors (the synthetic dataset {synthetic})")
+            check_subset(subset, synth_ids, f"the anchor subset (the synthetic dataset {synthetic})")
         else:
             problem = describe_anchor_mismatch(real_ids, synth_ids, f"the synthetic dataset {synthetic}")
             if problem:
                 raise AnchorMismatchError(problem)
-        if not any(s.uwb.valid.any() for s in synth_ds.traces):
-            raise PhySynthError(f"synthetic dataset {synthetic} has no valid UWB range: nothing to compare")
-        inputs["synthetic"] = {"path": str(synthetic), "kind": synth_ds.meta.get("kind"),
-                               "scenario_name": synth_ds.meta.get("scenario_name"),
-                               "root_seed": synth_ds.meta.get("root_seed"), "n_traces": len(synth_ds)}
-        synth_iter: Iterable[Trace] = synth_ds.traces
-        total = len(synth_ds)
+        total = n_traces(synth_meta)
+        inputs["synthetic"] = {"path": str(synthetic), "kind": synth_meta.get("kind"),
+                               "scenario_name": synth_meta.get("scenario_name"),
+                               "root_seed": synth_meta.get("root_seed"), "n_traces": total}
+        synth_iter: Iterable[Trace] = _checked_stream(synthetic, synth_meta)
         if subset is not None:
-            synth_iter = (restrict_to_anchors(t, subset) for t in synth_ds.traces if set(subset) <= set(t.anchors.ids))
+            synth_iter = (restrict_to_anchors(t, subset) for t in synth_iter if set(subset) <= set(t.anchors.ids))
     else:
         scn = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
         source = scn.name if isinstance(scenario, Scenario) else str(scenario)
@@ -177,12 +246,12 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
             scn = transfer_scenario(original, real_traces)
             transfer_info = transfer_record(original, scn, str(real), real_ids)
         elif subset is not None:
-            check_subset(subset, list(scn.anchor_ids), f"--anchors (scenario '{scn.name}')")
+            check_subset(subset, list(scn.anchor_ids), f"the anchor subset (scenario '{scn.name}')")
         else:
             problem = describe_anchor_mismatch(real_ids, list(scn.anchor_ids), f"scenario '{scn.name}'")
             if problem:
-                raise AnchorMismatchError(problem + "; transfer the scenario to take the anchor layout from the real "
-                                          "dataset")
+                raise AnchorMismatchError(
+                    problem + "; transfer the scenario to take the anchor layout from the real dataset")
         root = new_root_seed() if seed is None else int(seed)
         inputs["synthetic"] = {"scenario": source, "scenario_name": scn.name, "n_traces": int(n),
                                "root_seed": root, "transfer": bool(transfer),
@@ -192,18 +261,38 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
             synth_iter = (restrict_to_anchors(t, subset) for t in synth_iter)
         total = n
 
-    if progress is None:
-        return compare(real_traces, synth_iter, rate_hz=rate_hz, inputs=inputs, transfer=transfer_info)
     verb = "generating + reducing" if synthetic is None else "reducing"
     done = 0
 
     def on_trace() -> None:
         nonlocal done
         done += 1
-        progress(f"{verb} synthetic traces", done, total)
+        if progress is not None:
+            progress(f"{verb} synthetic traces", done, total)
 
-    progress(f"{verb} synthetic traces", 0, total)
-    return compare(real_traces, synth_iter, rate_hz=rate_hz, inputs=inputs, transfer=transfer_info, on_trace=on_trace)
+    if progress is not None:
+        progress(f"{verb} synthetic traces", 0, total)
+    try:
+        report = compare(real_traces, synth_iter, rate_hz=rate_hz, inputs=inputs, transfer=transfer_info,
+                         on_trace=on_trace)
+    except ValueError as exc:  # a streamed table that reads but does not make valid records
+        raise PhySynthError(f"synthetic dataset {synthetic}: invalid content: {exc}") from None
+    if synthetic is not None and not report.inputs["n_residuals"]["synthetic"]:
+        raise PhySynthError(f"synthetic dataset {synthetic} has no valid UWB range: nothing to compare")
+    return report
+
+
+def _checked_stream(path: str | Path, meta: dict[str, Any]) -> Iterable[Trace]:
+    """The traces of a synthetic dataset, streamed; read errors name the role."""
+    stream = iter_traces(path, meta)
+    while True:
+        try:
+            trace = next(stream)
+        except StopIteration:
+            return
+        except PhySynthError as exc:
+            raise PhySynthError(f"synthetic dataset: {exc}") from None
+        yield trace
 
 
 # ---------------------------------------------------------------- studies
@@ -221,6 +310,7 @@ def anchor_study(scenario: str | Path | Scenario, *, real: str | Path | None = N
     ``seed=None`` draws a root seed from OS entropy; it is recorded in the result.
     """
     from .studies.anchors import run_anchor_study
+    from .validate.compare import check_real
 
     scn = _scenario(scenario)
     real_traces = None

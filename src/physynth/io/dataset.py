@@ -12,7 +12,7 @@ import datetime as _dt
 import json
 import os
 import shutil
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -51,6 +51,19 @@ SCHEMAS = {
                          + [(f"pos_{c}_m", pa.float64()) for c in "enu"]),
 }
 
+FLOAT32_COLUMNS = ("acc_e_mps2", "acc_n_mps2", "acc_u_mps2", "acc_x_mps2", "acc_y_mps2", "acc_z_mps2",
+                   "gyro_x_radps", "gyro_y_radps", "gyro_z_radps", "vel_e_mps", "vel_n_mps", "vel_u_mps")
+"""Columns that generated datasets store as float32 (``DatasetWriter(compact=True)``): IMU acceleration
+and angular rate (float32 keeps 7 significant digits, about 1e-6 m/s^2 at 10 m/s^2, against a per-sample
+noise of metres per second squared) and truth velocity (1e-6 m/s at 10 m/s). Times, positions, ranges and anchor
+positions stay float64: times may be epoch seconds, positions are training labels (float32 would round
+them to 0.2 mm at 2 km) and range residuals are the metric of the paper. Readers return float64."""
+
+SCHEMAS_COMPACT = {
+    name: pa.schema([pa.field(f.name, pa.float32()) if f.name in FLOAT32_COLUMNS else f for f in schema])
+    for name, schema in SCHEMAS.items()
+}
+
 UNITS = {
     "t_s": "s", "pos_*_m": "m (ENU)", "vel_*_mps": "m/s (ENU)", "acc_[enu]_mps2": "m/s^2 (ENU, gravity removed)",
     "acc_[xyz]_mps2": "m/s^2 (body FLU, specific force incl. gravity)", "gyro_[xyz]_radps": "rad/s (body FLU)",
@@ -68,46 +81,59 @@ FRAMES = {
 REASONS = {"0": "ok", "1": "dropout", "2": "outage", "3": "no link (range/visibility)", "4": "invalid"}
 
 
-def _tables_of(trace: Trace, index: int) -> dict[str, pa.Table]:
-    tr = trace.truth
-    n = tr.t_s.shape[0]
-    cols: dict[str, Any] = {"trace": np.full(n, index, np.int32), "t_s": tr.t_s}
-    for k, c in enumerate("enu"):
-        cols[f"pos_{c}_m"] = tr.pos_enu_m[:, k]
-    for k, c in enumerate("enu"):
-        cols[f"vel_{c}_mps"] = tr.vel_enu_mps[:, k]
-    _optional_columns(cols, tr, "truth", n)
-    out = {"truth": pa.Table.from_pydict(cols, schema=SCHEMAS["truth"])}
-
-    if trace.imu is not None:
-        im = trace.imu
-        cols = {"trace": np.full(im.t_s.shape[0], index, np.int32), "t_s": im.t_s}
-        _optional_columns(cols, im, "imu", im.t_s.shape[0])
-        out["imu"] = pa.Table.from_pydict(cols, schema=SCHEMAS["imu"])
-
-    u = trace.uwb
-    ids = np.asarray(trace.anchors.ids, dtype=object)
-    nlos = pa.array(u.nlos, mask=None if u.nlos_known else np.ones(len(u), bool), type=pa.bool_())
-    out["uwb"] = pa.Table.from_arrays(
-        [pa.array(np.full(len(u), index, np.int32)), pa.array(u.t_s),
-         pa.array(ids[u.anchor] if len(u) else np.array([], object), type=pa.string()),
-         pa.array(u.range_m), pa.array(u.true_range_m), nlos, pa.array(u.burst), pa.array(u.reason)],
-        schema=SCHEMAS["uwb"],
-    )
-    a = trace.anchors
-    cols = {"trace": np.full(len(a), index, np.int32), "anchor_id": list(a.ids), "name": list(a.names)}
-    for k, c in enumerate("enu"):
-        cols[f"pos_{c}_m"] = a.pos_enu_m[:, k]
-    out["anchors"] = pa.Table.from_pydict(cols, schema=SCHEMAS["anchors"])
-    return out
+_NUMPY_OF = {pa.float64(): np.float64, pa.float32(): np.float32, pa.int64(): np.int64, pa.int32(): np.int32,
+             pa.int16(): np.int16, pa.int8(): np.int8}
 
 
-def _optional_columns(cols: dict[str, Any], record: Any, table: str, n: int) -> None:
-    """Columns of the optional groups of ``record``: values, or nulls where the record has none."""
+def _arrow(values: Any, typ: pa.DataType) -> pa.Array:
+    """A NumPy column as an Arrow array, zero-copy from its buffer where possible.
+
+    (``pa.array`` on NumPy input imports pandas, 0.5 s that the writer does not need.)
+    """
+    if isinstance(values, pa.Array):
+        return values
+    if typ in _NUMPY_OF:
+        arr = np.ascontiguousarray(values, dtype=_NUMPY_OF[typ])
+        return pa.Array.from_buffers(typ, arr.shape[0], [None, pa.py_buffer(arr)])
+    if typ == pa.bool_():
+        arr = np.asarray(values, dtype=bool)
+        return pa.Array.from_buffers(typ, arr.shape[0], [None, pa.py_buffer(np.packbits(arr, bitorder="little"))])
+    if typ == pa.string():
+        data = [str(v).encode("utf-8") for v in values]
+        offsets = np.concatenate([[0], np.cumsum([len(b) for b in data])]).astype(np.int32)
+        return pa.Array.from_buffers(typ, len(data), [None, pa.py_buffer(offsets), pa.py_buffer(b"".join(data))])
+    return pa.array(values, type=typ)
+
+
+def _strings_at(values: Sequence[str], index: np.ndarray) -> pa.Array:
+    """Arrow strings ``values[index]`` gathered with NumPy (``cast``/``take`` would import pyarrow.compute)."""
+    enc = [str(v).encode("utf-8") for v in values]
+    lens = np.array([len(b) for b in enc], dtype=np.int64)
+    blob = np.frombuffer(b"".join(enc), dtype=np.uint8)
+    starts = np.concatenate([[0], np.cumsum(lens)[:-1]]).astype(np.int64)
+    index = np.asarray(index, dtype=np.intp)
+    row_lens = lens[index] if lens.size else np.zeros(0, np.int64)
+    offsets = np.concatenate([[0], np.cumsum(row_lens)]).astype(np.int32)
+    src = np.repeat(starts[index] - offsets[:-1], row_lens) + np.arange(offsets[-1]) if index.size else np.zeros(0, int)
+    data = blob[src] if src.size else np.zeros(0, np.uint8)
+    return pa.Array.from_buffers(pa.string(), index.size, [None, pa.py_buffer(offsets), pa.py_buffer(data)])
+
+
+def _table(name: str, cols: list[Any], compact: bool = False) -> pa.Table:
+    """A table of ``SCHEMAS[name]`` (or ``SCHEMAS_COMPACT[name]``) from NumPy columns."""
+    schema = (SCHEMAS_COMPACT if compact else SCHEMAS)[name]
+    n = len(cols[0])
+    return pa.Table.from_arrays([pa.nulls(n, f.type) if c is None else _arrow(c, f.type)
+                                 for c, f in zip(cols, schema, strict=True)], schema=schema)
+
+
+def _optional(record: Any, table: str) -> list[np.ndarray | None]:
+    """Columns of the optional groups of ``record`` in schema order; None (written as nulls) where absent."""
+    out: list[np.ndarray | None] = []
     for attr, names in OPTIONAL_COLUMNS[table].items():
         value = getattr(record, attr)
-        for k, c in enumerate(names):
-            cols[c] = pa.nulls(n, pa.float64()) if value is None else value[:, k]
+        out += [None if value is None else value[:, k] for k in range(len(names))]
+    return out
 
 
 def _optional_group(cols: dict[str, np.ndarray], table: str, attr: str) -> np.ndarray | None:
@@ -121,6 +147,25 @@ def _optional_group(cols: dict[str, np.ndarray], table: str, attr: str) -> np.nd
     return arr
 
 
+def _tables_of(trace: Trace, index: int, compact: bool = False) -> dict[str, pa.Table]:
+    tr = trace.truth
+    n = tr.t_s.shape[0]
+    out = {"truth": _table("truth", [np.full(n, index, np.int32), tr.t_s, *tr.pos_enu_m.T, *tr.vel_enu_mps.T,
+                                     *_optional(tr, "truth")], compact)}
+    if trace.imu is not None:
+        im = trace.imu
+        out["imu"] = _table("imu", [np.full(im.t_s.shape[0], index, np.int32), im.t_s, *_optional(im, "imu")],
+                            compact)
+    u = trace.uwb
+    nlos = (_arrow(u.nlos, pa.bool_()) if u.nlos_known else pa.nulls(len(u), pa.bool_()))
+    anchor_id = _strings_at(trace.anchors.ids, u.anchor)
+    out["uwb"] = _table("uwb", [np.full(len(u), index, np.int32), u.t_s, anchor_id, u.range_m, u.true_range_m,
+                                nlos, u.burst, u.reason])
+    a = trace.anchors
+    out["anchors"] = _table("anchors", [np.full(len(a), index, np.int32), a.ids, a.names, *a.pos_enu_m.T])
+    return out
+
+
 class DatasetWriter:
     """Streams traces into a new dataset directory; the directory appears only on :meth:`close`.
 
@@ -130,7 +175,7 @@ class DatasetWriter:
     """
 
     def __init__(self, path: str | os.PathLike, *, meta: dict[str, Any] | None = None,
-                 overwrite: bool = False, row_group_traces: int = 64) -> None:
+                 overwrite: bool = False, row_group_traces: int = 64, compact: bool = False) -> None:
         self.path = Path(path)
         if self.path.exists() and not overwrite:
             raise OutputExistsError(self.path)
@@ -146,7 +191,8 @@ class DatasetWriter:
         except OSError as exc:
             raise DatasetError(f"cannot create {self.path}: {exc.strerror}") from None
         self._writers = {
-            name: pq.ParquetWriter(self.tmp / f"{name}.parquet", SCHEMAS[name], compression="snappy",
+            name: pq.ParquetWriter(self.tmp / f"{name}.parquet", (SCHEMAS_COMPACT if compact else SCHEMAS)[name],
+                                   compression="snappy",
                                    use_dictionary=["anchor_id", "name"], write_statistics=["trace"])
             for name in TABLES
         }
@@ -156,10 +202,13 @@ class DatasetWriter:
         self._frames: set[str] = set()
         self._attitude = False
         self._closed = False
+        self.compact = compact  # float32 for FLOAT32_COLUMNS (generated data)
+        if compact:
+            self.meta.setdefault("float32_columns", list(FLOAT32_COLUMNS))
 
     def add(self, trace: Trace, index: int | None = None) -> None:
         index = len(self._trace_meta) if index is None else int(index)
-        for name, table in _tables_of(trace, index).items():
+        for name, table in _tables_of(trace, index, self.compact).items():
             self._pending[name].append(table)
         self._trace_meta.append({"trace": index, **jsonable(trace.meta)})
         if trace.imu is not None:
@@ -265,14 +314,19 @@ def read_meta(path: str | os.PathLike) -> dict[str, Any]:
     return meta
 
 
-def _read_table(path: Path, name: str) -> dict[str, np.ndarray]:
-    f = path / f"{name}.parquet"
-    if not f.is_file():
+def table_files(path: Path, name: str) -> list[Path]:
+    """The Parquet files of table ``name``: ``<name>.parquet``, or the parts ``<name>/part-*.parquet`` of
+    a dataset generated in shards (:mod:`physynth.io.shards`), in trace order."""
+    single = path / f"{name}.parquet"
+    if single.is_file():
+        return [single]
+    parts = sorted((path / name).glob("part-*.parquet")) if (path / name).is_dir() else []
+    if not parts:
         raise DatasetError(f"dataset {path} is incomplete: {name}.parquet is missing")
-    try:
-        table = pq.read_table(f)
-    except (OSError, pa.ArrowException) as exc:
-        raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
+    return parts
+
+
+def _columns(table: pa.Table, name: str, f: Path) -> dict[str, np.ndarray]:
     optional = {c for group in OPTIONAL_COLUMNS.get(name, {}).values() for c in group}
     if name == "imu" and not any(c in table.column_names for c in optional):
         raise DatasetError(f"{f}: no acceleration or angular-rate column")
@@ -292,8 +346,21 @@ def _read_table(path: Path, name: str) -> dict[str, np.ndarray]:
             cols[c] = (np.asarray(enc.dictionary.to_pylist(), dtype=object)[enc.indices.to_numpy()]
                        if enc is not None else np.array([], dtype=object))
         else:
-            cols[c] = col.to_numpy()
+            if col.null_count:  # an optional group this trace does not have
+                cols[c] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
+            else:
+                cols[c] = col.to_numpy().astype(np.float64) if pa.types.is_float32(col.type) else col.to_numpy()
     return cols
+
+
+def _read_table(path: Path, name: str) -> dict[str, np.ndarray]:
+    parts = []
+    for f in table_files(path, name):
+        try:
+            parts.append(_columns(pq.read_table(f), name, f))
+        except (OSError, pa.ArrowException) as exc:
+            raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
+    return {c: np.concatenate([p[c] for p in parts]) for c in parts[0]}
 
 
 def _split(cols: dict[str, np.ndarray]) -> dict[int, dict[str, np.ndarray]]:
@@ -306,46 +373,133 @@ def _split(cols: dict[str, np.ndarray]) -> dict[int, dict[str, np.ndarray]]:
     return {int(k): {c: v[order[s:e]] for c, v in cols.items()} for k, s, e in zip(keys, starts, ends, strict=True)}
 
 
+def _row_groups_sorted(files: list[Path]) -> bool:
+    """True when the row groups of ``files``, in order, hold non-decreasing trace indices (statistics)."""
+    last = -1
+    for f in files:
+        md = _parquet_file(f).metadata
+        col = md.schema.names.index("trace") if "trace" in md.schema.names else -1
+        for g in range(md.num_row_groups):
+            if md.row_group(g).num_rows == 0:
+                continue
+            st = md.row_group(g).column(col).statistics if col >= 0 else None
+            if st is None or not st.has_min_max or st.min < last:
+                return False
+            last = st.max
+    return True
+
+
+def _parquet_file(f: Path) -> pq.ParquetFile:
+    try:
+        return pq.ParquetFile(f)
+    except (OSError, pa.ArrowException) as exc:
+        raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
+
+
+def _row_group(pf: pq.ParquetFile, g: int, name: str, f: Path) -> dict[str, np.ndarray]:
+    try:
+        return _columns(pf.read_row_group(g), name, f)
+    except (OSError, pa.ArrowException) as exc:
+        raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
+
+
+def _table_stream(path: Path, name: str) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
+    """(trace index, columns) of one table, read one row group at a time, in trace order."""
+    files = table_files(path, name)
+    if not _row_groups_sorted(files):  # not written by DatasetWriter: read it whole, once
+        yield from sorted(_split(_read_table(path, name)).items())
+        return
+    pending: tuple[int, dict[str, np.ndarray]] | None = None
+    for f in files:
+        pf = _parquet_file(f)
+        for g in range(pf.metadata.num_row_groups):
+            groups = sorted(_split(_row_group(pf, g, name, f)).items())
+            if pending is not None and groups and groups[0][0] == pending[0]:  # a trace across groups
+                groups[0] = (pending[0], {c: np.concatenate([pending[1][c], v]) for c, v in groups[0][1].items()})
+            elif pending is not None and groups:
+                yield pending
+            if groups:
+                pending = groups.pop()
+            yield from groups
+    if pending is not None:
+        yield pending
+
+
+def _trace_of(idx: int, tr: dict, an: dict | None, im: dict | None, uw: dict | None,
+              meta: dict[str, Any], trace_meta: dict[str, Any], path: Path) -> Trace:
+    if an is None:  # an IMU-only recording (e.g. BROAD) has no anchors
+        anchors = Anchors(ids=(), pos_enu_m=np.zeros((0, 3)))
+    else:
+        anchors = Anchors(ids=tuple(an["anchor_id"]), names=tuple(an["name"]),
+                          pos_enu_m=np.stack([an[f"pos_{c}_m"] for c in "enu"], axis=1))
+    truth = Truth(t_s=tr["t_s"], pos_enu_m=np.stack([tr[f"pos_{c}_m"] for c in "enu"], axis=1),
+                  vel_enu_mps=np.stack([tr[f"vel_{c}_mps"] for c in "enu"], axis=1),
+                  quat_wxyz=_optional_group(tr, "truth", "quat_wxyz"),
+                  omega_body_radps=_optional_group(tr, "truth", "omega_body_radps"))
+    imu = None
+    if im is not None:
+        groups = {a: _optional_group(im, "imu", a) for a in OPTIONAL_COLUMNS["imu"]}
+        if all(g is None for g in groups.values()):
+            raise DatasetError(f"dataset {path}: trace {idx} has IMU rows without any value")
+        imu = Imu(t_s=im["t_s"], frame=meta.get("imu_frame", IMU_FRAME), **groups)
+    if uw is None:
+        uwb = Uwb(t_s=np.array([]), anchor=np.array([], np.int16), range_m=np.array([]))
+    else:
+        names, inverse = np.unique(uw["anchor_id"].astype(str), return_inverse=True)
+        unknown = sorted(set(names) - set(anchors.ids))
+        if unknown:
+            raise DatasetError(f"dataset {path}: trace {idx} has UWB rows of unknown anchor(s) {unknown}")
+        to_index = np.array([anchors.index(a) for a in names], dtype=np.int16)
+        uwb = Uwb(t_s=uw["t_s"], anchor=to_index[inverse] if len(names) else np.array([], np.int16),
+                  range_m=uw["range_m"], true_range_m=uw["true_range_m"], nlos=uw["nlos"],
+                  burst=uw["burst"], reason=uw["reason"],
+                  nlos_known=bool(uw["nlos_known"].all()) if len(uw["nlos_known"]) else False)
+    m = {k: v for k, v in trace_meta.items() if k != "trace"}
+    return Trace(truth=truth, uwb=uwb, anchors=anchors, imu=imu, meta=m)
+
+
+def iter_traces(path: str | os.PathLike, meta: dict[str, Any] | None = None) -> Iterator[Trace]:
+    """The traces of a dataset directory, one at a time, in trace order.
+
+    Every table is read one row group at a time (a row group holds a few dozen traces), so memory
+    does not grow with the number of traces. ``meta`` is the dataset's ``dataset.json`` when already
+    read (:func:`read_meta`).
+    """
+    path = Path(path)
+    meta = read_meta(path) if meta is None else meta
+    trace_meta = {int(m["trace"]): m for m in meta.get("traces", [])}
+    streams = {name: _table_stream(path, name) for name in TABLES}
+    heads: dict[str, tuple[int, dict] | None] = {name: next(streams[name], None) for name in TABLES if name != "truth"}
+
+    def take(name: str, idx: int) -> dict | None:
+        while heads[name] is not None and heads[name][0] < idx:  # rows of a trace without truth: skipped
+            heads[name] = next(streams[name], None)
+        head = heads[name]
+        if head is not None and head[0] == idx:
+            heads[name] = next(streams[name], None)
+            return head[1]
+        return None
+
+    n = 0
+    for idx, tr in streams["truth"]:
+        n += 1
+        yield _trace_of(idx, tr, take("anchors", idx), take("imu", idx), take("uwb", idx), meta,
+                        trace_meta.get(idx, {}), path)
+    if n == 0:
+        raise DatasetError(f"dataset {path} holds no traces")
+
+
+def n_traces(meta: dict[str, Any]) -> int | None:
+    """Number of traces recorded in a dataset's ``dataset.json`` (None when it does not say)."""
+    n = meta.get("n_traces")
+    return int(n) if isinstance(n, int) else None
+
+
 def read_dataset(path: str | os.PathLike) -> Dataset:
-    """Read a dataset directory back into Trace records (same values as written)."""
+    """Read a whole dataset directory back into Trace records (same values as written).
+
+    Holds every trace in memory; :func:`iter_traces` streams them instead.
+    """
     path = Path(path)
     meta = read_meta(path)
-    parts = {name: _split(_read_table(path, name)) for name in TABLES}
-    trace_meta = {int(m["trace"]): m for m in meta.get("traces", [])}
-    traces = []
-    for idx in sorted(parts["truth"]):
-        tr, an = parts["truth"][idx], parts["anchors"].get(idx)
-        if an is None:  # an IMU-only recording (e.g. BROAD) has no anchors
-            anchors = Anchors(ids=(), pos_enu_m=np.zeros((0, 3)))
-        else:
-            anchors = Anchors(ids=tuple(an["anchor_id"]), names=tuple(an["name"]),
-                              pos_enu_m=np.stack([an[f"pos_{c}_m"] for c in "enu"], axis=1))
-        truth = Truth(t_s=tr["t_s"], pos_enu_m=np.stack([tr[f"pos_{c}_m"] for c in "enu"], axis=1),
-                      vel_enu_mps=np.stack([tr[f"vel_{c}_mps"] for c in "enu"], axis=1),
-                      quat_wxyz=_optional_group(tr, "truth", "quat_wxyz"),
-                      omega_body_radps=_optional_group(tr, "truth", "omega_body_radps"))
-        im = parts["imu"].get(idx)
-        imu = None
-        if im is not None:
-            groups = {a: _optional_group(im, "imu", a) for a in OPTIONAL_COLUMNS["imu"]}
-            if all(g is None for g in groups.values()):
-                raise DatasetError(f"dataset {path}: trace {idx} has IMU rows without any value")
-            imu = Imu(t_s=im["t_s"], frame=meta.get("imu_frame", IMU_FRAME), **groups)
-        uw = parts["uwb"].get(idx)
-        if uw is None:
-            uwb = Uwb(t_s=np.array([]), anchor=np.array([], np.int16), range_m=np.array([]))
-        else:
-            names, inverse = np.unique(uw["anchor_id"].astype(str), return_inverse=True)
-            unknown = sorted(set(names) - set(anchors.ids))
-            if unknown:
-                raise DatasetError(f"dataset {path}: trace {idx} has UWB rows of unknown anchor(s) {unknown}")
-            to_index = np.array([anchors.index(a) for a in names], dtype=np.int16)
-            uwb = Uwb(t_s=uw["t_s"], anchor=to_index[inverse] if len(names) else np.array([], np.int16),
-                      range_m=uw["range_m"], true_range_m=uw["true_range_m"], nlos=uw["nlos"],
-                      burst=uw["burst"], reason=uw["reason"],
-                      nlos_known=bool(uw["nlos_known"].all()) if len(uw["nlos_known"]) else False)
-        m = {k: v for k, v in trace_meta.get(idx, {}).items() if k != "trace"}
-        traces.append(Trace(truth=truth, uwb=uwb, anchors=anchors, imu=imu, meta=m))
-    if not traces:
-        raise DatasetError(f"dataset {path} holds no traces")
-    return Dataset(meta=meta, traces=traces)
+    return Dataset(meta=meta, traces=list(iter_traces(path, meta)))

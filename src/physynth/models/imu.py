@@ -22,7 +22,6 @@ from typing import Annotated, Any
 
 import numpy as np
 from pydantic import Field, model_validator
-from scipy.signal import lfilter
 from scipy.spatial.transform import Rotation
 
 from ..constants import G0_MPS2
@@ -122,6 +121,17 @@ def _bias_cf(t_s, sigma, initial_std, *, rng):
     return resample_cf(t_s, knots_t, np.cumsum(steps, axis=1))
 
 
+def _ar1(x_ck: np.ndarray, rho: float) -> np.ndarray:
+    """y_k = x_k + rho y_(k-1) along the last axis (what scipy.signal.lfilter([1], [1, -rho]) computes,
+    with the same rounding), without importing scipy.signal (0.9 s) on every command."""
+    y = np.empty_like(x_ck)
+    prev = np.zeros(x_ck.shape[0])
+    for k in range(x_ck.shape[1]):  # a few hundred knots per trace, vectorised over components
+        prev = x_ck[:, k] + rho * prev
+        y[:, k] = prev
+    return y
+
+
 def vibration(t_s: np.ndarray, params: VibrationParams, *, rng: np.random.Generator) -> np.ndarray:
     """(N, 3) narrow-band vibration at f0 and harmonics; RMS per axis ``amplitude_mps2``.
 
@@ -150,7 +160,7 @@ def _vibration_cf(t_s: np.ndarray, params: VibrationParams, *, rng: np.random.Ge
     # exact complex OU recursion z_k = rho z_{k-1} + sqrt(1 - rho^2) e_k, started in its stationary law
     innov = rng.standard_normal((2 * 3 * n_h, env_t.shape[0])) * np.sqrt(0.5)
     innov[:, 1:] *= np.sqrt(1.0 - rho**2)
-    env = resample_cf(t_s, env_t, lfilter([1.0], [1.0, -rho], innov, axis=1))  # (2*3*H, N): re, im
+    env = resample_cf(t_s, env_t, _ar1(innov, rho))  # (2*3*H, N): re, im
     phase0 = rng.uniform(0.0, 2.0 * np.pi, n_h)
     out = np.zeros((3, n))
     base = np.exp(1j * 2.0 * np.pi * params.fundamental_hz * (t_s - t_s[0]))  # harmonics by powers
@@ -331,7 +341,7 @@ def _gauss_markov_cf(t_s, std, tau_s, *, rng):
     rho = np.exp(-(knots_t[1] - knots_t[0]) / tau_s)
     e = rng.standard_normal((3, knots_t.shape[0])) * std
     e[:, 1:] *= np.sqrt(1.0 - rho * rho)
-    return resample_cf(t_s, knots_t, lfilter([1.0], [1.0, -rho], e, axis=1))
+    return resample_cf(t_s, knots_t, _ar1(e, rho))
 
 
 def ideal_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, omega_body_radps: np.ndarray

@@ -238,14 +238,14 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
     if real is not None:
         if not real:
             raise PhySynthError("the real dataset holds no traces")
-        ref_metrics = pool([summarize(t) for t in real])[0]
+        ref_metrics = pool([summarize(t) for t in real])
         ref_info: dict[str, Any] = {"kind": "real", "n_traces": len(real),
                                     "anchors": list(ref_metrics.per_anchor)}
     else:
         ref_idx = list(range(n, 2 * n))
         parts = _map([(scn, seed, c) for c in _chunks(ref_idx, n_chunks)], _reference_chunk, workers, progress,
                      "anchor study: reference run", n)
-        ref_metrics = pool([s for part in parts for _, s in part])[0]
+        ref_metrics = pool([s for part in parts for _, s in part])
         ref_info = {"kind": "reference run", "n_traces": n, "trace_indices": [n, 2 * n - 1],
                     "anchors": ids}
     if order is None:
@@ -278,7 +278,7 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
         rows = sorted(collected[r], key=lambda x: x[0])
         scores[r], avail[r], cols[r] = {}, {}, {}
         for k in counts:
-            m = pool([pc[k][0] for _, pc in rows])[0]
+            m = pool([pc[k][0] for _, pc in rows])
             scores[r][k] = fidelity_score(ref_metrics, m)
             avail[r][str(k)] = {"ge1": m.uwb_ge1_frac, "ge2": m.uwb_ge2_frac,
                                 "residual_median_m": m.residual_median_m, "abs_residual_p95_m": m.abs_residual_p95_m,

@@ -29,7 +29,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy import signal
 
 from .. import __version__
 from .._json import jsonable
@@ -39,12 +38,13 @@ from ..evaluate.grid import age_of_information, fresh_mask, grid_times
 from ..evaluate.metrics import (
     METRIC_KEYS,
     Metrics,
-    TraceSummary,
+    MetricsAccumulator,
     fidelity_score,
     pool,
     relative_deviation_pct,
     summarize,
 )
+from ..evaluate.sketch import REPRESENTATIVES, QuantileSketch
 from ..evaluate.stats import (
     anderson_darling,
     ks_statistic,
@@ -186,10 +186,12 @@ class _SideAccumulator:
 
     def __init__(self, rate_hz: float) -> None:
         self.rate_hz = rate_hz
-        self.summaries: list[TraceSummary] = []
-        self.gaps: list[np.ndarray] = []
-        self.gap_anchor: list[np.ndarray] = []
-        self.aoi: list[np.ndarray] = []
+        self.n_traces = 0
+        self.metrics = MetricsAccumulator()
+        self.per_trace: list[dict[str, Any]] = []
+        self.residuals: dict[str, QuantileSketch] = {}  # per anchor id
+        self.gaps: dict[str, QuantileSketch] = {}  # per anchor id
+        self.aoi = QuantileSketch()
         self.n_fresh_counts = np.zeros(1, dtype=np.int64)
         self.paths: list[np.ndarray] = []
         self.speeds: list[tuple[np.ndarray, np.ndarray]] = []
@@ -212,8 +214,18 @@ class _SideAccumulator:
         if self.sample is None:
             self.sample, self.anchors = trace, trace.anchors
         s = summarize(trace, rate)  # the section-5 ingredients, from physynth.metrics
-        self.summaries.append(s)
+        self.metrics.add(s)
+        # the trace's own metrics (a few numbers, for the ensemble's 5-95 % band), not its arrays
+        self.per_trace.append({k: v for k, v in pool([s]).to_dict().items() if k != "per_anchor"})
+        self.n_traces += 1
         ids = np.asarray(trace.anchors.ids, dtype=object)
+        for a in trace.anchors.ids:
+            if a not in self.residuals:
+                self.residuals[a], self.gaps[a] = QuantileSketch(), QuantileSketch()
+        if s.residual_m.size:
+            r_ids, r_inv = np.unique(s.residual_anchor.astype(str), return_inverse=True)
+            for j, a in enumerate(r_ids):
+                self.residuals[str(a)].add(s.residual_m[r_inv == j])
 
         # grid: fresh anchors per step and AoI (physynth.grid, the one definition)
         t = grid_times(trace.t0_s, trace.duration_s, rate)
@@ -224,7 +236,7 @@ class _SideAccumulator:
         if counts.size > self.n_fresh_counts.size:
             self.n_fresh_counts = np.pad(self.n_fresh_counts, (0, counts.size - self.n_fresh_counts.size))
         self.n_fresh_counts[:counts.size] += counts
-        self.aoi.append(aoi.ravel())
+        self.aoi.add(aoi.ravel())
 
         # gaps between consecutive valid ranges of one anchor
         uwb = trace.uwb
@@ -233,8 +245,9 @@ class _SideAccumulator:
         order = np.lexsort((tv, av))
         tv, av = tv[order], av[order]
         same = av[1:] == av[:-1]
-        self.gaps.append(np.diff(tv)[same])
-        self.gap_anchor.append(ids[av[1:][same]] if same.any() else np.array([], dtype=object))
+        gap, gap_a = np.diff(tv)[same], av[1:][same]
+        for j in np.unique(gap_a):
+            self.gaps[str(ids[j])].add(gap[gap_a == j])
 
         # residual autocorrelation within each anchor's (time-ordered) sequence
         if s.residual_m.size:
@@ -255,6 +268,8 @@ class _SideAccumulator:
             self.allan_sums += sums
             self.allan_counts += cnt
             if y.shape[0] >= self.nperseg:
+                from scipy import signal  # imported where used: 0.9 s that most commands do not need
+
                 f, p = signal.welch(y, fs=rate, nperseg=self.nperseg, axis=0, detrend="constant")
                 w = y.shape[0] / self.nperseg
                 self.psd_sum = p.T * w if self.psd_sum is None else self.psd_sum + p.T * w
@@ -271,22 +286,23 @@ class _SideAccumulator:
             self.n_fresh_series.append(n_fresh.astype(np.int8))
 
     def finish(self) -> tuple[SideEvidence, np.ndarray]:
-        metrics, r = pool(self.summaries)  # exactly what metrics.compute_metrics returns
+        metrics = self.metrics.result()  # exactly what metrics.compute_metrics returns
         assert self.sample is not None and self.anchors is not None
-        r_anchor = np.concatenate([s.residual_anchor for s in self.summaries])
+        r, r_anchor = _pooled(self.residuals)
+        gap, gap_anchor = _pooled(self.gaps)
         with np.errstate(invalid="ignore", divide="ignore"):
             acf = self.acf_num / self.acf_den if self.acf_den > 0 else np.full(ACF_MAX_LAG, np.nan)
             allan = np.sqrt(self.allan_sums / np.where(self.allan_counts > 0, self.allan_counts, np.nan))
         has_allan = bool(np.any(self.allan_counts > 0))
         ev = SideEvidence(
-            n_traces=len(self.summaries),
+            n_traces=self.n_traces,
             anchors=self.anchors,
             metrics=metrics,
             residual_m=r,
             residual_anchor=r_anchor,
-            gap_s=np.concatenate(self.gaps),
-            gap_anchor=np.concatenate(self.gap_anchor),
-            aoi_s=np.concatenate(self.aoi),
+            gap_s=gap,
+            gap_anchor=gap_anchor,
+            aoi_s=self.aoi.values(),
             n_fresh_counts=self.n_fresh_counts,
             paths_enu_m=tuple(self.paths),
             speeds=tuple(self.speeds),
@@ -299,10 +315,29 @@ class _SideAccumulator:
             allan_tau_s=self.allan_m / self.rate_hz if has_allan else None,
             allan_dev_mps2=allan if has_allan else None,
             rate_hz=self.rate_hz,
-            per_trace=tuple({k: v for k, v in pool([s])[0].to_dict().items() if k != "per_anchor"}
-                            for s in self.summaries),
+            per_trace=tuple(self.per_trace),
         )
         return ev, r
+
+
+def _pooled(sketches: Mapping[str, QuantileSketch]) -> tuple[np.ndarray, np.ndarray]:
+    """Values of per-anchor sketches pooled, with the anchor id of each value.
+
+    Exact values while a sketch is exact; a folded sketch stands in with evenly spaced quantiles in
+    proportion to its count (:mod:`physynth.evaluate.sketch`), so pooled statistics keep its weight.
+    """
+    total = sum(sk.n for sk in sketches.values())
+    vals, labels = [], []
+    for a, sk in sketches.items():
+        if sk.n == 0:
+            continue
+        k = max(1, round(REPRESENTATIVES * sk.n / total)) if sk.folded else sk.n
+        v = sk.values(k)
+        vals.append(v)
+        labels.append(np.full(v.size, a, dtype=object))
+    if not vals:
+        return np.zeros(0), np.array([], dtype=object)
+    return np.concatenate(vals), np.concatenate(labels)
 
 
 # ---------------------------------------------------------------- the report
@@ -549,7 +584,7 @@ def compare(real: Iterable[Trace], synthetic: Iterable[Trace], *, rate_hz: float
             acc.add(tr)
             if name == "synthetic" and on_trace is not None:
                 on_trace()
-        if not acc.summaries:
+        if not acc.n_traces:
             raise PhySynthError(f"the {name} side holds no traces")
         sides[name] = acc.finish()
     (ev_r, r_real), (ev_s, r_synth) = sides["real"], sides["synthetic"]
