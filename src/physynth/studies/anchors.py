@@ -379,7 +379,7 @@ def anchor_figure_png(study: AnchorStudy) -> bytes:
     ax2.set_xlabel("anchors")
     ax2.set_ylabel("fraction of 10 ms bins")
     ax2.set_title(">= 1 and >= 2 fresh anchors")
-    ax2.legend(fontsize=7, ncol=2)
+    ax2.legend(fontsize=7, ncol=2, loc="best")
     for ax in (ax1, ax2):
         ax.set_xticks(counts)
         ax.grid(alpha=0.3)
