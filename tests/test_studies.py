@@ -15,7 +15,7 @@ from physynth.evaluate.metrics import compute_metrics
 from physynth.generate import compile_scenario, generate_trace
 from physynth.io.scenario_file import load_scenario, save_scenario
 from physynth.scenario import scenario_from_dict, scenario_to_dict
-from physynth.studies.anchors import run_anchor_study, write_anchor_study
+from physynth.studies.anchors import AnchorStudy, run_anchor_study, write_anchor_study
 from physynth.studies.placement import greedy_placement, read_candidates
 from physynth.studies.regimes import REGIMES, apply_regime
 from physynth.studies.subset import restrict_to_anchors
@@ -149,6 +149,8 @@ def test_table_files_parse(study, tmp_path):
     assert [float(c) for c in cells] == pytest.approx([study.scores[r][3] for r in ("nominal", "sparse", "degraded")],
                                                       abs=5e-4)
     assert (tmp_path / "anchors.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    back = AnchorStudy.from_dict(d)
+    assert back.scores == study.scores and back.order == study.order and back.counts == study.counts
     with pytest.raises(PhySynthError, match="already holds an anchor study"):
         write_anchor_study(study, tmp_path)
 

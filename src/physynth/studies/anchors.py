@@ -104,6 +104,17 @@ class AnchorStudy:
     def counts(self) -> list[int]:
         return sorted(next(iter(self.scores.values())))
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> AnchorStudy:
+        """The study back from its ``table.json`` form (counts as int keys again)."""
+        return cls(scores={r: {int(k): float(v) for k, v in row.items()} for r, row in d["scores"].items()},
+                   availability=d["availability"],
+                   columns={r: {int(k): {n: (float("inf") if v is None else v) for n, v in c.items()}
+                                for k, c in row.items()} for r, row in d["columns"].items()},
+                   order=list(d["order"]), order_availability=dict(d["order_availability"]),
+                   regimes=d["regimes"], reference=d["reference"], inputs=d["inputs"],
+                   timing_s=d.get("timing_s", {}))
+
     def to_dict(self) -> dict[str, Any]:
         return jsonable({
             "scores": {r: {str(k): v for k, v in row.items()} for r, row in self.scores.items()},
@@ -360,7 +371,7 @@ def anchor_figure_png(study: AnchorStudy) -> bytes:
     from ..validate.render import _png, require_matplotlib
 
     figure_cls, canvas_cls = require_matplotlib()
-    fig = figure_cls(figsize=(10, 4))
+    fig = figure_cls(figsize=(11, 4.8))
     ax1, ax2 = fig.subplots(1, 2)
     counts = study.counts
     colors = {"nominal": "k", "dense": "tab:blue", "sparse": "tab:orange", "degraded": "tab:red"}
@@ -379,7 +390,7 @@ def anchor_figure_png(study: AnchorStudy) -> bytes:
     ax2.set_xlabel("anchors")
     ax2.set_ylabel("fraction of 10 ms bins")
     ax2.set_title(">= 1 and >= 2 fresh anchors")
-    ax2.legend(fontsize=7, ncol=2, loc="best")
+    ax2.legend(fontsize=7, ncol=4, loc="upper center", bbox_to_anchor=(0.5, -0.16))
     for ax in (ax1, ax2):
         ax.set_xticks(counts)
         ax.grid(alpha=0.3)
