@@ -1,7 +1,8 @@
 """Anchor placement beyond the paper: choose K of a set of candidate positions, greedily.
 
 Every candidate becomes an anchor of the scenario (its channel: the scenario's default channel, or the
-per-anchor override of the same id); ``2 n`` traces are generated once with all candidates (common
+per-anchor override of the same id; all ranged at the burst start, so that the order of the candidates
+does not matter); ``2 n`` traces are generated once with all candidates (common
 random numbers, as in :mod:`physynth.studies.anchors`), and each trace is reduced to its fresh mask on
 the 100 Hz grid and its tag positions and 1-second freshness on a 10 Hz grid. The greedy search then
 adds, K times, the candidate that improves the objective most on traces 0 .. n-1 (selection);
@@ -96,9 +97,16 @@ def read_candidates(path: str | os.PathLike) -> list[AnchorSpec]:
     return out
 
 
-def candidate_scenario(scn: Scenario, candidates: Sequence[AnchorSpec]) -> Scenario:
-    """The scenario with the candidates as its anchors (overrides kept for candidates of the same id)."""
+def candidate_scenario(scn: Scenario, candidates: Sequence[AnchorSpec], *, same_slot: bool = False) -> Scenario:
+    """The scenario with the candidates as its anchors (overrides kept for candidates of the same id).
+
+    ``same_slot`` ranges every anchor at the burst start (``uwb.slot_s`` = 0): with many candidates the
+    slot offsets j * slot_s would otherwise spread a burst over several 10 ms bins and make the >= 2
+    objectives depend on the candidates' order in the file.
+    """
     d = scenario_to_dict(scn)
+    if same_slot:
+        d["uwb"]["slot_s"] = 0.0
     ids = {a.id for a in candidates}
     d["anchors"] = [a.model_dump(mode="json") for a in candidates]
     for key in ("channel_per_anchor", "availability_per_anchor"):
@@ -164,7 +172,7 @@ def greedy_placement(scn: Scenario, candidates: Sequence[AnchorSpec], *, k: int,
         raise PhySynthError(f"-k must lie in 1..{len(candidates)} (the number of candidates), got {k}")
     if n < 1:
         raise PhySynthError(f"-n must be at least 1, got {n}")
-    cscn = candidate_scenario(scn, candidates)
+    cscn = candidate_scenario(scn, candidates, same_slot=True)
     workers = max(1, int(workers or os.cpu_count() or 1))
     parts = _map([(cscn, seed, c) for c in _chunks(list(range(2 * n)), 2 * workers)], _reduce_chunk, workers,
                  progress, "placement: generating", 2 * n)
