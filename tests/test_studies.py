@@ -220,7 +220,7 @@ def test_cli_placement_bad_candidates_and_k(tmp_path, capsys):
     (tmp_path / "c.yaml").write_text("- {id: A, pos_enu_m: [1, 2, 3]}\n")
     code, _, err = run(capsys, "study", "placement", "--candidates", tmp_path / "c.yaml", "-k", 2, "--out",
                        tmp_path / "o", "-q")
-    assert code == 2 and "-k must lie in 1..1" in err
+    assert code == 2 and "must lie in 1..1" in err
 
 
 def test_cli_study_anchors_and_validate_subset(tmp_path, capsys):

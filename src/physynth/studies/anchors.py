@@ -231,7 +231,7 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
     progress = progress or no_progress
     t_start = time.perf_counter()
     if n < 1:
-        raise PhySynthError(f"-n must be at least 1, got {n}")
+        raise PhySynthError(f"the number of traces per cell must be at least 1, got {n}")
     ids = list(scn.anchor_ids)
     counts = sorted(set(range(1, len(ids) + 1) if counts is None else (int(k) for k in counts)))
     bad = [k for k in counts if not 1 <= k <= len(ids)]
@@ -263,7 +263,7 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
         order_ids, frac = availability_order(ref_metrics, ids)
         order_source = ref_info["kind"]
     else:
-        order_ids = check_subset(order, ids, "--order")
+        order_ids = check_subset(order, ids, "the anchor order")
         if len(order_ids) < max(counts):
             raise PhySynthError(f"the order names {len(order_ids)} anchor(s) but counts go up to {max(counts)}")
         frac = {a: float(ref_metrics.per_anchor.get(a, {}).get("fresh_frac", float("nan"))) for a in order_ids}

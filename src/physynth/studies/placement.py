@@ -169,9 +169,10 @@ def greedy_placement(scn: Scenario, candidates: Sequence[AnchorSpec], *, k: int,
     if objective not in OBJECTIVES:
         raise PhySynthError(f"unknown objective '{objective}'; the objectives are {', '.join(OBJECTIVES)}")
     if not 1 <= k <= len(candidates):
-        raise PhySynthError(f"-k must lie in 1..{len(candidates)} (the number of candidates), got {k}")
+        raise PhySynthError(f"the number of anchors to place must lie in 1..{len(candidates)} (the number of "
+                            f"candidates), got {k}")
     if n < 1:
-        raise PhySynthError(f"-n must be at least 1, got {n}")
+        raise PhySynthError(f"the number of traces must be at least 1, got {n}")
     cscn = candidate_scenario(scn, candidates, same_slot=True)
     workers = max(1, int(workers or os.cpu_count() or 1))
     parts = _map([(cscn, seed, c) for c in _chunks(list(range(2 * n)), 2 * workers)], _reduce_chunk, workers,
