@@ -242,6 +242,10 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
         raise PhySynthError("no regime given")
     if len(set(regimes)) != len(regimes):
         raise PhySynthError(f"a regime is given twice: {', '.join(regimes)}")
+    if order is not None:  # checked before any work
+        order = check_subset(order, ids, "the anchor order")
+        if len(order) < max(counts):
+            raise PhySynthError(f"the order names {len(order)} anchor(s) but counts go up to {max(counts)}")
     workers = max(1, int(workers or os.cpu_count() or 1))
     n_chunks = 2 * workers
 
@@ -263,9 +267,7 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
         order_ids, frac = availability_order(ref_metrics, ids)
         order_source = ref_info["kind"]
     else:
-        order_ids = check_subset(order, ids, "the anchor order")
-        if len(order_ids) < max(counts):
-            raise PhySynthError(f"the order names {len(order_ids)} anchor(s) but counts go up to {max(counts)}")
+        order_ids = list(order)
         frac = {a: float(ref_metrics.per_anchor.get(a, {}).get("fresh_frac", float("nan"))) for a in order_ids}
         order_source = "given"
     t_ref = time.perf_counter()
