@@ -63,9 +63,9 @@ def test_obstacles_off_by_default_and_a_box_over_the_route_blocks_everyone():
 
 def test_segment_tests_agree_with_dense_sampling():
     rng = np.random.default_rng(0)
-    p = rng.uniform(-10, 10, (4000, 3))
-    q = rng.uniform(-10, 10, (4000, 3))
-    s = np.linspace(0, 1, 2001)[None, :, None]
+    p = rng.uniform(-10, 10, (1500, 3))
+    q = rng.uniform(-10, 10, (1500, 3))
+    s = np.linspace(0, 1, 1001)[None, :, None]
     pts = p[:, None, :] + s * (q - p)[:, None, :]
     lo, hi = np.array([-2.0, -3.0, -1.0]), np.array([3.0, 2.0, 4.0])
 
@@ -74,9 +74,9 @@ def test_segment_tests_agree_with_dense_sampling():
 
     hit = segment_hits_box(p, q, lo, hi)
     # exact test vs sampling: a sampled hit of the box is an exact hit; an exact hit is a sampled hit of
-    # the box grown by the sampling step (<= 0.02 m here)
+    # the box grown by the sampling step (<= 0.035 m here)
     assert np.all(hit[sampled_box(lo, hi)])
-    assert np.all(sampled_box(lo - 0.03, hi + 0.03)[hit])
+    assert np.all(sampled_box(lo - 0.04, hi + 0.04)[hit])
     assert 0.1 < hit.mean() < 0.9
 
     poly = np.array([[-4.0, -4.0], [4.0, -4.0], [4.0, 4.0], [0.0, 0.0], [-4.0, 4.0]])  # non-convex
@@ -85,7 +85,7 @@ def test_segment_tests_agree_with_dense_sampling():
     in_fp = points_in_polygon(flat[:, 0], flat[:, 1], poly).reshape(pts.shape[:2])
     sampled = np.any(in_fp & (pts[..., 2] >= -1.0) & (pts[..., 2] <= 3.0), axis=1)
     assert np.all(hitp[sampled])
-    assert (hitp & ~sampled).mean() < 0.01  # grazing hits between samples only
+    assert (hitp & ~sampled).mean() < 0.02  # grazing hits between samples only
     assert 0.1 < hitp.mean() < 0.9
 
 

@@ -52,7 +52,7 @@ def test_detection_fit_recovers_the_sensitivity_and_bounds_it_without_losses():
 
 @pytest.mark.skipif(not STATIC.is_dir(), reason=f"real Hanyang static sweeps not found at {STATIC}")
 def test_hanyang_static_link_budget():
-    params, rep = fit_link_budget_hanyang_static(STATIC, environment="LOS")
+    params, rep = fit_link_budget_hanyang_static(STATIC / "LOS", environment="LOS")  # LOS files only
     pl = rep["path_loss"]
     assert -82.0 < pl["saturation_dbm"] < -79.0  # the DW1000 first-path power tops out near -80 dBm
     assert 0.1 < pl["ground_reflection"] < 0.9  # the interference nulls of the two-ray term are real
