@@ -158,7 +158,24 @@ def test_table_files_parse(study, tmp_path):
 def test_gdop_column(study):
     one, three = study.columns["nominal"][1], study.columns["nominal"][3]
     assert one["gdop_le5_frac"] == 0.0 and not np.isfinite(one["gdop_median"])  # one anchor: no fix
-    assert np.isfinite(three["gdop_median"]) and three["gdop_median"] >= 1.0 / np.sqrt(3) * np.sqrt(3)
+    assert not np.isfinite(one["fresh_hdop_median"])
+    assert np.isfinite(three["gdop_median"]) and np.isfinite(three["fresh_hdop_median"])
+
+
+def test_gdop_against_closed_forms():
+    from physynth.studies.dop import gdop
+
+    # three orthogonal unit directions: H = I, GDOP = sqrt(3); the 2-D part of two orthogonal ones: sqrt(2)
+    tag = np.zeros((1, 3))
+    anchors = np.array([[-10.0, 0, 0], [0, -10.0, 0], [0, 0, -10.0]])
+    assert gdop(tag, anchors)[0] == pytest.approx(np.sqrt(3))
+    assert gdop(tag, anchors[:2], known_height=True)[0] == pytest.approx(np.sqrt(2))
+    # anchors in one plane with the tag: no 3-D fix; two anchors in line with the tag: no 2-D fix
+    flat = np.array([[10.0, 0, 0], [0, 10.0, 0], [-10.0, 0, 0]])
+    assert not np.isfinite(gdop(tag, flat)[0])
+    assert not np.isfinite(gdop(tag, flat[[0, 2]], known_height=True)[0])
+    mask = np.array([[True, True, False]])
+    assert not np.isfinite(gdop(tag, anchors, mask)[0])
 
 
 def test_greedy_placement_picks_the_anchors_that_cover_the_path(tmp_path):

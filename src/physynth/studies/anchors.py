@@ -68,17 +68,19 @@ class CellColumn(Protocol):
 
 class GdopColumn:
     """GDOP along the path: ``gdop_*`` with every anchor of the cell, ``fresh_gdop_*`` with the anchors
-    heard within the last second (median, P95, fraction of time <= 5)."""
+    heard within the last second, ``fresh_hdop_*`` the same with the tag height known (median, P95,
+    fraction of time <= 5)."""
 
     name = "gdop"
 
-    def per_trace(self, trace: Trace) -> tuple[np.ndarray, np.ndarray]:
+    def per_trace(self, trace: Trace) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return trace_gdop(trace)
 
-    def reduce(self, parts: Sequence[tuple[np.ndarray, np.ndarray]]) -> dict[str, float]:
-        geo = np.concatenate([p[0] for p in parts])
-        fresh = np.concatenate([p[1] for p in parts])
-        return {**summarize_gdop(geo, "gdop"), **summarize_gdop(fresh, "fresh_gdop")}
+    def reduce(self, parts: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> dict[str, float]:
+        out: dict[str, float] = {}
+        for j, prefix in enumerate(("gdop", "fresh_gdop", "fresh_hdop")):
+            out.update(summarize_gdop(np.concatenate([p[j] for p in parts]), prefix))
+        return out
 
 
 CELL_COLUMNS: tuple[CellColumn, ...] = (GdopColumn(),)
@@ -348,16 +350,17 @@ def anchor_table_md(study: AnchorStudy) -> str:
         cells = [f"{_fmt(study.availability[r][str(k)]['ge1'])} | {_fmt(study.availability[r][str(k)]['ge2'])}"
                  for r in regimes]
         lines.append(f"| {k} | " + " | ".join(cells) + " |")
-    lines += ["", "GDOP along the path (median; fraction of time <= 5): with every anchor of the cell, and with the "
-                  "anchors heard in the last second ('fresh'). '-' = no 3-D fix for at least half of the time.", "",
-              "| Anchors | " + " | ".join(f"{r} GDOP | {r} fresh" for r in regimes) + " |",
-              "|---|" + "---|---|" * len(regimes)]
+    lines += ["", "GDOP along the path (median; fraction of time <= 5): with every anchor of the cell, with the "
+                  "anchors heard in the last second ('fresh'), and the fresh HDOP with the tag height known. "
+                  "'-' = no fix for at least half of the time.", "",
+              "| Anchors | " + " | ".join(f"{r} GDOP | {r} fresh | {r} fresh HDOP" for r in regimes) + " |",
+              "|---|" + "---|---|---|" * len(regimes)]
     for k in counts:
         cells = []
         for r in regimes:
             c = study.columns[r][k]
-            cells.append(f"{_fmt(c.get('gdop_median'), 1)} ({_fmt(c.get('gdop_le5_frac'), 2)}) | "
-                         f"{_fmt(c.get('fresh_gdop_median'), 1)} ({_fmt(c.get('fresh_gdop_le5_frac'), 2)})")
+            cells.append(" | ".join(f"{_fmt(c.get(p + '_median'), 1)} ({_fmt(c.get(p + '_le5_frac'), 2)})"
+                                    for p in ("gdop", "fresh_gdop", "fresh_hdop")))
         lines.append(f"| {k} | " + " | ".join(cells) + " |")
     lines += ["", "Regimes:", ""]
     for r, d in study.regimes.items():

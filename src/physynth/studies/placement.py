@@ -14,7 +14,8 @@ Objectives:
   ``ge1`` is a coverage function, so greedy is within a factor 1 - 1/e of the best K-subset;
 - ``gdop``: mean over the path of the fresh GDOP capped at :data:`GDOP_OBJECTIVE_CAP` (a point
   without a 3-D fix counts as the cap; minimised) -- the geometric part of a tracker's error.
-  Ties (fewer than three anchors: every point capped) are broken by ``ge1``.
+  Ties (fewer than three anchors: every point capped) are broken by ``ge1``;
+- ``hdop``: the same with the tag height known (E, N fix: a walker, a vehicle).
 
 A tracker-error objective (:mod:`physynth.track`, when it lands) fits the same loop: reduce a trace to
 what the tracker needs, evaluate the error of a subset.
@@ -43,7 +44,7 @@ from ..scenario import AnchorSpec, Scenario, scenario_from_dict, scenario_to_dic
 from .anchors import _chunks, _map
 from .dop import DOP_RATE_HZ, FRESH_AOI_S, gdop
 
-OBJECTIVES = ("ge1", "ge2", "ge3", "gdop")
+OBJECTIVES = ("ge1", "ge2", "ge3", "gdop", "hdop")
 GDOP_OBJECTIVE_CAP = 10.0
 """Fresh GDOP values above this (and points without a fix) count as this in the ``gdop`` objective."""
 
@@ -133,10 +134,11 @@ def _objective(name: str, sel: list[int], fresh: list[np.ndarray], pos: list[np.
     n_bins = sum(f.shape[0] for f in fresh)
     counts = [f[:, sel].sum(axis=1) for f in fresh]
     res = {f"ge{m}": float(sum(np.count_nonzero(c >= m) for c in counts) / n_bins) for m in (1, 2, 3)}
-    if name == "gdop":
-        g = np.concatenate([gdop(p, anchors[sel], m[:, sel]) for p, m in zip(pos, fresh10, strict=True)])
-        res["gdop"] = float(np.mean(np.minimum(g, GDOP_OBJECTIVE_CAP)))
-        res["fresh_gdop_median"] = float(np.median(g))
+    if name in ("gdop", "hdop"):
+        g = np.concatenate([gdop(p, anchors[sel], m[:, sel], known_height=name == "hdop")
+                            for p, m in zip(pos, fresh10, strict=True)])
+        res[name] = float(np.mean(np.minimum(g, GDOP_OBJECTIVE_CAP)))
+        res[f"fresh_{name}_median"] = float(np.median(g))
     return res
 
 
@@ -186,7 +188,7 @@ def greedy_placement(scn: Scenario, candidates: Sequence[AnchorSpec], *, k: int,
         return _objective(objective, sel, [r[1] for r in which], [r[2] for r in which], [r[3] for r in which],
                           anchors)
 
-    maximise = objective != "gdop"
+    maximise = objective not in ("gdop", "hdop")
     chosen: list[int] = []
     steps = []
     for step in range(1, k + 1):
