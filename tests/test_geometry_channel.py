@@ -153,3 +153,28 @@ def test_bad_obstacles_are_one_line_scenario_errors():
                                               "top_m": 1}]})
     with pytest.raises(ScenarioError):
         simple_scenario(**{"uwb.obstacles": [{"kind": "dome", "top_m": 1}]})
+
+
+def test_obstacle_losses_prefilter_changes_nothing():
+    from physynth.models.obstacles import (
+        BoxObstacle,
+        PrismObstacle,
+        WallObstacle,
+        obstacle_losses,
+        segment_hits_vertical_rect,
+    )
+
+    rng = np.random.default_rng(2)
+    p = rng.uniform(0, 100, (5000, 3)) * [1, 1, 0.3]
+    q = rng.uniform(0, 100, (5000, 3)) * [1, 1, 0.3]
+    obs = [BoxObstacle(min_enu_m=[10, 10, 0], max_enu_m=[20, 30, 8], loss_db=5.0),
+           WallObstacle(vertices_en_m=[[40, 0], [40, 50], [60, 60]], top_m=12.0, loss_db=7.0),
+           PrismObstacle(vertices_en_m=[[70, 70], [90, 70], [80, 95]], base_m=2.0, top_m=20.0, loss_db=11.0)]
+    blocked, loss = obstacle_losses(p, q, obs)
+    h_box = segment_hits_box(p, q, np.array([10.0, 10, 0]), np.array([20.0, 30, 8]))
+    h_wall = (segment_hits_vertical_rect(p, q, np.array([40.0, 0]), np.array([40.0, 50]), 0.0, 12.0)
+              | segment_hits_vertical_rect(p, q, np.array([40.0, 50]), np.array([60.0, 60]), 0.0, 12.0))
+    h_prism = segment_hits_prism(p, q, np.array([[70.0, 70], [90, 70], [80, 95]]), 2.0, 20.0)
+    np.testing.assert_array_equal(blocked, h_box | h_wall | h_prism)
+    np.testing.assert_allclose(loss, 5.0 * h_box + 7.0 * h_wall + 11.0 * h_prism)
+    assert h_box.any() and h_wall.any() and h_prism.any()
