@@ -31,10 +31,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import multiprocessing as mp
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -162,25 +164,38 @@ def _chunks(indices: Sequence[int], n_chunks: int) -> list[list[int]]:
     return [list(indices[a:a + size]) for a in range(0, len(indices), size)]
 
 
-def _map(tasks: list[tuple[Any, ...]], fn: Any, workers: int, progress: ProgressCallback, message: str,
-         total: int) -> list[Any]:
-    """Run ``fn(*task)`` for every task (in a process pool when workers > 1); results in task order."""
+@contextmanager
+def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor | None]:
+    """A process pool of ``workers`` processes (None for one worker: run in this process).
+
+    Workers start from a clean, single-threaded ``forkserver`` process (the caller may run a
+    progress-bar thread, and fork() of a multi-threaded process can deadlock); ``spawn`` elsewhere.
+    """
+    if workers <= 1:
+        yield None
+        return
+    method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
+    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context(method)) as ex:
+        yield ex
+
+
+def _map(tasks: list[tuple[Any, ...]], fn: Any, pool: ProcessPoolExecutor | None, progress: ProgressCallback,
+         message: str, total: int) -> list[Any]:
+    """Run ``fn(*task)`` for every task (in ``pool`` when given); results in task order."""
     done = 0
     progress(message, 0, total)
-    if workers <= 1:
-        results = []
+    results: list[Any] = []
+    if pool is None:
         for t in tasks:
             results.append(fn(*t))
             done += len(results[-1])
             progress(message, done, total)
         return results
-    with ProcessPoolExecutor(max_workers=workers) as ex:
-        futures = [ex.submit(fn, *t) for t in tasks]
-        results = []
-        for f in futures:
-            results.append(f.result())
-            done += len(results[-1])
-            progress(message, done, total)
+    futures = [pool.submit(fn, *t) for t in tasks]
+    for f in futures:
+        results.append(f.result())
+        done += len(results[-1])
+        progress(message, done, total)
     return results
 
 
@@ -250,6 +265,15 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
             raise PhySynthError(f"the order names {len(order)} anchor(s) but counts go up to {max(counts)}")
     workers = max(1, int(workers or os.cpu_count() or 1))
     n_chunks = 2 * workers
+    with worker_pool(workers) as executor:  # one pool for the reference run and the cells
+        return _run(scn, real=real, n=n, seed=seed, counts=counts, regimes=regimes, order=order, workers=workers,
+                    n_chunks=n_chunks, executor=executor, columns=columns, progress=progress, t_start=t_start)
+
+
+def _run(scn: Scenario, *, real: Sequence[Trace] | None, n: int, seed: int, counts: list[int], regimes: list[str],
+         order: list[str] | None, workers: int, n_chunks: int, executor: ProcessPoolExecutor | None,
+         columns: Sequence[CellColumn], progress: ProgressCallback, t_start: float) -> AnchorStudy:
+    ids = list(scn.anchor_ids)
 
     # reference and order
     if real is not None:
@@ -260,7 +284,7 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
                                     "anchors": list(ref_metrics.per_anchor)}
     else:
         ref_idx = list(range(n, 2 * n))
-        parts = _map([(scn, seed, c) for c in _chunks(ref_idx, n_chunks)], _reference_chunk, workers, progress,
+        parts = _map([(scn, seed, c) for c in _chunks(ref_idx, n_chunks)], _reference_chunk, executor, progress,
                      "anchor study: reference run", n)
         ref_metrics = pool([s for part in parts for _, s in part])[0]
         ref_info = {"kind": "reference run", "n_traces": n, "trace_indices": [n, 2 * n - 1],
@@ -281,7 +305,7 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
         for c in _chunks(list(range(n)), max(1, n_chunks // len(regimes))):
             tasks.append((rs, order_ids, counts, seed, c, tuple(columns)))
             owners.append(r)
-    results = _map(tasks, _cell_chunk, workers, progress, "anchor study: cells", n * len(regimes))
+    results = _map(tasks, _cell_chunk, executor, progress, "anchor study: cells", n * len(regimes))
     collected: dict[str, list[tuple[int, dict]]] = {r: [] for r in regimes}
     for r, part in zip(owners, results, strict=True):
         collected[r] += part

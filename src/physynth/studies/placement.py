@@ -41,7 +41,7 @@ from ..evaluate.grid import age_of_information, fresh_mask, grid_times
 from ..generate import compile_scenario, generate_trace
 from ..progress import ProgressCallback, no_progress
 from ..scenario import AnchorSpec, Scenario, scenario_from_dict, scenario_to_dict
-from .anchors import _chunks, _map
+from .anchors import _chunks, _map, worker_pool
 from .dop import DOP_RATE_HZ, FRESH_AOI_S, gdop
 
 OBJECTIVES = ("ge1", "ge2", "ge3", "gdop", "hdop")
@@ -177,8 +177,9 @@ def greedy_placement(scn: Scenario, candidates: Sequence[AnchorSpec], *, k: int,
         raise PhySynthError(f"the number of traces must be at least 1, got {n}")
     cscn = candidate_scenario(scn, candidates, same_slot=True)
     workers = max(1, int(workers or os.cpu_count() or 1))
-    parts = _map([(cscn, seed, c) for c in _chunks(list(range(2 * n)), 2 * workers)], _reduce_chunk, workers,
-                 progress, "placement: generating", 2 * n)
+    with worker_pool(workers) as pool:
+        parts = _map([(cscn, seed, c) for c in _chunks(list(range(2 * n)), 2 * workers)], _reduce_chunk, pool,
+                     progress, "placement: generating", 2 * n)
     rows = sorted((r for part in parts for r in part), key=lambda r: r[0])
     sel_rows, held_rows = rows[:n], rows[n:]
     anchors = np.array([a.pos_enu_m for a in candidates], dtype=float)
