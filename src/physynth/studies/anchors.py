@@ -33,6 +33,7 @@ import dataclasses
 import math
 import multiprocessing as mp
 import os
+import threading
 import time
 from collections.abc import Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -168,14 +169,22 @@ def _chunks(indices: Sequence[int], n_chunks: int) -> list[list[int]]:
 def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor | None]:
     """A process pool of ``workers`` processes (None for one worker: run in this process).
 
-    Workers start from a clean, single-threaded ``forkserver`` process (the caller may run a
-    progress-bar thread, and fork() of a multi-threaded process can deadlock); ``spawn`` elsewhere.
+    Workers are forked when this process runs a single thread; otherwise (a progress-bar thread, say:
+    fork() of a multi-threaded process can deadlock) they start from a clean ``forkserver`` process
+    that has imported the generator once; ``spawn`` where neither exists.
     """
     if workers <= 1:
         yield None
         return
-    method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
-    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context(method)) as ex:
+    methods = mp.get_all_start_methods()
+    if "fork" in methods and threading.active_count() == 1:  # nothing to deadlock: the cheapest start
+        method = "fork"
+    else:
+        method = "forkserver" if "forkserver" in methods else "spawn"
+    ctx = mp.get_context(method)
+    if method == "forkserver":  # the server imports the generator once; every worker forks from it
+        ctx.set_forkserver_preload(["physynth.studies.anchors", "physynth.studies.placement"])
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as ex:
         yield ex
 
 
