@@ -12,6 +12,7 @@ from typing import Annotated, Any
 
 from pydantic import Field, ValidationError, field_validator, model_validator
 
+from .bounds import check_bounds
 from .errors import ScenarioError
 from .models._params import ParamsModel, PositiveFloat
 from .models.availability import AvailabilityOverride, AvailabilityParams
@@ -63,6 +64,7 @@ class Scenario(ParamsModel):
         for a in self.anchors:
             if self.channel_for(a.id).rate_hz > self.uwb.burst_rate_hz * (1 + 1e-9):
                 raise ValueError(f"anchor {a.id}: rate_hz exceeds uwb.burst_rate_hz")
+        check_bounds(self.model_dump())  # physical ranges of every field (physynth.bounds)
         return self
 
     # resolved per-anchor parameters

@@ -12,8 +12,10 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+from .bounds import check_budget
 from .calibrate import CalibrationResult, calibrate
 from .calibrate._base import CalibrationError
+from .calibrate.sites import check_same_site, site_of
 from .constants import DEFAULT_GRID_RATE_HZ
 from .errors import AnchorMismatchError, PhySynthError
 from .generate import compile_scenario, dataset_meta, generate_trace, generate_traces
@@ -35,17 +37,23 @@ from .validate.compare import (
 
 # ---------------------------------------------------------------- generate
 def generate_dataset(scn: Scenario, n: int, out: str | Path, *, seed: int | None = None,
-                     overwrite: bool = False, progress: ProgressCallback | None = None) -> tuple[Path, int]:
+                     overwrite: bool = False, progress: ProgressCallback | None = None,
+                     force: bool = False, inputs: Sequence[str | os.PathLike] = ()) -> tuple[Path, int]:
     """Generate ``n`` traces and write them as a dataset directory (atomically).
 
     Returns the dataset path and the root seed used (drawn from OS entropy when ``seed`` is None).
-    ``progress(message, done, total)`` is called after every trace.
+    ``progress(message, done, total)`` is called after every trace. The size is checked against the
+    budget before any work (:func:`physynth.bounds.check_budget`; ``force`` overrides); ``inputs``
+    (e.g. the scenario file) may not be inside ``out``.
     """
     if n < 1:
         raise PhySynthError(f"the number of traces must be at least 1, got {n}")
+    if seed is not None and seed < 0:
+        raise PhySynthError(f"the root seed must be a non-negative integer, got {seed}")
+    check_budget(scn, n, force=force)
     root = new_root_seed() if seed is None else int(seed)
     cs = compile_scenario(scn)
-    with DatasetWriter(out, meta=dataset_meta(scn, root), overwrite=overwrite) as writer:
+    with DatasetWriter(out, meta=dataset_meta(scn, root), overwrite=overwrite, inputs=inputs) as writer:
         for i in range(n):
             writer.add(generate_trace(cs, i, root), index=i)
             if progress is not None:
@@ -54,13 +62,20 @@ def generate_dataset(scn: Scenario, n: int, out: str | Path, *, seed: int | None
 
 
 # ---------------------------------------------------------------- calibrate
-def read_recordings(paths: Sequence[str | os.PathLike]) -> tuple[list[Trace], list[str]]:
-    """Traces of one or several dataset directories, labelled ``<dataset>/<run or trace index>``."""
+def read_recordings(paths: Sequence[str | os.PathLike], *,
+                    allow_mixed: bool = True) -> tuple[list[Trace], list[str]]:
+    """Traces of one or several dataset directories, labelled ``<dataset>/<run or trace index>``.
+
+    Unless ``allow_mixed``, datasets of different kinds of site are refused
+    (:func:`physynth.calibrate.sites.check_same_site`).
+    """
     if not paths:
         raise CalibrationError("no dataset directories given")
-    traces, sources = [], []
+    traces, sources, sites = [], [], []
     for p in paths:
         ds = read_dataset(p)
+        sites.append(site_of(str(p), ds.meta, ds.traces))
+        check_same_site(sites, allow_mixed=allow_mixed)
         sources.append(str(Path(p)))
         for i, t in enumerate(ds.traces):
             lab = f"{Path(p).name}/{t.meta.get('run') or f'trace {i}'}"
@@ -69,9 +84,14 @@ def read_recordings(paths: Sequence[str | os.PathLike]) -> tuple[list[Trace], li
     return traces, sources
 
 
-def calibrate_datasets(paths: Sequence[str | os.PathLike], **kwargs: Any) -> CalibrationResult:
-    """:func:`calibrate` on every trace of one or several dataset directories, pooled."""
-    traces, sources = read_recordings(paths)
+def calibrate_datasets(paths: Sequence[str | os.PathLike], *, allow_mixed: bool = False,
+                       **kwargs: Any) -> CalibrationResult:
+    """:func:`calibrate` on every trace of one or several dataset directories, pooled.
+
+    Datasets of different kinds of site are refused unless ``allow_mixed``
+    (:mod:`physynth.calibrate.sites`).
+    """
+    traces, sources = read_recordings(paths, allow_mixed=allow_mixed)
     return calibrate(traces, sources=sources, **kwargs)
 
 
@@ -90,7 +110,7 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
                       scenario: str | Path | Scenario | None = None,
                       n: int = 50, seed: int | None = None, transfer: bool = False,
                       rate_hz: float = DEFAULT_GRID_RATE_HZ,
-                      progress: ProgressCallback | None = None) -> ValidationReport:
+                      progress: ProgressCallback | None = None, force: bool = False) -> ValidationReport:
     """Validate a real dataset against a synthetic dataset or against traces generated from a scenario.
 
     Parameters
@@ -110,6 +130,8 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
         Evaluation grid rate [Hz].
     progress : callable, optional
         ``progress(message, done, total)`` after each synthetic trace is generated and reduced.
+    force : bool
+        Generate even when the size estimate exceeds the budget (:func:`physynth.bounds.check_budget`).
 
     Raises
     ------
@@ -161,7 +183,9 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
         else:
             problem = describe_anchor_mismatch(real_ids, list(scn.anchor_ids), f"scenario '{scn.name}'")
             if problem:
-                raise AnchorMismatchError(problem + "; transfer the scenario to take the anchor layout from the real dataset")
+                raise AnchorMismatchError(problem + "; transfer the scenario to take the anchor layout from the "
+                                          "real dataset")
+        check_budget(scn, n, force=force)
         root = new_root_seed() if seed is None else int(seed)
         inputs["synthetic"] = {"scenario": source, "scenario_name": scn.name, "n_traces": int(n),
                                "root_seed": root, "transfer": bool(transfer),

@@ -25,9 +25,11 @@ def generate_cmd(
     scenario: str = typer.Option("cablecar-descending", "--scenario", "-s",
                                  help="Preset name or path to a scenario YAML file."),
     n: int = typer.Option(20, "-n", "--n-traces", min=1, help="Number of traces to generate."),
-    seed: int | None = typer.Option(None, "--seed", help="Root seed (random when omitted; stored)."),
+    seed: int | None = typer.Option(None, "--seed", min=0, help="Root seed >= 0 (random when omitted; stored)."),
     out: Path = typer.Option(Path("runs/default"), "--out", "-o", help="Output dataset directory."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset."),
+    overwrite: bool = typer.Option(False, "--overwrite",
+                                   help="Replace an existing dataset (only a dataset PhySynth wrote)."),
+    force: bool = typer.Option(False, "--force", help="Go ahead even when the size estimate exceeds the budget."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Generate N synthetic traces from a scenario and write them as a Parquet dataset."""
@@ -35,8 +37,10 @@ def generate_cmd(
     from ..workflows import generate_dataset
 
     scn = load_scenario(scenario)
+    inputs = [Path(scenario)] if Path(scenario).is_file() else []
     with progress_bar(not quiet) as progress:
-        path, root = generate_dataset(scn, n, out, seed=seed, overwrite=overwrite, progress=progress)
+        path, root = generate_dataset(scn, n, out, seed=seed, overwrite=overwrite, progress=progress,
+                                      force=force, inputs=inputs)
     if not quiet:
         typer.echo(f"wrote {n} trace(s) of '{scn.name}' to {path} (root seed {root})")
 

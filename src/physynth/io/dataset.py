@@ -12,7 +12,7 @@ import datetime as _dt
 import json
 import os
 import shutil
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,8 +24,9 @@ import pyarrow.parquet as pq
 from .. import __version__
 from .._json import jsonable
 from ..constants import IMU_FRAME, SCHEMA_VERSION
-from ..errors import DatasetError, OutputExistsError
+from ..errors import DatasetError
 from ..records import Anchors, Imu, Trace, Truth, Uwb
+from . import integrity, safety
 from .atomic import temp_sibling
 
 TABLES = ("truth", "imu", "uwb", "anchors")
@@ -97,21 +98,24 @@ class DatasetWriter:
     """
 
     def __init__(self, path: str | os.PathLike, *, meta: dict[str, Any] | None = None,
-                 overwrite: bool = False, row_group_traces: int = 64) -> None:
-        self.path = Path(path)
-        if self.path.exists() and not overwrite:
-            raise OutputExistsError(self.path)
-        if self.path.exists() and not self.path.is_dir():
-            raise DatasetError(f"{self.path} exists and is not a directory")
+                 overwrite: bool = False, row_group_traces: int = 64,
+                 inputs: Sequence[str | os.PathLike] = ()) -> None:
+        # safety hook (physynth.io.safety): what --overwrite may replace, inputs, lock, orphaned temp folders
+        self.given_path = Path(path)
+        self.path, self._lock = safety.prepare_output(path, kind="dataset", overwrite=overwrite, inputs=inputs)
         self.overwrite = overwrite
         self.meta = dict(meta or {})
         self.tmp = temp_sibling(self.path)
-        if self.tmp.exists():
-            shutil.rmtree(self.tmp)
         try:
+            safety.remove_tree(self.tmp)
             self.tmp.mkdir(parents=True)
         except OSError as exc:
+            self._lock.release()
             raise DatasetError(f"cannot create {self.path}: {exc.strerror}") from None
+        except BaseException:
+            self._lock.release()
+            raise
+        self._rows = {name: 0 for name in TABLES}
         self._writers = {
             name: pq.ParquetWriter(self.tmp / f"{name}.parquet", SCHEMAS[name], compression="snappy",
                                    use_dictionary=["anchor_id", "name"], write_statistics=["trace"])
@@ -133,12 +137,25 @@ class DatasetWriter:
     def _flush(self) -> None:
         for name, parts in self._pending.items():
             if parts:
-                self._writers[name].write_table(pa.concat_tables(parts))
+                table = pa.concat_tables(parts)
+                self._writers[name].write_table(table)
+                self._rows[name] += table.num_rows
             self._pending[name] = []
 
     def close(self) -> Path:
+        """Finish every table, write ``dataset.json`` and swap the dataset into place.
+
+        On any failure (or interruption) the temporary folder is removed and nothing appears.
+        """
         if self._closed:
             return self.path
+        try:
+            return self._close()
+        except BaseException:
+            self.abort()
+            raise
+
+    def _close(self) -> Path:
         self._flush()
         for w in self._writers.values():
             w.close()
@@ -152,15 +169,17 @@ class DatasetWriter:
             **jsonable(self.meta),
             "n_traces": len(self._trace_meta),
             "traces": self._trace_meta,
+            # integrity hook (physynth.io.integrity): row counts and SHA-256 of every table
+            "files": integrity.file_records(self.tmp, {f"{name}.parquet": n for name, n in self._rows.items()}),
         }
         (self.tmp / "dataset.json").write_text(json.dumps(meta, indent=1), encoding="utf-8")
         old = self.path.with_name(f".{self.path.name}.old-{os.getpid()}")
-        if self.path.exists():
+        if os.path.lexists(self.path):
             os.replace(self.path, old)
         os.replace(self.tmp, self.path)
-        if old.exists():
-            shutil.rmtree(old)
         self._closed = True
+        safety.remove_tree(old)
+        self._lock.release()
         return self.path
 
     def abort(self) -> None:
@@ -171,6 +190,7 @@ class DatasetWriter:
                 pass
         shutil.rmtree(self.tmp, ignore_errors=True)
         self._closed = True
+        self._lock.release()
 
     def __enter__(self) -> DatasetWriter:
         return self
@@ -183,9 +203,12 @@ class DatasetWriter:
 
 
 def write_dataset(path: str | os.PathLike, traces: Iterable[Trace], *, meta: dict[str, Any] | None = None,
-                  overwrite: bool = False) -> Path:
-    """Write traces as a dataset directory, atomically. Returns the path."""
-    with DatasetWriter(path, meta=meta, overwrite=overwrite) as w:
+                  overwrite: bool = False, inputs: Sequence[str | os.PathLike] = ()) -> Path:
+    """Write traces as a dataset directory, atomically. Returns the path.
+
+    ``inputs`` are the files or folders the traces were read from: the output may not be or hold one.
+    """
+    with DatasetWriter(path, meta=meta, overwrite=overwrite, inputs=inputs) as w:
         for trace in traces:
             w.add(trace)
     return Path(path)
@@ -265,36 +288,49 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
     """Read a dataset directory back into Trace records (same values as written)."""
     path = Path(path)
     meta = read_meta(path)
+    # integrity hook (physynth.io.integrity): sizes, row counts, hashes and trace ids against dataset.json
+    integrity.check_dataset(path, meta, hashes=not integrity.environ_skip_hashes())
     parts = {name: _split(_read_table(path, name)) for name in TABLES}
-    trace_meta = {int(m["trace"]): m for m in meta.get("traces", [])}
+    try:
+        trace_meta = {int(m["trace"]): m for m in meta.get("traces", [])}
+    except (TypeError, KeyError, ValueError):
+        raise DatasetError(f"dataset {path}: dataset.json 'traces' entries have no valid 'trace' id") from None
     traces = []
     for idx in sorted(parts["truth"]):
-        tr, an = parts["truth"][idx], parts["anchors"].get(idx)
-        if an is None:  # an IMU-only recording (e.g. BROAD) has no anchors
-            anchors = Anchors(ids=(), pos_enu_m=np.zeros((0, 3)))
-        else:
-            anchors = Anchors(ids=tuple(an["anchor_id"]), names=tuple(an["name"]),
-                              pos_enu_m=np.stack([an[f"pos_{c}_m"] for c in "enu"], axis=1))
-        truth = Truth(t_s=tr["t_s"], pos_enu_m=np.stack([tr[f"pos_{c}_m"] for c in "enu"], axis=1),
-                      vel_enu_mps=np.stack([tr[f"vel_{c}_mps"] for c in "enu"], axis=1))
-        im = parts["imu"].get(idx)
-        imu = (Imu(t_s=im["t_s"], acc_mps2=np.stack([im[f"acc_{c}_mps2"] for c in "enu"], axis=1),
-                   frame=meta.get("imu_frame", IMU_FRAME)) if im is not None else None)
-        uw = parts["uwb"].get(idx)
-        if uw is None:
-            uwb = Uwb(t_s=np.array([]), anchor=np.array([], np.int16), range_m=np.array([]))
-        else:
-            names, inverse = np.unique(uw["anchor_id"].astype(str), return_inverse=True)
-            unknown = sorted(set(names) - set(anchors.ids))
-            if unknown:
-                raise DatasetError(f"dataset {path}: trace {idx} has UWB rows of unknown anchor(s) {unknown}")
-            to_index = np.array([anchors.index(a) for a in names], dtype=np.int16)
-            uwb = Uwb(t_s=uw["t_s"], anchor=to_index[inverse] if len(names) else np.array([], np.int16),
-                      range_m=uw["range_m"], true_range_m=uw["true_range_m"], nlos=uw["nlos"],
-                      burst=uw["burst"], reason=uw["reason"],
-                      nlos_known=bool(uw["nlos_known"].all()) if len(uw["nlos_known"]) else False)
-        m = {k: v for k, v in trace_meta.get(idx, {}).items() if k != "trace"}
-        traces.append(Trace(truth=truth, uwb=uwb, anchors=anchors, imu=imu, meta=m))
+        try:
+            traces.append(_trace_of(path, meta, parts, trace_meta, idx))
+        except ValueError as exc:  # tables that read but do not make valid records (unsorted times, ...)
+            raise DatasetError(f"dataset {path}: trace {idx} is invalid: {str(exc).splitlines()[0]}") from None
     if not traces:
         raise DatasetError(f"dataset {path} holds no traces")
     return Dataset(meta=meta, traces=traces)
+
+
+def _trace_of(path: Path, meta: dict[str, Any], parts: dict[str, dict[int, dict[str, np.ndarray]]],
+              trace_meta: dict[int, dict[str, Any]], idx: int) -> Trace:
+    tr, an = parts["truth"][idx], parts["anchors"].get(idx)
+    if an is None:  # an IMU-only recording (e.g. BROAD) has no anchors
+        anchors = Anchors(ids=(), pos_enu_m=np.zeros((0, 3)))
+    else:
+        anchors = Anchors(ids=tuple(an["anchor_id"]), names=tuple(an["name"]),
+                          pos_enu_m=np.stack([an[f"pos_{c}_m"] for c in "enu"], axis=1))
+    truth = Truth(t_s=tr["t_s"], pos_enu_m=np.stack([tr[f"pos_{c}_m"] for c in "enu"], axis=1),
+                  vel_enu_mps=np.stack([tr[f"vel_{c}_mps"] for c in "enu"], axis=1))
+    im = parts["imu"].get(idx)
+    imu = (Imu(t_s=im["t_s"], acc_mps2=np.stack([im[f"acc_{c}_mps2"] for c in "enu"], axis=1),
+               frame=meta.get("imu_frame", IMU_FRAME)) if im is not None else None)
+    uw = parts["uwb"].get(idx)
+    if uw is None:
+        uwb = Uwb(t_s=np.array([]), anchor=np.array([], np.int16), range_m=np.array([]))
+    else:
+        names, inverse = np.unique(uw["anchor_id"].astype(str), return_inverse=True)
+        unknown = sorted(set(names) - set(anchors.ids))
+        if unknown:
+            raise DatasetError(f"dataset {path}: trace {idx} has UWB rows of unknown anchor(s) {unknown}")
+        to_index = np.array([anchors.index(a) for a in names], dtype=np.int16)
+        uwb = Uwb(t_s=uw["t_s"], anchor=to_index[inverse] if len(names) else np.array([], np.int16),
+                  range_m=uw["range_m"], true_range_m=uw["true_range_m"], nlos=uw["nlos"],
+                  burst=uw["burst"], reason=uw["reason"],
+                  nlos_known=bool(uw["nlos_known"].all()) if len(uw["nlos_known"]) else False)
+    m = {k: v for k, v in trace_meta.get(idx, {}).items() if k != "trace"}
+    return Trace(truth=truth, uwb=uwb, anchors=anchors, imu=imu, meta=m)
