@@ -1,0 +1,1 @@
+"""Testing tools shipped with PhySynth: the fuzz campaign (:mod:`physynth.testing.fuzz`)."""
