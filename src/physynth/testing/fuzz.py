@@ -156,9 +156,10 @@ def mutate_scenario(rng: np.random.Generator) -> tuple[str, str]:
         elif op == "empty":
             parent[key] = [] if isinstance(parent[key], list) else {}
         elif op == "kind":
-            d["path"]["kind"] = str(rng.choice(["polynomial", "waypoints", "spiral"]))
-            d["motion"].setdefault("profile", {})["kind"] = str(rng.choice(["trapezoid", "polynomial",
-                                                                             "empirical"]))
+            with contextlib.suppress(KeyError, TypeError, AttributeError):  # path or motion already mangled
+                d["path"]["kind"] = str(rng.choice(["polynomial", "waypoints", "spiral"]))
+                d["motion"].setdefault("profile", {})["kind"] = str(rng.choice(["trapezoid", "polynomial",
+                                                                                 "empirical"]))
         what.append(f"{op} {name}")
     text = yaml.safe_dump(d, sort_keys=False)
     r = rng.random()
