@@ -133,7 +133,7 @@ def _start_long_generate(out: Path, tmp_path: Path) -> subprocess.Popen:
     return proc
 
 
-@pytest.mark.parametrize(("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+@pytest.mark.parametrize(("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143), (signal.SIGHUP, 129)])
 def test_signal_exits_128_plus_signal_and_removes_temporary_files(tmp_path, sig, code):
     out = tmp_path / "ds"
     proc = _start_long_generate(out, tmp_path)
@@ -198,6 +198,7 @@ def test_a_stale_lock_is_taken_over(tmp_path, small, capsys):
     lock_path(out).write_text("pid 999999 host elsewhere since 2020-01-01T00:00:00Z\n")
     code, _, err = run(capsys, "generate", "-s", small, "-n", 1, "--out", out, "-q")
     assert code == 0, err
+    assert "took over the stale lock" in err and "pid 999999" in err
     assert not lock_path(out).exists()
 
 
@@ -451,3 +452,31 @@ def test_library_errors_have_one_line():
     assert "\n" not in str(exc.value)
     with pytest.raises(DatasetError):
         read_dataset("/nonexistent")
+
+
+def test_validate_report_folder_is_refused_or_written_whole(dataset, tmp_path, capsys, monkeypatch):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "thesis.txt").write_text("x")
+    args = ["validate", "--real", dataset, "--synthetic", dataset, "--no-figures", "-q"]
+    code, _, err = run(capsys, *args, "--out", mine, "--overwrite")
+    assert code == 2 and one_line(err) and "not a PhySynth report folder" in err
+    code, _, err = run(capsys, *args, "--out", mine)
+    assert code == 2 and one_line(err) and "refusing to write a report into" in err
+
+    import physynth.validate.render as render
+    from physynth.errors import Interrupted
+
+    def interrupted(report, out, **kw):
+        (Path(out) / "report.json").write_text("{}")
+        raise Interrupted(signal.SIGTERM)
+
+    monkeypatch.setattr(render, "write_report", interrupted)
+    code, _, err = run(capsys, *args, "--out", tmp_path / "rep")
+    assert code == 143 and one_line(err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds", "mine", "walk.yaml"]
+    monkeypatch.undo()
+    code, _, err = run(capsys, *args, "--out", tmp_path / "rep")
+    assert code == 0, err
+    assert (tmp_path / "rep" / "report.json").exists()
+    assert run(capsys, *args, "--out", tmp_path / "rep", "--overwrite")[0] == 0

@@ -74,7 +74,10 @@ def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, 
     except AnchorMismatchError as exc:
         hint = "; use --transfer to take the anchor layout from the real dataset" if scenario else ""
         raise PhySynthError(str(exc).split("; transfer the scenario")[0] + hint) from None
-    written = write_report(report, real_out, figures=figures, overwrite=overwrite)
+    from ..io.safety import atomic_folder
+
+    with atomic_folder(real_out) as tmp:  # the report folder appears complete or not at all
+        written = write_report(report, tmp, figures=figures, overwrite=True)
     if quiet:
         return
     dev = report.relative_deviation_pct

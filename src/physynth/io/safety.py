@@ -270,6 +270,9 @@ class OutputLock:
             if fcntl is None and owner and not self._stale(owner):  # pragma: no cover
                 os.close(fd)
                 raise OutputLockedError(f"{self.out} is being written by another physynth process ({owner})")
+            if owner != "owner unknown":  # a lock file whose owner died without releasing it
+                warnings.warn(f"took over the stale lock {self.path} ({owner}; that process is gone)",
+                              PhySynthWarning, stacklevel=2)
             os.ftruncate(fd, 0)
             os.write(fd, f"pid {os.getpid()} host {socket.gethostname()} since "
                          f"{time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())}\n".encode())
@@ -340,3 +343,25 @@ def prepare_output(out: str | os.PathLike, *, kind: str, overwrite: bool,
         lock.release()
         raise
     return real, lock
+
+
+@contextmanager
+def atomic_folder(out: Path) -> Iterator[Path]:
+    """Write a folder atomically: yield a hidden temporary sibling, swap it in for ``out`` on success,
+    remove it on failure or interruption. ``out`` must already have passed :func:`check_output`
+    (it is absent, empty, or PhySynth output that may be replaced)."""
+    from .atomic import temp_sibling
+
+    tmp = temp_sibling(out)
+    remove_tree(tmp)
+    tmp.mkdir(parents=True)
+    try:
+        yield tmp
+        old = out.with_name(f".{out.name}.old-{os.getpid()}")
+        if os.path.lexists(out):
+            os.replace(out, old)
+        os.replace(tmp, out)
+        remove_tree(old)
+    except BaseException:
+        remove_tree(tmp)
+        raise
