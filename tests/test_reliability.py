@@ -480,3 +480,14 @@ def test_validate_report_folder_is_refused_or_written_whole(dataset, tmp_path, c
     assert code == 0, err
     assert (tmp_path / "rep" / "report.json").exists()
     assert run(capsys, *args, "--out", tmp_path / "rep", "--overwrite")[0] == 0
+
+
+def test_ranges_in_centimetres_are_detected(tmp_path, capsys):
+    import pandas as pd
+
+    rec = write_recording(tmp_path / "rec")
+    uwb = pd.read_csv(rec / "uwb.csv")
+    uwb["range_m"] = uwb["range_m"] * 100.0  # ~1000-3000 cm: below the 5 km median limit
+    uwb.to_csv(rec / "uwb.csv", index=False)
+    code, _, err = run(capsys, "import", "csv", rec, "--out", tmp_path / "ds", "-q")
+    assert code == 2 and one_line(err) and "times the distances" in err and "centimetres" in err

@@ -346,6 +346,31 @@ def check_time_spans(path: Path, t: np.ndarray, truth_path: Path, t_truth: np.nd
             f"apart); {longer} looks like it is in {_unit_guess(factor)}: convert its times to seconds")
 
 
+#: Median ratio of measured range to the anchor-to-truth distance outside which a unit is wrong.
+RANGE_SCALE_LIMITS = (0.05, 20.0)
+
+
+def check_range_scale(path: Path, t_uwb: np.ndarray, anchor: np.ndarray, range_m: np.ndarray,
+                      t_truth: np.ndarray, pos_m: np.ndarray, anchor_pos_m: np.ndarray) -> None:
+    """Error when the ranges are far from the distances between truth and anchors (a unit mistake in
+    the ranges, the truth or the anchor coordinates)."""
+    ok = np.isfinite(range_m) & (t_uwb >= t_truth[0]) & (t_uwb <= t_truth[-1])
+    if np.count_nonzero(ok) < 10:
+        return
+    p = np.stack([np.interp(t_uwb[ok], t_truth, pos_m[:, k]) for k in range(3)], axis=1)
+    dist = np.linalg.norm(p - anchor_pos_m[anchor[ok]], axis=1)
+    good = dist > 0.5  # next to an anchor the ratio says nothing
+    if np.count_nonzero(good) < 10:
+        return
+    ratio = float(np.median(range_m[ok][good] / dist[good]))
+    lo, hi = RANGE_SCALE_LIMITS
+    if not lo <= ratio <= hi:
+        guess = ("the ranges in millimetres or centimetres, or the positions in kilometres" if ratio > hi
+                 else "the ranges in kilometres, or the positions in millimetres or centimetres")
+        raise RecordingError(f"{path}: the ranges are {ratio:.3g} times the distances between the truth and "
+                             f"the anchors (median); are {guess}? convert them to metres")
+
+
 def integer_column(values: pd.Series, file: str, col: str, report: ReportBuilder,
                    missing: int = -1) -> np.ndarray:
     """An integer column: empty cells become ``missing``; text and non-integers become ``missing`` too,

@@ -29,6 +29,7 @@ from ._common import (
     ReportBuilder,
     auto_burst_gap_s,
     check_range_metres,
+    check_range_scale,
     check_seconds,
     check_time_spans,
     check_time_steps,
@@ -99,6 +100,7 @@ def import_csv(rec_dir: str | os.PathLike, *, velocity_window_s: float = 0.5,
     t_uwb = t_uwb - t0
     check_time_spans(uwb_path, t_uwb, truth_path, t_truth)
     _check_overlap(uwb_path, t_uwb, truth_path, t_truth)
+    check_range_scale(uwb_path, t_uwb, anchor, range_m, t_truth, pos, anchors.pos_enu_m)
     meta: dict[str, Any] = {
         "source": "csv",
         "recording": rec.name,
