@@ -491,3 +491,34 @@ def test_ranges_in_centimetres_are_detected(tmp_path, capsys):
     uwb.to_csv(rec / "uwb.csv", index=False)
     code, _, err = run(capsys, "import", "csv", rec, "--out", tmp_path / "ds", "-q")
     assert code == 2 and one_line(err) and "times the distances" in err and "centimetres" in err
+
+
+def test_site_rules():
+    from physynth.calibrate.sites import Site, check_same_site
+    from physynth.errors import MixedSitesError
+
+    walk = Site("walk", "real", "hanyang-uwb", frozenset({"A1", "A2"}))
+    cable = Site("cable", "real", "csv", frozenset({"A101", "A103"}))
+    imu_only = Site("broad15", "real", "broad", frozenset())
+    check_same_site([walk, imu_only])  # docs/calibration.md: UWB from Hanyang + IMU noise from BROAD
+    check_same_site([walk, Site("walk2", "real", "hanyang-uwb", frozenset({"A2", "A3"}))])
+    with pytest.raises(MixedSitesError, match="no anchor in common"):
+        check_same_site([walk, imu_only, cable])
+    with pytest.raises(MixedSitesError, match="different recording sources"):
+        check_same_site([walk, Site("w", "real", "csv", frozenset({"A1"}))])
+    check_same_site([walk, cable], allow_mixed=True)
+
+
+def test_calibrate_overwrites_only_its_own_files(dataset, tmp_path, capsys):
+    mine = tmp_path / "mine.yaml"
+    mine.write_text("# my hand-written scenario\nname: x\n")
+    code, _, err = run(capsys, "calibrate", dataset, "--out", mine, "--overwrite", "-q")
+    assert code == 2 and one_line(err) and "not a scenario file written by physynth calibrate" in err
+    assert mine.read_text().startswith("# my hand-written")
+    out, rep = tmp_path / "cal.yaml", tmp_path / "fit.json"
+    code, _, err = run(capsys, "calibrate", dataset, "--out", out, "--report", rep, "-q")
+    assert code == 0, err
+    code, _, err = run(capsys, "calibrate", dataset, "--out", out, "--report", rep, "-q", "--overwrite")
+    assert code == 0, err
+    assert json.loads(rep.read_text())["generator"]["name"] == "physynth"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cal.yaml", "ds", "fit.json", "mine.yaml", "walk.yaml"]

@@ -1,9 +1,10 @@
 """Whether datasets pooled by calibration describe the same kind of site.
 
 Pooling a Hanyang walk with a cable-car recording gives one scenario that matches neither. Two
-datasets are taken as the same kind of site when they share at least one anchor id (or both have no
-anchors, e.g. IMU-only trials) and, when both are real recordings, come from the same importer
-(``source`` in ``dataset.json``). :func:`check_same_site` refuses anything else with one line
+datasets with UWB anchors are taken as the same kind of site when they share at least one anchor id
+and, when both are real recordings, come from the same importer (``source`` in ``dataset.json``). An
+IMU-only dataset (e.g. a BROAD trial) pools with anything: it only lends the IMU noise.
+:func:`check_same_site` refuses anything else with one line
 (:class:`~physynth.errors.MixedSitesError`) unless told to pool them anyway.
 """
 
@@ -40,9 +41,9 @@ def site_of(name: str, meta: Mapping[str, Any], traces: Sequence[Trace]) -> Site
 
 def mixed_reason(a: Site, b: Site) -> str | None:
     """Why two sites are not the same kind (None when they are)."""
-    if bool(a.anchors) != bool(b.anchors):
-        return "one has UWB anchors and the other has none"
-    if a.anchors and not (a.anchors & b.anchors):
+    if not a.anchors or not b.anchors:  # an IMU-only recording lends only IMU noise (docs/calibration.md)
+        return None
+    if not (a.anchors & b.anchors):
         return "they have no anchor in common"
     if a.kind == b.kind == "real" and a.source and b.source and a.source != b.source:
         return f"they come from different recording sources ({a.source} and {b.source})"
@@ -53,8 +54,9 @@ def check_same_site(sites: Sequence[Site], *, allow_mixed: bool = False) -> None
     """Refuse to pool datasets of different kinds of site (unless ``allow_mixed``)."""
     if allow_mixed:
         return
-    for other in sites[1:]:
-        reason = mixed_reason(sites[0], other)
-        if reason:
-            raise MixedSitesError(f"will not pool {sites[0].describe()} with {other.describe()}: not the same "
-                                  f"kind of site ({reason})")
+    for i, a in enumerate(sites):
+        for b in sites[i + 1:]:
+            reason = mixed_reason(a, b)
+            if reason:
+                raise MixedSitesError(f"will not pool {a.describe()} with {b.describe()}: not the same kind of "
+                                      f"site ({reason})")

@@ -4,7 +4,8 @@
 (a ``BaseException``), so every writer's ``with`` block removes its temporary files and releases its
 lock on the way out; :func:`physynth.cli.main` then prints one line and exits ``128 + signal``. A
 second signal during that clean-up exits at once (the next run on the same output removes what is
-left, :mod:`physynth.io.safety`). :class:`~physynth.errors.PhySynthWarning` is printed as one line.
+left, :mod:`physynth.io.safety`). :class:`~physynth.errors.PhySynthWarning` is printed as one line;
+numpy's ``RuntimeWarning`` notes (divide by zero, overflow) are not shown to command-line users.
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ def handling_signals() -> Iterator[None]:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("always", PhySynthWarning)
+            warnings.simplefilter("ignore", RuntimeWarning)  # numpy's divide/overflow notes: not for users
             warnings.showwarning = showwarning
             yield
     finally:
