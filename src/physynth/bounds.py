@@ -110,8 +110,8 @@ OUTPUT_BUDGET_BYTES = _gb_env("PHYSYNTH_OUTPUT_BUDGET_GB", 20.0)
 MIN_TRUTH_SAMPLES = 10
 """A trace shorter than this many truth samples is refused (a zero-length path, an absurd speed)."""
 
-# bytes per sample, measured on the cablecar preset with tracemalloc (rounded up)
-_WORK_BYTES = {"truth": 400, "imu": 250, "uwb": 250}
+# bytes per sample: about twice the peak tracemalloc measures on the cablecar preset (3.9 MB per trace)
+_WORK_BYTES = {"truth": 150, "imu": 80, "uwb": 100}
 _TABLE_BYTES = {"truth": 64, "imu": 40, "uwb": 60}
 ROW_GROUP_TRACES = 64
 
