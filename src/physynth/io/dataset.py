@@ -101,7 +101,6 @@ class DatasetWriter:
                  overwrite: bool = False, row_group_traces: int = 64,
                  inputs: Sequence[str | os.PathLike] = ()) -> None:
         # safety hook (physynth.io.safety): what --overwrite may replace, inputs, lock, orphaned temp folders
-        self.given_path = Path(path)
         self.path, self._lock = safety.prepare_output(path, kind="dataset", overwrite=overwrite, inputs=inputs)
         self.overwrite = overwrite
         self.meta = dict(meta or {})

@@ -327,9 +327,10 @@ def guarded_outputs(outputs: Sequence[str | os.PathLike]) -> Iterator[list[Path]
 
 
 def prepare_output(out: str | os.PathLike, *, kind: str, overwrite: bool,
-                   inputs: Sequence[str | os.PathLike] = ()) -> tuple[Path, OutputLock]:
+                   inputs: Sequence[str | os.PathLike] = (), remove_orphaned: bool = True) -> tuple[Path, OutputLock]:
     """Everything a writer does before writing ``out``: check it may be written (:func:`check_output`),
-    take its lock, remove orphaned temporary siblings, and check again under the lock.
+    take its lock, remove orphaned temporary siblings (unless ``remove_orphaned`` is False, e.g. for a
+    writer that resumes from them), and check again under the lock.
 
     Returns the resolved output path and the held lock (the caller releases it when done).
     """
@@ -337,7 +338,8 @@ def prepare_output(out: str | os.PathLike, *, kind: str, overwrite: bool,
     real = resolve_output(out)
     lock = OutputLock(real).acquire()
     try:
-        remove_orphans(real)
+        if remove_orphaned:
+            remove_orphans(real)
         check_output(out, kind=kind, overwrite=overwrite, inputs=inputs)  # another run may have just finished
     except BaseException:
         lock.release()
