@@ -142,7 +142,7 @@ def test_reading_a_broken_dataset_gives_one_clear_error(tmp_path):
         read_dataset(tmp_path / "empty")
     generate_dataset(simple_scenario(), 1, tmp_path / "ds", seed=1)
     (tmp_path / "ds" / "uwb.parquet").write_bytes(b"garbage")
-    with pytest.raises(DatasetError, match="cannot read"):
+    with pytest.raises(DatasetError, match="damaged: uwb.parquet has 7 bytes"):
         read_dataset(tmp_path / "ds")
     (tmp_path / "ds" / "uwb.parquet").unlink()
     with pytest.raises(DatasetError, match="uwb.parquet is missing"):

@@ -33,3 +33,43 @@ class OutputExistsError(PhySynthError):
     def __init__(self, path: object, what: str = "") -> None:
         self.path = path
         super().__init__(f"{path} already {what or 'exists'}")
+
+
+class UnsafeOutputError(PhySynthError):
+    """An output that PhySynth may not write or replace: a folder it did not write, an input of the
+    same command, the current folder, or two arguments naming the same file."""
+
+
+class OutputLockedError(PhySynthError):
+    """Another PhySynth process is writing the same output (its lock file is held)."""
+
+
+class BudgetError(PhySynthError):
+    """A scenario whose size (samples, memory, disk) exceeds the documented budget; the command
+    line adds how to go ahead anyway."""
+
+
+class IntegrityError(DatasetError):
+    """A dataset file disagrees with the row counts or checksums recorded in its ``dataset.json``."""
+
+
+class PhySynthWarning(UserWarning):
+    """Something PhySynth did on the user's behalf that they should know about (e.g. it removed the
+    temporary folder of an interrupted run); the command line prints it as one line."""
+
+
+class Interrupted(BaseException):  # noqa: N818 - like KeyboardInterrupt
+    """A termination signal (SIGINT, SIGTERM, SIGHUP) received by the command line.
+
+    A ``BaseException``, so that ``except Exception`` does not swallow it and every ``with`` block
+    cleans up on the way out. ``signum`` is the signal number (exit code ``128 + signum``).
+    """
+
+    def __init__(self, signum: int) -> None:
+        self.signum = signum
+        super().__init__(signum)
+
+
+class MixedSitesError(PhySynthError):
+    """Datasets given to be pooled are not of the same kind of site; the command line adds how to pool
+    them anyway."""

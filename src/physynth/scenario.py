@@ -12,6 +12,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationError, field_validator, model_validator
 
+from .bounds import check_bounds
 from .constants import IMU_BODY_FRAME, IMU_FRAME
 from .errors import ScenarioError
 from .models._params import ParamsModel, PositiveFloat
@@ -77,6 +78,7 @@ class Scenario(ParamsModel):
         for a in self.anchors:
             if self.channel_for(a.id).rate_hz > self.uwb.burst_rate_hz * (1 + 1e-9):
                 raise ValueError(f"anchor {a.id}: rate_hz exceeds uwb.burst_rate_hz")
+        check_bounds(self.model_dump())  # physical ranges of every field (physynth.bounds)
         return self
 
     # resolved per-anchor parameters

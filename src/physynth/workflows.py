@@ -12,6 +12,7 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from .bounds import check_budget
 from .constants import DEFAULT_GRID_RATE_HZ
 from .errors import AnchorMismatchError, PhySynthError
 from .evaluate.metrics import Metrics, compute_metrics
@@ -34,7 +35,8 @@ if TYPE_CHECKING:
 def generate_dataset(scn: Scenario, n: int, out: str | Path, *, seed: int | None = None,
                      overwrite: bool = False, progress: ProgressCallback | None = None, workers: int = 1,
                      scheduler: str | None = None, resume: bool = False,
-                     shard_traces: int = DEFAULT_SHARD_TRACES) -> tuple[Path, int]:
+                     shard_traces: int = DEFAULT_SHARD_TRACES, force: bool = False,
+                     inputs: Sequence[str | os.PathLike] = ()) -> tuple[Path, int]:
     """Generate ``n`` traces and write them as a dataset directory (atomically), in shards.
 
     Parameters
@@ -48,61 +50,88 @@ def generate_dataset(scn: Scenario, n: int, out: str | Path, *, seed: int | None
         Without ``seed`` the unfinished run's root seed is used.
     shard_traces : int
         Traces per shard (:mod:`physynth.io.shards`). The output is the same for any ``workers``.
+    force : bool
+        Go ahead even when the size estimate exceeds the budget (:func:`physynth.bounds.check_budget`).
+    inputs : sequence of paths
+        Files the scenario was read from: ``out`` may not be or hold one (:mod:`physynth.io.safety`).
 
     Returns the dataset path and the root seed used (drawn from OS entropy when ``seed`` is None and
     there is nothing to resume). ``progress(message, done, total)`` reports traces written.
     """
-    from .io import shards
+    from .io import safety, shards
 
     if n < 1:
         raise PhySynthError(f"the number of traces must be at least 1, got {n}")
+    if seed is not None and seed < 0:
+        raise PhySynthError(f"the root seed must be a non-negative integer, got {seed}")
     if shard_traces < 1:
         raise PhySynthError(f"traces per shard must be at least 1, got {shard_traces}")
     if workers < 1:
         raise PhySynthError(f"the number of workers must be at least 1, got {workers}")
-    out = Path(out)
-    previous = shards.read_plan(out) if resume else None
-    if seed is None and previous is not None:
-        seed = previous.get("root_seed")
-    root = new_root_seed() if seed is None else int(seed)
-    plan = shards.ShardPlan(n, shard_traces)
-    partial, complete = shards.prepare(out, shards.plan_record(scenario_to_dict(scn), root, n, shard_traces),
-                                       resume=resume, overwrite=overwrite)
-    todo = [k for k in range(plan.n_shards) if k not in complete]
-    already = sum(plan.bounds(k)[1] - plan.bounds(k)[0] for k in complete)
-    message = f"generating {scn.name}"
-    if progress is not None:
-        if complete:
-            progress(f"resuming: {len(complete)} of {plan.n_shards} shard(s) already complete")
-        progress(message, already, n)
-    meta = dataset_meta(scn, root)
-    run_shards(scn, root, partial, plan, todo, meta, workers=workers, scheduler=scheduler,
-               progress=None if progress is None else (lambda done: progress(message, already + done, n)))
-    return shards.finalize(out, partial, plan, meta), root
+    check_budget(scn, n, force=force)
+    # what --overwrite may replace, inputs, the lock (released when done); the partial shards of an
+    # unfinished run are kept for resume
+    out, lock = safety.prepare_output(out, kind="dataset", overwrite=overwrite, inputs=inputs)
+    try:
+        previous = shards.read_plan(out) if resume else None
+        if seed is None and previous is not None:
+            seed = previous.get("root_seed")
+        root = new_root_seed() if seed is None else int(seed)
+        plan = shards.ShardPlan(n, shard_traces)
+        partial, complete = shards.prepare(out, shards.plan_record(scenario_to_dict(scn), root, n, shard_traces),
+                                           resume=resume, overwrite=overwrite)
+        todo = [k for k in range(plan.n_shards) if k not in complete]
+        already = sum(plan.bounds(k)[1] - plan.bounds(k)[0] for k in complete)
+        message = f"generating {scn.name}"
+        if progress is not None:
+            if complete:
+                progress(f"resuming: {len(complete)} of {plan.n_shards} shard(s) already complete")
+            progress(message, already, n)
+        meta = dataset_meta(scn, root)
+        run_shards(scn, root, partial, plan, todo, meta, workers=workers, scheduler=scheduler,
+                   progress=None if progress is None else (lambda done: progress(message, already + done, n)))
+        return shards.finalize(out, partial, plan, meta), root
+    finally:
+        lock.release()
 
 
 # ---------------------------------------------------------------- calibrate
-def read_recordings(paths: Sequence[str | os.PathLike]) -> tuple[list[Trace], list[str]]:
-    """Traces of one or several dataset directories, labelled ``<dataset>/<run or trace index>``."""
+def read_recordings(paths: Sequence[str | os.PathLike], *,
+                    allow_mixed: bool = True) -> tuple[list[Trace], list[str]]:
+    """Traces of one or several dataset directories, labelled ``<dataset>/<run or trace index>``.
+
+    Unless ``allow_mixed``, datasets of different kinds of site are refused
+    (:func:`physynth.calibrate.sites.check_same_site`).
+    """
     from .calibrate._base import CalibrationError
+    from .calibrate.sites import check_same_site, site_of
 
     if not paths:
         raise CalibrationError("no dataset directories given")
-    traces, sources = [], []
+    traces, sources, sites = [], [], []
     for p in paths:
+        meta = read_meta(p)
+        own = list(iter_traces(p, meta))  # streamed; calibration itself needs the traces together
+        sites.append(site_of(str(p), meta, own))
+        check_same_site(sites, allow_mixed=allow_mixed)
         sources.append(str(Path(p)))
-        for i, t in enumerate(iter_traces(p)):  # streamed; calibration itself needs the traces together
+        for i, t in enumerate(own):
             lab = f"{Path(p).name}/{t.meta.get('run') or f'trace {i}'}"
             traces.append(Trace(truth=t.truth, uwb=t.uwb, anchors=t.anchors, imu=t.imu,
                                 meta={**t.meta, "label": lab}))
     return traces, sources
 
 
-def calibrate_datasets(paths: Sequence[str | os.PathLike], **kwargs: Any) -> CalibrationResult:
-    """:func:`physynth.calibrate.calibrate` on every trace of one or several dataset directories, pooled."""
+def calibrate_datasets(paths: Sequence[str | os.PathLike], *, allow_mixed: bool = False,
+                       **kwargs: Any) -> CalibrationResult:
+    """:func:`physynth.calibrate.calibrate` on every trace of one or several dataset directories, pooled.
+
+    Datasets of different kinds of site are refused unless ``allow_mixed``
+    (:mod:`physynth.calibrate.sites`).
+    """
     from .calibrate import calibrate
 
-    traces, sources = read_recordings(paths)
+    traces, sources = read_recordings(paths, allow_mixed=allow_mixed)
     return calibrate(traces, sources=sources, **kwargs)
 
 
@@ -157,8 +186,8 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
                       scenario: str | Path | Scenario | None = None,
                       n: int = 50, seed: int | None = None, transfer: bool = False,
                       rate_hz: float = DEFAULT_GRID_RATE_HZ,
-                      progress: ProgressCallback | None = None,
-                      anchors: Sequence[str] | None = None) -> ValidationReport:
+                      progress: ProgressCallback | None = None, anchors: Sequence[str] | None = None,
+                      force: bool = False) -> ValidationReport:
     """Validate a real dataset against a synthetic dataset or against traces generated from a scenario.
 
     Parameters
@@ -183,6 +212,8 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
         (each trace restricted to them, :func:`physynth.studies.subset.restrict_to_anchors`, so a
         scenario's traces are those of the anchor study's cell) and the real dataset is compared on
         its full set. The ids must be anchors of both sides.
+    force : bool
+        Generate even when the size estimate exceeds the budget (:func:`physynth.bounds.check_budget`).
 
     Raises
     ------
@@ -252,6 +283,7 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
             if problem:
                 raise AnchorMismatchError(
                     problem + "; transfer the scenario to take the anchor layout from the real dataset")
+        check_budget(scn, n, force=force)
         root = new_root_seed() if seed is None else int(seed)
         inputs["synthetic"] = {"scenario": source, "scenario_name": scn.name, "n_traces": int(n),
                                "root_seed": root, "transfer": bool(transfer),

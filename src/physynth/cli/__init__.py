@@ -6,20 +6,25 @@ draws progress bars, names options and chooses exit codes:
 
 - 0: success;
 - 1: the machine failed (disk full, permission denied): one line on stderr;
-- 2: a user mistake (``PhySynthError``, a bad option or argument): one line on stderr;
-- 130: interrupted (Ctrl-C).
+- 2: a user mistake (``PhySynthError``, a bad option or argument), an output that may not be
+  replaced, an output locked by another run, a size over budget: one line on stderr;
+- 3: a bug in PhySynth: one line on stderr (``PHYSYNTH_DEBUG=1`` shows the traceback);
+- 129, 130, 143: interrupted by SIGHUP, SIGINT (Ctrl-C), SIGTERM (``128 + signal``); temporary
+  files are removed and nothing that looks complete is left.
 
-A traceback is only ever shown for a bug. Heavy imports happen inside the commands.
+No traceback reaches the user (docs/reliability.md). Heavy imports happen inside the commands.
 """
 
 from __future__ import annotations
 
+import os
 import sys
 
 import typer
 
-from ..errors import OutputExistsError, PhySynthError
-from ._common import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_SYSTEM, fail
+from ..errors import BudgetError, Interrupted, MixedSitesError, OutputExistsError, PhySynthError
+from ._common import EXIT_BAD_INPUT, EXIT_BUG, EXIT_INTERRUPTED, EXIT_SYSTEM, fail
+from ._signals import handling_signals, signal_name
 
 app = typer.Typer(
     name="physynth",
@@ -38,9 +43,9 @@ def _register_commands() -> None:
     global _registered
     if _registered:
         return
-    from . import calibrate, generate, imports, study, validate
+    from . import calibrate, generate, imports, study, validate, verify
 
-    for module in (generate, imports, calibrate, validate, study):
+    for module in (generate, imports, calibrate, validate, study, verify):
         module.register(app)
     _registered = True
 
@@ -52,9 +57,20 @@ def main(argv: list[str] | None = None) -> None:
     if not argv:
         argv = ["--help"]
     try:
-        app(args=argv, standalone_mode=False)
+        with handling_signals():
+            rc = app(args=argv, standalone_mode=False)
+        if isinstance(rc, int) and rc != 0:  # typer returns 130 for a KeyboardInterrupt it caught
+            print("physynth: interrupted" if rc == EXIT_INTERRUPTED else f"physynth: exit {rc}", file=sys.stderr)
+            sys.exit(rc)
+    except Interrupted as exc:
+        print(f"physynth: interrupted by {signal_name(exc.signum)}; incomplete output removed", file=sys.stderr)
+        sys.exit(128 + exc.signum)
     except OutputExistsError as exc:
         fail(f"{exc} (use --overwrite to replace it)")
+    except BudgetError as exc:
+        fail(f"{exc} (use --force to go ahead anyway)")
+    except MixedSitesError as exc:
+        fail(f"{exc} (use --allow-mixed to pool them anyway)")
     except PhySynthError as exc:
         fail(str(exc))
     except typer.Abort:
@@ -74,6 +90,16 @@ def main(argv: list[str] | None = None) -> None:
     except KeyboardInterrupt:
         print("physynth: interrupted", file=sys.stderr)
         sys.exit(EXIT_INTERRUPTED)
+    except MemoryError:
+        print("physynth: error: out of memory (see the size budget in docs/reliability.md)", file=sys.stderr)
+        sys.exit(EXIT_SYSTEM)
+    except Exception as exc:  # a bug: one line, exit 3; the traceback only on request
+        if os.environ.get("PHYSYNTH_DEBUG", "") not in ("", "0"):
+            raise
+        first = (str(exc).strip().splitlines() or [""])[0][:300]
+        print(f"physynth: internal error: {type(exc).__name__}: {first} (a bug in PhySynth; please report it; "
+              "PHYSYNTH_DEBUG=1 shows the traceback)", file=sys.stderr)
+        sys.exit(EXIT_BUG)
 
 
 if __name__ == "__main__":

@@ -13,7 +13,9 @@ EXIT_BAD_INPUT = 2
 EXIT_SYSTEM = 1
 """Exit code of a failure of the machine (disk full, permission denied)."""
 EXIT_INTERRUPTED = 130
-"""Exit code after Ctrl-C."""
+"""Exit code after Ctrl-C (SIGINT); SIGTERM gives 143 and SIGHUP 129 (``128 + signal``)."""
+EXIT_BUG = 3
+"""Exit code of a bug in PhySynth (an exception that is not a user mistake nor the machine)."""
 
 
 @contextmanager

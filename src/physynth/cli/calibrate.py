@@ -49,25 +49,40 @@ def calibrate_cmd(
     range_bias: Literal["dynamic", "static"] = typer.Option("dynamic", "--range-bias",
                                    help="dynamic: range bias per anchor from the recordings; static: the "
                                         "static-sweep slope for every anchor (needs --static-sweeps)."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace existing output files."),
+    allow_mixed: bool = typer.Option(False, "--allow-mixed",
+                                     help="Pool datasets even when they are not the same kind of site."),
+    overwrite: bool = typer.Option(False, "--overwrite",
+                                   help="Replace existing output files (only files physynth calibrate wrote)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress display or summary."),
 ) -> None:
     """Calibrate a scenario (path, motion, IMU, UWB, availability) on recorded datasets."""
-    from .._json import jsonable
-    from ..errors import OutputExistsError, PhySynthError
-    from ..io.scenario_file import save_scenario
-    from ..workflows import calibrate_datasets
+    from ..errors import PhySynthError
+    from ..io.safety import check_distinct, check_output, guarded_outputs
 
-    for target in [out] + ([report] if report else []):
-        if target.exists() and not overwrite:
-            raise OutputExistsError(target)
+    inputs = [*datasets, *([static_sweeps] if static_sweeps else [])]
+    check_distinct([("--out", out), ("--report", report)])
+    for target, kind in [(out, "scenario")] + ([(report, "json")] if report else []):
+        check_output(target, kind=kind, overwrite=overwrite, inputs=inputs)
         if not target.parent.exists():
             raise PhySynthError(f"output folder {target.parent} does not exist")
     if layout_from is not None and anchor_layout != "per-run":
         raise PhySynthError("--layout-from needs --anchor-layout per-run")
     chosen: int | str | None = int(layout_from) if layout_from is not None and layout_from.isdigit() else layout_from
-    kwargs = dict(name=name or out.stem, path_kind=path_kind, anchor_policy=anchor_layout, layout_from=chosen,
-                  static_sweeps=static_sweeps, range_bias=range_bias)
+    with guarded_outputs([out] + ([report] if report else [])) as real:  # locks; orphaned temp files removed
+        for target, kind in [(out, "scenario")] + ([(report, "json")] if report else []):
+            check_output(target, kind=kind, overwrite=overwrite, inputs=inputs)  # again, under the lock
+        _calibrate(datasets, out, report, quiet, real[0], real[1] if report else None, name=name or out.stem,
+                   path_kind=path_kind, anchor_policy=anchor_layout, layout_from=chosen,
+                   static_sweeps=static_sweeps, range_bias=range_bias, allow_mixed=allow_mixed)
+
+
+def _calibrate(datasets: list[Path], out: Path, report: Path | None, quiet: bool, real_out: Path,
+               real_report: Path | None, **kwargs) -> None:
+    from .. import __version__
+    from .._json import jsonable
+    from ..io.scenario_file import save_scenario
+    from ..workflows import calibrate_datasets
+
     if quiet:
         result = calibrate_datasets(datasets, **kwargs)
     else:
@@ -83,11 +98,23 @@ def calibrate_cmd(
             result = calibrate_datasets(datasets, progress=progress, **kwargs)
     header = (f"Calibrated by physynth calibrate on {', '.join(str(d) for d in datasets)}\n"
               f"Fit report: {report if report else '(not written; use --report)'}")
-    save_scenario(result.scenario, out, header=header)
-    if report:
-        from ..io.atomic import atomic_write_text
+    # both files are written under temporary names first, then renamed together: an interruption never
+    # leaves a new scenario without its report
+    import os
 
-        atomic_write_text(report, json.dumps(jsonable(result.report), indent=1))
+    from ..io.atomic import atomic_write_text, temp_sibling
+
+    pending = [(temp_sibling(real_out), real_out)] + ([(temp_sibling(real_report), real_report)] if real_report else [])
+    try:
+        save_scenario(result.scenario, pending[0][0], header=header)
+        if real_report:
+            marked = {"generator": {"name": "physynth", "version": __version__}, **result.report}  # safety marker
+            atomic_write_text(pending[1][0], json.dumps(jsonable(marked), indent=1))
+        for tmp, final in pending:
+            os.replace(tmp, final)
+    finally:
+        for tmp, _ in pending:
+            tmp.unlink(missing_ok=True)
     if quiet:
         return
     _print_summary(result, out, report)

@@ -25,10 +25,10 @@ def generate_cmd(
     scenario: str = typer.Option("cablecar-descending", "--scenario", "-s",
                                  help="Preset name or path to a scenario YAML file."),
     n: int = typer.Option(20, "-n", "--n-traces", min=1, help="Number of traces to generate."),
-    seed: int | None = typer.Option(None, "--seed", help="Root seed (random when omitted; stored)."),
+    seed: int | None = typer.Option(None, "--seed", min=0, help="Root seed >= 0 (random when omitted; stored)."),
     out: Path = typer.Option(Path("runs/default"), "--out", "-o", help="Output dataset directory."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset (or discard an "
-                                                              "unfinished run of it)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset (only a dataset "
+                                                              "PhySynth wrote) or discard an unfinished run of it."),
     workers: int = typer.Option(0, "--workers", "-w", min=0,
                                 help="Worker processes (0 = all cores). More than one runs an embedded Dask "
                                      "cluster (physynth[scale]); the output is the same for any number."),
@@ -41,10 +41,11 @@ def generate_cmd(
                                      help="Traces per shard (the unit of work, of atomic writes and of --resume)."),
     regime: str | None = typer.Option(None, "--regime", help="Channel regime applied to the scenario: nominal, "
                                                              "dense, sparse or degraded (docs/anchors.md)."),
+    force: bool = typer.Option(False, "--force", help="Go ahead even when the size estimate exceeds the budget."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Generate N synthetic traces from a scenario and write them as a Parquet dataset."""
-    from ..errors import PhySynthError
+    from ..errors import Interrupted, PhySynthError
     from ..io.scenario_file import load_scenario
     from ..parallel import available_cores
     from ..workflows import generate_dataset
@@ -54,20 +55,24 @@ def generate_cmd(
         from ..studies.regimes import apply_regime
 
         scn = apply_regime(scn, regime)
+    inputs = [Path(scenario)] if Path(scenario).is_file() else []
     n_workers = workers or available_cores()
     try:
         with progress_bar(not quiet) as progress:
             path, root = generate_dataset(scn, n, out, seed=seed, overwrite=overwrite, progress=progress,
                                           workers=n_workers, scheduler=scheduler, resume=resume,
-                                          shard_traces=shard_traces)
+                                          shard_traces=shard_traces, force=force, inputs=inputs)
     except PhySynthError as exc:
-        msg = str(exc)
-        msg = msg.replace("; resume it or overwrite to start over", "; add --resume to complete it or "
-                          "--overwrite to start over")
-        raise PhySynthError(msg) from None
-    except KeyboardInterrupt:
+        hint = "; resume it or overwrite to start over"
+        if hint in str(exc):
+            raise PhySynthError(str(exc).replace(hint, "; add --resume to complete it or --overwrite to start "
+                                                 "over")) from None
+        raise
+    except (KeyboardInterrupt, Interrupted) as exc:
         typer.echo(f"physynth: interrupted; complete shards are kept: run the same command with --resume "
                    f"to finish {out}", err=True)
+        if isinstance(exc, Interrupted):
+            raise typer.Exit(128 + exc.signum) from None
         raise typer.Exit(130) from None
     if not quiet:
         where = f"on {scheduler}" if scheduler else f"{min(n_workers, -(-n // shard_traces))} worker(s)"

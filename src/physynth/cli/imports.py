@@ -22,21 +22,23 @@ def register(main_app: typer.Typer) -> None:
     main_app.add_typer(app, name="import")
 
 _OUT = typer.Option(..., "--out", "-o", help="Output dataset directory.")
-_OVERWRITE = typer.Option(False, "--overwrite", help="Replace an existing dataset.")
+_OVERWRITE = typer.Option(False, "--overwrite", help="Replace an existing dataset (only a dataset PhySynth wrote).")
 _QUIET = typer.Option(False, "--quiet", "-q", help="No summary.")
 
 
 def _run(importer: Callable[[Path], tuple[Any, Any]], inputs: Sequence[Path], out: Path, *,
          source: str, overwrite: bool, quiet: bool) -> None:
     from ..io import write_dataset
+    from ..io.safety import check_output
 
+    check_output(out, kind="dataset", overwrite=overwrite, inputs=inputs)  # before the (long) import
     traces, reports = [], []
     for path in inputs:
         trace, report = importer(path)
         traces.append(trace)
         reports.append(report)
     meta = {"kind": "real", "source": source, "import_report": [r.to_dict() for r in reports]}
-    written = write_dataset(out, traces, meta=meta, overwrite=overwrite)
+    written = write_dataset(out, traces, meta=meta, overwrite=overwrite, inputs=inputs)
     if quiet:
         return
     for trace, report in zip(traces, reports, strict=True):

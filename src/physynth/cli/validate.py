@@ -29,7 +29,7 @@ def validate_cmd(
     scenario: str | None = typer.Option(None, "--scenario", "-s",
                                            help="Preset name or scenario YAML: generate the synthetic traces."),
     n: int = typer.Option(50, "-n", "--n-traces", min=1, help="Traces to generate with --scenario."),
-    seed: int | None = typer.Option(None, "--seed", help="Root seed for --scenario (random when omitted; "
+    seed: int | None = typer.Option(None, "--seed", min=0, help="Root seed for --scenario (random when omitted; "
                                                              "recorded in the report)."),
     transfer: bool = typer.Option(False, "--transfer",
                                   help="Take path geometry, motion and anchor layout from the real dataset; keep "
@@ -43,16 +43,29 @@ def validate_cmd(
                                                       "figures)."),
     figures: bool = typer.Option(True, "--figures/--no-figures",
                                  help="Draw the figures (needs matplotlib: physynth[report])."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a report already in --out."),
+    overwrite: bool = typer.Option(False, "--overwrite",
+                                   help="Replace a report already in --out (only a report PhySynth wrote)."),
+    force: bool = typer.Option(False, "--force", help="Go ahead even when the size estimate exceeds the budget."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Validate synthetic traces against a real dataset (paper section IV: Tables I-II, KS, figures)."""
-    from ..errors import AnchorMismatchError, OutputExistsError, PhySynthError
+    from ..io.safety import check_output, guarded_outputs
+
+    inputs = [p for p in (real, synthetic, Path(scenario) if scenario else None) if p is not None and p.exists()]
+    check_output(out, kind="report", overwrite=overwrite, inputs=inputs)  # fail before the (long) generation
+    with guarded_outputs([out]) as (real_out,):  # lock; orphaned temp files removed
+        check_output(out, kind="report", overwrite=overwrite, inputs=inputs)
+        _validate(real, synthetic, scenario, n, seed, transfer, out, real_out, figures, overwrite, force, quiet,
+                  anchors)
+
+
+def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, seed: int | None, transfer: bool,
+              out: Path, real_out: Path, figures: bool, overwrite: bool, force: bool, quiet: bool,
+              anchors: str | None = None) -> None:
+    from ..errors import AnchorMismatchError, PhySynthError
     from ..validate.render import require_matplotlib, write_report
     from ..workflows import validate_datasets
 
-    if (out / "report.json").exists() and not overwrite:  # fail before the (long) generation
-        raise OutputExistsError(out, "holds a report")
     if (synthetic is None) == (scenario is None):
         raise PhySynthError("give exactly one of --synthetic DATASET and --scenario SCENARIO "
                             f"({'both' if synthetic is not None else 'neither'} given)")
@@ -63,12 +76,15 @@ def validate_cmd(
     try:
         with progress_bar(not quiet) as progress:
             report = validate_datasets(real, synthetic=synthetic, scenario=scenario, n=n, seed=seed,
-                                       transfer=transfer, progress=progress,
+                                       transfer=transfer, progress=progress, force=force,
                                        anchors=None if anchors is None else [a.strip() for a in anchors.split(",")])
     except AnchorMismatchError as exc:
         hint = "; use --transfer to take the anchor layout from the real dataset" if scenario else ""
         raise PhySynthError(str(exc).split("; transfer the scenario")[0] + hint) from None
-    written = write_report(report, out, figures=figures, overwrite=overwrite)
+    from ..io.safety import atomic_folder
+
+    with atomic_folder(real_out) as tmp:  # the report folder appears complete or not at all
+        written = write_report(report, tmp, figures=figures, overwrite=True)
     if quiet:
         return
     dev = report.relative_deviation_pct

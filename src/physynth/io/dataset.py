@@ -24,8 +24,9 @@ import pyarrow.parquet as pq
 from .. import __version__
 from .._json import jsonable
 from ..constants import IMU_BODY_FRAME, IMU_FRAME, SCHEMA_VERSION
-from ..errors import DatasetError, OutputExistsError
+from ..errors import DatasetError
 from ..records import Anchors, Imu, Trace, Truth, Uwb
+from . import integrity, safety
 from .atomic import temp_sibling
 
 TABLES = ("truth", "imu", "uwb", "anchors")
@@ -175,21 +176,23 @@ class DatasetWriter:
     """
 
     def __init__(self, path: str | os.PathLike, *, meta: dict[str, Any] | None = None,
-                 overwrite: bool = False, row_group_traces: int = 64, compact: bool = False) -> None:
-        self.path = Path(path)
-        if self.path.exists() and not overwrite:
-            raise OutputExistsError(self.path)
-        if self.path.exists() and not self.path.is_dir():
-            raise DatasetError(f"{self.path} exists and is not a directory")
+                 overwrite: bool = False, row_group_traces: int = 64, compact: bool = False,
+                 inputs: Sequence[str | os.PathLike] = ()) -> None:
+        # safety hook (physynth.io.safety): what --overwrite may replace, inputs, lock, orphaned temp folders
+        self.path, self._lock = safety.prepare_output(path, kind="dataset", overwrite=overwrite, inputs=inputs)
         self.overwrite = overwrite
         self.meta = dict(meta or {})
         self.tmp = temp_sibling(self.path)
-        if self.tmp.exists():
-            shutil.rmtree(self.tmp)
         try:
+            safety.remove_tree(self.tmp)
             self.tmp.mkdir(parents=True)
         except OSError as exc:
+            self._lock.release()
             raise DatasetError(f"cannot create {self.path}: {exc.strerror}") from None
+        except BaseException:
+            self._lock.release()
+            raise
+        self._rows = {name: 0 for name in TABLES}
         self._writers = {
             name: pq.ParquetWriter(self.tmp / f"{name}.parquet", (SCHEMAS_COMPACT if compact else SCHEMAS)[name],
                                    compression="snappy",
@@ -220,12 +223,25 @@ class DatasetWriter:
     def _flush(self) -> None:
         for name, parts in self._pending.items():
             if parts:
-                self._writers[name].write_table(pa.concat_tables(parts))
+                table = pa.concat_tables(parts)
+                self._writers[name].write_table(table)
+                self._rows[name] += table.num_rows
             self._pending[name] = []
 
     def close(self) -> Path:
+        """Finish every table, write ``dataset.json`` and swap the dataset into place.
+
+        On any failure (or interruption) the temporary folder is removed and nothing appears.
+        """
         if self._closed:
             return self.path
+        try:
+            return self._close()
+        except BaseException:
+            self.abort()
+            raise
+
+    def _close(self) -> Path:
         self._flush()
         for w in self._writers.values():
             w.close()
@@ -241,15 +257,17 @@ class DatasetWriter:
             "truth_attitude": self._attitude,
             "n_traces": len(self._trace_meta),
             "traces": self._trace_meta,
+            # integrity hook (physynth.io.integrity): row counts and SHA-256 of every table
+            "files": integrity.file_records(self.tmp, {f"{name}.parquet": n for name, n in self._rows.items()}),
         }
         (self.tmp / "dataset.json").write_text(json.dumps(meta, indent=1), encoding="utf-8")
         old = self.path.with_name(f".{self.path.name}.old-{os.getpid()}")
-        if self.path.exists():
+        if os.path.lexists(self.path):
             os.replace(self.path, old)
         os.replace(self.tmp, self.path)
-        if old.exists():
-            shutil.rmtree(old)
         self._closed = True
+        safety.remove_tree(old)
+        self._lock.release()
         return self.path
 
     def abort(self) -> None:
@@ -260,6 +278,7 @@ class DatasetWriter:
                 pass
         shutil.rmtree(self.tmp, ignore_errors=True)
         self._closed = True
+        self._lock.release()
 
     def __enter__(self) -> DatasetWriter:
         return self
@@ -272,9 +291,12 @@ class DatasetWriter:
 
 
 def write_dataset(path: str | os.PathLike, traces: Iterable[Trace], *, meta: dict[str, Any] | None = None,
-                  overwrite: bool = False) -> Path:
-    """Write traces as a dataset directory, atomically. Returns the path."""
-    with DatasetWriter(path, meta=meta, overwrite=overwrite) as w:
+                  overwrite: bool = False, inputs: Sequence[str | os.PathLike] = ()) -> Path:
+    """Write traces as a dataset directory, atomically. Returns the path.
+
+    ``inputs`` are the files or folders the traces were read from: the output may not be or hold one.
+    """
+    with DatasetWriter(path, meta=meta, overwrite=overwrite, inputs=inputs) as w:
         for trace in traces:
             w.add(trace)
     return Path(path)
@@ -467,7 +489,12 @@ def iter_traces(path: str | os.PathLike, meta: dict[str, Any] | None = None) -> 
     """
     path = Path(path)
     meta = read_meta(path) if meta is None else meta
-    trace_meta = {int(m["trace"]): m for m in meta.get("traces", [])}
+    # integrity hook (physynth.io.integrity): sizes, row counts, hashes and trace ids against dataset.json
+    integrity.check_dataset(path, meta, hashes=not integrity.environ_skip_hashes())
+    try:
+        trace_meta = {int(m["trace"]): m for m in meta.get("traces", [])}
+    except (TypeError, KeyError, ValueError):
+        raise DatasetError(f"dataset {path}: dataset.json 'traces' entries have no valid 'trace' id") from None
     streams = {name: _table_stream(path, name) for name in TABLES}
     heads: dict[str, tuple[int, dict] | None] = {name: next(streams[name], None) for name in TABLES if name != "truth"}
 
@@ -483,8 +510,12 @@ def iter_traces(path: str | os.PathLike, meta: dict[str, Any] | None = None) -> 
     n = 0
     for idx, tr in streams["truth"]:
         n += 1
-        yield _trace_of(idx, tr, take("anchors", idx), take("imu", idx), take("uwb", idx), meta,
-                        trace_meta.get(idx, {}), path)
+        try:
+            trace = _trace_of(idx, tr, take("anchors", idx), take("imu", idx), take("uwb", idx), meta,
+                              trace_meta.get(idx, {}), path)
+        except ValueError as exc:  # tables that read but do not make valid records (unsorted times, ...)
+            raise DatasetError(f"dataset {path}: trace {idx} is invalid: {str(exc).splitlines()[0]}") from None
+        yield trace
     if n == 0:
         raise DatasetError(f"dataset {path} holds no traces")
 
@@ -502,4 +533,7 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
     """
     path = Path(path)
     meta = read_meta(path)
-    return Dataset(meta=meta, traces=list(iter_traces(path, meta)))
+    traces = list(iter_traces(path, meta))
+    if not traces:
+        raise DatasetError(f"dataset {path} holds no traces")
+    return Dataset(meta=meta, traces=traces)

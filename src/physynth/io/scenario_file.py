@@ -19,6 +19,59 @@ from .atomic import atomic_write_text
 
 PRESET_DIR = "presets"
 
+MAX_YAML_NODES = 200_000
+"""Most YAML nodes a scenario file may expand to, aliases counted at every use (no billion laughs)."""
+MAX_YAML_BYTES = 20_000_000
+"""Largest scenario file read [bytes]."""
+
+
+def _expanded_size(node: yaml.Node, source: str) -> int:
+    """Number of nodes of ``node`` with every alias expanded; refuse cycles and more than MAX_YAML_NODES."""
+    memo: dict[int, int] = {}
+    active: set[int] = set()
+
+    def size(n: yaml.Node) -> int:
+        key = id(n)
+        if key in memo:
+            return memo[key]
+        if key in active:
+            raise ScenarioError(f"scenario {source}: a YAML alias refers to itself (a recursive structure)")
+        active.add(key)
+        total = 1
+        if isinstance(n, yaml.SequenceNode):
+            for child in n.value:
+                total += size(child)
+                if total > MAX_YAML_NODES:
+                    break
+        elif isinstance(n, yaml.MappingNode):
+            for k, v in n.value:
+                total += size(k) + size(v)
+                if total > MAX_YAML_NODES:
+                    break
+        active.discard(key)
+        memo[key] = total
+        if total > MAX_YAML_NODES:
+            raise ScenarioError(f"scenario {source}: the YAML expands to more than {MAX_YAML_NODES:,} values "
+                                "(nested aliases?); a scenario is far smaller")
+        return total
+
+    return size(node)
+
+
+def safe_load_bounded(text: str, source: str) -> Any:
+    """``yaml.safe_load`` that refuses recursive aliases and documents expanding past MAX_YAML_NODES."""
+    if len(text) > MAX_YAML_BYTES:
+        raise ScenarioError(f"scenario {source}: the file is larger than {MAX_YAML_BYTES / 1e6:g} MB")
+    loader = yaml.SafeLoader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _expanded_size(node, source)
+        return loader.construct_document(node)
+    finally:
+        loader.dispose()
+
 
 def list_presets() -> list[str]:
     """Names of the built-in scenario presets."""
@@ -59,7 +112,9 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         raise ScenarioError(f"unknown scenario '{name_or_path}': not a preset ({', '.join(list_presets())}) "
                             "and not a file")
     try:
-        data = yaml.safe_load(text)
+        data = safe_load_bounded(text, source)
+    except RecursionError:
+        raise ScenarioError(f"scenario {source}: the YAML is nested too deeply") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         at = f" at line {mark.line + 1}" if mark is not None else ""

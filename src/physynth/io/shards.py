@@ -149,6 +149,7 @@ def finalize(out: Path, partial: Path, plan: ShardPlan, meta: dict[str, Any]) ->
         shutil.rmtree(stage)
     stage.mkdir()
     traces_meta: list[dict[str, Any]] = []
+    files: dict[str, Any] = {}  # integrity records (physynth.io.integrity) of the assembled layout
     shards = [partial / shard_name(k) for k in range(plan.n_shards)]
     missing = [s.name for s in shards if not s.is_dir()]
     if missing:
@@ -161,10 +162,14 @@ def finalize(out: Path, partial: Path, plan: ShardPlan, meta: dict[str, Any]) ->
                 else:
                     (stage / name).mkdir(exist_ok=True)
                     _link(shard / f"{name}.parquet", stage / name / f"part-{k:05d}.parquet")
-            traces_meta += json.loads((shard / "dataset.json").read_text(encoding="utf-8"))["traces"]
+            shard_meta = json.loads((shard / "dataset.json").read_text(encoding="utf-8"))
+            traces_meta += shard_meta["traces"]
+            for fname, rec in (shard_meta.get("files") or {}).items():
+                name = fname.removesuffix(".parquet")
+                files[fname if plan.n_shards == 1 else f"{name}/part-{k:05d}.parquet"] = rec
         first = json.loads((shards[0] / "dataset.json").read_text(encoding="utf-8"))
         first.pop("shard", None)
-        record = {**first, **jsonable(meta), "n_traces": len(traces_meta), "traces": traces_meta,
+        record = {**first, **jsonable(meta), "n_traces": len(traces_meta), "traces": traces_meta, "files": files,
                   "shards": {"n_shards": plan.n_shards, "shard_traces": plan.shard_traces,
                              "layout": "single" if plan.n_shards == 1 else "parts"}}
         (stage / "dataset.json").write_text(json.dumps(record, indent=1), encoding="utf-8")

@@ -43,8 +43,13 @@ class SpeedProfileParams(ParamsModel):
             raise ValueError("accel_frac + decel_frac must not exceed 1")
         if self.kind == "polynomial" and not self.coeffs:
             raise ValueError("a polynomial speed profile needs coeffs")
-        if self.kind == "empirical" and (not self.samples or len(self.samples) < 3):
-            raise ValueError("an empirical speed profile needs at least 3 samples")
+        if self.kind == "empirical" and (not self.samples or len(self.samples) < 5):
+            raise ValueError("an empirical speed profile needs at least 5 samples (the smoothing spline's minimum)")
+        if self.kind in ("polynomial", "empirical"):
+            values = (P.polyval(np.linspace(0.0, 1.0, 201), np.asarray(self.coeffs, dtype=float))
+                      if self.kind == "polynomial" else np.asarray(self.samples, dtype=float))
+            if not np.all(np.isfinite(values)) or not values.max() > 0:
+                raise ValueError(f"the {self.kind} speed profile is zero (or not finite) everywhere on [0, 1]")
         return self
 
 

@@ -52,7 +52,9 @@ class PathParams(ParamsModel):
             if self.waypoints_enu_m is None or len(self.waypoints_enu_m) < 2:
                 raise ValueError("a waypoints path needs at least 2 waypoints_enu_m")
             w = np.asarray(self.waypoints_enu_m)
-            if np.any(np.linalg.norm(np.diff(w, axis=0), axis=1) <= 0):
+            with np.errstate(all="ignore"):  # absurd coordinates are refused by the bounds, not here
+                steps = np.linalg.norm(np.diff(w, axis=0), axis=1)
+            if np.any(steps <= 0):
                 raise ValueError("waypoints_enu_m has two consecutive identical waypoints")
         return self
 

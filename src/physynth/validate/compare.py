@@ -389,7 +389,10 @@ class ValidationReport:
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON form (``report.json``)."""
+        from .. import __version__
+
         return jsonable({
+            "generator": {"name": "physynth", "version": __version__},  # marks PhySynth output (io.safety)
             "real": self.real,
             "synthetic": self.synthetic,
             "relative_deviation_pct": self.relative_deviation_pct,
@@ -620,6 +623,10 @@ def anchor_ids(traces: Sequence[Trace]) -> list[str]:
     return ids
 
 
+MIN_VALID_RANGES = 30
+"""Fewest valid real ranges a validation accepts (a KS statistic from 3 ranges says nothing)."""
+
+
 def check_real(traces: Sequence[Trace], where: str) -> None:
     """Refuse real data that cannot be validated against: no truth, no anchors, no valid range."""
     from ..evaluate.metrics import residuals
@@ -632,8 +639,12 @@ def check_real(traces: Sequence[Trace], where: str) -> None:
         if len(tr.anchors) == 0:
             raise PhySynthError(f"{where}: trace {i} has no UWB anchors (an IMU-only recording cannot be "
                                 "validated)")
-    if not any(residuals(tr)[0].size for tr in traces):
+    n_valid = sum(residuals(tr)[0].size for tr in traces)
+    if not n_valid:
         raise PhySynthError(f"{where} has no valid UWB range inside the truth time span: nothing to compare")
+    if n_valid < MIN_VALID_RANGES:
+        raise PhySynthError(f"{where} has only {n_valid} valid UWB range(s) inside the truth time span; the "
+                            f"statistics (KS, quantiles) need at least {MIN_VALID_RANGES}")
 
 
 def describe_anchor_mismatch(real_ids: Sequence[str], other_ids: Sequence[str], other: str) -> str | None:

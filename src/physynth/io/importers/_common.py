@@ -298,6 +298,95 @@ def check_seconds(t_s: np.ndarray, path: Path, col: str) -> None:
             f"(milli-, micro- or nanoseconds?); convert to seconds")
 
 
+#: Plausible median time step [s] of each stream (lowest, highest): outside, the times are in another unit.
+PLAUSIBLE_STEP_S = {"truth": (1e-4, 5.0), "imu": (1e-5, 1.0), "uwb": (1e-6, 60.0)}
+#: A stream spanning this many times more (or less) time than the truth is in another time unit.
+MAX_SPAN_RATIO = 200.0
+
+
+def _unit_guess(factor: float) -> str:
+    for name, f in (("nanoseconds", 1e9), ("microseconds", 1e6), ("milliseconds", 1e3)):
+        if factor > f / 30:
+            return name
+    return "another unit"
+
+
+def check_time_steps(t_s: np.ndarray, path: Path, col: str, stream: str) -> None:
+    """Error when the median step between successive times is implausible for ``stream`` in seconds."""
+    t = np.sort(t_s[np.isfinite(t_s)])
+    d = np.diff(t)
+    d = d[d > 0]
+    if d.size < 2:
+        return
+    step = float(np.median(d))
+    lo, hi = PLAUSIBLE_STEP_S[stream]
+    if step > hi:
+        raise RecordingError(
+            f"{path}: {col} has a median step of {step:.4g} ({1 / step:.3g} samples per unit), implausible "
+            f"for a {stream} stream in seconds (at most {hi:g} s); the times look like {_unit_guess(step / hi)}: "
+            "convert them to seconds")
+    if step < lo:
+        raise RecordingError(
+            f"{path}: {col} has a median step of {step:.3g} s ({1 / step:.3g} Hz), implausibly fast for a "
+            f"{stream} stream (at least {lo:g} s); are the times in minutes or hours? convert them to seconds")
+
+
+def check_time_spans(path: Path, t: np.ndarray, truth_path: Path, t_truth: np.ndarray) -> None:
+    """Error when a stream and the truth span durations that differ by MAX_SPAN_RATIO or more."""
+    if t.size < 2 or t_truth.size < 2:
+        return
+    span, span_truth = float(np.ptp(t)), float(np.ptp(t_truth))
+    if span <= 0 or span_truth <= 0:
+        return
+    ratio = span_truth / span
+    if ratio >= MAX_SPAN_RATIO or ratio <= 1 / MAX_SPAN_RATIO:
+        longer, factor = (truth_path.name, ratio) if ratio > 1 else (path.name, 1 / ratio)
+        raise RecordingError(
+            f"{path}: spans {span:.4g} s but {truth_path.name} spans {span_truth:.4g} s ({factor:.3g} times "
+            f"apart); {longer} looks like it is in {_unit_guess(factor)}: convert its times to seconds")
+
+
+#: Median ratio of measured range to the anchor-to-truth distance outside which a unit is wrong.
+RANGE_SCALE_LIMITS = (0.05, 20.0)
+
+
+def check_range_scale(path: Path, t_uwb: np.ndarray, anchor: np.ndarray, range_m: np.ndarray,
+                      t_truth: np.ndarray, pos_m: np.ndarray, anchor_pos_m: np.ndarray) -> None:
+    """Error when the ranges are far from the distances between truth and anchors (a unit mistake in
+    the ranges, the truth or the anchor coordinates)."""
+    ok = np.isfinite(range_m) & (t_uwb >= t_truth[0]) & (t_uwb <= t_truth[-1])
+    if np.count_nonzero(ok) < 10:
+        return
+    p = np.stack([np.interp(t_uwb[ok], t_truth, pos_m[:, k]) for k in range(3)], axis=1)
+    dist = np.linalg.norm(p - anchor_pos_m[anchor[ok]], axis=1)
+    good = dist > 0.5  # next to an anchor the ratio says nothing
+    if np.count_nonzero(good) < 10:
+        return
+    ratio = float(np.median(range_m[ok][good] / dist[good]))
+    lo, hi = RANGE_SCALE_LIMITS
+    if not lo <= ratio <= hi:
+        guess = ("the ranges in millimetres or centimetres, or the positions in kilometres" if ratio > hi
+                 else "the ranges in kilometres, or the positions in millimetres or centimetres")
+        raise RecordingError(f"{path}: the ranges are {ratio:.3g} times the distances between the truth and "
+                             f"the anchors (median); are {guess}? convert them to metres")
+
+
+def integer_column(values: pd.Series, file: str, col: str, report: ReportBuilder,
+                   missing: int = -1) -> np.ndarray:
+    """An integer column: empty cells become ``missing``; text and non-integers become ``missing`` too,
+    each counted as repaired (``<col>_not_a_number``, ``<col>_not_an_integer``)."""
+    num = pd.to_numeric(values, errors="coerce").astype(np.float64).to_numpy()
+    raw_empty = values.isna().to_numpy() | (values.astype("string").str.strip() == "").fillna(True).to_numpy()
+    text = np.isnan(num) & ~raw_empty
+    report.repair(file, f"{col}_not_a_number", int(np.count_nonzero(text)))
+    frac = np.isfinite(num) & (num != np.round(num))
+    report.repair(file, f"{col}_not_an_integer", int(np.count_nonzero(frac)))
+    report.repair(file, f"{col}_empty", int(np.count_nonzero(raw_empty)))
+    bad = ~np.isfinite(num) | frac | (np.abs(num) > 2**62)
+    out = np.where(bad, missing, num)
+    return out.astype(np.int64)
+
+
 def check_range_metres(range_m: np.ndarray, path: Path, col: str) -> None:
     """Error when the ranges are evidently not in metres (median above 5 km)."""
     r = range_m[np.isfinite(range_m)]

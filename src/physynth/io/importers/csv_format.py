@@ -29,11 +29,15 @@ from ._common import (
     ReportBuilder,
     auto_burst_gap_s,
     check_range_metres,
+    check_range_scale,
     check_seconds,
+    check_time_spans,
+    check_time_steps,
     drop_nan_rows,
     find_table,
     flag_ranges,
     gap_bursts,
+    integer_column,
     read_table,
     require_columns,
     sort_and_dedupe,
@@ -94,7 +98,9 @@ def import_csv(rec_dir: str | os.PathLike, *, velocity_window_s: float = 0.5,
     t0 = float(t_truth[0])
     t_truth = t_truth - t0
     t_uwb = t_uwb - t0
+    check_time_spans(uwb_path, t_uwb, truth_path, t_truth)
     _check_overlap(uwb_path, t_uwb, truth_path, t_truth)
+    check_range_scale(uwb_path, t_uwb, anchor, range_m, t_truth, pos, anchors.pos_enu_m)
     meta: dict[str, Any] = {
         "source": "csv",
         "recording": rec.name,
@@ -120,6 +126,7 @@ def import_csv(rec_dir: str | os.PathLike, *, velocity_window_s: float = 0.5,
     if imu_tab is not None:
         t_imu, acc = imu_tab
         t_imu = t_imu - t0
+        check_time_spans(imu_path, t_imu, truth_path, t_truth)
         _check_overlap(imu_path, t_imu, truth_path, t_truth)
         imu = Imu(t_s=t_imu, acc_mps2=acc)
         meta["imu_processing"] = "as given: ENU, gravity removed (recording format)"
@@ -183,6 +190,7 @@ def _read_truth(path: Path, rep: ReportBuilder) -> tuple[np.ndarray, np.ndarray,
     num = ["t_s", *pos_cols, *(vel_cols if all(has_vel) else [])]
     df = to_float(df, num)
     check_seconds(df["t_s"].to_numpy(), path, "t_s")
+    check_time_steps(df["t_s"].to_numpy(), path, "t_s", "truth")
     df = drop_nan_rows(df, num, path.name, rep)
     df = sort_and_dedupe(df[num], ["t_s"], path.name, rep)
     if len(df) < 2:
@@ -197,8 +205,11 @@ def _read_uwb(path: Path, anchors: Anchors, rep: ReportBuilder
     df = read_table(path, rep, str_columns=("anchor_id",))
     require_columns(df, path, ["t_s", "anchor_id", "range_m"])
     has_burst = "burst" in df.columns
+    if has_burst:  # integer burst ids: text and fractions are counted, not silently truncated
+        df = df.assign(burst=integer_column(df["burst"], path.name, "burst", rep).astype(np.float64))
     df = to_float(df, ["t_s", "range_m", *(["burst"] if has_burst else [])])
     check_seconds(df["t_s"].to_numpy(), path, "t_s")
+    check_time_steps(df["t_s"].to_numpy(), path, "t_s", "uwb")
     check_range_metres(df["range_m"].to_numpy(), path, "range_m")
     df = drop_nan_rows(df, ["t_s"], path.name, rep, reason="nan_time")
     ids = df["anchor_id"].astype("string").str.strip()
@@ -226,6 +237,7 @@ def _read_imu(path: Path, rep: ReportBuilder) -> tuple[np.ndarray, np.ndarray]:
     require_columns(df, path, ["t_s", *acc_cols])
     df = to_float(df, ["t_s", *acc_cols])
     check_seconds(df["t_s"].to_numpy(), path, "t_s")
+    check_time_steps(df["t_s"].to_numpy(), path, "t_s", "imu")
     df = drop_nan_rows(df, ["t_s", *acc_cols], path.name, rep)
     df = sort_and_dedupe(df[["t_s", *acc_cols]], ["t_s"], path.name, rep)
     if df.empty:

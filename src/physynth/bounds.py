@@ -1,0 +1,226 @@
+"""Physical ranges of every scenario field and the size budget of a generation (docs/reliability.md).
+
+Pydantic checks types and signs; :data:`BOUNDS` adds, for every number of a scenario, the range in
+which it still describes a physical UWB + IMU set-up (a walk, a vehicle, a cable car). A value
+outside is refused with one line naming the field, its value and its range, so that a typo
+(``imu.rate_hz: 1e7``, ``uwb.nlos_dwell_s: 1e-300``) never reaches the generator.
+
+:func:`estimate_size` predicts, before any work, the samples, peak memory and output size of
+generating ``n`` traces; :func:`check_budget` refuses a generation over :data:`MEMORY_BUDGET_BYTES`
+or :data:`OUTPUT_BUDGET_BYTES` with the estimate in the message (``force=True`` overrides), and a
+scenario whose trip is too short to give a trace at all.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from .errors import BudgetError, ScenarioError
+
+if TYPE_CHECKING:
+    from .scenario import Scenario
+
+
+@dataclass(frozen=True, slots=True)
+class Bound:
+    """Inclusive physical range [lo, hi] of a field, its unit and why (one line)."""
+
+    lo: float
+    hi: float
+    unit: str
+    why: str
+
+
+_COORD = Bound(-1e7, 1e7, "m", "ENU coordinates in a local or projected (UTM) frame")
+_PROB = Bound(0.0, 1.0, "", "a probability")
+
+BOUNDS: dict[str, Bound] = {
+    "path.length_m": Bound(1.0, 100_000.0, "m", "a site from 1 m to 100 km"),
+    "path.coeffs_enu_m[][]": _COORD,
+    "path.waypoints_enu_m[][]": _COORD,
+    "path.perturbation.lateral_std_m": Bound(0.0, 100.0, "m", "run-to-run cable or route deviation"),
+    "path.perturbation.sag_std_m": Bound(0.0, 100.0, "m", "run-to-run cable sag change"),
+    "motion.cruise_speed_mps": Bound(0.01, 150.0, "m/s", "from a slow walk to a fast train"),
+    "motion.profile.accel_frac": _PROB,
+    "motion.profile.decel_frac": _PROB,
+    "motion.profile.coeffs[]": Bound(-1e6, 1e6, "", "speed-shape polynomial coefficients (normalised)"),
+    "motion.profile.samples[]": Bound(0.0, 1e6, "", "speed-shape samples (normalised to max 1)"),
+    "motion.profile.smoothing": Bound(0.0, 1e6, "", "smoothing-spline penalty (positive)"),
+    "motion.cruise_speed_spread_frac": Bound(0.0, 0.9, "", "per-run speed spread"),
+    "motion.length_spread_frac": Bound(0.0, 0.9, "", "per-run length spread"),
+    "motion.dwell_start_s": Bound(0.0, 86_400.0, "s", "a rest of at most a day"),
+    "motion.dwell_end_s": Bound(0.0, 86_400.0, "s", "a rest of at most a day"),
+    "imu.rate_hz": Bound(1.0, 10_000.0, "Hz", "MEMS accelerometer output rates"),
+    "imu.white_noise_density_mps2_per_sqrt_hz[]": Bound(0.0, 10.0, "m/s^2/sqrt(Hz)", "accelerometer noise density"),
+    "imu.bias_rw_mps2_per_sqrt_s": Bound(0.0, 10.0, "m/s^2/sqrt(s)", "bias random walk"),
+    "imu.bias_initial_std_mps2": Bound(0.0, 100.0, "m/s^2", "turn-on bias"),
+    "imu.vibration.fundamental_hz": Bound(0.01, 1000.0, "Hz", "structural vibration"),
+    "imu.vibration.amplitude_mps2": Bound(0.0, 1000.0, "m/s^2", "vibration RMS"),
+    "imu.vibration.harmonic_weights[]": Bound(0.0, 1e6, "", "relative weights"),
+    "imu.vibration.bandwidth_hz": Bound(1e-4, 1000.0, "Hz", "spectral line width"),
+    "imu.vibration.axis_gain[]": Bound(0.0, 100.0, "", "per-axis gain"),
+    "uwb.burst_rate_hz": Bound(0.1, 1000.0, "Hz", "UWB ranging rates"),
+    "uwb.burst_jitter_s": Bound(0.0, 1.0, "s", "burst period jitter"),
+    "uwb.burst_phase_s": Bound(0.0, 100.0, "s", "first burst offset"),
+    "uwb.slot_s": Bound(0.0, 1.0, "s", "anchor slot spacing in a burst"),
+    "uwb.time_offset_s": Bound(-10.0, 10.0, "s", "UWB clock offset"),
+    "uwb.nlos_dwell_s": Bound(1e-3, 3600.0, "s", "mean NLOS episode length"),
+    "uwb.zones[].s_m": Bound(0.0, 100_000.0, "m", "position along the path"),
+    "uwb.zones[].half_width_m": Bound(1e-3, 100_000.0, "m", "zone half width"),
+    "uwb.zones[].nlos_prob": _PROB,
+    "anchors[].pos_enu_m[]": _COORD,
+    "channel.rate_hz": Bound(0.01, 1000.0, "Hz", "per-anchor ranging rate"),
+    "channel.los_mean_m": Bound(-10.0, 10.0, "m", "LOS range bias"),
+    "channel.los_std_m": Bound(0.0, 100.0, "m", "LOS range noise"),
+    "channel.range_bias_per_m": Bound(-0.5, 0.5, "m/m", "range scale error"),
+    "channel.nlos_prob": _PROB,
+    "channel.nlos_modes[].weight": Bound(0.0, 1e6, "", "relative mode weight"),
+    "channel.nlos_modes[].mean_m": Bound(-100.0, 1000.0, "m", "NLOS excess range"),
+    "channel.nlos_modes[].std_m": Bound(0.0, 1000.0, "m", "NLOS spread"),
+    "channel.nlos_modes[].dwell_s": Bound(1e-3, 3600.0, "s", "mean NLOS episode length"),
+    "channel.max_range_m": Bound(0.0, 1e7, "m", "link range"),
+    "channel.edge_width_m": Bound(0.0, 100_000.0, "m", "link edge softness"),
+    "availability.dropout_prob": _PROB,
+    "availability.outage_onset_prob": _PROB,
+    "availability.outage_mean_s": Bound(1e-3, 1e6, "s", "mean outage length"),
+    "availability.tag_outage_onset_prob": _PROB,
+    "availability.tag_outage_mean_s": Bound(1e-3, 1e6, "s", "mean tag outage length"),
+    "truth_rate_hz": Bound(1.0, 10_000.0, "Hz", "truth sampling rate"),
+    "grid_rate_hz": Bound(1.0, 10_000.0, "Hz", "evaluation grid rate"),
+}
+"""Dotted field path (``[]`` for any list element; per-anchor overrides use the default's path) ->
+physical range."""
+
+
+def _gb_env(name: str, default_gb: float) -> float:
+    try:
+        return float(os.environ.get(name, "")) * 1e9
+    except ValueError:
+        return default_gb * 1e9
+
+
+MEMORY_BUDGET_BYTES = _gb_env("PHYSYNTH_MEMORY_BUDGET_GB", 4.0)
+"""Peak memory a generation may need [bytes]: 4 GB, or ``PHYSYNTH_MEMORY_BUDGET_GB``."""
+OUTPUT_BUDGET_BYTES = _gb_env("PHYSYNTH_OUTPUT_BUDGET_GB", 20.0)
+"""Size a generated dataset may reach [bytes]: 20 GB, or ``PHYSYNTH_OUTPUT_BUDGET_GB``."""
+MIN_TRUTH_SAMPLES = 10
+"""A trace shorter than this many truth samples is refused (a zero-length path, an absurd speed)."""
+
+# bytes per sample: about twice the peak tracemalloc measures on the cablecar preset (3.9 MB per trace)
+_WORK_BYTES = {"truth": 150, "imu": 80, "uwb": 100}
+_TABLE_BYTES = {"truth": 64, "imu": 40, "uwb": 60}
+ROW_GROUP_TRACES = 64
+
+
+def _leaves(obj: Any, path: str) -> Iterator[tuple[str, str, Any]]:
+    """(pattern, concrete path, value) of every number in a dumped scenario."""
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            if path in ("channel_per_anchor", "availability_per_anchor"):
+                yield from _leaves(v, path.replace("_per_anchor", "") + f"@{k}")
+            else:
+                yield from _leaves(v, f"{path}.{k}" if path else str(k))
+    elif isinstance(obj, list):
+        for i, v in enumerate(obj):
+            yield from _leaves(v, f"{path}[{i}]")
+    elif isinstance(obj, (int, float)) and not isinstance(obj, bool):
+        yield path, path, obj
+
+
+def _pattern(concrete: str) -> str:
+    import re
+
+    p = re.sub(r"@[^.\[]*", "", concrete)
+    return re.sub(r"\[\d+\]", "[]", p)
+
+
+def check_bounds(data: dict[str, Any]) -> None:
+    """Raise ValueError naming the first number of a dumped scenario outside its physical range."""
+    for _, concrete, value in _leaves(data, ""):
+        b = BOUNDS.get(_pattern(concrete))
+        if b is None:
+            continue
+        if not (b.lo <= value <= b.hi):
+            shown = concrete.replace("channel@", "channel_per_anchor.").replace(
+                "availability@", "availability_per_anchor.")
+            raise ValueError(f"field {shown}: {value:g} {b.unit} is outside the physical range "
+                             f"[{b.lo:g}, {b.hi:g}] {b.unit} ({b.why})".replace("  ", " "))
+
+
+@dataclass(frozen=True, slots=True)
+class SizeEstimate:
+    """Predicted size of generating ``n_traces`` traces (upper bounds over the per-run spreads)."""
+
+    n_traces: int
+    duration_s: float
+    min_trip_s: float
+    truth_samples: int
+    imu_samples: int
+    uwb_rows: int
+    peak_memory_bytes: float
+    output_bytes: float
+
+    def describe(self) -> str:
+        return (f"{self.n_traces} trace(s) of up to {self.duration_s:.4g} s: {self.truth_samples:,} truth, "
+                f"{self.imu_samples:,} IMU and {self.uwb_rows:,} UWB rows per trace, about "
+                f"{self.peak_memory_bytes / 1e9:.3g} GB of memory and {self.output_bytes / 1e9:.3g} GB on disk")
+
+
+def estimate_size(scn: Scenario, n_traces: int) -> SizeEstimate:
+    """Samples, peak memory and output size of ``n_traces`` traces of ``scn``, before any work."""
+    from .models.motion import compile_speed_shape
+    from .models.path import compile_path
+
+    try:
+        length = float(scn.path.length_m) if scn.path.kind == "polynomial" else compile_path(scn.path).length_m
+        shape_mean = compile_speed_shape(scn.motion.profile).mean
+    except (ValueError, ArithmeticError) as exc:
+        raise ScenarioError(f"scenario '{scn.name}': {exc}") from None
+    m = scn.motion
+    v_hi = m.cruise_speed_mps * (1 + m.cruise_speed_spread_frac)
+    v_lo = m.cruise_speed_mps * (1 - m.cruise_speed_spread_frac)
+    trip_max = length * (1 + m.length_spread_frac) / (v_lo * shape_mean)
+    trip_min = length * (1 - m.length_spread_frac) / (v_hi * shape_mean)
+    duration = m.dwell_start_s + trip_max + m.dwell_end_s
+    truth = math.floor(duration * scn.truth_rate_hz) + 1
+    imu = math.floor(duration * scn.imu.rate_hz) + 1
+    uwb = math.ceil(duration * scn.uwb.burst_rate_hz * (1 + 1e-3)) * len(scn.anchors)
+    counts = {"truth": truth, "imu": imu, "uwb": uwb}
+    work = sum(_WORK_BYTES[k] * v for k, v in counts.items())
+    table = sum(_TABLE_BYTES[k] * v for k, v in counts.items())
+    return SizeEstimate(n_traces=n_traces, duration_s=duration, min_trip_s=trip_min, truth_samples=truth,
+                        imu_samples=imu, uwb_rows=uwb,
+                        peak_memory_bytes=work + min(n_traces, ROW_GROUP_TRACES) * table,
+                        output_bytes=n_traces * table)
+
+
+def check_budget(scn: Scenario, n_traces: int, *, force: bool = False) -> SizeEstimate:
+    """Refuse, before any work, a generation that is too short to make traces or over budget.
+
+    Raises
+    ------
+    ScenarioError
+        The shortest trip gives fewer than :data:`MIN_TRUTH_SAMPLES` truth samples (not overridable).
+    BudgetError
+        Unless ``force``: the peak memory or the output size exceeds its budget; the message holds
+        the estimate.
+    """
+    est = estimate_size(scn, n_traces)
+    moving = est.min_trip_s * scn.truth_rate_hz
+    if not moving >= MIN_TRUTH_SAMPLES:
+        raise ScenarioError(f"scenario '{scn.name}': the trip takes only {est.min_trip_s:.3g} s "
+                            f"({moving:.3g} truth samples at {scn.truth_rate_hz:g} Hz, fewer than "
+                            f"{MIN_TRUTH_SAMPLES}): check path length and cruise speed")
+    if force:
+        return est
+    if est.peak_memory_bytes > MEMORY_BUDGET_BYTES:
+        raise BudgetError(f"scenario '{scn.name}': {est.describe()}; the memory budget is "
+                          f"{MEMORY_BUDGET_BYTES / 1e9:.3g} GB (PHYSYNTH_MEMORY_BUDGET_GB)")
+    if est.output_bytes > OUTPUT_BUDGET_BYTES:
+        raise BudgetError(f"scenario '{scn.name}': {est.describe()}; the output budget is "
+                          f"{OUTPUT_BUDGET_BYTES / 1e9:.3g} GB (PHYSYNTH_OUTPUT_BUDGET_GB)")
+    return est

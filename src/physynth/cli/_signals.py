@@ -1,0 +1,66 @@
+"""Termination signals and PhySynth warnings while a command runs.
+
+:func:`handling_signals` turns SIGINT, SIGTERM and SIGHUP into :class:`~physynth.errors.Interrupted`
+(a ``BaseException``), so every writer's ``with`` block removes its temporary files and releases its
+lock on the way out; :func:`physynth.cli.main` then prints one line and exits ``128 + signal``. A
+second signal during that clean-up exits at once (the next run on the same output removes what is
+left, :mod:`physynth.io.safety`). :class:`~physynth.errors.PhySynthWarning` is printed as one line;
+numpy's ``RuntimeWarning`` notes (divide by zero, overflow) are not shown to command-line users.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from ..errors import Interrupted, PhySynthWarning
+
+SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+
+@contextmanager
+def handling_signals() -> Iterator[None]:
+    """Within the block, SIGINT/SIGTERM/SIGHUP raise Interrupted; PhySynthWarning prints one line."""
+    received: list[int] = []
+
+    def handler(signum: int, frame: object) -> None:
+        if received:  # a second signal while cleaning up: leave now
+            os._exit(128 + signum)
+        received.append(signum)
+        raise Interrupted(signum)
+
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for s in SIGNALS:
+            previous[s] = signal.signal(s, handler)
+    show = warnings.showwarning
+
+    def showwarning(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001
+        if issubclass(category, PhySynthWarning):
+            print(f"physynth: warning: {str(message).splitlines()[0]}", file=sys.stderr)
+        else:
+            show(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = showwarning
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", PhySynthWarning)
+            warnings.simplefilter("ignore", RuntimeWarning)  # numpy's divide/overflow notes: not for users
+            warnings.showwarning = showwarning
+            yield
+    finally:
+        warnings.showwarning = show
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
+def signal_name(signum: int) -> str:
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"

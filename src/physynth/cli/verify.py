@@ -1,0 +1,33 @@
+"""``physynth verify DATASET``: check a dataset against the sizes, row counts and SHA-256 recorded in
+its ``dataset.json`` (:mod:`physynth.io.integrity`). Exit 0 only when every file matches; a damaged
+file is named on one line, exit 2."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``verify`` command to the main app."""
+    app.command("verify")(verify_cmd)
+
+
+def verify_cmd(
+    datasets: list[Path] = typer.Argument(..., help="Dataset directories to check."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing when every dataset is intact."),
+) -> None:
+    """Check datasets against the row counts and checksums recorded in their dataset.json."""
+    from ..errors import IntegrityError
+    from ..io.dataset import read_meta
+    from ..io.integrity import check_dataset, describe
+
+    for ds in datasets:
+        meta = read_meta(ds)
+        result = check_dataset(ds, meta, hashes=True)
+        if not result.recorded:
+            raise IntegrityError(f"dataset {ds} has no integrity record (written by an older PhySynth): "
+                                 "it cannot be verified")
+        if not quiet:
+            typer.echo(f"{ds}: ok, {describe(result)}")

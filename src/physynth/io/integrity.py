@@ -1,0 +1,143 @@
+"""Dataset integrity: row counts and SHA-256 of every file, recorded in ``dataset.json`` and checked.
+
+:func:`file_records` is called by :class:`~physynth.io.dataset.DatasetWriter` when it closes a
+dataset; the records go under ``dataset.json`` ``"files"``::
+
+    "files": {"truth.parquet": {"rows": 123, "bytes": 4567, "sha256": "..."}, ...}
+
+:func:`check_dataset` compares a dataset folder with its records (readers call it before reading;
+``physynth verify`` calls it explicitly) and raises :class:`~physynth.errors.IntegrityError` naming
+the first file that disagrees. Datasets written before the records existed have no ``"files"``;
+readers accept them, ``verify`` says they cannot be verified.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from ..errors import IntegrityError
+
+HASH = "sha256"
+_CHUNK = 1 << 20
+
+
+def file_sha256(path: Path) -> str:
+    """SHA-256 hex digest of a file, read in 1 MiB chunks."""
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        while chunk := f.read(_CHUNK):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def file_records(folder: Path, rows: Mapping[str, int]) -> dict[str, dict[str, Any]]:
+    """``{file name: {"rows", "bytes", "sha256"}}`` for the files named in ``rows`` (name -> row count)."""
+    out = {}
+    for name, n in rows.items():
+        p = folder / name
+        out[name] = {"rows": int(n), "bytes": p.stat().st_size, HASH: file_sha256(p)}
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class VerifyResult:
+    """What :func:`check_dataset` checked: files, total rows and bytes, and whether records existed."""
+
+    files: int
+    rows: int
+    bytes: int
+    recorded: bool
+
+
+def check_dataset(path: Path, meta: Mapping[str, Any], *, hashes: bool = True,
+                  trace_tables: Iterable[str] = ("truth.parquet",)) -> VerifyResult:
+    """Check every recorded file of a dataset folder: present, same size, same row count (from the
+    Parquet footer), same SHA-256 (when ``hashes``); and that the traces named in ``dataset.json``
+    are the traces in the tables of ``trace_tables``.
+
+    Raises
+    ------
+    IntegrityError
+        Naming the dataset and the first file that disagrees, and how.
+    """
+    files = meta.get("files")
+    if files is None:
+        return VerifyResult(files=0, rows=0, bytes=0, recorded=False)
+    if not isinstance(files, dict):
+        raise IntegrityError(f"dataset {path}: dataset.json 'files' is not a mapping")
+    total_rows = total_bytes = 0
+    for name, rec in files.items():
+        f = path / name
+        if not isinstance(rec, dict) or not {"rows", "bytes", HASH} <= set(rec):
+            raise IntegrityError(f"dataset {path}: dataset.json has no valid record of {name}")
+        if not f.is_file():
+            raise IntegrityError(f"dataset {path} is damaged: {name} is missing")
+        size = f.stat().st_size
+        if size != rec["bytes"]:
+            raise IntegrityError(f"dataset {path} is damaged: {name} has {size} bytes, dataset.json "
+                                 f"records {rec['bytes']} (truncated or changed after it was written)")
+        if hashes and file_sha256(f) != rec[HASH]:
+            raise IntegrityError(f"dataset {path} is damaged: {name} does not match its {HASH} in dataset.json "
+                                 "(changed after it was written)")
+        if name.endswith(".parquet"):
+            try:
+                n = pq.ParquetFile(f).metadata.num_rows
+            except (OSError, pa.ArrowException) as exc:
+                raise IntegrityError(f"dataset {path} is damaged: {name} is not readable Parquet "
+                                     f"({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
+            if n != rec["rows"]:
+                raise IntegrityError(f"dataset {path} is damaged: {name} has {n} rows, dataset.json records "
+                                     f"{rec['rows']}")
+        total_rows += int(rec["rows"])
+        total_bytes += size
+    check_trace_ids(path, meta, trace_tables)
+    return VerifyResult(files=len(files), rows=total_rows, bytes=total_bytes, recorded=True)
+
+
+def check_trace_ids(path: Path, meta: Mapping[str, Any], tables: Iterable[str] = ("truth.parquet",)) -> None:
+    """The trace ids in ``tables`` are those of ``dataset.json`` (``n_traces`` and ``traces``)."""
+    listed = meta.get("traces")
+    n_traces = meta.get("n_traces")
+    if not isinstance(listed, list) or not isinstance(n_traces, int):
+        raise IntegrityError(f"dataset {path}: dataset.json has no valid n_traces / traces")
+    try:
+        ids = sorted(int(t["trace"]) for t in listed)
+    except (TypeError, KeyError, ValueError):
+        raise IntegrityError(f"dataset {path}: dataset.json traces entries have no valid 'trace' id") from None
+    if n_traces != len(ids):
+        raise IntegrityError(f"dataset {path}: dataset.json says n_traces {n_traces} but lists {len(ids)} trace(s)")
+    for name in tables:
+        f = path / name
+        if not f.is_file():
+            continue
+        try:
+            col = pq.read_table(f, columns=["trace"]).column("trace").to_numpy()
+        except (OSError, pa.ArrowException, KeyError) as exc:
+            raise IntegrityError(f"dataset {path} is damaged: cannot read {name} ({type(exc).__name__})") from None
+        present = np.unique(col).tolist()
+        if present != ids:
+            missing = sorted(set(ids) - set(present))
+            extra = sorted(set(present) - set(ids))
+            what = (f"has no rows of trace(s) {missing[:5]}" if missing
+                    else f"has rows of unlisted trace(s) {extra[:5]}")
+            raise IntegrityError(f"dataset {path} is damaged: {name} {what} (dataset.json lists {n_traces})")
+
+
+def describe(result: VerifyResult) -> str:
+    """One line for ``physynth verify``."""
+    return f"{result.files} file(s), {result.rows} row(s), {result.bytes / 1e6:.1f} MB: sizes, row counts and " \
+           f"{HASH} match dataset.json"
+
+
+def environ_skip_hashes() -> bool:
+    """``PHYSYNTH_SKIP_HASHES=1`` makes readers check sizes and row counts but not hashes (huge datasets)."""
+    return os.environ.get("PHYSYNTH_SKIP_HASHES", "") not in ("", "0")

@@ -1,0 +1,524 @@
+"""Issue 14: what PhySynth does with the user's files and exit codes (docs/reliability.md).
+
+Each test feeds one case of the issue's list through the real command line (in process, or as a
+real subprocess receiving real signals) and checks the exit code, the one-line message and the
+files left on disk.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+import yaml
+from helpers import simple_scenario_dict
+
+from physynth.cli import main
+from physynth.errors import DatasetError, IntegrityError, OutputLockedError, ScenarioError
+from physynth.io import read_dataset
+from physynth.io.safety import OutputLock, lock_path
+
+CLI = [sys.executable, "-m", "physynth.cli"]
+
+
+def run(capsys, *args):
+    with pytest.raises(SystemExit) as exc:
+        main([*map(str, args)])
+        raise SystemExit(0)
+    out = capsys.readouterr()
+    return exc.value.code or 0, out.out, out.err
+
+
+def one_line(err: str) -> bool:
+    return err.count("\n") == 1 and "Traceback" not in err
+
+
+def write_recording(folder: Path) -> Path:
+    """The csv tests' clean recording, with times from 0 s."""
+    from test_import_csv import T0_UNIX_S, make_tables, write_rec
+
+    tables = make_tables()
+    for name in ("truth", "uwb", "imu"):
+        tables[name]["t_s"] = tables[name]["t_s"] - T0_UNIX_S
+    return write_rec(folder, tables)
+
+
+def write_yaml(path: Path, data: dict) -> Path:
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+@pytest.fixture
+def small(tmp_path) -> Path:
+    """A scenario file of a short walk (a trace in a few milliseconds)."""
+    return write_yaml(tmp_path / "walk.yaml", simple_scenario_dict())
+
+
+@pytest.fixture
+def dataset(tmp_path, small, capsys) -> Path:
+    code, _, err = run(capsys, "generate", "-s", small, "-n", 3, "--seed", 1, "--out", tmp_path / "ds", "-q")
+    assert code == 0, err
+    return tmp_path / "ds"
+
+
+# ------------------------------------------------------------------ 1. overwrite
+def test_overwrite_refuses_a_folder_physynth_did_not_write(tmp_path, small, capsys):
+    mine = tmp_path / "mydata"
+    mine.mkdir()
+    (mine / "thesis.txt").write_text("four years of work")
+    code, _, err = run(capsys, "generate", "-s", small, "-n", 1, "--out", mine, "--overwrite", "-q")
+    assert code == 2 and one_line(err) and "not a PhySynth dataset" in err
+    assert (mine / "thesis.txt").read_text() == "four years of work"
+
+
+def test_overwrite_refuses_a_dataset_holding_a_foreign_file(dataset, small, capsys):
+    (dataset / "notes.txt").write_text("mine")
+    code, _, err = run(capsys, "generate", "-s", small, "-n", 1, "--out", dataset, "--overwrite", "-q")
+    assert code == 2 and one_line(err) and "'notes.txt'" in err
+    assert (dataset / "notes.txt").exists()
+
+
+def test_overwrite_replaces_a_physynth_dataset(dataset, small, capsys):
+    code, _, err = run(capsys, "generate", "-s", small, "-n", 2, "--seed", 2, "--out", dataset, "--overwrite", "-q")
+    assert code == 0, err
+    assert json.loads((dataset / "dataset.json").read_text())["n_traces"] == 2
+    assert [p.name for p in dataset.parent.iterdir() if p.name.startswith(".")] == []
+
+
+def test_import_refuses_an_output_holding_its_input(tmp_path, capsys):
+    rec = write_recording(tmp_path / "mydata" / "rec")
+    before = sorted(p.name for p in rec.iterdir())
+    code, _, err = run(capsys, "import", "csv", rec, "--out", tmp_path / "mydata", "--overwrite", "-q")
+    assert code == 2 and one_line(err) and "holds the input" in err
+    assert sorted(p.name for p in rec.iterdir()) == before
+
+
+def test_generate_out_dot_is_refused(tmp_path, small, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run(capsys, "generate", "-n", 1, "--out", ".", "--overwrite", "-q")
+    assert code == 2 and one_line(err) and "current folder" in err
+    code, _, err = run(capsys, "generate", "-s", small, "-n", 1, "--out", ".", "--overwrite", "-q")
+    assert code == 2 and one_line(err) and "holds the input" in err
+    assert small.exists()
+
+
+def test_symlinked_out_replaces_the_target_and_keeps_the_link(dataset, small, tmp_path, capsys):
+    link = tmp_path / "latest"
+    link.symlink_to(dataset, target_is_directory=True)
+    code, _, err = run(capsys, "generate", "-s", small, "-n", 2, "--seed", 9, "--out", link, "--overwrite", "-q")
+    assert code == 0, err
+    assert link.is_symlink() and json.loads((link / "dataset.json").read_text())["root_seed"] == 9
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds", "latest", "walk.yaml"]  # no .old-<pid>
+
+
+# ------------------------------------------------------------------ 2. interruption
+def _start_long_generate(out: Path, tmp_path: Path) -> subprocess.Popen:
+    proc = subprocess.Popen([*CLI, "generate", "-n", "2000", "--seed", "1", "--out", str(out), "-q", "--force"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    deadline = time.monotonic() + 120
+    while not any(p.name.startswith(f".{out.name}.tmp-") for p in out.parent.iterdir()):
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "the writer never started"
+        time.sleep(0.05)
+    time.sleep(0.3)
+    return proc
+
+
+@pytest.mark.parametrize(("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143), (signal.SIGHUP, 129)])
+def test_signal_exits_128_plus_signal_and_removes_temporary_files(tmp_path, sig, code):
+    out = tmp_path / "ds"
+    proc = _start_long_generate(out, tmp_path)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == code, err
+    assert err.count("\n") == 1 and "interrupted by SIG" in err and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no dataset, no temp folder, no lock
+
+
+def test_after_sigkill_the_next_run_removes_the_orphan_and_says_so(tmp_path, small, capsys):
+    out = tmp_path / "ds"
+    proc = _start_long_generate(out, tmp_path)
+    proc.kill()
+    proc.wait(timeout=60)
+    orphans = [p for p in tmp_path.iterdir() if p.name.startswith(".ds.tmp-")]
+    assert len(orphans) == 1 and not out.exists()
+    code, _, err = run(capsys, "generate", "-s", small, "-n", 1, "--out", out, "-q")
+    assert code == 0 and "removed" in err and "interrupted run" in err and orphans[0].name in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds", "walk.yaml"]
+
+
+def test_typer_130_return_is_not_dropped(monkeypatch, capsys):
+    import physynth.cli as cli
+
+    monkeypatch.setattr(cli.app, "__call__", lambda *a, **k: 130)
+    monkeypatch.setattr(type(cli.app), "__call__", lambda self, *a, **k: 130)
+    code, _, err = run(capsys, "scenarios")
+    assert code == 130 and "interrupted" in err
+
+
+def test_a_failure_inside_close_leaves_nothing(tmp_path, monkeypatch):
+    from helpers import simple_scenario
+
+    from physynth.io import dataset as dsmod
+    from physynth.workflows import generate_dataset
+
+    def boom(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(dsmod.integrity, "file_records", boom)
+    with pytest.raises(OSError):
+        generate_dataset(simple_scenario(), 2, tmp_path / "ds", seed=1)
+    assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------ 3. concurrency
+def test_a_second_writer_is_refused_while_the_first_runs(tmp_path, small, capsys):
+    out = tmp_path / "ds"
+    proc = _start_long_generate(out, tmp_path)
+    try:
+        code, _, err = run(capsys, "generate", "-s", small, "-n", 1, "--out", out, "--overwrite", "-q")
+        assert code == 2 and one_line(err) and "being written by another physynth process" in err
+        assert f"pid {proc.pid}" in err
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=120)
+
+
+def test_a_stale_lock_is_taken_over(tmp_path, small, capsys):
+    out = tmp_path / "ds"
+    lock_path(out).write_text("pid 999999 host elsewhere since 2020-01-01T00:00:00Z\n")
+    code, _, err = run(capsys, "generate", "-s", small, "-n", 1, "--out", out, "-q")
+    assert code == 0, err
+    assert "took over the stale lock" in err and "pid 999999" in err
+    assert not lock_path(out).exists()
+
+
+def test_lock_held_in_this_process_blocks_another_holder(tmp_path):
+    out = tmp_path / "x"
+    with OutputLock(out):
+        with pytest.raises(OutputLockedError, match=f"pid {os.getpid()}"):
+            OutputLock(out).acquire()
+    with OutputLock(out):
+        pass
+
+
+# ------------------------------------------------------------------ 4. bounds and budget
+@pytest.mark.parametrize(("key", "value", "needle"), [
+    ("imu.rate_hz", 1e7, "imu.rate_hz"),
+    ("truth_rate_hz", 1e6, "truth_rate_hz"),
+    ("motion.dwell_start_s", 1e7, "motion.dwell_start_s"),
+    ("uwb.nlos_dwell_s", 1e-300, "uwb.nlos_dwell_s"),
+    ("uwb.time_offset_s", 1e6, "uwb.time_offset_s"),
+    ("motion.cruise_speed_mps", 1e-6, "motion.cruise_speed_mps"),
+    ("imu.white_noise_density_mps2_per_sqrt_hz", [-0.1, 0.1, 0.1], "white_noise_density"),
+    ("motion.profile", {"kind": "polynomial", "coeffs": [0, 0]}, "zero"),
+    ("motion.profile", {"kind": "empirical", "samples": [0.5, 1.0, 0.5]}, "at least 5 samples"),
+])
+def test_out_of_range_fields_are_refused_with_one_line(tmp_path, capsys, key, value, needle):
+    f = write_yaml(tmp_path / "s.yaml", simple_scenario_dict(**{key: value}))
+    code, _, err = run(capsys, "generate", "-s", f, "-n", 1, "--out", tmp_path / "o", "-q")
+    assert code == 2 and one_line(err) and needle in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_polynomial_path_of_absurd_length_is_refused(tmp_path, capsys):
+    d = simple_scenario_dict()
+    d["path"] = {"kind": "polynomial", "length_m": 1e9, "coeffs_enu_m": [[0, 1e9], [0, 0], [0, 0]]}
+    code, _, err = run(capsys, "generate", "-s", write_yaml(tmp_path / "s.yaml", d), "--out", tmp_path / "o", "-q")
+    assert code == 2 and one_line(err) and "path.length_m" in err
+
+
+def test_a_trip_too_short_for_a_trace_is_refused(tmp_path, capsys):
+    d = simple_scenario_dict(**{"motion.cruise_speed_mps": 150.0})
+    d["path"]["waypoints_enu_m"] = [[0, 0, 0], [0.5, 0, 0]]
+    code, _, err = run(capsys, "generate", "-s", write_yaml(tmp_path / "s.yaml", d), "--out", tmp_path / "o", "-q")
+    assert code == 2 and one_line(err) and "the trip takes only" in err
+
+
+def test_over_budget_is_refused_before_any_work_with_the_estimate(tmp_path, capsys):
+    f = write_yaml(tmp_path / "s.yaml", simple_scenario_dict(**{"motion.dwell_start_s": 80_000.0,
+                                                                "imu.rate_hz": 10_000.0}))
+    t0 = time.monotonic()
+    code, _, err = run(capsys, "generate", "-s", f, "-n", 1, "--out", tmp_path / "o", "-q")
+    assert code == 2 and one_line(err) and "GB of memory" in err and "--force" in err
+    assert time.monotonic() - t0 < 5 and not (tmp_path / "o").exists()
+    f = write_yaml(tmp_path / "s.yaml", simple_scenario_dict())
+    code, _, err = run(capsys, "generate", "-s", f, "-n", 10**9, "--out", tmp_path / "o", "-q")
+    assert code == 2 and "output budget" in err and "1000000000 trace(s)" in err
+
+
+def test_yaml_aliases_are_bounded(tmp_path, capsys):
+    lol = "a: &a [x,x,x,x,x,x,x,x,x]\n" + "".join(
+        f"{chr(98 + i)}: &{chr(98 + i)} [{','.join(['*' + chr(97 + i)] * 9)}]\n" for i in range(9))
+    for text, needle in ((lol, "expands to more than"), ("name: &n [*n]\n", "refers to itself")):
+        f = tmp_path / "s.yaml"
+        f.write_text(text)
+        t0 = time.monotonic()
+        code, _, err = run(capsys, "generate", "-s", f, "--out", tmp_path / "o", "-q")
+        assert code == 2 and one_line(err) and needle in err and time.monotonic() - t0 < 5
+
+
+def test_negative_seed_is_a_usage_error(tmp_path, capsys):
+    code, _, err = run(capsys, "generate", "--seed", -1, "--out", tmp_path / "o", "-q")
+    assert code == 2 and one_line(err) and "--seed" in err
+
+
+def test_same_file_as_two_outputs_is_refused(dataset, tmp_path, capsys):
+    code, _, err = run(capsys, "calibrate", dataset, "--out", tmp_path / "s.yaml", "--report", tmp_path / "s.yaml")
+    assert code == 2 and one_line(err) and "same file" in err
+    assert not (tmp_path / "s.yaml").exists()
+
+
+def test_every_scenario_number_has_a_documented_range():
+    from physynth.bounds import BOUNDS
+    from physynth.scenario import Scenario
+
+    def numbers(model, prefix):
+        import types
+        import typing
+
+        from pydantic import BaseModel
+
+        for name, field in model.model_fields.items():
+            path = f"{prefix}{name}"
+            ann = field.annotation
+            union = typing.get_origin(ann) in (typing.Union, types.UnionType)
+            args = [a for a in typing.get_args(ann) if a is not type(None)] if union else [ann]
+            for a in args:
+                inner = typing.get_args(a)
+                origin = typing.get_origin(a)
+                if origin is dict:
+                    a = inner[1]
+                    path = {"channel_per_anchor": "channel", "availability_per_anchor": "availability"}.get(name)
+                    if path is None:  # free-form (provenance)
+                        continue
+                    if isinstance(a, type) and issubclass(a, BaseModel):
+                        yield from numbers(a, f"{path}.")
+                    continue
+                suffix = ""
+                while origin is list:
+                    suffix += "[]"
+                    a = inner[0]
+                    inner, origin = typing.get_args(a), typing.get_origin(a)
+                    if typing.get_origin(a) is typing.Annotated:
+                        a = inner[0]
+                        inner, origin = typing.get_args(a), typing.get_origin(a)
+                if isinstance(a, type) and issubclass(a, BaseModel):
+                    yield from numbers(a, f"{path}{suffix}.")
+                elif a in (float, int):
+                    yield f"{path}{suffix}"
+
+    found = set(numbers(Scenario, ""))
+    assert "imu.rate_hz" in found and "anchors[].pos_enu_m[]" in found and len(found) > 40
+    assert found - set(BOUNDS) == set()
+    doc = (Path(__file__).parents[1] / "docs" / "reliability.md").read_text()
+    assert all(f"`{k}`" in doc for k in BOUNDS), [k for k in BOUNDS if f"`{k}`" not in doc]
+
+
+def test_presets_are_within_bounds():
+    from physynth.io.scenario_file import list_presets, load_scenario
+
+    for name in list_presets():
+        load_scenario(name)
+
+
+# ------------------------------------------------------------------ 5. integrity
+def _flip_byte(f: Path, where: float = 0.5) -> None:
+    data = bytearray(f.read_bytes())
+    data[int(len(data) * where)] ^= 0x01
+    f.write_bytes(bytes(data))
+
+
+def test_flipped_byte_is_named_by_reader_and_verify(dataset, capsys):
+    code, out, _ = run(capsys, "verify", dataset)
+    assert code == 0 and "ok" in out and "sha256 match" in out
+    _flip_byte(dataset / "truth.parquet")
+    with pytest.raises(IntegrityError, match="truth.parquet does not match its sha256"):
+        read_dataset(dataset)
+    code, _, err = run(capsys, "verify", dataset)
+    assert code == 2 and one_line(err) and "truth.parquet" in err
+    code, _, err = run(capsys, "inspect", dataset)
+    assert code == 2 and one_line(err) and "truth.parquet" in err
+
+
+def test_missing_trace_rows_and_wrong_n_traces_are_noticed(dataset):
+    meta = json.loads((dataset / "dataset.json").read_text())
+    meta["n_traces"] = 4
+    (dataset / "dataset.json").write_text(json.dumps(meta))
+    with pytest.raises(IntegrityError, match="n_traces 4"):
+        read_dataset(dataset)
+    meta["n_traces"] = 3
+    table = pq.read_table(dataset / "imu.parquet")
+    keep = table.filter(pa.compute.not_equal(table["trace"], 1))
+    pq.write_table(keep, dataset / "imu.parquet")
+    (dataset / "dataset.json").write_text(json.dumps(meta))
+    with pytest.raises(IntegrityError, match="imu.parquet"):
+        read_dataset(dataset)
+
+
+def test_truncated_file_is_named(dataset):
+    f = dataset / "uwb.parquet"
+    f.write_bytes(f.read_bytes()[: f.stat().st_size // 2])
+    with pytest.raises(IntegrityError, match="uwb.parquet has .* bytes"):
+        read_dataset(dataset)
+
+
+def test_unsorted_times_in_a_table_are_one_line(dataset, capsys):
+    meta = json.loads((dataset / "dataset.json").read_text())
+    del meta["files"]  # a dataset edited by hand (or written before integrity records)
+    (dataset / "dataset.json").write_text(json.dumps(meta))
+    t = pq.read_table(dataset / "truth.parquet").to_pandas()
+    t["t_s"] = t["t_s"].to_numpy()[::-1]
+    pq.write_table(pa.Table.from_pandas(t, preserve_index=False), dataset / "truth.parquet")
+    code, _, err = run(capsys, "inspect", dataset)
+    assert code == 2 and one_line(err) and "trace 0 is invalid" in err
+    code, _, err = run(capsys, "verify", dataset)
+    assert code == 2 and "no integrity record" in err
+
+
+# ------------------------------------------------------------------ 6. import sanity
+def test_truth_in_milliseconds_is_detected(tmp_path, capsys):
+    import pandas as pd
+
+    rec = write_recording(tmp_path / "rec")
+
+    truth = pd.read_csv(rec / "truth.csv")
+    truth["t_s"] = truth["t_s"] * 1000.0
+    truth.to_csv(rec / "truth.csv", index=False)
+    code, _, err = run(capsys, "import", "csv", rec, "--out", tmp_path / "ds", "-q")
+    assert code == 2 and one_line(err) and "milliseconds" in err and "truth.csv" in err
+
+
+def test_coerced_burst_cells_are_counted(tmp_path):
+    import pandas as pd
+
+    from physynth.io.importers import import_csv
+
+    rec = write_recording(tmp_path / "rec")
+    uwb = pd.read_csv(rec / "uwb.csv")
+    uwb["burst"] = np.arange(len(uwb)).astype(object)
+    uwb.loc[3, "burst"] = "x"
+    uwb.loc[5, "burst"] = 1.5
+    uwb.to_csv(rec / "uwb.csv", index=False)
+    trace, report = import_csv(rec)
+    assert report.repaired["uwb.csv"]["burst_not_a_number"] == 1
+    assert report.repaired["uwb.csv"]["burst_not_an_integer"] == 1
+    assert (trace.uwb.burst == -1).sum() == 2
+
+
+def test_calibrate_refuses_to_pool_different_sites(tmp_path, dataset, capsys):
+    other = simple_scenario_dict()
+    other["anchors"] = [{"id": f"B{i}", "pos_enu_m": [100.0 * i, 20, 3]} for i in range(3)]
+    f = write_yaml(tmp_path / "other.yaml", other)
+    assert run(capsys, "generate", "-s", f, "-n", 2, "--out", tmp_path / "ds2", "-q")[0] == 0
+    code, _, err = run(capsys, "calibrate", dataset, tmp_path / "ds2", "--out", tmp_path / "s.yaml", "-q")
+    assert code == 2 and one_line(err) and "no anchor in common" in err and "--allow-mixed" in err
+
+
+def test_validate_refuses_a_real_dataset_with_too_few_ranges(tmp_path, capsys):
+    d = simple_scenario_dict(**{"channel.rate_hz": 0.1, "uwb.burst_rate_hz": 0.1})
+    d["anchors"] = d["anchors"][:1]
+    d["path"]["waypoints_enu_m"] = [[0, 0, 1], [30, 0, 1]]
+    f = write_yaml(tmp_path / "few.yaml", d)
+    assert run(capsys, "generate", "-s", f, "-n", 1, "--seed", 3, "--out", tmp_path / "real", "-q")[0] == 0
+    code, _, err = run(capsys, "validate", "--real", tmp_path / "real", "--scenario", f, "-n", 1,
+                       "--out", tmp_path / "rep", "--no-figures", "-q")
+    assert code == 2 and one_line(err) and "need at least 30" in err
+
+
+# ------------------------------------------------------------------ 7. exit code of a bug
+def test_a_bug_is_one_line_exit_3(monkeypatch, capsys):
+    import physynth.io.scenario_file as sf
+
+    monkeypatch.setattr(sf, "list_presets", lambda: 1 / 0)
+    code, _, err = run(capsys, "scenarios")
+    assert code == 3 and one_line(err) and "internal error: ZeroDivisionError" in err
+
+
+def test_library_errors_have_one_line():
+    from physynth.scenario import scenario_from_dict
+
+    with pytest.raises(ScenarioError) as exc:
+        scenario_from_dict(simple_scenario_dict(**{"imu.rate_hz": 1e9}))
+    assert "\n" not in str(exc.value)
+    with pytest.raises(DatasetError):
+        read_dataset("/nonexistent")
+
+
+def test_validate_report_folder_is_refused_or_written_whole(dataset, tmp_path, capsys, monkeypatch):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "thesis.txt").write_text("x")
+    args = ["validate", "--real", dataset, "--synthetic", dataset, "--no-figures", "-q"]
+    code, _, err = run(capsys, *args, "--out", mine, "--overwrite")
+    assert code == 2 and one_line(err) and "not a PhySynth report folder" in err
+    code, _, err = run(capsys, *args, "--out", mine)
+    assert code == 2 and one_line(err) and "refusing to write a report into" in err
+
+    import physynth.validate.render as render
+    from physynth.errors import Interrupted
+
+    def interrupted(report, out, **kw):
+        (Path(out) / "report.json").write_text("{}")
+        raise Interrupted(signal.SIGTERM)
+
+    monkeypatch.setattr(render, "write_report", interrupted)
+    code, _, err = run(capsys, *args, "--out", tmp_path / "rep")
+    assert code == 143 and one_line(err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds", "mine", "walk.yaml"]
+    monkeypatch.undo()
+    code, _, err = run(capsys, *args, "--out", tmp_path / "rep")
+    assert code == 0, err
+    assert (tmp_path / "rep" / "report.json").exists()
+    assert run(capsys, *args, "--out", tmp_path / "rep", "--overwrite")[0] == 0
+
+
+def test_ranges_in_centimetres_are_detected(tmp_path, capsys):
+    import pandas as pd
+
+    rec = write_recording(tmp_path / "rec")
+    uwb = pd.read_csv(rec / "uwb.csv")
+    uwb["range_m"] = uwb["range_m"] * 100.0  # ~1000-3000 cm: below the 5 km median limit
+    uwb.to_csv(rec / "uwb.csv", index=False)
+    code, _, err = run(capsys, "import", "csv", rec, "--out", tmp_path / "ds", "-q")
+    assert code == 2 and one_line(err) and "times the distances" in err and "centimetres" in err
+
+
+def test_site_rules():
+    from physynth.calibrate.sites import Site, check_same_site
+    from physynth.errors import MixedSitesError
+
+    walk = Site("walk", "real", "hanyang-uwb", frozenset({"A1", "A2"}))
+    cable = Site("cable", "real", "csv", frozenset({"A101", "A103"}))
+    imu_only = Site("broad15", "real", "broad", frozenset())
+    check_same_site([walk, imu_only])  # docs/calibration.md: UWB from Hanyang + IMU noise from BROAD
+    check_same_site([walk, Site("walk2", "real", "hanyang-uwb", frozenset({"A2", "A3"}))])
+    with pytest.raises(MixedSitesError, match="no anchor in common"):
+        check_same_site([walk, imu_only, cable])
+    with pytest.raises(MixedSitesError, match="different recording sources"):
+        check_same_site([walk, Site("w", "real", "csv", frozenset({"A1"}))])
+    check_same_site([walk, cable], allow_mixed=True)
+
+
+def test_calibrate_overwrites_only_its_own_files(dataset, tmp_path, capsys):
+    mine = tmp_path / "mine.yaml"
+    mine.write_text("# my hand-written scenario\nname: x\n")
+    code, _, err = run(capsys, "calibrate", dataset, "--out", mine, "--overwrite", "-q")
+    assert code == 2 and one_line(err) and "not a scenario file written by physynth calibrate" in err
+    assert mine.read_text().startswith("# my hand-written")
+    out, rep = tmp_path / "cal.yaml", tmp_path / "fit.json"
+    code, _, err = run(capsys, "calibrate", dataset, "--out", out, "--report", rep, "-q")
+    assert code == 0, err
+    code, _, err = run(capsys, "calibrate", dataset, "--out", out, "--report", rep, "-q", "--overwrite")
+    assert code == 0, err
+    assert json.loads(rep.read_text())["generator"]["name"] == "physynth"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cal.yaml", "ds", "fit.json", "mine.yaml", "walk.yaml"]
