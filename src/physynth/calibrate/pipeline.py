@@ -161,8 +161,18 @@ class ModeEpisodes:
     """The episodes of one NLOS mode: runs of consecutive rows of one anchor most likely in that mode."""
 
     lengths: np.ndarray  # (E,) rows per episode
-    within_std_m: float | None  # pooled std of the residuals around their episode mean (episodes of >= 2 rows)
-    n_within: int  # rows behind within_std_m
+    within_dev_m: np.ndarray  # residuals minus their episode's median, rows of episodes of >= 2 rows
+
+    @property
+    def n_within(self) -> int:
+        return int(self.within_dev_m.size)
+
+    @property
+    def within_std_m(self) -> float | None:
+        """Robust (MAD) scatter of the residuals inside an episode: a few merged episodes do not count."""
+        if self.within_dev_m.size == 0:
+            return None
+        return float(1.4826 * np.median(np.abs(self.within_dev_m)))
 
 
 def _mode_episodes(residual_m: np.ndarray, flags: list[np.ndarray], modes: Sequence[ModeFit]) -> list[ModeEpisodes]:
@@ -171,16 +181,18 @@ def _mode_episodes(residual_m: np.ndarray, flags: list[np.ndarray], modes: Seque
     out = []
     for run_len, run_id in lengths:
         if run_id is None or run_len.size == 0:
-            out.append(ModeEpisodes(lengths=run_len, within_std_m=None, n_within=0))
+            out.append(ModeEpisodes(lengths=run_len, within_dev_m=np.zeros(0)))
             continue
         r = np.asarray(residual_m)[run_id >= 0]
         ids = run_id[run_id >= 0]
         counts = np.bincount(ids)
-        means = np.bincount(ids, weights=r) / np.maximum(counts, 1)
         multi = counts[ids] >= 2
-        dof = int(np.sum(counts[counts >= 2] - 1))
-        within = float(np.sqrt(np.sum((r[multi] - means[ids[multi]]) ** 2) / dof)) if dof > 0 else None
-        out.append(ModeEpisodes(lengths=run_len, within_std_m=within, n_within=dof))
+        order = np.lexsort((r, ids))  # rows sorted by episode, then value: the median of each episode
+        r_s, id_s = r[order], ids[order]
+        starts = np.searchsorted(id_s, np.arange(counts.size))
+        med = 0.5 * (r_s[np.minimum(starts + (counts - 1) // 2, r_s.size - 1)]
+                     + r_s[np.minimum(starts + counts // 2, r_s.size - 1)])
+        out.append(ModeEpisodes(lengths=run_len, within_dev_m=r[multi] - med[ids[multi]]))
     return out
 
 
@@ -230,11 +242,10 @@ def _is_short(ep: ModeEpisodes) -> bool:
 
 
 def _pool_episodes(eps: Sequence[ModeEpisodes]) -> ModeEpisodes:
-    """Episodes of several modes as one sample (within-episode variances pooled by degrees of freedom)."""
+    """Episodes of several modes as one sample."""
     lengths = np.concatenate([e.lengths for e in eps]) if eps else np.zeros(0, np.int64)
-    dof = sum(e.n_within for e in eps if e.within_std_m is not None)
-    ss = sum(e.n_within * e.within_std_m**2 for e in eps if e.within_std_m is not None)
-    return ModeEpisodes(lengths=lengths, within_std_m=float(np.sqrt(ss / dof)) if dof else None, n_within=dof)
+    dev = np.concatenate([e.within_dev_m for e in eps]) if eps else np.zeros(0)
+    return ModeEpisodes(lengths=lengths, within_dev_m=dev)
 
 
 HELD_MAX_STD_RATIO = 0.3
@@ -735,7 +746,7 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
 
     # episodes of every mode; the short ones (gross outliers: a device behaviour, a few per anchor) are
     # pooled over modes and anchors to learn their length law and whether their offset is held
-    empty = ModeEpisodes(lengths=np.zeros(0, np.int64), within_std_m=None, n_within=0)
+    empty = ModeEpisodes(lengths=np.zeros(0, np.int64), within_dev_m=np.zeros(0))
     episodes_of = {aid: (_mode_episodes(chan.per_anchor_rows[aid][0], flags[aid], mix[aid].modes)
                          if aid in chan.per_anchor_rows else [empty] * len(mix[aid].modes)) for aid in ids}
     short_pool = _pool_episodes([e for eps in episodes_of.values() for e in eps if _is_short(e)])
