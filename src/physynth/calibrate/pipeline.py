@@ -162,6 +162,7 @@ class ModeEpisodes:
 
     lengths: np.ndarray  # (E,) rows per episode
     within_dev_m: np.ndarray  # residuals minus their episode's median, rows of episodes of >= 2 rows
+    within_dev_rel: np.ndarray  # the same divided by the std of the episode's mode (pools modes of any width)
 
     @property
     def n_within(self) -> int:
@@ -174,14 +175,21 @@ class ModeEpisodes:
             return None
         return float(1.4826 * np.median(np.abs(self.within_dev_m)))
 
+    @property
+    def within_std_rel(self) -> float | None:
+        """Within-episode scatter as a fraction of the mode's std (MAD): small when the offset is held."""
+        if self.within_dev_rel.size == 0:
+            return None
+        return float(1.4826 * np.median(np.abs(self.within_dev_rel)))
+
 
 def _mode_episodes(residual_m: np.ndarray, flags: list[np.ndarray], modes: Sequence[ModeFit]) -> list[ModeEpisodes]:
     """Episodes of each mode, with the spread of the residuals inside an episode (is the offset held?)."""
     lengths = _mode_runs(residual_m, flags, modes, keep_ids=True)
     out = []
-    for run_len, run_id in lengths:
+    for mode, (run_len, run_id) in zip(modes, lengths, strict=True):
         if run_id is None or run_len.size == 0:
-            out.append(ModeEpisodes(lengths=run_len, within_dev_m=np.zeros(0)))
+            out.append(ModeEpisodes(lengths=run_len, within_dev_m=np.zeros(0), within_dev_rel=np.zeros(0)))
             continue
         r = np.asarray(residual_m)[run_id >= 0]
         ids = run_id[run_id >= 0]
@@ -192,7 +200,8 @@ def _mode_episodes(residual_m: np.ndarray, flags: list[np.ndarray], modes: Seque
         starts = np.searchsorted(id_s, np.arange(counts.size))
         med = 0.5 * (r_s[np.minimum(starts + (counts - 1) // 2, r_s.size - 1)]
                      + r_s[np.minimum(starts + counts // 2, r_s.size - 1)])
-        out.append(ModeEpisodes(lengths=run_len, within_dev_m=r[multi] - med[ids[multi]]))
+        dev = r[multi] - med[ids[multi]]
+        out.append(ModeEpisodes(lengths=run_len, within_dev_m=dev, within_dev_rel=dev / mode.std_m))
     return out
 
 
@@ -245,7 +254,8 @@ def _pool_episodes(eps: Sequence[ModeEpisodes]) -> ModeEpisodes:
     """Episodes of several modes as one sample."""
     lengths = np.concatenate([e.lengths for e in eps]) if eps else np.zeros(0, np.int64)
     dev = np.concatenate([e.within_dev_m for e in eps]) if eps else np.zeros(0)
-    return ModeEpisodes(lengths=lengths, within_dev_m=dev)
+    rel = np.concatenate([e.within_dev_rel for e in eps]) if eps else np.zeros(0)
+    return ModeEpisodes(lengths=lengths, within_dev_m=dev, within_dev_rel=rel)
 
 
 HELD_MAX_STD_RATIO = 0.3
@@ -269,7 +279,7 @@ def _episode_shape(mode: ModeFit, ep: ModeEpisodes, attempt_period_s: float, bur
     """
     n = ep.lengths
     out: dict[str, Any] = {"n_episodes": int(n.size), "dwell_s": None, "fixed_dwell": False, "held_jitter_m": None,
-                           "within_episode_std_m": ep.within_std_m}
+                           "within_episode_std_m": ep.within_std_m, "within_episode_std_rel": ep.within_std_rel}
     if n.size < MIN_MODE_EPISODES:
         return out
     counts = np.bincount(n.astype(np.int64))
@@ -282,8 +292,8 @@ def _episode_shape(mode: ModeFit, ep: ModeEpisodes, attempt_period_s: float, bur
         out["dwell_s"] = k * burst_period_s
     else:
         out["dwell_s"] = _dwell_from_runs(n, attempt_period_s)
-    if short and ep.within_std_m is not None and ep.n_within >= MIN_MODE_EPISODES \
-            and ep.within_std_m < HELD_MAX_STD_RATIO * mode.std_m:
+    if short and ep.within_std_rel is not None and ep.n_within >= MIN_MODE_EPISODES \
+            and ep.within_std_rel < HELD_MAX_STD_RATIO and ep.within_std_m < HELD_MAX_STD_RATIO * mode.std_m:
         out["held_jitter_m"] = max(ep.within_std_m, 1e-3)
     return out
 
@@ -428,8 +438,8 @@ def run_offset_table(trs: Sequence[Trace], labels: Sequence[str], chan: _Channel
     over the runs that have the anchor. A two-way method-of-moments split of the table gives the
     spread of an offset common to every anchor of a run (``run_offset_std_m``: the truth system or the
     tag antenna moved) and of the per-anchor remainder (``run_anchor_offset_std_m``: an anchor
-    re-placed and re-surveyed). Each d_ra
-    carries a sampling variance sigma_LOS^2 / n_ra that is subtracted.
+    re-placed and re-surveyed). Each d_ra carries a sampling variance, estimated from the difference
+    of its two halves in time (at least sigma_LOS^2 / n_ra), that is subtracted.
     """
     raw: dict[tuple[str, str], tuple[float, float]] = {}  # (run, anchor) -> (offset, sampling variance)
     for aid, (ra, ga, _) in chan.per_anchor_rows.items():
@@ -439,9 +449,13 @@ def run_offset_table(trs: Sequence[Trace], labels: Sequence[str], chan: _Channel
         for lab, nlos in zip(runs_of, chan.flags[aid], strict=True):  # the anchor's rows, run by run
             x = ra[start:start + nlos.size] - f.range_bias_per_m * ga[start:start + nlos.size] - f.los_mean_m
             start += nlos.size
-            los = ~nlos
-            if los.sum() >= MIN_ANCHOR_ROWS:
-                raw[(lab, aid)] = (float(np.mean(x[los])), f.los_std_m**2 / float(los.sum()))
+            xl = x[~nlos]
+            if xl.size >= MIN_ANCHOR_ROWS:
+                # sampling variance of the mean from its two halves in time (slow error components and
+                # misclassified NLOS episodes make it larger than sigma^2 / n), at least sigma^2 / n
+                half = xl.size // 2
+                split = (float(np.mean(xl[:half])) - float(np.mean(xl[half:]))) ** 2 / 4.0
+                raw[(lab, aid)] = (float(np.mean(xl)), max(split, f.los_std_m**2 / float(xl.size)))
     ids = sorted({a for _, a in raw})
     runs = [lab for lab in labels if any((lab, a) in raw for a in ids)]
     centred: RunOffsets = {}
@@ -744,7 +758,7 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
 
     # episodes of every mode; the short ones (gross outliers: a device behaviour, a few per anchor) are
     # pooled over modes and anchors to learn their length law and whether their offset is held
-    empty = ModeEpisodes(lengths=np.zeros(0, np.int64), within_dev_m=np.zeros(0))
+    empty = ModeEpisodes(lengths=np.zeros(0, np.int64), within_dev_m=np.zeros(0), within_dev_rel=np.zeros(0))
     episodes_of = {aid: (_mode_episodes(chan.per_anchor_rows[aid][0], flags[aid], mix[aid].modes)
                          if aid in chan.per_anchor_rows else [empty] * len(mix[aid].modes)) for aid in ids}
     short_pool = _pool_episodes([e for eps in episodes_of.values() for e in eps if _is_short(e)])
@@ -754,7 +768,7 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
         "n_episodes": int(short_pool.lengths.size),
         "length_histogram_rows": np.bincount(short_pool.lengths.astype(np.int64)).tolist()
         if short_pool.lengths.size else [],
-        "within_episode_std_m": short_pool.within_std_m}
+        "within_episode_std_m": short_pool.within_std_m, "within_episode_std_rel": short_pool.within_std_rel}
     channel_diag: dict[str, Any] = {}
     per_channel: dict[str, ChannelParams] = {}
     for aid in ids:
