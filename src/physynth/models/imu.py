@@ -47,12 +47,33 @@ class VibrationParams(ParamsModel):
     axis_gain: Annotated[list[NonNegFloat], Field(min_length=3, max_length=3)] = [1.0, 1.0, 1.0]
 
 
+class MotionNoiseParams(ParamsModel):
+    """Vibration whose power grows with the motion's intensity (unresolved motion, a cabin's rollers).
+
+    With either gain non-zero, the vibration comb's variance on axis k at time t is
+    ``(amplitude_mps2 * axis_gain_k)^2 + acc_var_gain_k * |a_k(t)| + rate_var_gain_k * |w(t)|``
+    [m^2 s^-4], with a_k the truth acceleration along axis k [m s^-2] and |w| the body angular rate
+    magnitude [rad/s]: ``acc_var_gain_mps2`` in m^2 s^-4 per m s^-2, ``rate_var_gain_mps4_per_radps``
+    in m^2 s^-4 per rad s^-1. The spectral shape (lines, widths) stays the comb's. Zero (the default)
+    switches the term off.
+    """
+
+    acc_var_gain_mps2: Annotated[list[NonNegFloat], Field(min_length=3, max_length=3)] = [0.0, 0.0, 0.0]
+    rate_var_gain_mps4_per_radps: Annotated[list[NonNegFloat], Field(min_length=3, max_length=3)] = [0.0, 0.0, 0.0]
+
+    @property
+    def active(self) -> bool:
+        return any(self.acc_var_gain_mps2) or any(self.rate_var_gain_mps4_per_radps)
+
+
 class ImuParams(ParamsModel):
     """Accelerometer in ENU, gravity-free [m s^-2].
 
     White noise of density ``white_noise_density_mps2_per_sqrt_hz`` per axis (per-sample standard
     deviation density * sqrt(rate_hz)); bias random walk whose standard deviation grows as
-    ``bias_rw_mps2_per_sqrt_s`` * sqrt(t); vibration as above.
+    ``bias_rw_mps2_per_sqrt_s`` * sqrt(t); vibration as above; ``time_offset_s``: the IMU clock lags
+    the truth, sample t reads the acceleration at t - offset [s]; ``motion_noise``: white noise
+    the vibration's power growing with the motion (:class:`MotionNoiseParams`).
     """
 
     rate_hz: PositiveFloat = 400.0
@@ -60,6 +81,8 @@ class ImuParams(ParamsModel):
     bias_rw_mps2_per_sqrt_s: NonNegFloat = 0.002
     bias_initial_std_mps2: NonNegFloat = 0.0
     vibration: VibrationParams = VibrationParams()
+    time_offset_s: Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False)] = 0.0
+    motion_noise: MotionNoiseParams = MotionNoiseParams()
 
 
 _BIAS_KNOT_S = 0.1  # bias random-walk knot spacing [s]
@@ -170,10 +193,23 @@ def _vibration_cf(t_s: np.ndarray, params: VibrationParams, *, rng: np.random.Ge
     return out
 
 
-def simulate_imu(kin: Kinematics, params: ImuParams, *, rng: np.random.Generator) -> Imu:
-    """IMU samples at ``params.rate_hz`` over the kinematics' time span (ENU, gravity-free)."""
-    slow = np.array(kin.acc_enu_mps2.T, order="C")  # a copy: the model never writes into its inputs
-    slow += _vibration_cf(kin.t_s, params.vibration, rng=rng)
+def simulate_imu(kin: Kinematics, params: ImuParams, *, rng: np.random.Generator,
+                 omega_body_radps: np.ndarray | None = None) -> Imu:
+    """IMU samples at ``params.rate_hz`` over the kinematics' time span (ENU, gravity-free).
+
+    ``omega_body_radps`` (T, 3): the body angular rate at the truth times, used only by the
+    rate-dependent vibration power (zero when None). The modulated vibration makes the same draws as
+    the plain one, so the other terms' samples do not change when it is switched on.
+    """
+    if params.time_offset_s != 0.0:  # the sensor reads the motion at t - offset
+        acc_in = np.asarray(kin.acc_enu_mps2)
+        slow = np.stack([np.interp(kin.t_s - params.time_offset_s, kin.t_s, acc_in[:, k]) for k in range(3)])
+    else:
+        slow = np.array(kin.acc_enu_mps2.T, order="C")  # a copy: the model never writes into its inputs
+    if params.motion_noise.active:
+        slow += _modulated_vibration_cf(kin.t_s, kin.acc_enu_mps2, omega_body_radps, params, rng=rng)
+    else:
+        slow += _vibration_cf(kin.t_s, params.vibration, rng=rng)
     slow += _bias_cf(kin.t_s, params.bias_rw_mps2_per_sqrt_s, params.bias_initial_std_mps2, rng=rng)
     # IMU samples cover [t0, t_end) of the truth; the last truth instant itself has no IMU sample
     n_imu = int(np.ceil((kin.t_s[-1] - kin.t_s[0]) * params.rate_hz - 1e-9))
@@ -191,6 +227,25 @@ def simulate_imu(kin: Kinematics, params: ImuParams, *, rng: np.random.Generator
     else:
         acc += resample_cf(t_imu, kin.t_s, slow)
     return Imu(t_s=t_imu, acc_mps2=acc.T)
+
+
+def vibration_variance(acc_enu_mps2: np.ndarray, omega_body_radps: np.ndarray | None, params: ImuParams
+                       ) -> np.ndarray:
+    """(T, 3) vibration variance per axis [m^2 s^-4] at the motion's intensity (:class:`MotionNoiseParams`)."""
+    vib, mot = params.vibration, params.motion_noise
+    base = (vib.amplitude_mps2 * np.asarray(vib.axis_gain, dtype=float)) ** 2
+    var = base[None, :] + np.abs(acc_enu_mps2) * np.asarray(mot.acc_var_gain_mps2)[None, :]
+    if omega_body_radps is not None and any(mot.rate_var_gain_mps4_per_radps):
+        w = np.nan_to_num(np.linalg.norm(omega_body_radps, axis=1))
+        var = var + w[:, None] * np.asarray(mot.rate_var_gain_mps4_per_radps)[None, :]
+    return var
+
+
+def _modulated_vibration_cf(t_s, acc_enu_mps2, omega_body_radps, params: ImuParams, *, rng):
+    unit = params.vibration.model_copy(update={"amplitude_mps2": 1.0, "axis_gain": [1.0, 1.0, 1.0]})
+    out = _vibration_cf(t_s, unit, rng=rng)
+    out *= np.sqrt(vibration_variance(acc_enu_mps2, omega_body_radps, params)).T
+    return out
 
 
 # ---------------------------------------------------------------- body-frame IMU (strapdown sensor)
