@@ -215,3 +215,17 @@ def test_kalibr_keys_are_read_and_written():
     assert p.rate_hz == 200.0 and p.accelerometer.noise_density_mps2_per_sqrt_hz == 0.0028
     assert p.gyroscope.bias_rw_radps_per_sqrt_s == 2.2e-5
     assert body_imu_to_kalibr(p) == k
+
+
+def test_kalibr_file_round_trip_and_bad_file(tmp_path):
+    from physynth.errors import ScenarioError
+    from physynth.io.kalibr import read_kalibr_imu, write_kalibr_imu
+
+    p = BodyImuParams.model_validate({"accelerometer_noise_density": 0.002, "gyroscope_random_walk": 3e-5,
+                                      "update_rate": 250.0})
+    write_kalibr_imu(p, tmp_path / "imu.yaml")
+    back = read_kalibr_imu(tmp_path / "imu.yaml")
+    assert back == p
+    (tmp_path / "bad.yaml").write_text("update_rate: -5\naccelerometer_noise_density: 0.1\n", encoding="utf-8")
+    with pytest.raises(ScenarioError, match="rate_hz"):
+        read_kalibr_imu(tmp_path / "bad.yaml")

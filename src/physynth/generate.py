@@ -50,7 +50,7 @@ def compile_scenario(scn: Scenario) -> CompiledScenario:
         availability=(availability_arrays(scn.availability, [scn.availability_for(a) for a in scn.anchor_ids])
                       if scn.anchors else None),
         anchors=Anchors(ids=scn.anchor_ids, names=tuple(a.name or a.id for a in scn.anchors),
-                        pos_enu_m=np.array([a.pos_enu_m for a in scn.anchors], dtype=float)),
+                        pos_enu_m=np.array([a.pos_enu_m for a in scn.anchors], dtype=float).reshape(-1, 3)),
         lateral_dir=geometry.lateral_direction(),
     )
 

@@ -289,10 +289,10 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
     if imu_only:
         keep = [i for i, lab in enumerate(labels) if lab not in imu_only_labels]
         trs, labels = [trs[i] for i in keep], [labels[i] for i in keep]
-        if not trs:
-            raise CalibrationError("no recording with UWB measurements: a scenario needs at least one "
-                                   "(IMU-only recordings can join a UWB recording to calibrate the IMU; "
-                                   "alone, use physynth.calibrate.imu_fit.fit_imu)")
+        if not trs:  # IMU recordings only: IMU models, path and motion from the truth, no anchors
+            from .imu_only import calibrate_imu_only
+
+            return calibrate_imu_only(imu_only, name=name, path_kind=path_kind, sources=sources, progress=progress)
     anchors, layout = anchor_layout(trs, policy=anchor_policy, labels=labels)
     windows = {}
     for t, lab in zip(trs, labels, strict=True):

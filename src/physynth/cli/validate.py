@@ -63,6 +63,13 @@ def validate_cmd(
     except AnchorMismatchError as exc:
         hint = "; use --transfer to take the anchor layout from the real dataset" if scenario else ""
         raise PhySynthError(str(exc).split("; transfer the scenario")[0] + hint) from None
+    from ..validate.imu_report import ImuValidationReport, write_imu_report
+
+    if isinstance(report, ImuValidationReport):  # an IMU-only real dataset: IMU error tables
+        written = write_imu_report(report, out, overwrite=overwrite)
+        if not quiet:
+            _print_imu_summary(report, out, len(written))
+        return
     written = write_report(report, out, figures=figures, overwrite=overwrite)
     if quiet:
         return
@@ -82,3 +89,13 @@ def validate_cmd(
 
 def _f(x: object, digits: int = 3) -> str:
     return "-" if not isinstance(x, (int, float)) or x != x else f"{x:.{digits}f}"
+
+
+def _print_imu_summary(report, out: Path, n_files: int) -> None:
+    for key, real in report.real.items():
+        synth, dev = report.synthetic.get(key), report.relative_deviation_pct.get(key)
+        if real is None or synth is None:
+            continue
+        typer.echo(f"  {key:26s} real {' / '.join(_f(x) for x in real)}  synth {' / '.join(_f(x) for x in synth)}  "
+                   f"({' / '.join(_f(x, 1) for x in dev)} %)")
+    typer.echo(f"wrote {n_files} file(s) to {out} (open {out / 'report.html'})")

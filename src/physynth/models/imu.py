@@ -442,6 +442,31 @@ def _ideal_at(t_q: np.ndarray, t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: R
     return f.T, w.T
 
 
+def _upsampling_factor(t_s: np.ndarray, t_imu: np.ndarray) -> int:
+    """The integer ratio of IMU to truth rate when the IMU grid starts on the truth grid, else 0."""
+    if t_s.shape[0] < 2 or t_imu.shape[0] < 2 or abs(t_imu[0] - t_s[0]) > 1e-12:
+        return 0
+    ratio = (t_s[1] - t_s[0]) / (t_imu[1] - t_imu[0])
+    factor = int(round(ratio))
+    return factor if factor >= 1 and abs(ratio - factor) < 1e-9 else 0
+
+
+def _add_upsampled(out_cf: np.ndarray, slow_cf: np.ndarray, factor: int) -> None:
+    """out (3, (T-1) factor) += slow (3, T) linearly upsampled, in place, one phase at a time."""
+    view = out_cf.reshape(out_cf.shape[0], -1, factor)
+    base, step = slow_cf[:, :-1], np.diff(slow_cf, axis=1)
+    for r in range(factor):  # a handful of phases, each vectorised over time
+        view[:, :, r] += base + step * (r / factor)
+
+
+def _apply_device(matrix: np.ndarray, bias: np.ndarray, x_cf: np.ndarray) -> np.ndarray:
+    """matrix @ x + bias for (3, N) samples, skipping an identity matrix and a zero bias (a new array)."""
+    out = matrix @ x_cf if np.any(matrix != np.eye(3)) else np.array(x_cf, dtype=float, order="C")
+    if np.any(bias != 0.0):
+        out += bias[:, None]
+    return out
+
+
 def _triad_errors(t_s: np.ndarray, vib: VibrationParams, vib_amp: float, rw: float, bi: float, bi_tau: float,
                   *, rng: np.random.Generator) -> np.ndarray | None:
     """Slow errors (vibration, bias walk, bias instability) of one triad at the truth times, (3, T).
@@ -476,23 +501,39 @@ def simulate_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, 
     dev = draw_imu_device(params, rng=rng)
     n_imu = int(np.ceil((t[-1] - t[0]) * params.rate_hz - 1e-9))
     t_imu = t[0] + np.arange(n_imu) / params.rate_hz
-    f, w = _ideal_at(t_imu - params.time_offset_s, t, acc_enu_mps2, rot, omega_body_radps)  # (3, N)
-    acc = dev.acc_matrix @ f
-    acc += dev.acc_turn_on_bias_mps2[:, None]
-    gyro = dev.gyro_matrix @ w
-    gyro += dev.gyro_turn_on_bias_radps[:, None]
-    if g.g_sensitivity_radps_per_mps2 > 0:
-        gyro += g.g_sensitivity_radps_per_mps2 * f
     acc_err = _triad_errors(t, params.vibration, a.vibration_amplitude_mps2, a.bias_rw_mps2_per_sqrt_s,
                             a.bias_instability_mps2, a.bias_instability_tau_s, rng=rng)
     gyro_err = _triad_errors(t, params.vibration, g.vibration_amplitude_radps, g.bias_rw_radps_per_sqrt_s,
                              g.bias_instability_radps, g.bias_instability_tau_s, rng=rng)
-    if acc_err is not None:
-        acc += resample_cf(t_imu, t, acc_err)
-    if gyro_err is not None:
-        gyro += resample_cf(t_imu, t, gyro_err)
-    acc += _white_noise_cf(n_imu, np.full(3, a.noise_density_mps2_per_sqrt_hz), params.rate_hz, rng=rng)
-    gyro += _white_noise_cf(n_imu, np.full(3, g.noise_density_radps_per_sqrt_hz), params.rate_hz, rng=rng)
+    acc = _white_noise_cf(n_imu, np.full(3, a.noise_density_mps2_per_sqrt_hz), params.rate_hz, rng=rng)
+    gyro = _white_noise_cf(n_imu, np.full(3, g.noise_density_radps_per_sqrt_hz), params.rate_hz, rng=rng)
+    factor = _upsampling_factor(t, t_imu)
+    turn = float(np.max(np.abs(omega_body_radps[:-1]) * np.diff(t)[:, None])) if t.size > 1 else 0.0
+    if params.time_offset_s == 0.0 and factor and turn <= ROTATION_EXACT_ABOVE_RAD and n_imu == (t.size - 1) * factor:
+        # the usual case: every term at the truth rate (linear maps commute with linear upsampling),
+        # added into the noise one phase at a time, without (3, N) temporaries
+        f_b, w_b = ideal_body_imu(t, acc_enu_mps2, rot, omega_body_radps)
+        acc_slow = _apply_device(dev.acc_matrix, dev.acc_turn_on_bias_mps2, f_b.T)
+        gyro_const = _apply_device(dev.gyro_matrix, dev.gyro_turn_on_bias_radps, w_b.T)
+        gyro_lin = g.g_sensitivity_radps_per_mps2 * f_b.T if g.g_sensitivity_radps_per_mps2 > 0 else None
+        if acc_err is not None:
+            acc_slow += acc_err
+        if gyro_err is not None:
+            gyro_lin = gyro_err if gyro_lin is None else gyro_lin + gyro_err
+        _add_upsampled(acc, acc_slow, factor)
+        gyro.reshape(3, -1, factor)[...] += gyro_const[:, :-1, None]
+        if gyro_lin is not None:
+            _add_upsampled(gyro, gyro_lin, factor)
+    else:
+        f, w = _ideal_at(t_imu - params.time_offset_s, t, acc_enu_mps2, rot, omega_body_radps)  # (3, N)
+        acc += _apply_device(dev.acc_matrix, dev.acc_turn_on_bias_mps2, f)
+        gyro += _apply_device(dev.gyro_matrix, dev.gyro_turn_on_bias_radps, w)
+        if g.g_sensitivity_radps_per_mps2 > 0:
+            gyro += g.g_sensitivity_radps_per_mps2 * f
+        if acc_err is not None:
+            acc += resample_cf(t_imu, t, acc_err)
+        if gyro_err is not None:
+            gyro += resample_cf(t_imu, t, gyro_err)
     if a.quantisation_mps2 > 0:
         acc = np.round(acc / a.quantisation_mps2) * a.quantisation_mps2
     if g.quantisation_radps > 0:
