@@ -152,12 +152,17 @@ def fit_body_imu(traces: Sequence[Trace], *, cutoff_hz: float = 10.0, offset_s: 
     m_a, b_a = _affine_fit(np.concatenate(xs_f), np.concatenate(ys_f))
     m_g, b_g = _affine_fit(np.concatenate(xs_w), np.concatenate(ys_w))
     noise_a, noise_g, rw_a, rw_g, diag_rec = [], [], [], [], []
+    notes: list[str] = []
     for tr, f_b, w, ok, calm in per:
         ra = np.where(ok[:, None], tr.imu.acc_body_mps2 - (f_b @ m_a.T + b_a), np.nan)
         rg = np.where(ok[:, None], tr.imu.gyro_body_radps - (w @ m_g.T + b_g), np.nan)
+        span = calm if calm.sum() >= 2.0 * fs else ok  # no rest: the residual of the whole recording
+        if span is ok:
+            notes.append(f"{trace_label(tr, len(diag_rec))}: no calm span of 2 s; body-frame IMU noise read "
+                         "from the residual of the moving recording")
         try:
-            na, ka, da = _noise_from_allan(ra, tr.imu.t_s, calm, fs)
-            ng, kg, dg = _noise_from_allan(rg, tr.imu.t_s, calm, fs)
+            na, ka, da = _noise_from_allan(ra, tr.imu.t_s, span, fs)
+            ng, kg, dg = _noise_from_allan(rg, tr.imu.t_s, span, fs)
         except CalibrationError:
             continue
         noise_a.append(na)
@@ -170,8 +175,7 @@ def fit_body_imu(traces: Sequence[Trace], *, cutoff_hz: float = 10.0, offset_s: 
                          "acc_error_std_mps2": np.nanstd(ra[ok], axis=0).tolist(),
                          "gyro_error_std_radps": np.nanstd(rg[ok], axis=0).tolist()})
     if not noise_a:
-        raise CalibrationError("no recording has a calm span: the body-frame IMU noise cannot be read")
-    notes = []
+        raise CalibrationError("no recording has a valid span: the body-frame IMU noise cannot be read")
     na, ng = np.median(noise_a, axis=0), np.median(noise_g, axis=0)
 
     def _rw(vals: list[float | None], default: float, name: str) -> float:
