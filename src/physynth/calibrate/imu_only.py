@@ -31,7 +31,7 @@ from ..models.imu import AccelerometerParams, BodyImuParams, GyroscopeParams
 from ..records import Trace
 from ..scenario import Scenario, scenario_from_dict
 from ._base import CalibrationError, Fit, median_step_s, rounded, segments, trace_label
-from .imu_fit import CALM_ACC_MPS2, CALM_RATE_RADPS, fit_imu, smoothed_body_rate, truth_acceleration
+from .imu_fit import CALM_ACC_MPS2, CALM_RATE_RADPS, _intensity, fit_imu, smoothed_body_rate, truth_acceleration
 
 ALLAN_WHITE_TAU_S = 0.05
 """Averaging time at which the white noise is read off the Allan deviation, N = adev * sqrt(tau) [s]."""
@@ -275,6 +275,20 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
     }
     if body is not None:
         data["body_imu"] = {**body.params.model_dump(mode="json"), "rate_hz": imu["rate_hz"]}
+        # the motion-driven part of the accelerometer error is the ENU fit's, one axis-mean gain (body
+        # axes turn with the sensor); its comb shape is the ENU fit's too
+        mot = imf.params.motion_noise
+        acc_sec = data["body_imu"]["accelerometer"]
+        # per axis the ENU model scales with |a_k|; the body model with |a|: match the mean variance
+        a_k = np.concatenate([_intensity(t, fc, imf.params.time_offset_s)[0] for t in trs])
+        a_k = a_k[np.all(np.isfinite(a_k), axis=1)]
+        share = float(np.mean(a_k @ np.asarray(mot.acc_var_gain_mps2)) / 3.0
+                      / max(float(np.mean(np.linalg.norm(a_k, axis=1))), 1e-12))
+        acc_sec["vibration_acc_var_gain_mps2"] = rounded(share, 5)
+        acc_sec["vibration_rate_var_gain_mps4_per_radps"] = rounded(float(np.mean(mot.rate_var_gain_mps4_per_radps)), 5)
+        acc_sec["vibration_amplitude_mps2"] = rounded(float(np.sqrt(np.mean(
+            (imf.params.vibration.amplitude_mps2 * np.asarray(imf.params.vibration.axis_gain)) ** 2))), 5)
+        data["body_imu"]["vibration"] = {**imf.params.vibration.model_dump(mode="json"), "axis_gain": [1.0, 1.0, 1.0]}
     scn: Scenario = scenario_from_dict(data, "calibrated IMU-only")
     params: dict[str, Any] = {}
 

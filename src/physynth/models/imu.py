@@ -252,7 +252,10 @@ def _modulated_vibration_cf(t_s, acc_enu_mps2, omega_body_radps, params: ImuPara
 class AccelerometerParams(ParamsModel):
     """Accelerometer triad errors (body frame, specific force) [m s^-2 based units].
 
-    Defaults are those of a MEMS IMU (ADIS16448 as in the EuRoC Kalibr ``imu.yaml``).
+    Defaults are those of a MEMS IMU (ADIS16448 as in the EuRoC Kalibr ``imu.yaml``). The vibration
+    comb's variance per axis is ``vibration_amplitude_mps2^2 + vibration_acc_var_gain_mps2 * |a(t)| +
+    vibration_rate_var_gain_mps4_per_radps * |w(t)|`` (|a| the truth acceleration magnitude, |w| the
+    body rate magnitude), as in :class:`MotionNoiseParams`.
     """
 
     noise_density_mps2_per_sqrt_hz: NonNegFloat = 1.86e-3
@@ -264,6 +267,8 @@ class AccelerometerParams(ParamsModel):
     misalignment_std_rad: NonNegFloat = 0.0
     quantisation_mps2: NonNegFloat = 0.0
     vibration_amplitude_mps2: NonNegFloat = 0.0
+    vibration_acc_var_gain_mps2: NonNegFloat = 0.0
+    vibration_rate_var_gain_mps4_per_radps: NonNegFloat = 0.0
 
 
 class GyroscopeParams(ParamsModel):
@@ -468,13 +473,17 @@ def _apply_device(matrix: np.ndarray, bias: np.ndarray, x_cf: np.ndarray) -> np.
 
 
 def _triad_errors(t_s: np.ndarray, vib: VibrationParams, vib_amp: float, rw: float, bi: float, bi_tau: float,
-                  *, rng: np.random.Generator) -> np.ndarray | None:
+                  *, rng: np.random.Generator, vib_var: np.ndarray | None = None) -> np.ndarray | None:
     """Slow errors (vibration, bias walk, bias instability) of one triad at the truth times, (3, T).
 
-    None when all are zero. Each term draws only when it is on.
+    ``vib_var`` (T,): the vibration's variance over time, when it follows the motion (then
+    ``vib_amp`` is unused). None when all are zero. Each term draws only when it is on.
     """
     parts = []
-    if vib_amp > 0:
+    if vib_var is not None and np.any(vib_var > 0):
+        unit = vib.model_copy(update={"amplitude_mps2": 1.0})
+        parts.append(_vibration_cf(t_s, unit, rng=rng) * np.sqrt(vib_var)[None, :])
+    elif vib_amp > 0:
         parts.append(_vibration_cf(t_s, vib.model_copy(update={"amplitude_mps2": vib_amp}), rng=rng))
     if rw > 0:
         parts.append(_bias_cf(t_s, rw, 0.0, rng=rng))
@@ -501,8 +510,13 @@ def simulate_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, 
     dev = draw_imu_device(params, rng=rng)
     n_imu = int(np.ceil((t[-1] - t[0]) * params.rate_hz - 1e-9))
     t_imu = t[0] + np.arange(n_imu) / params.rate_hz
+    vib_var = None
+    if a.vibration_acc_var_gain_mps2 > 0 or a.vibration_rate_var_gain_mps4_per_radps > 0:
+        vib_var = (a.vibration_amplitude_mps2**2
+                   + a.vibration_acc_var_gain_mps2 * np.linalg.norm(np.asarray(acc_enu_mps2, dtype=float), axis=1)
+                   + a.vibration_rate_var_gain_mps4_per_radps * np.linalg.norm(omega_body_radps, axis=1))
     acc_err = _triad_errors(t, params.vibration, a.vibration_amplitude_mps2, a.bias_rw_mps2_per_sqrt_s,
-                            a.bias_instability_mps2, a.bias_instability_tau_s, rng=rng)
+                            a.bias_instability_mps2, a.bias_instability_tau_s, rng=rng, vib_var=vib_var)
     gyro_err = _triad_errors(t, params.vibration, g.vibration_amplitude_radps, g.bias_rw_radps_per_sqrt_s,
                              g.bias_instability_radps, g.bias_instability_tau_s, rng=rng)
     acc = _white_noise_cf(n_imu, np.full(3, a.noise_density_mps2_per_sqrt_hz), params.rate_hz, rng=rng)
