@@ -166,7 +166,8 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
         else:
             problem = describe_anchor_mismatch(real_ids, list(scn.anchor_ids), f"scenario '{scn.name}'")
             if problem:
-                raise AnchorMismatchError(problem + "; transfer the scenario to take the anchor layout from the real dataset")
+                raise AnchorMismatchError(problem + "; transfer the scenario to take the anchor layout from the "
+                                                    "real dataset")
         root = new_root_seed() if seed is None else int(seed)
         inputs["synthetic"] = {"scenario": source, "scenario_name": scn.name, "n_traces": int(n),
                                "root_seed": root, "transfer": bool(transfer),
