@@ -272,7 +272,11 @@ class AccelerometerParams(ParamsModel):
 
 
 class GyroscopeParams(ParamsModel):
-    """Gyroscope triad errors (body frame, angular rate) [rad s^-1 based units]."""
+    """Gyroscope triad errors (body frame, angular rate) [rad s^-1 based units].
+
+    The vibration comb's variance per axis is ``vibration_amplitude_radps^2 +
+    vibration_rate_var_gain_radps * |w(t)|`` [rad^2 s^-2] (|w| the body rate magnitude [rad/s]).
+    """
 
     noise_density_radps_per_sqrt_hz: NonNegFloat = 1.87e-4
     bias_rw_radps_per_sqrt_s: NonNegFloat = 2.66e-5
@@ -283,6 +287,7 @@ class GyroscopeParams(ParamsModel):
     misalignment_std_rad: NonNegFloat = 0.0
     quantisation_radps: NonNegFloat = 0.0
     vibration_amplitude_radps: NonNegFloat = 0.0
+    vibration_rate_var_gain_radps: NonNegFloat = 0.0
     g_sensitivity_radps_per_mps2: NonNegFloat = 0.0
 
 
@@ -517,8 +522,10 @@ def simulate_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, 
                    + a.vibration_rate_var_gain_mps4_per_radps * np.linalg.norm(omega_body_radps, axis=1))
     acc_err = _triad_errors(t, params.vibration, a.vibration_amplitude_mps2, a.bias_rw_mps2_per_sqrt_s,
                             a.bias_instability_mps2, a.bias_instability_tau_s, rng=rng, vib_var=vib_var)
+    gyro_var = (g.vibration_amplitude_radps**2 + g.vibration_rate_var_gain_radps
+                * np.linalg.norm(omega_body_radps, axis=1)) if g.vibration_rate_var_gain_radps > 0 else None
     gyro_err = _triad_errors(t, params.vibration, g.vibration_amplitude_radps, g.bias_rw_radps_per_sqrt_s,
-                             g.bias_instability_radps, g.bias_instability_tau_s, rng=rng)
+                             g.bias_instability_radps, g.bias_instability_tau_s, rng=rng, vib_var=gyro_var)
     acc = _white_noise_cf(n_imu, np.full(3, a.noise_density_mps2_per_sqrt_hz), params.rate_hz, rng=rng)
     gyro = _white_noise_cf(n_imu, np.full(3, g.noise_density_radps_per_sqrt_hz), params.rate_hz, rng=rng)
     factor = _upsampling_factor(t, t_imu)
