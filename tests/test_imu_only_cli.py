@@ -57,3 +57,19 @@ def test_calibrate_and_validate_imu_only_datasets(tmp_path, capsys):
     code, _, err = run(capsys, "generate", "--scenario", tmp_path / "s.yaml", "-n", 1, "--seed", 1,
                        "--out", tmp_path / "g", "--quiet")
     assert code == 0, err
+
+
+def test_imu_only_validation_against_a_dataset_without_imu_is_one_clear_error(tmp_path, capsys):
+    code, _, err = run(capsys, "import", "broad", T10, "--out", tmp_path / "b10", "--quiet")
+    assert code == 0, err
+    code, _, err = run(capsys, "generate", "-n", 1, "--seed", 1, "--out", tmp_path / "g", "--quiet")
+    assert code == 0, err
+    import pyarrow.parquet as pq
+
+    # a synthetic dataset whose IMU table is empty: nothing to compare
+    table = pq.read_table(tmp_path / "g" / "imu.parquet")
+    pq.write_table(table.slice(0, 0), tmp_path / "g" / "imu.parquet")
+    code, _, err = run(capsys, "validate", "--real", tmp_path / "b10", "--synthetic", tmp_path / "g",
+                       "--out", tmp_path / "rep", "--no-figures")
+    assert code == 2 and "no IMU error of a kind" in err and "Traceback" not in err
+    assert err.strip().count("\n") == 0

@@ -157,6 +157,9 @@ def compare_imu(real: Sequence[Trace], synthetic: Sequence[Trace], *, inputs: di
     rs, ss = _summary(real), _summary(synthetic)
     if "imu" not in rs and "gyro" not in rs:
         raise PhySynthError("the real dataset has no IMU samples with valid truth: nothing to compare")
+    if not set(rs) & set(ss):
+        raise PhySynthError(f"the synthetic traces have no IMU error of a kind the real dataset has "
+                            f"(real: {', '.join(sorted(rs))}; synthetic: {', '.join(sorted(ss)) or 'none'})")
     out_r, out_s, dev, ext = {}, {}, {}, {}
     for kind, unit in ERRORS.items():
         key = f"{kind}_error_std_{unit}"
