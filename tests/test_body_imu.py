@@ -229,3 +229,17 @@ def test_kalibr_file_round_trip_and_bad_file(tmp_path):
     (tmp_path / "bad.yaml").write_text("update_rate: -5\naccelerometer_noise_density: 0.1\n", encoding="utf-8")
     with pytest.raises(ScenarioError, match="rate_hz"):
         read_kalibr_imu(tmp_path / "bad.yaml")
+
+
+def test_imu_only_scenario_needs_an_explicit_empty_anchor_list():
+    from helpers import simple_scenario_dict
+
+    from physynth.errors import ScenarioError
+
+    d = simple_scenario_dict()
+    del d["anchors"]
+    with pytest.raises(ScenarioError, match="anchors: Field required"):
+        scenario_from_dict(d, "test")  # a forgotten anchors section is still an error
+    d["anchors"], d["channel_per_anchor"] = [], {}
+    tr = generate_trace(compile_scenario(scenario_from_dict(d, "test")), 0, 1)
+    assert len(tr.uwb) == 0 and len(tr.anchors) == 0 and tr.imu is not None
