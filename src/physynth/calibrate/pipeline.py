@@ -555,6 +555,11 @@ class AvailabilitySet:
 
 
 # ---------------------------------------------------------------- steps
+def _imu_only(t: Trace) -> bool:
+    """A recording with IMU samples and no UWB range (e.g. a lab trial)."""
+    return not (len(t.uwb) > 0 and bool(t.uwb.valid.any())) and t.imu is not None and t.imu.t_s.size > 100
+
+
 def prepare_inputs(traces: Trace | Sequence[Trace], *, anchor_policy: AnchorPolicy = "per-run",
                    layout_from: int | str | None = None, report: ReportBuilder) -> CalibrationInputs:
     """Check the recordings, label them, set the IMU-only ones aside and read the anchor layouts."""
@@ -1048,6 +1053,11 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
     def tick(message: str) -> None:
         say(message, next(step, N_STEPS - 1), N_STEPS)
 
+    trs = as_trace_list(traces)
+    if trs and all(_imu_only(t) for t in trs):  # IMU recordings only: IMU models, path and motion, no anchors
+        from .imu_only import calibrate_imu_only
+
+        return calibrate_imu_only(trs, name=name, path_kind=path_kind, sources=sources, progress=progress)
     rep = ReportBuilder()
     tick("checking the recordings")
     inp = prepare_inputs(traces, anchor_policy=anchor_policy, layout_from=layout_from, report=rep)
