@@ -28,12 +28,13 @@ app.add_typer(scenario_app, name="scenario")
 
 def _register_optional_groups() -> None:
     """Sub-command groups that live in their own modules."""
-    from . import cli_calibrate, cli_validate
+    from . import cli_calibrate, cli_track, cli_validate
     from .cli_import import app as import_app
 
     app.add_typer(import_app, name="import")
     cli_calibrate.register(app)
     cli_validate.register(app)
+    cli_track.register(app)  # ``study tracking`` (issue 9); torch is imported only when it runs
 
 
 @app.command()

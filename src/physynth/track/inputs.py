@@ -31,8 +31,15 @@ from ..constants import DEFAULT_GRID_RATE_HZ
 from ..grid import age_of_information, fresh_mask, grid_times, imu_on_grid
 from ..records import Trace, Uwb
 
-N_ANCHOR_FEATURES = 7
-"""Per-anchor network features: range, anchor position (3), fresh, AoI, has-range."""
+N_ANCHOR_FEATURES = 9
+"""Per-anchor network features: range, anchor position (3), fresh, AoI, has-range, mean range, range - mean."""
+RANGE_DIFF_SCALE_M = 1.0
+"""Scale of the feature ``range_i - mean range`` [m]: the direction to the tag lives in these differences,
+centimetres to a metre for anchors a few metres apart, invisible at the scale of the range itself."""
+N_GLOBAL_FEATURES = 6
+"""Per-step network features: far-field direction estimate u (3) and mean range x u / L (3)."""
+DIRECTION_RIDGE_M2 = 0.1
+"""Ridge [m^2] of the far-field direction solve (keeps it defined with few anchors or a flat layout)."""
 AOI_SCALE_S = 0.1
 """AoI feature ``log1p(aoi_s / AOI_SCALE_S)``: about 0.7 at one nominal 10 Hz period, 5.4 at 22 s."""
 
@@ -151,10 +158,12 @@ def window_starts(n_steps: int, length: int, stride: int) -> np.ndarray:
 class NetArrays:
     """Network inputs of one trace on every ``decimation``-th grid step (T = ceil(K / decimation)).
 
-    ``x`` (T, A, 7) float32 per-anchor features (range / L, anchor position / L, fresh in the last
-    ``decimation`` bins, ``log1p(aoi / AOI_SCALE_S)``, has-range), L = ``length_scale_m``; ``acc``
+    ``x`` (T, A, 9) float32 per-anchor features: range / L, anchor position / ``anchor_scale_m``, fresh
+    in the last ``decimation`` bins, ``log1p(aoi / AOI_SCALE_S)``, has-range, mean range of the anchors
+    with a range / L, (range - mean range) / ``RANGE_DIFF_SCALE_M``; L = ``length_scale_m``; ``acc``
     (T, 3) float32 bin-mean acceleration [m s^-2] (zeros without IMU); ``has_imu`` bool; ``y`` (T, 3)
-    float32 truth / L (0 where unknown); ``y_ok`` (T,) bool; ``step`` (T,) grid indices.
+    float32 truth / L (0 where unknown); ``y_ok`` (T,) bool; ``step`` (T,) grid indices; ``g`` (T, 6)
+    float32 per-step features (:func:`far_field_direction` ``u`` and mean range x ``u`` / L).
     """
 
     x: np.ndarray
@@ -163,10 +172,33 @@ class NetArrays:
     y: np.ndarray
     y_ok: np.ndarray
     step: np.ndarray
+    g: np.ndarray
+
+
+def far_field_direction(range_m: np.ndarray, has: np.ndarray, anchor_rel_m: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Mean range (T,) [m] and direction estimate (T, 3) from the anchor centroid to the tag.
+
+    Far from a compact anchor cluster, ``r_i - mean(r) ~ -(a_i - mean(a)) . u`` with ``u`` the unit
+    vector towards the tag, so ``u`` solves a small linear least-squares problem per step (ridge
+    ``DIRECTION_RIDGE_M2``), batched over steps. Near the anchors it is only a hint; the networks learn
+    how far to trust it. Steps with fewer than two ranges give ``u = 0``.
+    """
+    w = has.astype(float)
+    n = w.sum(axis=1, keepdims=True)
+    mean_r = (np.where(has, range_m, 0.0) * w).sum(axis=1, keepdims=True) / np.maximum(n, 1)
+    mean_a = (w[..., None] * anchor_rel_m[None]).sum(axis=1) / np.maximum(n, 1)
+    b = (anchor_rel_m[None] - mean_a[:, None, :]) * w[..., None]  # (T, A, 3)
+    dr = np.where(has, range_m - mean_r, 0.0)
+    m = np.einsum("tai,taj->tij", b, b) + DIRECTION_RIDGE_M2 * np.eye(3)
+    v = -np.einsum("tai,ta->ti", b, dr)
+    u = np.linalg.solve(m, v[..., None])[..., 0]
+    u = np.where(n >= 2, u, 0.0)
+    return mean_r[:, 0], u
 
 
 def network_arrays(inp: TrackInput, *, decimation: int = 10, length_scale_m: float = 10.0,
-                   use_imu: bool = True) -> NetArrays:
+                   anchor_scale_m: float = 2.0, use_imu: bool = True) -> NetArrays:
     """Decimated, normalised network inputs of one :class:`TrackInput` (vectorised over steps)."""
     k = np.arange(0, inp.n_steps, decimation, dtype=np.int64)
     rng_m = inp.range_m[k]
@@ -174,13 +206,17 @@ def network_arrays(inp: TrackInput, *, decimation: int = 10, length_scale_m: flo
     csum = np.concatenate([np.zeros((1, inp.n_anchors)), np.cumsum(inp.fresh, axis=0)])
     lo = np.maximum(k + 1 - decimation, 0)
     fresh = (csum[k + 1] - csum[lo]) > 0
-    a = inp.anchor_pos_rel_m[None, :, :] / length_scale_m
+    a = inp.anchor_pos_rel_m[None, :, :] / anchor_scale_m
+    n_has = has.sum(axis=1, keepdims=True)
+    mean_r = np.where(n_has > 0, np.where(has, rng_m, 0.0).sum(axis=1, keepdims=True) / np.maximum(n_has, 1), 0.0)
     x = np.concatenate([
         np.where(has, rng_m, 0.0)[..., None] / length_scale_m,
         np.broadcast_to(a, (k.size, inp.n_anchors, 3)),
         fresh[..., None].astype(float),
         np.log1p(inp.aoi_s[k] / AOI_SCALE_S)[..., None],
         has[..., None].astype(float),
+        np.broadcast_to(mean_r / length_scale_m, has.shape)[..., None],
+        np.where(has, rng_m - mean_r, 0.0)[..., None] / RANGE_DIFF_SCALE_M,
     ], axis=-1)
     has_imu = use_imu and inp.acc_mps2 is not None
     if has_imu:
@@ -191,8 +227,11 @@ def network_arrays(inp: TrackInput, *, decimation: int = 10, length_scale_m: flo
         acc = np.zeros((k.size, 3))
     y = inp.pos_rel_m[k] / length_scale_m
     y_ok = np.all(np.isfinite(y), axis=1) & (inp.t_s[k] >= inp.first_range_s)
+    r_bar, u = far_field_direction(rng_m, has, inp.anchor_pos_rel_m)
+    g = np.concatenate([u, (r_bar[:, None] * u) / length_scale_m], axis=1)
     return NetArrays(x=x.astype(np.float32), acc=acc.astype(np.float32), has_imu=bool(has_imu),
-                     y=np.where(y_ok[:, None], y, 0.0).astype(np.float32), y_ok=y_ok, step=k)
+                     y=np.where(y_ok[:, None], y, 0.0).astype(np.float32), y_ok=y_ok, step=k,
+                     g=g.astype(np.float32))
 
 
 def upsample(inp: TrackInput, step: np.ndarray, pos_rel_m: np.ndarray) -> np.ndarray:
