@@ -6,7 +6,8 @@ State ``[p (3), v (3)]`` in the trace's relative ENU frame [m, m/s]. Between gri
 - IMU-driven (``use_imu`` and the trace has IMU): the bin-mean acceleration is the control input and
   the process noise is the accelerometer's (``imu_accel_psd_m2ps3``).
 
-Every fresh range of a step is one scalar update ``r = ||p - a_i|| + e``, ``e ~ N(0, range_std_m^2)``;
+Every fresh range of a step is one scalar update ``r = ||p - age_i v - a_i|| + e``, ``e ~ N(0,
+range_std_m^2)``, where ``age_i`` (the AoI at the step, < one grid step) dates the range within its bin;
 an update whose normalised innovation squared exceeds the ``gate_prob`` quantile of chi-square(1) is
 rejected. After ``reset_after`` consecutive rejections the position covariance is re-inflated (the
 filter has lost track). The filter starts at the first multilateration fix (:mod:`.ls`).
@@ -92,10 +93,12 @@ class EkfTracker:
                 p = f @ p @ f.T + qm
             for i in fresh_rows[k]:
                 r = inp.range_m[k, i]
-                diff = x[:3] - anchors[i]
+                age = inp.aoi_s[k, i]  # the range was measured ``age`` before t_k: p(t_k) - v * age
+                diff = x[:3] - age * x[3:] - anchors[i]
                 d = float(np.sqrt(diff @ diff)) or 1e-9
                 h = np.zeros(6)
                 h[:3] = diff / d
+                h[3:] = -age * h[:3]
                 ph = p @ h
                 s = float(h @ ph) + var_r
                 nu = r - d
