@@ -48,9 +48,12 @@ def test_ekf_on_noiseless_ranges_converges_within_1cm(noiseless):
 
 
 def test_ekf_imu_driven_and_ls_track_the_walk(noiseless):
-    for name, opts in (("ekf", {"use_imu": True}), ("ls", {})):
-        est = make_tracker(name, **opts).predict(noiseless)
-        assert error_stats(est, noiseless.pos_enu_m, noiseless.eval_mask())["rmse_m"] < 0.1, name
+    est = make_tracker("ekf", use_imu=True).predict(noiseless)
+    assert error_stats(est, noiseless.pos_enu_m, noiseless.eval_mask())["rmse_m"] < 0.05
+    est = make_tracker("ls").predict(noiseless)  # holds each fix until the next burst (3 m/s x 0.1 s)
+    assert error_stats(est, noiseless.pos_enu_m, noiseless.eval_mask())["rmse_m"] < 0.3
+    all_fresh = noiseless.fresh.all(axis=1) & noiseless.eval_mask()
+    assert error_stats(est, noiseless.pos_enu_m, all_fresh)["p95_m"] < 0.05
 
 
 def test_ekf_fit_takes_the_training_range_spread():
