@@ -459,7 +459,7 @@ def plot_paths(result: StudyResult, path: Path) -> Path | None:
         ax.scatter(anchors[:, 0], anchors[:, 1], marker="^", color="tab:red", s=25, label="anchors", zorder=3)
         ax.set_title(f"{k}\nRMSE {by_key[k]['rmse_m']:.2f} m", fontsize=9)
         ax.set_xlabel("east [m]")
-        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_aspect("equal", adjustable="box")
     axes[0][0].set_ylabel("north [m]")
     axes[0][0].legend(fontsize=7, loc="best")
     fig.suptitle(f"test run {inp.label}", fontsize=10)
