@@ -37,7 +37,8 @@ def tracking_cmd(
     pretrain_epochs: int = typer.Option(None, "--pretrain-epochs", help="SYNTH_PHY pre-training epochs (300)."),
     finetune_epochs: int = typer.Option(None, "--finetune-epochs", help="SYNTH_PHY fine-tuning epochs (200)."),
     n_synth: int = typer.Option(None, "--n-synth", help="Number of synthetic pre-training traces."),
-    threads: int = typer.Option(2, "--threads", help="CPU threads for PyTorch."),
+    threads: int = typer.Option(1, "--threads", help="CPU threads for PyTorch (1: small recurrent nets gain nothing "
+                                "from more, and lose a lot on a shared machine)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (results.json, results.md, paths.png)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress and no table."),
 ) -> None:

@@ -72,7 +72,7 @@ class StudyConfig:
     net: dict[str, Any] = field(default_factory=dict)
     variation: SynthVariation = SynthVariation()
     training_layouts: bool = True
-    threads: int = 2
+    threads: int = 1
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.methods if m not in METHODS]
@@ -220,11 +220,14 @@ def run_tracking_study(train: Sequence[StudyRun], test: StudyRun | Sequence[Stud
     _check_runs(train, tests)
     torch = require_torch() if {"NOAUG", "AUG_GAN", "SYNTH_PHY", "bilstm"} & set(cfg.methods) else None
     t_start = time.perf_counter()
+    cpu_start = time.process_time()
     old_threads = torch.get_num_threads() if torch is not None else None
     if torch is not None:
         torch.set_num_threads(cfg.threads)
     try:
-        return _run(train, tests, scenario, cfg, say, t_start)
+        result = _run(train, tests, scenario, cfg, say, t_start)
+        result.data["cpu_time_s"] = time.process_time() - cpu_start  # this process, all threads
+        return result
     finally:
         if torch is not None and old_threads is not None:
             torch.set_num_threads(old_threads)
@@ -414,7 +417,8 @@ def results_markdown(result: StudyResult) -> str:
         f"- schedule: {c['epochs']} epochs at {c['lr']:g}; SYNTH_PHY {c['pretrain_epochs']} pre-training epochs "
         f"at {c['pretrain_lr']:g} on {c['n_synth_traces']} synthetic traces, then {c['finetune_epochs']} "
         f"fine-tuning epochs at {c['finetune_lr']:g}{' (--quick)' if c['quick'] else ''}",
-        f"- seed {c['seed']}, {c['threads']} thread(s), wall time {d['wall_time_s']:.0f} s",
+        f"- seed {c['seed']}, {c['threads']} thread(s), wall time {d['wall_time_s']:.0f} s, CPU time "
+        f"{d.get('cpu_time_s', float('nan')):.0f} s",
     ]
     return "\n".join(lines) + "\n"
 
