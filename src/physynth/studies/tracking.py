@@ -93,9 +93,14 @@ class StudyConfig:
 
 
 def quick_config(**overrides: Any) -> StudyConfig:
-    """The ``--quick`` schedule: fewer epochs and traces, same methods (< 10 min on 2 CPU cores)."""
-    base = {"quick": True, "epochs": 40, "pretrain_epochs": 6, "finetune_epochs": 20, "finetune_lr": 3e-4,
-            "n_synth_traces": 24, "synth_windows_per_trace": 48, "gan_steps": 1000, "gan_copies": 1}
+    """The ``--quick`` schedule: fewer epochs and traces, same methods (< 10 min on 2 CPU cores).
+
+    Five times fewer epochs than the paper's, so the learning rates are higher (3e-3; fine-tuning 1e-3,
+    a third of the from-scratch rate, as the paper's 5e-5 is a twentieth of 1e-3 over 200 epochs).
+    """
+    base = {"quick": True, "epochs": 40, "lr": 3e-3, "pretrain_epochs": 15, "pretrain_lr": 3e-3,
+            "finetune_epochs": 40, "finetune_lr": 1e-3, "n_synth_traces": 24, "synth_windows_per_trace": 48,
+            "gan_steps": 1000, "gan_copies": 1}
     return StudyConfig(**{**base, **overrides})
 
 
@@ -451,20 +456,20 @@ def plot_paths(result: StudyResult, path: Path) -> Path | None:
     inp = result.test_input
     m = inp.eval_mask()
     keys = [k for k in ("NOAUG", "AUG_GAN", "SYNTH_PHY", "ekf", "ref: authors' ESKF") if k in result.estimates]
-    fig, axes = plt.subplots(1, len(keys), figsize=(3.6 * len(keys), 3.8), sharex=True, sharey=True,
+    fig, axes = plt.subplots(len(keys), 1, figsize=(9.0, 2.4 * len(keys)), sharex=True, sharey=True,
                              squeeze=False)
     truth = inp.pos_enu_m
     anchors = inp.anchor_pos_enu_m
     by_key = {r["key"]: r for r in result.rows}
-    for ax, k in zip(axes[0], keys, strict=True):
+    for ax, k in zip(axes[:, 0], keys, strict=True):
         est = result.estimates[k]
         ax.plot(truth[m, 0], truth[m, 1], color="0.2", lw=1.2, label="truth")
         ax.plot(est[m, 0], est[m, 1], lw=0.8, alpha=0.8, label="estimate")
         ax.scatter(anchors[:, 0], anchors[:, 1], marker="^", color="tab:red", s=25, label="anchors", zorder=3)
-        ax.set_title(f"{k}\nRMSE {by_key[k]['rmse_m']:.2f} m", fontsize=9)
-        ax.set_xlabel("east [m]")
+        ax.set_title(f"{k}: RMSE {by_key[k]['rmse_m']:.2f} m", fontsize=9)
+        ax.set_ylabel("north [m]")
         ax.set_aspect("equal", adjustable="box")
-    axes[0][0].set_ylabel("north [m]")
+    axes[-1][0].set_xlabel("east [m]")
     axes[0][0].legend(fontsize=7, loc="best")
     fig.suptitle(f"test run {inp.label}", fontsize=10)
     fig.tight_layout()

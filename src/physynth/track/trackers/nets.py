@@ -60,7 +60,7 @@ class NetConfig:
     epochs: int = 200
     lr: float = 1e-3
     weight_decay: float = 0.0
-    grad_clip: float = 1.0
+    grad_clip: float = 5.0
     use_imu: bool = False
     seed: int = 0
 
