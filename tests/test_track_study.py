@@ -113,3 +113,21 @@ def test_cli_classical_methods_write_results(runs, tmp_path, capsys):
     assert "results.json" in capsys.readouterr().out
     rows = json.loads((tmp_path / "out" / "results.json").read_text())["rows"]
     assert [r["key"] for r in rows] == ["ls", "ekf"]
+
+
+def test_without_torch_the_command_names_the_extra(tmp_path):
+    import subprocess
+    import sys
+
+    code = ("import sys\n"
+            "class Block:\n"
+            "    def find_spec(self, name, path=None, target=None):\n"
+            "        if name == 'torch' or name.startswith('torch.'):\n"
+            "            raise ImportError('no torch here')\n"
+            "sys.meta_path.insert(0, Block())\n"
+            "import physynth, physynth.track, physynth.studies.tracking\n"
+            "from physynth.cli import main\n"
+            f"main(['study', 'tracking', '--methods', 'NOAUG', '--out', {str(tmp_path / 'o')!r}])\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip() == "physynth: error: this needs PyTorch: pip install 'physynth[ml]'"
