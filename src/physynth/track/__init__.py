@@ -13,12 +13,14 @@
 Importing this package does not import torch; the modules that need it say which extra to install.
 """
 
+from typing import Any
+
 TORCH_HINT = "this needs PyTorch: pip install 'physynth[ml]'"
 """The one line shown when torch is missing."""
 
 
-def require_torch():  # noqa: ANN201 - returns the torch module
-    """Import torch, or raise :class:`~physynth.errors.PhySynthError` naming the extra to install."""
+def require_torch() -> Any:
+    """The torch module, or :class:`~physynth.errors.PhySynthError` naming the extra to install."""
     try:
         import torch
     except ImportError:  # pragma: no cover - depends on the environment
