@@ -20,7 +20,8 @@ training) and the acceleration, a linear layer, a bidirectional LSTM and a linea
 
 Prediction runs the network over windows of ``window_steps`` overlapping by ``burn_in_steps`` (the
 training conditions), keeps each window's steps after the burn-in, and interpolates the positions back
-onto every grid step. Training is deterministic for a seed on CPU.
+onto every grid step. Training runs on the GPU when one is present (``device="auto"``) and is
+deterministic for a seed on the CPU.
 """
 
 from __future__ import annotations
@@ -63,6 +64,7 @@ class NetConfig:
     grad_clip: float = 5.0
     use_imu: bool = False
     seed: int = 0
+    device: str = "auto"
 
     def __post_init__(self) -> None:
         if self.rnn not in ("gru", "lstm"):
@@ -176,10 +178,17 @@ class NetTracker:
         return WindowSpec(length=c.window_steps, stride=c.stride_steps, decimation=c.decimation,
                           length_scale_m=c.length_scale_m, anchor_scale_m=c.anchor_scale_m, use_imu=c.use_imu)
 
+    def device(self) -> Any:
+        """``config.device``; ``auto``: the GPU when one is present, else the CPU (deterministic there)."""
+        if self.config.device == "auto":
+            return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+        return torch.device(self.config.device)
+
     def _build(self, n_anchors: int) -> None:
         torch.manual_seed(self.config.seed)
         self.n_anchors = n_anchors
-        self.model = AoIFusionNet(self.config) if self.arch == "aoi-fusion" else BiLstmNet(self.config, n_anchors)
+        model = AoIFusionNet(self.config) if self.arch == "aoi-fusion" else BiLstmNet(self.config, n_anchors)
+        self.model = model.to(self.device())
 
     def fit(self, inputs: Sequence[TrackInput], *, progress: ProgressFn | None = None) -> NetTracker:
         """Train on the windows of ``inputs`` for ``config.epochs`` epochs at ``config.lr``."""
@@ -204,10 +213,12 @@ class NetTracker:
                                              collate_fn=collate_windows, num_workers=0)
         opt = torch.optim.Adam(self.model.parameters(), lr=lr, weight_decay=c.weight_decay)
         self.model.train()
+        dev = self.device()
         losses = []
         for ep in range(epochs):
             total, n = 0.0, 0
             for batch in loader:
+                batch = {k: v.to(dev) for k, v in batch.items()}
                 pred = self.model(batch["x"], batch["anchor_ok"], batch["acc"], batch["has_imu"], batch["g"])
                 loss = masked_loss(pred, batch, c.burn_in_steps)
                 opt.zero_grad()
@@ -237,13 +248,14 @@ class NetTracker:
         n, w, burn = arr.x.shape[0], c.window_steps, c.burn_in_steps
         starts = window_starts(n, w, w - burn)
         idx = np.minimum(starts[:, None] + np.arange(w), n - 1)
-        x = torch.from_numpy(arr.x[idx])
-        acc = torch.from_numpy(arr.acc[idx])
-        ok = torch.ones(len(starts), arr.x.shape[1], dtype=torch.bool)
-        imu = torch.full((len(starts),), arr.has_imu)
-        g = torch.from_numpy(arr.g[idx])
+        dev = self.device()
+        x = torch.from_numpy(arr.x[idx]).to(dev)
+        acc = torch.from_numpy(arr.acc[idx]).to(dev)
+        ok = torch.ones(len(starts), arr.x.shape[1], dtype=torch.bool, device=dev)
+        imu = torch.full((len(starts),), arr.has_imu, device=dev)
+        g = torch.from_numpy(arr.g[idx]).to(dev)
         with torch.no_grad():
-            pred = self.model(x, ok, acc, imu, g).numpy().astype(np.float64)
+            pred = self.model(x, ok, acc, imu, g).cpu().numpy().astype(np.float64)
         out = np.full((n, 3), np.nan)
         for j, s in enumerate(starts):  # each window's warm steps (all of the first window)
             keep = np.arange(w) >= (0 if s == 0 else burn)
@@ -255,8 +267,8 @@ class NetTracker:
     # ------------------------------------------------------------------ persistence
     def state(self) -> dict[str, Any]:
         """A torch-saveable dict: architecture, configuration, anchor count and weights."""
-        return {"arch": self.arch, "config": self.config.to_dict(), "n_anchors": self.n_anchors,
-                "weights": None if self.model is None else self.model.state_dict()}
+        weights = None if self.model is None else {k: v.cpu() for k, v in self.model.state_dict().items()}
+        return {"arch": self.arch, "config": self.config.to_dict(), "n_anchors": self.n_anchors, "weights": weights}
 
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> NetTracker:
