@@ -4,6 +4,9 @@ Parses the options, calls :func:`physynth.studies.tracking.run_tracking_study`, 
 prints the table. Bad input (no truth in the test run, a training run without UWB, an unknown method,
 torch missing) is one line on stderr and exit 2 (raised as ``PhySynthError`` and turned into that line
 by :func:`physynth.cli.main`).
+
+Merging into a ``study`` group that already exists (the ``physynth/cli/`` package): register the plain
+function there, ``study_app.command("tracking")(tracking_cmd)``; :func:`register` is for a CLI without one.
 """
 
 from __future__ import annotations
