@@ -188,16 +188,17 @@ def _check_runs(train: Sequence[StudyRun], test: Sequence[StudyRun]) -> None:
 def _calibrate_training_runs(traces: Sequence[Trace], progress: ProgressFn) -> tuple[Scenario, dict[str, Any]]:
     """The one place the study calibrates: the library calibration on all training runs.
 
-    The runs may place the anchors differently; the layout of the first run is written
-    (``anchor_policy="first"``; the channel statistics use each run's own layout). The layouts of all
-    runs still reach the synthetic traces through :class:`SynthVariation` (``training_layouts``).
+    The runs may place the anchors differently: each run is taken against its own layout, channels are
+    pooled per anchor id and the run-to-run ranging offsets are fitted (``anchor_policy="per-run"``);
+    the scenario generates with the first run's layout. The layouts of all runs still reach the
+    synthetic traces through :class:`SynthVariation` (``training_layouts``).
     """
     from ..calibrate import calibrate
 
-    res = calibrate(list(traces), name="tracking-study-calibrated", anchor_policy="first",
-                    progress=lambda m: progress(f"calibrating: {m}"))
+    res = calibrate(list(traces), name="tracking-study-calibrated", anchor_policy="per-run",
+                    progress=lambda m, *_: progress(f"calibrating: {m}"))
     layout = res.report.get("anchor_layout", {})
-    return res.scenario, {"anchor_policy": "first", "anchor_conflicts": layout.get("conflicts", [])}
+    return res.scenario, {"anchor_policy": "per-run", "anchor_conflicts": layout.get("conflicts", [])}
 
 
 def _time_offset(traces: Sequence[Trace]) -> tuple[float, dict[str, Any]]:
