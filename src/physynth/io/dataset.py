@@ -400,7 +400,13 @@ def _trace_of(idx: int, tr: dict, an: dict | None, im: dict | None, uw: dict | N
 
 
 def iter_traces(path: str | os.PathLike, meta: dict[str, Any] | None = None) -> Iterator[Trace]:
-    """The traces of a dataset directory, one at a time, in trace order.
+    """The traces of a dataset directory, one at a time, in trace order (:func:`iter_indexed_traces`)."""
+    for _, trace in iter_indexed_traces(path, meta):
+        yield trace
+
+
+def iter_indexed_traces(path: str | os.PathLike, meta: dict[str, Any] | None = None) -> Iterator[tuple[int, Trace]]:
+    """``(trace index, Trace)`` of a dataset directory, one at a time, in trace order.
 
     Every table is read one row group at a time (a row group holds a few dozen traces), so memory
     does not grow with the number of traces. ``meta`` is the dataset's ``dataset.json`` when already
@@ -424,7 +430,7 @@ def iter_traces(path: str | os.PathLike, meta: dict[str, Any] | None = None) -> 
     n = 0
     for idx, tr in streams["truth"]:
         n += 1
-        yield _trace_of(idx, tr, take("anchors", idx), take("imu", idx), take("uwb", idx), meta,
+        yield idx, _trace_of(idx, tr, take("anchors", idx), take("imu", idx), take("uwb", idx), meta,
                         trace_meta.get(idx, {}), path)
     if n == 0:
         raise DatasetError(f"dataset {path} holds no traces")
