@@ -10,4 +10,4 @@ IMU_FRAME = "enu-gravity-free"
 """IMU convention of every trace: acceleration in the ENU world frame, gravity removed [m s^-2]."""
 
 DEFAULT_GRID_RATE_HZ = 100.0
-"""Evaluation grid rate of DESIGN.md section 5 [Hz]."""
+"""Evaluation grid rate of docs/data-and-metrics.md (section 3) [Hz]."""

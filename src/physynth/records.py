@@ -1,4 +1,4 @@
-"""The one data model shared by real and synthetic traces (DESIGN.md section 1).
+"""The one data model shared by real and synthetic traces (docs/data-and-metrics.md, section 1).
 
 A :class:`Trace` is one run of one tag: ground truth, IMU samples, UWB measurements and the anchor
 layout. Importers of real recordings and the generator produce exactly these records; calibration,

@@ -1,4 +1,4 @@
-"""The metrics of DESIGN.md section 5, written once; generator tests, ``inspect``, calibration checks,
+"""The metrics of docs/data-and-metrics.md (section 3), written once; generator tests, ``inspect``, calibration checks,
 validation and the studies all call this module.
 
 Pooling over several traces: durations are averaged; grid fractions and mean AoI are taken over all

@@ -1,5 +1,5 @@
 """Datasets on disk: a directory with ``dataset.json`` and Parquet tables ``truth``, ``imu``, ``uwb``,
-``anchors``, each with a ``trace`` column (DESIGN.md section 1).
+``anchors``, each with a ``trace`` column (docs/data-and-metrics.md).
 
 Writes are atomic: everything goes to a hidden sibling directory that is renamed into place only
 when every table is complete, so an interrupted job never leaves a dataset that looks finished.

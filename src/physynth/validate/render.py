@@ -479,7 +479,7 @@ def table_validation(report: ValidationReport) -> _Table:
                          _pct(report.relative_deviation_pct[key])))
     rows.append(("Fidelity score S", "—", _fmt(report.fidelity_score), "—"))
     return _Table("Table II. Generator validation", ("Metric", "Real", "Synth", "%"), tuple(rows),
-                  "% = |Synth − Real| / |Real| × 100. Metrics as defined in DESIGN.md section 5 "
+                  "% = |Synth − Real| / |Real| × 100. Metrics as defined in docs/data-and-metrics.md "
                   "(100 Hz grid; residuals pooled over anchors and traces; KS of the signed residuals). "
                   "S = Δavail + Δmed/10 + ΔP95/20 (lower is better).")
 
