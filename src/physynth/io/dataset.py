@@ -314,6 +314,10 @@ def _split(cols: dict[str, np.ndarray]) -> dict[int, dict[str, np.ndarray]]:
     trace = cols["trace"]
     if trace.size == 0:
         return {}
+    if trace.size == 1 or bool(np.all(trace[1:] >= trace[:-1])):  # as written: slices, no copy
+        starts = np.concatenate([[0], np.flatnonzero(trace[1:] != trace[:-1]) + 1])
+        ends = np.append(starts[1:], trace.size)
+        return {int(trace[s]): {c: v[s:e] for c, v in cols.items()} for s, e in zip(starts, ends, strict=True)}
     order = np.argsort(trace, kind="stable")
     keys, starts = np.unique(trace[order], return_index=True)
     ends = np.append(starts[1:], trace.size)
