@@ -118,7 +118,7 @@ def test_workers_on_a_local_cluster_give_the_same_files(scn, tmp_path):
 
 def test_existing_scheduler(scn, tmp_path):
     distributed = pytest.importorskip("distributed")
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
                                   silence_logs=logging.ERROR) as cluster:
         path, _ = generate_dataset(scn, 5, tmp_path / "remote", seed=SEED, shard_traces=2,
                                    scheduler=cluster.scheduler_address)
