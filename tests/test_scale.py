@@ -173,3 +173,18 @@ def test_sigkill_then_resume_completes_identically(scn, tmp_path):
     meta = json.loads((out / "dataset.json").read_text())
     assert [m["trace"] for m in meta["traces"]] == list(range(24))  # no duplicates, none missing
     assert len(mtimes) == len(kept)
+
+
+# ---------------------------------------------------------------- the command line in 80 columns
+def test_inspect_and_scenarios_fit_80_columns(scn, tmp_path, capsys):
+    from physynth.cli import main
+
+    path, _ = generate_dataset(scn, 2, tmp_path / "ds", seed=SEED)
+    for argv in (["inspect", str(path), "-q"], ["scenarios"], ["--version"]):
+        try:
+            main(argv)
+        except SystemExit as e:
+            assert e.code in (0, None)
+        out = capsys.readouterr().out
+        assert out.strip() and max(len(line) for line in out.splitlines()) <= 80, out
+    assert out.startswith("physynth ")  # --version

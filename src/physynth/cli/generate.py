@@ -74,7 +74,8 @@ def scenarios_cmd() -> None:
 
     for name in list_presets():
         s = load_scenario(name)
-        typer.echo(f"{name:24s} {s.description.splitlines()[0] if s.description else ''}")
+        line = f"{name:24s} {s.description.splitlines()[0] if s.description else ''}"
+        typer.echo(line if len(line) <= 80 else line[:77].rstrip() + "...")  # 80 columns; full text: scenario show
 
 
 def scenario_show_cmd(name: str = typer.Argument(..., help="Preset name or scenario file.")) -> None:
