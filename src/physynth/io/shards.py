@@ -39,7 +39,7 @@ from .dataset import TABLES, DatasetWriter
 DEFAULT_SHARD_TRACES = 128
 """Traces per shard: small enough that a killed run loses little, large enough to keep files few."""
 
-ROW_GROUP_TRACES = 32
+ROW_GROUP_TRACES = 16
 """Traces per Parquet row group inside a shard (what a streaming reader holds at a time)."""
 
 _SHARD_RE = re.compile(r"^shard-(\d{5,})$")
