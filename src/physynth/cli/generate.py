@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 from pathlib import Path
 
@@ -49,6 +50,11 @@ def generate_cmd(
 
     scn = load_scenario(scenario)
     n_workers = workers or available_cores()
+    if not workers and scheduler is None and n_workers > 1 and importlib.util.find_spec("distributed") is None:
+        n_workers = 1  # the default (all cores) without the optional Dask: one core, said once
+        if not quiet and n > shard_traces:
+            typer.echo("physynth: Dask is not installed, generating on one core "
+                       "(pip install 'physynth[scale]' for all cores)", err=True)
     try:
         with progress_bar(not quiet) as progress:
             path, root = generate_dataset(scn, n, out, seed=seed, overwrite=overwrite, progress=progress,
