@@ -3,7 +3,8 @@
 - ``traces_per_s_memory``: traces of the scenario generated in memory, in this process (one core);
 - ``traces_per_s_parquet``: traces generated and written as a dataset, in this process (one core);
 - ``scaling_efficiency``: rate with ``workers`` worker processes on an embedded Dask cluster divided by
-  ``workers`` times the one-worker rate of the same run, both end to end (cluster start included);
+  ``workers`` times the one-worker rate of the same run (``n_scaling`` traces, shards of a quarter per
+  worker), both end to end: the cluster's start is included;
 - ``peak_rss_mb``: the largest resident memory of this process or of any worker process it waited for.
 
 The figures depend on the machine and on what else runs on it: run on a quiet machine, and compare
@@ -42,7 +43,9 @@ def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int =
     n : int
         Traces per one-core measurement.
     n_scaling : int
-        Traces of the scaling measurement (0: ``n`` per worker, at least four shards per worker).
+        Traces of the scaling measurement (0: ten times ``n``). Starting the cluster's worker processes
+        costs a few CPU seconds once (each imports NumPy, pyarrow and Dask), so small runs understate
+        the scaling of long ones.
     workers : int
         Workers of the scaling measurement (0: all cores; 1 skips it).
     repeat : int
@@ -78,7 +81,7 @@ def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int =
                    mb_per_trace_on_disk=round(size / n / 1e6, 3))
         eff = None
         if workers > 1:
-            ns = n_scaling or n * workers
+            ns = n_scaling or 10 * n
             shard = max(1, ns // (4 * workers))
             rates = {}
             for w in (1, workers):

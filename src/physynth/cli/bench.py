@@ -19,6 +19,8 @@ def bench_cmd(
     n: int = typer.Option(200, "-n", "--n-traces", min=1, help="Traces per one-core measurement."),
     workers: int = typer.Option(0, "--workers", "-w", min=0,
                                 help="Workers of the scaling measurement (0 = all cores, 1 = skip it)."),
+    n_scaling: int = typer.Option(0, "--n-scaling", min=0,
+                                  help="Traces of the scaling measurement (0 = ten times -n)."),
     repeat: int = typer.Option(1, "--repeat", min=1, help="Repetitions of the one-core measurements (best kept)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object (keys traces_per_s_memory, "
                                                        "traces_per_s_parquet, scaling_efficiency, peak_rss_mb)."),
@@ -33,7 +35,7 @@ def bench_cmd(
     if (workers or available_cores()) > 1:
         require_dask()
     with progress_bar(not quiet and not as_json) as progress:
-        res = run_bench(scn, n=n, workers=workers, repeat=repeat, progress=progress)
+        res = run_bench(scn, n=n, n_scaling=n_scaling, workers=workers, repeat=repeat, progress=progress)
     if as_json:
         typer.echo(json.dumps(res, indent=1))
         return
