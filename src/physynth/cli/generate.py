@@ -10,6 +10,9 @@ import typer
 
 from ._common import format_table, progress_bar
 
+AUTO_CLUSTER_MIN_TRACES = 1000
+"""With the default ``--workers 0``, runs of fewer traces stay in this process (no cluster to start)."""
+
 scenario_app = typer.Typer(help="Show built-in scenarios.", no_args_is_help=True)
 
 
@@ -31,8 +34,9 @@ def generate_cmd(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset (or discard an "
                                                               "unfinished run of it)."),
     workers: int = typer.Option(0, "--workers", "-w", min=0,
-                                help="Worker processes (0 = all cores). More than one runs an embedded Dask "
-                                     "cluster (physynth[scale]); the output is the same for any number."),
+                                help="Worker processes (0 = all cores from 1000 traces on, one below: starting "
+                                     "workers costs seconds). More than one runs an embedded Dask cluster "
+                                     "(physynth[scale]); the output is the same for any number."),
     scheduler: str | None = typer.Option(None, "--scheduler", metavar="ADDRESS",
                                          help="Run on an existing Dask cluster (e.g. tcp://host:8786) whose "
                                               "workers see --out at the same path."),
@@ -49,7 +53,7 @@ def generate_cmd(
     from ..workflows import generate_dataset
 
     scn = load_scenario(scenario)
-    n_workers = workers or available_cores()
+    n_workers = workers or (available_cores() if n >= AUTO_CLUSTER_MIN_TRACES else 1)
     if not workers and scheduler is None and n_workers > 1 and importlib.util.find_spec("distributed") is None:
         n_workers = 1  # the default (all cores) without the optional Dask: one core, said once
         if not quiet and n > shard_traces:
