@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import math
+import sys
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -112,3 +113,13 @@ def test_export_cli_errors_are_one_line(dataset, tmp_path, capsys):
     with pytest.raises(SystemExit) as e:
         main(["export", str(path), "--format", "csv", "--out", str(tmp_path / "taken"), "-q"])
     assert e.value.code == 2 and "--overwrite" in capsys.readouterr().err
+
+
+def test_missing_extra_is_named_in_one_line(dataset, tmp_path, capsys, monkeypatch):
+    path, _ = dataset
+    monkeypatch.setitem(sys.modules, "h5py", None)  # as if h5py were not installed: import raises ImportError
+    with pytest.raises(SystemExit) as e:
+        main(["export", str(path), "--format", "hdf5", "--out", str(tmp_path / "x.h5")])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "physynth[export]" in err and err.count("\n") == 1
+    assert not (tmp_path / "x.h5").exists()
