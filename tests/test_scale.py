@@ -189,3 +189,14 @@ def test_inspect_and_scenarios_fit_80_columns(scn, tmp_path, capsys, monkeypatch
         out = capsys.readouterr().out
         assert out.strip() and max(len(line) for line in out.splitlines()) <= 80, out
     assert out.startswith("physynth ")  # --version
+
+
+def test_workers_without_dask_name_the_extra(tmp_path, capsys, monkeypatch):
+    from physynth.cli import main
+
+    monkeypatch.setitem(sys.modules, "distributed", None)  # as if Dask were not installed
+    with pytest.raises(SystemExit) as e:
+        main(["generate", "-n", "4", "--shard-traces", "2", "-w", "2", "--seed", "1", "--out", str(tmp_path / "d")])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "physynth[scale]" in err and err.count("\n") == 1
+    assert not list(tmp_path.iterdir())  # nothing written, no unfinished run left behind
