@@ -100,7 +100,7 @@ def inspect_cmd(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
-    """Section-5 metrics of a dataset, pooled over its traces (streamed: any number of traces)."""
+    """Metrics of a dataset (docs/data-and-metrics.md), pooled over its traces; streamed, any size."""
     from .._json import jsonable
     from ..workflows import inspect_dataset
 
