@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import json
 import math
 import sys
 
@@ -83,8 +84,10 @@ def test_rosbag2_messages_and_stamps(dataset, tmp_path):
 def test_csv_per_table(dataset, tmp_path):
     path, ds = dataset
     out = export_dataset(path, tmp_path / "csv", "csv")
-    assert sorted(p.name for p in out.iterdir()) == ["anchors.csv", "dataset.json", "imu.csv", "truth.csv",
-                                                     "uwb.csv"]
+    assert sorted(p.name for p in out.iterdir()) == ["anchors.csv", "dataset.json", "imu.csv", "traces.jsonl",
+                                                     "truth.csv", "uwb.csv"]
+    lines = (out / "traces.jsonl").read_text().splitlines()  # per-trace metadata of a sharded dataset
+    assert [json.loads(x)["spawn_key"] for x in lines] == [[0], [1], [2]]
     with open(out / "uwb.csv", newline="", encoding="utf-8") as fh:
         rows = list(csv.DictReader(fh))
     src = pq.read_table(path / "uwb").to_pylist()

@@ -428,9 +428,9 @@ def iter_indexed_traces(path: str | os.PathLike, meta: dict[str, Any] | None = N
     """
     path = Path(path)
     meta = read_meta(path) if meta is None else meta
-    trace_meta = {int(m["trace"]): m for m in meta.get("traces", [])}
     streams = {name: _table_stream(path, name) for name in TABLES}
-    heads: dict[str, tuple[int, dict] | None] = {name: next(streams[name], None) for name in TABLES if name != "truth"}
+    streams["meta"] = iter_trace_meta(path, meta)
+    heads: dict[str, tuple[int, dict] | None] = {name: next(streams[name], None) for name in streams if name != "truth"}
 
     def take(name: str, idx: int) -> dict | None:
         while heads[name] is not None and heads[name][0] < idx:  # rows of a trace without truth: skipped
@@ -445,9 +445,36 @@ def iter_indexed_traces(path: str | os.PathLike, meta: dict[str, Any] | None = N
     for idx, tr in streams["truth"]:
         n += 1
         yield idx, _trace_of(idx, tr, take("anchors", idx), take("imu", idx), take("uwb", idx), meta,
-                        trace_meta.get(idx, {}), path)
+                             take("meta", idx) or {}, path)
     if n == 0:
         raise DatasetError(f"dataset {path} holds no traces")
+
+
+TRACE_META_PARTS = "traces/part-*.jsonl"
+"""Where a dataset of several shards keeps its per-trace metadata: one JSON object per line and trace, in
+trace order (``dataset.json`` then has no ``traces`` list, so it stays small for any number of traces)."""
+
+
+def iter_trace_meta(path: str | os.PathLike, meta: dict[str, Any] | None = None) -> Iterator[tuple[int, dict]]:
+    """``(trace index, per-trace metadata)`` of a dataset, in trace order, one at a time.
+
+    From the ``traces`` list of ``dataset.json``, or from the ``traces/part-*.jsonl`` files of a
+    dataset generated in several shards (:data:`TRACE_META_PARTS`).
+    """
+    path = Path(path)
+    meta = read_meta(path) if meta is None else meta
+    if "traces" in meta:
+        yield from sorted(((int(m["trace"]), m) for m in meta["traces"]), key=lambda x: x[0])
+        return
+    for f in sorted(path.glob(TRACE_META_PARTS)):
+        try:
+            with f.open(encoding="utf-8") as fh:
+                for line in fh:
+                    if line.strip():
+                        m = json.loads(line)
+                        yield int(m["trace"]), m
+        except (OSError, ValueError, KeyError) as exc:
+            raise DatasetError(f"cannot read {f}: {exc}") from None
 
 
 def n_traces(meta: dict[str, Any]) -> int | None:

@@ -148,7 +148,8 @@ def finalize(out: Path, partial: Path, plan: ShardPlan, meta: dict[str, Any]) ->
     if stage.exists():
         shutil.rmtree(stage)
     stage.mkdir()
-    traces_meta: list[dict[str, Any]] = []
+    traces_meta: list[dict[str, Any]] = []  # one shard: in dataset.json; several: traces/part-<k>.jsonl
+    n_total = 0
     shards = [partial / shard_name(k) for k in range(plan.n_shards)]
     missing = [s.name for s in shards if not s.is_dir()]
     if missing:
@@ -161,12 +162,23 @@ def finalize(out: Path, partial: Path, plan: ShardPlan, meta: dict[str, Any]) ->
                 else:
                     (stage / name).mkdir(exist_ok=True)
                     _link(shard / f"{name}.parquet", stage / name / f"part-{k:05d}.parquet")
-            traces_meta += json.loads((shard / "dataset.json").read_text(encoding="utf-8"))["traces"]
+            part = json.loads((shard / "dataset.json").read_text(encoding="utf-8"))["traces"]
+            n_total += len(part)
+            if plan.n_shards == 1:
+                traces_meta = part
+            else:  # one shard's list at a time: memory does not grow with the number of traces
+                (stage / "traces").mkdir(exist_ok=True)
+                (stage / "traces" / f"part-{k:05d}.jsonl").write_text(
+                    "".join(json.dumps(m) + "\n" for m in part), encoding="utf-8")
         first = json.loads((shards[0] / "dataset.json").read_text(encoding="utf-8"))
-        first.pop("shard", None)
-        record = {**first, **jsonable(meta), "n_traces": len(traces_meta), "traces": traces_meta,
+        first.pop("traces", None)
+        record = {**first, **jsonable(meta), "n_traces": n_total,
                   "shards": {"n_shards": plan.n_shards, "shard_traces": plan.shard_traces,
                              "layout": "single" if plan.n_shards == 1 else "parts"}}
+        if plan.n_shards == 1:
+            record["traces"] = traces_meta
+        else:
+            record["traces_meta"] = "traces/part-<shard>.jsonl: one JSON object per trace, in trace order"
         (stage / "dataset.json").write_text(json.dumps(record, indent=1), encoding="utf-8")
         old = out.with_name(f".{out.name}.old-{os.getpid()}")
         if out.exists():

@@ -1,10 +1,11 @@
 """CSV export: a folder with one CSV file per table, the same columns as the Parquet tables.
 
-``truth.csv``, ``imu.csv``, ``uwb.csv``, ``anchors.csv`` (each with a ``trace`` column) and
-``dataset.json``. The tables are copied one Parquet row group at a time by Arrow's CSV writer: floats
-in their shortest round-trip form (float64 columns read back exactly; float32 columns of generated
-datasets as float32), ``nan`` for a range not delivered, an empty field for an unknown ``nlos``, strings
-quoted, a header line first (pandas.read_csv and Python's csv module read it as is).
+``truth.csv``, ``imu.csv``, ``uwb.csv``, ``anchors.csv`` (each with a ``trace`` column),
+``dataset.json`` and, for a dataset of several shards, ``traces.jsonl`` (per-trace metadata). The
+tables are copied one Parquet row group at a time by Arrow's CSV writer: floats in their shortest
+round-trip form (float64 columns read back exactly; float32 columns of generated datasets as
+float32), ``nan`` for a range not delivered, an empty field for an unknown ``nlos``, strings quoted,
+a header line first (pandas.read_csv and Python's csv module read it as is).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from ..dataset import TABLES, table_files
+from ..dataset import TABLES, iter_trace_meta, table_files
 
 
 def write_csv(dataset: Path, meta: dict[str, Any], path: Path, progress=None) -> None:
@@ -37,3 +38,7 @@ def write_csv(dataset: Path, meta: dict[str, Any], path: Path, progress=None) ->
         for w in writers.values():
             w.close()
     (path / "dataset.json").write_text(json.dumps(meta, indent=1), encoding="utf-8")
+    if "traces" not in meta:  # a dataset of several shards keeps its per-trace metadata apart: one file here
+        with open(path / "traces.jsonl", "w", encoding="utf-8") as fh:
+            for _, m in iter_trace_meta(dataset, meta):
+                fh.write(json.dumps(m) + "\n")
