@@ -21,8 +21,9 @@ test: $(BIN)/python
 	$(BIN)/python -m pytest -q
 
 bench: $(BIN)/python
-	$(BIN)/pip install --quiet -e '.[test]'
-	$(BIN)/python benchmarks/bench_generate.py
+	$(BIN)/pip install --quiet -e '.[test,bench]'
+	$(BIN)/physynth bench
+	$(BIN)/python benchmarks/bench_imu_vs_imusim.py
 
 clean:
 	rm -rf $(VENV) runs build *.egg-info src/*.egg-info

@@ -80,7 +80,7 @@ def main() -> None:
             t0 = time.perf_counter()
             generate_dataset(scn, args.n, out, seed=r)
             best_pq = max(best_pq, args.n / (time.perf_counter() - t0))
-            size = sum(f.stat().st_size for f in out.iterdir())
+            size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
             shutil.rmtree(out)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -39,7 +39,7 @@ def test_white_noise_psd_is_flat_at_the_density():
 
 
 def test_grid_mean_of_white_noise_reads_density_times_ten():
-    """DESIGN.md section 5: a 100 Hz grid value is the mean of 4 samples at 400 Hz."""
+    """docs/data-and-metrics.md, section 3: a 100 Hz grid value is the mean of 4 samples at 400 Hz."""
     density = np.array([0.161, 0.086, 0.106])
     x = white_noise(400_000, density, 400.0, rng=np.random.default_rng(3))
     grid = x.reshape(-1, 4, 3).mean(axis=1)

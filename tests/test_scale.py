@@ -18,7 +18,7 @@ from physynth.errors import PhySynthError
 from physynth.evaluate.metrics import MetricsAccumulator, compute_metrics, summarize
 from physynth.evaluate.sketch import RELATIVE_ACCURACY, ZERO_TOLERANCE, Moments, QuantileSketch
 from physynth.generate import compile_scenario, generate_trace
-from physynth.io.dataset import iter_traces, read_dataset
+from physynth.io.dataset import iter_trace_meta, iter_traces, read_dataset
 from physynth.io.scenario_file import load_scenario
 from physynth.io.shards import partial_dir
 from physynth.workflows import generate_dataset, inspect_dataset
@@ -34,7 +34,7 @@ def scn():
 def _files(path: Path) -> dict[str, bytes]:
     """Every Parquet file of a dataset, by relative path, and the per-trace metadata."""
     out = {str(p.relative_to(path)): p.read_bytes() for p in sorted(path.rglob("*.parquet"))}
-    out["traces"] = json.dumps(json.loads((path / "dataset.json").read_text())["traces"]).encode()
+    out["traces"] = json.dumps(list(iter_trace_meta(path))).encode()
     return out
 
 
@@ -118,7 +118,7 @@ def test_workers_on_a_local_cluster_give_the_same_files(scn, tmp_path):
 
 def test_existing_scheduler(scn, tmp_path):
     distributed = pytest.importorskip("distributed")
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
                                   silence_logs=logging.ERROR) as cluster:
         path, _ = generate_dataset(scn, 5, tmp_path / "remote", seed=SEED, shard_traces=2,
                                    scheduler=cluster.scheduler_address)
@@ -171,5 +171,33 @@ def test_sigkill_then_resume_completes_identically(scn, tmp_path):
     ref, _ = generate_dataset(scn, 24, tmp_path / "ref", seed=SEED, shard_traces=3)
     assert _files(out) == _files(ref)
     meta = json.loads((out / "dataset.json").read_text())
-    assert [m["trace"] for m in meta["traces"]] == list(range(24))  # no duplicates, none missing
+    assert "traces" not in meta and meta["n_traces"] == 24  # several shards: per-trace metadata in parts
+    assert [i for i, _ in iter_trace_meta(out)] == list(range(24))  # no duplicates, none missing
     assert len(mtimes) == len(kept)
+
+
+# ---------------------------------------------------------------- the command line in 80 columns
+def test_inspect_and_scenarios_fit_80_columns(scn, tmp_path, capsys, monkeypatch):
+    from physynth.cli import main
+
+    monkeypatch.chdir(tmp_path)  # a short dataset path: the path itself is the user's
+    generate_dataset(scn, 2, "ds", seed=SEED)
+    for argv in (["inspect", "ds", "-q"], ["scenarios"], ["--version"]):
+        try:
+            main(argv)
+        except SystemExit as e:
+            assert e.code in (0, None)
+        out = capsys.readouterr().out
+        assert out.strip() and max(len(line) for line in out.splitlines()) <= 80, out
+    assert out.startswith("physynth ")  # --version
+
+
+def test_workers_without_dask_name_the_extra(tmp_path, capsys, monkeypatch):
+    from physynth.cli import main
+
+    monkeypatch.setitem(sys.modules, "distributed", None)  # as if Dask were not installed
+    with pytest.raises(SystemExit) as e:
+        main(["generate", "-n", "4", "--shard-traces", "2", "-w", "2", "--seed", "1", "--out", str(tmp_path / "d")])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "physynth[scale]" in err and err.count("\n") == 1
+    assert not list(tmp_path.iterdir())  # nothing written, no unfinished run left behind

@@ -29,6 +29,7 @@ _LAZY = {
     "generate_traces": "physynth.generate",
     "compute_metrics": "physynth.evaluate.metrics",
     "read_dataset": "physynth.io.dataset",
+    "iter_traces": "physynth.io.dataset",
     "write_dataset": "physynth.io.dataset",
     "generate_dataset": "physynth.workflows",
     "calibrate_datasets": "physynth.workflows",

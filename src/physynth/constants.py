@@ -17,4 +17,4 @@ GRAVITY_ENU_MPS2 = (0.0, 0.0, -G0_MPS2)
 """Gravity vector in the ENU world frame [m s^-2]."""
 
 DEFAULT_GRID_RATE_HZ = 100.0
-"""Evaluation grid rate of DESIGN.md section 5 [Hz]."""
+"""Evaluation grid rate of docs/data-and-metrics.md (section 3) [Hz]."""

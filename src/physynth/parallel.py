@@ -78,6 +78,7 @@ def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, to
         ``progress(traces_done)`` after each trace (in this process) or each shard (on a cluster).
     """
     scenario_json = json.dumps(scenario_to_dict(scn))
+    partial = Path(partial).absolute()  # workers of a remote cluster may run in another directory
     done = 0
 
     def count(n: int = 1) -> None:
@@ -101,7 +102,7 @@ def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, to
         cluster = None
     else:
         cluster = distributed.LocalCluster(n_workers=min(workers, len(todo)), threads_per_worker=1, processes=True,
-                                           dashboard_address=None, silence_logs=logging.ERROR)
+                                           dashboard_address=":0", silence_logs=logging.ERROR)
         client = distributed.Client(cluster)
     try:
         futures = {}

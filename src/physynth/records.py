@@ -1,4 +1,4 @@
-"""The one data model shared by real and synthetic traces (DESIGN.md section 1).
+"""The one data model shared by real and synthetic traces (docs/data-and-metrics.md, section 1).
 
 A :class:`Trace` is one run of one tag: ground truth, IMU samples, UWB measurements and the anchor
 layout. Importers of real recordings and the generator produce exactly these records; calibration,
@@ -31,7 +31,11 @@ class Reason(enum.IntEnum):
 
 
 def _f64(a: Any, shape_tail: tuple[int, ...], name: str) -> np.ndarray:
-    arr = np.ascontiguousarray(a, dtype=np.float64)
+    """float64 array of shape (N, *shape_tail); a C- or Fortran-contiguous float64 input is kept as is
+    (the generator builds (3, N) component-first arrays: their transpose needs no copy)."""
+    arr = np.asarray(a, dtype=np.float64)
+    if not (arr.flags.c_contiguous or arr.flags.f_contiguous):
+        arr = np.ascontiguousarray(arr)
     if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:
         raise ValueError(f"{name}: expected shape (N, {', '.join(map(str, shape_tail))}), got {arr.shape}")
     return arr

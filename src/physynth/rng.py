@@ -1,7 +1,7 @@
 """Random streams: one independent stream per (trace index, model component).
 
 Trace ``i`` of a dataset draws from ``SeedSequence(root, spawn_key=(i, COMPONENT_ID[name]))``, so it is
-identical whatever the batch size, worker count or generation order (DESIGN.md section 3).
+identical whatever the batch size, worker count or generation order (docs/data-and-metrics.md, section 2).
 """
 
 from __future__ import annotations

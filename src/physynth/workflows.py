@@ -20,7 +20,7 @@ from .generate import compile_scenario, dataset_meta, generate_traces
 from .io.dataset import iter_traces, n_traces, read_dataset, read_meta, table_files
 from .io.scenario_file import load_scenario
 from .io.shards import DEFAULT_SHARD_TRACES
-from .parallel import run_shards
+from .parallel import require_dask, run_shards
 from .progress import ProgressCallback
 from .records import Trace
 from .rng import new_root_seed
@@ -78,6 +78,8 @@ def generate_dataset(scn: Scenario, n: int, out: str | Path, *, seed: int | None
             seed = previous.get("root_seed")
         root = new_root_seed() if seed is None else int(seed)
         plan = shards.ShardPlan(n, shard_traces)
+        if scheduler is not None or (workers > 1 and plan.n_shards > 1):
+            require_dask()  # before anything is written or reported
         partial, complete = shards.prepare(out, shards.plan_record(scenario_to_dict(scn), root, n, shard_traces),
                                            resume=resume, overwrite=overwrite)
         todo = [k for k in range(plan.n_shards) if k not in complete]

@@ -37,7 +37,7 @@ with such a mode is not accepted, whatever its width."""
 MIN_ANCHOR_ROWS = 30
 """Fewer valid rows than this and an anchor keeps the pooled (default) channel."""
 GRID_BIN_S = 0.01
-"""Bin width of the evaluation grid the grid-equivalent slot is matched to [s] (DESIGN.md section 5)."""
+"""Bin width of the evaluation grid the grid-equivalent slot is matched to [s] (docs/data-and-metrics.md, section 3)."""
 
 
 # --------------------------------------------------------------------------------------------------

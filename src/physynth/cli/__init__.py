@@ -29,7 +29,7 @@ from ._signals import handling_signals, signal_name
 app = typer.Typer(
     name="physynth",
     help="Physics-based synthetic UWB + IMU + availability + AoI traces, calibrated on real recordings.",
-    add_completion=False,
+    add_completion=True,
     no_args_is_help=True,
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
@@ -38,14 +38,31 @@ app = typer.Typer(
 _registered = False
 
 
+def _version(value: bool) -> None:
+    if value:
+        from .. import __version__
+
+        print(f"physynth {__version__}")
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _root(version: bool = typer.Option(False, "--version", is_eager=True, callback=_version,
+                                       help="Print the version and exit.")) -> None:
+    """Physics-based synthetic UWB + IMU + availability + AoI traces, calibrated on real recordings.
+
+    Documentation: the README and docs/ folder shipped with PhySynth.
+    """
+
+
 def _register_commands() -> None:
     """Every command module adds its commands through the same ``register(app)``."""
     global _registered
     if _registered:
         return
-    from . import calibrate, generate, imports, study, validate, verify
+    from . import bench, calibrate, export, generate, imports, study, validate, verify
 
-    for module in (generate, imports, calibrate, validate, study, verify):
+    for module in (generate, imports, calibrate, validate, study, export, bench, verify):
         module.register(app)
     _registered = True
 

@@ -39,6 +39,8 @@ def progress_bar(enabled: bool = True) -> Iterator[ProgressCallback]:
         if done is None:
             console.print(f"  - {message}", highlight=False)
             return
+        if not console.is_terminal:  # a log file or a pipe: no bar (and nothing left on stderr by one)
+            return
         if bar is None:
             bar = Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
                            TimeElapsedColumn(), TimeRemainingColumn(), transient=True, console=console)

@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 from pathlib import Path
 
 import typer
 
 from ._common import format_table, progress_bar
+
+AUTO_CLUSTER_MIN_TRACES = 1000
+"""With the default ``--workers 0``, runs of fewer traces stay in this process (no cluster to start)."""
 
 scenario_app = typer.Typer(help="Show built-in scenarios.", no_args_is_help=True)
 
@@ -30,8 +34,9 @@ def generate_cmd(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset (only a dataset "
                                                               "PhySynth wrote) or discard an unfinished run of it."),
     workers: int = typer.Option(0, "--workers", "-w", min=0,
-                                help="Worker processes (0 = all cores). More than one runs an embedded Dask "
-                                     "cluster (physynth[scale]); the output is the same for any number."),
+                                help="Worker processes (0 = all cores from 1000 traces on, one below: starting "
+                                     "workers costs seconds). More than one runs an embedded Dask cluster "
+                                     "(physynth[scale]); the output is the same for any number."),
     scheduler: str | None = typer.Option(None, "--scheduler", metavar="ADDRESS",
                                          help="Run on an existing Dask cluster (e.g. tcp://host:8786) whose "
                                               "workers see --out at the same path."),
@@ -56,7 +61,12 @@ def generate_cmd(
 
         scn = apply_regime(scn, regime)
     inputs = [Path(scenario)] if Path(scenario).is_file() else []
-    n_workers = workers or available_cores()
+    n_workers = workers or (available_cores() if n >= AUTO_CLUSTER_MIN_TRACES else 1)
+    if not workers and scheduler is None and n_workers > 1 and importlib.util.find_spec("distributed") is None:
+        n_workers = 1  # the default (all cores) without the optional Dask: one core, said once
+        if not quiet and n > shard_traces:
+            typer.echo("physynth: Dask is not installed, generating on one core "
+                       "(pip install 'physynth[scale]' for all cores)", err=True)
     try:
         with progress_bar(not quiet) as progress:
             path, root = generate_dataset(scn, n, out, seed=seed, overwrite=overwrite, progress=progress,
@@ -85,7 +95,8 @@ def scenarios_cmd() -> None:
 
     for name in list_presets():
         s = load_scenario(name)
-        typer.echo(f"{name:24s} {s.description.splitlines()[0] if s.description else ''}")
+        line = f"{name:24s} {s.description.splitlines()[0] if s.description else ''}"
+        typer.echo(line if len(line) <= 80 else line[:77].rstrip() + "...")  # 80 columns; full text: scenario show
 
 
 def scenario_show_cmd(name: str = typer.Argument(..., help="Preset name or scenario file.")) -> None:
@@ -100,7 +111,7 @@ def inspect_cmd(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
-    """Section-5 metrics of a dataset, pooled over its traces (streamed: any number of traces)."""
+    """Metrics of a dataset (docs/data-and-metrics.md), pooled over its traces; streamed, any size."""
     from .._json import jsonable
     from ..workflows import inspect_dataset
 

@@ -1,4 +1,4 @@
-"""The evaluation grid and age of information, derived from a trace's UWB rows (DESIGN.md section 5).
+"""The evaluation grid and age of information, derived from a trace's UWB rows (docs/data-and-metrics.md, section 3).
 
 Grid steps are ``t_k = t0 + k / rate`` for ``k = 0 .. floor(duration * rate)``; bin ``k`` covers
 ``(t_k - 1/rate, t_k]``. A bin is *fresh* for anchor ``i`` when at least one valid range of anchor
@@ -55,7 +55,7 @@ def fresh_mask(trace: Trace, t_s: np.ndarray, rate_hz: float) -> np.ndarray:
 
 
 def age_of_information(trace: Trace, t_s: np.ndarray) -> np.ndarray:
-    """(K, A) AoI [s] at grid times ``t_s`` from the trace's valid UWB rows (DESIGN.md section 5)."""
+    """(K, A) AoI [s] at grid times ``t_s`` from the trace's valid UWB rows (docs/data-and-metrics.md, section 3)."""
     uwb = trace.uwb
     t0 = trace.t0_s
     ok = uwb.valid

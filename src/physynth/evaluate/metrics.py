@@ -1,4 +1,4 @@
-"""The metrics of DESIGN.md section 5, written once; generator tests, ``inspect``, calibration checks,
+"""The metrics of docs/data-and-metrics.md (section 3), written once; generator tests, ``inspect``, calibration checks,
 validation and the studies all call this module.
 
 Pooling over several traces: durations are averaged; grid fractions and mean AoI are taken over all
@@ -64,6 +64,7 @@ class TraceSummary:
     aoi_sum_per_anchor: np.ndarray  # (A,) sum over bins of AoI [s]
     residual_m: np.ndarray
     residual_anchor: np.ndarray
+    residual_anchor_index: np.ndarray  # (R,) index into anchor_ids
     imu_grid_mps2: np.ndarray  # (K, 3), NaN rows when no IMU
 
 
@@ -84,6 +85,7 @@ def summarize(trace: Trace, rate_hz: float = DEFAULT_GRID_RATE_HZ) -> TraceSumma
         aoi_sum_per_anchor=aoi.sum(axis=0),
         residual_m=r,
         residual_anchor=np.asarray(trace.anchors.ids, dtype=object)[idx] if r.size else np.array([], object),
+        residual_anchor_index=idx,
         imu_grid_mps2=imu_on_grid(trace, t, rate_hz),
     )
 
@@ -159,10 +161,11 @@ class MetricsAccumulator:
         self.abs_residual.add(np.abs(r))
         self.residual_moments.add(r)
         if r.size:
-            ids, inv = np.unique(s.residual_anchor.astype(str), return_inverse=True)
-            for j, a in enumerate(ids):
-                ra = r[inv == j]
-                sk, sk_abs, mom = self.per_anchor_residual[str(a)]
+            for j, a in enumerate(s.anchor_ids):
+                ra = r[s.residual_anchor_index == j]
+                if ra.size == 0:
+                    continue
+                sk, sk_abs, mom = self.per_anchor_residual[a]
                 sk.add(ra)
                 sk_abs.add(np.abs(ra))
                 mom.add(ra)

@@ -1,5 +1,5 @@
 """Datasets on disk: a directory with ``dataset.json`` and Parquet tables ``truth``, ``imu``, ``uwb``,
-``anchors``, each with a ``trace`` column (DESIGN.md section 1).
+``anchors``, each with a ``trace`` column (docs/data-and-metrics.md).
 
 Writes are atomic: everything goes to a hidden sibling directory that is renamed into place only
 when every table is complete, so an interrupted job never leaves a dataset that looks finished.
@@ -65,6 +65,10 @@ SCHEMAS_COMPACT = {
     for name, schema in SCHEMAS.items()
 }
 
+_FLOAT_COLUMNS = {name: [f.name for f in schema if pa.types.is_floating(f.type)] for name, schema in SCHEMAS.items()}
+"""Float columns are written with Parquet's BYTE_STREAM_SPLIT encoding: noisy floats then compress
+(snappy) to about 20 % fewer bytes than plain encoding, at the same CPU time."""
+
 UNITS = {
     "t_s": "s", "pos_*_m": "m (ENU)", "vel_*_mps": "m/s (ENU)", "acc_[enu]_mps2": "m/s^2 (ENU, gravity removed)",
     "acc_[xyz]_mps2": "m/s^2 (body FLU, specific force incl. gravity)", "gyro_[xyz]_radps": "rad/s (body FLU)",
@@ -109,10 +113,16 @@ def _arrow(values: Any, typ: pa.DataType) -> pa.Array:
 def _strings_at(values: Sequence[str], index: np.ndarray) -> pa.Array:
     """Arrow strings ``values[index]`` gathered with NumPy (``cast``/``take`` would import pyarrow.compute)."""
     enc = [str(v).encode("utf-8") for v in values]
+    index = np.asarray(index, dtype=np.intp)
+    width = len(enc[0]) if enc else 0
+    if enc and width and all(len(b) == width for b in enc):  # equal-length ids (the usual case): one gather
+        table = np.frombuffer(b"".join(enc), dtype=np.uint8).reshape(len(enc), width)
+        offsets = (np.arange(index.size + 1, dtype=np.int64) * width).astype(np.int32)
+        return pa.Array.from_buffers(pa.string(), index.size,
+                                     [None, pa.py_buffer(offsets), pa.py_buffer(np.ascontiguousarray(table[index]))])
     lens = np.array([len(b) for b in enc], dtype=np.int64)
     blob = np.frombuffer(b"".join(enc), dtype=np.uint8)
     starts = np.concatenate([[0], np.cumsum(lens)[:-1]]).astype(np.int64)
-    index = np.asarray(index, dtype=np.intp)
     row_lens = lens[index] if lens.size else np.zeros(0, np.int64)
     offsets = np.concatenate([[0], np.cumsum(row_lens)]).astype(np.int32)
     src = np.repeat(starts[index] - offsets[:-1], row_lens) + np.arange(offsets[-1]) if index.size else np.zeros(0, int)
@@ -195,7 +205,7 @@ class DatasetWriter:
         self._rows = {name: 0 for name in TABLES}
         self._writers = {
             name: pq.ParquetWriter(self.tmp / f"{name}.parquet", (SCHEMAS_COMPACT if compact else SCHEMAS)[name],
-                                   compression="snappy",
+                                   compression="snappy", use_byte_stream_split=_FLOAT_COLUMNS[name],
                                    use_dictionary=["anchor_id", "name"], write_statistics=["trace"])
             for name in TABLES
         }
@@ -389,6 +399,10 @@ def _split(cols: dict[str, np.ndarray]) -> dict[int, dict[str, np.ndarray]]:
     trace = cols["trace"]
     if trace.size == 0:
         return {}
+    if trace.size == 1 or bool(np.all(trace[1:] >= trace[:-1])):  # as written: slices, no copy
+        starts = np.concatenate([[0], np.flatnonzero(trace[1:] != trace[:-1]) + 1])
+        ends = np.append(starts[1:], trace.size)
+        return {int(trace[s]): {c: v[s:e] for c, v in cols.items()} for s, e in zip(starts, ends, strict=True)}
     order = np.argsort(trace, kind="stable")
     keys, starts = np.unique(trace[order], return_index=True)
     ends = np.append(starts[1:], trace.size)
@@ -481,7 +495,13 @@ def _trace_of(idx: int, tr: dict, an: dict | None, im: dict | None, uw: dict | N
 
 
 def iter_traces(path: str | os.PathLike, meta: dict[str, Any] | None = None) -> Iterator[Trace]:
-    """The traces of a dataset directory, one at a time, in trace order.
+    """The traces of a dataset directory, one at a time, in trace order (:func:`iter_indexed_traces`)."""
+    for _, trace in iter_indexed_traces(path, meta):
+        yield trace
+
+
+def iter_indexed_traces(path: str | os.PathLike, meta: dict[str, Any] | None = None) -> Iterator[tuple[int, Trace]]:
+    """``(trace index, Trace)`` of a dataset directory, one at a time, in trace order.
 
     Every table is read one row group at a time (a row group holds a few dozen traces), so memory
     does not grow with the number of traces. ``meta`` is the dataset's ``dataset.json`` when already
@@ -491,12 +511,9 @@ def iter_traces(path: str | os.PathLike, meta: dict[str, Any] | None = None) -> 
     meta = read_meta(path) if meta is None else meta
     # integrity hook (physynth.io.integrity): sizes, row counts, hashes and trace ids against dataset.json
     integrity.check_dataset(path, meta, hashes=not integrity.environ_skip_hashes())
-    try:
-        trace_meta = {int(m["trace"]): m for m in meta.get("traces", [])}
-    except (TypeError, KeyError, ValueError):
-        raise DatasetError(f"dataset {path}: dataset.json 'traces' entries have no valid 'trace' id") from None
     streams = {name: _table_stream(path, name) for name in TABLES}
-    heads: dict[str, tuple[int, dict] | None] = {name: next(streams[name], None) for name in TABLES if name != "truth"}
+    streams["meta"] = iter_trace_meta(path, meta)
+    heads: dict[str, tuple[int, dict] | None] = {name: next(streams[name], None) for name in streams if name != "truth"}
 
     def take(name: str, idx: int) -> dict | None:
         while heads[name] is not None and heads[name][0] < idx:  # rows of a trace without truth: skipped
@@ -512,12 +529,43 @@ def iter_traces(path: str | os.PathLike, meta: dict[str, Any] | None = None) -> 
         n += 1
         try:
             trace = _trace_of(idx, tr, take("anchors", idx), take("imu", idx), take("uwb", idx), meta,
-                              trace_meta.get(idx, {}), path)
+                              take("meta", idx) or {}, path)
         except ValueError as exc:  # tables that read but do not make valid records (unsorted times, ...)
             raise DatasetError(f"dataset {path}: trace {idx} is invalid: {str(exc).splitlines()[0]}") from None
-        yield trace
+        yield idx, trace
     if n == 0:
         raise DatasetError(f"dataset {path} holds no traces")
+
+
+TRACE_META_PARTS = "traces/part-*.jsonl"
+"""Where a dataset of several shards keeps its per-trace metadata: one JSON object per line and trace, in
+trace order (``dataset.json`` then has no ``traces`` list, so it stays small for any number of traces)."""
+
+
+def iter_trace_meta(path: str | os.PathLike, meta: dict[str, Any] | None = None) -> Iterator[tuple[int, dict]]:
+    """``(trace index, per-trace metadata)`` of a dataset, in trace order, one at a time.
+
+    From the ``traces`` list of ``dataset.json``, or from the ``traces/part-*.jsonl`` files of a
+    dataset generated in several shards (:data:`TRACE_META_PARTS`).
+    """
+    path = Path(path)
+    meta = read_meta(path) if meta is None else meta
+    if "traces" in meta:
+        try:
+            listed = sorted(((int(m["trace"]), m) for m in meta["traces"]), key=lambda x: x[0])
+        except (TypeError, KeyError, ValueError):
+            raise DatasetError(f"dataset {path}: dataset.json 'traces' entries have no valid 'trace' id") from None
+        yield from listed
+        return
+    for f in sorted(path.glob(TRACE_META_PARTS)):
+        try:
+            with f.open(encoding="utf-8") as fh:
+                for line in fh:
+                    if line.strip():
+                        m = json.loads(line)
+                        yield int(m["trace"]), m
+        except (OSError, ValueError, KeyError) as exc:
+            raise DatasetError(f"cannot read {f}: {exc}") from None
 
 
 def n_traces(meta: dict[str, Any]) -> int | None:

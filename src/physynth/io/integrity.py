@@ -107,6 +107,8 @@ def check_trace_ids(path: Path, meta: Mapping[str, Any], tables: Iterable[str] =
     """The trace ids in ``tables`` are those of ``dataset.json`` (``n_traces`` and ``traces``)."""
     listed = meta.get("traces")
     n_traces = meta.get("n_traces")
+    if listed is None and isinstance(n_traces, int) and (path / "traces").is_dir():
+        return  # several shards: the per-trace list lives in traces/part-*.jsonl, checked while reading
     if not isinstance(listed, list) or not isinstance(n_traces, int):
         raise IntegrityError(f"dataset {path}: dataset.json has no valid n_traces / traces")
     try:

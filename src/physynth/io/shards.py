@@ -39,7 +39,7 @@ from .dataset import TABLES, DatasetWriter
 DEFAULT_SHARD_TRACES = 128
 """Traces per shard: small enough that a killed run loses little, large enough to keep files few."""
 
-ROW_GROUP_TRACES = 32
+ROW_GROUP_TRACES = 16
 """Traces per Parquet row group inside a shard (what a streaming reader holds at a time)."""
 
 _SHARD_RE = re.compile(r"^shard-(\d{5,})$")
@@ -148,7 +148,8 @@ def finalize(out: Path, partial: Path, plan: ShardPlan, meta: dict[str, Any]) ->
     if stage.exists():
         shutil.rmtree(stage)
     stage.mkdir()
-    traces_meta: list[dict[str, Any]] = []
+    traces_meta: list[dict[str, Any]] = []  # one shard: in dataset.json; several: traces/part-<k>.jsonl
+    n_total = 0
     files: dict[str, Any] = {}  # integrity records (physynth.io.integrity) of the assembled layout
     shards = [partial / shard_name(k) for k in range(plan.n_shards)]
     missing = [s.name for s in shards if not s.is_dir()]
@@ -163,15 +164,27 @@ def finalize(out: Path, partial: Path, plan: ShardPlan, meta: dict[str, Any]) ->
                     (stage / name).mkdir(exist_ok=True)
                     _link(shard / f"{name}.parquet", stage / name / f"part-{k:05d}.parquet")
             shard_meta = json.loads((shard / "dataset.json").read_text(encoding="utf-8"))
-            traces_meta += shard_meta["traces"]
+            part = shard_meta["traces"]
+            n_total += len(part)
             for fname, rec in (shard_meta.get("files") or {}).items():
                 name = fname.removesuffix(".parquet")
                 files[fname if plan.n_shards == 1 else f"{name}/part-{k:05d}.parquet"] = rec
+            if plan.n_shards == 1:
+                traces_meta = part
+            else:  # one shard's list at a time: memory does not grow with the number of traces
+                (stage / "traces").mkdir(exist_ok=True)
+                (stage / "traces" / f"part-{k:05d}.jsonl").write_text(
+                    "".join(json.dumps(m) + "\n" for m in part), encoding="utf-8")
         first = json.loads((shards[0] / "dataset.json").read_text(encoding="utf-8"))
+        first.pop("traces", None)
         first.pop("shard", None)
-        record = {**first, **jsonable(meta), "n_traces": len(traces_meta), "traces": traces_meta, "files": files,
+        record = {**first, **jsonable(meta), "n_traces": n_total, "files": files,
                   "shards": {"n_shards": plan.n_shards, "shard_traces": plan.shard_traces,
                              "layout": "single" if plan.n_shards == 1 else "parts"}}
+        if plan.n_shards == 1:
+            record["traces"] = traces_meta
+        else:
+            record["traces_meta"] = "traces/part-<shard>.jsonl: one JSON object per trace, in trace order"
         (stage / "dataset.json").write_text(json.dumps(record, indent=1), encoding="utf-8")
         old = out.with_name(f".{out.name}.old-{os.getpid()}")
         if out.exists():

@@ -1,7 +1,7 @@
 """Validation: real traces against synthetic traces -> a frozen, JSON-able :class:`ValidationReport`.
 
 The paper's tables (section IV, Tables I-II) are computed with :mod:`physynth.evaluate.metrics`
-(written once there; docs/validation.md): pooled section-5 metrics of each side, their relative deviations,
+(written once there; docs/data-and-metrics.md): pooled section-5 metrics of each side, their relative deviations,
 the KS statistic of the pooled signed residuals and the fidelity score. On top of them the report
 holds *extended* statistics that a reviewer of synthetic data asks for (docs/validation.md):
 
@@ -112,7 +112,7 @@ class ValidationReport:
     relative_deviation_pct : dict
         |synth - real| / |real| * 100 per metric key; ``imu_std_mps2`` gives one value per axis.
     ks_statistic : float
-        KS statistic of the pooled signed residuals (DESIGN.md section 5).
+        KS statistic of the pooled signed residuals (docs/data-and-metrics.md).
     fidelity_score : float
         S = d_avail + d_med / 10 + d_p95 / 20 (lower is better).
     extended : dict
@@ -320,7 +320,7 @@ def compare(real: Iterable[Trace], synthetic: Iterable[Trace], *, rate_hz: float
     real, synthetic : iterable of Trace
         Consumed once, one trace at a time (a generator of synthetic traces is never held whole).
     rate_hz : float
-        Evaluation grid rate [Hz] (DESIGN.md section 5: 100 Hz).
+        Evaluation grid rate [Hz] (docs/data-and-metrics.md: 100 Hz).
     inputs, transfer : mapping, optional
         Provenance copied into the report.
     on_trace : callable, optional

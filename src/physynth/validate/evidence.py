@@ -143,10 +143,8 @@ class _SideAccumulator:
         for a in trace.anchors.ids:
             if a not in self.residuals:
                 self.residuals[a], self.gaps[a] = QuantileSketch(), QuantileSketch()
-        if s.residual_m.size:
-            r_ids, r_inv = np.unique(s.residual_anchor.astype(str), return_inverse=True)
-            for j, a in enumerate(r_ids):
-                self.residuals[str(a)].add(s.residual_m[r_inv == j])
+        for j, a in enumerate(trace.anchors.ids):
+            self.residuals[a].add(s.residual_m[s.residual_anchor_index == j])
 
         # grid: fresh anchors per step and AoI (physynth.grid, the one definition)
         t = grid_times(trace.t0_s, trace.duration_s, rate)
@@ -172,10 +170,11 @@ class _SideAccumulator:
 
         # residual autocorrelation within each anchor's (time-ordered) sequence
         if s.residual_m.size:
-            _, a_idx = np.unique(s.residual_anchor.astype(str), return_inverse=True)
+            a_idx = s.residual_anchor_index
             order = np.argsort(a_idx, kind="stable")  # keeps time order within an anchor
             x, a = s.residual_m[order], a_idx[order]
-            x = x - (np.bincount(a, weights=x) / np.bincount(a))[a]
+            with np.errstate(invalid="ignore", divide="ignore"):  # anchors without residuals: never indexed
+                x = x - (np.bincount(a, weights=x) / np.bincount(a))[a]
             self.acf_den += float(x @ x)
             for k in range(1, ACF_MAX_LAG + 1):
                 if x.size > k:

@@ -106,7 +106,7 @@ def table_validation(report: ValidationReport) -> _Table:
                   ("Metric", "Real", "Synth", "Δ", "Synth 5–95 %", "Real in band"), tuple(rows),
                   "Δ = |Synth − Real| / |Real| × 100 (%), except for the signed residual median: Synth − Real "
                   "in metres. Synth 5–95 %: percentiles of the metric over the synthetic traces taken one by one; "
-                  "Real in band: whether the real value lies inside. Metrics as defined in DESIGN.md section 5 "
+                  "Real in band: whether the real value lies inside. Metrics as defined in docs/data-and-metrics.md "
                   "(100 Hz grid; residuals pooled over anchors and traces; KS of the signed residuals). "
                   "S = Δavail + Δmed/10 + ΔP95/20 (lower is better).")
 

@@ -1,0 +1,75 @@
+"""Start-up of the command line: ``physynth --help`` and the time to the first generated trace.
+
+    python benchmarks/bench_cli.py [--repeat 5]
+
+``--help`` and ``--version`` are timed as whole processes (best of ``--repeat``). The first trace is
+timed inside a ``physynth generate -n 2 --workers 1`` process, from the process's creation time (as
+the OS records it) to the moment the generator reports its first trace; the whole command's wall time
+is printed too. Goals: ``--help`` under 0.3 s, first trace under 0.5 s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+FIRST_TRACE = r"""
+import sys, time, psutil
+start = psutil.Process().create_time()
+from physynth.cli import _common, main
+real_bar = _common.progress_bar
+first = []
+def bar(enabled=True):
+    import contextlib
+    @contextlib.contextmanager
+    def cm():
+        def progress(message, done=None, total=None):
+            if done and not first:
+                first.append(time.time() - start)
+        yield progress
+    return cm()
+_common.progress_bar = bar
+import physynth.cli.generate as g
+g.progress_bar = bar
+try:
+    main(["generate", "-n", "2", "-w", "1", "--seed", "1", "--out", sys.argv[1], "--overwrite"])
+except SystemExit:
+    pass
+print(first[0])
+"""
+
+
+def _wall(cmd: list[str]) -> float:
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True, capture_output=True)
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=5)
+    args = ap.parse_args()
+    exe = [sys.executable, "-m", "physynth.cli"]
+    helps = [_wall([*exe, "--help"]) for _ in range(args.repeat)]
+    versions = [_wall([*exe, "--version"]) for _ in range(args.repeat)]
+    firsts, totals = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(args.repeat):
+            t0 = time.perf_counter()
+            out = subprocess.run([sys.executable, "-c", FIRST_TRACE, os.path.join(tmp, "d")], check=True,
+                                 capture_output=True, text=True).stdout
+            totals.append(time.perf_counter() - t0)
+            firsts.append(float(out.strip().splitlines()[-1]))
+    print(f"physynth --help     : best {min(helps):.3f} s, median {sorted(helps)[len(helps) // 2]:.3f} s")
+    print(f"physynth --version  : best {min(versions):.3f} s")
+    print(f"first trace         : best {min(firsts):.3f} s after process start, median "
+          f"{sorted(firsts)[len(firsts) // 2]:.3f} s (whole generate -n 2: best {min(totals):.2f} s)")
+    print(f"machine: {os.cpu_count()} core(s), load average {os.getloadavg()[0]:.2f}")
+
+
+if __name__ == "__main__":
+    main()

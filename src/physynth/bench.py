@@ -1,0 +1,114 @@
+"""Throughput of the generator: what ``physynth bench`` measures and prints.
+
+- ``traces_per_s_memory``: traces of the scenario generated in memory, in this process (one core);
+- ``traces_per_s_parquet``: traces generated and written as a dataset, in this process (one core);
+- ``scaling_efficiency``: rate with ``workers`` worker processes on an embedded Dask cluster divided by
+  ``workers`` times the one-worker rate of the same run (``n_scaling`` traces, shards of a quarter per
+  worker), both end to end: the cluster's start is included;
+- ``peak_rss_mb``: the largest resident memory of this process or of any worker process it waited for.
+
+The figures depend on the machine and on what else runs on it: run on a quiet machine, and compare
+ratios measured side by side in one run.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import resource
+import shutil
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from .generate import compile_scenario, generate_trace
+from .progress import ProgressCallback, no_progress
+from .scenario import Scenario
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process and of its finished children [MB] (Linux: ru_maxrss in kB)."""
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    return max(own, kids) / 1024.0
+
+
+def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int = 0, repeat: int = 1,
+              progress: ProgressCallback = no_progress) -> dict[str, Any]:
+    """Measure the generator; returns the figures of the module docstring plus the machine.
+
+    Parameters
+    ----------
+    n : int
+        Traces per one-core measurement.
+    n_scaling : int
+        Traces of the scaling measurement (0: ten times ``n``). Starting the cluster's worker processes
+        costs a few CPU seconds once (each imports NumPy, pyarrow and Dask), so small runs understate
+        the scaling of long ones.
+    workers : int
+        Workers of the scaling measurement (0: all cores; 1 skips it).
+    repeat : int
+        Repetitions of the one-core measurements; the best is kept.
+    """
+    from .parallel import available_cores
+    from .workflows import generate_dataset
+
+    cores = available_cores()
+    workers = workers or cores
+    cs = compile_scenario(scn)
+    generate_trace(cs, 0, 0)  # warm-up: imports, caches
+    best_mem = 0.0
+    for r in range(repeat):
+        t0 = time.perf_counter()
+        for i in range(n):
+            generate_trace(cs, i, r)
+            progress("in memory", r * n + i + 1, repeat * n)
+        best_mem = max(best_mem, n / (time.perf_counter() - t0))
+    tmp = Path(tempfile.mkdtemp(prefix="physynth-bench-"))
+    out: dict[str, Any] = {}
+    try:
+        best_pq, size = 0.0, 0
+        for r in range(repeat):
+            t0 = time.perf_counter()
+            path, _ = generate_dataset(scn, n, tmp / f"one{r}", seed=r, workers=1,
+                                       progress=lambda m, d=None, t=None, r=r: progress(
+                                           "to Parquet", None if d is None else r * n + d, repeat * n))
+            best_pq = max(best_pq, n / (time.perf_counter() - t0))
+            size = sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
+            shutil.rmtree(path)
+        out.update(traces_per_s_memory=round(best_mem, 1), traces_per_s_parquet=round(best_pq, 1),
+                   mb_per_trace_on_disk=round(size / n / 1e6, 3))
+        eff = None
+        if workers > 1:
+            ns = n_scaling or 10 * n
+            shard = max(1, ns // (4 * workers))
+            rates = {}
+            for w in (1, workers):
+                t0 = time.perf_counter()
+                path, _ = generate_dataset(scn, ns, tmp / f"w{w}", seed=1, workers=w, shard_traces=shard,
+                                           progress=lambda m, d=None, t=None, w=w: progress(
+                                               f"scaling, {w} worker(s)", d, t))
+                rates[w] = ns / (time.perf_counter() - t0)
+                shutil.rmtree(path)
+            eff = rates[workers] / (workers * rates[1])
+            out["traces_per_s_workers"] = {str(w): round(v, 1) for w, v in rates.items()}
+        out["scaling_efficiency"] = None if eff is None else round(eff, 3)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    out["peak_rss_mb"] = round(peak_rss_mb(), 1)
+    out["machine"] = {"cores": cores, "workers": workers, "cpu": _cpu_name(), "python": platform.python_version(),
+                      "load_average_1min": round(os.getloadavg()[0], 2) if hasattr(os, "getloadavg") else None}
+    out["scenario"] = scn.name
+    out["n"] = n
+    return out
+
+
+def _cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()

@@ -1,0 +1,53 @@
+"""``physynth bench``: generator throughput on this machine (in memory, to Parquet, scaling, memory)."""
+
+from __future__ import annotations
+
+import json
+
+import typer
+
+from ._common import format_table, progress_bar
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``bench`` command to the main app."""
+    app.command("bench")(bench_cmd)
+
+
+def bench_cmd(
+    scenario: str = typer.Option("cablecar-descending", "--scenario", "-s", help="Preset name or scenario file."),
+    n: int = typer.Option(200, "-n", "--n-traces", min=1, help="Traces per one-core measurement."),
+    workers: int = typer.Option(0, "--workers", "-w", min=0,
+                                help="Workers of the scaling measurement (0 = all cores, 1 = skip it)."),
+    n_scaling: int = typer.Option(0, "--n-scaling", min=0,
+                                  help="Traces of the scaling measurement (0 = ten times -n)."),
+    repeat: int = typer.Option(1, "--repeat", min=1, help="Repetitions of the one-core measurements (best kept)."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object (keys traces_per_s_memory, "
+                                                       "traces_per_s_parquet, scaling_efficiency, peak_rss_mb)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+) -> None:
+    """Measure generation speed: traces/s in memory and to Parquet on one core, scaling, peak memory."""
+    from ..bench import run_bench
+    from ..io.scenario_file import load_scenario
+    from ..parallel import available_cores, require_dask
+
+    scn = load_scenario(scenario)
+    if (workers or available_cores()) > 1:
+        require_dask()
+    with progress_bar(not quiet and not as_json) as progress:
+        res = run_bench(scn, n=n, n_scaling=n_scaling, workers=workers, repeat=repeat, progress=progress)
+    if as_json:
+        typer.echo(json.dumps(res, indent=1))
+        return
+    eff = res["scaling_efficiency"]
+    m = res["machine"]
+    rows = [
+        ("in memory, 1 core", f"{res['traces_per_s_memory']:.1f} traces/s"),
+        ("to Parquet, 1 core", f"{res['traces_per_s_parquet']:.1f} traces/s"),
+        ("on disk", f"{res['mb_per_trace_on_disk']:.2f} MB/trace"),
+        (f"scaling, {m['workers']} workers", "-" if eff is None else f"{100 * eff:.0f} %"),
+        ("peak memory", f"{res['peak_rss_mb']:.0f} MB"),
+    ]
+    typer.echo(format_table(("measure", "value"), rows))
+    typer.echo(f"{scn.name}, n={n}; {m['cores']} core(s) {m['cpu']}, load {m['load_average_1min']} "
+               "(a busy machine lowers every figure)")

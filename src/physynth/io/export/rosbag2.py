@@ -1,0 +1,88 @@
+"""ROS 2 bag export (the ``rosbags`` library; no ROS installation needed).
+
+The output is a folder with one bag per trace, ``trace_<index>/`` (a rosbag2 folder: ``metadata.yaml``
+and an SQLite3 file), because traces of a dataset share one time base and would overlap in one bag.
+Topics, all with header stamps equal to the sample time (``t_s`` in nanoseconds, rounded) and the
+receive timestamp of the bag record equal to the header stamp:
+
+- ``/imu`` (``sensor_msgs/msg/Imu``), frame ``enu``: ``linear_acceleration`` in the dataset's IMU
+  frame (ENU, gravity removed); no orientation or angular velocity (their covariance[0] is -1, the
+  ROS convention for "not provided");
+- ``/uwb/<anchor id>`` (``sensor_msgs/msg/Range``), frame ``<anchor id>``: one message per delivered
+  UWB range (attempts without a range are not measurements and are left out); ``radiation_type`` 2
+  stands for radio (the message defines 0 ultrasound and 1 infrared only), ``min_range`` 0,
+  ``max_range`` the largest range of the trace, field of view 2 pi;
+- ``/truth`` (``geometry_msgs/msg/PointStamped``), frame ``enu``: the ground-truth position.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...records import Trace
+
+RADIO = 2
+"""``radiation_type`` used for UWB (sensor_msgs/Range defines ULTRASOUND=0 and INFRARED=1 only)."""
+
+
+def _stamps_ns(t_s: np.ndarray) -> np.ndarray:
+    return np.round(np.asarray(t_s, dtype=np.float64) * 1e9).astype(np.int64)
+
+
+def write_rosbag2(traces: Iterable[tuple[int, Trace]], meta: dict[str, Any], path: Path) -> None:
+    """Write one ROS 2 bag per trace into the new folder ``path``."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    Imu = ts.types["sensor_msgs/msg/Imu"]
+    Range = ts.types["sensor_msgs/msg/Range"]
+    Point = ts.types["geometry_msgs/msg/PointStamped"]
+    Header = ts.types["std_msgs/msg/Header"]
+    Time = ts.types["builtin_interfaces/msg/Time"]
+    Vector3 = ts.types["geometry_msgs/msg/Vector3"]
+    PointMsg = ts.types["geometry_msgs/msg/Point"]
+    Quaternion = ts.types["geometry_msgs/msg/Quaternion"]
+    no_cov = np.array([-1.0] + [0.0] * 8)
+    zero_cov = np.zeros(9)
+    identity = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+
+    def header(ns: int, frame: str):
+        return Header(stamp=Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000)), frame_id=frame)
+
+    path.mkdir(parents=True)
+    for index, trace in traces:
+        with Writer(path / f"trace_{index:08d}", version=8) as w:
+            messages: list[tuple[int, Any, bytes]] = []
+            if trace.imu is not None:
+                c_imu = w.add_connection("/imu", Imu.__msgtype__, typestore=ts)
+                for ns, acc in zip(_stamps_ns(trace.imu.t_s), trace.imu.acc_mps2.tolist(), strict=True):
+                    msg = Imu(header=header(int(ns), "enu"), orientation=identity, orientation_covariance=no_cov,
+                              angular_velocity=Vector3(x=0.0, y=0.0, z=0.0), angular_velocity_covariance=no_cov,
+                              linear_acceleration=Vector3(x=acc[0], y=acc[1], z=acc[2]),
+                              linear_acceleration_covariance=zero_cov)
+                    messages.append((int(ns), c_imu, ts.serialize_cdr(msg, Imu.__msgtype__)))
+            u = trace.uwb
+            ok = np.isfinite(u.range_m)
+            max_range = float(np.max(u.range_m[ok])) if ok.any() else 0.0
+            conns = {}
+            for a_idx, a_id in enumerate(trace.anchors.ids):
+                sel = ok & (u.anchor == a_idx)
+                if not sel.any():
+                    continue
+                conns[a_idx] = w.add_connection(f"/uwb/{a_id}", Range.__msgtype__, typestore=ts)
+                for ns, r in zip(_stamps_ns(u.t_s[sel]), u.range_m[sel].tolist(), strict=True):
+                    msg = Range(header=header(int(ns), a_id), radiation_type=RADIO, field_of_view=float(2 * np.pi),
+                                min_range=0.0, max_range=max_range, range=r)
+                    messages.append((int(ns), conns[a_idx], ts.serialize_cdr(msg, Range.__msgtype__)))
+            c_truth = w.add_connection("/truth", Point.__msgtype__, typestore=ts)
+            for ns, p in zip(_stamps_ns(trace.truth.t_s), trace.truth.pos_enu_m.tolist(), strict=True):
+                msg = Point(header=header(int(ns), "enu"), point=PointMsg(x=p[0], y=p[1], z=p[2]))
+                messages.append((int(ns), c_truth, ts.serialize_cdr(msg, Point.__msgtype__)))
+            messages.sort(key=lambda m: m[0])  # a bag is written in time order
+            for ns, conn, data in messages:
+                w.write(conn, ns, data)

@@ -1,0 +1,128 @@
+"""Exports read back by their own libraries (h5py, rosbags, csv) and compared with the source dataset."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import sys
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from physynth.cli import main
+from physynth.io.dataset import read_dataset
+from physynth.io.export import export_dataset
+from physynth.io.scenario_file import load_scenario
+from physynth.workflows import generate_dataset
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    path, _ = generate_dataset(load_scenario("cablecar-descending"), 3, tmp_path_factory.mktemp("ex") / "ds",
+                               seed=5, shard_traces=2)
+    return path, read_dataset(path)
+
+
+def test_hdf5_one_group_per_trace(dataset, tmp_path):
+    h5py = pytest.importorskip("h5py")
+    path, ds = dataset
+    out = export_dataset(path, tmp_path / "ds.h5", "hdf5")
+    with h5py.File(out, "r") as f:
+        assert sorted(f["traces"]) == ["00000000", "00000001", "00000002"]
+        for i, tr in enumerate(ds.traces):
+            g = f["traces"][f"{i:08d}"]
+            assert g.attrs["trace"] == i and g.attrs["root_seed"] == 5
+            np.testing.assert_array_equal(g["truth/t_s"][()], tr.truth.t_s)
+            np.testing.assert_array_equal(g["truth/pos_enu_m"][()], tr.truth.pos_enu_m)
+            np.testing.assert_array_equal(g["imu/acc_mps2"][()], tr.imu.acc_mps2)
+            assert g["imu/acc_mps2"].dtype == np.float32  # as stored in the dataset
+            np.testing.assert_array_equal(g["uwb/range_m"][()], tr.uwb.range_m)
+            np.testing.assert_array_equal(g["uwb/anchor"][()], tr.uwb.anchor)
+            assert [s.decode() for s in g["anchors/ids"][()]] == list(tr.anchors.ids)
+
+
+def test_rosbag2_messages_and_stamps(dataset, tmp_path):
+    pytest.importorskip("rosbags")
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    path, ds = dataset
+    out = export_dataset(path, tmp_path / "bags", "rosbag2")
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    tr = ds.traces[1]
+    with Reader(out / "trace_00000001") as r:
+        topics = {c.topic: c.msgtype for c in r.connections}
+        assert topics["/imu"] == "sensor_msgs/msg/Imu" and topics["/truth"] == "geometry_msgs/msg/PointStamped"
+        ranges: dict[str, list] = {}
+        imu_stamps, imu_acc, last = [], [], -1
+        for conn, stamp, raw in r.messages():
+            assert stamp >= last  # time order
+            last = stamp
+            msg = ts.deserialize_cdr(raw, conn.msgtype)
+            hdr = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            assert hdr == stamp
+            if conn.topic == "/imu":
+                imu_stamps.append(hdr)
+                imu_acc.append((msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z))
+                assert msg.orientation_covariance[0] == -1.0
+            elif conn.topic.startswith("/uwb/"):
+                assert conn.msgtype == "sensor_msgs/msg/Range" and msg.header.frame_id == conn.topic[5:]
+                ranges.setdefault(msg.header.frame_id, []).append((hdr, msg.range))
+    np.testing.assert_array_equal(np.array(imu_stamps), np.round(tr.imu.t_s * 1e9).astype(np.int64))
+    np.testing.assert_array_equal(np.array(imu_acc), tr.imu.acc_mps2)
+    ok = np.isfinite(tr.uwb.range_m)
+    assert sum(len(v) for v in ranges.values()) == int(ok.sum())  # one message per delivered range
+    a = tr.anchors.ids[3]
+    sel = ok & (tr.uwb.anchor == 3)
+    got = np.array(ranges[a])
+    np.testing.assert_array_equal(got[:, 0].astype(np.int64), np.round(tr.uwb.t_s[sel] * 1e9).astype(np.int64))
+    np.testing.assert_allclose(got[:, 1], tr.uwb.range_m[sel], rtol=1e-7)  # Range.range is float32
+
+
+def test_csv_per_table(dataset, tmp_path):
+    path, ds = dataset
+    out = export_dataset(path, tmp_path / "csv", "csv")
+    assert sorted(p.name for p in out.iterdir()) == ["anchors.csv", "dataset.json", "imu.csv", "traces.jsonl",
+                                                     "truth.csv", "uwb.csv"]
+    lines = (out / "traces.jsonl").read_text().splitlines()  # per-trace metadata of a sharded dataset
+    assert [json.loads(x)["spawn_key"] for x in lines] == [[0], [1], [2]]
+    with open(out / "uwb.csv", newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    src = pq.read_table(path / "uwb").to_pylist()
+    assert len(rows) == len(src)
+    for got, want in zip(rows[::97], src[::97], strict=True):
+        assert int(got["trace"]) == want["trace"] and got["anchor_id"] == want["anchor_id"]
+        assert float(got["t_s"]) == want["t_s"]
+        assert (math.isnan(float(got["range_m"])) and want["range_m"] != want["range_m"]) or \
+            float(got["range_m"]) == want["range_m"]
+    with open(out / "imu.csv", newline="", encoding="utf-8") as fh:
+        imu = np.array([[float(r["acc_e_mps2"]), float(r["t_s"])] for r in csv.DictReader(fh)])
+    want = np.concatenate([t.imu.acc_mps2[:, 0] for t in ds.traces])
+    np.testing.assert_array_equal(imu[:, 0].astype(np.float32), want.astype(np.float32))
+
+
+def test_export_cli_errors_are_one_line(dataset, tmp_path, capsys):
+    path, _ = dataset
+    for argv, needle in ((["export", str(path), "--format", "xls", "--out", str(tmp_path / "x")], "unknown export"),
+                         (["export", str(tmp_path / "none"), "--format", "csv", "--out", str(tmp_path / "y")],
+                          "does not exist")):
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and needle in err and err.count("\n") == 1
+    (tmp_path / "taken").mkdir()
+    with pytest.raises(SystemExit) as e:
+        main(["export", str(path), "--format", "csv", "--out", str(tmp_path / "taken"), "-q"])
+    assert e.value.code == 2 and "--overwrite" in capsys.readouterr().err
+
+
+def test_missing_extra_is_named_in_one_line(dataset, tmp_path, capsys, monkeypatch):
+    path, _ = dataset
+    monkeypatch.setitem(sys.modules, "h5py", None)  # as if h5py were not installed: import raises ImportError
+    with pytest.raises(SystemExit) as e:
+        main(["export", str(path), "--format", "hdf5", "--out", str(tmp_path / "x.h5")])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "physynth[export]" in err and err.count("\n") == 1
+    assert not (tmp_path / "x.h5").exists()
