@@ -296,7 +296,9 @@ def test_bad_input_messages():
     a = _trace(anchors=(("A1", (0.0, 0.0, 0.0)),))
     b = _trace(anchors=(("A1", (5.0, 0.0, 0.0)),))
     with pytest.raises(CalibrationError, match="conflicting anchors.*A1"):
-        calibrate([a, b])
+        calibrate([a, b], anchor_policy="strict")
+    with pytest.raises(CalibrationError, match="layout_from='nope' names no recording"):
+        calibrate([a, b], layout_from="nope")
     assert issubclass(CalibrationError, PhySynthError)
 
 
@@ -316,8 +318,12 @@ def test_cli_bad_input_exit_code_2(tmp_path, capsys):
     assert code == 2 and "no UWB rows" in err
     write_dataset(tmp_path / "d1", [_trace(anchors=(("A1", (0.0, 0.0, 0.0)),))])
     write_dataset(tmp_path / "d2", [_trace(anchors=(("A1", (5.0, 0.0, 0.0)),))])
-    code, err = run("calibrate", str(tmp_path / "d1"), str(tmp_path / "d2"), "--out", str(tmp_path / "s.yaml"))
-    assert code == 2 and "conflicting anchors" in err and "layout policy 'first'" in err
+    code, err = run("calibrate", str(tmp_path / "d1"), str(tmp_path / "d2"), "--out", str(tmp_path / "s.yaml"),
+                    "--anchor-layout", "strict")
+    assert code == 2 and "conflicting anchors" in err and "'per-run'" in err
+    code, err = run("calibrate", str(tmp_path / "d1"), "--out", str(tmp_path / "s.yaml"), "--layout-from", "1",
+                    "--anchor-layout", "first")
+    assert code == 2 and "--layout-from needs --anchor-layout per-run" in err
     code, err = run("calibrate", str(tmp_path / "d1"), "--out", str(tmp_path / "s.yaml"), "--path-kind", "spline")
     assert code == 2 and "--path-kind" in err
 

@@ -190,3 +190,52 @@ def test_nlos_episode_keeps_its_mode_and_modes_have_their_own_dwell():
     # weights are shares of NLOS time: both modes hold about half of the NLOS rows
     e_all = np.concatenate([(t.uwb.range_m - t.uwb.true_range_m)[t.uwb.nlos] for t in trs])
     assert np.mean(e_all > 8.0) == pytest.approx(0.5, abs=0.1)
+
+
+def test_fixed_hold_episodes_repeat_one_wrong_range():
+    # a wrong range the radio repeats for exactly 3 bursts (0.15 s at 20 Hz), the offset held with 1 cm jitter
+    modes = [{"weight": 1.0, "mean_m": -5.0, "std_m": 2.0, "dwell_s": 0.15, "fixed_dwell": True,
+              "held_jitter_m": 0.01}]
+    scn = simple_scenario(**{"channel.nlos_prob": 0.02, "channel.nlos_modes": modes})
+    trs = _traces(scn, 6)
+    lengths, within, between = [], [], []
+    for t in trs:
+        u = t.uwb
+        for i in range(3):
+            rows = u.anchor == i
+            e, nl = (u.range_m - u.true_range_m)[rows], u.nlos[rows]
+            x = np.concatenate([[0], nl.astype(np.int8), [0]])
+            starts, ends = np.flatnonzero(np.diff(x) == 1), np.flatnonzero(np.diff(x) == -1)
+            for a, b in zip(starts, ends, strict=True):
+                lengths.append(b - a)
+                if b - a == 3:  # one episode (not two touching)
+                    within.append(e[a:b] - e[a:b].mean())
+                    between.append(e[a])
+    lengths = np.array(lengths)
+    # exactly 3 attempts of a 20 Hz lattice fall in a 0.15 s window (two episodes may touch: 6)
+    assert np.mean(lengths == 3) > 0.95 and set(np.unique(lengths)) <= {3, 6}
+    w = np.concatenate(within)
+    dof = w.size - len(within)
+    assert np.sqrt(np.sum(w**2) / dof) == pytest.approx(0.01, rel=5 / np.sqrt(2 * dof))
+    assert np.std(between) == pytest.approx(2.0, rel=5 / np.sqrt(2 * len(between)))
+
+
+def test_run_offsets_are_drawn_per_trace_and_leave_other_scenarios_unchanged():
+    base = simple_scenario(**{"channel.los_std_m": 0.01})
+    spread = simple_scenario(**{"channel.los_std_m": 0.01, "uwb.run_offset_std_m": 0.05,
+                                "uwb.run_anchor_offset_std_m": 0.03})
+    a, b = _traces(base, 40), _traces(spread, 40)
+    off = np.array([[np.mean((t.uwb.range_m - t.uwb.true_range_m)[t.uwb.anchor == i]) for i in range(3)]
+                    for t in b])  # (traces, anchors); the within-trace mean removes the 1 cm noise
+    n = off.shape[0]
+    common = off.mean(axis=1)
+    assert np.std(common, ddof=1) == pytest.approx(np.hypot(0.05, 0.03 / np.sqrt(3)), rel=5 / np.sqrt(2 * n))
+    rem = off - common[:, None]
+    assert np.sqrt(np.sum(rem**2) / (n * 2)) == pytest.approx(0.03, rel=5 / np.sqrt(2 * n * 2))
+    # the offsets are drawn after everything else: times, anchors and NLOS states are those of the base
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x.uwb.t_s, y.uwb.t_s)
+        np.testing.assert_array_equal(x.uwb.anchor, y.uwb.anchor)
+        d = y.uwb.range_m - x.uwb.range_m
+        for i in range(3):
+            np.testing.assert_allclose(d[y.uwb.anchor == i], d[y.uwb.anchor == i][0], atol=1e-9)

@@ -141,7 +141,9 @@ def test_dataset_against_itself_is_perfect(data):
     rep = validate_datasets(data / "synth", synthetic=data / "synth")
     assert rep.ks_statistic == 0.0
     for key, value in rep.relative_deviation_pct.items():
-        assert value == ([0.0, 0.0, 0.0] if key == "imu_std_mps2" else 0.0), key
+        expected = [0.0, 0.0, 0.0] if key == "imu_std_mps2" else None if key == "residual_median_m" else 0.0
+        assert value == expected, key
+    assert rep.comparison["residual_median_m"]["deviation"] == 0.0
     ext = rep.extended
     assert ext["residual_wasserstein_m"] == 0.0
     assert ext["gap_ks_statistic"] == 0.0 and ext["aoi_ks_statistic"] == 0.0
@@ -343,7 +345,7 @@ def test_bad_input_unreadable_files(data, tmp_path, capsys):
          "none.yaml")
 
 
-def test_missingrequire_matplotlib_is_one_clear_line(data, tmp_path, capsys, monkeypatch):
+def test_missing_matplotlib_is_one_clear_line(data, tmp_path, capsys, monkeypatch):
     for name in [m for m in sys.modules if m == "matplotlib" or m.startswith("matplotlib.")]:
         monkeypatch.setitem(sys.modules, name, None)
     monkeypatch.setitem(sys.modules, "matplotlib", None)
@@ -352,6 +354,31 @@ def test_missingrequire_matplotlib_is_one_clear_line(data, tmp_path, capsys, mon
     assert not (tmp_path / "r").exists()
     assert _run(["validate", "--real", str(data / "real"), "--synthetic", str(data / "synth"), "--out",
                  str(tmp_path / "r"), "-q", "--no-figures"]) == 0
+
+
+def test_comparison_bands_and_absolute_median(data, full_report):
+    rep = json.loads((full_report / "report.json").read_text())
+    comp = rep["comparison"]
+    assert set(comp) == set(METRIC_KEYS)
+    # the signed median is compared by its absolute difference, never by a relative one
+    med = comp["residual_median_m"]
+    assert med["deviation_kind"] == "absolute" and rep["relative_deviation_pct"]["residual_median_m"] is None
+    assert med["deviation"] == pytest.approx(rep["synthetic"]["residual_median_m"] - rep["real"]["residual_median_m"])
+    # the band is the 5-95 % of the per-trace metrics of the three synthetic traces (oracle: compute_metrics)
+    traces = list(generate_traces(scenario_from_dict(_scenario_dict(), "a"), 3, seed=11))
+    for key in ("uwb_ge1_frac", "residual_median_m", "abs_residual_p95_m", "mean_aoi_s"):
+        per_trace = [getattr(compute_metrics([t]), key) for t in traces]
+        lo, hi = np.percentile(per_trace, [5, 95])
+        c = comp[key]
+        assert c["band_5_95"] == pytest.approx([lo, hi]), key
+        assert c["real_in_band"] == (lo <= rep["real"][key] <= hi), key
+        if key != "residual_median_m":
+            assert c["deviation_kind"] == "relative_pct"
+            assert c["deviation"] == pytest.approx(rep["relative_deviation_pct"][key])
+    assert len(comp["imu_std_mps2"]) == 3 and all(len(c["band_5_95"]) == 2 for c in comp["imu_std_mps2"])
+    for page in ("report.md", "report.html"):
+        text = (full_report / page).read_text()
+        assert "Synth 5–95 %" in text and "Real in band" in text, page
 
 
 def test_docs_explain_every_extended_statistic():

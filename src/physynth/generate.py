@@ -15,13 +15,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import __version__
-from .constants import IMU_FRAME
+from .constants import IMU_BODY_FRAME, IMU_FRAME
+from .models.attitude import simulate_attitude
 from .models.availability import AvailabilityArrays, availability_arrays, simulate_availability
-from .models.imu import simulate_imu
+from .models.imu import simulate_body_imu, simulate_imu
 from .models.motion import SpeedShape, compile_speed_shape, draw_run, kinematics
 from .models.path import PathGeometry, compile_path, draw_perturbation
 from .models.uwb import ChannelArrays, channel_arrays, simulate_uwb, uwb_record
-from .records import Anchors, Trace, Truth
+from .records import Anchors, Imu, Trace, Truth
 from .rng import component_rng, new_root_seed
 from .scenario import Scenario, scenario_to_dict
 
@@ -64,11 +65,14 @@ def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int)
     run = draw_run(s.motion, rng=component_rng(root_seed, index, "motion"))
     kin = kinematics(cs.geometry, pert, s.motion, cs.shape, run, rate_hz=s.truth_rate_hz,
                      reverse=s.path.reverse, lateral_dir=cs.lateral_dir)
-    imu = simulate_imu(kin, s.imu, rng=component_rng(root_seed, index, "imu"))
-    att = simulate_uwb(kin, s.uwb, cs.channel, rng=component_rng(root_seed, index, "uwb"))
-    outage, dropped = simulate_availability(att.t_true_s, att.anchor, att.burst, att.bursts_s, cs.availability,
-                                            s.uwb.burst_rate_hz, rng=component_rng(root_seed, index, "availability"))
-    uwb = uwb_record(att, s.uwb, outage=outage, dropped=dropped)
+    att = simulate_attitude(kin.t_s, kin.vel_enu_mps, kin.acc_enu_mps2, s.attitude,
+                            rng=component_rng(root_seed, index, "attitude") if s.attitude.kind == "tumble" else None)
+    imu = _imu(kin, att, s, root_seed, index)
+    tries = simulate_uwb(kin, s.uwb, cs.channel, rng=component_rng(root_seed, index, "uwb"))
+    outage, dropped = simulate_availability(tries.t_true_s, tries.anchor, tries.burst, tries.bursts_s,
+                                            cs.availability, s.uwb.burst_rate_hz,
+                                            rng=component_rng(root_seed, index, "availability"))
+    uwb = uwb_record(tries, s.uwb, outage=outage, dropped=dropped)
     meta = {
         "source": "physynth",
         "root_seed": int(root_seed),
@@ -78,8 +82,22 @@ def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int)
         "lateral_offset_m": pert.lateral_m,
         "sag_offset_m": pert.sag_m,
     }
-    return Trace(truth=Truth(t_s=kin.t_s, pos_enu_m=kin.pos_enu_m, vel_enu_mps=kin.vel_enu_mps),
-                 imu=imu, uwb=uwb, anchors=cs.anchors, meta=meta)
+    truth = Truth(t_s=kin.t_s, pos_enu_m=kin.pos_enu_m, vel_enu_mps=kin.vel_enu_mps, quat_wxyz=att.quat_wxyz,
+                  omega_body_radps=att.omega_body_radps)
+    return Trace(truth=truth, imu=imu, uwb=uwb, anchors=cs.anchors, meta=meta)
+
+
+def _imu(kin, att, s: Scenario, root_seed: int, index: int) -> Imu:
+    """The IMU record in the scenario's frames: ENU gravity-free (stream ``imu``), body (``imu_body``)."""
+    enu = (simulate_imu(kin, s.imu, rng=component_rng(root_seed, index, "imu"))
+           if IMU_FRAME in s.imu_frames else None)
+    if IMU_BODY_FRAME not in s.imu_frames:
+        return enu
+    t_b, acc_b, gyro_b = simulate_body_imu(kin.t_s, kin.acc_enu_mps2, att.rot, att.omega_body_radps, s.body_imu,
+                                           rng=component_rng(root_seed, index, "imu_body"))
+    if enu is not None and enu.t_s.shape != t_b.shape:
+        raise ValueError("ENU and body IMU time bases differ")  # prevented by the scenario validator
+    return Imu(t_s=t_b, acc_mps2=None if enu is None else enu.acc_mps2, acc_body_mps2=acc_b, gyro_body_radps=gyro_b)
 
 
 def generate_traces(scn: Scenario | CompiledScenario, n: int, seed: int | None = None,
@@ -98,7 +116,8 @@ def dataset_meta(scn: Scenario, root_seed: int) -> dict:
         "scenario_name": scn.name,
         "root_seed": int(root_seed),
         "seeding": "trace i uses numpy SeedSequence(root_seed, spawn_key=(i, component)), "
-                   "components path=0 motion=1 imu=2 uwb=3 availability=4",
+                   "components path=0 motion=1 imu=2 uwb=3 availability=4 attitude=5 imu_body=6",
         "imu_frame": IMU_FRAME,
+        "imu_frames": list(scn.imu_frames),
         "provenance": {"generator": f"physynth {__version__}", "pid": os.getpid()},
     }

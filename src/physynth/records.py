@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from .constants import IMU_FRAME
+from .constants import IMU_BODY_FRAME, IMU_FRAME
 
 
 class Reason(enum.IntEnum):
@@ -73,11 +73,19 @@ class Anchors:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Truth:
-    """Ground truth: time [s], position (T, 3) [m] and velocity (T, 3) [m/s] in ENU."""
+    """Ground truth: time [s], position (T, 3) [m] and velocity (T, 3) [m/s] in ENU.
+
+    Optional attitude: ``quat_wxyz`` (T, 4), the Hamilton quaternion of the body (FLU) to ENU
+    rotation, scalar first; ``omega_body_radps`` (T, 3), the body angular velocity [rad/s] in the body
+    frame (row k holds the rate over [t_k, t_{k+1}), :mod:`physynth.models.attitude`). None when the
+    recording has no attitude.
+    """
 
     t_s: np.ndarray
     pos_enu_m: np.ndarray
     vel_enu_mps: np.ndarray
+    quat_wxyz: np.ndarray | None = None
+    omega_body_radps: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "t_s", np.ascontiguousarray(self.t_s, dtype=np.float64))
@@ -87,6 +95,17 @@ class Truth:
         n = self.t_s.shape[0]
         if self.pos_enu_m.shape[0] != n or self.vel_enu_mps.shape[0] != n:
             raise ValueError("truth: t_s, pos_enu_m and vel_enu_mps differ in length")
+        for name, width in (("quat_wxyz", 4), ("omega_body_radps", 3)):
+            value = getattr(self, name)
+            if value is not None:
+                value = _f64(value, (width,), f"truth.{name}")
+                if value.shape[0] != n:
+                    raise ValueError(f"truth: t_s and {name} differ in length")
+                object.__setattr__(self, name, value)
+
+    @property
+    def has_attitude(self) -> bool:
+        return self.quat_wxyz is not None
 
     def position_at(self, t_s: np.ndarray) -> np.ndarray:
         """Truth position linearly interpolated at times ``t_s`` (N,) -> (N, 3) [m].
@@ -105,18 +124,44 @@ class Truth:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Imu:
-    """IMU samples: time [s] and acceleration (N, 3) [m s^-2] in ``frame`` (default ENU, gravity-free)."""
+    """IMU samples on one time base ``t_s`` [s], in one or both of two frames.
+
+    ``acc_mps2`` (N, 3): acceleration in ``frame`` (ENU, gravity removed: the paper's form) [m s^-2],
+    or None when the recording has only the body-frame sensor. ``acc_body_mps2`` (N, 3): specific
+    force in the body frame (FLU), gravity included, as an accelerometer reads it (a level unit at
+    rest reads (0, 0, +9.81)) [m s^-2]; ``gyro_body_radps`` (N, 3): body angular rate [rad/s]. Either
+    may be None.
+    """
 
     t_s: np.ndarray
-    acc_mps2: np.ndarray
+    acc_mps2: np.ndarray | None = None
     frame: str = IMU_FRAME
+    acc_body_mps2: np.ndarray | None = None
+    gyro_body_radps: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "t_s", np.ascontiguousarray(self.t_s, dtype=np.float64))
         _check_time(self.t_s, "imu")
-        object.__setattr__(self, "acc_mps2", _f64(self.acc_mps2, (3,), "imu.acc_mps2"))
-        if self.acc_mps2.shape[0] != self.t_s.shape[0]:
-            raise ValueError("imu: t_s and acc_mps2 differ in length")
+        present = False
+        for name in ("acc_mps2", "acc_body_mps2", "gyro_body_radps"):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            value = _f64(value, (3,), f"imu.{name}")
+            if value.shape[0] != self.t_s.shape[0]:
+                raise ValueError(f"imu: t_s and {name} differ in length")
+            object.__setattr__(self, name, value)
+            present = True
+        if not present:
+            raise ValueError("imu: no acceleration or angular rate given")
+
+    @property
+    def frames(self) -> tuple[str, ...]:
+        """The conventions present: ``IMU_FRAME`` (ENU gravity-free) and/or ``IMU_BODY_FRAME``."""
+        out = (self.frame,) if self.acc_mps2 is not None else ()
+        if self.acc_body_mps2 is not None or self.gyro_body_radps is not None:
+            out += (IMU_BODY_FRAME,)
+        return out
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-COMPONENT_ID = {"path": 0, "motion": 1, "imu": 2, "uwb": 3, "availability": 4}
+COMPONENT_ID = {"path": 0, "motion": 1, "imu": 2, "uwb": 3, "availability": 4, "attitude": 5, "imu_body": 6}
 
 
 def new_root_seed() -> int:

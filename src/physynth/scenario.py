@@ -8,22 +8,27 @@ mapping. Files (YAML, presets) are read and written by :mod:`physynth.io.scenari
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationError, field_validator, model_validator
 
 from .bounds import check_bounds
+from .constants import IMU_BODY_FRAME, IMU_FRAME
 from .errors import ScenarioError
 from .models._params import ParamsModel, PositiveFloat
+from .models.attitude import AttitudeParams
 from .models.availability import AvailabilityOverride, AvailabilityParams
-from .models.imu import ImuParams, VibrationParams
+from .models.imu import AccelerometerParams, BodyImuParams, GyroscopeParams, ImuParams, VibrationParams
 from .models.motion import MotionParams, SpeedProfileParams
+from .models.obstacles import BoxObstacle, PrismObstacle, TerrainGrid, WallObstacle
 from .models.path import PathParams, PerturbationParams
-from .models.uwb import AnchorSpec, ChannelOverride, ChannelParams, NlosMode, NlosZone, UwbParams
+from .models.uwb import AnchorSpec, ChannelOverride, ChannelParams, LinkBudgetParams, NlosMode, NlosZone, UwbParams
 
-__all__ = ["AnchorSpec", "AvailabilityOverride", "AvailabilityParams", "ChannelOverride", "ChannelParams",
-           "ImuParams", "MotionParams", "NlosMode", "NlosZone", "PathParams", "PerturbationParams", "Scenario",
-           "SpeedProfileParams", "UwbParams", "VibrationParams", "scenario_from_dict", "scenario_to_dict"]
+__all__ = ["AccelerometerParams", "AnchorSpec", "AttitudeParams", "AvailabilityOverride", "AvailabilityParams",
+           "BodyImuParams", "BoxObstacle", "ChannelOverride", "ChannelParams", "GyroscopeParams", "ImuParams",
+           "LinkBudgetParams", "MotionParams", "NlosMode", "NlosZone", "PathParams", "PerturbationParams",
+           "PrismObstacle", "Scenario", "SpeedProfileParams", "TerrainGrid", "UwbParams", "VibrationParams",
+           "WallObstacle", "scenario_from_dict", "scenario_to_dict"]
 
 
 class Scenario(ParamsModel):
@@ -33,7 +38,10 @@ class Scenario(ParamsModel):
     description: str = ""
     path: PathParams
     motion: MotionParams
+    attitude: AttitudeParams = AttitudeParams()
     imu: ImuParams = ImuParams()
+    body_imu: BodyImuParams = BodyImuParams()
+    imu_frames: Annotated[list[Literal["enu-gravity-free", "body-flu"]], Field(min_length=1)] = [IMU_FRAME]
     uwb: UwbParams = UwbParams()
     anchors: list[AnchorSpec] = Field(min_length=1)
     channel: ChannelParams = ChannelParams()
@@ -61,6 +69,12 @@ class Scenario(ParamsModel):
             if unknown:
                 raise ValueError(f"{field_name} names unknown anchor(s) {unknown}; "
                                  f"the anchors are {sorted(ids)}")
+        if len(set(self.imu_frames)) != len(self.imu_frames):
+            raise ValueError(f"imu_frames lists a frame twice: {self.imu_frames}")
+        if (IMU_FRAME in self.imu_frames and IMU_BODY_FRAME in self.imu_frames
+                and abs(self.imu.rate_hz - self.body_imu.rate_hz) > 1e-9 * self.imu.rate_hz):
+            raise ValueError(f"both IMU frames share one time base: imu.rate_hz ({self.imu.rate_hz}) and "
+                             f"body_imu.rate_hz ({self.body_imu.rate_hz}) must be equal")
         for a in self.anchors:
             if self.channel_for(a.id).rate_hz > self.uwb.burst_rate_hz * (1 + 1e-9):
                 raise ValueError(f"anchor {a.id}: rate_hz exceeds uwb.burst_rate_hz")

@@ -10,55 +10,91 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .bounds import check_budget
-from .calibrate import CalibrationResult, calibrate
-from .calibrate._base import CalibrationError
-from .calibrate.sites import check_same_site, site_of
 from .constants import DEFAULT_GRID_RATE_HZ
 from .errors import AnchorMismatchError, PhySynthError
-from .generate import compile_scenario, dataset_meta, generate_trace, generate_traces
-from .io.dataset import DatasetWriter, read_dataset
+from .evaluate.metrics import Metrics, compute_metrics
+from .generate import compile_scenario, dataset_meta, generate_traces
+from .io import safety
+from .io.dataset import iter_traces, n_traces, read_dataset, read_meta, table_files
 from .io.scenario_file import load_scenario
+from .io.shards import DEFAULT_SHARD_TRACES
+from .parallel import run_shards
 from .progress import ProgressCallback
 from .records import Trace
 from .rng import new_root_seed
 from .scenario import Scenario, scenario_to_dict
-from .validate.compare import (
-    ValidationReport,
-    anchor_ids,
-    check_real,
-    compare,
-    describe_anchor_mismatch,
-    transfer_record,
-)
+
+if TYPE_CHECKING:
+    from .calibrate import CalibrationResult
+    from .validate.compare import ValidationReport
 
 
 # ---------------------------------------------------------------- generate
 def generate_dataset(scn: Scenario, n: int, out: str | Path, *, seed: int | None = None,
-                     overwrite: bool = False, progress: ProgressCallback | None = None,
-                     force: bool = False, inputs: Sequence[str | os.PathLike] = ()) -> tuple[Path, int]:
-    """Generate ``n`` traces and write them as a dataset directory (atomically).
+                     overwrite: bool = False, progress: ProgressCallback | None = None, workers: int = 1,
+                     scheduler: str | None = None, resume: bool = False,
+                     shard_traces: int = DEFAULT_SHARD_TRACES, force: bool = False,
+                     inputs: Sequence[str | os.PathLike] = ()) -> tuple[Path, int]:
+    """Generate ``n`` traces and write them as a dataset directory (atomically), in shards.
 
-    Returns the dataset path and the root seed used (drawn from OS entropy when ``seed`` is None).
-    ``progress(message, done, total)`` is called after every trace. The size is checked against the
-    budget before any work (:func:`physynth.bounds.check_budget`; ``force`` overrides); ``inputs``
-    (e.g. the scenario file) may not be inside ``out``.
+    Parameters
+    ----------
+    workers : int
+        Worker processes (an embedded Dask cluster when > 1; :mod:`physynth.parallel`).
+    scheduler : str, optional
+        Address of an existing Dask scheduler to run the shards on instead.
+    resume : bool
+        Complete an unfinished (killed) run of ``out``: complete shards are kept, the others written.
+        Without ``seed`` the unfinished run's root seed is used.
+    shard_traces : int
+        Traces per shard (:mod:`physynth.io.shards`). The output is the same for any ``workers``.
+    force : bool
+        Go ahead when the size estimate exceeds the budget (:func:`physynth.bounds.check_budget`, checked
+        before any work).
+    inputs : sequence of paths
+        Files the run reads (e.g. the scenario file): ``out`` may not be or hold one
+        (:func:`physynth.io.safety.check_output`).
+
+    Returns the dataset path and the root seed used (drawn from OS entropy when ``seed`` is None and
+    there is nothing to resume). ``progress(message, done, total)`` reports traces written.
     """
+    from .io import shards
+
     if n < 1:
         raise PhySynthError(f"the number of traces must be at least 1, got {n}")
     if seed is not None and seed < 0:
         raise PhySynthError(f"the root seed must be a non-negative integer, got {seed}")
+    if shard_traces < 1:
+        raise PhySynthError(f"traces per shard must be at least 1, got {shard_traces}")
+    if workers < 1:
+        raise PhySynthError(f"the number of workers must be at least 1, got {workers}")
     check_budget(scn, n, force=force)
-    root = new_root_seed() if seed is None else int(seed)
-    cs = compile_scenario(scn)
-    with DatasetWriter(out, meta=dataset_meta(scn, root), overwrite=overwrite, inputs=inputs) as writer:
-        for i in range(n):
-            writer.add(generate_trace(cs, i, root), index=i)
-            if progress is not None:
-                progress(f"generating {scn.name}", i + 1, n)
-    return Path(out), root
+    # safety hook (physynth.io.safety): what may be replaced, inputs, the output's lock, orphaned temp folders
+    out, lock = safety.prepare_output(out, kind="dataset", overwrite=overwrite, inputs=inputs)
+    try:
+        previous = shards.read_plan(out) if resume else None
+        if seed is None and previous is not None:
+            seed = previous.get("root_seed")
+        root = new_root_seed() if seed is None else int(seed)
+        plan = shards.ShardPlan(n, shard_traces)
+        partial, complete = shards.prepare(out, shards.plan_record(scenario_to_dict(scn), root, n, shard_traces),
+                                           resume=resume, overwrite=overwrite)
+        todo = [k for k in range(plan.n_shards) if k not in complete]
+        already = sum(plan.bounds(k)[1] - plan.bounds(k)[0] for k in complete)
+        message = f"generating {scn.name}"
+        if progress is not None:
+            if complete:
+                progress(f"resuming: {len(complete)} of {plan.n_shards} shard(s) already complete")
+            progress(message, already, n)
+        meta = dataset_meta(scn, root)
+        run_shards(scn, root, partial, plan, todo, meta, workers=workers, scheduler=scheduler,
+                   progress=None if progress is None else (lambda done: progress(message, already + done, n)))
+        return shards.finalize(out, partial, plan, meta), root
+    finally:
+        lock.release()
 
 
 # ---------------------------------------------------------------- calibrate
@@ -69,30 +105,72 @@ def read_recordings(paths: Sequence[str | os.PathLike], *,
     Unless ``allow_mixed``, datasets of different kinds of site are refused
     (:func:`physynth.calibrate.sites.check_same_site`).
     """
+    from .calibrate._base import CalibrationError
+    from .calibrate.sites import check_same_site, site_of
+
     if not paths:
         raise CalibrationError("no dataset directories given")
     traces, sources, sites = [], [], []
     for p in paths:
-        ds = read_dataset(p)
-        sites.append(site_of(str(p), ds.meta, ds.traces))
-        check_same_site(sites, allow_mixed=allow_mixed)
         sources.append(str(Path(p)))
-        for i, t in enumerate(ds.traces):
+        these = []
+        for i, t in enumerate(iter_traces(p)):  # streamed; calibration itself needs the traces together
             lab = f"{Path(p).name}/{t.meta.get('run') or f'trace {i}'}"
-            traces.append(Trace(truth=t.truth, uwb=t.uwb, anchors=t.anchors, imu=t.imu,
-                                meta={**t.meta, "label": lab}))
+            these.append(Trace(truth=t.truth, uwb=t.uwb, anchors=t.anchors, imu=t.imu,
+                               meta={**t.meta, "label": lab}))
+        sites.append(site_of(str(p), read_meta(p), these))
+        check_same_site(sites, allow_mixed=allow_mixed)
+        traces += these
     return traces, sources
 
 
 def calibrate_datasets(paths: Sequence[str | os.PathLike], *, allow_mixed: bool = False,
                        **kwargs: Any) -> CalibrationResult:
-    """:func:`calibrate` on every trace of one or several dataset directories, pooled.
+    """:func:`physynth.calibrate.calibrate` on every trace of one or several dataset directories, pooled.
 
     Datasets of different kinds of site are refused unless ``allow_mixed``
     (:mod:`physynth.calibrate.sites`).
     """
+    from .calibrate import calibrate
+
     traces, sources = read_recordings(paths, allow_mixed=allow_mixed)
     return calibrate(traces, sources=sources, **kwargs)
+
+
+# ---------------------------------------------------------------- inspect
+def inspect_dataset(path: str | Path, *, rate_hz: float = DEFAULT_GRID_RATE_HZ,
+                    progress: ProgressCallback | None = None) -> tuple[Metrics, dict[str, Any]]:
+    """Pooled section-5 metrics of a dataset, streamed trace by trace, and its ``dataset.json``.
+
+    Memory does not grow with the number of traces (:func:`physynth.io.dataset.iter_traces`,
+    :class:`physynth.evaluate.metrics.MetricsAccumulator`). ``progress`` is called after each trace.
+    """
+    meta = read_meta(path)
+    total = n_traces(meta)
+    done = 0
+
+    def on_trace() -> None:
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress("reading traces", done, total)
+
+    try:
+        return compute_metrics(iter_traces(path, meta), rate_hz, on_trace=on_trace), meta
+    except ValueError as exc:  # a table that reads but does not make valid records
+        raise PhySynthError(f"dataset {path}: invalid content: {exc}") from None
+
+
+def _anchor_ids_of(path: str | Path) -> list[str]:
+    """Anchor ids of a dataset from its (small) anchors table, in order of first appearance."""
+    import pyarrow.parquet as pq
+
+    ids: list[str] = []
+    for f in table_files(Path(path), "anchors"):
+        for a in pq.read_table(f, columns=["anchor_id"]).column("anchor_id").to_pylist():
+            if a not in ids:
+                ids.append(a)
+    return ids
 
 
 # ---------------------------------------------------------------- validate
@@ -110,7 +188,8 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
                       scenario: str | Path | Scenario | None = None,
                       n: int = 50, seed: int | None = None, transfer: bool = False,
                       rate_hz: float = DEFAULT_GRID_RATE_HZ,
-                      progress: ProgressCallback | None = None, force: bool = False) -> ValidationReport:
+                      progress: ProgressCallback | None = None,
+                      anchors: Sequence[str] | None = None, force: bool = False) -> ValidationReport:
     """Validate a real dataset against a synthetic dataset or against traces generated from a scenario.
 
     Parameters
@@ -130,6 +209,11 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
         Evaluation grid rate [Hz].
     progress : callable, optional
         ``progress(message, done, total)`` after each synthetic trace is generated and reduced.
+    anchors : sequence of str, optional
+        Relaxed subset comparison (the anchor study's): the synthetic traces keep only these anchors
+        (each trace restricted to them, :func:`physynth.studies.subset.restrict_to_anchors`, so a
+        scenario's traces are those of the anchor study's cell) and the real dataset is compared on
+        its full set. The ids must be anchors of both sides.
     force : bool
         Generate even when the size estimate exceeds the budget (:func:`physynth.bounds.check_budget`).
 
@@ -140,6 +224,8 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
         ``transfer`` without a scenario, ``n < 1``, unreadable or empty datasets, a real dataset
         without truth, anchors or valid ranges, and anchor ids that differ (without ``transfer``).
     """
+
+    from .validate.compare import anchor_ids, check_real, compare, describe_anchor_mismatch, transfer_record
 
     if (synthetic is None) == (scenario is None):
         raise PhySynthError("give exactly one of a synthetic dataset and a scenario "
@@ -156,19 +242,31 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
                                        "source": real_ds.meta.get("source"), "anchors": real_ids}}
     transfer_info = None
 
+    subset = None
+    if anchors is not None:
+        from .studies.subset import check_subset, restrict_to_anchors
+
+        subset = check_subset(anchors, real_ids, "the anchor subset (the real dataset's anchors)")
+        inputs["anchor_subset"] = subset
+
     if synthetic is not None:
-        synth_ds = _read(read_dataset, synthetic, "synthetic")
-        synth_ids = anchor_ids(synth_ds.traces)
-        problem = describe_anchor_mismatch(real_ids, synth_ids, f"the synthetic dataset {synthetic}")
-        if problem:
-            raise AnchorMismatchError(problem)
-        if not any(s.uwb.valid.any() for s in synth_ds.traces):
-            raise PhySynthError(f"synthetic dataset {synthetic} has no valid UWB range: nothing to compare")
-        inputs["synthetic"] = {"path": str(synthetic), "kind": synth_ds.meta.get("kind"),
-                               "scenario_name": synth_ds.meta.get("scenario_name"),
-                               "root_seed": synth_ds.meta.get("root_seed"), "n_traces": len(synth_ds)}
-        synth_iter: Iterable[Trace] = synth_ds.traces
-        total = len(synth_ds)
+        synth_meta = _read(read_meta, synthetic, "synthetic")
+        if synth_meta.get("n_traces") == 0:
+            raise PhySynthError(f"synthetic dataset: dataset {synthetic} holds no traces")
+        synth_ids = _read(_anchor_ids_of, synthetic, "synthetic")
+        if subset is not None:
+            check_subset(subset, synth_ids, f"the anchor subset (the synthetic dataset {synthetic})")
+        else:
+            problem = describe_anchor_mismatch(real_ids, synth_ids, f"the synthetic dataset {synthetic}")
+            if problem:
+                raise AnchorMismatchError(problem)
+        total = n_traces(synth_meta)
+        inputs["synthetic"] = {"path": str(synthetic), "kind": synth_meta.get("kind"),
+                               "scenario_name": synth_meta.get("scenario_name"),
+                               "root_seed": synth_meta.get("root_seed"), "n_traces": total}
+        synth_iter: Iterable[Trace] = _checked_stream(synthetic, synth_meta)
+        if subset is not None:
+            synth_iter = (restrict_to_anchors(t, subset) for t in synth_iter if set(subset) <= set(t.anchors.ids))
     else:
         scn = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
         source = scn.name if isinstance(scenario, Scenario) else str(scenario)
@@ -180,28 +278,96 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
             original = scn
             scn = transfer_scenario(original, real_traces)
             transfer_info = transfer_record(original, scn, str(real), real_ids)
+        elif subset is not None:
+            check_subset(subset, list(scn.anchor_ids), f"the anchor subset (scenario '{scn.name}')")
         else:
             problem = describe_anchor_mismatch(real_ids, list(scn.anchor_ids), f"scenario '{scn.name}'")
             if problem:
-                raise AnchorMismatchError(problem + "; transfer the scenario to take the anchor layout from the "
-                                          "real dataset")
+                raise AnchorMismatchError(
+                    problem + "; transfer the scenario to take the anchor layout from the real dataset")
         check_budget(scn, n, force=force)
         root = new_root_seed() if seed is None else int(seed)
         inputs["synthetic"] = {"scenario": source, "scenario_name": scn.name, "n_traces": int(n),
                                "root_seed": root, "transfer": bool(transfer),
                                "scenario_config": scenario_to_dict(scn)}
         synth_iter = generate_traces(compile_scenario(scn), n, seed=root)
+        if subset is not None:
+            synth_iter = (restrict_to_anchors(t, subset) for t in synth_iter)
         total = n
 
-    if progress is None:
-        return compare(real_traces, synth_iter, rate_hz=rate_hz, inputs=inputs, transfer=transfer_info)
     verb = "generating + reducing" if synthetic is None else "reducing"
     done = 0
 
     def on_trace() -> None:
         nonlocal done
         done += 1
-        progress(f"{verb} synthetic traces", done, total)
+        if progress is not None:
+            progress(f"{verb} synthetic traces", done, total)
 
-    progress(f"{verb} synthetic traces", 0, total)
-    return compare(real_traces, synth_iter, rate_hz=rate_hz, inputs=inputs, transfer=transfer_info, on_trace=on_trace)
+    if progress is not None:
+        progress(f"{verb} synthetic traces", 0, total)
+    try:
+        report = compare(real_traces, synth_iter, rate_hz=rate_hz, inputs=inputs, transfer=transfer_info,
+                         on_trace=on_trace)
+    except ValueError as exc:  # a streamed table that reads but does not make valid records
+        raise PhySynthError(f"synthetic dataset {synthetic}: invalid content: {exc}") from None
+    if synthetic is not None and not report.inputs["n_residuals"]["synthetic"]:
+        raise PhySynthError(f"synthetic dataset {synthetic} has no valid UWB range: nothing to compare")
+    return report
+
+
+def _checked_stream(path: str | Path, meta: dict[str, Any]) -> Iterable[Trace]:
+    """The traces of a synthetic dataset, streamed; read errors name the role."""
+    stream = iter_traces(path, meta)
+    while True:
+        try:
+            trace = next(stream)
+        except StopIteration:
+            return
+        except PhySynthError as exc:
+            raise PhySynthError(f"synthetic dataset: {exc}") from None
+        yield trace
+
+
+# ---------------------------------------------------------------- studies
+def _scenario(scenario: str | Path | Scenario) -> Scenario:
+    return scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+
+
+def anchor_study(scenario: str | Path | Scenario, *, real: str | Path | None = None, n: int = 50,
+                 seed: int | None = None, counts: Sequence[int] | None = None,
+                 regimes: Sequence[str] = ("dense", "sparse", "degraded"), order: Sequence[str] | None = None,
+                 workers: int | None = None, progress: ProgressCallback | None = None) -> Any:
+    """:func:`physynth.studies.anchors.run_anchor_study` on a scenario (preset, file or object) and,
+    optionally, a real dataset directory (its traces need truth and valid ranges).
+
+    ``seed=None`` draws a root seed from OS entropy; it is recorded in the result.
+    """
+    from .studies.anchors import run_anchor_study
+    from .validate.compare import check_real
+
+    scn = _scenario(scenario)
+    real_traces = None
+    if real is not None:
+        real_traces = _read(read_dataset, real, "real").traces
+        check_real(real_traces, f"real dataset {real}")
+    root = new_root_seed() if seed is None else int(seed)
+    study = run_anchor_study(scn, real=real_traces, n=n, seed=root, counts=counts, regimes=regimes, order=order,
+                             workers=workers, progress=progress)
+    if real is not None:
+        study.reference["path"] = str(real)
+    return study
+
+
+def placement_study(scenario: str | Path | Scenario, candidates: str | Path, *, k: int, objective: str = "ge1",
+                    n: int = 20, seed: int | None = None, regime: str = "nominal", workers: int | None = None,
+                    progress: ProgressCallback | None = None) -> Any:
+    """:func:`physynth.studies.placement.greedy_placement` with candidates read from a file."""
+    from .studies.placement import greedy_placement, read_candidates
+    from .studies.regimes import apply_regime
+
+    scn = apply_regime(_scenario(scenario), regime)
+    cands = read_candidates(candidates)
+    root = new_root_seed() if seed is None else int(seed)
+    return greedy_placement(scn, cands, k=k, objective=objective, n=n, seed=root, workers=workers,
+                            progress=progress)

@@ -462,6 +462,7 @@ def fit_availability(traces: Sequence[Trace], offset_s: float, burst_rate_hz: fl
         up_bursts += int((~ex).sum())
     td, tc = np.concatenate(tag_durations), np.concatenate(tag_censored)
     tag: dict[str, Any] = {"min_duration_s": tag_min_s, "n_outages": int(td.size), "n_censored": int(tc.size),
+                           "up_bursts": up_bursts,
                            "durations_s": td.tolist(), "censored_s": tc.tolist()}
     if td.size + tc.size:
         tag["onset_prob"] = float((td.size + tc.size) / max(up_bursts, 1))

@@ -216,7 +216,8 @@ def _path_diagnostics(params: PathParams, points: np.ndarray) -> dict[str, Any]:
 
 
 def fit_path(traces: Trace | Sequence[Trace], kind: PathKind = "auto", *, degree: int = POLY_DEGREE,
-             waypoint_tol_m: float = WAYPOINT_TOL_M, max_waypoints: int = 400) -> Fit[PathParams]:
+             waypoint_tol_m: float = WAYPOINT_TOL_M, max_waypoints: int = 400,
+             tracks: Sequence[TrackSummary] | None = None) -> Fit[PathParams]:
     """Fit the path geometry p(s) to the ground truth over arc length.
 
     The geometry comes from the first (reference) trace: its trip (start to end of motion, see
@@ -244,7 +245,8 @@ def fit_path(traces: Trace | Sequence[Trace], kind: PathKind = "auto", *, degree
     if kind not in ("auto", "polynomial", "waypoints"):
         raise CalibrationError(f"unknown path kind {kind!r} (use auto, polynomial or waypoints)")
     labels = [trace_label(t, i) for i, t in enumerate(trs)]
-    tracks = [summarize_track(t, lab) for t, lab in zip(trs, labels, strict=True)]
+    if tracks is None:
+        tracks = [summarize_track(t, lab) for t, lab in zip(trs, labels, strict=True)]
     ref, ref_trace = tracks[0], trs[0]
     if ref.trip_length_m <= 0:
         raise CalibrationError(f"{ref.label}: the ground truth does not move; no path to fit")
@@ -317,7 +319,8 @@ def _uniform_half_width(x: np.ndarray) -> float:
 def fit_motion(traces: Trace | Sequence[Trace], *, profile: Literal["auto", "polynomial", "empirical"] = "auto",
                path_length_m: float | None = None, stop_speed_frac: float = STOP_SPEED_FRAC,
                min_r2: float = SPEED_POLY_MIN_R2, empirical_step_s: float = 0.2,
-               defaults: MotionParams | None = None) -> Fit[MotionParams]:
+               defaults: MotionParams | None = None,
+               tracks: Sequence[TrackSummary] | None = None) -> Fit[MotionParams]:
     """Fit the motion model: speed-profile shape, cruise speed, dwells and run-to-run spread.
 
     Per run, the trip runs from the start to the end of motion (:func:`summarize_track`); the dwells
@@ -335,7 +338,8 @@ def fit_motion(traces: Trace | Sequence[Trace], *, profile: Literal["auto", "pol
     """
     trs = as_trace_list(traces)
     labels = [trace_label(t, i) for i, t in enumerate(trs)]
-    tracks = [summarize_track(t, lab, stop_speed_frac=stop_speed_frac) for t, lab in zip(trs, labels, strict=True)]
+    if tracks is None:
+        tracks = [summarize_track(t, lab, stop_speed_frac=stop_speed_frac) for t, lab in zip(trs, labels, strict=True)]
     for tr in tracks:
         if tr.trip_s <= 0 or tr.trip_length_m <= 0:
             raise CalibrationError(f"{tr.label}: no motion found in the ground truth")
@@ -430,7 +434,8 @@ def fit_motion(traces: Trace | Sequence[Trace], *, profile: Literal["auto", "pol
     return Fit(params=params, n_samples=n, diagnostics=diag)
 
 
-def fit_path_perturbation(traces: Sequence[Trace], path: PathParams) -> dict[str, Any]:
+def fit_path_perturbation(traces: Sequence[Trace], path: PathParams, *,
+                          tracks: Sequence[TrackSummary] | None = None) -> dict[str, Any]:
     """Run-to-run lateral and vertical deformation of several runs around the fitted path.
 
     Each run's trip, resampled over its own normalised arc length u, is compared with the path at u;
@@ -443,8 +448,9 @@ def fit_path_perturbation(traces: Sequence[Trace], path: PathParams) -> dict[str
     lateral = geom.lateral_direction()
     out: dict[str, Any] = {"per_run": {}}
     lat_amp, sag_amp = [], []
-    for i, tr in enumerate(trs):
-        track = summarize_track(tr, trace_label(tr, i))
+    if tracks is None:
+        tracks = [summarize_track(tr, trace_label(tr, i)) for i, tr in enumerate(trs)]
+    for track in tracks:
         sd, pd = _dense_by_arc_length(track, ds_m=float(np.clip(track.trip_length_m / 2000.0, 0.05, 0.5)))
         u = sd / sd[-1]
         ref = geom.evaluate(u * geom.length_m)[0]
@@ -469,23 +475,50 @@ def fit_path_perturbation(traces: Sequence[Trace], path: PathParams) -> dict[str
 # --------------------------------------------------------------------------------------------------
 
 
-def anchor_layout(traces: Sequence[Trace], *, policy: Literal["strict", "first"] = "strict",
-                  tol_m: float = ANCHOR_TOL_M, labels: Sequence[str] | None = None
-                  ) -> tuple[list[AnchorSpec], dict[str, Any]]:
-    """The union of the traces' anchors (ids in order of first appearance) and a diagnostics dict.
+AnchorPolicy = Literal["per-run", "strict", "first"]
 
-    Two traces that place the same anchor id more than ``tol_m`` apart conflict: with
-    ``policy="strict"`` that is an error naming the anchor and both positions; with ``"first"`` the
-    first position is kept and the conflict is listed in the diagnostics (the per-anchor channel
-    statistics are computed with each run's own positions either way).
+
+def anchor_layout(traces: Sequence[Trace], *, policy: AnchorPolicy = "strict",
+                  tol_m: float = ANCHOR_TOL_M, labels: Sequence[str] | None = None,
+                  layout_from: int | str | None = None) -> tuple[list[AnchorSpec], dict[str, Any]]:
+    """The anchors a scenario generates with (ids in order of first appearance) and a diagnostics dict.
+
+    Two traces that place the same anchor id more than ``tol_m`` apart conflict. ``policy``:
+
+    - ``"per-run"``: anchors re-placed between runs are expected (one physical device per id, moved
+      for each run, as in the Hanyang campaign); the layout of run ``layout_from`` (index or label,
+      default the first run) is written, anchors it lacks take their first position elsewhere, and
+      every run's own layout is recorded in the diagnostics (``layouts``);
+    - ``"strict"``: a conflict is an error naming the anchor and both positions;
+    - ``"first"``: the first position of each id is kept and the conflicts are listed.
+
+    The channel and availability statistics are computed with each run's own positions under every
+    policy: the policy only decides which layout the scenario generates with.
     """
     trs = list(traces)
     names = list(labels) if labels is not None else [trace_label(t, i) for i, t in enumerate(trs)]
+    if policy not in ("per-run", "strict", "first"):
+        raise CalibrationError(f"unknown anchor layout policy {policy!r} (use per-run, strict or first)")
+    if layout_from is None:
+        ref = 0
+    elif isinstance(layout_from, int) and not isinstance(layout_from, bool):
+        if not 0 <= layout_from < len(trs):
+            raise CalibrationError(f"layout_from={layout_from}: there are {len(trs)} recordings (0 .. {len(trs) - 1})")
+        ref = layout_from
+    elif str(layout_from) in names:
+        ref = names.index(str(layout_from))
+    else:
+        raise CalibrationError(f"layout_from={layout_from!r} names no recording; the recordings are "
+                               f"{', '.join(names)}")
+    if ref != 0 and policy != "per-run":
+        raise CalibrationError("layout_from chooses a recording's layout only under the per-run anchor policy")
+    order = [ref] + [i for i in range(len(trs)) if i != ref]
     pos: dict[str, np.ndarray] = {}
     display: dict[str, str] = {}
     where: dict[str, str] = {}
     conflicts = []
-    for tr, lab in zip(trs, names, strict=True):
+    for k in order:
+        tr, lab = trs[k], names[k]
         for j, aid in enumerate(tr.anchors.ids):
             p = tr.anchors.pos_enu_m[j]
             if aid not in pos:
@@ -497,14 +530,20 @@ def anchor_layout(traces: Sequence[Trace], *, policy: Literal["strict", "first"]
                        f"{np.round(p, 3).tolist()} in {lab} ({dist:.2f} m apart)")
                 if policy == "strict":
                     raise CalibrationError(f"conflicting anchors across the recordings: {msg}; calibrate them "
-                                           "separately or take the first layout (anchor layout policy 'first')")
+                                           "separately, or use the anchor layout policy 'per-run' (each run "
+                                           "against its own layout) or 'first'")
                 conflicts.append(msg)
     if not pos:
         raise CalibrationError("the recordings have no anchors (no UWB anchor layout to calibrate)")
+    first_seen = [a for t in trs for a in t.anchors.ids]
+    ids = sorted(pos, key=first_seen.index)
     specs = [AnchorSpec(id=a, pos_enu_m=[round(float(x), 4) for x in pos[a]],
-                        name=display[a] if display[a] != a else None) for a in pos]
+                        name=display[a] if display[a] != a else None) for a in ids]
+    layouts = {lab: {a: [round(float(x), 4) for x in t.anchors.pos_enu_m[j]] for j, a in enumerate(t.anchors.ids)}
+               for t, lab in zip(trs, names, strict=True)}
     return specs, {"policy": policy, "tolerance_m": tol_m, "conflicts": conflicts,
-                   "layout_from": {a: where[a] for a in pos}}
+                   "layout_from": {a: where[a] for a in ids}, "generation_layout": names[ref],
+                   "layouts": layouts}
 
 
 def transfer_scenario(scn: Scenario, real_traces: Trace | Sequence[Trace], *, path_kind: PathKind = "auto",

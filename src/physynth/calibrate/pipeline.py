@@ -1,49 +1,108 @@
 """The whole calibration: traces (or dataset directories) -> a Scenario and a JSON fit report.
 
-Steps (each a separate fit, see the sibling modules): input checks and anchor layout, path geometry,
-motion, UWB time offset, burst schedule, per-anchor LOS/NLOS errors, availability (link range,
-dropout, outages, tag outages), IMU noise when IMU data is present. The scenario is written in the
-generator's own format, so it feeds ``physynth generate`` directly; the report gives every parameter
-with its standard error or the number of samples behind it, the diagnostics that support it and the
-list of what could not be identified.
+:func:`calibrate` runs named steps, each a function that takes and returns typed records:
+
+1. :func:`prepare_inputs` -> :class:`CalibrationInputs`: input checks, labels, anchor layouts, the
+   track summary of every run (computed once, shared by the path and motion fits);
+2. :func:`fit_geometry` -> :class:`GeometryFit`: path, run-to-run deformation and motion;
+3. :func:`fit_timing` -> :class:`TimingFit`: UWB time offset (grid search) and burst schedule;
+4. :func:`fit_ranging` -> :class:`RangingFit`: per-anchor LOS/NLOS errors pooled over runs (each run
+   against its own anchor positions), the refined time offset and the run-to-run ranging offsets;
+5. :func:`fit_link_availability` -> :class:`AvailabilityFit` (link range, dropout, outages, tag
+   outages, rates with their Gamma posteriors);
+6. :func:`assemble_channels` -> :class:`ChannelSet`: per-anchor channel parameters with NLOS modes
+   and their episode lengths;
+7. :func:`assemble_availability` -> :class:`AvailabilitySet`;
+8. :func:`fit_imu_step` -> :class:`~physynth.models.imu.ImuParams` when IMU data is present;
+9. :func:`build_scenario`: the :class:`~physynth.scenario.Scenario` from the parameter objects.
+
+Every step writes what it fitted into one :class:`ReportBuilder`: every parameter with its standard
+error or the number of samples behind it, the diagnostics that support it and the list of what could
+not be identified. The scenario is in the generator's own format, so it feeds ``physynth generate``.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
 import os
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
 
 from .. import __version__
+from ..models.availability import AvailabilityOverride, RatePosterior, gamma_rate_posterior
+from ..progress import ProgressCallback, no_progress
 from ..records import Trace
 from ..scenario import (
+    AnchorSpec,
     AvailabilityParams,
+    ChannelOverride,
     ChannelParams,
     ImuParams,
     MotionParams,
     NlosMode,
+    PathParams,
     PerturbationParams,
     Scenario,
     UwbParams,
-    scenario_from_dict,
 )
-from ._base import CalibrationError, as_trace_list, jsonable, require_truth, rounded, trace_label
+from ._base import CalibrationError, Fit, as_trace_list, jsonable, require_truth, rounded, trace_label
 from .availability_fit import fit_availability
-from .geometry import PathKind, anchor_layout, fit_motion, fit_path, fit_path_perturbation
+from .geometry import (
+    AnchorPolicy,
+    PathKind,
+    TrackSummary,
+    anchor_layout,
+    fit_motion,
+    fit_path,
+    fit_path_perturbation,
+    summarize_track,
+)
 from .uwb_fit import (
     MIN_ANCHOR_ROWS,
     MixtureFit,
+    ModeFit,
+    Residuals,
     corrected_residuals,
     fit_burst_schedule,
     fit_time_offset,
     select_mixture,
 )
 
-ProgressFn = Callable[[str], None]
+
+# ---------------------------------------------------------------- the report
+@dataclass(slots=True)
+class ReportBuilder:
+    """The fit report under construction: sections, parameters, what is not identifiable, warnings."""
+
+    sections: dict[str, Any] = field(default_factory=dict)
+    parameters: dict[str, dict[str, Any]] = field(default_factory=dict)
+    not_identifiable: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    def param(self, key: str, value: Any, *, se: Any = None, n: int | None = None, note: str | None = None,
+              summary: bool = False, interval: Sequence[float] | None = None) -> None:
+        """Record one fitted parameter (``interval``: a 90 % credible interval, e.g. of a rate)."""
+        item: dict[str, Any] = {"value": value}
+        if se is not None:
+            item["std_error"] = se
+        if interval is not None:
+            item["interval_90"] = [float(x) for x in interval]
+        if n is not None:
+            item["n_samples"] = int(n)
+        if note:
+            item["note"] = note
+        if summary:
+            item["summary"] = True
+        self.parameters[key] = item
+
+    def to_dict(self) -> dict[str, Any]:
+        out = {**self.sections, "parameters": self.parameters, "not_identifiable": self.not_identifiable}
+        if self.warnings:
+            out["warnings"] = self.warnings
+        return jsonable(out)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -61,7 +120,10 @@ class CalibrationResult:
                 continue
             v = item["value"]
             value = (" / ".join(_fmt(x) for x in v) if isinstance(v, list) else _fmt(v))
-            if item.get("std_error") is not None:
+            if item.get("interval_90") is not None:
+                lo, hi = item["interval_90"]
+                unc = f"90 % [{_fmt(lo)}, {_fmt(hi)}]"
+            elif item.get("std_error") is not None:
                 se = item["std_error"]
                 unc = "+- " + (" / ".join(_fmt(x) for x in se) if isinstance(se, list) else _fmt(se))
             elif item.get("n_samples") is not None:
@@ -80,20 +142,7 @@ def _fmt(x: Any) -> str:
     return str(x)
 
 
-def _param(report: dict[str, Any], key: str, value: Any, *, se: Any = None, n: int | None = None,
-           note: str | None = None, summary: bool = False) -> None:
-    item: dict[str, Any] = {"value": value}
-    if se is not None:
-        item["std_error"] = se
-    if n is not None:
-        item["n_samples"] = int(n)
-    if note:
-        item["note"] = note
-    if summary:
-        item["summary"] = True
-    report["parameters"][key] = item
-
-
+# ---------------------------------------------------------------- NLOS episodes
 def _nlos_runs(flags: list[np.ndarray]) -> np.ndarray:
     lengths = []
     for f in flags:
@@ -107,26 +156,126 @@ MIN_MODE_EPISODES = 2
 """A mixture mode gets its own NLOS episode length from at least this many episodes (else uwb.nlos_dwell_s)."""
 
 
-def _mode_runs(residual_m: np.ndarray, flags: list[np.ndarray], modes: Sequence[tuple[float, float, float]]
-               ) -> list[np.ndarray]:
-    """Run lengths of consecutive NLOS rows in the same mixture mode (most likely mode per row), per mode."""
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ModeEpisodes:
+    """The episodes of one NLOS mode: runs of consecutive rows of one anchor most likely in that mode."""
+
+    lengths: np.ndarray  # (E,) rows per episode
+    within_std_m: float | None  # pooled std of the residuals around their episode mean (episodes of >= 2 rows)
+    n_within: int  # rows behind within_std_m
+
+
+def _mode_episodes(residual_m: np.ndarray, flags: list[np.ndarray], modes: Sequence[ModeFit]) -> list[ModeEpisodes]:
+    """Episodes of each mode, with the spread of the residuals inside an episode (is the offset held?)."""
+    lengths = _mode_runs(residual_m, flags, modes, keep_ids=True)
+    out = []
+    for run_len, run_id in lengths:
+        if run_id is None or run_len.size == 0:
+            out.append(ModeEpisodes(lengths=run_len, within_std_m=None, n_within=0))
+            continue
+        r = np.asarray(residual_m)[run_id >= 0]
+        ids = run_id[run_id >= 0]
+        counts = np.bincount(ids)
+        means = np.bincount(ids, weights=r) / np.maximum(counts, 1)
+        multi = counts[ids] >= 2
+        dof = int(np.sum(counts[counts >= 2] - 1))
+        within = float(np.sqrt(np.sum((r[multi] - means[ids[multi]]) ** 2) / dof)) if dof > 0 else None
+        out.append(ModeEpisodes(lengths=run_len, within_std_m=within, n_within=dof))
+    return out
+
+
+def _mode_runs(residual_m: np.ndarray, flags: list[np.ndarray], modes: Sequence[ModeFit], *, keep_ids: bool = False
+               ) -> list[Any]:
+    """Run lengths of consecutive NLOS rows in the same mixture mode (most likely mode per row), per mode.
+
+    With ``keep_ids``: per mode (lengths, run id of every row (N,), -1 for rows of other modes or LOS).
+    """
     if not modes or not flags:
-        return [np.zeros(0, np.int64) for _ in modes]
-    w, m, sd = (np.array(x) for x in zip(*modes, strict=True))
+        return [(np.zeros(0, np.int64), None) if keep_ids else np.zeros(0, np.int64) for _ in modes]
+    w = np.array([m.weight for m in modes])
+    mu = np.array([m.mean_m for m in modes])
+    sd = np.array([m.std_m for m in modes])
     r = np.asarray(residual_m)
-    best = np.argmax(np.log(w)[None, :] - np.log(sd)[None, :] - 0.5 * ((r[:, None] - m) / sd) ** 2, axis=1)
+    best = np.argmax(np.log(w)[None, :] - np.log(sd)[None, :] - 0.5 * ((r[:, None] - mu) / sd) ** 2, axis=1)
     out: list[list[np.ndarray]] = [[] for _ in modes]
+    run_id = [np.full(r.size, -1, dtype=np.int64) for _ in modes]
+    n_runs = [0] * len(modes)
     start = 0
     for f in flags:  # one pass per trace, vectorised over its rows
         lab = np.where(f, best[start:start + f.size], -1)
-        start += f.size
         edges = np.flatnonzero(np.diff(lab)) + 1
         seg_start = np.concatenate([[0], edges])
         seg_len = np.diff(np.concatenate([seg_start, [lab.size]]))
         seg_lab = lab[seg_start] if lab.size else lab
+        seg_of_row = np.repeat(np.arange(seg_start.size), seg_len)
         for j in range(len(modes)):
-            out[j].append(seg_len[seg_lab == j])
-    return [np.concatenate(x) if x else np.zeros(0, np.int64) for x in out]
+            sel = seg_lab == j
+            out[j].append(seg_len[sel])
+            if keep_ids and sel.any():
+                local = np.cumsum(sel) - 1 + n_runs[j]  # run number of each segment of mode j
+                rows = np.flatnonzero(lab == j)
+                run_id[j][start + rows] = local[seg_of_row[rows]]
+                n_runs[j] += int(sel.sum())
+        start += f.size
+    lengths = [np.concatenate(x) if x else np.zeros(0, np.int64) for x in out]
+    return [(x, i) for x, i in zip(lengths, run_id, strict=True)] if keep_ids else lengths
+
+
+SHORT_EPISODE_MAX_ROWS = 5.0
+"""Modes whose episodes last at most this many rows on average are *short* (gross outliers)."""
+
+
+def _is_short(ep: ModeEpisodes) -> bool:
+    return ep.lengths.size < MIN_MODE_EPISODES or float(ep.lengths.mean()) <= SHORT_EPISODE_MAX_ROWS
+
+
+def _pool_episodes(eps: Sequence[ModeEpisodes]) -> ModeEpisodes:
+    """Episodes of several modes as one sample (within-episode variances pooled by degrees of freedom)."""
+    lengths = np.concatenate([e.lengths for e in eps]) if eps else np.zeros(0, np.int64)
+    dof = sum(e.n_within for e in eps if e.within_std_m is not None)
+    ss = sum(e.n_within * e.within_std_m**2 for e in eps if e.within_std_m is not None)
+    return ModeEpisodes(lengths=lengths, within_std_m=float(np.sqrt(ss / dof)) if dof else None, n_within=dof)
+
+
+HELD_MAX_STD_RATIO = 0.3
+"""A mode's offset is *held* over an episode when the residuals inside its episodes scatter by less than
+this fraction of the mode's std (one reflector or one wrong range per episode, not a fresh draw per row)."""
+FIXED_MAX_VAR_RATIO = 0.5
+"""Episodes of a mode have a *fixed* length when the variance of their lengths (in rows) is below this
+fraction of the geometric variance m (m - 1) at the same mean m (exponential episodes give ~1)."""
+
+
+def _episode_shape(mode: ModeFit, ep: ModeEpisodes, attempt_period_s: float, burst_period_s: float
+                   ) -> dict[str, Any]:
+    """Episode length law and offset holding of one NLOS mode, from its episodes.
+
+    Exponential episodes (default) get the geometric MLE of their mean. Episodes of nearly constant
+    length (variance test :data:`FIXED_MAX_VAR_RATIO`, at least :data:`MIN_MODE_EPISODES` + 1 episodes)
+    are a wrong range the radio repeats for K bursts: K is the most common episode length in rows (lost
+    attempts shorten some episodes, never lengthen them) and the episode lasts K burst periods. The
+    offset is held when the within-episode scatter passes :data:`HELD_MAX_STD_RATIO`.
+    """
+    n = ep.lengths
+    out: dict[str, Any] = {"n_episodes": int(n.size), "dwell_s": None, "fixed_dwell": False, "held_jitter_m": None,
+                           "within_episode_std_m": ep.within_std_m}
+    if n.size < MIN_MODE_EPISODES:
+        return out
+    m = float(n.mean())
+    var = float(n.var(ddof=1)) if n.size > 1 else 0.0
+    geo = m * (m - 1.0)
+    out["length_mean_rows"], out["length_var_rows"], out["geometric_var_rows"] = m, var, geo
+    if n.size > MIN_MODE_EPISODES and m > 1.5 and var < FIXED_MAX_VAR_RATIO * geo:
+        counts = np.bincount(n.astype(np.int64))
+        k = int(np.flatnonzero(counts == counts.max())[-1])  # modal length (ties: the longer)
+        out["fixed_dwell"] = True
+        out["hold_bursts"] = k
+        out["dwell_s"] = k * burst_period_s
+    else:
+        out["dwell_s"] = _dwell_from_runs(n, attempt_period_s)
+    if ep.within_std_m is not None and ep.n_within >= MIN_MODE_EPISODES \
+            and ep.within_std_m < HELD_MAX_STD_RATIO * mode.std_m:
+        out["held_jitter_m"] = max(ep.within_std_m, 1e-3)
+    return out
 
 
 def _dwell_from_runs(lengths: np.ndarray, period_s: float) -> float | None:
@@ -139,7 +288,12 @@ def _dwell_from_runs(lengths: np.ndarray, period_s: float) -> float | None:
     return float(-period_s / np.log(1.0 - 1.0 / mean_n))
 
 
-@dataclass(slots=True)
+# ---------------------------------------------------------------- per-anchor channels
+AnchorRows = tuple[np.ndarray, np.ndarray, np.ndarray]
+"""(residual [m], geometric range [m], range rate [m/s]) of an anchor's rows, pooled over runs."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class _Channels:
     pooled_r: np.ndarray
     pooled_fit: MixtureFit
@@ -147,17 +301,34 @@ class _Channels:
     mix: dict[str, MixtureFit]
     mix_diag: dict[str, Any]
     flags: dict[str, list[np.ndarray]]
-    per_anchor_rows: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]  # residual, range, range rate
+    per_anchor_rows: dict[str, AnchorRows]
     notes: list[str]
 
     def los_masks(self) -> dict[str, np.ndarray]:
         return {a: self.mix[a].nlos_resp < 0.5 for a in self.per_anchor_rows}
 
 
+RunOffsets = dict[tuple[str, str], float]
+"""(run label, anchor id) -> the run's LOS ranging offset [m] relative to the anchor's mean over runs."""
+
+
 def _fit_channels(trs: Sequence[Trace], offset: float, ids: Sequence[str], fixed_slope: float | None,
-                  labels: Sequence[str]) -> _Channels:
-    """Per-anchor LOS/NLOS mixtures (and the pooled one) at a given time offset."""
-    res = [corrected_residuals(t, offset) for t in trs]
+                  labels: Sequence[str], run_offsets: RunOffsets | None = None) -> _Channels:
+    """Per-anchor LOS/NLOS mixtures (and the pooled one) at a given time offset.
+
+    Each run's residuals are taken against its own anchor positions; ``run_offsets`` (when given) are
+    subtracted from the run's rows of that anchor first, so that the mixture describes the errors
+    within a run and the run-to-run part is left to ``uwb.run_*offset_std_m``.
+    """
+    res: list[Residuals] = []
+    for t, lab in zip(trs, labels, strict=True):
+        r = corrected_residuals(t, offset)
+        if run_offsets:
+            shift = np.array([run_offsets.get((lab, a), 0.0) for a in t.anchors.ids])
+            if shift.size:
+                r = Residuals(residual_m=r.residual_m - shift[r.anchor], range_m=r.range_m, anchor=r.anchor,
+                              t_s=r.t_s, range_rate_mps=r.range_rate_mps)
+        res.append(r)
     pooled_r = np.concatenate([r.residual_m for r in res])
     pooled_g = np.concatenate([r.range_m for r in res])
     if pooled_r.size < MIN_ANCHOR_ROWS:
@@ -167,9 +338,9 @@ def _fit_channels(trs: Sequence[Trace], offset: float, ids: Sequence[str], fixed
     mix: dict[str, MixtureFit] = {}
     mix_diag: dict[str, Any] = {}
     flags: dict[str, list[np.ndarray]] = {}
-    rows: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    rows: dict[str, AnchorRows] = {}
     notes: list[str] = []
-    for aid in ids:  # one mixture per anchor, pooled over the traces
+    for aid in ids:  # one mixture per anchor (one physical device), pooled over the runs
         parts = [(r.residual_m[m], r.range_m[m], r.range_rate_mps[m])
                  for t, r in zip(trs, res, strict=True) if aid in t.anchors.ids
                  for m in [r.anchor == t.anchors.index(aid)]]
@@ -201,8 +372,7 @@ def _fit_channels(trs: Sequence[Trace], offset: float, ids: Sequence[str], fixed
                      flags=flags, per_anchor_rows=rows, notes=notes)
 
 
-def refine_time_offset(rows: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
-                       los: dict[str, np.ndarray]) -> dict[str, Any] | None:
+def refine_time_offset(rows: dict[str, AnchorRows], los: dict[str, np.ndarray]) -> dict[str, Any] | None:
     """Least-squares correction of the time offset from the LOS rows.
 
     With r(offset) = range - g(t - offset), r(offset0 + d) ~ r(offset0) + g'(t) d; regressing r(offset0)
@@ -213,7 +383,7 @@ def refine_time_offset(rows: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]
     keys = [a for a in rows if los[a].sum() > 10]
     if not keys:
         return None
-    blocks_r, blocks_x, rates = [], [], []
+    blocks_r, blocks_x = [], []
     n_a = len(keys)
     for j, a in enumerate(keys):
         r, g, gd = (x[los[a]] for x in rows[a])
@@ -223,7 +393,6 @@ def refine_time_offset(rows: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]
         x[:, -1] = -gd
         blocks_r.append(r)
         blocks_x.append(x)
-        rates.append(gd)
     y = np.concatenate(blocks_r)
     x = np.concatenate(blocks_x)
     if np.ptp(x[:, -1]) == 0:
@@ -241,190 +410,318 @@ def refine_time_offset(rows: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]
             "sensitivity": sens}
 
 
-def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path_kind: PathKind = "auto",
-              anchor_policy: Literal["strict", "first"] = "strict",
-              static_sweeps: str | os.PathLike | None = None, range_bias: Literal["dynamic", "static"] = "dynamic",
-              sources: Sequence[str] | None = None, progress: ProgressFn | None = None) -> CalibrationResult:
-    """Calibrate a scenario on one or several recordings (real or synthetic Traces).
+def run_offset_table(trs: Sequence[Trace], labels: Sequence[str], offset_s: float, chan: _Channels
+                     ) -> tuple[RunOffsets, dict[str, Any]]:
+    """Per-run LOS ranging offsets of every anchor and their run-to-run spreads (random effects).
 
-    Parameters
-    ----------
-    traces
-        Recordings with ground truth and UWB rows (and optionally IMU samples), pooled.
-    path_kind
-        ``auto`` (polynomial for a cable-like path, else waypoints), ``polynomial`` or ``waypoints``.
-    anchor_policy
-        ``strict``: an anchor id placed differently by two recordings is an error; ``first``: the
-        first recording's layout is written (channel statistics still use each run's own positions).
-    static_sweeps
-        Optional Hanyang ``Static_measurements`` folder: the range-proportional bias is also fitted on
-        the static sweeps (reported), and used for every anchor when ``range_bias="static"``.
-    sources
-        Names of the datasets the traces came from (provenance).
-    progress
-        Called with a short description before each step (the CLI shows it).
+    For run r and anchor a, d_ra is the mean LOS residual of the run (rows the anchor's mixture calls
+    LOS, after its range-proportional bias) minus the mean of d_ra over the runs that have the
+    anchor. A two-way method-of-moments split of the table gives the spread of an offset common to
+    every anchor of a run (``run_offset_std_m``: the truth system or the tag antenna moved) and of the
+    per-anchor remainder (``run_anchor_offset_std_m``: an anchor re-placed and re-surveyed). Each d_ra
+    carries a sampling variance sigma_LOS^2 / n_ra that is subtracted.
     """
-    say = progress or (lambda _msg: None)
+    raw: dict[tuple[str, str], tuple[float, float]] = {}  # (run, anchor) -> (offset, sampling variance)
+    for t, lab in zip(trs, labels, strict=True):
+        r = corrected_residuals(t, offset_s)
+        for j, aid in enumerate(t.anchors.ids):
+            f = chan.mix.get(aid)
+            if f is None or aid not in chan.per_anchor_rows:
+                continue
+            m = r.anchor == j
+            x = r.residual_m[m] - f.range_bias_per_m * r.range_m[m] - f.los_mean_m
+            los = np.abs(x) < 3.0 * f.los_std_m
+            if los.sum() >= MIN_ANCHOR_ROWS:
+                raw[(lab, aid)] = (float(np.mean(x[los])), f.los_std_m**2 / float(los.sum()))
+    ids = sorted({a for _, a in raw})
+    runs = [lab for lab in labels if any((lab, a) in raw for a in ids)]
+    centred: RunOffsets = {}
+    for aid in ids:
+        vals = [raw[(lab, aid)][0] for lab in runs if (lab, aid) in raw]
+        mean = float(np.mean(vals)) if vals else 0.0
+        for lab in runs:
+            if (lab, aid) in raw:
+                centred[(lab, aid)] = raw[(lab, aid)][0] - mean
+    diag: dict[str, Any] = {"per_run": {lab: {a: centred[(lab, a)] for a in ids if (lab, a) in centred}
+                                        for lab in runs}}
+    shared = [a for a in ids if sum((lab, a) in raw for lab in runs) >= 2]
+    if len(runs) < 2 or not shared:
+        diag.update(identifiable=False, why="fewer than two runs share an anchor", run_offset_std_m=0.0,
+                    run_anchor_offset_std_m=0.0)
+        return {}, diag
+    # two-way random effects (runs x anchors, possibly incomplete): run means, then the remainder
+    run_mean = {lab: float(np.mean([centred[(lab, a)] for a in shared if (lab, a) in centred])) for lab in runs}
+    n_a = np.array([sum((lab, a) in centred for a in shared) for lab in runs], dtype=float)
+    rem = np.array([centred[(lab, a)] - run_mean[lab] for lab in runs for a in shared if (lab, a) in centred])
+    noise = float(np.mean([raw[k][1] for k in centred if k[1] in shared]))
+    n_cells = rem.size
+    dof_rem = max(n_cells - len(runs) - len(shared) + 1, 1)
+    var_rem = max(float(rem @ rem) / dof_rem - noise, 0.0)
+    means = np.array([run_mean[lab] for lab in runs])
+    var_runs = max(float(np.var(means, ddof=1)) - float(np.mean((var_rem + noise) / n_a)), 0.0)
+    diag.update(identifiable=True, n_runs=len(runs), n_anchors=len(shared), run_means_m=run_mean,
+                run_offset_std_m=float(np.sqrt(var_runs)), run_anchor_offset_std_m=float(np.sqrt(var_rem)),
+                sampling_var_m2=noise,
+                method="two-way method of moments on the per-run mean LOS residuals (anchor means removed)")
+    return centred, diag
+
+
+# ---------------------------------------------------------------- step records
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CalibrationInputs:
+    """Checked inputs: the UWB recordings, the IMU-only ones, labels, anchors and track summaries."""
+
+    traces: list[Trace]
+    labels: list[str]
+    imu_only: list[Trace]
+    imu_only_labels: list[str]
+    anchors: list[AnchorSpec]
+    layout: dict[str, Any]
+    tracks: list[TrackSummary]
+
+    @property
+    def anchor_ids(self) -> list[str]:
+        return [a.id for a in self.anchors]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class GeometryFit:
+    path: PathParams
+    motion: MotionParams
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TimingFit:
+    offset_s: float  # grid-search time offset [s]
+    offset_fit: Fit[float]
+    burst: Fit[dict[str, float]]
+
+    @property
+    def burst_rate_hz(self) -> float:
+        return rounded(float(self.burst.params["burst_rate_hz"]), 7)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RangingFit:
+    offset_s: float  # final time offset [s]
+    offset_se_s: float
+    channels: _Channels
+    refinement: dict[str, Any] | None
+    fixed_slope: float | None
+    run_offset_std_m: float
+    run_anchor_offset_std_m: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class AvailabilityFit:
+    per_anchor: dict[str, dict[str, Any]]
+    tag: dict[str, Any]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ChannelSet:
+    pooled: ChannelParams
+    per_anchor: dict[str, ChannelParams]
+    nlos_dwell_s: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class AvailabilitySet:
+    pooled: AvailabilityParams
+    per_anchor: dict[str, AvailabilityOverride]
+
+
+# ---------------------------------------------------------------- steps
+def prepare_inputs(traces: Trace | Sequence[Trace], *, anchor_policy: AnchorPolicy = "per-run",
+                   layout_from: int | str | None = None, report: ReportBuilder) -> CalibrationInputs:
+    """Check the recordings, label them, set the IMU-only ones aside and read the anchor layouts."""
     trs = as_trace_list(traces)
     labels = [trace_label(t, i) for i, t in enumerate(trs)]
     if len(set(labels)) != len(labels):
         labels = [f"{lab} [{i}]" for i, lab in enumerate(labels)]
         trs = [Trace(truth=t.truth, uwb=t.uwb, anchors=t.anchors, imu=t.imu, meta={**t.meta, "label": lab})
                for t, lab in zip(trs, labels, strict=True)]
-    say("checking the recordings")
-    imu_only: list[Trace] = []  # IMU recordings without UWB (e.g. a lab trial): they inform the IMU fit only
-    imu_only_labels: list[str] = []
-    for t, lab in zip(trs, labels, strict=True):
+    keep: list[int] = []
+    imu_only: list[int] = []  # IMU recordings without UWB (e.g. a lab trial): they inform the IMU fit only
+    for i, (t, lab) in enumerate(zip(trs, labels, strict=True)):
         require_truth(t, lab)
         has_uwb = len(t.uwb) > 0 and bool(t.uwb.valid.any())
         has_imu = t.imu is not None and t.imu.t_s.size > 100
         if not has_uwb and has_imu:
-            imu_only.append(t)
-            imu_only_labels.append(lab)
+            imu_only.append(i)
             continue
         if not has_uwb:
             raise CalibrationError(f"{lab}: no UWB rows with a range and no IMU samples: nothing to calibrate on")
         if len(t.anchors) == 0:
             raise CalibrationError(f"{lab}: no anchors")
-    if imu_only:
-        keep = [i for i, lab in enumerate(labels) if lab not in imu_only_labels]
-        trs, labels = [trs[i] for i in keep], [labels[i] for i in keep]
-        if not trs:
-            raise CalibrationError("no recording with UWB measurements: a scenario needs at least one "
-                                   "(IMU-only recordings can join a UWB recording to calibrate the IMU; "
-                                   "alone, use physynth.calibrate.imu_fit.fit_imu)")
-    anchors, layout = anchor_layout(trs, policy=anchor_policy, labels=labels)
+        keep.append(i)
+    if not keep:
+        raise CalibrationError("no recording with UWB measurements: a scenario needs at least one "
+                               "(IMU-only recordings can join a UWB recording to calibrate the IMU; "
+                               "alone, use physynth.calibrate.imu_fit.fit_imu)")
+    uwb_trs, uwb_labels = [trs[i] for i in keep], [labels[i] for i in keep]
+    anchors, layout = anchor_layout(uwb_trs, policy=anchor_policy, labels=uwb_labels, layout_from=layout_from)
     windows = {}
-    for t, lab in zip(trs, labels, strict=True):
+    for t, lab in zip(uwb_trs, uwb_labels, strict=True):
         u_t = t.uwb.t_s[t.uwb.valid]
-        lead, tail = float(u_t[0] - t.truth.t_s[0]), float(t.truth.t_s[-1] - u_t[-1])
-        windows[lab] = {"uwb_starts_after_truth_s": lead, "truth_continues_after_uwb_s": tail}
-    ids = [a.id for a in anchors]
-    report: dict[str, Any] = {
-        "physynth_version": __version__,
-        "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-        "recordings": labels,
-        "imu_only_recordings": imu_only_labels,
-        "sources": list(sources or []),
-        "anchor_layout": layout,
-        "recording_windows": windows,
-        "parameters": {},
-        "not_identifiable": [],
-    }
-    notes: list[str] = report["not_identifiable"]
-    for lab, w in windows.items():
+        windows[lab] = {"uwb_starts_after_truth_s": float(u_t[0] - t.truth.t_s[0]),
+                        "truth_continues_after_uwb_s": float(t.truth.t_s[-1] - u_t[-1])}
+        w = windows[lab]
         if max(w["uwb_starts_after_truth_s"], w["truth_continues_after_uwb_s"]) > 2.0:
-            report.setdefault("warnings", []).append(
+            report.warnings.append(
                 f"{lab}: UWB covers only part of the truth span (first range {w['uwb_starts_after_truth_s']:+.1f} s "
                 f"from the truth start, last range {w['truth_continues_after_uwb_s']:.1f} s before its end); "
                 "availability is fitted on the "
                 "UWB span only, so metrics of the uncropped recording count the uncovered part as missing UWB "
                 "(import with crop_to_uwb to drop it)")
+    report.sections.update({
+        "physynth_version": __version__,
+        "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "recordings": uwb_labels,
+        "imu_only_recordings": [labels[i] for i in imu_only],
+        "anchor_layout": layout,
+        "recording_windows": windows,
+    })
+    tracks = [summarize_track(t, lab) for t, lab in zip(uwb_trs, uwb_labels, strict=True)]
+    return CalibrationInputs(traces=uwb_trs, labels=uwb_labels, imu_only=[trs[i] for i in imu_only],
+                             imu_only_labels=[labels[i] for i in imu_only], anchors=anchors, layout=layout,
+                             tracks=tracks)
 
-    # ---------------------------------------------------------------- path and motion
-    say("fitting the path geometry")
-    pf = fit_path(trs, path_kind)
-    report["path"] = pf.diagnostics
-    _param(report, "path.kind", pf.params.kind, n=pf.n_samples, summary=True)
-    _param(report, "path.length_m", pf.diagnostics["length_m"], n=pf.n_samples, summary=True)
-    _param(report, "path.rmse_m", pf.diagnostics["rmse_m"], n=pf.n_samples,
-           note="cross-track RMSE of the truth to the fitted path", summary=True)
+
+def fit_geometry(inp: CalibrationInputs, path_kind: PathKind, report: ReportBuilder,
+                 progress: ProgressCallback) -> GeometryFit:
+    """Path geometry, run-to-run deformation and motion (one track summary per run, shared)."""
+    trs, rep = inp.traces, report
+    progress("fitting the path geometry")
+    pf = fit_path(trs, path_kind, tracks=inp.tracks)
+    rep.sections["path"] = pf.diagnostics
+    rep.param("path.kind", pf.params.kind, n=pf.n_samples, summary=True)
+    rep.param("path.length_m", pf.diagnostics["length_m"], n=pf.n_samples, summary=True)
+    rep.param("path.rmse_m", pf.diagnostics["rmse_m"], n=pf.n_samples,
+              note="cross-track RMSE of the truth to the fitted path", summary=True)
     if len(trs) >= 2:
-        pert = fit_path_perturbation(trs, pf.params)
+        pert = fit_path_perturbation(trs, pf.params, tracks=inp.tracks)
         perturbation = PerturbationParams(lateral_std_m=rounded(pert["lateral_std_m"], 4),
                                           sag_std_m=rounded(pert["sag_std_m"], 4))
-        report["path_perturbation"] = pert
+        rep.sections["path_perturbation"] = pert
         note = "std over runs of the half-sine amplitudes"
     elif pf.params.kind == "polynomial":  # a cable: the paper's deformation is the prior
         perturbation = PerturbationParams()
-        report["path_perturbation"] = {"note": "one run: run-to-run deformation not identifiable, cable "
-                                               "defaults kept (2 m lateral, 1 m sag; paper III.C)"}
-        notes.append("path.perturbation (one run; cable defaults kept)")
+        rep.sections["path_perturbation"] = {"note": "one run: run-to-run deformation not identifiable, cable "
+                                                     "defaults kept (2 m lateral, 1 m sag; paper III.C)"}
+        rep.not_identifiable.append("path.perturbation (one run; cable defaults kept)")
         note = "default (one run)"
     else:  # a general path (a walk, a vehicle): a cable's sag has no meaning and nothing else is known
         perturbation = PerturbationParams(lateral_std_m=0.0, sag_std_m=0.0)
-        report["path_perturbation"] = {"note": "one run of a general path: run-to-run deformation not "
-                                               "identifiable; none claimed (set path.perturbation to add some)"}
-        notes.append("path.perturbation (one run of a general path; set to 0)")
+        rep.sections["path_perturbation"] = {"note": "one run of a general path: run-to-run deformation not "
+                                                     "identifiable; none claimed (set path.perturbation to add some)"}
+        rep.not_identifiable.append("path.perturbation (one run of a general path; set to 0)")
         note = "0 (one run, general path)"
-    _param(report, "path.perturbation.lateral_std_m", perturbation.lateral_std_m, n=len(trs), note=note)
-    _param(report, "path.perturbation.sag_std_m", perturbation.sag_std_m, n=len(trs), note=note)
+    rep.param("path.perturbation.lateral_std_m", perturbation.lateral_std_m, n=len(trs), note=note)
+    rep.param("path.perturbation.sag_std_m", perturbation.sag_std_m, n=len(trs), note=note)
     path = pf.params.model_copy(update={"perturbation": perturbation})
 
-    say("fitting the motion")
-    mf = fit_motion(trs, path_length_m=pf.diagnostics["length_m"], defaults=MotionParams(cruise_speed_mps=1.0))
-    report["motion"] = mf.diagnostics
+    progress("fitting the motion")
+    mf = fit_motion(trs, path_length_m=pf.diagnostics["length_m"], defaults=MotionParams(cruise_speed_mps=1.0),
+                    tracks=inp.tracks)
+    rep.sections["motion"] = mf.diagnostics
     mp = mf.params
-    _param(report, "motion.cruise_speed_mps", mp.cruise_speed_mps,
-           se=mf.diagnostics.get("cruise_speed_mps_std_error"), n=len(trs), summary=True)
-    _param(report, "motion.profile.kind", mp.profile.kind, n=mf.n_samples,
-           note=mf.diagnostics["profile_choice_reason"], summary=True)
-    _param(report, "motion.speed_poly_r2", mf.diagnostics["speed_poly_r2"], n=mf.n_samples)
+    rep.param("motion.cruise_speed_mps", mp.cruise_speed_mps,
+              se=mf.diagnostics.get("cruise_speed_mps_std_error"), n=len(trs), summary=True)
+    rep.param("motion.profile.kind", mp.profile.kind, n=mf.n_samples,
+              note=mf.diagnostics["profile_choice_reason"], summary=True)
+    rep.param("motion.speed_poly_r2", mf.diagnostics["speed_poly_r2"], n=mf.n_samples)
     for key in ("cruise_speed_spread_frac", "length_spread_frac"):
-        _param(report, f"motion.{key}", getattr(mp, key), n=len(trs), note=mf.diagnostics["spread_method"])
+        rep.param(f"motion.{key}", getattr(mp, key), n=len(trs), note=mf.diagnostics["spread_method"])
     for key in ("dwell_start_s", "dwell_end_s"):
         vals = [r[key] for r in mf.diagnostics["per_run"].values()]
-        _param(report, f"motion.{key}", getattr(mp, key),
-               se=float(np.std(vals, ddof=1) / np.sqrt(len(vals))) if len(vals) > 1 else None, n=len(vals))
-    notes += [f"motion.{k} (one run; default kept)" for k in mf.diagnostics.get("not_identifiable", [])]
+        rep.param(f"motion.{key}", getattr(mp, key),
+                  se=float(np.std(vals, ddof=1) / np.sqrt(len(vals))) if len(vals) > 1 else None, n=len(vals))
+    rep.not_identifiable.extend(f"motion.{k} (one run; default kept)"
+                                for k in mf.diagnostics.get("not_identifiable", []))
+    return GeometryFit(path=path, motion=mp)
 
-    # ---------------------------------------------------------------- UWB timing
-    say("searching the UWB time offset")
-    of = fit_time_offset(trs)
-    report["time_offset"] = of.diagnostics
+
+def fit_timing(inp: CalibrationInputs, report: ReportBuilder, progress: ProgressCallback) -> TimingFit:
+    """UWB time offset (robust grid search) and the tag's burst schedule."""
+    progress("searching the UWB time offset")
+    of = fit_time_offset(inp.traces)
+    report.sections["time_offset"] = of.diagnostics
     offset = float(of.params)
-    _param(report, "uwb.time_offset_s", offset, se=of.diagnostics["std_error_s"], n=of.n_samples, summary=True)
+    report.param("uwb.time_offset_s", offset, se=of.diagnostics["std_error_s"], n=of.n_samples, summary=True)
     if not of.diagnostics["identifiable"]:
-        notes.append("uwb.time_offset_s (residual spread independent of the offset)")
+        report.not_identifiable.append("uwb.time_offset_s (residual spread independent of the offset)")
+    progress("fitting the burst schedule")
+    bf = fit_burst_schedule(inp.traces)
+    report.sections["burst_schedule"] = bf.diagnostics
+    timing = TimingFit(offset_s=offset, offset_fit=of, burst=bf)
+    report.param("uwb.burst_rate_hz", timing.burst_rate_hz, n=bf.n_samples, summary=True)
+    report.param("uwb.burst_jitter_s", bf.params["burst_jitter_s"], n=bf.n_samples)
+    report.param("uwb.slot_s", bf.params["slot_s"], n=bf.n_samples, note=bf.diagnostics["slot_method"])
+    report.param("uwb.burst_phase_s", bf.params["burst_phase_s"], n=bf.n_samples,
+                 note="clock alignment of the single run" if bf.params["burst_phase_s"] is not None
+                 else "several runs: drawn per trace")
+    return timing
 
-    say("fitting the burst schedule")
-    bf = fit_burst_schedule(trs)
-    report["burst_schedule"] = bf.diagnostics
-    burst_rate = rounded(float(bf.params["burst_rate_hz"]), 7)
-    _param(report, "uwb.burst_rate_hz", burst_rate, n=bf.n_samples, summary=True)
-    _param(report, "uwb.burst_jitter_s", bf.params["burst_jitter_s"], n=bf.n_samples)
-    _param(report, "uwb.slot_s", bf.params["slot_s"], n=bf.n_samples, note=bf.diagnostics["slot_method"])
-    _param(report, "uwb.burst_phase_s", bf.params["burst_phase_s"], n=bf.n_samples,
-           note="clock alignment of the single run" if bf.params["burst_phase_s"] is not None
-           else "several runs: drawn per trace")
 
-    # ---------------------------------------------------------------- ranging errors
-    say("fitting LOS/NLOS ranging errors per anchor")
-    static = None
-    if static_sweeps is not None:
-        from .static_bias import fit_static_range_bias
-
-        static = fit_static_range_bias(static_sweeps)
-        report["static_range_bias"] = static
-    fixed_slope = static["range_bias_per_m"] if (static is not None and range_bias == "static") else None
+def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, Any] | None,
+                range_bias: Literal["dynamic", "static"], report: ReportBuilder) -> RangingFit:
+    """Per-anchor LOS/NLOS mixtures pooled over runs, the refined time offset and run-to-run offsets."""
+    trs, labels, ids = inp.traces, inp.labels, inp.anchor_ids
     if range_bias == "static" and static is None:
         raise CalibrationError("range_bias='static' needs static_sweeps (the Static_measurements folder)")
+    fixed_slope = static["range_bias_per_m"] if (static is not None and range_bias == "static") else None
+    of = timing.offset_fit
+    offset = timing.offset_s
     chan = _fit_channels(trs, offset, ids, fixed_slope, labels)
     ref = refine_time_offset(chan.per_anchor_rows, chan.los_masks())
-    report["time_offset"]["grid_offset_s"] = offset
-    report["time_offset"]["refinement"] = ref
-    if of.diagnostics["identifiable"] and ref is not None:
+    tsec = report.sections["time_offset"]
+    tsec["grid_offset_s"] = offset
+    tsec["refinement"] = ref
+    refined = bool(of.diagnostics["identifiable"] and ref is not None)
+    if refined:
         offset = offset + ref["correction_s"]
-        chan = _fit_channels(trs, offset, ids, fixed_slope, labels)
-        se_off = float(np.hypot(ref["std_error_s"], of.diagnostics["std_error_s"]
-                                if len(trs) >= 2 else 0.0))
-        report["time_offset"]["offset_s"] = offset
-        report["time_offset"]["std_error_s"] = se_off
-        _param(report, "uwb.time_offset_s", offset, se=se_off, n=of.n_samples, summary=True,
-               note="grid search on the robust spread, refined by least squares on the LOS rows")
+        se_off = float(np.hypot(ref["std_error_s"], of.diagnostics["std_error_s"] if len(trs) >= 2 else 0.0))
+        tsec["offset_s"] = offset
+        tsec["std_error_s"] = se_off
+        report.param("uwb.time_offset_s", offset, se=se_off, n=of.n_samples, summary=True,
+                     note="grid search on the robust spread, refined by least squares on the LOS rows")
     else:
         se_off = float(of.diagnostics["std_error_s"])
-    pooled_r, pooled_fit, pooled_sel = chan.pooled_r, chan.pooled_fit, chan.pooled_sel
+    run_offsets, off_diag = run_offset_table(trs, labels, offset, chan)
+    report.sections["run_offsets"] = off_diag
+    if refined or run_offsets:
+        chan = _fit_channels(trs, offset, ids, fixed_slope, labels, run_offsets=run_offsets)
+    if off_diag["identifiable"]:
+        s_run, s_anchor = off_diag["run_offset_std_m"], off_diag["run_anchor_offset_std_m"]
+        note = "run-to-run spread of the per-run mean LOS residual (two-way random effects)"
+        report.param("uwb.run_offset_std_m", s_run, n=off_diag["n_runs"], note=note, summary=True)
+        report.param("uwb.run_anchor_offset_std_m", s_anchor, n=off_diag["n_runs"] * off_diag["n_anchors"],
+                     note=note, summary=True)
+    else:
+        s_run = s_anchor = 0.0
+        report.not_identifiable.append("uwb.run_offset_std_m, uwb.run_anchor_offset_std_m (one run; 0 kept)")
+    report.not_identifiable.extend(chan.notes)
+    return RangingFit(offset_s=offset, offset_se_s=se_off, channels=chan, refinement=ref, fixed_slope=fixed_slope,
+                      run_offset_std_m=s_run, run_anchor_offset_std_m=s_anchor)
+
+
+def fit_link_availability(inp: CalibrationInputs, ranging: RangingFit, timing: TimingFit,
+                          report: ReportBuilder) -> AvailabilityFit:
+    """Link range, attempt rate, dropout and outages per anchor, and tag outages, pooled over runs."""
+    af = fit_availability(inp.traces, ranging.offset_s, timing.burst_rate_hz, inp.anchor_ids)
+    av, tag = af.params["per_anchor"], af.params["tag"]
+    report.sections["availability"] = {"per_anchor": av, "tag_outages": tag, **af.diagnostics}
+    return AvailabilityFit(per_anchor=av, tag=tag)
+
+
+def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: AvailabilityFit, timing: TimingFit,
+                      report: ReportBuilder) -> ChannelSet:
+    """Per-anchor channel parameters (LOS, NLOS modes with their episode lengths, rate, link range)."""
+    ids, chan, av, rep = inp.anchor_ids, ranging.channels, avail.per_anchor, report
+    burst_rate = timing.burst_rate_hz
     mix, mix_diag, flags = chan.mix, chan.mix_diag, chan.flags
-    notes += chan.notes
-
-    # ---------------------------------------------------------------- availability
-    say("fitting availability (link range, dropouts, outages)")
-    af = fit_availability(trs, offset, burst_rate, ids)
-    av = af.params["per_anchor"]
-    tag = af.params["tag"]
-    report["availability"] = {"per_anchor": av, "tag_outages": tag, **af.diagnostics}
-
+    ref, se_off, fixed_slope = ranging.refinement, ranging.offset_se_s, ranging.fixed_slope
     # NLOS dwell: one value for the generator, pooled over anchors
     periods = {a: av[a]["dropout_outage"]["attempt_period_s"] for a in ids}
     runs_all, per_anchor_dwell = [], {}
@@ -434,34 +731,47 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
         runs_all.append(lengths)
     all_runs = np.concatenate(runs_all) if runs_all else np.zeros(0)
     dwell = _dwell_from_runs(all_runs, float(np.mean(list(periods.values()))))
-    nlos_dwell_guess = dwell if dwell is not None else UwbParams().nlos_dwell_s
+    nlos_dwell = dwell if dwell is not None else UwbParams().nlos_dwell_s
 
-    # ---------------------------------------------------------------- assemble channels
+    # episodes of every mode; the short ones (gross outliers: a device behaviour, a few per anchor) are
+    # pooled over modes and anchors to learn their length law and whether their offset is held
+    empty = ModeEpisodes(lengths=np.zeros(0, np.int64), within_std_m=None, n_within=0)
+    episodes_of = {aid: (_mode_episodes(chan.per_anchor_rows[aid][0], flags[aid], mix[aid].modes)
+                         if aid in chan.per_anchor_rows else [empty] * len(mix[aid].modes)) for aid in ids}
+    short_pool = _pool_episodes([e for eps in episodes_of.values() for e in eps if _is_short(e)])
+    rep.sections["short_nlos_episodes"] = {
+        "rule": f"modes whose episodes last at most {SHORT_EPISODE_MAX_ROWS} rows on average, or with fewer "
+                f"than {MIN_MODE_EPISODES} episodes, share one episode law fitted on all their episodes",
+        "n_episodes": int(short_pool.lengths.size),
+        "length_histogram_rows": np.bincount(short_pool.lengths.astype(np.int64)).tolist()
+        if short_pool.lengths.size else [],
+        "within_episode_std_m": short_pool.within_std_m}
     channel_diag: dict[str, Any] = {}
     per_channel: dict[str, ChannelParams] = {}
-    largest_range = 0.0
     for aid in ids:
         f = mix[aid]
         a_av = av[aid]
         link = a_av["link"]
         rate = min(a_av["attempt_prob"] * burst_rate, burst_rate)
         seen = link.get("max_range_seen_m") or 0.0
-        largest_range = max(largest_range, seen)
         if link.get("identifiable"):
             max_range, edge = link["max_range_m"], link["edge_width_m"]
         else:
             max_range, edge = 2.0 * seen + 10.0, 5.0
-            notes.append(f"channel_per_anchor.{aid}.max_range_m ({link.get('why', 'not identifiable')}; "
-                         f"set to {max_range:.0f} m, above the largest range {seen:.1f} m)")
+            rep.not_identifiable.append(f"channel_per_anchor.{aid}.max_range_m ({link.get('why', 'not identifiable')}; "
+                                        f"set to {max_range:.0f} m, above the largest range {seen:.1f} m)")
         # each mode keeps its own episode length (an episode keeps one reflector): a long, small offset at
         # rest and short gross outliers are different processes
-        mode_runs = _mode_runs(chan.per_anchor_rows[aid][0], flags[aid], f.modes) if aid in chan.per_anchor_rows \
-            else [np.zeros(0)] * len(f.modes)
-        mode_dwell = [_dwell_from_runs(x, periods[aid]) if x.size >= MIN_MODE_EPISODES else None for x in mode_runs]
-        modes = [NlosMode(weight=rounded(w, 4), mean_m=rounded(m, 5), std_m=rounded(s, 4),
-                          dwell_s=None if d is None else rounded(d, 4))
-                 for (w, m, s), d in zip(f.modes, mode_dwell, strict=True)]
-        mode_episodes = [int(x.size) for x in mode_runs]
+        episodes = episodes_of[aid]
+        mode_runs = [e.lengths for e in episodes]
+        shapes = [_episode_shape(m, short_pool if _is_short(e) else e, periods[aid], 1.0 / burst_rate)
+                  for m, e in zip(f.modes, episodes, strict=True)]
+        mode_dwell = [sh["dwell_s"] for sh in shapes]
+        modes = [NlosMode(weight=rounded(m.weight, 4), mean_m=rounded(m.mean_m, 5), std_m=rounded(m.std_m, 4),
+                          dwell_s=None if sh["dwell_s"] is None else rounded(sh["dwell_s"], 4),
+                          fixed_dwell=sh["fixed_dwell"],
+                          held_jitter_m=None if sh["held_jitter_m"] is None else rounded(sh["held_jitter_m"], 4))
+                 for m, sh in zip(f.modes, shapes, strict=True)]
         if not modes:
             modes = ChannelParams().nlos_modes
         per_channel[aid] = ChannelParams(
@@ -478,146 +788,265 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
         if f.nlos_prob > 0:
             # NLOS comes in episodes: Var(p) ~ 2 p (1 - p) tau_c / T_obs with tau_c = dwell (1 - p)
             t_obs = mix_diag[aid]["n"] * periods[aid]
-            tau = (per_anchor_dwell[aid] or nlos_dwell_guess) * (1.0 - f.nlos_prob)
+            tau = (per_anchor_dwell[aid] or nlos_dwell) * (1.0 - f.nlos_prob)
             se["nlos_prob"] = float(max(se["nlos_prob"],
                                         np.sqrt(2.0 * f.nlos_prob * (1.0 - f.nlos_prob) * tau / max(t_obs, 1e-9))))
             se["nlos_prob_method"] = "episodes: sqrt(2 p (1-p) dwell (1-p) / T_obs), at least the binomial SE"
         channel_diag[aid] = {**mix_diag[aid], "std_errors": se, "nlos_dwell_s": per_anchor_dwell[aid],
-                             "nlos_mode_episodes": mode_episodes, "nlos_mode_dwell_s": mode_dwell,
+                             "nlos_mode_episodes": [int(x.size) for x in mode_runs], "nlos_mode_dwell_s": mode_dwell,
+                             "nlos_mode_episode_shape": shapes,
                              "n_nlos_episodes": int(_nlos_runs(flags[aid]).size)}
         if not f.modes:
-            notes.append(f"channel_per_anchor.{aid}.nlos_modes (no NLOS rows; nlos_prob = 0, default mode kept)")
+            rep.not_identifiable.append(f"channel_per_anchor.{aid}.nlos_modes (no NLOS rows; nlos_prob = 0, "
+                                        "default mode kept)")
         centre = f.los_mean_m + f.range_bias_per_m * float(np.median(chan.per_anchor_rows.get(aid, ([0.0],) * 3)[1]))
-        negative = [m for _, m, _ in f.modes if m < centre]
+        negative = [m.mean_m for m in f.modes if m.mean_m < centre]
         if negative:
-            report.setdefault("warnings", []).append(
+            rep.warnings.append(
                 f"{aid}: {len(negative)} NLOS mode(s) below the LOS mean (means "
                 f"{', '.join(f'{m:.2f}' for m in negative)} m): ranges shorter than the truth are not radio NLOS "
                 "(that lengthens ranges) but truth errors or ranging outliers; the mixture reproduces them")
         pre = f"channel_per_anchor.{aid}"
         n_a = mix_diag[aid]["n"]
-        _param(report, f"{pre}.los_mean_m", f.los_mean_m, se=se["los_mean_m"], n=n_a, summary=True)
-        _param(report, f"{pre}.los_std_m", f.los_std_m, se=se["los_std_m"], n=n_a, summary=True)
-        _param(report, f"{pre}.range_bias_per_m", f.range_bias_per_m, se=se["range_bias_per_m"], n=n_a,
-               note="fixed to the static-sweep slope" if fixed_slope is not None else None)
-        _param(report, f"{pre}.nlos_prob", f.nlos_prob, se=se["nlos_prob"], n=n_a, summary=True)
-        _param(report, f"{pre}.nlos_modes", [list(m) for m in f.modes], se=f.se.get("mode_mean_m"), n=n_a,
-               note="(weight, mean_m, std_m); std error of the means")
-        _param(report, f"{pre}.rate_hz", rate, n=a_av["attempts"],
-               note="recorded attempts" if a_av["attempts_recorded"] else "one attempt per burst (inferred)")
-        _param(report, f"{pre}.max_range_m", max_range, n=link.get("n_attempts"),
-               note=None if link.get("identifiable") else "not identifiable")
+        rep.param(f"{pre}.los_mean_m", f.los_mean_m, se=se["los_mean_m"], n=n_a, summary=True)
+        rep.param(f"{pre}.los_std_m", f.los_std_m, se=se["los_std_m"], n=n_a, summary=True)
+        rep.param(f"{pre}.range_bias_per_m", f.range_bias_per_m, se=se["range_bias_per_m"], n=n_a,
+                  note="fixed to the static-sweep slope" if fixed_slope is not None else None)
+        rep.param(f"{pre}.nlos_prob", f.nlos_prob, se=se["nlos_prob"], n=n_a, summary=True)
+        rep.param(f"{pre}.nlos_modes", [[m.weight, m.mean_m, m.std_m] for m in f.modes], se=f.se.get("mode_mean_m"),
+                  n=n_a, note="(weight, mean_m, std_m); std error of the means")
+        rep.param(f"{pre}.rate_hz", rate, n=a_av["attempts"],
+                  note="recorded attempts" if a_av["attempts_recorded"] else "one attempt per burst (inferred)")
+        rep.param(f"{pre}.max_range_m", max_range, n=link.get("n_attempts"),
+                  note=None if link.get("identifiable") else "not identifiable")
+    pooled_fit = chan.pooled_fit
     pooled_rate = float(np.mean([per_channel[a].rate_hz for a in ids]))
-    pooled_modes = ([NlosMode(weight=rounded(w, 4), mean_m=rounded(m, 5), std_m=rounded(s, 4))
-                     for w, m, s in pooled_fit.modes] or ChannelParams().nlos_modes)
-    channel = ChannelParams(rate_hz=min(rounded(pooled_rate, 6), burst_rate),
-                            los_mean_m=rounded(pooled_fit.los_mean_m, 5),
-                            los_std_m=rounded(pooled_fit.los_std_m, 5),
-                            range_bias_per_m=rounded(pooled_fit.range_bias_per_m, 5),
-                            nlos_prob=rounded(pooled_fit.nlos_prob, 5), nlos_modes=pooled_modes,
-                            max_range_m=rounded(max(c.max_range_m for c in per_channel.values()), 5),
-                            edge_width_m=rounded(float(np.median([c.edge_width_m for c in per_channel.values()])), 4))
-    report["channel"] = {"pooled": {"n": int(pooled_r.size), **pooled_sel, "std_errors": pooled_fit.se},
-                         "per_anchor": channel_diag}
-    if static is not None:
-        _param(report, "static.range_bias_per_m", static["range_bias_per_m"], se=static["std_error"],
-               n=static["n_rows"], note=f"static sweeps ({static['environment']}), {static['n_files']} files",
-               summary=True)
+    pooled_modes = ([NlosMode(weight=rounded(m.weight, 4), mean_m=rounded(m.mean_m, 5), std_m=rounded(m.std_m, 4))
+                     for m in pooled_fit.modes] or ChannelParams().nlos_modes)
+    pooled = ChannelParams(rate_hz=min(rounded(pooled_rate, 6), burst_rate),
+                           los_mean_m=rounded(pooled_fit.los_mean_m, 5),
+                           los_std_m=rounded(pooled_fit.los_std_m, 5),
+                           range_bias_per_m=rounded(pooled_fit.range_bias_per_m, 5),
+                           nlos_prob=rounded(pooled_fit.nlos_prob, 5), nlos_modes=pooled_modes,
+                           max_range_m=rounded(max(c.max_range_m for c in per_channel.values()), 5),
+                           edge_width_m=rounded(float(np.median([c.edge_width_m for c in per_channel.values()])), 4))
+    rep.sections["channel"] = {"pooled": {"n": int(chan.pooled_r.size), **chan.pooled_sel,
+                                          "std_errors": pooled_fit.se},
+                               "per_anchor": channel_diag}
     if dwell is None:
-        nlos_dwell = UwbParams().nlos_dwell_s
-        notes.append("uwb.nlos_dwell_s (no NLOS episodes; default kept)")
-    else:
-        nlos_dwell = dwell
-    _param(report, "uwb.nlos_dwell_s", nlos_dwell, n=int(all_runs.size), note="number of NLOS episodes")
+        rep.not_identifiable.append("uwb.nlos_dwell_s (no NLOS episodes; default kept)")
+    rep.param("uwb.nlos_dwell_s", nlos_dwell, n=int(all_runs.size), note="number of NLOS episodes")
+    return ChannelSet(pooled=pooled, per_anchor=per_channel, nlos_dwell_s=nlos_dwell)
 
-    # ---------------------------------------------------------------- availability params
-    av_params: dict[str, AvailabilityParams] = {}
+
+THIN_DATA_EVENTS = 10
+"""A rate estimated from fewer events than this is drawn per synthetic trace from its Gamma posterior."""
+
+
+def _rate_report(rep: ReportBuilder, key: str, post: RatePosterior, burst_rate_hz: float, note: str,
+                 se: float | None = None) -> None:
+    lo, hi = post.interval_per_s(0.05, 0.95)
+    rep.param(key, post.mean_per_s / burst_rate_hz, n=int(round(post.events)), summary=True, se=se,
+              interval=[lo / burst_rate_hz, hi / burst_rate_hz],
+              note=f"{note}; Gamma posterior mean per burst, 90 % interval (prior Gamma({post.prior_shape:g}, "
+                   f"{post.prior_rate_s:g} s)), {post.events:.3g} events in {post.exposure_s:.4g} s")
+
+
+def assemble_availability(inp: CalibrationInputs, avail: AvailabilityFit, timing: TimingFit,
+                          report: ReportBuilder) -> AvailabilitySet:
+    """Availability parameters: dropout per anchor, outage and tag-outage rates with Gamma posteriors.
+
+    An outage onset rate is estimated from a handful of events, so it is reported as the posterior of
+    a Poisson rate under the prior :data:`physynth.models.availability.RATE_PRIOR_SHAPE` (Jeffreys,
+    no prior exposure): Gamma(prior + events, exposure). The scenario gets the posterior mean and,
+    when fewer than :data:`THIN_DATA_EVENTS` events back it, the posterior shape, so that each
+    synthetic trace draws its own rate (``*_onset_shape``). A process never observed is not generated
+    (its interval is still reported).
+    """
+    ids, av, tag, rep = inp.anchor_ids, avail.per_anchor, avail.tag, report
+    burst_rate = timing.burst_rate_hz
+    per_anchor: dict[str, AvailabilityOverride] = {}
     for aid in ids:
         do = av[aid]["dropout_outage"]
         pre = f"availability_per_anchor.{aid}"
         if do.get("identifiable"):
-            p = AvailabilityParams(dropout_prob=rounded(do["dropout_prob"], 5),
-                                   outage_onset_prob=rounded(do["outage_onset_prob"], 5),
-                                   outage_mean_s=rounded(do["outage_mean_s"], 5))
-            _param(report, f"{pre}.outage_onset_prob", p.outage_onset_prob, se=do.get("outage_onset_prob_se"),
-                   n=do["n_attempts"], summary=True)
-            _param(report, f"{pre}.outage_mean_s", p.outage_mean_s, se=do.get("outage_mean_s_se"),
-                   n=do["n_attempts"], summary=True)
+            rate_s = do["outage_onset_prob"] * burst_rate
+            mean_s = do["outage_mean_s"]
+            up_s = do["n_attempts"] * do["attempt_period_s"] * (1.0 / (1.0 + rate_s * mean_s))
+            post = gamma_rate_posterior(events=rate_s * up_s, exposure_s=up_s)
+            shape = rounded(post.shape, 5) if post.events < THIN_DATA_EVENTS else None
+            p = AvailabilityOverride(dropout_prob=rounded(do["dropout_prob"], 5),
+                                     outage_onset_prob=rounded(post.mean_per_s / burst_rate, 5),
+                                     outage_mean_s=rounded(mean_s, 5), outage_onset_shape=shape)
+            _rate_report(rep, f"{pre}.outage_onset_prob", post, burst_rate, "HMM events (rate x up time)",
+                         se=do.get("outage_onset_prob_se"))
+            rep.param(f"{pre}.outage_mean_s", p.outage_mean_s, se=do.get("outage_mean_s_se"),
+                      n=do["n_attempts"], summary=True)
         else:
-            p = AvailabilityParams(dropout_prob=rounded(min(do.get("dropout_prob", 0.0), 1.0), 5),
-                                   outage_onset_prob=0.0, outage_mean_s=AvailabilityParams().outage_mean_s)
-            notes.append(f"{pre}.outage_* ({do.get('why', 'not identifiable')}; no outages)")
-            _param(report, f"{pre}.outage_onset_prob", 0.0, n=do["n_attempts"], note=do.get("why"))
-        _param(report, f"{pre}.dropout_prob", p.dropout_prob, se=do.get("dropout_prob_se"), n=do["n_attempts"],
-               summary=True)
-        av_params[aid] = p
+            p = AvailabilityOverride(dropout_prob=rounded(min(do.get("dropout_prob", 0.0), 1.0), 5),
+                                     outage_onset_prob=0.0, outage_mean_s=AvailabilityParams().outage_mean_s)
+            rep.not_identifiable.append(f"{pre}.outage_* ({do.get('why', 'not identifiable')}; no outages)")
+            rep.param(f"{pre}.outage_onset_prob", 0.0, n=do["n_attempts"], note=do.get("why"))
+        rep.param(f"{pre}.dropout_prob", p.dropout_prob, se=do.get("dropout_prob_se"), n=do["n_attempts"],
+                  summary=True)
+        per_anchor[aid] = p
     weights = np.array([av[a]["dropout_outage"]["n_attempts"] for a in ids], dtype=float)
     weights = weights / weights.sum() if weights.sum() > 0 else np.full(len(ids), 1.0 / len(ids))
-    means = [p.outage_mean_s for p in av_params.values() if p.outage_onset_prob > 0]
-    availability = AvailabilityParams(
-        dropout_prob=rounded(float(np.dot(weights, [p.dropout_prob for p in av_params.values()])), 5),
-        outage_onset_prob=rounded(float(np.dot(weights, [p.outage_onset_prob for p in av_params.values()])), 5),
-        outage_mean_s=rounded(float(np.median(means)) if means else AvailabilityParams().outage_mean_s, 5),
-        tag_outage_onset_prob=rounded(tag.get("onset_prob", 0.0), 5),
-        tag_outage_mean_s=rounded(tag["mean_s"], 5) if tag.get("mean_s") else AvailabilityParams().tag_outage_mean_s,
-    )
-    _param(report, "availability.tag_outage_onset_prob", availability.tag_outage_onset_prob,
-           n=tag["n_outages"] + tag["n_censored"], note="number of tag outages", summary=True)
-    if tag.get("mean_s"):
-        _param(report, "availability.tag_outage_mean_s", availability.tag_outage_mean_s,
-               n=tag["n_outages"], note="uncensored tag outages")
-
-    # ---------------------------------------------------------------- IMU
-    imu_traces = [t for t in trs if t.imu is not None and t.imu.t_s.size > 100] + imu_only
-    if imu_traces:
-        say("fitting IMU noise")
-        from .imu_fit import fit_imu
-
-        imf = fit_imu(imu_traces)
-        imu_params = imf.params
-        report["imu"] = imf.diagnostics
-        _param(report, "imu.white_noise_density_mps2_per_sqrt_hz",
-               list(imu_params.white_noise_density_mps2_per_sqrt_hz), n=imf.n_samples, summary=True)
-        _param(report, "imu.bias_rw_mps2_per_sqrt_s", imu_params.bias_rw_mps2_per_sqrt_s, n=imf.n_samples)
-        _param(report, "imu.vibration.fundamental_hz", imu_params.vibration.fundamental_hz, n=imf.n_samples,
-               summary=True)
-        _param(report, "imu.vibration.amplitude_mps2", imu_params.vibration.amplitude_mps2, n=imf.n_samples,
-               summary=True)
+    means = [p.outage_mean_s for p in per_anchor.values() if p.outage_onset_prob > 0]
+    # tag outages: n events over the up bursts of every run
+    n_tag = tag["n_outages"] + tag["n_censored"]
+    up_s = tag["up_bursts"] / burst_rate
+    tag_post = gamma_rate_posterior(events=float(n_tag), exposure_s=max(up_s, 1e-9))
+    if n_tag:
+        tag_onset = rounded(tag_post.mean_per_s / burst_rate, 5)
+        tag_shape = rounded(tag_post.shape, 5) if n_tag < THIN_DATA_EVENTS else None
     else:
-        imu_params = ImuParams()
-        report["imu"] = {"note": "no IMU samples in the recordings: IMU parameters are the defaults, not calibrated"}
-        notes.append("imu (no IMU data; defaults kept)")
+        tag_onset, tag_shape = 0.0, None
+    pooled = AvailabilityParams(
+        dropout_prob=rounded(float(np.dot(weights, [p.dropout_prob for p in per_anchor.values()])), 5),
+        outage_onset_prob=rounded(float(np.dot(weights, [p.outage_onset_prob for p in per_anchor.values()])), 5),
+        outage_mean_s=rounded(float(np.median(means)) if means else AvailabilityParams().outage_mean_s, 5),
+        tag_outage_onset_prob=tag_onset,
+        tag_outage_mean_s=rounded(tag["mean_s"], 5) if tag.get("mean_s") else AvailabilityParams().tag_outage_mean_s,
+        tag_outage_onset_shape=tag_shape,
+    )
+    if up_s > 0:
+        _rate_report(rep, "availability.tag_outage_onset_prob", tag_post, burst_rate,
+                     "tag outages" + ("" if n_tag else " (none seen: not generated)"))
+    else:
+        rep.param("availability.tag_outage_onset_prob", 0.0, n=0, note="no up time", summary=True)
+    if tag.get("mean_s"):
+        rep.param("availability.tag_outage_mean_s", pooled.tag_outage_mean_s, n=tag["n_outages"],
+                  note="uncensored tag outages")
+    return AvailabilitySet(pooled=pooled, per_anchor=per_anchor)
 
-    # ---------------------------------------------------------------- scenario
-    phase = bf.params["burst_phase_s"]
-    uwb = UwbParams(burst_rate_hz=burst_rate, burst_jitter_s=rounded(bf.params["burst_jitter_s"], 4),
+
+def fit_imu_step(inp: CalibrationInputs, report: ReportBuilder, progress: ProgressCallback) -> ImuParams:
+    """IMU noise from every recording with IMU samples (the IMU-only ones included)."""
+    imu_traces = [t for t in inp.traces if t.imu is not None and t.imu.t_s.size > 100] + inp.imu_only
+    if not imu_traces:
+        report.sections["imu"] = {"note": "no IMU samples in the recordings: IMU parameters are the defaults, "
+                                          "not calibrated"}
+        report.not_identifiable.append("imu (no IMU data; defaults kept)")
+        return ImuParams()
+    progress("fitting IMU noise")
+    from .imu_fit import fit_imu
+
+    imf = fit_imu(imu_traces)
+    p = imf.params
+    report.sections["imu"] = imf.diagnostics
+    report.param("imu.white_noise_density_mps2_per_sqrt_hz", list(p.white_noise_density_mps2_per_sqrt_hz),
+                 n=imf.n_samples, summary=True)
+    report.param("imu.bias_rw_mps2_per_sqrt_s", p.bias_rw_mps2_per_sqrt_s, n=imf.n_samples)
+    report.param("imu.vibration.fundamental_hz", p.vibration.fundamental_hz, n=imf.n_samples, summary=True)
+    report.param("imu.vibration.amplitude_mps2", p.vibration.amplitude_mps2, n=imf.n_samples, summary=True)
+    return p
+
+
+def build_scenario(name: str, inp: CalibrationInputs, geometry: GeometryFit, timing: TimingFit,
+                   ranging: RangingFit, channels: ChannelSet, availability: AvailabilitySet, imu: ImuParams,
+                   *, sources: Sequence[str], created_utc: str, report: ReportBuilder) -> Scenario:
+    """The calibrated scenario, composed from the fitted parameter objects."""
+    bf = timing.burst.params
+    phase = bf["burst_phase_s"]
+    uwb = UwbParams(burst_rate_hz=timing.burst_rate_hz, burst_jitter_s=rounded(bf["burst_jitter_s"], 4),
                     burst_phase_s=None if phase is None else rounded(phase, 5),
-                    slot_s=rounded(bf.params["slot_s"], 5), time_offset_s=rounded(offset, 5),
-                    nlos_dwell_s=rounded(nlos_dwell, 4), zones=[])
-    notes.append("uwb.zones (NLOS zones along the path are not fitted)")
+                    slot_s=rounded(bf["slot_s"], 5), time_offset_s=rounded(ranging.offset_s, 5),
+                    nlos_dwell_s=rounded(channels.nlos_dwell_s, 4), zones=[],
+                    run_offset_std_m=rounded(ranging.run_offset_std_m, 4),
+                    run_anchor_offset_std_m=rounded(ranging.run_anchor_offset_std_m, 4))
+    report.not_identifiable.append("uwb.zones (NLOS zones along the path are not fitted)")
     provenance = {
         "calibrated_by": f"physynth {__version__}",
-        "created_utc": report["created_utc"],
-        "datasets": list(sources or []),
-        "recordings": labels,
-        "imu_only_recordings": imu_only_labels,
+        "created_utc": created_utc,
+        "datasets": list(sources),
+        "recordings": inp.labels,
+        "imu_only_recordings": inp.imu_only_labels,
         "command": "physynth calibrate",
     }
-    data = {
-        "name": name,
-        "description": f"Calibrated by physynth {__version__} on {len(trs)} recording(s): " + ", ".join(labels),
-        "path": path.model_dump(mode="json"),
-        "motion": mp.model_dump(mode="json"),
-        "imu": imu_params.model_dump(mode="json"),
-        "uwb": uwb.model_dump(mode="json"),
-        "anchors": [a.model_dump(mode="json", exclude_none=True) for a in anchors],
-        "channel": channel.model_dump(mode="json"),
-        "channel_per_anchor": {a: c.model_dump(mode="json") for a, c in per_channel.items()},
-        "availability": availability.model_dump(mode="json"),
-        "availability_per_anchor": {a: {k: v for k, v in p.model_dump(mode="json").items()
-                                        if k in ("dropout_prob", "outage_onset_prob", "outage_mean_s")}
-                                    for a, p in av_params.items()},
-        "provenance": jsonable(provenance),
-    }
-    scn = scenario_from_dict(data, source="calibration result")
-    return CalibrationResult(scenario=scn, report=jsonable(report))
+    if len(inp.layout["layouts"]) > 1:
+        provenance["anchor_layout"] = {"policy": inp.layout["policy"],
+                                       "generation_layout": inp.layout["generation_layout"],
+                                       "layouts": inp.layout["layouts"]}
+    return Scenario(
+        name=name,
+        description=(f"Calibrated by physynth {__version__} on {len(inp.traces)} recording(s): "
+                     + ", ".join(inp.labels)),
+        path=geometry.path,
+        motion=geometry.motion,
+        imu=imu,
+        uwb=uwb,
+        anchors=inp.anchors,
+        channel=channels.pooled,
+        channel_per_anchor={a: ChannelOverride(**dict(c)) for a, c in channels.per_anchor.items()},
+        availability=availability.pooled,
+        availability_per_anchor=availability.per_anchor,
+        provenance=jsonable(provenance),
+    )
+
+
+# ---------------------------------------------------------------- the whole calibration
+N_STEPS = 8
+
+
+def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path_kind: PathKind = "auto",
+              anchor_policy: AnchorPolicy = "per-run", layout_from: int | str | None = None,
+              static_sweeps: str | os.PathLike | None = None, range_bias: Literal["dynamic", "static"] = "dynamic",
+              sources: Sequence[str] | None = None, progress: ProgressCallback | None = None) -> CalibrationResult:
+    """Calibrate a scenario on one or several recordings (real or synthetic Traces).
+
+    Parameters
+    ----------
+    traces
+        Recordings with ground truth and UWB rows (and optionally IMU samples), pooled.
+    path_kind
+        ``auto`` (polynomial for a cable-like path, else waypoints), ``polynomial`` or ``waypoints``.
+    anchor_policy
+        ``per-run`` (default): runs may place the anchors differently (each run's residuals against
+        its own layout; channel parameters per anchor id pooled over the runs; the run-to-run ranging
+        offsets become ``uwb.run_offset_std_m`` / ``uwb.run_anchor_offset_std_m``); the scenario
+        generates with the layout of ``layout_from`` and records the others in its provenance.
+        ``strict``: an anchor id placed differently by two recordings is an error. ``first``: the
+        first recording's layout is written (the former behaviour).
+    layout_from
+        Index or label of the recording whose anchor layout the scenario generates with (``per-run``).
+    static_sweeps
+        Optional Hanyang ``Static_measurements`` folder: the range-proportional bias is also fitted on
+        the static sweeps (reported), and used for every anchor when ``range_bias="static"``.
+    sources
+        Names of the datasets the traces came from (provenance).
+    progress
+        ``progress(message, done, total)`` before each step (:mod:`physynth.progress`).
+    """
+    say = progress or no_progress
+    step = iter(range(N_STEPS))
+
+    def tick(message: str) -> None:
+        say(message, next(step, N_STEPS - 1), N_STEPS)
+
+    rep = ReportBuilder()
+    tick("checking the recordings")
+    inp = prepare_inputs(traces, anchor_policy=anchor_policy, layout_from=layout_from, report=rep)
+    rep.sections["sources"] = list(sources or [])
+    geometry = fit_geometry(inp, path_kind, rep, lambda msg, *_: tick(msg))
+    timing = fit_timing(inp, rep, lambda msg, *_: tick(msg))
+    tick("fitting LOS/NLOS ranging errors per anchor")
+    static = None
+    if static_sweeps is not None:
+        from .static_bias import fit_static_range_bias
+
+        static = fit_static_range_bias(static_sweeps)
+        rep.sections["static_range_bias"] = static
+    ranging = fit_ranging(inp, timing, static=static, range_bias=range_bias, report=rep)
+    tick("fitting availability (link range, dropouts, outages)")
+    avail = fit_link_availability(inp, ranging, timing, rep)
+    channels = assemble_channels(inp, ranging, avail, timing, rep)
+    if static is not None:
+        rep.param("static.range_bias_per_m", static["range_bias_per_m"], se=static["std_error"],
+                  n=static["n_rows"], note=f"static sweeps ({static['environment']}), {static['n_files']} files",
+                  summary=True)
+    availability = assemble_availability(inp, avail, timing, rep)
+    imu = fit_imu_step(inp, rep, lambda msg, *_: tick(msg))
+    scn = build_scenario(name, inp, geometry, timing, ranging, channels, availability, imu,
+                         sources=list(sources or []), created_utc=rep.sections["created_utc"], report=rep)
+    return CalibrationResult(scenario=scn, report=rep.to_dict())

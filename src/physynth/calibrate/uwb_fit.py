@@ -139,7 +139,7 @@ def fit_time_offset(traces: Sequence[Trace], *, per_anchor: bool = True) -> Fit[
     pooled_fine = _pooled(fine_curves)
     best = _parabolic_min(fine, pooled_fine)
     spread_min, spread_max = float(np.nanmin(pooled)), float(np.nanmax(pooled))
-    identifiable = (spread_max - spread_min) / spread_min > 0.02
+    identifiable = spread_max - spread_min > 0.02 * spread_min  # exact ranges: spread 0 at every offset
     per_run = {lab: _parabolic_min(coarse, _pooled([c])) for lab, c in zip(labels, curves, strict=True)}
     per_anchor: dict[str, float] = {}
     if per_anchor:
@@ -205,6 +205,15 @@ def _block_se(trace: Trace, grid: np.ndarray, n_blocks: int = 5) -> float:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class ModeFit:
+    """One fitted Gaussian NLOS mode: its share of the NLOS rows and its offset distribution [m]."""
+
+    weight: float
+    mean_m: float
+    std_m: float
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class MixtureFit:
     """LOS regression N(mu + beta r, sigma^2) plus K Gaussian NLOS modes with total weight p."""
 
@@ -212,7 +221,7 @@ class MixtureFit:
     range_bias_per_m: float
     los_std_m: float
     nlos_prob: float
-    modes: tuple[tuple[float, float, float], ...]  # (weight within NLOS, mean, std)
+    modes: tuple[ModeFit, ...]  # NLOS modes (weights sum to 1 within NLOS)
     log_likelihood: float
     bic: float
     n: int
@@ -304,7 +313,7 @@ def fit_mixture(r: np.ndarray, g: np.ndarray, k: int, *, fit_slope: bool = True,
         se["los_mean_m"], se["range_bias_per_m"] = float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1]))
     else:
         se["los_mean_m"], se["range_bias_per_m"] = sig / np.sqrt(n_los), 0.0
-    modes = tuple((float(w[j]), float(means[j]), float(stds[j])) for j in range(k))
+    modes = tuple(ModeFit(weight=float(w[j]), mean_m=float(means[j]), std_m=float(stds[j])) for j in range(k))
     if k > 0:
         se["mode_mean_m"] = [float(stds[j] / np.sqrt(max(p * w[j] * n, 1.0))) for j in range(k)]
     return MixtureFit(los_mean_m=mu, range_bias_per_m=beta, los_std_m=sig, nlos_prob=p if k > 0 else 0.0,
@@ -314,7 +323,7 @@ def fit_mixture(r: np.ndarray, g: np.ndarray, k: int, *, fit_slope: bool = True,
 
 def _los_like(fit: MixtureFit, g: np.ndarray) -> bool:
     centre = fit.los_mean_m + fit.range_bias_per_m * float(np.median(g))
-    return any(abs(m - centre) < LOS_LIKE_SIGMAS * fit.los_std_m for _, m, _s in fit.modes)
+    return any(abs(m - centre) < LOS_LIKE_SIGMAS * fit.los_std_m for m in (x.mean_m for x in fit.modes))
 
 
 def select_mixture(r: np.ndarray, g: np.ndarray, *, max_modes: int = MAX_NLOS_MODES, fit_slope: bool = True,
@@ -331,7 +340,7 @@ def select_mixture(r: np.ndarray, g: np.ndarray, *, max_modes: int = MAX_NLOS_MO
         if f is None:
             table[str(k)] = {"bic": None, "admissible": False, "why": "too few rows outside the LOS core"}
             continue
-        tiny = k > 0 and min(w for w, _, _ in f.modes) * f.nlos_prob * f.n < 3
+        tiny = k > 0 and min(x.weight for x in f.modes) * f.nlos_prob * f.n < 3
         los_like = k > 0 and _los_like(f, g)
         ok = not (tiny or los_like)
         why = "LOS-like NLOS mode" if los_like else ("a mode with < 3 rows" if tiny else "")

@@ -43,9 +43,9 @@ def _register_commands() -> None:
     global _registered
     if _registered:
         return
-    from . import calibrate, generate, imports, validate, verify
+    from . import calibrate, generate, imports, study, validate, verify
 
-    for module in (generate, imports, calibrate, validate, verify):
+    for module in (generate, imports, calibrate, validate, study, verify):
         module.register(app)
     _registered = True
 
@@ -63,7 +63,8 @@ def main(argv: list[str] | None = None) -> None:
             print("physynth: interrupted" if rc == EXIT_INTERRUPTED else f"physynth: exit {rc}", file=sys.stderr)
             sys.exit(rc)
     except Interrupted as exc:
-        print(f"physynth: interrupted by {signal_name(exc.signum)}; incomplete output removed", file=sys.stderr)
+        kept = exc.note or "incomplete output removed"
+        print(f"physynth: interrupted by {signal_name(exc.signum)}; {kept}", file=sys.stderr)
         sys.exit(128 + exc.signum)
     except OutputExistsError as exc:
         fail(f"{exc} (use --overwrite to replace it)")

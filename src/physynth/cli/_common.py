@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 
 from ..progress import ProgressCallback, no_progress
@@ -32,17 +32,41 @@ def progress_bar(enabled: bool = True) -> Iterator[ProgressCallback]:
 
     console = Console(stderr=True)
     tasks: dict[str, int] = {}
-    with Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
-                  TimeElapsedColumn(), TimeRemainingColumn(), transient=True, console=console) as bar:
-        def update(message: str, done: int | None = None, total: int | None = None) -> None:
-            if done is None:
-                bar.console.print(f"  - {message}", highlight=False)
-                return
-            if message not in tasks:
-                tasks[message] = bar.add_task(message, total=total)
-            bar.update(tasks[message], completed=done, total=total)
+    bar: Progress | None = None  # started on the first counted call: nothing is drawn for a failed command
 
+    def update(message: str, done: int | None = None, total: int | None = None) -> None:
+        nonlocal bar
+        if done is None:
+            console.print(f"  - {message}", highlight=False)
+            return
+        if bar is None:
+            bar = Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
+                           TimeElapsedColumn(), TimeRemainingColumn(), transient=True, console=console)
+            bar.start()
+        if message not in tasks:
+            tasks[message] = bar.add_task(message, total=total)
+        bar.update(tasks[message], completed=done, total=total)
+
+    try:
         yield update
+    finally:
+        if bar is not None:
+            bar.stop()
+
+
+def format_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A plain-text table: first column left-aligned, the others right-aligned, two spaces apart.
+
+    Kept narrow on purpose: short headers and 4 significant digits fit 80 columns.
+    """
+    cells = [list(map(str, headers))] + [list(map(str, r)) for r in rows]
+    widths = [max(len(r[j]) for r in cells) for j in range(len(headers))]
+
+    def line(r: list[str]) -> str:
+        return "  ".join(c.ljust(w) if j == 0 else c.rjust(w) for j, (c, w) in enumerate(zip(r, widths, strict=True)))
+
+    rule = "  ".join("-" * w for w in widths)
+    return "\n".join([line(cells[0]), rule, *(line(r) for r in cells[1:])])
 
 
 def fail(message: str, code: int = EXIT_BAD_INPUT) -> None:

@@ -2,7 +2,8 @@
 
     physynth calibrate DATASET_DIR [DATASET_DIR...] --out scenario.yaml [--report fit.json]
                        [--path-kind auto|polynomial|waypoints] [--name NAME]
-                       [--anchor-layout strict|first] [--static-sweeps DIR] [--range-bias dynamic|static]
+                       [--anchor-layout per-run|strict|first] [--layout-from RUN]
+                       [--static-sweeps DIR] [--range-bias dynamic|static]
                        [--overwrite] [--quiet]
 
 The command parses, calls :func:`physynth.workflows.calibrate_datasets`, writes the scenario with
@@ -32,9 +33,16 @@ def calibrate_cmd(
     path_kind: Literal["auto", "polynomial", "waypoints"] = typer.Option("auto", "--path-kind",
                                   help="Path geometry: auto, polynomial (degree 10, cable) or waypoints (walk)."),
     name: str | None = typer.Option(None, "--name", help="Scenario name (default: the output file's stem)."),
-    anchor_layout: Literal["strict", "first"] = typer.Option("strict", "--anchor-layout",
-                                      help="strict: an anchor placed differently by two datasets is an error; "
-                                           "first: write the first dataset's layout."),
+    anchor_layout: Literal["per-run", "strict", "first"] = typer.Option(
+        "per-run", "--anchor-layout",
+        help="per-run: datasets may place the anchors differently (each run against its own layout, "
+             "channels per anchor id pooled, run-to-run offsets fitted; the scenario generates with the "
+             "--layout-from run's layout and records the others); strict: an anchor placed differently "
+             "by two datasets is an error; first: write the first dataset's layout (former behaviour)."),
+    layout_from: str | None = typer.Option(None, "--layout-from",
+                                           help="With --anchor-layout per-run: the recording (label or "
+                                                "0-based index) whose anchor layout the scenario uses "
+                                                "(default: the first)."),
     static_sweeps: Path | None = typer.Option(None, "--static-sweeps",
                                               help="Hanyang Static_measurements folder: also fit the range "
                                                    "bias on the static sweeps."),
@@ -51,6 +59,9 @@ def calibrate_cmd(
     from ..errors import PhySynthError
     from ..io.safety import check_distinct, check_output, guarded_outputs
 
+    if layout_from is not None and anchor_layout != "per-run":
+        raise PhySynthError("--layout-from needs --anchor-layout per-run")
+    chosen: int | str | None = int(layout_from) if layout_from is not None and layout_from.isdigit() else layout_from
     inputs = [*datasets, *([static_sweeps] if static_sweeps else [])]
     check_distinct([("--out", out), ("--report", report)])
     for target, kind in [(out, "scenario")] + ([(report, "json")] if report else []):
@@ -61,8 +72,8 @@ def calibrate_cmd(
         for target, kind in [(out, "scenario")] + ([(report, "json")] if report else []):
             check_output(target, kind=kind, overwrite=overwrite, inputs=inputs)  # again, under the lock
         _calibrate(datasets, out, report, quiet, real[0], real[1] if report else None, name=name or out.stem,
-                   path_kind=path_kind, anchor_policy=anchor_layout, static_sweeps=static_sweeps,
-                   range_bias=range_bias, allow_mixed=allow_mixed)
+                   path_kind=path_kind, anchor_policy=anchor_layout, layout_from=chosen,
+                   static_sweeps=static_sweeps, range_bias=range_bias, allow_mixed=allow_mixed)
 
 
 def _calibrate(datasets: list[Path], out: Path, report: Path | None, quiet: bool, real_out: Path,
@@ -79,7 +90,7 @@ def _calibrate(datasets: list[Path], out: Path, report: Path | None, quiet: bool
 
         console = Console(stderr=True)
         with console.status("calibrating") as status:
-            def progress(msg: str) -> None:
+            def progress(msg: str, done: int | None = None, total: int | None = None) -> None:
                 status.update(f"calibrating: {msg}")
                 console.print(f"  - {msg}", highlight=False)
 

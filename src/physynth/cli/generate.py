@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from ._common import progress_bar
+from ._common import format_table, progress_bar
 
 scenario_app = typer.Typer(help="Show built-in scenarios.", no_args_is_help=True)
 
@@ -27,22 +27,56 @@ def generate_cmd(
     n: int = typer.Option(20, "-n", "--n-traces", min=1, help="Number of traces to generate."),
     seed: int | None = typer.Option(None, "--seed", min=0, help="Root seed >= 0 (random when omitted; stored)."),
     out: Path = typer.Option(Path("runs/default"), "--out", "-o", help="Output dataset directory."),
-    overwrite: bool = typer.Option(False, "--overwrite",
-                                   help="Replace an existing dataset (only a dataset PhySynth wrote)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset PhySynth wrote (or "
+                                                              "discard an unfinished run of it)."),
+    workers: int = typer.Option(0, "--workers", "-w", min=0,
+                                help="Worker processes (0 = all cores). More than one runs an embedded Dask "
+                                     "cluster (physynth[scale]); the output is the same for any number."),
+    scheduler: str | None = typer.Option(None, "--scheduler", metavar="ADDRESS",
+                                         help="Run on an existing Dask cluster (e.g. tcp://host:8786) whose "
+                                              "workers see --out at the same path."),
+    resume: bool = typer.Option(False, "--resume", help="Complete a killed run of --out: keep its complete "
+                                                        "shards, write the others (same seed unless --seed)."),
+    shard_traces: int = typer.Option(128, "--shard-traces", min=1,
+                                     help="Traces per shard (the unit of work, of atomic writes and of --resume)."),
+    regime: str | None = typer.Option(None, "--regime", help="Channel regime applied to the scenario: nominal, "
+                                                             "dense, sparse or degraded (docs/anchors.md)."),
     force: bool = typer.Option(False, "--force", help="Go ahead even when the size estimate exceeds the budget."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Generate N synthetic traces from a scenario and write them as a Parquet dataset."""
+    from ..errors import Interrupted, PhySynthError
     from ..io.scenario_file import load_scenario
+    from ..parallel import available_cores
     from ..workflows import generate_dataset
 
     scn = load_scenario(scenario)
+    if regime is not None:
+        from ..studies.regimes import apply_regime
+
+        scn = apply_regime(scn, regime)
     inputs = [Path(scenario)] if Path(scenario).is_file() else []
-    with progress_bar(not quiet) as progress:
-        path, root = generate_dataset(scn, n, out, seed=seed, overwrite=overwrite, progress=progress,
-                                      force=force, inputs=inputs)
+    n_workers = workers or available_cores()
+    resume_hint = f"complete shards are kept: run the same command with --resume to finish {out}"
+    try:
+        with progress_bar(not quiet) as progress:
+            path, root = generate_dataset(scn, n, out, seed=seed, overwrite=overwrite, progress=progress,
+                                          workers=n_workers, scheduler=scheduler, resume=resume,
+                                          shard_traces=shard_traces, force=force, inputs=inputs)
+    except PhySynthError as exc:
+        msg = str(exc)
+        msg = msg.replace("; resume it or overwrite to start over", "; add --resume to complete it or "
+                          "--overwrite to start over")
+        raise type(exc)(msg) if type(exc) is PhySynthError else exc from None
+    except Interrupted as exc:  # physynth.cli.main prints one line and exits 128 + signal
+        exc.note = resume_hint
+        raise
+    except KeyboardInterrupt:
+        typer.echo(f"physynth: interrupted; {resume_hint}", err=True)
+        raise typer.Exit(130) from None
     if not quiet:
-        typer.echo(f"wrote {n} trace(s) of '{scn.name}' to {path} (root seed {root})")
+        where = f"on {scheduler}" if scheduler else f"{min(n_workers, -(-n // shard_traces))} worker(s)"
+        typer.echo(f"wrote {n} trace(s) of '{scn.name}' to {path} (root seed {root}, {where})")
 
 
 def scenarios_cmd() -> None:
@@ -64,32 +98,27 @@ def scenario_show_cmd(name: str = typer.Argument(..., help="Preset name or scena
 def inspect_cmd(
     dataset: Path = typer.Argument(..., help="Dataset directory."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
-    """Section-5 metrics of a dataset, pooled over its traces."""
+    """Section-5 metrics of a dataset, pooled over its traces (streamed: any number of traces)."""
     from .._json import jsonable
-    from ..evaluate.metrics import compute_metrics
-    from ..io import read_dataset
+    from ..workflows import inspect_dataset
 
-    ds = read_dataset(dataset)
-    m = compute_metrics(ds.traces)
+    with progress_bar(not quiet) as progress:
+        m, _ = inspect_dataset(dataset, progress=progress)
     if as_json:
         typer.echo(json.dumps(jsonable(m.to_dict()), indent=1))
         return
-    from rich.console import Console
-    from rich.table import Table
-
-    table = Table(title=f"{dataset} - {len(ds)} trace(s)")
-    table.add_column("metric")
-    table.add_column("value", justify="right")
+    typer.echo(f"{dataset} - {m.n_traces} trace(s), {m.n_residuals} range residual(s)")
+    rows = []
     for key, value in m.to_dict().items():
         if key == "per_anchor":
             continue
-        table.add_row(key, " / ".join(f"{v:.3f}" for v in value) if isinstance(value, list) else f"{value:.4g}")
-    Console().print(table)
+        rows.append((key, " / ".join(f"{v:.3f}" for v in value) if isinstance(value, list) else f"{value:.4g}"))
+    typer.echo(format_table(("metric", "value"), rows))
     cols = ("n_ranges", "fresh_frac", "mean_aoi_s", "residual_std_m", "residual_median_m", "abs_residual_p95_m")
-    per = Table(title="per anchor")
-    for col in ("anchor", *cols):
-        per.add_column(col, justify="right")
-    for a, d in m.per_anchor.items():
-        per.add_row(a, *(f"{d[c]:.4g}" if isinstance(d[c], float) else str(d[c]) for c in cols))
-    Console().print(per)
+    heads = ("anchor", "ranges", "fresh", "AoI s", "std m", "med m", "p95 m")
+    per = [(a, *(f"{d[c]:.4g}" if isinstance(d[c], float) else str(d[c]) for c in cols))
+           for a, d in m.per_anchor.items()]
+    typer.echo("\nper anchor (fresh = fraction of 100 Hz bins with a range; |residual| P95)")
+    typer.echo(format_table(heads, per))

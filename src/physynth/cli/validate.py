@@ -1,7 +1,7 @@
 """``physynth validate``: compare a real dataset with synthetic traces and write a report folder.
 
     physynth validate --real DATASET (--synthetic DATASET | --scenario S [-n N] [--seed S]) [--transfer]
-                      --out REPORT_DIR [--no-figures] [--overwrite] [--quiet]
+                      [--anchors A,B,...] --out REPORT_DIR [--no-figures] [--overwrite] [--quiet]
 
 The command parses, calls :func:`physynth.workflows.validate_datasets` and
 :func:`physynth.validate.render.write_report`, prints a short summary and exits. Bad input raises
@@ -35,6 +35,10 @@ def validate_cmd(
                                   help="Take path geometry, motion and anchor layout from the real dataset; keep "
                                        "every sensor, channel and availability parameter of the scenario "
                                        "(paper IV.C)."),
+    anchors: str | None = typer.Option(None, "--anchors",
+                                       help="Comma-separated anchor ids: the synthetic side uses only these "
+                                            "anchors and the real dataset is compared on its full set (the "
+                                            "anchor study's relaxed comparison)."),
     out: Path = typer.Option(..., "--out", "-o", help="Report directory (report.json, report.md, report.html, "
                                                       "figures)."),
     figures: bool = typer.Option(True, "--figures/--no-figures",
@@ -51,11 +55,13 @@ def validate_cmd(
     check_output(out, kind="report", overwrite=overwrite, inputs=inputs)  # fail before the (long) generation
     with guarded_outputs([out]) as (real_out,):  # lock; orphaned temp files removed
         check_output(out, kind="report", overwrite=overwrite, inputs=inputs)
-        _validate(real, synthetic, scenario, n, seed, transfer, out, real_out, figures, overwrite, force, quiet)
+        _validate(real, synthetic, scenario, n, seed, transfer, anchors, out, real_out, figures, overwrite, force,
+                  quiet)
 
 
 def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, seed: int | None, transfer: bool,
-              out: Path, real_out: Path, figures: bool, overwrite: bool, force: bool, quiet: bool) -> None:
+              anchors: str | None, out: Path, real_out: Path, figures: bool, overwrite: bool, force: bool,
+              quiet: bool) -> None:
     from ..errors import AnchorMismatchError, PhySynthError
     from ..validate.render import require_matplotlib, write_report
     from ..workflows import validate_datasets
@@ -70,7 +76,8 @@ def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, 
     try:
         with progress_bar(not quiet) as progress:
             report = validate_datasets(real, synthetic=synthetic, scenario=scenario, n=n, seed=seed,
-                                       transfer=transfer, progress=progress, force=force)
+                                       transfer=transfer, progress=progress, force=force,
+                                       anchors=None if anchors is None else [a.strip() for a in anchors.split(",")])
     except AnchorMismatchError as exc:
         hint = "; use --transfer to take the anchor layout from the real dataset" if scenario else ""
         raise PhySynthError(str(exc).split("; transfer the scenario")[0] + hint) from None
@@ -89,8 +96,13 @@ def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, 
     typer.echo(f"KS {_f(report.ks_statistic)}  fidelity S {_f(report.fidelity_score)}  "
                f"W1 {_f(report.extended.get('residual_wasserstein_m'))} m")
     for key in ("uwb_ge1_frac", "residual_median_m", "abs_residual_p95_m", "mean_aoi_s"):
-        typer.echo(f"  {key:20s} real {_f(report.real[key])}  synth {_f(report.synthetic[key])}  "
-                   f"({_f(dev[key], 1)} %)")
+        c = report.comparison.get(key, {})
+        delta = (f"{c['deviation']:+.3f} m" if c.get("deviation_kind") == "absolute" and c.get("deviation") is not None
+                 else f"{_f(dev.get(key), 1)} %")
+        band = c.get("band_5_95")
+        inside = "" if band is None else (f"  synth 5-95 % [{_f(band[0])}, {_f(band[1])}]"
+                                          + (" (real inside)" if c.get("real_in_band") else " (real OUTSIDE)"))
+        typer.echo(f"  {key:20s} real {_f(report.real[key])}  synth {_f(report.synthetic[key])}  ({delta}){inside}")
     typer.echo(f"wrote {len(written)} file(s) to {out} (open {out / 'report.html'})")
 
 

@@ -84,8 +84,8 @@ def make_grid(trace: Trace, rate_hz: float = DEFAULT_GRID_RATE_HZ) -> Grid:
 
 
 def imu_on_grid(trace: Trace, t_s: np.ndarray, rate_hz: float) -> np.ndarray:
-    """(K, 3) mean of the IMU samples in each grid bin; NaN for a bin with no sample."""
-    if trace.imu is None:
+    """(K, 3) mean of the ENU gravity-free IMU samples in each grid bin; NaN for a bin with no sample."""
+    if trace.imu is None or trace.imu.acc_mps2 is None:
         return np.full((t_s.shape[0], 3), np.nan)
     k = bin_index(trace.imu.t_s, float(t_s[0]), rate_hz)
     inside = (k >= 0) & (k < t_s.shape[0])

@@ -3,12 +3,13 @@ validation and the studies all call this module.
 
 Pooling over several traces: durations are averaged; grid fractions and mean AoI are taken over all
 grid bins of all traces; residual statistics over all valid ranges of all traces; IMU standard
-deviations over the concatenated 100 Hz-grid IMU values.
+deviations over the concatenated 100 Hz-grid IMU values. Traces are reduced one at a time
+(:class:`MetricsAccumulator`): sums exactly, quantiles with :mod:`physynth.evaluate.sketch`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -17,6 +18,7 @@ from ..constants import DEFAULT_GRID_RATE_HZ
 from ..records import Trace
 from .grid import age_of_information as _aoi
 from .grid import fresh_mask, grid_times, imu_on_grid
+from .sketch import Moments, QuantileSketch
 from .stats import ks_statistic  # noqa: F401 (a section-5 metric; defined with the other tests)
 
 METRIC_KEYS = (
@@ -47,21 +49,6 @@ def residuals(trace: Trace) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     r = uwb.range_m[ok] - geom
     keep = np.isfinite(r)
     return r[keep], idx[keep], t[keep]
-
-
-def _residual_stats(r: np.ndarray) -> dict[str, float]:
-    if r.size == 0:
-        nan = float("nan")
-        return {"residual_std_m": nan, "residual_median_m": nan, "abs_residual_p95_m": nan,
-                "abs_residual_p99_m": nan}
-    a = np.abs(r)
-    p95, p99 = np.percentile(a, [95.0, 99.0])
-    return {
-        "residual_std_m": float(np.std(r)),
-        "residual_median_m": float(np.median(r)),
-        "abs_residual_p95_m": float(p95),
-        "abs_residual_p99_m": float(p99),
-    }
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -128,54 +115,122 @@ class Metrics:
         return float(getattr(self, key))
 
 
-def pool(summaries: Sequence[TraceSummary]) -> tuple[Metrics, np.ndarray]:
-    """Pooled metrics and the pooled signed residuals of per-trace summaries."""
-    if not summaries:
-        raise ValueError("no traces to compute metrics on")
-    n_bins = sum(s.n_bins for s in summaries)
-    r = np.concatenate([s.residual_m for s in summaries])
-    r_anchor = np.concatenate([s.residual_anchor for s in summaries])
-    anchor_ids: list[str] = []
-    for s in summaries:
-        anchor_ids += [a for a in s.anchor_ids if a not in anchor_ids]
-    fresh = dict.fromkeys(anchor_ids, 0)
-    aoi_sum = dict.fromkeys(anchor_ids, 0.0)
-    bins = dict.fromkeys(anchor_ids, 0)
-    for s in summaries:
+class MetricsAccumulator:
+    """Pooled section-5 metrics of traces added one at a time, in memory that does not grow with them.
+
+    Counts and sums are added exactly; standard deviations come from exact running moments and the
+    residual quantiles from a :class:`~physynth.evaluate.sketch.QuantileSketch` (exact up to
+    :data:`~physynth.evaluate.sketch.EXACT_LIMIT` residuals, then within 0.01 % relative error).
+    """
+
+    def __init__(self) -> None:
+        self.n_traces = 0
+        self.duration_sum = 0.0
+        self.n_bins = 0
+        self.ge1 = 0
+        self.ge2 = 0
+        self.anchor_ids: list[str] = []
+        self.fresh: dict[str, int] = {}
+        self.aoi_sum: dict[str, float] = {}
+        self.bins: dict[str, int] = {}
+        self.residual = QuantileSketch()
+        self.residual_moments = Moments()
+        self.abs_residual = QuantileSketch()
+        self.per_anchor_residual: dict[str, tuple[QuantileSketch, QuantileSketch, Moments]] = {}
+        self.imu = Moments(3)
+
+    def add(self, s: TraceSummary) -> None:
+        """Add one trace's summary (:func:`summarize`)."""
+        self.n_traces += 1
+        self.duration_sum += s.duration_s
+        self.n_bins += s.n_bins
+        self.ge1 += s.ge1
+        self.ge2 += s.ge2
         for j, a in enumerate(s.anchor_ids):
-            fresh[a] += int(s.fresh_per_anchor[j])
-            aoi_sum[a] += float(s.aoi_sum_per_anchor[j])
-            bins[a] += s.n_bins
-    per_anchor = {}
-    for a in anchor_ids:
-        ra = r[r_anchor == a]
-        per_anchor[a] = {
-            "n_ranges": int(ra.size),
-            "fresh_frac": fresh[a] / bins[a],
-            "mean_aoi_s": aoi_sum[a] / bins[a],
-            **_residual_stats(ra),
+            if a not in self.fresh:
+                self.anchor_ids.append(a)
+                self.fresh[a], self.aoi_sum[a], self.bins[a] = 0, 0.0, 0
+                self.per_anchor_residual[a] = (QuantileSketch(), QuantileSketch(), Moments())
+            self.fresh[a] += int(s.fresh_per_anchor[j])
+            self.aoi_sum[a] += float(s.aoi_sum_per_anchor[j])
+            self.bins[a] += s.n_bins
+        r = s.residual_m
+        self.residual.add(r)
+        self.abs_residual.add(np.abs(r))
+        self.residual_moments.add(r)
+        if r.size:
+            ids, inv = np.unique(s.residual_anchor.astype(str), return_inverse=True)
+            for j, a in enumerate(ids):
+                ra = r[inv == j]
+                sk, sk_abs, mom = self.per_anchor_residual[str(a)]
+                sk.add(ra)
+                sk_abs.add(np.abs(ra))
+                mom.add(ra)
+        imu = s.imu_grid_mps2
+        self.imu.add(imu[np.all(np.isfinite(imu), axis=1)])
+
+    @staticmethod
+    def _residual_stats(sk: QuantileSketch, sk_abs: QuantileSketch, mom: Moments) -> dict[str, float]:
+        if sk.n == 0:
+            nan = float("nan")
+            return {"residual_std_m": nan, "residual_median_m": nan, "abs_residual_p95_m": nan,
+                    "abs_residual_p99_m": nan}
+        p95, p99 = sk_abs.quantile(np.array([0.95, 0.99]))
+        return {
+            "residual_std_m": float(mom.std()[0]),
+            "residual_median_m": float(sk.quantile(0.5)),
+            "abs_residual_p95_m": float(p95),
+            "abs_residual_p99_m": float(p99),
         }
-    imu = np.concatenate([s.imu_grid_mps2 for s in summaries])
-    imu = imu[np.all(np.isfinite(imu), axis=1)]
-    imu_std = tuple(float(v) for v in np.std(imu, axis=0)) if imu.shape[0] > 1 else (np.nan,) * 3
-    total_anchor_bins = sum(bins.values())
-    metrics = Metrics(
-        duration_s=float(np.mean([s.duration_s for s in summaries])),
-        uwb_ge1_frac=sum(s.ge1 for s in summaries) / n_bins,
-        uwb_ge2_frac=sum(s.ge2 for s in summaries) / n_bins,
-        mean_aoi_s=sum(aoi_sum.values()) / total_anchor_bins if total_anchor_bins else float("nan"),
-        imu_std_mps2=imu_std,  # type: ignore[arg-type]
-        per_anchor=per_anchor,
-        n_traces=len(summaries),
-        n_residuals=int(r.size),
-        **_residual_stats(r),
-    )
-    return metrics, r
+
+    def result(self) -> Metrics:
+        """The pooled metrics of every trace added so far."""
+        if self.n_traces == 0:
+            raise ValueError("no traces to compute metrics on")
+        per_anchor = {}
+        for a in self.anchor_ids:
+            sk, sk_abs, mom = self.per_anchor_residual[a]
+            per_anchor[a] = {
+                "n_ranges": int(sk.n),
+                "fresh_frac": self.fresh[a] / self.bins[a],
+                "mean_aoi_s": self.aoi_sum[a] / self.bins[a],
+                **self._residual_stats(sk, sk_abs, mom),
+            }
+        total_anchor_bins = sum(self.bins.values())
+        imu_std = tuple(float(v) for v in self.imu.std()) if self.imu.n > 1 else (np.nan,) * 3
+        return Metrics(
+            duration_s=self.duration_sum / self.n_traces,
+            uwb_ge1_frac=self.ge1 / self.n_bins,
+            uwb_ge2_frac=self.ge2 / self.n_bins,
+            mean_aoi_s=sum(self.aoi_sum.values()) / total_anchor_bins if total_anchor_bins else float("nan"),
+            imu_std_mps2=imu_std,  # type: ignore[arg-type]
+            per_anchor=per_anchor,
+            n_traces=self.n_traces,
+            n_residuals=int(self.residual.n),
+            **self._residual_stats(self.residual, self.abs_residual, self.residual_moments),
+        )
 
 
-def compute_metrics(traces: Iterable[Trace], rate_hz: float = DEFAULT_GRID_RATE_HZ) -> Metrics:
-    """Pooled section-5 metrics of traces."""
-    return pool([summarize(t, rate_hz) for t in traces])[0]
+def pool(summaries: Iterable[TraceSummary]) -> Metrics:
+    """Pooled metrics of per-trace summaries (consumed one at a time)."""
+    acc = MetricsAccumulator()
+    for s in summaries:
+        acc.add(s)
+    return acc.result()
+
+
+def compute_metrics(traces: Iterable[Trace], rate_hz: float = DEFAULT_GRID_RATE_HZ,
+                    on_trace: Callable[[], None] | None = None) -> Metrics:
+    """Pooled section-5 metrics of traces, reduced one at a time (any iterable, e.g. a streamed dataset).
+
+    ``on_trace()`` is called after each trace (progress display).
+    """
+    acc = MetricsAccumulator()
+    for t in traces:
+        acc.add(summarize(t, rate_hz))
+        if on_trace is not None:
+            on_trace()
+    return acc.result()
 
 
 def pooled_residuals(traces: Iterable[Trace]) -> np.ndarray:

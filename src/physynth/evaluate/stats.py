@@ -10,7 +10,6 @@ import warnings
 from collections.abc import Sequence
 
 import numpy as np
-from scipy import stats
 
 
 def overlapping_allan_variance_sums(y: np.ndarray, m: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
@@ -88,6 +87,8 @@ def ks_statistic(real_residual_m: np.ndarray, synth_residual_m: np.ndarray) -> f
     synth_residual_m = np.asarray(synth_residual_m, dtype=float)
     if real_residual_m.size == 0 or synth_residual_m.size == 0:
         return float("nan")
+    from scipy import stats  # imported where used (slow to import)
+
     return float(stats.ks_2samp(real_residual_m, synth_residual_m).statistic)
 
 
@@ -95,6 +96,8 @@ def wasserstein(a: np.ndarray, b: np.ndarray) -> float:
     """First Wasserstein distance between two samples (scipy.stats.wasserstein_distance); NaN if one is empty."""
     if a.size == 0 or b.size == 0:
         return float("nan")
+    from scipy import stats  # imported where used (slow to import)
+
     return float(stats.wasserstein_distance(a, b))
 
 
@@ -102,6 +105,8 @@ def anderson_darling(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     """(statistic, tabulated p-value) of scipy's k-sample Anderson-Darling test (midrank variant)."""
     if a.size < 2 or b.size < 2 or np.unique(np.concatenate([a, b])).size < 2:
         return float("nan"), float("nan")
+    from scipy import stats
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # "p-value capped/floored" and the 1.17 `midrank` deprecation
         try:

@@ -23,7 +23,7 @@ import pyarrow.parquet as pq
 
 from .. import __version__
 from .._json import jsonable
-from ..constants import IMU_FRAME, SCHEMA_VERSION
+from ..constants import IMU_BODY_FRAME, IMU_FRAME, SCHEMA_VERSION
 from ..errors import DatasetError
 from ..records import Anchors, Imu, Trace, Truth, Uwb
 from . import integrity, safety
@@ -31,12 +31,20 @@ from .atomic import temp_sibling
 
 TABLES = ("truth", "imu", "uwb", "anchors")
 
+OPTIONAL_COLUMNS = {
+    "truth": {"quat_wxyz": [f"quat_{c}" for c in "wxyz"], "omega_body_radps": [f"omega_{c}_radps" for c in "xyz"]},
+    "imu": {"acc_mps2": [f"acc_{c}_mps2" for c in "enu"], "acc_body_mps2": [f"acc_{c}_mps2" for c in "xyz"],
+            "gyro_body_radps": [f"gyro_{c}_radps" for c in "xyz"]},
+}
+"""Column groups that a trace may lack: written as nulls, read back as None (and absent in old datasets)."""
+
 SCHEMAS = {
     "truth": pa.schema([("trace", pa.int32()), ("t_s", pa.float64())]
                        + [(f"pos_{c}_m", pa.float64()) for c in "enu"]
-                       + [(f"vel_{c}_mps", pa.float64()) for c in "enu"]),
+                       + [(f"vel_{c}_mps", pa.float64()) for c in "enu"]
+                       + [(c, pa.float64()) for cols in OPTIONAL_COLUMNS["truth"].values() for c in cols]),
     "imu": pa.schema([("trace", pa.int32()), ("t_s", pa.float64())]
-                     + [(f"acc_{c}_mps2", pa.float64()) for c in "enu"]),
+                     + [(c, pa.float64()) for cols in OPTIONAL_COLUMNS["imu"].values() for c in cols]),
     "uwb": pa.schema([("trace", pa.int32()), ("t_s", pa.float64()), ("anchor_id", pa.string()),
                       ("range_m", pa.float64()), ("true_range_m", pa.float64()), ("nlos", pa.bool_()),
                       ("burst", pa.int64()), ("reason", pa.int8())]),
@@ -44,48 +52,118 @@ SCHEMAS = {
                          + [(f"pos_{c}_m", pa.float64()) for c in "enu"]),
 }
 
+FLOAT32_COLUMNS = ("acc_e_mps2", "acc_n_mps2", "acc_u_mps2", "acc_x_mps2", "acc_y_mps2", "acc_z_mps2",
+                   "gyro_x_radps", "gyro_y_radps", "gyro_z_radps", "vel_e_mps", "vel_n_mps", "vel_u_mps")
+"""Columns that generated datasets store as float32 (``DatasetWriter(compact=True)``): IMU acceleration
+and angular rate (float32 keeps 7 significant digits, about 1e-6 m/s^2 at 10 m/s^2, against a per-sample
+noise of metres per second squared) and truth velocity (1e-6 m/s at 10 m/s). Times, positions, ranges and anchor
+positions stay float64: times may be epoch seconds, positions are training labels (float32 would round
+them to 0.2 mm at 2 km) and range residuals are the metric of the paper. Readers return float64."""
+
+SCHEMAS_COMPACT = {
+    name: pa.schema([pa.field(f.name, pa.float32()) if f.name in FLOAT32_COLUMNS else f for f in schema])
+    for name, schema in SCHEMAS.items()
+}
+
 UNITS = {
-    "t_s": "s", "pos_*_m": "m (ENU)", "vel_*_mps": "m/s (ENU)", "acc_*_mps2": "m/s^2",
+    "t_s": "s", "pos_*_m": "m (ENU)", "vel_*_mps": "m/s (ENU)", "acc_[enu]_mps2": "m/s^2 (ENU, gravity removed)",
+    "acc_[xyz]_mps2": "m/s^2 (body FLU, specific force incl. gravity)", "gyro_[xyz]_radps": "rad/s (body FLU)",
+    "quat_[wxyz]": "unit quaternion body (FLU) -> ENU, Hamilton, scalar first",
+    "omega_[xyz]_radps": "rad/s (body angular velocity, body frame, constant over [t_k, t_k+1))",
     "range_m": "m", "true_range_m": "m",
 }
 FRAMES = {
     "world": "ENU (east, north, up), metres, origin as in the anchors table",
     "imu": f"{IMU_FRAME}: acceleration in the world ENU frame with gravity removed",
+    "imu_body": f"{IMU_BODY_FRAME}: specific force (gravity included) and angular rate in the sensor body frame, "
+                "x forward, y left, z up",
+    "body": "FLU (x forward, y left, z up); truth quat_* rotates body vectors into ENU",
 }
 REASONS = {"0": "ok", "1": "dropout", "2": "outage", "3": "no link (range/visibility)", "4": "invalid"}
 
 
-def _tables_of(trace: Trace, index: int) -> dict[str, pa.Table]:
+_NUMPY_OF = {pa.float64(): np.float64, pa.float32(): np.float32, pa.int64(): np.int64, pa.int32(): np.int32,
+             pa.int16(): np.int16, pa.int8(): np.int8}
+
+
+def _arrow(values: Any, typ: pa.DataType) -> pa.Array:
+    """A NumPy column as an Arrow array, zero-copy from its buffer where possible.
+
+    (``pa.array`` on NumPy input imports pandas, 0.5 s that the writer does not need.)
+    """
+    if isinstance(values, pa.Array):
+        return values
+    if typ in _NUMPY_OF:
+        arr = np.ascontiguousarray(values, dtype=_NUMPY_OF[typ])
+        return pa.Array.from_buffers(typ, arr.shape[0], [None, pa.py_buffer(arr)])
+    if typ == pa.bool_():
+        arr = np.asarray(values, dtype=bool)
+        return pa.Array.from_buffers(typ, arr.shape[0], [None, pa.py_buffer(np.packbits(arr, bitorder="little"))])
+    if typ == pa.string():
+        data = [str(v).encode("utf-8") for v in values]
+        offsets = np.concatenate([[0], np.cumsum([len(b) for b in data])]).astype(np.int32)
+        return pa.Array.from_buffers(typ, len(data), [None, pa.py_buffer(offsets), pa.py_buffer(b"".join(data))])
+    return pa.array(values, type=typ)
+
+
+def _strings_at(values: Sequence[str], index: np.ndarray) -> pa.Array:
+    """Arrow strings ``values[index]`` gathered with NumPy (``cast``/``take`` would import pyarrow.compute)."""
+    enc = [str(v).encode("utf-8") for v in values]
+    lens = np.array([len(b) for b in enc], dtype=np.int64)
+    blob = np.frombuffer(b"".join(enc), dtype=np.uint8)
+    starts = np.concatenate([[0], np.cumsum(lens)[:-1]]).astype(np.int64)
+    index = np.asarray(index, dtype=np.intp)
+    row_lens = lens[index] if lens.size else np.zeros(0, np.int64)
+    offsets = np.concatenate([[0], np.cumsum(row_lens)]).astype(np.int32)
+    src = np.repeat(starts[index] - offsets[:-1], row_lens) + np.arange(offsets[-1]) if index.size else np.zeros(0, int)
+    data = blob[src] if src.size else np.zeros(0, np.uint8)
+    return pa.Array.from_buffers(pa.string(), index.size, [None, pa.py_buffer(offsets), pa.py_buffer(data)])
+
+
+def _table(name: str, cols: list[Any], compact: bool = False) -> pa.Table:
+    """A table of ``SCHEMAS[name]`` (or ``SCHEMAS_COMPACT[name]``) from NumPy columns."""
+    schema = (SCHEMAS_COMPACT if compact else SCHEMAS)[name]
+    n = len(cols[0])
+    return pa.Table.from_arrays([pa.nulls(n, f.type) if c is None else _arrow(c, f.type)
+                                 for c, f in zip(cols, schema, strict=True)], schema=schema)
+
+
+def _optional(record: Any, table: str) -> list[np.ndarray | None]:
+    """Columns of the optional groups of ``record`` in schema order; None (written as nulls) where absent."""
+    out: list[np.ndarray | None] = []
+    for attr, names in OPTIONAL_COLUMNS[table].items():
+        value = getattr(record, attr)
+        out += [None if value is None else value[:, k] for k in range(len(names))]
+    return out
+
+
+def _optional_group(cols: dict[str, np.ndarray], table: str, attr: str) -> np.ndarray | None:
+    """A group of optional columns read back as (N, k), or None when absent or null throughout."""
+    names = OPTIONAL_COLUMNS[table][attr]
+    if any(c not in cols for c in names):
+        return None
+    arr = np.stack([cols[c] for c in names], axis=1).astype(np.float64)
+    if arr.size and np.all(np.isnan(arr)):
+        return None
+    return arr
+
+
+def _tables_of(trace: Trace, index: int, compact: bool = False) -> dict[str, pa.Table]:
     tr = trace.truth
     n = tr.t_s.shape[0]
-    cols: dict[str, Any] = {"trace": np.full(n, index, np.int32), "t_s": tr.t_s}
-    for k, c in enumerate("enu"):
-        cols[f"pos_{c}_m"] = tr.pos_enu_m[:, k]
-    for k, c in enumerate("enu"):
-        cols[f"vel_{c}_mps"] = tr.vel_enu_mps[:, k]
-    out = {"truth": pa.Table.from_pydict(cols, schema=SCHEMAS["truth"])}
-
+    out = {"truth": _table("truth", [np.full(n, index, np.int32), tr.t_s, *tr.pos_enu_m.T, *tr.vel_enu_mps.T,
+                                     *_optional(tr, "truth")], compact)}
     if trace.imu is not None:
         im = trace.imu
-        cols = {"trace": np.full(im.t_s.shape[0], index, np.int32), "t_s": im.t_s}
-        for k, c in enumerate("enu"):
-            cols[f"acc_{c}_mps2"] = im.acc_mps2[:, k]
-        out["imu"] = pa.Table.from_pydict(cols, schema=SCHEMAS["imu"])
-
+        out["imu"] = _table("imu", [np.full(im.t_s.shape[0], index, np.int32), im.t_s, *_optional(im, "imu")],
+                            compact)
     u = trace.uwb
-    ids = np.asarray(trace.anchors.ids, dtype=object)
-    nlos = pa.array(u.nlos, mask=None if u.nlos_known else np.ones(len(u), bool), type=pa.bool_())
-    out["uwb"] = pa.Table.from_arrays(
-        [pa.array(np.full(len(u), index, np.int32)), pa.array(u.t_s),
-         pa.array(ids[u.anchor] if len(u) else np.array([], object), type=pa.string()),
-         pa.array(u.range_m), pa.array(u.true_range_m), nlos, pa.array(u.burst), pa.array(u.reason)],
-        schema=SCHEMAS["uwb"],
-    )
+    nlos = (_arrow(u.nlos, pa.bool_()) if u.nlos_known else pa.nulls(len(u), pa.bool_()))
+    anchor_id = _strings_at(trace.anchors.ids, u.anchor)
+    out["uwb"] = _table("uwb", [np.full(len(u), index, np.int32), u.t_s, anchor_id, u.range_m, u.true_range_m,
+                                nlos, u.burst, u.reason])
     a = trace.anchors
-    cols = {"trace": np.full(len(a), index, np.int32), "anchor_id": list(a.ids), "name": list(a.names)}
-    for k, c in enumerate("enu"):
-        cols[f"pos_{c}_m"] = a.pos_enu_m[:, k]
-    out["anchors"] = pa.Table.from_pydict(cols, schema=SCHEMAS["anchors"])
+    out["anchors"] = _table("anchors", [np.full(len(a), index, np.int32), a.ids, a.names, *a.pos_enu_m.T])
     return out
 
 
@@ -98,7 +176,7 @@ class DatasetWriter:
     """
 
     def __init__(self, path: str | os.PathLike, *, meta: dict[str, Any] | None = None,
-                 overwrite: bool = False, row_group_traces: int = 64,
+                 overwrite: bool = False, row_group_traces: int = 64, compact: bool = False,
                  inputs: Sequence[str | os.PathLike] = ()) -> None:
         # safety hook (physynth.io.safety): what --overwrite may replace, inputs, lock, orphaned temp folders
         self.path, self._lock = safety.prepare_output(path, kind="dataset", overwrite=overwrite, inputs=inputs)
@@ -108,6 +186,7 @@ class DatasetWriter:
         try:
             safety.remove_tree(self.tmp)
             self.tmp.mkdir(parents=True)
+            safety.register_temporary(self.tmp)
         except OSError as exc:
             self._lock.release()
             raise DatasetError(f"cannot create {self.path}: {exc.strerror}") from None
@@ -116,20 +195,30 @@ class DatasetWriter:
             raise
         self._rows = {name: 0 for name in TABLES}
         self._writers = {
-            name: pq.ParquetWriter(self.tmp / f"{name}.parquet", SCHEMAS[name], compression="snappy",
+            name: pq.ParquetWriter(self.tmp / f"{name}.parquet", (SCHEMAS_COMPACT if compact else SCHEMAS)[name],
+                                   compression="snappy",
                                    use_dictionary=["anchor_id", "name"], write_statistics=["trace"])
             for name in TABLES
         }
         self._pending: dict[str, list[pa.Table]] = {name: [] for name in TABLES}
         self._row_group_traces = row_group_traces
         self._trace_meta: list[dict[str, Any]] = []
+        self._frames: set[str] = set()
+        self._attitude = False
         self._closed = False
+        self.compact = compact  # float32 for FLOAT32_COLUMNS (generated data)
+        if compact:
+            self.meta.setdefault("float32_columns", list(FLOAT32_COLUMNS))
 
     def add(self, trace: Trace, index: int | None = None) -> None:
+        safety.check_interrupted()  # a signal whose exception was swallowed (physynth.io.safety)
         index = len(self._trace_meta) if index is None else int(index)
-        for name, table in _tables_of(trace, index).items():
+        for name, table in _tables_of(trace, index, self.compact).items():
             self._pending[name].append(table)
         self._trace_meta.append({"trace": index, **jsonable(trace.meta)})
+        if trace.imu is not None:
+            self._frames.update(trace.imu.frames)
+        self._attitude = self._attitude or trace.truth.has_attitude
         if len(self._pending["truth"]) >= self._row_group_traces:
             self._flush()
 
@@ -166,6 +255,8 @@ class DatasetWriter:
             "frames": FRAMES,
             "uwb_reason_codes": REASONS,
             **jsonable(self.meta),
+            "imu_frames": [f for f in (IMU_FRAME, IMU_BODY_FRAME) if f in self._frames],
+            "truth_attitude": self._attitude,
             "n_traces": len(self._trace_meta),
             "traces": self._trace_meta,
             # integrity hook (physynth.io.integrity): row counts and SHA-256 of every table
@@ -176,6 +267,7 @@ class DatasetWriter:
         if os.path.lexists(self.path):
             os.replace(self.path, old)
         os.replace(self.tmp, self.path)
+        safety.unregister_temporary(self.tmp)
         self._closed = True
         safety.remove_tree(old)
         self._lock.release()
@@ -188,6 +280,7 @@ class DatasetWriter:
             except Exception:  # noqa: BLE001 - best effort clean-up of a failed write
                 pass
         shutil.rmtree(self.tmp, ignore_errors=True)
+        safety.unregister_temporary(self.tmp)
         self._closed = True
         self._lock.release()
 
@@ -247,19 +340,29 @@ def read_meta(path: str | os.PathLike) -> dict[str, Any]:
     return meta
 
 
-def _read_table(path: Path, name: str) -> dict[str, np.ndarray]:
-    f = path / f"{name}.parquet"
-    if not f.is_file():
+def table_files(path: Path, name: str) -> list[Path]:
+    """The Parquet files of table ``name``: ``<name>.parquet``, or the parts ``<name>/part-*.parquet`` of
+    a dataset generated in shards (:mod:`physynth.io.shards`), in trace order."""
+    single = path / f"{name}.parquet"
+    if single.is_file():
+        return [single]
+    parts = sorted((path / name).glob("part-*.parquet")) if (path / name).is_dir() else []
+    if not parts:
         raise DatasetError(f"dataset {path} is incomplete: {name}.parquet is missing")
-    try:
-        table = pq.read_table(f)
-    except (OSError, pa.ArrowException) as exc:
-        raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
-    missing = [c for c in SCHEMAS[name].names if c not in table.column_names]
+    return parts
+
+
+def _columns(table: pa.Table, name: str, f: Path) -> dict[str, np.ndarray]:
+    optional = {c for group in OPTIONAL_COLUMNS.get(name, {}).values() for c in group}
+    if name == "imu" and not any(c in table.column_names for c in optional):
+        raise DatasetError(f"{f}: no acceleration or angular-rate column")
+    missing = [c for c in SCHEMAS[name].names if c not in table.column_names and c not in optional]
     if missing:
         raise DatasetError(f"{f}: missing column(s) {', '.join(missing)}")
     cols = {}
     for c in SCHEMAS[name].names:
+        if c not in table.column_names:
+            continue
         col = table.column(c)
         if c == "nlos":
             cols["nlos_known"] = ~np.asarray(col.is_null().to_numpy(zero_copy_only=False))
@@ -269,8 +372,21 @@ def _read_table(path: Path, name: str) -> dict[str, np.ndarray]:
             cols[c] = (np.asarray(enc.dictionary.to_pylist(), dtype=object)[enc.indices.to_numpy()]
                        if enc is not None else np.array([], dtype=object))
         else:
-            cols[c] = col.to_numpy()
+            if col.null_count:  # an optional group this trace does not have
+                cols[c] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
+            else:
+                cols[c] = col.to_numpy().astype(np.float64) if pa.types.is_float32(col.type) else col.to_numpy()
     return cols
+
+
+def _read_table(path: Path, name: str) -> dict[str, np.ndarray]:
+    parts = []
+    for f in table_files(path, name):
+        try:
+            parts.append(_columns(pq.read_table(f), name, f))
+        except (OSError, pa.ArrowException) as exc:
+            raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
+    return {c: np.concatenate([p[c] for p in parts]) for c in parts[0]}
 
 
 def _split(cols: dict[str, np.ndarray]) -> dict[int, dict[str, np.ndarray]]:
@@ -283,42 +399,75 @@ def _split(cols: dict[str, np.ndarray]) -> dict[int, dict[str, np.ndarray]]:
     return {int(k): {c: v[order[s:e]] for c, v in cols.items()} for k, s, e in zip(keys, starts, ends, strict=True)}
 
 
-def read_dataset(path: str | os.PathLike) -> Dataset:
-    """Read a dataset directory back into Trace records (same values as written)."""
-    path = Path(path)
-    meta = read_meta(path)
-    # integrity hook (physynth.io.integrity): sizes, row counts, hashes and trace ids against dataset.json
-    integrity.check_dataset(path, meta, hashes=not integrity.environ_skip_hashes())
-    parts = {name: _split(_read_table(path, name)) for name in TABLES}
+def _row_groups_sorted(files: list[Path]) -> bool:
+    """True when the row groups of ``files``, in order, hold non-decreasing trace indices (statistics)."""
+    last = -1
+    for f in files:
+        md = _parquet_file(f).metadata
+        col = md.schema.names.index("trace") if "trace" in md.schema.names else -1
+        for g in range(md.num_row_groups):
+            if md.row_group(g).num_rows == 0:
+                continue
+            st = md.row_group(g).column(col).statistics if col >= 0 else None
+            if st is None or not st.has_min_max or st.min < last:
+                return False
+            last = st.max
+    return True
+
+
+def _parquet_file(f: Path) -> pq.ParquetFile:
     try:
-        trace_meta = {int(m["trace"]): m for m in meta.get("traces", [])}
-    except (TypeError, KeyError, ValueError):
-        raise DatasetError(f"dataset {path}: dataset.json 'traces' entries have no valid 'trace' id") from None
-    traces = []
-    for idx in sorted(parts["truth"]):
-        try:
-            traces.append(_trace_of(path, meta, parts, trace_meta, idx))
-        except ValueError as exc:  # tables that read but do not make valid records (unsorted times, ...)
-            raise DatasetError(f"dataset {path}: trace {idx} is invalid: {str(exc).splitlines()[0]}") from None
-    if not traces:
-        raise DatasetError(f"dataset {path} holds no traces")
-    return Dataset(meta=meta, traces=traces)
+        return pq.ParquetFile(f)
+    except (OSError, pa.ArrowException) as exc:
+        raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
 
 
-def _trace_of(path: Path, meta: dict[str, Any], parts: dict[str, dict[int, dict[str, np.ndarray]]],
-              trace_meta: dict[int, dict[str, Any]], idx: int) -> Trace:
-    tr, an = parts["truth"][idx], parts["anchors"].get(idx)
+def _row_group(pf: pq.ParquetFile, g: int, name: str, f: Path) -> dict[str, np.ndarray]:
+    try:
+        return _columns(pf.read_row_group(g), name, f)
+    except (OSError, pa.ArrowException) as exc:
+        raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
+
+
+def _table_stream(path: Path, name: str) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
+    """(trace index, columns) of one table, read one row group at a time, in trace order."""
+    files = table_files(path, name)
+    if not _row_groups_sorted(files):  # not written by DatasetWriter: read it whole, once
+        yield from sorted(_split(_read_table(path, name)).items())
+        return
+    pending: tuple[int, dict[str, np.ndarray]] | None = None
+    for f in files:
+        pf = _parquet_file(f)
+        for g in range(pf.metadata.num_row_groups):
+            groups = sorted(_split(_row_group(pf, g, name, f)).items())
+            if pending is not None and groups and groups[0][0] == pending[0]:  # a trace across groups
+                groups[0] = (pending[0], {c: np.concatenate([pending[1][c], v]) for c, v in groups[0][1].items()})
+            elif pending is not None and groups:
+                yield pending
+            if groups:
+                pending = groups.pop()
+            yield from groups
+    if pending is not None:
+        yield pending
+
+
+def _trace_of(idx: int, tr: dict, an: dict | None, im: dict | None, uw: dict | None,
+              meta: dict[str, Any], trace_meta: dict[str, Any], path: Path) -> Trace:
     if an is None:  # an IMU-only recording (e.g. BROAD) has no anchors
         anchors = Anchors(ids=(), pos_enu_m=np.zeros((0, 3)))
     else:
         anchors = Anchors(ids=tuple(an["anchor_id"]), names=tuple(an["name"]),
                           pos_enu_m=np.stack([an[f"pos_{c}_m"] for c in "enu"], axis=1))
     truth = Truth(t_s=tr["t_s"], pos_enu_m=np.stack([tr[f"pos_{c}_m"] for c in "enu"], axis=1),
-                  vel_enu_mps=np.stack([tr[f"vel_{c}_mps"] for c in "enu"], axis=1))
-    im = parts["imu"].get(idx)
-    imu = (Imu(t_s=im["t_s"], acc_mps2=np.stack([im[f"acc_{c}_mps2"] for c in "enu"], axis=1),
-               frame=meta.get("imu_frame", IMU_FRAME)) if im is not None else None)
-    uw = parts["uwb"].get(idx)
+                  vel_enu_mps=np.stack([tr[f"vel_{c}_mps"] for c in "enu"], axis=1),
+                  quat_wxyz=_optional_group(tr, "truth", "quat_wxyz"),
+                  omega_body_radps=_optional_group(tr, "truth", "omega_body_radps"))
+    imu = None
+    if im is not None:
+        groups = {a: _optional_group(im, "imu", a) for a in OPTIONAL_COLUMNS["imu"]}
+        if all(g is None for g in groups.values()):
+            raise DatasetError(f"dataset {path}: trace {idx} has IMU rows without any value")
+        imu = Imu(t_s=im["t_s"], frame=meta.get("imu_frame", IMU_FRAME), **groups)
     if uw is None:
         uwb = Uwb(t_s=np.array([]), anchor=np.array([], np.int16), range_m=np.array([]))
     else:
@@ -331,5 +480,61 @@ def _trace_of(path: Path, meta: dict[str, Any], parts: dict[str, dict[int, dict[
                   range_m=uw["range_m"], true_range_m=uw["true_range_m"], nlos=uw["nlos"],
                   burst=uw["burst"], reason=uw["reason"],
                   nlos_known=bool(uw["nlos_known"].all()) if len(uw["nlos_known"]) else False)
-    m = {k: v for k, v in trace_meta.get(idx, {}).items() if k != "trace"}
+    m = {k: v for k, v in trace_meta.items() if k != "trace"}
     return Trace(truth=truth, uwb=uwb, anchors=anchors, imu=imu, meta=m)
+
+
+def iter_traces(path: str | os.PathLike, meta: dict[str, Any] | None = None) -> Iterator[Trace]:
+    """The traces of a dataset directory, one at a time, in trace order.
+
+    Every table is read one row group at a time (a row group holds a few dozen traces), so memory
+    does not grow with the number of traces. ``meta`` is the dataset's ``dataset.json`` when already
+    read (:func:`read_meta`).
+    """
+    path = Path(path)
+    meta = read_meta(path) if meta is None else meta
+    # integrity hook (physynth.io.integrity): sizes, row counts, hashes and trace ids against dataset.json
+    integrity.check_dataset(path, meta, hashes=not integrity.environ_skip_hashes())
+    try:
+        trace_meta = {int(m["trace"]): m for m in meta.get("traces", [])}
+    except (TypeError, KeyError, ValueError):
+        raise DatasetError(f"dataset {path}: dataset.json 'traces' entries have no valid 'trace' id") from None
+    streams = {name: _table_stream(path, name) for name in TABLES}
+    heads: dict[str, tuple[int, dict] | None] = {name: next(streams[name], None) for name in TABLES if name != "truth"}
+
+    def take(name: str, idx: int) -> dict | None:
+        while heads[name] is not None and heads[name][0] < idx:  # rows of a trace without truth: skipped
+            heads[name] = next(streams[name], None)
+        head = heads[name]
+        if head is not None and head[0] == idx:
+            heads[name] = next(streams[name], None)
+            return head[1]
+        return None
+
+    n = 0
+    for idx, tr in streams["truth"]:
+        n += 1
+        try:
+            trace = _trace_of(idx, tr, take("anchors", idx), take("imu", idx), take("uwb", idx), meta,
+                              trace_meta.get(idx, {}), path)
+        except ValueError as exc:  # tables that read but do not make valid records (unsorted times, ...)
+            raise DatasetError(f"dataset {path}: trace {idx} is invalid: {str(exc).splitlines()[0]}") from None
+        yield trace
+    if n == 0:
+        raise DatasetError(f"dataset {path} holds no traces")
+
+
+def n_traces(meta: dict[str, Any]) -> int | None:
+    """Number of traces recorded in a dataset's ``dataset.json`` (None when it does not say)."""
+    n = meta.get("n_traces")
+    return int(n) if isinstance(n, int) else None
+
+
+def read_dataset(path: str | os.PathLike) -> Dataset:
+    """Read a whole dataset directory back into Trace records (same values as written).
+
+    Holds every trace in memory; :func:`iter_traces` streams them instead.
+    """
+    path = Path(path)
+    meta = read_meta(path)
+    return Dataset(meta=meta, traces=list(iter_traces(path, meta)))

@@ -6,6 +6,13 @@ distributed time of mean ``outage_mean_s``. While up, each scheduled attempt is 
 probability ``dropout_prob``. An optional tag-level process silences every anchor of a burst at once.
 The alternating-renewal sampler (:mod:`physynth.models.renewal`) is the one the UWB model's NLOS
 episodes use.
+
+Rare events carry their uncertainty: an outage onset rate estimated from a handful of events is a
+Gamma posterior (:func:`gamma_rate_posterior`, prior :data:`RATE_PRIOR_SHAPE`, :data:`RATE_PRIOR_RATE_S`).
+When ``outage_onset_shape`` / ``tag_outage_onset_shape`` is set, every trace draws its own rate
+onset_prob x G with G ~ Gamma(shape, 1 / shape) (mean 1: the posterior of the rate, scaled), so an
+ensemble spreads as widely as the evidence allows; unset (the default), the rate is fixed and nothing
+is drawn, so scenarios without it generate what they always did.
 """
 
 from __future__ import annotations
@@ -14,9 +21,53 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import stats
 
 from ._params import ParamsModel, PositiveFloat, Probability
 from .renewal import initial_pairs, switch_counts
+
+RATE_PRIOR_SHAPE = 0.5
+"""Shape of the Gamma prior on an event rate: Jeffreys' prior for a Poisson rate (with no prior
+exposure, :data:`RATE_PRIOR_RATE_S` = 0). It adds half an event: one event in 250 s gives a posterior
+mean of 1.5 / 250 s and a 90 % interval of about [0.35, 5.2] / 1000 s, not a certainty of 4 / 1000 s."""
+RATE_PRIOR_RATE_S = 0.0
+"""Rate (prior exposure [s]) of the Gamma prior on an event rate."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RatePosterior:
+    """Gamma posterior of a Poisson event rate [1/s]: Gamma(prior_shape + events, prior_rate_s + exposure_s)."""
+
+    events: float
+    exposure_s: float
+    prior_shape: float = RATE_PRIOR_SHAPE
+    prior_rate_s: float = RATE_PRIOR_RATE_S
+
+    @property
+    def shape(self) -> float:
+        return self.prior_shape + self.events
+
+    @property
+    def rate_s(self) -> float:
+        return self.prior_rate_s + self.exposure_s
+
+    @property
+    def mean_per_s(self) -> float:
+        return self.shape / self.rate_s
+
+    def interval_per_s(self, lo: float = 0.05, hi: float = 0.95) -> tuple[float, float]:
+        """Equal-tailed credible interval of the rate [1/s]."""
+        q = stats.gamma.ppf([lo, hi], a=self.shape, scale=1.0 / self.rate_s)
+        return float(q[0]), float(q[1])
+
+
+def gamma_rate_posterior(events: float, exposure_s: float, *, prior_shape: float = RATE_PRIOR_SHAPE,
+                         prior_rate_s: float = RATE_PRIOR_RATE_S) -> RatePosterior:
+    """Posterior of a Poisson rate after ``events`` events in ``exposure_s`` seconds of exposure."""
+    if events < 0 or not exposure_s > 0:
+        raise ValueError(f"events must be >= 0 and exposure positive, got {events}, {exposure_s}")
+    return RatePosterior(events=float(events), exposure_s=float(exposure_s), prior_shape=prior_shape,
+                         prior_rate_s=prior_rate_s)
 
 
 class AvailabilityParams(ParamsModel):
@@ -25,6 +76,10 @@ class AvailabilityParams(ParamsModel):
     ``tag_outage_*`` is an optional outage process of the tag itself (antenna shadowed by the carrier,
     radio reset): while it lasts no anchor is heard. Real recordings show such all-anchor gaps
     (Hanyang LOS Case_2 loses every anchor for ~22 s); per-anchor outages alone cannot make them.
+
+    ``outage_onset_shape`` / ``tag_outage_onset_shape``: when set, each trace draws its onset rate
+    from a Gamma law of this shape and mean ``*_onset_prob`` (the rate's posterior, see the module
+    docstring); None keeps the rate fixed.
     """
 
     dropout_prob: Probability = 0.04
@@ -33,12 +88,15 @@ class AvailabilityParams(ParamsModel):
     tag_outage_onset_prob: Probability = 0.0
     tag_outage_mean_s: PositiveFloat = 16.0
     start_stationary: bool = True
+    outage_onset_shape: PositiveFloat | None = None
+    tag_outage_onset_shape: PositiveFloat | None = None
 
 
 class AvailabilityOverride(ParamsModel):
     dropout_prob: Probability | None = None
     outage_onset_prob: Probability | None = None
     outage_mean_s: PositiveFloat | None = None
+    outage_onset_shape: PositiveFloat | None = None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -51,6 +109,8 @@ class AvailabilityArrays:
     tag_outage_onset_prob: float
     tag_outage_mean_s: float
     start_stationary: bool
+    outage_onset_shape: np.ndarray  # (A,) Gamma shape of the per-trace rate; NaN: fixed rate
+    tag_outage_onset_shape: float  # NaN: fixed rate
 
 
 def availability_arrays(params: AvailabilityParams, per_anchor: Sequence[AvailabilityParams]) -> AvailabilityArrays:
@@ -62,7 +122,29 @@ def availability_arrays(params: AvailabilityParams, per_anchor: Sequence[Availab
         tag_outage_onset_prob=float(params.tag_outage_onset_prob),
         tag_outage_mean_s=float(params.tag_outage_mean_s),
         start_stationary=bool(params.start_stationary),
+        outage_onset_shape=np.array([np.nan if a.outage_onset_shape is None else a.outage_onset_shape
+                                     for a in per_anchor], dtype=float),
+        tag_outage_onset_shape=(np.nan if params.tag_outage_onset_shape is None
+                                else float(params.tag_outage_onset_shape)),
     )
+
+
+def draw_trace_rates(av: AvailabilityArrays, *, rng: np.random.Generator) -> AvailabilityArrays:
+    """The onset probabilities of one trace: those with a Gamma shape scaled by Gamma(shape, 1/shape).
+
+    Draws nothing and returns ``av`` itself when no shape is set.
+    """
+    shapes = np.append(av.outage_onset_shape, av.tag_outage_onset_shape)
+    drawn = np.isfinite(shapes)
+    if not drawn.any():
+        return av
+    factor = np.ones(shapes.size)
+    factor[drawn] = rng.gamma(shapes[drawn], 1.0 / shapes[drawn])
+    return AvailabilityArrays(
+        dropout_prob=av.dropout_prob, outage_onset_prob=np.clip(av.outage_onset_prob * factor[:-1], 0.0, 1.0),
+        outage_mean_s=av.outage_mean_s, tag_outage_onset_prob=float(min(av.tag_outage_onset_prob * factor[-1], 1.0)),
+        tag_outage_mean_s=av.tag_outage_mean_s, start_stationary=av.start_stationary,
+        outage_onset_shape=av.outage_onset_shape, tag_outage_onset_shape=av.tag_outage_onset_shape)
 
 
 def alternating_renewal(t_s: np.ndarray, mean_on_s: float, mean_off_s: float, *, start_on_prob: float,
@@ -111,8 +193,9 @@ def simulate_availability(t_s: np.ndarray, anchor: np.ndarray, burst: np.ndarray
     """Outage and dropout flags of ranging attempts (true times ``t_s``, anchor and burst indices).
 
     ``bursts_s`` holds the start time of every tag burst (the tag-level process runs on the bursts).
-    Returns (outage, dropped), both (N,) bool.
+    Returns (outage, dropped), both (N,) bool. Rates with a Gamma shape are drawn for the trace first.
     """
+    av = draw_trace_rates(av, rng=rng)
     outage = np.zeros(t_s.shape[0], dtype=bool)
     for i in range(av.dropout_prob.shape[0]):  # one outage process per anchor
         rows = np.flatnonzero(anchor == i)

@@ -14,7 +14,6 @@ from typing import Annotated, Literal
 import numpy as np
 from numpy.polynomial import polynomial as P
 from pydantic import Field, model_validator
-from scipy.interpolate import make_smoothing_spline
 
 from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Probability
 from .path import PathGeometry, PathPerturbation, perturbed_cf
@@ -97,6 +96,8 @@ def compile_speed_shape(params: SpeedProfileParams) -> SpeedShape:
     elif params.kind == "polynomial":
         g = np.clip(P.polyval(u, np.asarray(params.coeffs, dtype=float)), 0.0, None)
     else:
+        from scipy.interpolate import make_smoothing_spline  # imported where used (0.7 s)
+
         samples = np.asarray(params.samples, dtype=float)
         us = np.linspace(0.0, 1.0, samples.size)
         spline = make_smoothing_spline(us, samples, lam=params.smoothing)  # smoothed before differentiation

@@ -9,12 +9,11 @@ a sag change shaped as a half-sine, so both end stations stay fixed.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.polynomial import polynomial as P
 from pydantic import model_validator
-from scipy.interpolate import CubicSpline
 
 from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Vec3
 
@@ -69,7 +68,7 @@ class PathGeometry:
 
     length_m: float
     coeffs_s: np.ndarray | None = None  # (deg+1, 3) power series in s [m]
-    spline: CubicSpline | None = None  # p(s), s in [0, L]
+    spline: Any | None = None  # a scipy.interpolate.CubicSpline  # p(s), s in [0, L]
     _d1: np.ndarray | None = None  # derivative coefficients, cached
     _d2: np.ndarray | None = None
 
@@ -114,6 +113,8 @@ def compile_path(params: PathParams) -> PathGeometry:
             c[: len(row), k] = row
         c_s = c / (length ** np.arange(deg))[:, None]  # coefficients in s = u * L
         return PathGeometry(length_m=length, coeffs_s=c_s)
+    from scipy.interpolate import CubicSpline  # imported where used (0.7 s)
+
     w = np.asarray(params.waypoints_enu_m, dtype=np.float64)
     chord = arc_length_table(w)
     rough = CubicSpline(chord, w, bc_type="natural") if len(w) > 2 else None

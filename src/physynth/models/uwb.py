@@ -10,6 +10,20 @@ mode's own ``dwell_s``, and long-run probability ``nlos_prob``); an episode keep
 (one reflector) throughout. z is forced up with probability ``zone.nlos_prob`` while the tag is in
 an NLOS zone along the path (support pylons). Every scheduled attempt is a row: dropped, outage and
 out-of-link attempts keep a NaN range and their :class:`~physynth.records.Reason`.
+
+Geometry-aware parts, each optional and off by default (a scenario without them draws exactly the
+same numbers as before they existed):
+
+- obstacles (``uwb.obstacles``: boxes, walls, prisms; ``uwb.terrain``: a height grid,
+  :mod:`physynth.models.obstacles`): an attempt whose tag-anchor segment meets one is NLOS (z = 1)
+  for exactly as long as the segment crosses it, with an offset drawn from the anchor's NLOS mixture;
+- a link budget (``channel.link_budget``, :class:`LinkBudgetParams`): the received first-path power
+  P(r) = P0 - 10 n log10(r / r0) + G_ant + G_ground - L_obst [dBm] and the detection probability
+  Phi((P(r) - sensitivity) / sigma_shadow), multiplied into the soft radio horizon;
+- per-anchor antenna orientation (``AnchorSpec.boresight_enu``, ``front_back_db``: a cardioid-like
+  gain -front_back_db * (1 - cos theta) / 2) and height (the two-ray ground reflection of the link
+  budget, ``ground_reflection``: interference nulls where the ground path is a whole number of
+  wavelengths longer, the pattern the Hanyang static sweeps show at every antenna height).
 """
 
 from __future__ import annotations
@@ -24,6 +38,7 @@ from pydantic import Field
 from ..records import Reason, Uwb
 from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Probability, Vec3
 from .motion import Kinematics
+from .obstacles import Obstacle, TerrainGrid, obstacle_losses
 from .renewal import initial_pairs, switch_counts
 
 
@@ -31,13 +46,21 @@ class NlosMode(ParamsModel):
     """One Gaussian component of the NLOS range offset delta [m].
 
     ``weight`` is the share of NLOS measurements in this mode. An NLOS episode keeps one mode (one
-    reflector) for its whole length, of mean ``dwell_s`` (default: ``uwb.nlos_dwell_s``).
+    reflector) for its whole length, of mean ``dwell_s`` (default: ``uwb.nlos_dwell_s``), exponential
+    unless ``fixed_dwell`` (every episode lasts exactly ``dwell_s``: a wrong range that the radio keeps
+    reporting for a fixed hold time, as the Hanyang gross outliers do for ~3 attempts).
+
+    ``held_jitter_m``: when set, an episode draws its offset N(mean_m, std_m^2) once and keeps it
+    (one reflector, one excess path), each row adding only N(0, held_jitter_m^2); when None (default)
+    every row of the episode draws its own offset.
     """
 
     weight: PositiveFloat
     mean_m: FiniteFloat
     std_m: PositiveFloat
     dwell_s: PositiveFloat | None = None
+    fixed_dwell: bool = False
+    held_jitter_m: PositiveFloat | None = None
 
 
 class NlosZone(ParamsModel):
@@ -49,8 +72,43 @@ class NlosZone(ParamsModel):
     label: str = "pylon"
 
 
+class LinkBudgetParams(ParamsModel):
+    """Detection probability from a link budget (log-distance path loss, shadowing, sensitivity).
+
+    The first-path power received at range r [m] is
+
+        P(r) = ref_power_dbm - 10 * path_loss_exponent * log10(max(r, ref_distance_m) / ref_distance_m)
+               + G_antenna + G_ground - L_obstacles   [dBm]
+
+    and an attempt is detected with probability Phi((P(r) - sensitivity_dbm) / shadowing_std_db)
+    (log-normal shadowing, independent per attempt; a step when ``shadowing_std_db`` is 0). ``G_antenna``
+    is the anchor's orientation gain (:class:`AnchorSpec`), ``L_obstacles`` the ``loss_db`` of the
+    obstacles met. ``G_ground`` is the two-ray ground term, on when ``ground_reflection`` > 0: with
+    antenna heights h_a, h_t above the ground plane U = ``ground_u_m`` and horizontal distance d, the
+    ground path is longer by Delta = sqrt(d^2 + (h_a + h_t)^2) - sqrt(d^2 + (h_a - h_t)^2) and
+    G_ground = 20 log10 |1 - rho e^(-j 2 pi Delta / wavelength_m)| with rho = ``ground_reflection``.
+    Defaults: a free-space budget of a DW1000-class radio on channel 5 at the regulatory limit
+    (-41.3 dBm/MHz over 500 MHz, 48.7 dB free-space loss at 1 m: P0 = -63 dBm; sensitivity -106 dBm in
+    the 110 kb/s mode; 4 dB outdoor shadowing): 50 % detection near 140 m. A fit to a recording:
+    :func:`physynth.calibrate.link_budget.fit_link_budget_hanyang_static` (docs/anchors.md).
+    """
+
+    ref_power_dbm: FiniteFloat = -63.0
+    ref_distance_m: PositiveFloat = 1.0
+    path_loss_exponent: PositiveFloat = 2.0
+    sensitivity_dbm: FiniteFloat = -106.0
+    shadowing_std_db: NonNegFloat = 4.0
+    ground_reflection: Probability = 0.0
+    ground_u_m: FiniteFloat = 0.0
+    wavelength_m: PositiveFloat = 0.0462
+
+
 class ChannelParams(ParamsModel):
-    """Ranging channel of one anchor: LOS Gaussian, NLOS mixture, effective rate and link range."""
+    """Ranging channel of one anchor: LOS Gaussian, NLOS mixture, effective rate and link range.
+
+    ``link_budget`` (optional, off by default) makes detection fall with distance, antenna gain and
+    obstacle loss (:class:`LinkBudgetParams`).
+    """
 
     rate_hz: PositiveFloat = 18.5
     los_mean_m: FiniteFloat = 0.0
@@ -60,6 +118,7 @@ class ChannelParams(ParamsModel):
     nlos_modes: list[NlosMode] = Field(default=[NlosMode(weight=1.0, mean_m=1.0, std_m=0.5)], min_length=1)
     max_range_m: PositiveFloat = 300.0
     edge_width_m: PositiveFloat = 5.0
+    link_budget: LinkBudgetParams | None = None
 
 
 class ChannelOverride(ParamsModel):
@@ -73,6 +132,7 @@ class ChannelOverride(ParamsModel):
     nlos_modes: list[NlosMode] | None = None
     max_range_m: PositiveFloat | None = None
     edge_width_m: PositiveFloat | None = None
+    link_budget: LinkBudgetParams | None = None
 
 
 class UwbParams(ParamsModel):
@@ -86,6 +146,14 @@ class UwbParams(ParamsModel):
     training data; a number: a recording's own alignment, which decides how often a burst straddles
     two 10 ms grid bins and so the grid availability metrics).
     NLOS episodes last ``nlos_dwell_s`` on average.
+
+    Run-to-run ranging offsets: each trace adds one offset ~ N(0, ``run_offset_std_m``^2) to every
+    range of every anchor (a truth-system or tag-antenna offset that changes from run to run) and one
+    offset ~ N(0, ``run_anchor_offset_std_m``^2) per anchor (an anchor re-placed and re-surveyed for
+    each run). Both are 0 by default; they are drawn after every other draw of the trace's UWB
+    stream, so a scenario without them generates exactly what it did before they existed.
+    ``obstacles`` and ``terrain`` (optional) block the line of sight: an attempt whose tag-anchor
+    segment meets one is NLOS (:mod:`physynth.models.obstacles`), in addition to the ``zones``.
     """
 
     burst_rate_hz: PositiveFloat = 23.0
@@ -95,12 +163,26 @@ class UwbParams(ParamsModel):
     time_offset_s: FiniteFloat = 0.0
     nlos_dwell_s: PositiveFloat = 0.5
     zones: list[NlosZone] = []
+    run_offset_std_m: NonNegFloat = 0.0
+    run_anchor_offset_std_m: NonNegFloat = 0.0
+    obstacles: list[Obstacle] = []
+    terrain: TerrainGrid | None = None
 
 
 class AnchorSpec(ParamsModel):
+    """One anchor: id, antenna position in ENU [m] and (optionally) its antenna orientation.
+
+    ``boresight_enu`` (a direction, normalised here) and ``front_back_db`` give the antenna gain
+    G(theta) = -front_back_db * (1 - cos theta) / 2 [dB] towards a tag seen at angle theta from the
+    boresight: 0 dB in front, -front_back_db behind (an anchor on a wall or a mast facing the route).
+    It enters the link budget only (:class:`LinkBudgetParams`); without one it has no effect.
+    """
+
     id: Annotated[str, Field(min_length=1)]
     pos_enu_m: Vec3
     name: str | None = None
+    boresight_enu: Vec3 | None = None
+    front_back_db: NonNegFloat = 0.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -117,11 +199,51 @@ class ChannelArrays:
     mode_mean_m: np.ndarray  # (A, M)
     mode_std_m: np.ndarray  # (A, M)
     mode_dwell_s: np.ndarray  # (A, M) mean NLOS episode length per mode
+    mode_fixed_dwell: np.ndarray  # (A, M) bool: episodes of exactly mode_dwell_s
+    mode_held_jitter_m: np.ndarray  # (A, M) per-row jitter of a held offset; NaN: offset drawn per row
     max_range_m: np.ndarray
     edge_width_m: np.ndarray
     zone_s_m: np.ndarray  # (Z,)
     zone_half_width_m: np.ndarray
     zone_nlos_prob: np.ndarray
+    link: LinkBudgetArrays | None = None  # None: no anchor has a link budget
+    obstacles: tuple = ()
+    terrain: TerrainGrid | None = None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LinkBudgetArrays:
+    """Per-anchor link budgets (A,); anchors without one have ``enabled`` False (detection 1)."""
+
+    enabled: np.ndarray
+    ref_power_dbm: np.ndarray
+    ref_distance_m: np.ndarray
+    path_loss_exponent: np.ndarray
+    sensitivity_dbm: np.ndarray
+    shadowing_std_db: np.ndarray
+    ground_reflection: np.ndarray
+    ground_u_m: np.ndarray
+    wavelength_m: np.ndarray
+    boresight_enu: np.ndarray  # (A, 3) unit vectors, zeros where omnidirectional
+    front_back_db: np.ndarray
+
+
+def _link_arrays(anchors: Sequence[AnchorSpec], chans: Sequence[ChannelParams]) -> LinkBudgetArrays | None:
+    if all(c.link_budget is None for c in chans):
+        return None
+    lbs = [c.link_budget or LinkBudgetParams() for c in chans]
+    bore = np.zeros((len(anchors), 3))
+    for i, a in enumerate(anchors):
+        if a.boresight_enu is not None:
+            v = np.asarray(a.boresight_enu, dtype=float)
+            norm = np.linalg.norm(v)
+            bore[i] = v / norm if norm > 0 else 0.0
+    return LinkBudgetArrays(
+        enabled=np.array([c.link_budget is not None for c in chans]),
+        **{f: np.array([getattr(lb, f) for lb in lbs], dtype=float) for f in LinkBudgetParams.model_fields},
+        boresight_enu=bore,
+        front_back_db=np.array([a.front_back_db for a in anchors], dtype=float),
+    )
 
 
 def channel_arrays(params: UwbParams, anchors: Sequence[AnchorSpec],
@@ -133,6 +255,8 @@ def channel_arrays(params: UwbParams, anchors: Sequence[AnchorSpec],
     mean = np.zeros((len(chans), m))
     std = np.ones((len(chans), m))
     dwell = np.full((len(chans), m), params.nlos_dwell_s)
+    fixed = np.zeros((len(chans), m), dtype=bool)
+    jitter = np.full((len(chans), m), np.nan)
     for i, c in enumerate(chans):
         w = np.array([mode.weight for mode in c.nlos_modes])
         k = w.size
@@ -140,7 +264,10 @@ def channel_arrays(params: UwbParams, anchors: Sequence[AnchorSpec],
         mean[i, :k] = [mode.mean_m for mode in c.nlos_modes]
         std[i, :k] = [mode.std_m for mode in c.nlos_modes]
         dwell[i, :k] = [mode.dwell_s or params.nlos_dwell_s for mode in c.nlos_modes]
+        fixed[i, :k] = [mode.fixed_dwell for mode in c.nlos_modes]
+        jitter[i, :k] = [np.nan if mode.held_jitter_m is None else mode.held_jitter_m for mode in c.nlos_modes]
         mean[i, k:], std[i, k:], dwell[i, k:] = mean[i, k - 1], std[i, k - 1], dwell[i, k - 1]
+        fixed[i, k:], jitter[i, k:] = fixed[i, k - 1], jitter[i, k - 1]
     z = params.zones
     return ChannelArrays(
         anchor_pos_enu_m=np.array([a.pos_enu_m for a in anchors], dtype=float),
@@ -149,11 +276,15 @@ def channel_arrays(params: UwbParams, anchors: Sequence[AnchorSpec],
         los_std_m=np.array([c.los_std_m for c in chans]),
         range_bias_per_m=np.array([c.range_bias_per_m for c in chans]),
         nlos_prob=np.array([c.nlos_prob for c in chans]),
-        mode_cumw=cumw, mode_mean_m=mean, mode_std_m=std, mode_dwell_s=dwell,
+        mode_cumw=cumw, mode_mean_m=mean, mode_std_m=std, mode_dwell_s=dwell, mode_fixed_dwell=fixed,
+        mode_held_jitter_m=jitter,
         max_range_m=np.array([c.max_range_m for c in chans]),
         edge_width_m=np.array([c.edge_width_m for c in chans]),
         zone_s_m=np.array([q.s_m for q in z]), zone_half_width_m=np.array([q.half_width_m for q in z]),
         zone_nlos_prob=np.array([q.nlos_prob for q in z]),
+        link=_link_arrays(anchors, chans),
+        obstacles=tuple(params.obstacles),
+        terrain=params.terrain,
     )
 
 
@@ -181,6 +312,63 @@ def link_probability(range_m: np.ndarray, max_range_m: np.ndarray, edge_width_m:
     """Soft radio horizon: 1 / (1 + exp((r - max_range) / edge_width))."""
     x = np.clip((range_m - max_range_m) / edge_width_m, -50.0, 50.0)
     return 1.0 / (1.0 + np.exp(x))
+
+
+def ground_gain_db(horiz_m: np.ndarray, h_anchor_m: np.ndarray, h_tag_m: np.ndarray, reflection: np.ndarray,
+                   wavelength_m: np.ndarray) -> np.ndarray:
+    """Two-ray ground term 20 log10 |1 - rho exp(-j 2 pi Delta / lambda)| [dB] (0 where rho is 0).
+
+    Heights above the ground plane [m] are clipped at 1 cm; Delta is the extra length of the ground path.
+    """
+    ha = np.maximum(h_anchor_m, 0.01)
+    ht = np.maximum(h_tag_m, 0.01)
+    delta = np.hypot(horiz_m, ha + ht) - np.hypot(horiz_m, ha - ht)
+    phase = 2.0 * np.pi * delta / wavelength_m
+    mag = np.hypot(1.0 - reflection * np.cos(phase), reflection * np.sin(phase))
+    return 20.0 * np.log10(np.maximum(mag, 1e-6))
+
+
+def received_power_dbm(tag_enu_m: np.ndarray, anchor: np.ndarray, ch: ChannelArrays,
+                       obstacle_loss_db: np.ndarray | float = 0.0) -> np.ndarray:
+    """Mean first-path power [dBm] of rows (tag (N, 3) [m], anchor index (N,)) under the link budget."""
+    lb = ch.link
+    assert lb is not None
+    d = tag_enu_m - ch.anchor_pos_enu_m[anchor]  # anchor -> tag
+    r = np.sqrt(np.einsum("ij,ij->i", d, d))
+    r0 = lb.ref_distance_m[anchor]
+    p = lb.ref_power_dbm[anchor] - 10.0 * lb.path_loss_exponent[anchor] * np.log10(np.maximum(r, r0) / r0)
+    bore = lb.boresight_enu[anchor]
+    cos_t = np.einsum("ij,ij->i", bore, d) / np.maximum(r, 1e-9)
+    has_bore = np.any(bore != 0.0, axis=1)
+    p = p - np.where(has_bore, lb.front_back_db[anchor] * (1.0 - cos_t) / 2.0, 0.0)
+    rho = lb.ground_reflection[anchor]
+    if np.any(rho > 0):
+        g = lb.ground_u_m[anchor]
+        p = p + ground_gain_db(np.hypot(d[:, 0], d[:, 1]), ch.anchor_pos_enu_m[anchor, 2] - g, tag_enu_m[:, 2] - g,
+                               rho, lb.wavelength_m[anchor])
+    return p - obstacle_loss_db
+
+
+def detection_probability(power_dbm: np.ndarray, sensitivity_dbm: np.ndarray,
+                          shadowing_std_db: np.ndarray) -> np.ndarray:
+    """P(power + shadowing > sensitivity) = Phi((power - sensitivity) / sigma) (a step where sigma is 0)."""
+    from scipy.special import ndtr
+
+    margin = power_dbm - sensitivity_dbm
+    with np.errstate(divide="ignore", invalid="ignore"):
+        soft = ndtr(margin / np.where(shadowing_std_db > 0, shadowing_std_db, 1.0))
+    return np.where(shadowing_std_db > 0, soft, (margin >= 0).astype(float))
+
+
+def link_detection_probability(tag_enu_m: np.ndarray, anchor: np.ndarray, ch: ChannelArrays,
+                               obstacle_loss_db: np.ndarray | float = 0.0) -> np.ndarray:
+    """Per-row detection probability of the link budget (1 for anchors without one)."""
+    lb = ch.link
+    if lb is None:
+        return np.ones(anchor.shape[0])
+    p = detection_probability(received_power_dbm(tag_enu_m, anchor, ch, obstacle_loss_db),
+                              lb.sensitivity_dbm[anchor], lb.shadowing_std_db[anchor])
+    return np.where(lb.enabled[anchor], p, 1.0)
 
 
 def sample_nlos_offset(anchor: np.ndarray, ch: ChannelArrays, *, rng: np.random.Generator,
@@ -223,26 +411,43 @@ def range_error_log_components(err_m: np.ndarray, true_range_m: np.ndarray, *, l
 
 
 def range_error(true_range_m: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, mode: np.ndarray,
-                ch: ChannelArrays, *, rng: np.random.Generator) -> np.ndarray:
+                ch: ChannelArrays, *, rng: np.random.Generator, episode: np.ndarray | None = None) -> np.ndarray:
     """Range errors [m] of rows: LOS Gaussian N(mu_i + beta_i r, sigma_i^2), replaced where NLOS by the
-    offset of the episode's mixture mode (rows made NLOS by a zone alone draw a mode by weight)."""
+    offset of the episode's mixture mode (rows made NLOS by a zone alone draw a mode by weight).
+
+    Rows of an episode (``episode``: one id per episode, -1 outside) of a mode with a held offset
+    share one draw of the offset plus their own jitter; these draws come after all others, so a
+    scenario without held modes draws exactly as before.
+    """
     err = (los_error_mean(true_range_m, ch.los_mean_m[anchor], ch.range_bias_per_m[anchor])
            + ch.los_std_m[anchor] * rng.standard_normal(true_range_m.shape[0]))
     in_episode = mode >= 0
     zone_only = nlos & ~in_episode
     err[in_episode] = sample_nlos_offset(anchor[in_episode], ch, rng=rng, mode=mode[in_episode])
     err[zone_only] = sample_nlos_offset(anchor[zone_only], ch, rng=rng)
+    if episode is not None and in_episode.any():
+        jit = np.full(err.shape[0], np.nan)
+        jit[in_episode] = ch.mode_held_jitter_m[anchor[in_episode], mode[in_episode]]
+        held = np.isfinite(jit)
+        if held.any():
+            ids, first, inv = np.unique(episode[held], return_index=True, return_inverse=True)
+            a_ep, m_ep = anchor[held][first], mode[held][first]
+            value = ch.mode_mean_m[a_ep, m_ep] + ch.mode_std_m[a_ep, m_ep] * rng.standard_normal(ids.size)
+            err[held] = value[inv] + jit[held] * rng.standard_normal(int(held.sum()))
     return err
 
 
 def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_s: np.ndarray, *,
-                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+                  rng: np.random.Generator, fixed_dwell: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """NLOS state and mode at sorted times of one anchor: an alternating renewal process in which each
     NLOS episode keeps one mode m for an exponential time of mean ``dwell_s[m]``.
 
     Episodes pick mode m with probability proportional to weight_m / dwell_m, so that ``weights`` is
     the share of NLOS *time* in each mode; LOS gaps are exponential with the mean that makes the
-    long-run NLOS fraction ``nlos_prob``. Returns (nlos (N,) bool, mode (N,) int, -1 where LOS).
+    long-run NLOS fraction ``nlos_prob``. A mode with ``fixed_dwell`` lasts exactly ``dwell_s`` (the
+    exponential draw is still made, so the stream does not depend on the flag). Returns (nlos (N,)
+    bool, mode (N,) int, -1 where LOS, episode (N,) int: index of the episode, -1 where LOS).
     """
     q = weights / dwell_s
     q = q / q.sum()
@@ -254,22 +459,30 @@ def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_
     def draw(n: int) -> tuple[np.ndarray, np.ndarray]:
         modes = np.minimum(np.searchsorted(cum_q, rng.random(n), side="right"), q.size - 1)
         on = rng.exponential(1.0, n) * dwell_s[modes]
+        if fixed_dwell is not None:
+            on = np.where(fixed_dwell[modes], dwell_s[modes], on)
         off = rng.exponential(mean_off, n)
         return np.stack([on, off] if start_on else [off, on], axis=1), modes
 
     k, modes = switch_counts(t_s, draw, initial_pairs(float(t_s[-1] - t_s[0]), mean_on + mean_off))
     nlos = (k % 2 == 0) == start_on
-    return nlos, np.where(nlos, modes[np.minimum(k // 2, modes.size - 1)], -1)
+    pair = np.minimum(k // 2, modes.size - 1)
+    return nlos, np.where(nlos, modes[pair], -1), np.where(nlos, pair, -1)
 
 
 def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: ChannelArrays, *,
-                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """NLOS indicator and mode of each row: per-anchor episodes, raised inside NLOS zones.
+                rng: np.random.Generator, blocked: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """NLOS indicator, mode and episode id of each row: per-anchor episodes, raised inside NLOS zones and
+    where ``blocked`` (the line of sight meets an obstacle).
 
-    Rows made NLOS by a zone (and not by an episode) draw their mode by weight (mode -1 marks them).
+    Rows made NLOS by a zone or an obstacle (and not by an episode) draw their mode by weight (mode -1
+    marks them). Episode ids are unique over anchors (-1 outside an episode).
     """
     nlos = np.zeros(t_s.shape[0], dtype=bool)
     mode = np.full(t_s.shape[0], -1, dtype=np.int64)
+    episode = np.full(t_s.shape[0], -1, dtype=np.int64)
+    base = 0
     for i in range(ch.nlos_prob.shape[0]):  # one renewal process per anchor
         p = ch.nlos_prob[i]
         rows = np.flatnonzero(anchor == i)
@@ -279,12 +492,30 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
         if p >= 1:
             nlos[rows] = True
             continue
-        nlos[rows], mode[rows] = nlos_episodes(t_s[rows], p, weights, ch.mode_dwell_s[i], rng=rng)
+        nlos[rows], mode[rows], ep = nlos_episodes(t_s[rows], p, weights, ch.mode_dwell_s[i], rng=rng,
+                                                   fixed_dwell=ch.mode_fixed_dwell[i])
+        episode[rows] = np.where(ep >= 0, ep + base, -1)
+        base += int(ep.max()) + 1 if ep.size else 0
     if ch.zone_s_m.size:
         dist = np.abs(s_m[:, None] - ch.zone_s_m[None, :])
         p_zone = np.where(dist <= ch.zone_half_width_m, ch.zone_nlos_prob, 0.0).max(axis=1)
         nlos |= rng.random(t_s.shape[0]) < p_zone
-    return nlos, mode
+    if blocked is not None:
+        nlos |= blocked
+    return nlos, mode, episode
+
+
+def run_offsets(n_anchors: int, params: UwbParams, *, rng: np.random.Generator) -> np.ndarray:
+    """Per-trace ranging offsets [m] of the anchors, (A,): a common one plus one per anchor.
+
+    Draws nothing (and returns zeros) when both spreads are 0, so that the stream is unchanged.
+    """
+    out = np.zeros(n_anchors)
+    if params.run_offset_std_m > 0:
+        out += params.run_offset_std_m * rng.standard_normal()
+    if params.run_anchor_offset_std_m > 0:
+        out += params.run_anchor_offset_std_m * rng.standard_normal(n_anchors)
+    return out
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -319,10 +550,18 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
     true_range = np.sqrt(sq)
     s_m = np.interp(t_true, kin.t_s, kin.s_m)
 
-    linked = rng.random(t_true.shape[0]) < link_probability(true_range, ch.max_range_m[anchor],
-                                                            ch.edge_width_m[anchor])
-    nlos, mode = nlos_states(t_true, anchor, s_m, ch, rng=rng)
-    err = range_error(true_range, anchor, nlos, mode, ch, rng=rng)
+    p_link = link_probability(true_range, ch.max_range_m[anchor], ch.edge_width_m[anchor])
+    blocked = None
+    if ch.obstacles or ch.terrain is not None or ch.link is not None:  # geometry-aware parts (optional)
+        tag = np.stack([np.interp(t_true, kin.t_s, kin.pos_enu_m[:, k]) for k in range(3)], axis=1)
+        loss: np.ndarray | float = 0.0
+        if ch.obstacles or ch.terrain is not None:
+            blocked, loss = obstacle_losses(tag, ch.anchor_pos_enu_m[anchor], ch.obstacles, ch.terrain)
+        p_link = p_link * link_detection_probability(tag, anchor, ch, loss)
+    linked = rng.random(t_true.shape[0]) < p_link
+    nlos, mode, episode = nlos_states(t_true, anchor, s_m, ch, rng=rng, blocked=blocked)
+    err = range_error(true_range, anchor, nlos, mode, ch, rng=rng, episode=episode)
+    err += run_offsets(n_anchors, u, rng=rng)[anchor]
     measured = np.maximum(true_range + err, 0.0)  # a range is never negative
     return UwbAttempts(bursts_s=bursts, burst=b_idx, anchor=anchor, t_true_s=t_true, true_range_m=true_range,
                        measured_m=measured, nlos=nlos, linked=linked)

@@ -29,7 +29,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy import signal
 
 from .. import __version__
 from .._json import jsonable
@@ -39,12 +38,13 @@ from ..evaluate.grid import age_of_information, fresh_mask, grid_times
 from ..evaluate.metrics import (
     METRIC_KEYS,
     Metrics,
-    TraceSummary,
+    MetricsAccumulator,
     fidelity_score,
     pool,
     relative_deviation_pct,
     summarize,
 )
+from ..evaluate.sketch import REPRESENTATIVES, QuantileSketch
 from ..evaluate.stats import (
     anderson_darling,
     ks_statistic,
@@ -58,6 +58,13 @@ if TYPE_CHECKING:
 
 ACF_MAX_LAG = 10
 """Residual autocorrelation is reported at lags 1..ACF_MAX_LAG measurements of one anchor."""
+
+SIGNED_METRICS = ("residual_median_m",)
+"""Metrics that are signed and may lie near zero: compared by their absolute difference synth - real
+(a relative deviation of a 1 cm median is meaningless); ``relative_deviation_pct`` holds None for them."""
+
+BAND_PERCENTILES = (5.0, 95.0)
+"""The synthetic ensemble's band of a metric: these percentiles of its per-trace values."""
 
 ALLAN_TAUS_S = (0.1, 1.0, 10.0)
 """Averaging times [s] at which the IMU Allan-deviation ratio synthetic / real is reported."""
@@ -163,6 +170,7 @@ class SideEvidence:
     allan_tau_s: np.ndarray | None
     allan_dev_mps2: np.ndarray | None  # (3, M), NaN where no trace is long enough
     rate_hz: float
+    per_trace: tuple[dict[str, Any], ...]  # each trace's own metrics (Metrics.to_dict without per_anchor)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -178,10 +186,12 @@ class _SideAccumulator:
 
     def __init__(self, rate_hz: float) -> None:
         self.rate_hz = rate_hz
-        self.summaries: list[TraceSummary] = []
-        self.gaps: list[np.ndarray] = []
-        self.gap_anchor: list[np.ndarray] = []
-        self.aoi: list[np.ndarray] = []
+        self.n_traces = 0
+        self.metrics = MetricsAccumulator()
+        self.per_trace: list[dict[str, Any]] = []
+        self.residuals: dict[str, QuantileSketch] = {}  # per anchor id
+        self.gaps: dict[str, QuantileSketch] = {}  # per anchor id
+        self.aoi = QuantileSketch()
         self.n_fresh_counts = np.zeros(1, dtype=np.int64)
         self.paths: list[np.ndarray] = []
         self.speeds: list[tuple[np.ndarray, np.ndarray]] = []
@@ -204,8 +214,18 @@ class _SideAccumulator:
         if self.sample is None:
             self.sample, self.anchors = trace, trace.anchors
         s = summarize(trace, rate)  # the section-5 ingredients, from physynth.metrics
-        self.summaries.append(s)
+        self.metrics.add(s)
+        # the trace's own metrics (a few numbers, for the ensemble's 5-95 % band), not its arrays
+        self.per_trace.append({k: v for k, v in pool([s]).to_dict().items() if k != "per_anchor"})
+        self.n_traces += 1
         ids = np.asarray(trace.anchors.ids, dtype=object)
+        for a in trace.anchors.ids:
+            if a not in self.residuals:
+                self.residuals[a], self.gaps[a] = QuantileSketch(), QuantileSketch()
+        if s.residual_m.size:
+            r_ids, r_inv = np.unique(s.residual_anchor.astype(str), return_inverse=True)
+            for j, a in enumerate(r_ids):
+                self.residuals[str(a)].add(s.residual_m[r_inv == j])
 
         # grid: fresh anchors per step and AoI (physynth.grid, the one definition)
         t = grid_times(trace.t0_s, trace.duration_s, rate)
@@ -216,7 +236,7 @@ class _SideAccumulator:
         if counts.size > self.n_fresh_counts.size:
             self.n_fresh_counts = np.pad(self.n_fresh_counts, (0, counts.size - self.n_fresh_counts.size))
         self.n_fresh_counts[:counts.size] += counts
-        self.aoi.append(aoi.ravel())
+        self.aoi.add(aoi.ravel())
 
         # gaps between consecutive valid ranges of one anchor
         uwb = trace.uwb
@@ -225,8 +245,9 @@ class _SideAccumulator:
         order = np.lexsort((tv, av))
         tv, av = tv[order], av[order]
         same = av[1:] == av[:-1]
-        self.gaps.append(np.diff(tv)[same])
-        self.gap_anchor.append(ids[av[1:][same]] if same.any() else np.array([], dtype=object))
+        gap, gap_a = np.diff(tv)[same], av[1:][same]
+        for j in np.unique(gap_a):
+            self.gaps[str(ids[j])].add(gap[gap_a == j])
 
         # residual autocorrelation within each anchor's (time-ordered) sequence
         if s.residual_m.size:
@@ -247,6 +268,8 @@ class _SideAccumulator:
             self.allan_sums += sums
             self.allan_counts += cnt
             if y.shape[0] >= self.nperseg:
+                from scipy import signal  # imported where used: 0.9 s that most commands do not need
+
                 f, p = signal.welch(y, fs=rate, nperseg=self.nperseg, axis=0, detrend="constant")
                 w = y.shape[0] / self.nperseg
                 self.psd_sum = p.T * w if self.psd_sum is None else self.psd_sum + p.T * w
@@ -263,22 +286,23 @@ class _SideAccumulator:
             self.n_fresh_series.append(n_fresh.astype(np.int8))
 
     def finish(self) -> tuple[SideEvidence, np.ndarray]:
-        metrics, r = pool(self.summaries)  # exactly what metrics.compute_metrics returns
+        metrics = self.metrics.result()  # exactly what metrics.compute_metrics returns
         assert self.sample is not None and self.anchors is not None
-        r_anchor = np.concatenate([s.residual_anchor for s in self.summaries])
+        r, r_anchor = _pooled(self.residuals)
+        gap, gap_anchor = _pooled(self.gaps)
         with np.errstate(invalid="ignore", divide="ignore"):
             acf = self.acf_num / self.acf_den if self.acf_den > 0 else np.full(ACF_MAX_LAG, np.nan)
             allan = np.sqrt(self.allan_sums / np.where(self.allan_counts > 0, self.allan_counts, np.nan))
         has_allan = bool(np.any(self.allan_counts > 0))
         ev = SideEvidence(
-            n_traces=len(self.summaries),
+            n_traces=self.n_traces,
             anchors=self.anchors,
             metrics=metrics,
             residual_m=r,
             residual_anchor=r_anchor,
-            gap_s=np.concatenate(self.gaps),
-            gap_anchor=np.concatenate(self.gap_anchor),
-            aoi_s=np.concatenate(self.aoi),
+            gap_s=gap,
+            gap_anchor=gap_anchor,
+            aoi_s=self.aoi.values(),
             n_fresh_counts=self.n_fresh_counts,
             paths_enu_m=tuple(self.paths),
             speeds=tuple(self.speeds),
@@ -291,8 +315,29 @@ class _SideAccumulator:
             allan_tau_s=self.allan_m / self.rate_hz if has_allan else None,
             allan_dev_mps2=allan if has_allan else None,
             rate_hz=self.rate_hz,
+            per_trace=tuple(self.per_trace),
         )
         return ev, r
+
+
+def _pooled(sketches: Mapping[str, QuantileSketch]) -> tuple[np.ndarray, np.ndarray]:
+    """Values of per-anchor sketches pooled, with the anchor id of each value.
+
+    Exact values while a sketch is exact; a folded sketch stands in with evenly spaced quantiles in
+    proportion to its count (:mod:`physynth.evaluate.sketch`), so pooled statistics keep its weight.
+    """
+    total = sum(sk.n for sk in sketches.values())
+    vals, labels = [], []
+    for a, sk in sketches.items():
+        if sk.n == 0:
+            continue
+        k = max(1, round(REPRESENTATIVES * sk.n / total)) if sk.folded else sk.n
+        v = sk.values(k)
+        vals.append(v)
+        labels.append(np.full(v.size, a, dtype=object))
+    if not vals:
+        return np.zeros(0), np.array([], dtype=object)
+    return np.concatenate(vals), np.concatenate(labels)
 
 
 # ---------------------------------------------------------------- the report
@@ -323,6 +368,11 @@ class ValidationReport:
     transfer : dict or None
         With ``--transfer``: which scenario sections came from the real dataset and which from the
         scenario.
+    comparison : dict
+        Per metric key: real and synthetic values, ``difference`` (synth - real), ``deviation`` and
+        ``deviation_kind`` (``relative_pct`` or, for :data:`SIGNED_METRICS`, ``absolute`` in the
+        metric's unit), the synthetic ensemble's per-trace ``band_5_95`` and ``real_in_band``
+        (docs/validation.md). Lists per axis for ``imu_std_mps2``.
     """
 
     real: dict[str, Any]
@@ -334,6 +384,7 @@ class ValidationReport:
     per_anchor: dict[str, Any]
     inputs: dict[str, Any] = field(default_factory=dict)
     transfer: dict[str, Any] | None = None
+    comparison: dict[str, Any] = field(default_factory=dict)
     evidence: Evidence | None = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -351,6 +402,7 @@ class ValidationReport:
             "per_anchor": self.per_anchor,
             "inputs": self.inputs,
             "transfer": self.transfer,
+            "comparison": self.comparison,
         })
 
     def to_json(self) -> str:
@@ -364,7 +416,8 @@ class ValidationReport:
                        relative_deviation_pct=dict(data["relative_deviation_pct"]),
                        ks_statistic=data["ks_statistic"], fidelity_score=data.get("fidelity_score"),
                        extended=dict(data["extended"]), per_anchor=dict(data["per_anchor"]),
-                       inputs=dict(data.get("inputs") or {}), transfer=data.get("transfer"))
+                       inputs=dict(data.get("inputs") or {}), transfer=data.get("transfer"),
+                       comparison=dict(data.get("comparison") or {}))
         except (KeyError, TypeError) as exc:
             raise PhySynthError(f"not a validation report: missing or bad field {exc}") from None
 
@@ -383,12 +436,47 @@ def read_report(path: str | Path) -> ValidationReport:
 def _deviations(real: Mapping[str, Any], synth: Mapping[str, Any], keys: Iterable[str]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for k in keys:
+        if k in SIGNED_METRICS:
+            out[k] = None
+            continue
         a, b = real.get(k), synth.get(k)
         if isinstance(a, (list, tuple)):
             out[k] = [relative_deviation_pct(_num(x), _num(y)) for x, y in zip(a, b, strict=True)]
         else:
             out[k] = relative_deviation_pct(_num(a), _num(b))
     return out
+
+
+def _compare_one(real: float, synth: float, values: np.ndarray, signed: bool) -> dict[str, Any]:
+    vals = values[np.isfinite(values)]
+    band = [float(v) for v in np.percentile(vals, BAND_PERCENTILES)] if vals.size else [float("nan")] * 2
+    diff = synth - real
+    return {"real": real, "synthetic": synth, "difference": diff,
+            "deviation": diff if signed else relative_deviation_pct(real, synth),
+            "deviation_kind": "absolute" if signed else "relative_pct",
+            "band_5_95": band, "n_traces_in_band": int(vals.size),
+            "real_in_band": bool(band[0] <= real <= band[1]) if np.isfinite(real) and vals.size else None}
+
+
+def comparison_table(real: Mapping[str, Any], synth: Mapping[str, Any], per_trace: Sequence[Mapping[str, Any]],
+                     keys: Iterable[str] = METRIC_KEYS) -> dict[str, Any]:
+    """Per metric: both values, the deviation (absolute for signed metrics) and the synthetic 5-95 % band.
+
+    ``per_trace`` holds the metrics of every synthetic trace on its own; the band is the
+    :data:`BAND_PERCENTILES` of their values, so it shows how far one synthetic run strays from
+    another, and ``real_in_band`` whether the real run could be one of them.
+    """
+    out: dict[str, Any] = {}
+    for k in keys:
+        a, b = real.get(k), synth.get(k)
+        signed = k in SIGNED_METRICS
+        if isinstance(a, (list, tuple)):
+            vals = np.array([[_num(x) for x in t[k]] for t in per_trace], dtype=float).reshape(len(per_trace), -1)
+            out[k] = [_compare_one(_num(x), _num(y), vals[:, i], signed)
+                      for i, (x, y) in enumerate(zip(a, b, strict=True))]
+        else:
+            out[k] = _compare_one(_num(a), _num(b), np.array([_num(t[k]) for t in per_trace], dtype=float), signed)
+    return jsonable(out)
 
 
 def _quantiles(x: np.ndarray) -> list[float]:
@@ -499,7 +587,7 @@ def compare(real: Iterable[Trace], synthetic: Iterable[Trace], *, rate_hz: float
             acc.add(tr)
             if name == "synthetic" and on_trace is not None:
                 on_trace()
-        if not acc.summaries:
+        if not acc.n_traces:
             raise PhySynthError(f"the {name} side holds no traces")
         sides[name] = acc.finish()
     (ev_r, r_real), (ev_s, r_synth) = sides["real"], sides["synthetic"]
@@ -522,6 +610,7 @@ def compare(real: Iterable[Trace], synthetic: Iterable[Trace], *, rate_hz: float
         per_anchor=_per_anchor(ev_r, ev_s),
         inputs=jsonable(info),
         transfer=jsonable(dict(transfer)) if transfer is not None else None,
+        comparison=comparison_table(m_real, m_synth, ev_s.per_trace),
         evidence=Evidence(real=ev_r, synthetic=ev_s),
     )
 

@@ -25,12 +25,14 @@ from scipy.io import loadmat
 from scipy.spatial.transform import Rotation
 
 from ...errors import RecordingError
+from ...models.attitude import body_rates_from_quat
 from ...records import Anchors, Imu, Trace, Truth, Uwb
 from ._common import ImportReport, ReportBuilder, velocity_from_position
 
 CITATION = ("D. Laidig, M. Caruso, A. Cereatti, T. Seel, BROAD - A Benchmark for Robust Inertial "
             "Orientation Estimation, Data 6(7):72, 2021, doi:10.3390/data6070072 (CC BY 4.0)")
 _KEYS = ("imu_acc", "opt_quat", "opt_pos", "movement", "sampling_rate")
+_GYRO_KEY = "imu_gyr"
 
 
 def import_broad(mat_file: str | os.PathLike, *, velocity_window_s: float = 0.1
@@ -51,6 +53,9 @@ def import_broad(mat_file: str | os.PathLike, *, velocity_window_s: float = 0.1
         vector removed [m/s^2]; ``truth.pos_enu_m`` = ``opt_pos`` [m]; t = index / sampling_rate [s].
         Samples whose ``opt_quat`` or ``opt_pos`` is NaN have NaN IMU acceleration and NaN truth
         position and velocity (counted as ``optical_dropout`` in the report). Empty UWB, no anchors.
+        The raw sensor-frame ``imu_acc`` (specific force) and ``imu_gyr`` (angular rate) are kept as
+        ``imu.acc_body_mps2`` and ``imu.gyro_body_radps``; the truth carries ``opt_quat`` as its
+        attitude and the body rates between consecutive quaternions.
     """
     path = Path(mat_file)
     if not path.is_file():
@@ -64,12 +69,14 @@ def import_broad(mat_file: str | os.PathLike, *, velocity_window_s: float = 0.1
     if missing:
         raise RecordingError(f"{path}: missing variable(s) {', '.join(missing)} (not a BROAD trial?)")
     acc_b = np.asarray(mat["imu_acc"], dtype=np.float64)
+    gyr_b = np.asarray(mat[_GYRO_KEY], dtype=np.float64) if _GYRO_KEY in mat else None
     quat = np.asarray(mat["opt_quat"], dtype=np.float64)
     pos = np.asarray(mat["opt_pos"], dtype=np.float64)
     moving = np.asarray(mat["movement"]).reshape(-1).astype(bool)
     rate_hz = float(np.asarray(mat["sampling_rate"], dtype=np.float64).reshape(-1)[0])
     n = acc_b.shape[0]
-    for name, arr, width in (("imu_acc", acc_b, 3), ("opt_quat", quat, 4), ("opt_pos", pos, 3)):
+    for name, arr, width in (("imu_acc", acc_b, 3), ("opt_quat", quat, 4), ("opt_pos", pos, 3),
+                             (_GYRO_KEY, acc_b if gyr_b is None else gyr_b, 3)):
         if arr.ndim != 2 or arr.shape != (n, width):
             raise RecordingError(f"{path}: {name} has shape {arr.shape}, expected ({n}, {width})")
     if moving.shape != (n,):
@@ -103,6 +110,8 @@ def import_broad(mat_file: str | os.PathLike, *, velocity_window_s: float = 0.1
     g_rest = acc_w[rest].mean(axis=0)
     acc = acc_w - g_rest
     truth_pos = np.where(good[:, None], pos, np.nan)
+    truth_quat = np.full((n, 4), np.nan)
+    truth_quat[good] = q
     t = np.arange(n) / rate_hz
     vel = velocity_from_position(t, truth_pos, window_s=velocity_window_s, max_gap_s=2.0 / rate_hz)
 
@@ -125,12 +134,17 @@ def import_broad(mat_file: str | os.PathLike, *, velocity_window_s: float = 0.1
         "optical_dropout_samples": int(masked.sum()),
         "truth_velocity": f"Savitzky-Golay derivative of opt_pos (window {velocity_window_s} s, order 2), "
                           "NaN where masked",
+        "truth_attitude": "opt_quat (sensor frame -> lab frame, scalar first), normalised; NaN where masked; "
+                          "omega_body_radps from consecutive quaternions",
+        "imu_body": "imu_acc [m/s^2] and imu_gyr [rad/s] as recorded, in the sensor frame (body-flu columns; the "
+                    "sensor's own axes, not necessarily forward-left-up)",
     }
     trace = Trace(
-        truth=Truth(t_s=t, pos_enu_m=truth_pos, vel_enu_mps=vel),
+        truth=Truth(t_s=t, pos_enu_m=truth_pos, vel_enu_mps=vel, quat_wxyz=truth_quat,
+                    omega_body_radps=body_rates_from_quat(t, truth_quat)),
         uwb=Uwb(t_s=np.zeros(0), anchor=np.zeros(0, np.int16), range_m=np.zeros(0)),
         anchors=Anchors(ids=(), pos_enu_m=np.zeros((0, 3))),
-        imu=Imu(t_s=t, acc_mps2=acc),
+        imu=Imu(t_s=t, acc_mps2=acc, acc_body_mps2=acc_b, gyro_body_radps=gyr_b),
         meta=meta,
     )
     return trace, rep.build()

@@ -1,0 +1,208 @@
+"""Link-budget calibration (:class:`physynth.models.uwb.LinkBudgetParams`) from received power and from
+detection rates.
+
+Two sources, used where a recording has them:
+
+- received power per range (the Hanyang static sweeps carry RSSI and first-path power per range,
+  :func:`physynth.io.importers.import_hanyang_static`): :func:`fit_path_loss` fits the log-distance
+  law P(r) = P0 - 10 n log10(r / 1 m) plus the two-ray ground term of the antenna heights, with the
+  receiver's power-estimate saturation as a nuisance parameter (the DW1000 reports about -80 dBm
+  for every stronger signal). The shadowing spread is the scatter of the per-position medians about
+  the fit;
+- detection against distance (any recording): :func:`fit_detection_vs_distance` fits the sensitivity
+  S of Phi((P(r) - S) / sigma) by maximum likelihood on detected / attempted counts, with P(r) and sigma
+  from the power fit (or assumed). When no attempt is lost the likelihood has no maximum: only an
+  upper bound on S is returned (the 95 % one-sided profile-likelihood bound).
+
+:func:`fit_link_budget_hanyang_static` runs both on the Hanyang static sweeps (docs/anchors.md).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from scipy import optimize
+from scipy.special import log_ndtr
+
+from ..errors import PhySynthError
+from ..models.uwb import LinkBudgetParams, ground_gain_db
+
+OUTAGE_RATE_FRAC = 0.5
+"""A static position that delivered less than this fraction of the sweep's row rate had an outage."""
+
+CHI2_1_95_HALF = 1.3528
+"""Half the 90 % quantile of chi-square(1): the profile-likelihood drop of a one-sided 95 % bound."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PathLossFit:
+    """Fitted path-loss law; powers in dBm, distances in m."""
+
+    ref_power_dbm: float
+    path_loss_exponent: float
+    ground_reflection: float
+    saturation_dbm: float
+    shadowing_std_db: float
+    wavelength_m: float
+    tag_height_m: float
+    n_positions: int
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DetectionFit:
+    """Sensitivity fit: ``sensitivity_dbm`` (None when no attempt is lost) and its one-sided 95 % upper bound."""
+
+    sensitivity_dbm: float | None
+    sensitivity_upper_95_dbm: float
+    n_attempts: int
+    n_detected: int
+    min_detection_rate: float
+
+
+def _smooth_min(a: np.ndarray, b: float, scale_db: float = 1.0) -> np.ndarray:
+    return b - scale_db * np.logaddexp(0.0, (b - a) / scale_db)
+
+
+def path_loss_model(params: np.ndarray, horiz_m: np.ndarray, anchor_h_m: np.ndarray, tag_h_m: float,
+                    wavelength_m: float, *, with_saturation: bool = True) -> np.ndarray:
+    """Reported power [dBm] for (P0, n, rho, P_sat) at horizontal distance and anchor height [m]."""
+    p0, n, rho, psat = params
+    r = np.hypot(horiz_m, anchor_h_m - tag_h_m)
+    p = p0 - 10.0 * n * np.log10(np.maximum(r, 1.0))
+    p = p + ground_gain_db(horiz_m, anchor_h_m, np.full_like(horiz_m, tag_h_m), np.full_like(horiz_m, rho),
+                           np.full_like(horiz_m, wavelength_m))
+    return _smooth_min(p, psat) if with_saturation else p
+
+
+def fit_path_loss(horiz_m: np.ndarray, anchor_height_m: np.ndarray, power_dbm: np.ndarray, *,
+                  tag_height_m: float = 1.0, wavelength_m: float = 0.0462) -> PathLossFit:
+    """Fit P0, n, the ground reflection rho and the saturation level to per-position power medians.
+
+    Parameters
+    ----------
+    horiz_m, anchor_height_m, power_dbm : arrays (K,)
+        Horizontal tag-anchor distance [m], anchor antenna height above ground [m] and the median
+        reported power [dBm] at each position.
+    tag_height_m : float
+        Tag antenna height above ground [m].
+    wavelength_m : float
+        Carrier wavelength [m] (channel 5: 0.0462 m).
+    """
+    h = np.asarray(horiz_m, float)
+    a = np.asarray(anchor_height_m, float)
+    p = np.asarray(power_dbm, float)
+    ok = np.isfinite(h) & np.isfinite(a) & np.isfinite(p)
+    if ok.sum() < 6:
+        raise PhySynthError(f"a path-loss fit needs at least 6 positions with a finite power, got {int(ok.sum())}")
+    h, a, p = h[ok], a[ok], p[ok]
+
+    def resid(x: np.ndarray) -> np.ndarray:
+        return path_loss_model(x, h, a, tag_height_m, wavelength_m) - p
+
+    best = None
+    starts = [(p0, n, rho) for p0 in (-40.0, -55.0, -70.0) for n in (1.5, 2.0, 3.0) for rho in (0.2, 0.5, 0.8)]
+    for p0, n0, rho0 in starts:  # a grid of starts: saturation and the two-ray term make the cost multi-modal
+        sol = optimize.least_squares(resid, x0=[p0, n0, rho0, float(np.max(p))], loss="soft_l1", f_scale=2.0,
+                                     bounds=([-120.0, 0.5, 0.0, -120.0], [0.0, 6.0, 0.99, 0.0]))
+        if best is None or sol.cost < best.cost:
+            best = sol
+    assert best is not None
+    r = resid(best.x)
+    mad = float(np.median(np.abs(r - np.median(r))) * 1.4826)
+    return PathLossFit(ref_power_dbm=float(best.x[0]), path_loss_exponent=float(best.x[1]),
+                       ground_reflection=float(best.x[2]), saturation_dbm=float(best.x[3]), shadowing_std_db=mad,
+                       wavelength_m=wavelength_m, tag_height_m=tag_height_m, n_positions=int(h.size))
+
+
+def fit_detection_vs_distance(mean_power_dbm: np.ndarray, n_detected: np.ndarray, n_attempts: np.ndarray, *,
+                              shadowing_std_db: float) -> DetectionFit:
+    """Maximum-likelihood sensitivity of p = Phi((P - S) / sigma) from detected / attempted counts.
+
+    ``mean_power_dbm`` is the modelled mean power at each position (or distance bin). With no lost
+    attempt the maximum is at S = -inf and only the upper bound is finite.
+    """
+    pw = np.asarray(mean_power_dbm, float)
+    k = np.asarray(n_detected, float)
+    m = np.asarray(n_attempts, float)
+    if pw.size == 0 or np.any(k > m) or np.any(m <= 0):
+        raise PhySynthError("detection counts: need positions with 0 <= detected <= attempted and attempted > 0")
+    sig = max(float(shadowing_std_db), 1e-3)
+
+    def nll(s: float) -> float:
+        z = (pw - s) / sig
+        return -float(np.sum(k * log_ndtr(z) + (m - k) * log_ndtr(-z)))
+
+    lo, hi = float(pw.min()) - 60.0, float(pw.max()) + 30.0
+    res = optimize.minimize_scalar(nll, bounds=(lo, hi), method="bounded")
+    s_hat, nll_min = float(res.x), float(res.fun)
+    if np.all(k == m) or s_hat <= lo + 1.0:
+        s_hat_out: float | None = None
+        nll_min = nll(lo)
+        s_hat = lo
+    else:
+        s_hat_out = s_hat
+    target = nll_min + CHI2_1_95_HALF
+    upper = optimize.brentq(lambda s: nll(s) - target, s_hat, hi) if nll(hi) > target else hi
+    return DetectionFit(sensitivity_dbm=s_hat_out, sensitivity_upper_95_dbm=float(upper), n_attempts=int(m.sum()),
+                        n_detected=int(k.sum()), min_detection_rate=float(np.min(k / m)))
+
+
+def static_positions(root: str | os.PathLike, *, power: str = "rssi_fp_dbm") -> Any:
+    """Per-position table of the Hanyang static sweeps: environment, anchor height, horizontal distance,
+    median power (``rssi_fp_dbm`` or ``rssi_dbm``), rows and duration (pandas DataFrame)."""
+    from ..io.importers import import_hanyang_static
+
+    df, _ = import_hanyang_static(root)
+    if power not in ("rssi_fp_dbm", "rssi_dbm"):
+        raise PhySynthError(f"power must be rssi_fp_dbm or rssi_dbm, got {power}")
+    g = df.groupby(["environment", "height_m", "nominal_distance_m"])
+    out = g.agg(power_dbm=(power, "median"), n_rows=("range_m", "size"),
+                duration_s=("t_s", lambda t: float(t.max() - t.min()))).reset_index()
+    return out
+
+
+def fit_link_budget_hanyang_static(root: str | os.PathLike, *, environment: str = "LOS",
+                                   power: str = "rssi_fp_dbm") -> tuple[LinkBudgetParams, dict[str, Any]]:
+    """Link budget from the Hanyang static sweeps of one environment (LOS or NLOS).
+
+    Power law from the per-position medians (:func:`fit_path_loss`); detection from the rows each
+    ~13 s position delivered against the median row rate of the sweep (the logger's own rate), as
+    binomial counts (:func:`fit_detection_vs_distance`). Returns the parameters (sensitivity at its
+    upper bound when no loss is seen) and a JSON-able report.
+    """
+    tab = static_positions(root, power=power)
+    tab = tab[tab["environment"] == environment]
+    if tab.empty:
+        raise PhySynthError(f"no static sweep of environment {environment!r} below {root}")
+    fit = fit_path_loss(tab["nominal_distance_m"].to_numpy(), tab["height_m"].to_numpy(),
+                        tab["power_dbm"].to_numpy())
+    rate = tab["n_rows"] / tab["duration_s"].clip(lower=1e-9)
+    nominal_rate = float(np.median(rate))
+    attempts = np.maximum(np.round(tab["duration_s"].to_numpy() * nominal_rate), 1.0)
+    detected = np.minimum(tab["n_rows"].to_numpy(), attempts)
+    # a position that lost more than half its rows had an outage (logger or radio reset; the
+    # availability model's business), not a weak link: counted, left out of the sensitivity fit
+    outage = detected < OUTAGE_RATE_FRAC * attempts
+    full = np.array([fit.ref_power_dbm, fit.path_loss_exponent, fit.ground_reflection, fit.saturation_dbm])
+    mean_p = path_loss_model(full, tab["nominal_distance_m"].to_numpy(), tab["height_m"].to_numpy(),
+                             fit.tag_height_m, fit.wavelength_m, with_saturation=False)
+    det = fit_detection_vs_distance(mean_p[~outage], detected[~outage], attempts[~outage],
+                                    shadowing_std_db=max(fit.shadowing_std_db, 0.5))
+    params = LinkBudgetParams(ref_power_dbm=round(fit.ref_power_dbm, 2),
+                              path_loss_exponent=round(fit.path_loss_exponent, 3),
+                              sensitivity_dbm=round(det.sensitivity_dbm if det.sensitivity_dbm is not None
+                                                    else det.sensitivity_upper_95_dbm, 1),
+                              shadowing_std_db=round(max(fit.shadowing_std_db, 0.5), 2),
+                              ground_reflection=round(fit.ground_reflection, 3), wavelength_m=fit.wavelength_m)
+    report = {"environment": environment, "power_column": power, "path_loss": asdict(fit),
+              "detection": asdict(det),
+              "nominal_row_rate_hz": nominal_rate, "n_positions": int(len(tab)),
+              "n_positions_with_outage": int(outage.sum()),
+              "weakest_mean_power_dbm": float(np.min(mean_p[~outage])),
+              "distance_range_m": [float(tab["nominal_distance_m"].min()), float(tab["nominal_distance_m"].max())],
+              "note": ("no detection loss in the sweeps: the sensitivity is the 95 % upper bound"
+                       if det.sensitivity_dbm is None else "sensitivity from the detection losses")}
+    return params, report

@@ -1,0 +1,190 @@
+"""Datasets generated in shards: resumable after a kill, identical whatever the number of workers.
+
+A generation of ``n`` traces is cut by trace index into shards of ``shard_traces`` traces (shard ``k``
+holds traces ``k * shard_traces`` .. ``(k + 1) * shard_traces - 1``). The cut depends only on ``n`` and
+``shard_traces``, never on the number of workers, so the output is the same file for file.
+
+While the run is under way everything lives in a hidden sibling ``.<name>.partial/`` of the output:
+
+- ``run.json``: the plan (scenario, root seed, number of traces, shard size, generator version);
+  ``--resume`` refuses a plan that differs from the one it is asked to complete;
+- ``shard-00000/`` ...: each a small dataset written by :class:`~physynth.io.dataset.DatasetWriter`,
+  hence atomic: a shard directory exists only when complete. A killed worker leaves at most a hidden
+  ``.shard-*.tmp-*`` directory, removed when the run resumes.
+
+When every shard is complete the shards are hard-linked (copied where links are impossible) into a
+hidden staging directory holding the final layout, which is renamed into place; the partial
+directory is removed last. A dataset of one shard has the usual tables ``truth.parquet``, ...; a
+dataset of several shards has one folder per table with a part per shard (``truth/part-00000.parquet``
+...), which :func:`physynth.io.dataset.iter_traces` and :func:`~physynth.io.dataset.read_dataset`
+read in trace order.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from .. import __version__
+from .._json import jsonable
+from ..errors import DatasetError, OutputExistsError, PhySynthError
+from . import integrity
+from .atomic import atomic_write_text, temp_sibling
+from .dataset import TABLES, DatasetWriter
+
+DEFAULT_SHARD_TRACES = 128
+"""Traces per shard: small enough that a killed run loses little, large enough to keep files few."""
+
+ROW_GROUP_TRACES = 32
+"""Traces per Parquet row group inside a shard (what a streaming reader holds at a time)."""
+
+_SHARD_RE = re.compile(r"^shard-(\d{5,})$")
+
+
+def partial_dir(out: Path) -> Path:
+    """The hidden directory of an unfinished sharded run writing ``out``."""
+    return out.with_name(f".{out.name}.partial")
+
+
+def shard_name(k: int) -> str:
+    return f"shard-{k:05d}"
+
+
+@dataclass(frozen=True, slots=True)
+class ShardPlan:
+    """Which traces go to which shard. Shard ``k`` holds traces ``start(k) .. stop(k) - 1``."""
+
+    n_traces: int
+    shard_traces: int
+
+    @property
+    def n_shards(self) -> int:
+        return -(-self.n_traces // self.shard_traces)
+
+    def bounds(self, k: int) -> tuple[int, int]:
+        start = k * self.shard_traces
+        return start, min(start + self.shard_traces, self.n_traces)
+
+
+def write_shard(partial: str | os.PathLike, k: int, traces: Any, meta: dict[str, Any]) -> int:
+    """Write shard ``k`` (an iterable of ``(index, Trace)``) atomically into ``partial``; returns its trace count.
+
+    A shard that is already complete is left alone (a resumed run never writes a trace twice).
+    """
+    dest = Path(partial) / shard_name(k)
+    if dest.is_dir():
+        return 0
+    n = 0
+    with DatasetWriter(dest, meta=meta, row_group_traces=ROW_GROUP_TRACES, compact=True) as w:
+        for index, trace in traces:
+            w.add(trace, index=index)
+            n += 1
+    return n
+
+
+def prepare(out: Path, plan_record: dict[str, Any], *, resume: bool, overwrite: bool) -> tuple[Path, set[int]]:
+    """Create (or, with ``resume``, check and reuse) the partial directory; returns it and the complete shards.
+
+    Raises
+    ------
+    OutputExistsError
+        ``out`` exists and ``overwrite`` is False.
+    PhySynthError
+        An unfinished run exists and neither ``resume`` nor ``overwrite`` was asked, or ``resume`` was
+        asked for a plan that differs from the unfinished one.
+    """
+    if out.exists() and not overwrite:
+        raise OutputExistsError(out)
+    if out.exists() and not out.is_dir():
+        raise DatasetError(f"{out} exists and is not a directory")
+    partial = partial_dir(out)
+    if partial.exists() and not resume:
+        if not overwrite:
+            raise PhySynthError(f"an unfinished run of {out} exists ({partial}); resume it or overwrite to start over")
+        shutil.rmtree(partial)
+    if partial.exists():
+        try:
+            old = json.loads((partial / "run.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            old = None
+        if old != jsonable(plan_record):
+            diff = sorted(k for k in set(plan_record) | set(old or {})
+                          if (old or {}).get(k) != jsonable(plan_record).get(k))
+            raise PhySynthError(f"cannot resume {out}: the unfinished run differs in {', '.join(diff) or 'run.json'}")
+        for junk in partial.glob(".shard-*"):  # a shard being written when the run was killed
+            shutil.rmtree(junk, ignore_errors=True)
+    else:
+        try:
+            partial.mkdir(parents=True)
+        except OSError as exc:
+            raise DatasetError(f"cannot create {partial}: {exc.strerror}") from None
+        atomic_write_text(partial / "run.json", json.dumps(jsonable(plan_record), indent=1))
+    done = {int(m.group(1)) for p in partial.iterdir() if p.is_dir() and (m := _SHARD_RE.match(p.name))}
+    return partial, done
+
+
+def read_plan(out: Path) -> dict[str, Any] | None:
+    """The plan (``run.json``) of an unfinished run of ``out``, or None."""
+    try:
+        return json.loads((partial_dir(out) / "run.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+
+
+def _link(src: Path, dst: Path) -> None:
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)
+
+
+def finalize(out: Path, partial: Path, plan: ShardPlan, meta: dict[str, Any]) -> Path:
+    """Assemble the complete shards into the dataset ``out`` (renamed into place) and remove ``partial``."""
+    stage = temp_sibling(out)
+    if stage.exists():
+        shutil.rmtree(stage)
+    stage.mkdir()
+    traces_meta: list[dict[str, Any]] = []
+    shards = [partial / shard_name(k) for k in range(plan.n_shards)]
+    missing = [s.name for s in shards if not s.is_dir()]
+    if missing:
+        raise DatasetError(f"cannot finish {out}: shard(s) {', '.join(missing[:3])} missing")
+    try:
+        for k, shard in enumerate(shards):
+            for name in TABLES:
+                if plan.n_shards == 1:
+                    _link(shard / f"{name}.parquet", stage / f"{name}.parquet")
+                else:
+                    (stage / name).mkdir(exist_ok=True)
+                    _link(shard / f"{name}.parquet", stage / name / f"part-{k:05d}.parquet")
+            traces_meta += json.loads((shard / "dataset.json").read_text(encoding="utf-8"))["traces"]
+        first = json.loads((shards[0] / "dataset.json").read_text(encoding="utf-8"))
+        first.pop("shard", None)
+        record = {**first, **jsonable(meta), "n_traces": len(traces_meta), "traces": traces_meta,
+                  "shards": {"n_shards": plan.n_shards, "shard_traces": plan.shard_traces,
+                             "layout": "single" if plan.n_shards == 1 else "parts"},
+                  # integrity hook (physynth.io.integrity): each shard's records under the final file names
+                  "files": integrity.shard_file_records(shards, TABLES, single=plan.n_shards == 1)}
+        (stage / "dataset.json").write_text(json.dumps(record, indent=1), encoding="utf-8")
+        old = out.with_name(f".{out.name}.old-{os.getpid()}")
+        if out.exists():
+            os.replace(out, old)
+        os.replace(stage, out)
+        if old.exists():
+            shutil.rmtree(old)
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+    shutil.rmtree(partial, ignore_errors=True)
+    return out
+
+
+def plan_record(scenario: dict[str, Any], root_seed: int, n: int, shard_traces: int) -> dict[str, Any]:
+    """What a resumed run must agree on."""
+    return {"scenario": scenario, "root_seed": int(root_seed), "n_traces": int(n),
+            "shard_traces": int(shard_traces), "generator": f"physynth {__version__}"}

@@ -1,0 +1,195 @@
+"""Attitude model: the orientation of the tag's body frame along the trajectory.
+
+The body frame is FLU (x forward, y left, z up); the world frame ENU. The attitude is the rotation
+``R_wb`` (body to ENU), stored as a Hamilton quaternion scalar-first ``(w, x, y, z)``. Kinds:
+
+- ``tangent``: body x along the horizontal velocity, level (roll = pitch = 0): a vehicle, a walking
+  person's torso. The heading is held while the horizontal speed is below ``min_speed_mps``.
+- ``pendulum``: a cabin hanging from a cable: tangent heading, plus a damped swing of the hanger
+  excited by the pivot's acceleration. Pitch ``theta`` (about body y) and roll ``phi`` (about body x)
+  follow ``theta'' + 2 zeta w0 theta' + w0^2 theta = w0^2 a_fwd / g`` and
+  ``phi'' + 2 zeta w0 phi' + w0^2 phi = -w0^2 a_left / g`` (small angles, ``w0 = 2 pi / period``),
+  so a steady acceleration tilts the hanger by ``atan(a / g)`` as a pendulum does; the cabin starts at
+  rest. Discretised exactly for a piecewise-constant input (zero-order hold).
+- ``tumble``: a free particle: body angular velocity an Ornstein-Uhlenbeck process per axis with
+  standard deviation ``tumble_rate_std_radps`` and correlation time ``tumble_correlation_s``, from a
+  uniformly random initial attitude. Draws from the ``attitude`` random stream.
+- ``fixed``: ``fixed_quat_wxyz`` throughout.
+
+Angular velocity convention (what makes integration exact): between two truth samples the body turns
+at the constant body rate ``omega_k = log(R_k^T R_{k+1}) / dt`` (rotation vector), so
+``R_{k+1} = R_k exp(omega_k dt)`` holds to numerical precision, and a gyroscope sampled at any
+integer multiple of the truth rate integrates back to the truth attitude exactly. Row k of the truth
+table gives ``omega_k``, the rate over ``[t_k, t_{k+1})``; the last row repeats the one before.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import Field
+from scipy.signal import cont2discrete, lfilter
+from scipy.spatial.transform import Rotation
+
+from ..constants import G0_MPS2
+from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat
+
+
+class AttitudeParams(ParamsModel):
+    """How the body frame turns along the path (see the module docstring for each ``kind``)."""
+
+    kind: Literal["tangent", "pendulum", "tumble", "fixed"] = "tangent"
+    min_speed_mps: PositiveFloat = 0.05
+    pendulum_period_s: PositiveFloat = 4.0
+    pendulum_damping_ratio: Annotated[float, Field(ge=0, lt=1)] = 0.05
+    tumble_rate_std_radps: NonNegFloat = 1.0
+    tumble_correlation_s: PositiveFloat = 0.5
+    fixed_quat_wxyz: Annotated[list[FiniteFloat], Field(min_length=4, max_length=4)] = [1.0, 0.0, 0.0, 0.0]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Attitude:
+    """Attitude at the truth times: ``rot`` (T rotations body -> ENU), ``omega_body_radps`` (T, 3)."""
+
+    rot: Rotation
+    omega_body_radps: np.ndarray
+
+    @property
+    def quat_wxyz(self) -> np.ndarray:
+        """(T, 4) Hamilton quaternions body -> ENU, scalar first."""
+        return self.rot.as_quat(scalar_first=True)
+
+
+def heading_rad(vel_enu_mps: np.ndarray, min_speed_mps: float) -> np.ndarray:
+    """(T,) unwrapped heading of the horizontal velocity [rad, from east towards north].
+
+    Samples slower than ``min_speed_mps`` keep the last heading (the first moving one before any
+    motion; 0 = east when the tag never moves).
+    """
+    v = np.asarray(vel_enu_mps, dtype=float)
+    moving = np.hypot(v[:, 0], v[:, 1]) >= min_speed_mps
+    if not moving.any():
+        return np.zeros(v.shape[0])
+    idx = np.where(moving, np.arange(v.shape[0]), -1)
+    idx = np.maximum.accumulate(idx)  # last moving sample at or before each sample
+    idx[idx < 0] = int(np.argmax(moving))
+    return np.unwrap(np.arctan2(v[idx, 1], v[idx, 0]))
+
+
+@lru_cache(maxsize=64)
+def _swing_filter(dt: float, period_s: float, zeta: float) -> tuple[np.ndarray, np.ndarray]:
+    w0 = 2.0 * np.pi / period_s
+    num, den, _ = cont2discrete(([w0 * w0], [1.0, 2.0 * zeta * w0, w0 * w0]), dt, method="zoh")
+    return np.ravel(num), np.asarray(den, dtype=float)
+
+
+def _swing(u: np.ndarray, dt: float, period_s: float, zeta: float) -> np.ndarray:
+    """Response theta of theta'' + 2 zeta w0 theta' + w0^2 theta = w0^2 u, from rest (ZOH exact)."""
+    num, den = _swing_filter(float(dt), float(period_s), float(zeta))
+    return lfilter(num, den, u)
+
+
+def _ou(n: int, dt: float, std: float, tau_s: float, *, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3) stationary Ornstein-Uhlenbeck samples (exact AR(1) recursion)."""
+    rho = np.exp(-dt / tau_s)
+    e = rng.standard_normal((3, n)) * std
+    e[:, 1:] *= np.sqrt(1.0 - rho * rho)
+    return lfilter([1.0], [1.0, -rho], e, axis=1).T
+
+
+def _cumulative_compose(first: Rotation, steps: Rotation) -> Rotation:
+    """R_0 = first, R_{k+1} = R_k * steps[k]: a prefix product in log2(K) vectorised compositions."""
+    q = steps.as_quat()
+    n = q.shape[0]
+    acc = Rotation.from_quat(q)
+    shift = 1
+    while shift < n:  # Hillis-Steele scan: each pass composes with the partial product `shift` back
+        prev = acc[: n - shift]
+        tail = acc[shift:]
+        acc = Rotation.concatenate([acc[:shift], prev * tail])
+        shift *= 2
+    return Rotation.concatenate([first, first * acc])
+
+
+def body_rates(rot: Rotation, t_s: np.ndarray) -> np.ndarray:
+    """(T, 3) body angular velocity [rad/s] constant over each truth interval (last row repeated)."""
+    n = len(rot)
+    out = np.zeros((n, 3))
+    if n > 1:
+        dt = np.diff(t_s)
+        out[:-1] = (rot[:-1].inv() * rot[1:]).as_rotvec() / dt[:, None]
+        out[-1] = out[-2]
+    return out
+
+
+def body_rates_from_quat(t_s: np.ndarray, quat_wxyz: np.ndarray) -> np.ndarray:
+    """(T, 3) body rates [rad/s] of a recorded attitude (T, 4), NaN rows allowed (masked samples).
+
+    Same convention as :func:`body_rates`: row k is the constant rate taking R_k to R_{k+1}; NaN
+    where either sample is missing; the last row repeats the one before.
+    """
+    q = np.asarray(quat_wxyz, dtype=float)
+    n = q.shape[0]
+    out = np.full((n, 3), np.nan)
+    if n < 2:
+        return out
+    ok = np.all(np.isfinite(q), axis=1) & (np.linalg.norm(np.nan_to_num(q), axis=1) > 0)
+    pair = np.flatnonzero(ok[:-1] & ok[1:])
+    if pair.size:
+        r0 = Rotation.from_quat(q[pair], scalar_first=True)
+        r1 = Rotation.from_quat(q[pair + 1], scalar_first=True)
+        out[pair] = (r0.inv() * r1).as_rotvec() / np.diff(np.asarray(t_s, dtype=float))[pair, None]
+    out[-1] = out[-2]
+    return out
+
+
+def simulate_attitude(t_s: np.ndarray, vel_enu_mps: np.ndarray, acc_enu_mps2: np.ndarray, params: AttitudeParams,
+                      *, rng: np.random.Generator | None = None) -> Attitude:
+    """Attitude at uniform truth times ``t_s`` (T,) from the velocity and acceleration (T, 3) ENU.
+
+    ``rng`` is used (and required) only by ``tumble``. The inputs are not modified.
+    """
+    t = np.asarray(t_s, dtype=float)
+    n = t.shape[0]
+    if params.kind == "fixed":
+        q = np.asarray(params.fixed_quat_wxyz, dtype=float)
+        if not np.linalg.norm(q) > 0:
+            raise ValueError("attitude.fixed_quat_wxyz must not be zero")
+        rot = Rotation.from_quat(np.tile(q / np.linalg.norm(q), (n, 1)), scalar_first=True)
+        return Attitude(rot=rot, omega_body_radps=np.zeros((n, 3)))
+    dt = float(t[1] - t[0]) if n > 1 else 1.0
+    if params.kind == "tumble":
+        if rng is None:
+            raise ValueError("a tumbling attitude needs a random generator")
+        omega = _ou(n, dt, params.tumble_rate_std_radps, params.tumble_correlation_s, rng=rng)
+        first = Rotation.random(random_state=rng)
+        if n == 1:
+            return Attitude(rot=Rotation.concatenate([first]), omega_body_radps=omega)
+        rot = _cumulative_compose(first, Rotation.from_rotvec(omega[:-1] * np.diff(t)[:, None]))
+        omega[-1] = omega[-2]
+        return Attitude(rot=rot, omega_body_radps=omega)
+    yaw = heading_rad(vel_enu_mps, params.min_speed_mps)
+    if params.kind == "tangent":  # turns about the fixed world z axis add up: exact rates without logs
+        half = 0.5 * yaw
+        q = np.zeros((n, 4))
+        q[:, 0], q[:, 3] = np.cos(half), np.sin(half)
+        omega = np.zeros((n, 3))
+        if n > 1:
+            omega[:-1, 2] = np.diff(yaw) / np.diff(t)
+            omega[-1, 2] = omega[-2, 2]
+        return Attitude(rot=Rotation.from_quat(q, scalar_first=True), omega_body_radps=omega)
+    else:  # pendulum
+        acc = np.asarray(acc_enu_mps2, dtype=float)
+        c, s = np.cos(yaw), np.sin(yaw)
+        a_fwd = acc[:, 0] * c + acc[:, 1] * s
+        a_left = -acc[:, 0] * s + acc[:, 1] * c
+        pitch = _swing(a_fwd / G0_MPS2, dt, params.pendulum_period_s, params.pendulum_damping_ratio)
+        roll = _swing(-a_left / G0_MPS2, dt, params.pendulum_period_s, params.pendulum_damping_ratio)
+        zeros = np.zeros(n)
+        rot = (Rotation.from_rotvec(np.stack([zeros, zeros, yaw], axis=1))  # intrinsic z-y-x: yaw, pitch, roll
+               * Rotation.from_rotvec(np.stack([zeros, pitch, zeros], axis=1))
+               * Rotation.from_rotvec(np.stack([roll, zeros, zeros], axis=1)))
+    return Attitude(rot=rot, omega_body_radps=body_rates(rot, t))

@@ -1,0 +1,119 @@
+"""Generation on several cores or a Dask cluster, one shard of traces per task.
+
+Trace ``i`` depends only on the scenario, the root seed and ``i`` (:mod:`physynth.rng`), and the shard
+cut depends only on the number of traces (:mod:`physynth.io.shards`), so every way of running gives
+the same dataset: in this process, on an embedded :class:`distributed.LocalCluster` of worker
+processes, or on an existing Dask distributed cluster (whose workers must have PhySynth installed
+and see the output directory at the same path, e.g. a shared file system).
+
+Dask is an optional dependency (``pip install 'physynth[scale]'``); it is imported only here, and only
+when more than one worker or a scheduler address is asked for.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import logging
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from .errors import PhySynthError
+from .generate import CompiledScenario, compile_scenario, generate_trace
+from .io.shards import ShardPlan, write_shard
+from .scenario import Scenario, scenario_from_dict, scenario_to_dict
+
+
+def available_cores() -> int:
+    """CPU cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+@functools.lru_cache(maxsize=4)
+def _compiled(scenario_json: str) -> CompiledScenario:
+    """A scenario compiled once per worker process (tasks of one run share it)."""
+    return compile_scenario(scenario_from_dict(json.loads(scenario_json)))
+
+
+def shard_task(scenario_json: str, root_seed: int, partial: str, k: int, start: int, stop: int,
+               meta: dict[str, Any], on_trace: Callable[[], None] | None = None) -> int:
+    """Generate traces ``start .. stop - 1`` and write them as shard ``k`` (what a worker runs)."""
+    cs = _compiled(scenario_json)
+
+    def traces():
+        for i in range(start, stop):
+            yield i, generate_trace(cs, i, root_seed)
+            if on_trace is not None:
+                on_trace()
+
+    return write_shard(partial, k, traces(), meta)
+
+
+def require_dask() -> Any:
+    """The ``distributed`` module, or a one-line error naming the extra to install."""
+    try:
+        import distributed
+    except ImportError:
+        raise PhySynthError("several workers or a scheduler need Dask: pip install 'physynth[scale]'") from None
+    return distributed
+
+
+def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, todo: Sequence[int],
+               meta: dict[str, Any], *, workers: int = 1, scheduler: str | None = None,
+               progress: Callable[[int], None] | None = None) -> None:
+    """Write the shards ``todo`` of ``plan`` into ``partial``.
+
+    Parameters
+    ----------
+    workers : int
+        Worker processes of an embedded local cluster; 1 runs in this process (no Dask needed).
+    scheduler : str, optional
+        Address of an existing Dask scheduler (e.g. ``tcp://10.0.0.5:8786``); ``workers`` is then ignored.
+    progress : callable, optional
+        ``progress(traces_done)`` after each trace (in this process) or each shard (on a cluster).
+    """
+    scenario_json = json.dumps(scenario_to_dict(scn))
+    done = 0
+
+    def count(n: int = 1) -> None:
+        nonlocal done
+        done += n
+        if progress is not None:
+            progress(done)
+
+    if scheduler is None and (workers <= 1 or len(todo) <= 1):
+        for k in todo:
+            start, stop = plan.bounds(k)
+            shard_task(scenario_json, root_seed, str(partial), k, start, stop, meta, on_trace=count)
+        return
+
+    distributed = require_dask()
+    if scheduler is not None:
+        try:
+            client = distributed.Client(scheduler, timeout="10s")
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise PhySynthError(f"cannot connect to the Dask scheduler {scheduler}: {exc}") from None
+        cluster = None
+    else:
+        cluster = distributed.LocalCluster(n_workers=min(workers, len(todo)), threads_per_worker=1, processes=True,
+                                           dashboard_address=None, silence_logs=logging.ERROR)
+        client = distributed.Client(cluster)
+    try:
+        futures = {}
+        for k in todo:
+            start, stop = plan.bounds(k)
+            fut = client.submit(shard_task, scenario_json, root_seed, str(partial), k, start, stop, meta,
+                                key=f"physynth-shard-{os.getpid()}-{k}", pure=False)
+            futures[fut] = stop - start
+        for fut in distributed.as_completed(futures):
+            fut.result()  # re-raises a worker's error here
+            count(futures[fut])
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

@@ -1,0 +1,414 @@
+"""The anchor deployment study (paper section IV.B, Table III, Figure 6): anchor count x channel regime.
+
+For each regime (:mod:`physynth.studies.regimes`) and each anchor count k, the study generates ``n``
+traces and compares them with a reference by the fidelity score S = d_avail + d_med/10 + d_P95/20 and
+the >= 1 / >= 2 availability fractions:
+
+- the reference is the real dataset when one is given (pooled over all its anchors, whatever k: the
+  paper compares every layout with the full real deployment), otherwise a reference run of the
+  scenario as given (``nominal``, every anchor; trace indices n .. 2n-1 of the same root seed, so it
+  shares no random numbers with the cells);
+- anchors are added in decreasing order of availability (per-anchor fresh fraction on the 100 Hz grid)
+  measured on the real dataset, or on the reference run; an explicit order overrides it;
+- common random numbers: within a regime, trace i is generated once with every anchor of the scenario
+  and the k-anchor cell is that trace restricted to the first k anchors of the order
+  (:func:`physynth.studies.subset.restrict_to_anchors`). Anchors are independent in the model (own
+  NLOS episodes, outages and dropouts; the shared burst clock and tag outages are shared in reality
+  too), so this is a k-anchor deployment; differences between counts are then not sampling noise and
+  the >= 1 availability can never fall when an anchor is added;
+- every cell also reports the GDOP along the path (:mod:`physynth.studies.dop`) with all its anchors
+  and with the anchors heard within the last second. Further per-cell columns plug in through
+  :class:`CellColumn` (a tracker's position error once :mod:`physynth.track` exists: a class with
+  ``per_trace`` running the tracker on a cell trace and ``reduce`` pooling the errors, added to
+  :data:`CELL_COLUMNS`).
+
+Cells run in parallel (``concurrent.futures.ProcessPoolExecutor``); trace i of every cell draws from
+``SeedSequence(root, spawn_key=(i, component))`` whichever worker runs it, so results do not depend on
+the number of workers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from .._json import jsonable
+from ..errors import PhySynthError
+from ..evaluate.metrics import Metrics, TraceSummary, fidelity_score, pool, summarize
+from ..generate import compile_scenario, generate_trace
+from ..progress import ProgressCallback, no_progress
+from ..records import Trace
+from ..scenario import Scenario
+from .dop import summarize_gdop, trace_gdop
+from .regimes import apply_regime, check_regime, describe_regime
+from .subset import check_subset, restrict_to_anchors
+
+DEFAULT_REGIMES = ("dense", "sparse", "degraded")
+
+
+# ---------------------------------------------------------------- per-cell columns
+class CellColumn(Protocol):
+    """A per-cell quantity beyond the metrics: ``per_trace`` runs in a worker on one cell trace (must be
+    picklable and cheap to return); ``reduce`` pools the parts of a cell's traces into named numbers."""
+
+    name: str
+
+    def per_trace(self, trace: Trace) -> Any: ...
+
+    def reduce(self, parts: Sequence[Any]) -> dict[str, float]: ...
+
+
+class GdopColumn:
+    """GDOP along the path: ``gdop_*`` with every anchor of the cell, ``fresh_gdop_*`` with the anchors
+    heard within the last second (median, P95, fraction of time <= 5)."""
+
+    name = "gdop"
+
+    def per_trace(self, trace: Trace) -> tuple[np.ndarray, np.ndarray]:
+        return trace_gdop(trace)
+
+    def reduce(self, parts: Sequence[tuple[np.ndarray, np.ndarray]]) -> dict[str, float]:
+        geo = np.concatenate([p[0] for p in parts])
+        fresh = np.concatenate([p[1] for p in parts])
+        return {**summarize_gdop(geo, "gdop"), **summarize_gdop(fresh, "fresh_gdop")}
+
+
+CELL_COLUMNS: tuple[CellColumn, ...] = (GdopColumn(),)
+"""Columns every cell reports besides S and availability (a tracker-error column is appended here)."""
+
+
+# ---------------------------------------------------------------- results
+@dataclass(frozen=True, slots=True, kw_only=True)
+class AnchorStudy:
+    """Result of :func:`run_anchor_study`; ``to_dict`` is the ``table.json`` form."""
+
+    scores: dict[str, dict[int, float]]
+    availability: dict[str, Any]
+    columns: dict[str, dict[int, dict[str, float]]]
+    order: list[str]
+    order_availability: dict[str, float]
+    regimes: dict[str, Any]
+    reference: dict[str, Any]
+    inputs: dict[str, Any]
+    timing_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def counts(self) -> list[int]:
+        return sorted(next(iter(self.scores.values())))
+
+    def to_dict(self) -> dict[str, Any]:
+        return jsonable({
+            "scores": {r: {str(k): v for k, v in row.items()} for r, row in self.scores.items()},
+            "availability": self.availability,
+            "columns": {r: {str(k): v for k, v in row.items()} for r, row in self.columns.items()},
+            "order": self.order,
+            "order_availability": self.order_availability,
+            "regimes": self.regimes,
+            "reference": self.reference,
+            "inputs": self.inputs,
+            "timing_s": self.timing_s,
+        })
+
+
+# ---------------------------------------------------------------- workers
+def _light(s: TraceSummary) -> TraceSummary:
+    """The summary without its IMU grid (anchor-independent; not shipped between processes)."""
+    return dataclasses.replace(s, imu_grid_mps2=np.empty((0, 3)))
+
+
+def _cell_chunk(scn: Scenario, order: Sequence[str], counts: Sequence[int], seed: int, indices: Sequence[int],
+                columns: Sequence[CellColumn]) -> list[tuple[int, dict[int, tuple[TraceSummary, list[Any]]]]]:
+    """Traces ``indices`` of one regime, each reduced for every anchor count."""
+    cs = compile_scenario(scn)
+    out = []
+    for i in indices:
+        full = generate_trace(cs, i, seed)
+        per_count = {}
+        for k in counts:
+            tr = restrict_to_anchors(full, order[:k])
+            per_count[k] = (_light(summarize(tr)), [c.per_trace(tr) for c in columns])
+        out.append((i, per_count))
+    return out
+
+
+def _reference_chunk(scn: Scenario, seed: int, indices: Sequence[int]) -> list[tuple[int, TraceSummary]]:
+    cs = compile_scenario(scn)
+    return [(i, _light(summarize(generate_trace(cs, i, seed)))) for i in indices]
+
+
+def _chunks(indices: Sequence[int], n_chunks: int) -> list[list[int]]:
+    size = max(1, math.ceil(len(indices) / max(1, n_chunks)))
+    return [list(indices[a:a + size]) for a in range(0, len(indices), size)]
+
+
+def _map(tasks: list[tuple[Any, ...]], fn: Any, workers: int, progress: ProgressCallback, message: str,
+         total: int) -> list[Any]:
+    """Run ``fn(*task)`` for every task (in a process pool when workers > 1); results in task order."""
+    done = 0
+    progress(message, 0, total)
+    if workers <= 1:
+        results = []
+        for t in tasks:
+            results.append(fn(*t))
+            done += len(results[-1])
+            progress(message, done, total)
+        return results
+    with ProcessPoolExecutor(max_workers=workers) as ex:
+        futures = [ex.submit(fn, *t) for t in tasks]
+        results = []
+        for f in futures:
+            results.append(f.result())
+            done += len(results[-1])
+            progress(message, done, total)
+    return results
+
+
+# ---------------------------------------------------------------- the study
+def availability_order(metrics: Metrics, ids: Sequence[str]) -> tuple[list[str], dict[str, float]]:
+    """``ids`` by decreasing per-anchor fresh fraction (ties keep the given order)."""
+    missing = [a for a in ids if a not in metrics.per_anchor]
+    if missing:
+        raise PhySynthError(f"the reference has no measurements of anchor(s) {', '.join(missing)}; "
+                            "give the order explicitly")
+    frac = {a: float(metrics.per_anchor[a]["fresh_frac"]) for a in ids}
+    return sorted(ids, key=lambda a: -frac[a]), frac
+
+
+def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: int = 50, seed: int = 0,
+                     counts: Sequence[int] | None = None, regimes: Sequence[str] = DEFAULT_REGIMES,
+                     order: Sequence[str] | None = None, workers: int | None = None,
+                     columns: Sequence[CellColumn] = CELL_COLUMNS,
+                     progress: ProgressCallback | None = None) -> AnchorStudy:
+    """Anchor count x regime study of ``scn``.
+
+    Parameters
+    ----------
+    scn : Scenario
+        The deployment with every candidate anchor.
+    real : sequence of Trace, optional
+        Real traces: the reference of every cell, and the source of the availability order.
+    n : int
+        Traces per cell (and in the reference run without ``real``).
+    seed : int
+        Root seed: trace i of every cell uses ``SeedSequence(seed, spawn_key=(i, component))``.
+    counts : sequence of int, optional
+        Anchor counts (default 1 .. number of anchors).
+    regimes : sequence of str
+        Regime names (:data:`physynth.studies.regimes.REGIMES`).
+    order : sequence of str, optional
+        Anchor ids in the order they are added (default: decreasing availability on the reference).
+    workers : int, optional
+        Processes (default: all cores); 1 runs in this process. Results do not depend on it.
+    columns : sequence of CellColumn
+        Per-cell columns beyond S and availability (default: GDOP).
+    progress : callable, optional
+        ``progress(message, done, total)`` per trace.
+
+    Raises
+    ------
+    PhySynthError
+        One line: n < 1, counts outside 1 .. number of anchors, an unknown regime or anchor id.
+    """
+    progress = progress or no_progress
+    t_start = time.perf_counter()
+    if n < 1:
+        raise PhySynthError(f"-n must be at least 1, got {n}")
+    ids = list(scn.anchor_ids)
+    counts = sorted(set(range(1, len(ids) + 1) if counts is None else (int(k) for k in counts)))
+    bad = [k for k in counts if not 1 <= k <= len(ids)]
+    if bad:
+        raise PhySynthError(f"anchor counts must lie in 1..{len(ids)} (the scenario's anchors), got {bad}")
+    regimes = [check_regime(r) for r in regimes]
+    if not regimes:
+        raise PhySynthError("no regime given")
+    if len(set(regimes)) != len(regimes):
+        raise PhySynthError(f"a regime is given twice: {', '.join(regimes)}")
+    workers = max(1, int(workers or os.cpu_count() or 1))
+    n_chunks = 2 * workers
+
+    # reference and order
+    if real is not None:
+        if not real:
+            raise PhySynthError("the real dataset holds no traces")
+        ref_metrics = pool([summarize(t) for t in real])
+        ref_info: dict[str, Any] = {"kind": "real", "n_traces": len(real),
+                                    "anchors": list(ref_metrics.per_anchor)}
+    else:
+        ref_idx = list(range(n, 2 * n))
+        parts = _map([(scn, seed, c) for c in _chunks(ref_idx, n_chunks)], _reference_chunk, workers, progress,
+                     "anchor study: reference run", n)
+        ref_metrics = pool([s for part in parts for _, s in part])
+        ref_info = {"kind": "reference run", "n_traces": n, "trace_indices": [n, 2 * n - 1],
+                    "anchors": ids}
+    if order is None:
+        order_ids, frac = availability_order(ref_metrics, ids)
+        order_source = ref_info["kind"]
+    else:
+        order_ids = check_subset(order, ids, "--order")
+        if len(order_ids) < max(counts):
+            raise PhySynthError(f"the order names {len(order_ids)} anchor(s) but counts go up to {max(counts)}")
+        frac = {a: float(ref_metrics.per_anchor.get(a, {}).get("fresh_frac", float("nan"))) for a in order_ids}
+        order_source = "given"
+    t_ref = time.perf_counter()
+
+    # cells: regimes x chunks of traces, each trace reduced for every count
+    tasks, owners = [], []
+    for r in regimes:
+        rs = apply_regime(scn, r)
+        for c in _chunks(list(range(n)), max(1, n_chunks // len(regimes))):
+            tasks.append((rs, order_ids, counts, seed, c, tuple(columns)))
+            owners.append(r)
+    results = _map(tasks, _cell_chunk, workers, progress, "anchor study: cells", n * len(regimes))
+    collected: dict[str, list[tuple[int, dict]]] = {r: [] for r in regimes}
+    for r, part in zip(owners, results, strict=True):
+        collected[r] += part
+
+    scores: dict[str, dict[int, float]] = {}
+    avail: dict[str, Any] = {"reference": {"ge1": ref_metrics.uwb_ge1_frac, "ge2": ref_metrics.uwb_ge2_frac}}
+    cols: dict[str, dict[int, dict[str, float]]] = {}
+    for r in regimes:
+        rows = sorted(collected[r], key=lambda x: x[0])
+        scores[r], avail[r], cols[r] = {}, {}, {}
+        for k in counts:
+            m = pool([pc[k][0] for _, pc in rows])
+            scores[r][k] = fidelity_score(ref_metrics, m)
+            avail[r][str(k)] = {"ge1": m.uwb_ge1_frac, "ge2": m.uwb_ge2_frac,
+                                "residual_median_m": m.residual_median_m, "abs_residual_p95_m": m.abs_residual_p95_m,
+                                "mean_aoi_s": m.mean_aoi_s}
+            cols[r][k] = {}
+            for j, col in enumerate(columns):
+                cols[r][k].update(col.reduce([pc[k][1][j] for _, pc in rows]))
+    t_end = time.perf_counter()
+    return AnchorStudy(
+        scores=scores, availability=avail, columns=cols, order=order_ids, order_availability=frac,
+        regimes={r: describe_regime(r) for r in regimes},
+        reference={**ref_info, "ge1": ref_metrics.uwb_ge1_frac, "ge2": ref_metrics.uwb_ge2_frac,
+                   "residual_median_m": ref_metrics.residual_median_m,
+                   "abs_residual_p95_m": ref_metrics.abs_residual_p95_m, "order_source": order_source},
+        inputs={"scenario": scn.name, "n_traces_per_cell": n, "root_seed": int(seed), "counts": counts,
+                "workers": workers, "coupling": "common random numbers: the k-anchor cell is the full-layout "
+                                                "trace restricted to the first k anchors of the order"},
+        timing_s={"reference": t_ref - t_start, "cells": t_end - t_ref, "total": t_end - t_start},
+    )
+
+
+# ---------------------------------------------------------------- outputs
+STUDY_FILES = ("table.json", "table.md", "anchors.png")
+
+
+def _fmt(x: Any, digits: int = 3) -> str:
+    return "-" if not isinstance(x, (int, float)) or not math.isfinite(x) else f"{x:.{digits}f}"
+
+
+def anchor_table_md(study: AnchorStudy) -> str:
+    """Table III of the paper for this study (rows: anchor count, descending; columns: regimes, mean)."""
+    regimes = list(study.scores)
+    counts = sorted(study.counts, reverse=True)
+    ref = study.reference
+    how = "given" if ref["order_source"] == "given" else f"decreasing availability on the {ref['order_source']}"
+    lines = [f"# Anchor study: {study.inputs['scenario']}", "",
+             f"Fidelity score S = d_avail + d_med/10 + d_P95/20 against the {ref['kind']} "
+             f"({ref['n_traces']} trace(s), anchors {', '.join(ref['anchors'])}); lower is better. "
+             f"{study.inputs['n_traces_per_cell']} synthetic traces per cell, root seed {study.inputs['root_seed']}.",
+             f"Anchors added in this order ({how}): "
+             + ", ".join(f"{a} ({_fmt(study.order_availability.get(a))})" for a in study.order) + ".", "",
+             "| Anchors | " + " | ".join(r.capitalize() for r in regimes) + " | Mean |",
+             "|---|" + "---|" * (len(regimes) + 1)]
+    for k in counts:
+        row = [study.scores[r][k] for r in regimes]
+        lines.append(f"| {k} | " + " | ".join(_fmt(v) for v in row) + f" | {_fmt(float(np.mean(row)))} |")
+    means = [float(np.mean([study.scores[r][k] for k in counts])) for r in regimes]
+    lines.append("| Mean | " + " | ".join(_fmt(v) for v in means) + " | - |")
+    lines += ["", f"Availability (fraction of 10 ms grid bins with >= 1 / >= 2 fresh anchors); reference "
+                  f"{_fmt(ref['ge1'])} / {_fmt(ref['ge2'])}.", "",
+              "| Anchors | " + " | ".join(f"{r} >=1 | {r} >=2" for r in regimes) + " |",
+              "|---|" + "---|---|" * len(regimes)]
+    for k in counts:
+        cells = [f"{_fmt(study.availability[r][str(k)]['ge1'])} | {_fmt(study.availability[r][str(k)]['ge2'])}"
+                 for r in regimes]
+        lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    lines += ["", "GDOP along the path (median; fraction of time <= 5): with every anchor of the cell, and with the "
+                  "anchors heard in the last second ('fresh'). '-' = no 3-D fix for at least half of the time.", "",
+              "| Anchors | " + " | ".join(f"{r} GDOP | {r} fresh" for r in regimes) + " |",
+              "|---|" + "---|---|" * len(regimes)]
+    for k in counts:
+        cells = []
+        for r in regimes:
+            c = study.columns[r][k]
+            cells.append(f"{_fmt(c.get('gdop_median'), 1)} ({_fmt(c.get('gdop_le5_frac'), 2)}) | "
+                         f"{_fmt(c.get('fresh_gdop_median'), 1)} ({_fmt(c.get('fresh_gdop_le5_frac'), 2)})")
+        lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    lines += ["", "Regimes:", ""]
+    for r, d in study.regimes.items():
+        lines.append(f"- {r}: {d['summary']} ({'; '.join(d['changes']) or 'no change'})")
+    lines += ["", f"Run time {study.timing_s.get('total', float('nan')):.1f} s on {study.inputs['workers']} "
+                  "worker process(es).", ""]
+    return "\n".join(lines)
+
+
+def anchor_figure_png(study: AnchorStudy) -> bytes:
+    """Figure 6 of the paper: (left) S against anchor count per regime; (right) >= 1 and >= 2
+    availability against count per regime, the reference as horizontal lines."""
+    from ..validate.render import _png, require_matplotlib
+
+    figure_cls, canvas_cls = require_matplotlib()
+    fig = figure_cls(figsize=(10, 4))
+    ax1, ax2 = fig.subplots(1, 2)
+    counts = study.counts
+    colors = {"nominal": "k", "dense": "tab:blue", "sparse": "tab:orange", "degraded": "tab:red"}
+    for r in study.scores:
+        c = colors.get(r)
+        ax1.plot(counts, [study.scores[r][k] for k in counts], "o-", color=c, label=r)
+        ax2.plot(counts, [study.availability[r][str(k)]["ge1"] for k in counts], "o-", color=c, label=f"{r} >= 1")
+        ax2.plot(counts, [study.availability[r][str(k)]["ge2"] for k in counts], "s--", color=c, label=f"{r} >= 2")
+    ref = study.reference
+    ax2.axhline(ref["ge1"], color="0.3", lw=1.5, label=f"{ref['kind']} >= 1")
+    ax2.axhline(ref["ge2"], color="0.3", lw=1.5, ls=":", label=f"{ref['kind']} >= 2")
+    ax1.set_xlabel("anchors")
+    ax1.set_ylabel("fidelity score S (lower is better)")
+    ax1.set_title("S against anchor count")
+    ax1.legend()
+    ax2.set_xlabel("anchors")
+    ax2.set_ylabel("fraction of 10 ms bins")
+    ax2.set_title(">= 1 and >= 2 fresh anchors")
+    ax2.legend(fontsize=7, ncol=2)
+    for ax in (ax1, ax2):
+        ax.set_xticks(counts)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return _png(fig, canvas_cls)
+
+
+def write_anchor_study(study: AnchorStudy, out: str | os.PathLike, *, figures: bool = True,
+                       overwrite: bool = False) -> list[str]:
+    """Write ``table.json``, ``table.md`` and (with ``figures``) ``anchors.png`` into ``out`` (atomically).
+
+    Raises :class:`~physynth.errors.OutputExistsError` when ``out`` holds a table and not ``overwrite``.
+    """
+    import json
+    from pathlib import Path
+
+    from ..errors import OutputExistsError
+    from ..io.atomic import atomic_write_bytes, atomic_write_text
+
+    out = Path(out)
+    if (out / "table.json").exists() and not overwrite:
+        raise OutputExistsError(out, "holds an anchor study")
+    if out.exists() and not out.is_dir():
+        raise PhySynthError(f"output {out} exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "table.json", json.dumps(study.to_dict(), indent=1) + "\n")
+    atomic_write_text(out / "table.md", anchor_table_md(study))
+    written = ["table.json", "table.md"]
+    if figures:
+        atomic_write_bytes(out / "anchors.png", anchor_figure_png(study))
+        written.append("anchors.png")
+    return written

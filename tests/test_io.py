@@ -1,0 +1,104 @@
+"""The io layer on its own: atomic files, scenario files, and datasets of real and synthetic traces."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from helpers import simple_scenario
+
+from physynth.errors import ScenarioError
+from physynth.generate import compile_scenario, generate_trace
+from physynth.io import read_dataset, read_meta, write_dataset
+from physynth.io.atomic import atomic_write_bytes, atomic_write_text, temp_sibling
+from physynth.io.scenario_file import list_presets, load_scenario, save_scenario, scenario_to_yaml
+from physynth.records import Anchors, Trace, Truth, Uwb
+
+
+def test_atomic_write_replaces_whole_files_and_cleans_up_on_failure(tmp_path):
+    target = tmp_path / "a.txt"
+    atomic_write_text(target, "first")
+    atomic_write_text(target, "second")
+    assert target.read_text() == "second"
+
+    with pytest.raises(TypeError):
+        atomic_write_bytes(target, "not bytes")  # fails inside the write
+    assert target.read_text() == "second"  # the old content survives
+    assert not temp_sibling(target).exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]
+
+
+def test_scenario_file_round_trip_for_every_preset(tmp_path):
+    for name in list_presets():
+        scn = load_scenario(name)
+        path = save_scenario(scn, tmp_path / f"{name}.yaml", header="a header\nof two lines")
+        assert path.read_text().startswith("# a header\n# of two lines\n")
+        assert load_scenario(path) == scn
+        assert scenario_to_yaml(load_scenario(path)) == scenario_to_yaml(scn)
+
+
+def test_scenario_file_errors_are_one_line(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\npath: {kind: spiral}\n")
+    with pytest.raises(ScenarioError, match=r"bad.yaml: field path.*kind") as exc:
+        load_scenario(bad)
+    assert "\n" not in str(exc.value)
+    with pytest.raises(ScenarioError, match="not a preset"):
+        load_scenario("no-such-preset")
+
+
+def _real_like_trace() -> Trace:
+    """A recording-like trace: no IMU, NLOS unknown, an anchor never heard, a NaN range."""
+    t = np.linspace(0.0, 10.0, 81)
+    pos = np.stack([t, np.zeros_like(t), np.ones_like(t)], axis=1)
+    anchors = Anchors(ids=("3", "5", "9"), names=("A3", "A5", "A9"),
+                      pos_enu_m=np.array([[0.0, 5.0, 2.0], [10.0, -5.0, 2.0], [20.0, 0.0, 2.0]]))
+    tu = np.array([0.5, 0.6, 1.5, 1.6, 2.5])
+    return Trace(truth=Truth(t_s=t, pos_enu_m=pos, vel_enu_mps=np.gradient(pos, t, axis=0)), imu=None,
+                 uwb=Uwb(t_s=tu, anchor=np.array([0, 1, 0, 1, 0]), range_m=np.array([5.1, 9.0, np.nan, 8.7, 5.6]),
+                         true_range_m=np.full(5, np.nan), nlos=np.zeros(5, bool), burst=np.array([0, 0, 1, 1, 2]),
+                         reason=np.array([0, 0, 4, 0, 0], np.int8), nlos_known=False),
+                 anchors=anchors, meta={"run": "LOS/Case_1"})
+
+
+def test_real_and_synthetic_traces_share_one_dataset_format(tmp_path):
+    real = _real_like_trace()
+    synth = generate_trace(compile_scenario(simple_scenario()), 0, 3)
+    path = write_dataset(tmp_path / "ds", [real, synth], meta={"kind": "mixed-test"})
+    assert read_meta(path)["n_traces"] == 2
+    back = read_dataset(path).traces
+    assert back[0].imu is None and back[1].imu is not None
+    assert back[0].anchors.ids == ("3", "5", "9") and back[0].anchors.names == ("A3", "A5", "A9")
+    assert not back[0].uwb.nlos_known and back[1].uwb.nlos_known
+    np.testing.assert_array_equal(back[0].uwb.range_m, real.uwb.range_m)
+    np.testing.assert_array_equal(back[0].uwb.reason, real.uwb.reason)
+    np.testing.assert_array_equal(back[1].imu.acc_mps2, synth.imu.acc_mps2)
+    np.testing.assert_array_equal(back[1].truth.pos_enu_m, synth.truth.pos_enu_m)
+    assert back[0].meta.get("run") == "LOS/Case_1"
+    # pyarrow reads the files on its own: one UWB row per attempt, anchors by id
+    uwb = pq.read_table(Path(path) / "uwb.parquet").to_pandas()
+    assert (uwb["trace"] == 0).sum() == 5 and set(uwb.loc[uwb["trace"] == 0, "anchor_id"]) == {"3", "5"}
+
+
+def test_writer_leaves_no_temporary_folder(tmp_path):
+    write_dataset(tmp_path / "ds", [_real_like_trace()])
+    assert [p.name for p in tmp_path.iterdir()] == ["ds"]
+    assert not any(n.startswith(".") for n in os.listdir(tmp_path / "ds"))
+
+
+def test_top_level_names_resolve_lazily():
+    import subprocess
+    import sys
+
+    code = ("import sys, physynth; assert 'scipy' not in sys.modules; "
+            "s = physynth.load_scenario('cablecar-ascending'); t = next(physynth.generate_traces(s, n=1, seed=2)); "
+            "print(type(t).__name__, physynth.compute_metrics([t]).n_traces)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["Trace", "1"]
+    import physynth
+
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        physynth.nope  # noqa: B018

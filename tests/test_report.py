@@ -1,0 +1,66 @@
+"""The report layer on its own: tables carry the report's numbers, Markdown and HTML render every table
+and figure, and the report folder is written atomically and never replaced by accident."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import pytest
+from helpers import simple_scenario
+
+from physynth.errors import OutputExistsError
+from physynth.evaluate.metrics import METRIC_KEYS
+from physynth.generate import compile_scenario, generate_traces
+from physynth.validate.compare import compare, read_report
+from physynth.validate.render import (
+    available_figures,
+    render_figures,
+    render_html,
+    render_markdown,
+    table_validation,
+    write_report,
+)
+
+
+@pytest.fixture(scope="module")
+def report():
+    scn = compile_scenario(simple_scenario(**{"channel.los_std_m": 0.2, "channel.nlos_prob": 0.1,
+                                              "availability.dropout_prob": 0.2,
+                                              "imu.white_noise_density_mps2_per_sqrt_hz": [0.1, 0.1, 0.1]}))
+    return compare(list(generate_traces(scn, 2, seed=1)), generate_traces(scn, 3, seed=2),
+                   inputs={"real": {"path": "in-memory"}})
+
+
+def test_validation_table_shows_the_reports_numbers(report):
+    rows = {row[0]: row for row in table_validation(report).rows}
+    for label, key in (("UWB ≥ 1 (frac.)", "uwb_ge1_frac"), ("Mean AoI (s)", "mean_aoi_s"),
+                       ("Duration (s)", "duration_s")):
+        real, synth = (float(v) for v in rows[label][1:3])
+        assert real == pytest.approx(report.real[key], abs=0.006), key
+        assert synth == pytest.approx(report.synthetic[key], abs=0.006), key
+    assert float(rows["Fidelity score S"][2]) == pytest.approx(report.fidelity_score, abs=6e-4)
+
+
+def test_markdown_and_html_hold_every_table_and_figure(report):
+    pngs = render_figures(report)
+    assert set(pngs) == set(available_figures(report.evidence)) and len(pngs) >= 5
+    md = render_markdown(report, {n: f"{n}.png" for n in pngs})
+    assert md.count("![") == len(pngs)
+    assert sum(1 for line in md.splitlines() if re.match(r"^\|[ -:|]+\|$", line)) >= 3  # table separators
+    html = render_html(report, pngs)
+    assert html.count("<img ") == len(pngs) and html.count("data:image/png;base64,") == len(pngs)
+    assert html.count("<table") >= 3 and "<script" not in html  # self-contained, nothing to run
+
+
+def test_write_report_round_trips_and_refuses_to_replace(report, tmp_path):
+    out = tmp_path / "rep"
+    written = write_report(report, out, figures=False)
+    assert {"report.json", "report.md", "report.html"} <= set(written)
+    back = read_report(out / "report.json")
+    for key in METRIC_KEYS:
+        assert json.dumps(back.real[key]) == json.dumps(report.to_dict()["real"][key])
+    with pytest.raises(OutputExistsError):
+        write_report(report, out, figures=False)
+    write_report(report, out, figures=False, overwrite=True)
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temporary file left

@@ -1,0 +1,175 @@
+"""Scale: streamed reading, streamed metrics, sharded generation on a real Dask cluster, resume after SIGKILL."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from physynth.errors import PhySynthError
+from physynth.evaluate.metrics import MetricsAccumulator, compute_metrics, summarize
+from physynth.evaluate.sketch import RELATIVE_ACCURACY, ZERO_TOLERANCE, Moments, QuantileSketch
+from physynth.generate import compile_scenario, generate_trace
+from physynth.io.dataset import iter_traces, read_dataset
+from physynth.io.scenario_file import load_scenario
+from physynth.io.shards import partial_dir
+from physynth.workflows import generate_dataset, inspect_dataset
+
+SEED = 2026
+
+
+@pytest.fixture(scope="module")
+def scn():
+    return load_scenario("cablecar-descending")
+
+
+def _files(path: Path) -> dict[str, bytes]:
+    """Every Parquet file of a dataset, by relative path, and the per-trace metadata."""
+    out = {str(p.relative_to(path)): p.read_bytes() for p in sorted(path.rglob("*.parquet"))}
+    out["traces"] = json.dumps(json.loads((path / "dataset.json").read_text())["traces"]).encode()
+    return out
+
+
+# ---------------------------------------------------------------- streaming statistics
+def test_moments_match_numpy():
+    rng = np.random.default_rng(1)
+    x = rng.normal(3.0, 2.0, (1000, 3))
+    m = Moments(3)
+    for part in np.array_split(x, 7):
+        m.add(part)
+    assert np.allclose(m.std(), x.std(axis=0), rtol=1e-12)
+
+
+def test_sketch_exact_then_bounded_relative_error():
+    rng = np.random.default_rng(2)
+    x = np.concatenate([rng.standard_t(3, 200_000), [0.0, 1e-12]])
+    exact = QuantileSketch(exact_limit=10**6)
+    folded = QuantileSketch(exact_limit=5_000)
+    for part in np.array_split(x, 40):
+        exact.add(part)
+        folded.add(part)
+    q = np.array([0.0, 0.01, 0.25, 0.5, 0.95, 0.99, 1.0])
+    assert not exact.folded and np.array_equal(exact.quantile(q), np.quantile(x, q))
+    assert folded.folded and folded.n == x.size
+    # each returned quantile is within the relative accuracy of a sample of (nearly) that rank
+    got = folded.quantile(q)
+    xs = np.sort(x)
+    ranks = np.round(q * (x.size - 1)).astype(int)
+    assert np.all(np.abs(got - xs[ranks]) <= RELATIVE_ACCURACY * np.abs(xs[ranks]) + 1e-9)
+    # the size is bounded by the dynamic range, not by the number of values
+    normal = QuantileSketch(exact_limit=5_000)
+    for _ in range(5):
+        normal.add(np.clip(rng.normal(0.0, 5.0, 200_000), -40.0, 40.0))
+    normal.quantile(0.5)
+    per_sign = np.ceil(np.log(40.0 / ZERO_TOLERANCE) / np.log((1 + RELATIVE_ACCURACY) / (1 - RELATIVE_ACCURACY))) + 1
+    assert normal.n == 10**6 and normal.nbytes <= 16 * (2 * per_sign + 1) < 8 * normal.n
+    assert folded.values(1000).size == 1000
+
+
+def test_streamed_metrics_equal_exact_for_small_sets_and_close_when_sketched(scn):
+    cs = compile_scenario(scn)
+    traces = [generate_trace(cs, i, SEED) for i in range(3)]
+    exact = compute_metrics(traces)
+    acc = MetricsAccumulator()
+    acc.residual = QuantileSketch(exact_limit=1000)
+    acc.abs_residual = QuantileSketch(exact_limit=1000)
+    for t in traces:
+        acc.add(summarize(t))
+    sketched = acc.result()
+    assert acc.residual.folded
+    assert sketched.uwb_ge1_frac == exact.uwb_ge1_frac and sketched.n_residuals == exact.n_residuals
+    for key in ("residual_median_m", "abs_residual_p95_m", "abs_residual_p99_m"):
+        assert getattr(sketched, key) == pytest.approx(getattr(exact, key), rel=1e-3), key
+    assert sketched.residual_std_m == pytest.approx(exact.residual_std_m, rel=1e-12)
+
+
+# ---------------------------------------------------------------- streamed reading
+def test_iter_traces_streams_parts_and_row_groups(scn, tmp_path):
+    path, _ = generate_dataset(scn, 7, tmp_path / "ds", seed=SEED, shard_traces=3)
+    assert sorted(p.name for p in (path / "uwb").iterdir()) == [f"part-0000{k}.parquet" for k in range(3)]
+    cs = compile_scenario(scn)
+    streamed = list(iter_traces(path))
+    assert [t.meta["spawn_key"] for t in streamed] == [[i] for i in range(7)]
+    for i, t in enumerate(streamed):
+        ref = generate_trace(cs, i, SEED)
+        assert np.array_equal(t.uwb.range_m, ref.uwb.range_m, equal_nan=True)
+        assert np.array_equal(t.imu.acc_mps2, ref.imu.acc_mps2.astype(np.float32))  # stored as float32
+        assert np.array_equal(t.truth.pos_enu_m, ref.truth.pos_enu_m)
+    m, meta = inspect_dataset(path)
+    assert meta["n_traces"] == 7 and m.n_traces == 7
+    assert m.to_dict() == compute_metrics(read_dataset(path).traces).to_dict()
+
+
+# ---------------------------------------------------------------- Dask: local cluster and an existing scheduler
+def test_workers_on_a_local_cluster_give_the_same_files(scn, tmp_path):
+    one, _ = generate_dataset(scn, 7, tmp_path / "one", seed=SEED, shard_traces=2, workers=1)
+    two, _ = generate_dataset(scn, 7, tmp_path / "two", seed=SEED, shard_traces=2, workers=2)
+    assert _files(one) == _files(two)
+    assert not partial_dir(two).exists()
+
+
+def test_existing_scheduler(scn, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                                  silence_logs=logging.ERROR) as cluster:
+        path, _ = generate_dataset(scn, 5, tmp_path / "remote", seed=SEED, shard_traces=2,
+                                   scheduler=cluster.scheduler_address)
+    ref, _ = generate_dataset(scn, 5, tmp_path / "ref", seed=SEED, shard_traces=2)
+    assert _files(path) == _files(ref)
+
+
+def test_unreachable_scheduler_is_one_line(scn, tmp_path):
+    pytest.importorskip("distributed")
+    with pytest.raises(PhySynthError, match="cannot connect to the Dask scheduler"):
+        generate_dataset(scn, 4, tmp_path / "x", seed=1, shard_traces=2, scheduler="tcp://127.0.0.1:9")
+
+
+# ---------------------------------------------------------------- resume after SIGKILL
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "physynth.cli", *args]
+
+
+def test_sigkill_then_resume_completes_identically(scn, tmp_path):
+    out = tmp_path / "killed"
+    args = ["generate", "-n", "24", "--seed", str(SEED), "--shard-traces", "3", "-w", "1", "-q", "--out", str(out)]
+    proc = subprocess.Popen(_cli(*args), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    part = partial_dir(out)
+    deadline = time.monotonic() + 120
+    try:
+        while time.monotonic() < deadline:
+            if part.is_dir() and len(list(part.glob("shard-*"))) >= 2:
+                break
+            if proc.poll() is not None:
+                pytest.fail(f"generation ended before it could be killed: {proc.stderr.read().decode()}")
+            time.sleep(0.05)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    assert not out.exists(), "a killed run must not leave a dataset that looks finished"
+    kept = sorted(p.name for p in part.glob("shard-*"))
+    assert 2 <= len(kept) < 8
+    # without --resume the unfinished run is not silently discarded
+    r = subprocess.run(_cli(*args), capture_output=True, text=True)
+    assert r.returncode == 2 and "--resume" in r.stderr and r.stderr.count("\n") == 1
+    # a different seed cannot resume it
+    bad = subprocess.run(_cli(*[a if a != str(SEED) else "7" for a in args], "--resume"), capture_output=True,
+                         text=True)
+    assert bad.returncode == 2 and "root_seed" in bad.stderr
+    mtimes = {p.name: (p / "dataset.json").stat().st_mtime_ns for p in part.glob("shard-*")}
+    done = subprocess.run(_cli(*args, "--resume"), capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert not part.exists()
+    ref, _ = generate_dataset(scn, 24, tmp_path / "ref", seed=SEED, shard_traces=3)
+    assert _files(out) == _files(ref)
+    meta = json.loads((out / "dataset.json").read_text())
+    assert [m["trace"] for m in meta["traces"]] == list(range(24))  # no duplicates, none missing
+    assert len(mtimes) == len(kept)
