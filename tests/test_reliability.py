@@ -576,3 +576,20 @@ def test_a_swallowed_interrupt_is_raised_at_the_next_trace(tmp_path):
     finally:
         safety.clear_interrupted()
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_dataset_of_several_shards_is_verified_and_replaceable(tmp_path, small, capsys):
+    out = tmp_path / "ds"
+    args = ["generate", "-s", small, "-n", 5, "--seed", 3, "--out", out, "-q", "--workers", 1, "--shard-traces", 2]
+    assert run(capsys, *args)[0] == 0
+    meta = json.loads((out / "dataset.json").read_text())
+    assert "truth/part-00002.parquet" in meta["files"] and meta["n_traces"] == 5
+    code, stdout, _ = run(capsys, "verify", out)
+    assert code == 0 and "12 file(s)" in stdout
+    assert len(read_dataset(out)) == 5
+    _flip_byte(out / "uwb" / "part-00001.parquet")
+    code, _, err = run(capsys, "verify", out)
+    assert code == 2 and one_line(err) and "uwb/part-00001.parquet" in err
+    code, _, err = run(capsys, *args, "--overwrite")  # the parts folders are PhySynth's own
+    assert code == 0, err
+    assert run(capsys, "verify", out)[0] == 0
