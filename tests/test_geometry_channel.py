@@ -63,9 +63,9 @@ def test_obstacles_off_by_default_and_a_box_over_the_route_blocks_everyone():
 
 def test_segment_tests_agree_with_dense_sampling():
     rng = np.random.default_rng(0)
-    p = rng.uniform(-10, 10, (4000, 3))
-    q = rng.uniform(-10, 10, (4000, 3))
-    s = np.linspace(0, 1, 2001)[None, :, None]
+    p = rng.uniform(-10, 10, (1500, 3))
+    q = rng.uniform(-10, 10, (1500, 3))
+    s = np.linspace(0, 1, 1001)[None, :, None]
     pts = p[:, None, :] + s * (q - p)[:, None, :]
     lo, hi = np.array([-2.0, -3.0, -1.0]), np.array([3.0, 2.0, 4.0])
 
@@ -74,9 +74,9 @@ def test_segment_tests_agree_with_dense_sampling():
 
     hit = segment_hits_box(p, q, lo, hi)
     # exact test vs sampling: a sampled hit of the box is an exact hit; an exact hit is a sampled hit of
-    # the box grown by the sampling step (<= 0.02 m here)
+    # the box grown by the sampling step (<= 0.035 m here)
     assert np.all(hit[sampled_box(lo, hi)])
-    assert np.all(sampled_box(lo - 0.03, hi + 0.03)[hit])
+    assert np.all(sampled_box(lo - 0.04, hi + 0.04)[hit])
     assert 0.1 < hit.mean() < 0.9
 
     poly = np.array([[-4.0, -4.0], [4.0, -4.0], [4.0, 4.0], [0.0, 0.0], [-4.0, 4.0]])  # non-convex
@@ -85,7 +85,7 @@ def test_segment_tests_agree_with_dense_sampling():
     in_fp = points_in_polygon(flat[:, 0], flat[:, 1], poly).reshape(pts.shape[:2])
     sampled = np.any(in_fp & (pts[..., 2] >= -1.0) & (pts[..., 2] <= 3.0), axis=1)
     assert np.all(hitp[sampled])
-    assert (hitp & ~sampled).mean() < 0.01  # grazing hits between samples only
+    assert (hitp & ~sampled).mean() < 0.02  # grazing hits between samples only
     assert 0.1 < hitp.mean() < 0.9
 
 
@@ -153,3 +153,28 @@ def test_bad_obstacles_are_one_line_scenario_errors():
                                               "top_m": 1}]})
     with pytest.raises(ScenarioError):
         simple_scenario(**{"uwb.obstacles": [{"kind": "dome", "top_m": 1}]})
+
+
+def test_obstacle_losses_prefilter_changes_nothing():
+    from physynth.models.obstacles import (
+        BoxObstacle,
+        PrismObstacle,
+        WallObstacle,
+        obstacle_losses,
+        segment_hits_vertical_rect,
+    )
+
+    rng = np.random.default_rng(2)
+    p = rng.uniform(0, 100, (5000, 3)) * [1, 1, 0.3]
+    q = rng.uniform(0, 100, (5000, 3)) * [1, 1, 0.3]
+    obs = [BoxObstacle(min_enu_m=[10, 10, 0], max_enu_m=[20, 30, 8], loss_db=5.0),
+           WallObstacle(vertices_en_m=[[40, 0], [40, 50], [60, 60]], top_m=12.0, loss_db=7.0),
+           PrismObstacle(vertices_en_m=[[70, 70], [90, 70], [80, 95]], base_m=2.0, top_m=20.0, loss_db=11.0)]
+    blocked, loss = obstacle_losses(p, q, obs)
+    h_box = segment_hits_box(p, q, np.array([10.0, 10, 0]), np.array([20.0, 30, 8]))
+    h_wall = (segment_hits_vertical_rect(p, q, np.array([40.0, 0]), np.array([40.0, 50]), 0.0, 12.0)
+              | segment_hits_vertical_rect(p, q, np.array([40.0, 50]), np.array([60.0, 60]), 0.0, 12.0))
+    h_prism = segment_hits_prism(p, q, np.array([[70.0, 70], [90, 70], [80, 95]]), 2.0, 20.0)
+    np.testing.assert_array_equal(blocked, h_box | h_wall | h_prism)
+    np.testing.assert_allclose(loss, 5.0 * h_box + 7.0 * h_wall + 11.0 * h_prism)
+    assert h_box.any() and h_wall.any() and h_prism.any()

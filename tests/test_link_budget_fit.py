@@ -52,10 +52,29 @@ def test_detection_fit_recovers_the_sensitivity_and_bounds_it_without_losses():
 
 @pytest.mark.skipif(not STATIC.is_dir(), reason=f"real Hanyang static sweeps not found at {STATIC}")
 def test_hanyang_static_link_budget():
-    params, rep = fit_link_budget_hanyang_static(STATIC, environment="LOS")
+    params, rep = fit_link_budget_hanyang_static(STATIC / "LOS", environment="LOS")  # LOS files only
     pl = rep["path_loss"]
     assert -82.0 < pl["saturation_dbm"] < -79.0  # the DW1000 first-path power tops out near -80 dBm
     assert 0.1 < pl["ground_reflection"] < 0.9  # the interference nulls of the two-ray term are real
     assert pl["shadowing_std_db"] < 3.0
     assert rep["detection"]["n_detected"] / rep["detection"]["n_attempts"] > 0.99  # no weak-link loss <= 60 m
     assert params.sensitivity_dbm <= rep["weakest_mean_power_dbm"]
+
+
+def test_sensitivity_from_detection_rate_against_distance_of_a_recording():
+    """Without received power: detections per distance bin of generated traces give back the sensitivity."""
+    from helpers import simple_scenario
+
+    from physynth.calibrate.link_budget import detection_counts_vs_distance
+    from physynth.generate import compile_scenario, generate_trace
+
+    lb = {"ref_power_dbm": -40.0, "path_loss_exponent": 2.0, "sensitivity_dbm": -80.0, "shadowing_std_db": 3.0}
+    scn = simple_scenario(**{"path": {"kind": "waypoints", "waypoints_enu_m": [[0, 0, 1], [400, 0, 1]],
+                                      "perturbation": {"lateral_std_m": 0.0, "sag_std_m": 0.0}},
+                             "anchors": [{"id": "A1", "pos_enu_m": [0, 0, 1]}], "channel.link_budget": lb})
+    cs = compile_scenario(scn)
+    traces = [generate_trace(cs, i, 21) for i in range(4)]
+    centre, det, exp = detection_counts_vs_distance(traces, "A1", nominal_rate_hz=20.0, bin_m=10.0)
+    assert det[0] / exp[0] > 0.9 and det[-1] / exp[-1] < 0.1
+    fit = fit_detection_vs_distance(-40.0 - 20 * np.log10(np.maximum(centre, 1.0)), det, exp, shadowing_std_db=3.0)
+    assert fit.sensitivity_dbm == pytest.approx(-80.0, abs=1.0)

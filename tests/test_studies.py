@@ -15,7 +15,7 @@ from physynth.evaluate.metrics import compute_metrics
 from physynth.generate import compile_scenario, generate_trace
 from physynth.io.scenario_file import load_scenario, save_scenario
 from physynth.scenario import scenario_from_dict, scenario_to_dict
-from physynth.studies.anchors import run_anchor_study, write_anchor_study
+from physynth.studies.anchors import AnchorStudy, run_anchor_study, write_anchor_study
 from physynth.studies.placement import greedy_placement, read_candidates
 from physynth.studies.regimes import REGIMES, apply_regime
 from physynth.studies.subset import restrict_to_anchors
@@ -149,6 +149,8 @@ def test_table_files_parse(study, tmp_path):
     assert [float(c) for c in cells] == pytest.approx([study.scores[r][3] for r in ("nominal", "sparse", "degraded")],
                                                       abs=5e-4)
     assert (tmp_path / "anchors.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    back = AnchorStudy.from_dict(d)
+    assert back.scores == study.scores and back.order == study.order and back.counts == study.counts
     with pytest.raises(PhySynthError, match="already holds an anchor study"):
         write_anchor_study(study, tmp_path)
 
@@ -156,7 +158,24 @@ def test_table_files_parse(study, tmp_path):
 def test_gdop_column(study):
     one, three = study.columns["nominal"][1], study.columns["nominal"][3]
     assert one["gdop_le5_frac"] == 0.0 and not np.isfinite(one["gdop_median"])  # one anchor: no fix
-    assert np.isfinite(three["gdop_median"]) and three["gdop_median"] >= 1.0 / np.sqrt(3) * np.sqrt(3)
+    assert not np.isfinite(one["fresh_hdop_median"])
+    assert np.isfinite(three["gdop_median"]) and np.isfinite(three["fresh_hdop_median"])
+
+
+def test_gdop_against_closed_forms():
+    from physynth.studies.dop import gdop
+
+    # three orthogonal unit directions: H = I, GDOP = sqrt(3); the 2-D part of two orthogonal ones: sqrt(2)
+    tag = np.zeros((1, 3))
+    anchors = np.array([[-10.0, 0, 0], [0, -10.0, 0], [0, 0, -10.0]])
+    assert gdop(tag, anchors)[0] == pytest.approx(np.sqrt(3))
+    assert gdop(tag, anchors[:2], known_height=True)[0] == pytest.approx(np.sqrt(2))
+    # anchors in one plane with the tag: no 3-D fix; two anchors in line with the tag: no 2-D fix
+    flat = np.array([[10.0, 0, 0], [0, 10.0, 0], [-10.0, 0, 0]])
+    assert not np.isfinite(gdop(tag, flat)[0])
+    assert not np.isfinite(gdop(tag, flat[[0, 2]], known_height=True)[0])
+    mask = np.array([[True, True, False]])
+    assert not np.isfinite(gdop(tag, anchors, mask)[0])
 
 
 def test_greedy_placement_picks_the_anchors_that_cover_the_path(tmp_path):
@@ -218,7 +237,7 @@ def test_cli_placement_bad_candidates_and_k(tmp_path, capsys):
     (tmp_path / "c.yaml").write_text("- {id: A, pos_enu_m: [1, 2, 3]}\n")
     code, _, err = run(capsys, "study", "placement", "--candidates", tmp_path / "c.yaml", "-k", 2, "--out",
                        tmp_path / "o", "-q")
-    assert code == 2 and "-k must lie in 1..1" in err
+    assert code == 2 and "must lie in 1..1" in err
 
 
 def test_cli_study_anchors_and_validate_subset(tmp_path, capsys):

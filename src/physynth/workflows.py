@@ -246,7 +246,7 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
     if anchors is not None:
         from .studies.subset import check_subset, restrict_to_anchors
 
-        subset = check_subset(anchors, real_ids, "the anchor subset (the real dataset's anchors)")
+        subset = check_subset(anchors, real_ids, "anchor subset (the real dataset's anchors)")
         inputs["anchor_subset"] = subset
 
     if synthetic is not None:
@@ -255,7 +255,7 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
             raise PhySynthError(f"synthetic dataset: dataset {synthetic} holds no traces")
         synth_ids = _read(_anchor_ids_of, synthetic, "synthetic")
         if subset is not None:
-            check_subset(subset, synth_ids, f"the anchor subset (the synthetic dataset {synthetic})")
+            check_subset(subset, synth_ids, f"anchor subset (the synthetic dataset {synthetic})")
         else:
             problem = describe_anchor_mismatch(real_ids, synth_ids, f"the synthetic dataset {synthetic}")
             if problem:
@@ -279,7 +279,7 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
             scn = transfer_scenario(original, real_traces)
             transfer_info = transfer_record(original, scn, str(real), real_ids)
         elif subset is not None:
-            check_subset(subset, list(scn.anchor_ids), f"the anchor subset (scenario '{scn.name}')")
+            check_subset(subset, list(scn.anchor_ids), f"anchor subset (scenario '{scn.name}')")
         else:
             problem = describe_anchor_mismatch(real_ids, list(scn.anchor_ids), f"scenario '{scn.name}'")
             if problem:

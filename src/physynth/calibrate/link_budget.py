@@ -150,6 +150,40 @@ def fit_detection_vs_distance(mean_power_dbm: np.ndarray, n_detected: np.ndarray
                         n_detected=int(k.sum()), min_detection_rate=float(np.min(k / m)))
 
 
+def detection_counts_vs_distance(traces: Any, anchor_id: str, *, nominal_rate_hz: float, bin_m: float = 5.0,
+                                 rate_hz: float = 10.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Detected and expected ranges of one anchor per distance bin, from recordings with truth.
+
+    The tag's distance to the anchor is evaluated on a ``rate_hz`` grid of each trace's truth; a bin
+    of width ``bin_m`` [m] expects ``nominal_rate_hz`` x (time spent in it) attempts and detects the
+    valid ranges whose true distance falls in it. For recordings that log only delivered ranges (most
+    real ones): the attempts are implied by the nominal rate. Returns (bin centre [m], detected,
+    expected), bins with at least one expected attempt.
+    """
+    from ..evaluate.grid import grid_times
+
+    dist_t, dist_r = [], []
+    dwell = []
+    for tr in traces:
+        if anchor_id not in tr.anchors.ids:
+            continue
+        a = tr.anchors.pos_enu_m[tr.anchors.index(anchor_id)]
+        t = grid_times(tr.t0_s, tr.duration_s, rate_hz)
+        dist_t.append(np.linalg.norm(tr.truth.position_at(t) - a, axis=1))
+        dwell.append(np.full(t.shape[0], 1.0 / rate_hz))
+        ok = tr.uwb.valid & (tr.uwb.anchor == tr.anchors.index(anchor_id))
+        dist_r.append(np.linalg.norm(tr.truth.position_at(tr.uwb.t_s[ok]) - a, axis=1))
+    if not dist_t:
+        raise PhySynthError(f"no trace has anchor {anchor_id}")
+    d_t, d_r, w = np.concatenate(dist_t), np.concatenate(dist_r), np.concatenate(dwell)
+    edges = np.arange(0.0, np.nanmax(d_t) + bin_m, bin_m)
+    expected = np.histogram(d_t, edges, weights=w * nominal_rate_hz)[0]
+    detected = np.histogram(d_r, edges)[0].astype(float)
+    keep = expected >= 1.0
+    centre = 0.5 * (edges[:-1] + edges[1:])
+    return centre[keep], np.minimum(detected[keep], np.round(expected[keep])), np.round(expected[keep])
+
+
 def static_positions(root: str | os.PathLike, *, power: str = "rssi_fp_dbm") -> Any:
     """Per-position table of the Hanyang static sweeps: environment, anchor height, horizontal distance,
     median power (``rssi_fp_dbm`` or ``rssi_dbm``), rows and duration (pandas DataFrame)."""

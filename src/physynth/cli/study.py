@@ -2,7 +2,7 @@
 
     physynth study anchors   --scenario S [--real DATASET] [-n 50] [--seed S] [--counts 1..6]
                              [--regimes dense,sparse,degraded] [--order A,B,...] --out DIR
-    physynth study placement --scenario S --candidates FILE -k K [--objective ge1] --out DIR
+    physynth study placement --scenario S --candidates FILE -k K [--objective ge1|ge2|ge3|gdop|hdop] --out DIR
 
 Thin commands over :mod:`physynth.workflows`; bad input is one line on stderr and exit code 2.
 """
@@ -104,8 +104,9 @@ def placement_cmd(
                                                               "{id, pos_enu_m} or CSV with columns id,e,n,u."),
     k: int = typer.Option(..., "-k", min=1, help="Number of anchors to place."),
     objective: str = typer.Option("ge1", "--objective", help="ge1, ge2 or ge3 (availability: fraction of 10 ms bins "
-                                                             "with >= 1/2/3 fresh anchors, maximised) or gdop (mean "
-                                                             "capped fresh GDOP, minimised)."),
+                                                             "with >= 1/2/3 fresh anchors, maximised), gdop (mean "
+                                                             "capped fresh GDOP, minimised) or hdop (the same with "
+                                                             "the tag height known)."),
     n: int = typer.Option(20, "-n", "--n-traces", min=1, help="Traces the objective is averaged over."),
     seed: int | None = typer.Option(None, "--seed", help="Root seed (random when omitted; recorded)."),
     regime: str = typer.Option("nominal", "--regime", help="Channel regime applied to the scenario."),

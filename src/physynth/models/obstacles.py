@@ -207,6 +207,15 @@ def segment_below_terrain(p: np.ndarray, q: np.ndarray, terrain: TerrainGrid, *,
     return out
 
 
+def obstacle_bounds(ob: BoxObstacle | WallObstacle | PrismObstacle) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned bounding box (lo (3,), hi (3,)) of an obstacle [m]."""
+    if isinstance(ob, BoxObstacle):
+        return np.asarray(ob.min_enu_m, dtype=float), np.asarray(ob.max_enu_m, dtype=float)
+    v = np.asarray(ob.vertices_en_m, dtype=float)
+    return (np.array([v[:, 0].min(), v[:, 1].min(), ob.base_m]),
+            np.array([v[:, 0].max(), v[:, 1].max(), ob.top_m]))
+
+
 def obstacle_losses(tag_enu_m: np.ndarray, anchor_enu_m: np.ndarray, obstacles: Sequence[BoxObstacle | WallObstacle
                                                                                         | PrismObstacle],
                     terrain: TerrainGrid | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -217,19 +226,26 @@ def obstacle_losses(tag_enu_m: np.ndarray, anchor_enu_m: np.ndarray, obstacles: 
     n = tag_enu_m.shape[0]
     blocked = np.zeros(n, dtype=bool)
     loss = np.zeros(n)
+    seg_lo = np.minimum(tag_enu_m, anchor_enu_m)
+    seg_hi = np.maximum(tag_enu_m, anchor_enu_m)
     for ob in obstacles:
+        box_lo, box_hi = obstacle_bounds(ob)
+        # only rows whose segment's bounding box meets the obstacle's can hit it (an exact pre-filter)
+        rows = np.flatnonzero(np.all(seg_hi >= box_lo, axis=1) & np.all(seg_lo <= box_hi, axis=1))
+        if rows.size == 0:
+            continue
+        p, q = tag_enu_m[rows], anchor_enu_m[rows]
         if isinstance(ob, BoxObstacle):
-            hit = segment_hits_box(tag_enu_m, anchor_enu_m, np.asarray(ob.min_enu_m), np.asarray(ob.max_enu_m))
+            hit = segment_hits_box(p, q, box_lo, box_hi)
         elif isinstance(ob, WallObstacle):
             v = np.asarray(ob.vertices_en_m, dtype=float)
-            hit = np.zeros(n, dtype=bool)
+            hit = np.zeros(rows.size, dtype=bool)
             for j in range(v.shape[0] - 1):
-                hit |= segment_hits_vertical_rect(tag_enu_m, anchor_enu_m, v[j], v[j + 1], ob.base_m, ob.top_m)
+                hit |= segment_hits_vertical_rect(p, q, v[j], v[j + 1], ob.base_m, ob.top_m)
         else:
-            hit = segment_hits_prism(tag_enu_m, anchor_enu_m, np.asarray(ob.vertices_en_m, dtype=float),
-                                     ob.base_m, ob.top_m)
-        blocked |= hit
-        loss += np.where(hit, ob.loss_db, 0.0)
+            hit = segment_hits_prism(p, q, np.asarray(ob.vertices_en_m, dtype=float), ob.base_m, ob.top_m)
+        blocked[rows[hit]] = True
+        loss[rows[hit]] += ob.loss_db
     if terrain is not None:
         hit = segment_below_terrain(tag_enu_m, anchor_enu_m, terrain)
         blocked |= hit

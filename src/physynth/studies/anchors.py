@@ -31,10 +31,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import multiprocessing as mp
 import os
+import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -68,17 +71,19 @@ class CellColumn(Protocol):
 
 class GdopColumn:
     """GDOP along the path: ``gdop_*`` with every anchor of the cell, ``fresh_gdop_*`` with the anchors
-    heard within the last second (median, P95, fraction of time <= 5)."""
+    heard within the last second, ``fresh_hdop_*`` the same with the tag height known (median, P95,
+    fraction of time <= 5)."""
 
     name = "gdop"
 
-    def per_trace(self, trace: Trace) -> tuple[np.ndarray, np.ndarray]:
+    def per_trace(self, trace: Trace) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return trace_gdop(trace)
 
-    def reduce(self, parts: Sequence[tuple[np.ndarray, np.ndarray]]) -> dict[str, float]:
-        geo = np.concatenate([p[0] for p in parts])
-        fresh = np.concatenate([p[1] for p in parts])
-        return {**summarize_gdop(geo, "gdop"), **summarize_gdop(fresh, "fresh_gdop")}
+    def reduce(self, parts: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> dict[str, float]:
+        out: dict[str, float] = {}
+        for j, prefix in enumerate(("gdop", "fresh_gdop", "fresh_hdop")):
+            out.update(summarize_gdop(np.concatenate([p[j] for p in parts]), prefix))
+        return out
 
 
 CELL_COLUMNS: tuple[CellColumn, ...] = (GdopColumn(),)
@@ -103,6 +108,17 @@ class AnchorStudy:
     @property
     def counts(self) -> list[int]:
         return sorted(next(iter(self.scores.values())))
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> AnchorStudy:
+        """The study back from its ``table.json`` form (counts as int keys again)."""
+        return cls(scores={r: {int(k): float(v) for k, v in row.items()} for r, row in d["scores"].items()},
+                   availability=d["availability"],
+                   columns={r: {int(k): {n: (float("inf") if v is None else v) for n, v in c.items()}
+                                for k, c in row.items()} for r, row in d["columns"].items()},
+                   order=list(d["order"]), order_availability=dict(d["order_availability"]),
+                   regimes=d["regimes"], reference=d["reference"], inputs=d["inputs"],
+                   timing_s=d.get("timing_s", {}))
 
     def to_dict(self) -> dict[str, Any]:
         return jsonable({
@@ -149,25 +165,46 @@ def _chunks(indices: Sequence[int], n_chunks: int) -> list[list[int]]:
     return [list(indices[a:a + size]) for a in range(0, len(indices), size)]
 
 
-def _map(tasks: list[tuple[Any, ...]], fn: Any, workers: int, progress: ProgressCallback, message: str,
-         total: int) -> list[Any]:
-    """Run ``fn(*task)`` for every task (in a process pool when workers > 1); results in task order."""
+@contextmanager
+def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor | None]:
+    """A process pool of ``workers`` processes (None for one worker: run in this process).
+
+    Workers are forked when this process runs a single thread; otherwise (a progress-bar thread, say:
+    fork() of a multi-threaded process can deadlock) they start from a clean ``forkserver`` process
+    that has imported the generator once; ``spawn`` where neither exists.
+    """
+    if workers <= 1:
+        yield None
+        return
+    methods = mp.get_all_start_methods()
+    if "fork" in methods and threading.active_count() == 1:  # nothing to deadlock: the cheapest start
+        method = "fork"
+    else:
+        method = "forkserver" if "forkserver" in methods else "spawn"
+    ctx = mp.get_context(method)
+    if method == "forkserver":  # the server imports the generator once; every worker forks from it
+        ctx.set_forkserver_preload(["physynth.studies.anchors", "physynth.studies.placement"])
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as ex:
+        yield ex
+
+
+def _map(tasks: list[tuple[Any, ...]], fn: Any, pool: ProcessPoolExecutor | None, progress: ProgressCallback,
+         message: str, total: int) -> list[Any]:
+    """Run ``fn(*task)`` for every task (in ``pool`` when given); results in task order."""
     done = 0
     progress(message, 0, total)
-    if workers <= 1:
-        results = []
+    results: list[Any] = []
+    if pool is None:
         for t in tasks:
             results.append(fn(*t))
             done += len(results[-1])
             progress(message, done, total)
         return results
-    with ProcessPoolExecutor(max_workers=workers) as ex:
-        futures = [ex.submit(fn, *t) for t in tasks]
-        results = []
-        for f in futures:
-            results.append(f.result())
-            done += len(results[-1])
-            progress(message, done, total)
+    futures = [pool.submit(fn, *t) for t in tasks]
+    for f in futures:
+        results.append(f.result())
+        done += len(results[-1])
+        progress(message, done, total)
     return results
 
 
@@ -220,7 +257,7 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
     progress = progress or no_progress
     t_start = time.perf_counter()
     if n < 1:
-        raise PhySynthError(f"-n must be at least 1, got {n}")
+        raise PhySynthError(f"the number of traces per cell must be at least 1, got {n}")
     ids = list(scn.anchor_ids)
     counts = sorted(set(range(1, len(ids) + 1) if counts is None else (int(k) for k in counts)))
     bad = [k for k in counts if not 1 <= k <= len(ids)]
@@ -231,8 +268,21 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
         raise PhySynthError("no regime given")
     if len(set(regimes)) != len(regimes):
         raise PhySynthError(f"a regime is given twice: {', '.join(regimes)}")
+    if order is not None:  # checked before any work
+        order = check_subset(order, ids, "the anchor order")
+        if len(order) < max(counts):
+            raise PhySynthError(f"the order names {len(order)} anchor(s) but counts go up to {max(counts)}")
     workers = max(1, int(workers or os.cpu_count() or 1))
     n_chunks = 2 * workers
+    with worker_pool(workers) as executor:  # one pool for the reference run and the cells
+        return _run(scn, real=real, n=n, seed=seed, counts=counts, regimes=regimes, order=order, workers=workers,
+                    n_chunks=n_chunks, executor=executor, columns=columns, progress=progress, t_start=t_start)
+
+
+def _run(scn: Scenario, *, real: Sequence[Trace] | None, n: int, seed: int, counts: list[int], regimes: list[str],
+         order: list[str] | None, workers: int, n_chunks: int, executor: ProcessPoolExecutor | None,
+         columns: Sequence[CellColumn], progress: ProgressCallback, t_start: float) -> AnchorStudy:
+    ids = list(scn.anchor_ids)
 
     # reference and order
     if real is not None:
@@ -243,7 +293,7 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
                                     "anchors": list(ref_metrics.per_anchor)}
     else:
         ref_idx = list(range(n, 2 * n))
-        parts = _map([(scn, seed, c) for c in _chunks(ref_idx, n_chunks)], _reference_chunk, workers, progress,
+        parts = _map([(scn, seed, c) for c in _chunks(ref_idx, n_chunks)], _reference_chunk, executor, progress,
                      "anchor study: reference run", n)
         ref_metrics = pool([s for part in parts for _, s in part])
         ref_info = {"kind": "reference run", "n_traces": n, "trace_indices": [n, 2 * n - 1],
@@ -252,9 +302,7 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
         order_ids, frac = availability_order(ref_metrics, ids)
         order_source = ref_info["kind"]
     else:
-        order_ids = check_subset(order, ids, "--order")
-        if len(order_ids) < max(counts):
-            raise PhySynthError(f"the order names {len(order_ids)} anchor(s) but counts go up to {max(counts)}")
+        order_ids = list(order)
         frac = {a: float(ref_metrics.per_anchor.get(a, {}).get("fresh_frac", float("nan"))) for a in order_ids}
         order_source = "given"
     t_ref = time.perf_counter()
@@ -266,7 +314,7 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
         for c in _chunks(list(range(n)), max(1, n_chunks // len(regimes))):
             tasks.append((rs, order_ids, counts, seed, c, tuple(columns)))
             owners.append(r)
-    results = _map(tasks, _cell_chunk, workers, progress, "anchor study: cells", n * len(regimes))
+    results = _map(tasks, _cell_chunk, executor, progress, "anchor study: cells", n * len(regimes))
     collected: dict[str, list[tuple[int, dict]]] = {r: [] for r in regimes}
     for r, part in zip(owners, results, strict=True):
         collected[r] += part
@@ -335,16 +383,17 @@ def anchor_table_md(study: AnchorStudy) -> str:
         cells = [f"{_fmt(study.availability[r][str(k)]['ge1'])} | {_fmt(study.availability[r][str(k)]['ge2'])}"
                  for r in regimes]
         lines.append(f"| {k} | " + " | ".join(cells) + " |")
-    lines += ["", "GDOP along the path (median; fraction of time <= 5): with every anchor of the cell, and with the "
-                  "anchors heard in the last second ('fresh'). '-' = no 3-D fix for at least half of the time.", "",
-              "| Anchors | " + " | ".join(f"{r} GDOP | {r} fresh" for r in regimes) + " |",
-              "|---|" + "---|---|" * len(regimes)]
+    lines += ["", "GDOP along the path (median; fraction of time <= 5): with every anchor of the cell, with the "
+                  "anchors heard in the last second ('fresh'), and the fresh HDOP with the tag height known. "
+                  "'-' = no fix for at least half of the time.", "",
+              "| Anchors | " + " | ".join(f"{r} GDOP | {r} fresh | {r} fresh HDOP" for r in regimes) + " |",
+              "|---|" + "---|---|---|" * len(regimes)]
     for k in counts:
         cells = []
         for r in regimes:
             c = study.columns[r][k]
-            cells.append(f"{_fmt(c.get('gdop_median'), 1)} ({_fmt(c.get('gdop_le5_frac'), 2)}) | "
-                         f"{_fmt(c.get('fresh_gdop_median'), 1)} ({_fmt(c.get('fresh_gdop_le5_frac'), 2)})")
+            cells.append(" | ".join(f"{_fmt(c.get(p + '_median'), 1)} ({_fmt(c.get(p + '_le5_frac'), 2)})"
+                                    for p in ("gdop", "fresh_gdop", "fresh_hdop")))
         lines.append(f"| {k} | " + " | ".join(cells) + " |")
     lines += ["", "Regimes:", ""]
     for r, d in study.regimes.items():
@@ -360,7 +409,7 @@ def anchor_figure_png(study: AnchorStudy) -> bytes:
     from ..validate.render import _png, require_matplotlib
 
     figure_cls, canvas_cls = require_matplotlib()
-    fig = figure_cls(figsize=(10, 4))
+    fig = figure_cls(figsize=(11, 4.8))
     ax1, ax2 = fig.subplots(1, 2)
     counts = study.counts
     colors = {"nominal": "k", "dense": "tab:blue", "sparse": "tab:orange", "degraded": "tab:red"}
@@ -379,7 +428,7 @@ def anchor_figure_png(study: AnchorStudy) -> bytes:
     ax2.set_xlabel("anchors")
     ax2.set_ylabel("fraction of 10 ms bins")
     ax2.set_title(">= 1 and >= 2 fresh anchors")
-    ax2.legend(fontsize=7, ncol=2)
+    ax2.legend(fontsize=7, ncol=4, loc="upper center", bbox_to_anchor=(0.5, -0.16))
     for ax in (ax1, ax2):
         ax.set_xticks(counts)
         ax.grid(alpha=0.3)

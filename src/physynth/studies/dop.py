@@ -5,6 +5,10 @@ instant), a least-squares position fix from ranges of standard deviation sigma h
 sigma^2 (H^T H)^-1, so GDOP = sqrt(trace((H^T H)^-1)) is the position error per metre of range error.
 Fewer than three anchors, or anchors that see the tag along nearly one line or plane, leave H^T H
 singular: GDOP is then infinite (no 3-D fix).
+
+HDOP is the same with the tag height known (a walker, a vehicle, a cable car on its cable): H keeps the
+horizontal (E, N) components of the unit vectors, and two anchors that are not in line with the tag
+suffice.
 """
 
 from __future__ import annotations
@@ -24,19 +28,23 @@ DOP_RATE_HZ = 10.0
 """Rate of the points along the path at which GDOP is evaluated [Hz]."""
 
 
-def gdop(tag_enu_m: np.ndarray, anchor_enu_m: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+def gdop(tag_enu_m: np.ndarray, anchor_enu_m: np.ndarray, mask: np.ndarray | None = None, *,
+         known_height: bool = False) -> np.ndarray:
     """(K,) GDOP at tag positions (K, 3) [m] with anchors (A, 3) [m]; ``mask`` (K, A) selects anchors.
 
-    Infinite where fewer than three anchors count or the geometry is (near) singular.
+    ``known_height``: the HDOP of a fix with the tag height known (E, N only). Infinite where fewer
+    than three (two for HDOP) anchors count or the geometry is (near) singular.
     """
     d = tag_enu_m[:, None, :] - anchor_enu_m[None, :, :]
     u = d / np.maximum(np.linalg.norm(d, axis=2, keepdims=True), 1e-9)
+    if known_height:
+        u = u[..., :2]
     if mask is not None:
         u = u * mask[..., None]
     m = np.einsum("kai,kaj->kij", u, u)
     out = np.full(tag_enu_m.shape[0], np.inf)
     n = (mask.sum(axis=1) if mask is not None else np.full(tag_enu_m.shape[0], anchor_enu_m.shape[0]))
-    ok = n >= 3
+    ok = n >= (2 if known_height else 3)
     if np.any(ok):
         eig = np.linalg.eigvalsh(m[ok])
         with np.errstate(divide="ignore"):
@@ -45,14 +53,14 @@ def gdop(tag_enu_m: np.ndarray, anchor_enu_m: np.ndarray, mask: np.ndarray | Non
     return out
 
 
-def trace_gdop(trace: Trace, rate_hz: float = DOP_RATE_HZ) -> tuple[np.ndarray, np.ndarray]:
-    """(geometric, fresh) GDOP along one trace at ``rate_hz``: with every anchor of the trace, and with
-    the anchors whose newest valid range is at most :data:`FRESH_AOI_S` old."""
+def trace_gdop(trace: Trace, rate_hz: float = DOP_RATE_HZ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(geometric GDOP, fresh GDOP, fresh HDOP) along one trace at ``rate_hz``: with every anchor of the
+    trace, and with the anchors whose newest valid range is at most :data:`FRESH_AOI_S` old."""
     t = grid_times(trace.t0_s, trace.duration_s, rate_hz)
     pos = trace.truth.position_at(t)
     anchors = trace.anchors.pos_enu_m
     fresh = age_of_information(trace, t) <= FRESH_AOI_S
-    return gdop(pos, anchors), gdop(pos, anchors, fresh)
+    return gdop(pos, anchors), gdop(pos, anchors, fresh), gdop(pos, anchors, fresh, known_height=True)
 
 
 def summarize_gdop(values: np.ndarray, prefix: str) -> dict[str, float]:

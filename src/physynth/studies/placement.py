@@ -1,7 +1,8 @@
 """Anchor placement beyond the paper: choose K of a set of candidate positions, greedily.
 
 Every candidate becomes an anchor of the scenario (its channel: the scenario's default channel, or the
-per-anchor override of the same id); ``2 n`` traces are generated once with all candidates (common
+per-anchor override of the same id; all ranged at the burst start, so that the order of the candidates
+does not matter); ``2 n`` traces are generated once with all candidates (common
 random numbers, as in :mod:`physynth.studies.anchors`), and each trace is reduced to its fresh mask on
 the 100 Hz grid and its tag positions and 1-second freshness on a 10 Hz grid. The greedy search then
 adds, K times, the candidate that improves the objective most on traces 0 .. n-1 (selection);
@@ -13,7 +14,8 @@ Objectives:
   ``ge1`` is a coverage function, so greedy is within a factor 1 - 1/e of the best K-subset;
 - ``gdop``: mean over the path of the fresh GDOP capped at :data:`GDOP_OBJECTIVE_CAP` (a point
   without a 3-D fix counts as the cap; minimised) -- the geometric part of a tracker's error.
-  Ties (fewer than three anchors: every point capped) are broken by ``ge1``.
+  Ties (fewer than three anchors: every point capped) are broken by ``ge1``;
+- ``hdop``: the same with the tag height known (E, N fix: a walker, a vehicle).
 
 A tracker-error objective (:mod:`physynth.track`, when it lands) fits the same loop: reduce a trace to
 what the tracker needs, evaluate the error of a subset.
@@ -39,10 +41,10 @@ from ..evaluate.grid import age_of_information, fresh_mask, grid_times
 from ..generate import compile_scenario, generate_trace
 from ..progress import ProgressCallback, no_progress
 from ..scenario import AnchorSpec, Scenario, scenario_from_dict, scenario_to_dict
-from .anchors import _chunks, _map
+from .anchors import _chunks, _map, worker_pool
 from .dop import DOP_RATE_HZ, FRESH_AOI_S, gdop
 
-OBJECTIVES = ("ge1", "ge2", "ge3", "gdop")
+OBJECTIVES = ("ge1", "ge2", "ge3", "gdop", "hdop")
 GDOP_OBJECTIVE_CAP = 10.0
 """Fresh GDOP values above this (and points without a fix) count as this in the ``gdop`` objective."""
 
@@ -96,9 +98,16 @@ def read_candidates(path: str | os.PathLike) -> list[AnchorSpec]:
     return out
 
 
-def candidate_scenario(scn: Scenario, candidates: Sequence[AnchorSpec]) -> Scenario:
-    """The scenario with the candidates as its anchors (overrides kept for candidates of the same id)."""
+def candidate_scenario(scn: Scenario, candidates: Sequence[AnchorSpec], *, same_slot: bool = False) -> Scenario:
+    """The scenario with the candidates as its anchors (overrides kept for candidates of the same id).
+
+    ``same_slot`` ranges every anchor at the burst start (``uwb.slot_s`` = 0): with many candidates the
+    slot offsets j * slot_s would otherwise spread a burst over several 10 ms bins and make the >= 2
+    objectives depend on the candidates' order in the file.
+    """
     d = scenario_to_dict(scn)
+    if same_slot:
+        d["uwb"]["slot_s"] = 0.0
     ids = {a.id for a in candidates}
     d["anchors"] = [a.model_dump(mode="json") for a in candidates]
     for key in ("channel_per_anchor", "availability_per_anchor"):
@@ -125,10 +134,11 @@ def _objective(name: str, sel: list[int], fresh: list[np.ndarray], pos: list[np.
     n_bins = sum(f.shape[0] for f in fresh)
     counts = [f[:, sel].sum(axis=1) for f in fresh]
     res = {f"ge{m}": float(sum(np.count_nonzero(c >= m) for c in counts) / n_bins) for m in (1, 2, 3)}
-    if name == "gdop":
-        g = np.concatenate([gdop(p, anchors[sel], m[:, sel]) for p, m in zip(pos, fresh10, strict=True)])
-        res["gdop"] = float(np.mean(np.minimum(g, GDOP_OBJECTIVE_CAP)))
-        res["fresh_gdop_median"] = float(np.median(g))
+    if name in ("gdop", "hdop"):
+        g = np.concatenate([gdop(p, anchors[sel], m[:, sel], known_height=name == "hdop")
+                            for p, m in zip(pos, fresh10, strict=True)])
+        res[name] = float(np.mean(np.minimum(g, GDOP_OBJECTIVE_CAP)))
+        res[f"fresh_{name}_median"] = float(np.median(g))
     return res
 
 
@@ -161,13 +171,15 @@ def greedy_placement(scn: Scenario, candidates: Sequence[AnchorSpec], *, k: int,
     if objective not in OBJECTIVES:
         raise PhySynthError(f"unknown objective '{objective}'; the objectives are {', '.join(OBJECTIVES)}")
     if not 1 <= k <= len(candidates):
-        raise PhySynthError(f"-k must lie in 1..{len(candidates)} (the number of candidates), got {k}")
+        raise PhySynthError(f"the number of anchors to place must lie in 1..{len(candidates)} (the number of "
+                            f"candidates), got {k}")
     if n < 1:
-        raise PhySynthError(f"-n must be at least 1, got {n}")
-    cscn = candidate_scenario(scn, candidates)
+        raise PhySynthError(f"the number of traces must be at least 1, got {n}")
+    cscn = candidate_scenario(scn, candidates, same_slot=True)
     workers = max(1, int(workers or os.cpu_count() or 1))
-    parts = _map([(cscn, seed, c) for c in _chunks(list(range(2 * n)), 2 * workers)], _reduce_chunk, workers,
-                 progress, "placement: generating", 2 * n)
+    with worker_pool(workers) as pool:
+        parts = _map([(cscn, seed, c) for c in _chunks(list(range(2 * n)), 2 * workers)], _reduce_chunk, pool,
+                     progress, "placement: generating", 2 * n)
     rows = sorted((r for part in parts for r in part), key=lambda r: r[0])
     sel_rows, held_rows = rows[:n], rows[n:]
     anchors = np.array([a.pos_enu_m for a in candidates], dtype=float)
@@ -177,7 +189,7 @@ def greedy_placement(scn: Scenario, candidates: Sequence[AnchorSpec], *, k: int,
         return _objective(objective, sel, [r[1] for r in which], [r[2] for r in which], [r[3] for r in which],
                           anchors)
 
-    maximise = objective != "gdop"
+    maximise = objective not in ("gdop", "hdop")
     chosen: list[int] = []
     steps = []
     for step in range(1, k + 1):
