@@ -215,3 +215,31 @@ def test_kalibr_keys_are_read_and_written():
     assert p.rate_hz == 200.0 and p.accelerometer.noise_density_mps2_per_sqrt_hz == 0.0028
     assert p.gyroscope.bias_rw_radps_per_sqrt_s == 2.2e-5
     assert body_imu_to_kalibr(p) == k
+
+
+def test_kalibr_file_round_trip_and_bad_file(tmp_path):
+    from physynth.errors import ScenarioError
+    from physynth.io.kalibr import read_kalibr_imu, write_kalibr_imu
+
+    p = BodyImuParams.model_validate({"accelerometer_noise_density": 0.002, "gyroscope_random_walk": 3e-5,
+                                      "update_rate": 250.0})
+    write_kalibr_imu(p, tmp_path / "imu.yaml")
+    back = read_kalibr_imu(tmp_path / "imu.yaml")
+    assert back == p
+    (tmp_path / "bad.yaml").write_text("update_rate: -5\naccelerometer_noise_density: 0.1\n", encoding="utf-8")
+    with pytest.raises(ScenarioError, match="rate_hz"):
+        read_kalibr_imu(tmp_path / "bad.yaml")
+
+
+def test_imu_only_scenario_needs_an_explicit_empty_anchor_list():
+    from helpers import simple_scenario_dict
+
+    from physynth.errors import ScenarioError
+
+    d = simple_scenario_dict()
+    del d["anchors"]
+    with pytest.raises(ScenarioError, match="anchors: Field required"):
+        scenario_from_dict(d, "test")  # a forgotten anchors section is still an error
+    d["anchors"], d["channel_per_anchor"] = [], {}
+    tr = generate_trace(compile_scenario(scenario_from_dict(d, "test")), 0, 1)
+    assert len(tr.uwb) == 0 and len(tr.anchors) == 0 and tr.imu is not None

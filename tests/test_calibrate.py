@@ -360,5 +360,33 @@ def test_imu_only_recording_joins_a_uwb_calibration(roundtrip):
     assert res.scenario.anchor_ids == scn.anchor_ids
     # white density from the high band of the error PSD of ~40,000 samples: a few % of the true value
     np.testing.assert_allclose(res.scenario.imu.white_noise_density_mps2_per_sqrt_hz, [0.05, 0.08, 0.12], rtol=0.1)
-    with pytest.raises(CalibrationError, match="no recording with UWB"):
-        calibrate([imu_only])
+    alone = calibrate([imu_only])  # IMU recordings alone: an IMU-only scenario (no anchors)
+    assert alone.scenario.anchors == [] and alone.report["imu_only_recordings"] == ["lab"]
+
+
+def test_runs_with_moved_anchors_and_the_progress_protocol():
+    # two runs of one site whose anchors were re-placed in between: each run is taken against its own
+    # layout, the channel is recovered, the scenario keeps the first layout and records both
+    from helpers import simple_scenario
+
+    kw = {"channel.los_mean_m": 0.1, "channel.los_std_m": 0.05}
+    a = simple_scenario(**kw)
+    b = simple_scenario(**kw, anchors=[{"id": "A1", "pos_enu_m": [60, -25, 2]}, {"id": "A2", "pos_enu_m": [140, 25, 4]},
+                                       {"id": "A3", "pos_enu_m": [240, -25, 2]}])
+    traces = [generate_trace(a, 0, 5), generate_trace(b, 1, 5)]
+    traces = [Trace(truth=t.truth, uwb=t.uwb, anchors=t.anchors, meta=t.meta) for t in traces]  # UWB only
+    calls = []
+    res = calibrate(traces, progress=lambda msg, done=None, total=None: calls.append((msg, done, total)))
+    s = res.scenario
+    for anchor in s.anchors:
+        np.testing.assert_allclose(anchor.pos_enu_m, a.anchors[[x.id for x in a.anchors].index(anchor.id)].pos_enu_m)
+    assert len(s.provenance["anchor_layout"]["layouts"]) == 2
+    n = sum(int(t.uwb.valid.sum()) for t in traces) / 3  # rows per anchor
+    for aid in s.anchor_ids:
+        c = s.channel_for(aid)
+        # mean error at a mid range: intercept and slope of a line through n rows, about 2 sigma / sqrt(n)
+        assert c.los_mean_m + 50.0 * c.range_bias_per_m == pytest.approx(0.1, abs=5 * 2 * 0.05 / np.sqrt(n))
+        assert c.los_std_m == pytest.approx(0.05, rel=5 / np.sqrt(2 * n))
+    # progress(message, done, total): every step announced, counts never run backwards
+    assert len(calls) >= 6 and all(isinstance(m, str) and 0 <= d < t for m, d, t in calls)
+    assert [d for _, d, _ in calls] == sorted(d for _, d, _ in calls)

@@ -239,3 +239,40 @@ def test_run_offsets_are_drawn_per_trace_and_leave_other_scenarios_unchanged():
         d = y.uwb.range_m - x.uwb.range_m
         for i in range(3):
             np.testing.assert_allclose(d[y.uwb.anchor == i], d[y.uwb.anchor == i][0], atol=1e-9)
+
+
+def test_gamma_rate_posterior_against_scipy_and_its_prior():
+    from scipy import stats
+
+    from physynth.models.availability import RATE_PRIOR_SHAPE, gamma_rate_posterior
+
+    post = gamma_rate_posterior(events=1, exposure_s=250.0)
+    assert post.mean_per_s == pytest.approx((1 + RATE_PRIOR_SHAPE) / 250.0)
+    lo, hi = post.interval_per_s()
+    assert stats.gamma.cdf(lo, a=1.5, scale=1 / 250.0) == pytest.approx(0.05)
+    assert stats.gamma.cdf(hi, a=1.5, scale=1 / 250.0) == pytest.approx(0.95)
+    assert lo < 1 / 250.0 < hi  # one event in 250 s: the naive rate lies inside a wide interval
+    with pytest.raises(ValueError):
+        gamma_rate_posterior(events=-1, exposure_s=1.0)
+
+
+def test_tag_outage_rate_drawn_per_trace_from_its_gamma_law():
+    # shape 1.5 (one event + the Jeffreys half): per-trace rates scatter as Gamma(1.5), mean kept
+    kw = {"availability.tag_outage_onset_prob": 0.004, "availability.tag_outage_mean_s": 2.0}
+    fixed = _traces(simple_scenario(**kw), 30, seed=4)
+    drawn = _traces(simple_scenario(**kw, **{"availability.tag_outage_onset_shape": 1.5}), 30, seed=4)
+
+    def n_outages(t):
+        out = np.zeros(t.uwb.burst.max() + 1, dtype=np.int8)
+        out[t.uwb.burst[t.uwb.reason == Reason.OUTAGE]] = 1
+        return int(np.sum(np.diff(out) == 1) + out[0])
+
+    nf = np.array([n_outages(t) for t in fixed])
+    nd = np.array([n_outages(t) for t in drawn])
+    # fixed rate: Poisson counts (variance = mean); drawn rate: negative binomial, variance mean + mean^2 / 1.5
+    m = nf.mean()
+    assert nf.var(ddof=1) < 2.5 * m
+    assert nd.var(ddof=1) > 1.5 * m
+    assert nd.mean() == pytest.approx(m, abs=5 * np.sqrt((m + m * m / 1.5) / nd.size))
+    # without a shape nothing is drawn: the trace equals the one of a scenario that never had the field
+    np.testing.assert_array_equal(fixed[0].uwb.reason, _traces(simple_scenario(**kw), 1, seed=4)[0].uwb.reason)

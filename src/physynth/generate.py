@@ -22,7 +22,7 @@ from .models.imu import simulate_body_imu, simulate_imu
 from .models.motion import SpeedShape, compile_speed_shape, draw_run, kinematics
 from .models.path import PathGeometry, compile_path, draw_perturbation
 from .models.uwb import ChannelArrays, channel_arrays, simulate_uwb, uwb_record
-from .records import Anchors, Imu, Trace, Truth
+from .records import Anchors, Imu, Trace, Truth, Uwb
 from .rng import component_rng, new_root_seed
 from .scenario import Scenario, scenario_to_dict
 
@@ -34,8 +34,8 @@ class CompiledScenario:
     scenario: Scenario
     geometry: PathGeometry
     shape: SpeedShape
-    channel: ChannelArrays
-    availability: AvailabilityArrays
+    channel: ChannelArrays | None  # None without anchors (an IMU-only scenario)
+    availability: AvailabilityArrays | None
     anchors: Anchors
     lateral_dir: np.ndarray
 
@@ -45,10 +45,12 @@ def compile_scenario(scn: Scenario) -> CompiledScenario:
         scenario=scn,
         geometry=(geometry := compile_path(scn.path)),
         shape=compile_speed_shape(scn.motion.profile),
-        channel=channel_arrays(scn.uwb, scn.anchors, [scn.channel_for(a) for a in scn.anchor_ids]),
-        availability=availability_arrays(scn.availability, [scn.availability_for(a) for a in scn.anchor_ids]),
+        channel=(channel_arrays(scn.uwb, scn.anchors, [scn.channel_for(a) for a in scn.anchor_ids])
+                 if scn.anchors else None),
+        availability=(availability_arrays(scn.availability, [scn.availability_for(a) for a in scn.anchor_ids])
+                      if scn.anchors else None),
         anchors=Anchors(ids=scn.anchor_ids, names=tuple(a.name or a.id for a in scn.anchors),
-                        pos_enu_m=np.array([a.pos_enu_m for a in scn.anchors], dtype=float)),
+                        pos_enu_m=np.array([a.pos_enu_m for a in scn.anchors], dtype=float).reshape(-1, 3)),
         lateral_dir=geometry.lateral_direction(),
     )
 
@@ -68,11 +70,14 @@ def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int)
     att = simulate_attitude(kin.t_s, kin.vel_enu_mps, kin.acc_enu_mps2, s.attitude,
                             rng=component_rng(root_seed, index, "attitude") if s.attitude.kind == "tumble" else None)
     imu = _imu(kin, att, s, root_seed, index)
-    tries = simulate_uwb(kin, s.uwb, cs.channel, rng=component_rng(root_seed, index, "uwb"))
-    outage, dropped = simulate_availability(tries.t_true_s, tries.anchor, tries.burst, tries.bursts_s,
-                                            cs.availability, s.uwb.burst_rate_hz,
-                                            rng=component_rng(root_seed, index, "availability"))
-    uwb = uwb_record(tries, s.uwb, outage=outage, dropped=dropped)
+    if cs.channel is None or cs.availability is None:  # no anchors: no ranging attempts
+        uwb = Uwb(t_s=np.zeros(0), anchor=np.zeros(0, np.int16), range_m=np.zeros(0))
+    else:
+        tries = simulate_uwb(kin, s.uwb, cs.channel, rng=component_rng(root_seed, index, "uwb"))
+        outage, dropped = simulate_availability(tries.t_true_s, tries.anchor, tries.burst, tries.bursts_s,
+                                                cs.availability, s.uwb.burst_rate_hz,
+                                                rng=component_rng(root_seed, index, "availability"))
+        uwb = uwb_record(tries, s.uwb, outage=outage, dropped=dropped)
     meta = {
         "source": "physynth",
         "root_seed": int(root_seed),
@@ -89,7 +94,7 @@ def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int)
 
 def _imu(kin, att, s: Scenario, root_seed: int, index: int) -> Imu:
     """The IMU record in the scenario's frames: ENU gravity-free (stream ``imu``), body (``imu_body``)."""
-    enu = (simulate_imu(kin, s.imu, rng=component_rng(root_seed, index, "imu"))
+    enu = (simulate_imu(kin, s.imu, rng=component_rng(root_seed, index, "imu"), omega_body_radps=att.omega_body_radps)
            if IMU_FRAME in s.imu_frames else None)
     if IMU_BODY_FRAME not in s.imu_frames:
         return enu

@@ -43,7 +43,7 @@ class Scenario(ParamsModel):
     body_imu: BodyImuParams = BodyImuParams()
     imu_frames: Annotated[list[Literal["enu-gravity-free", "body-flu"]], Field(min_length=1)] = [IMU_FRAME]
     uwb: UwbParams = UwbParams()
-    anchors: list[AnchorSpec] = Field(min_length=1)
+    anchors: list[AnchorSpec]  # required; an explicit [] is an IMU-only scenario (no UWB rows)
     channel: ChannelParams = ChannelParams()
     channel_per_anchor: dict[str, ChannelOverride] = {}
     availability: AvailabilityParams = AvailabilityParams()

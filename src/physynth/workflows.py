@@ -236,6 +236,11 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
         raise PhySynthError(f"-n must be at least 1, got {n}")
     real_ds = _read(read_dataset, real, "real")
     real_traces = real_ds.traces
+    from .validate.imu_report import is_imu_only
+
+    if is_imu_only(real_traces):  # IMU recordings without UWB: IMU error statistics only
+        return _validate_imu(real, real_ds, synthetic=synthetic, scenario=scenario, n=n, seed=seed,
+                             transfer=transfer, progress=progress)
     check_real(real_traces, f"real dataset {real}")
     real_ids = anchor_ids(real_traces)
     inputs: dict[str, Any] = {"real": {"path": str(real), "kind": real_ds.meta.get("kind"),
@@ -327,6 +332,23 @@ def _checked_stream(path: str | Path, meta: dict[str, Any]) -> Iterable[Trace]:
         except PhySynthError as exc:
             raise PhySynthError(f"synthetic dataset: {exc}") from None
         yield trace
+
+
+def _validate_imu(real: str | Path, real_ds: Any, *, synthetic: str | Path | None,
+                  scenario: str | Path | Scenario | None, n: int, seed: int | None, transfer: bool,
+                  progress: ProgressCallback | None) -> Any:
+    """:func:`validate_datasets` for IMU-only real data (:mod:`physynth.validate.imu_report`)."""
+    from .validate.imu_report import validate_imu
+
+    inputs: dict[str, Any] = {"real": {"path": str(real), "kind": real_ds.meta.get("kind"),
+                                       "imu_frames": real_ds.meta.get("imu_frames")}}
+    if synthetic is not None:
+        synth_ds = _read(read_dataset, synthetic, "synthetic")
+        inputs["synthetic"] = {"path": str(synthetic), "n_traces": len(synth_ds)}
+        return validate_imu(real_ds.traces, synthetic=synth_ds.traces, inputs=inputs)
+    scn = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    return validate_imu(real_ds.traces, scenario=scn, n=n, seed=seed, transfer=transfer, inputs=inputs,
+                        progress=progress)
 
 
 # ---------------------------------------------------------------- studies

@@ -462,13 +462,20 @@ def fit_availability(traces: Sequence[Trace], offset_s: float, burst_rate_hz: fl
         up_bursts += int((~ex).sum())
     td, tc = np.concatenate(tag_durations), np.concatenate(tag_censored)
     tag: dict[str, Any] = {"min_duration_s": tag_min_s, "n_outages": int(td.size), "n_censored": int(tc.size),
-                           "up_bursts": up_bursts,
+                           "up_bursts": up_bursts, "effective_up_bursts": float(up_bursts),
                            "durations_s": td.tolist(), "censored_s": tc.tolist()}
     if td.size + tc.size:
-        tag["onset_prob"] = float((td.size + tc.size) / max(up_bursts, 1))
-        tag["mean_s"] = float((td.sum() + tc.sum()) / max(td.size, 1))
-        tag["method"] = ("dark runs (no in-range anchor heard) of at least min_duration_s; onset = n / up bursts, "
-                         "mean = sum(durations incl. censored) / n_uncensored")
+        # exponential durations seen only above the threshold d: the excess D - d is exponential with
+        # the same mean, and only a share exp(-d / mean) of the outages is long enough to be seen
+        excess = float((td - tag_min_s).clip(0).sum() + (tc - tag_min_s).clip(0).sum())
+        mean_s = max(excess / max(td.size, 1), period)
+        seen = float(np.exp(-tag_min_s / mean_s))
+        tag["effective_up_bursts"] = up_bursts * seen
+        tag["onset_prob"] = float((td.size + tc.size) / max(up_bursts * seen, 1))
+        tag["mean_s"] = mean_s
+        tag["method"] = ("dark runs (no in-range anchor heard) of at least min_duration_s; exponential durations "
+                         "truncated at min_duration_s: mean = sum(durations - min incl. censored) / n_uncensored, "
+                         "onset = n / (up bursts x exp(-min / mean))")
         stats = per_anchor_runs(excl)
         fits = {a: fit_dropout_outage(stats[a], att_period[a], burst_rate_hz) for a in anchor_ids}
     else:

@@ -25,7 +25,7 @@ from scipy.optimize import nnls
 from scipy.signal import butter, sosfiltfilt, welch
 
 from ..evaluate.stats import allan_deviation
-from ..models.imu import simulate_imu
+from ..models.imu import MotionNoiseParams, simulate_imu
 from ..models.motion import Kinematics
 from ..records import Imu, Trace
 from ..scenario import ImuParams, VibrationParams
@@ -85,16 +85,23 @@ def truth_acceleration(t_s: np.ndarray, pos_m: np.ndarray, *, cutoff_hz: float,
     return tg, acc, valid
 
 
-def imu_error(trace: Trace, cutoff_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def imu_error(trace: Trace, cutoff_hz: float, offset_s: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """IMU error (N, 3) = IMU minus truth-derived acceleration at the IMU times, its mask and the times.
 
     The error is NaN (mask False) where the IMU or the truth is masked, near truth gaps and segment
-    ends. The IMU is assumed to be ENU, gravity-free (the trace's ``imu.frame``).
+    ends. The IMU is assumed to be ENU, gravity-free (the trace's ``imu.frame``). ``offset_s``: the
+    IMU sample at t is compared with the truth at t - offset (an IMU clock lagging the truth).
     """
-    if trace.imu is None:
-        raise CalibrationError("trace has no IMU samples")
-    tg, a_truth, valid = truth_acceleration(trace.truth.t_s, trace.truth.pos_enu_m, cutoff_hz=cutoff_hz)
-    ti = trace.imu.t_s
+    if trace.imu is None or trace.imu.acc_mps2 is None:
+        raise CalibrationError("trace has no ENU (gravity-free) IMU samples")
+    return _error_against(trace, truth_acceleration(trace.truth.t_s, trace.truth.pos_enu_m, cutoff_hz=cutoff_hz),
+                          offset_s)
+
+
+def _error_against(trace: Trace, truth_acc: tuple[np.ndarray, np.ndarray, np.ndarray], offset_s: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    tg, a_truth, valid = truth_acc
+    ti = trace.imu.t_s - offset_s
     a_i = np.stack([np.interp(ti, tg, np.where(valid, a_truth[:, k], 0.0)) for k in range(3)], axis=1)
     v_i = np.interp(ti, tg, valid.astype(float)) > 0.999
     err = trace.imu.acc_mps2 - a_i
@@ -242,8 +249,133 @@ def _fit_vibration(f: np.ndarray, excess: np.ndarray, total: np.ndarray, floor: 
             "line_variance_method": method}
 
 
+MOTION_WINDOW_S = 2.0
+"""Window of the motion-noise regression: mean squared error against mean |a|^2 and |w|^2 [s]."""
+
+
+def fit_time_offset(traces: Sequence[Trace], cutoff_hz: float, *, max_offset_s: float = 0.01
+                    ) -> tuple[float, dict[str, Any]]:
+    """IMU-to-truth clock offset [s] minimising the pooled IMU error variance (IMU lags truth: > 0).
+
+    A grid of 0.25 ms steps over +-``max_offset_s`` (per-axis error variances summed, pooled over
+    the traces by sample count), refined by a parabola through the best three points.
+    """
+    grid = np.arange(-max_offset_s, max_offset_s + 1e-12, 2.5e-4)
+    cost = np.zeros(grid.size)
+    for tr in traces:  # a handful of recordings, each vectorised
+        ta = truth_acceleration(tr.truth.t_s, tr.truth.pos_enu_m, cutoff_hz=cutoff_hz)
+        for j, off in enumerate(grid):  # ~80 offsets
+            e, ok, _ = _error_against(tr, ta, float(off))
+            cost[j] += float(np.sum(np.var(e[ok], axis=0))) * int(ok.sum())
+    j = int(np.clip(np.argmin(cost), 1, grid.size - 2))
+    y0, y1, y2 = cost[j - 1:j + 2]
+    den = y0 - 2 * y1 + y2
+    best = float(grid[j] + (0.5 * (y0 - y2) / den * (grid[1] - grid[0]) if den > 0 else 0.0))
+    rel_gain = float(1.0 - cost.min() / cost[np.argmin(np.abs(grid))])
+    return best, {"offset_s": best, "grid_step_s": float(grid[1] - grid[0]),
+                  "error_variance_reduction_frac": rel_gain}
+
+
+def smoothed_body_rate(trace: Trace, t_q: np.ndarray, cutoff_hz: float) -> np.ndarray | None:
+    """(N, 3) truth body angular rate low-passed at ``cutoff_hz`` (zero phase), at times ``t_q``.
+
+    From the truth's ``omega_body_radps`` (e.g. differentiated optical attitude); None without one.
+    """
+    w = trace.truth.omega_body_radps
+    if w is None:
+        return None
+    t = trace.truth.t_s
+    ok = np.all(np.isfinite(w), axis=1)
+    if ok.sum() < 10:
+        return None
+    fs = 1.0 / median_step_s(t)
+    wf = np.stack([np.interp(t, t[ok], w[ok, k]) for k in range(3)], axis=1)
+    wf = sosfiltfilt(butter(4, min(cutoff_hz, 0.45 * fs), fs=fs, output="sos"), wf, axis=0)
+    return np.stack([np.interp(t_q, t, wf[:, k]) for k in range(3)], axis=1)
+
+
+def _intensity(trace: Trace, cutoff_hz: float, offset_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """|a_k| (N, 3) (truth-derived, at the IMU times read at t - offset) and |w| (N,) (smoothed truth rate)."""
+    tg, a, valid = truth_acceleration(trace.truth.t_s, trace.truth.pos_enu_m, cutoff_hz=cutoff_hz)
+    ti = trace.imu.t_s
+    a_i = np.stack([np.interp(ti - offset_s, tg, np.where(valid, a[:, k], 0.0)) for k in range(3)], axis=1)
+    w = smoothed_body_rate(trace, ti, cutoff_hz)
+    return np.abs(a_i), (np.zeros(ti.size) if w is None else np.linalg.norm(w, axis=1))
+
+
+CALM_ACC_MPS2 = 0.3
+CALM_RATE_RADPS = 0.1
+"""Samples below both (|a|, |w|) are calm: their error variance is the motion-free level c0."""
+
+
+def fit_motion_noise(traces: Sequence[Trace], cutoff_hz: float, offset_s: float, *,
+                     use_rate: bool = True) -> dict[str, Any]:
+    """Joint fit over recordings of the error variance per axis as c0 + ca_k |a_k| + cw_k |w|.
+
+    c0 (per axis) is the mean squared error of the calm samples (``CALM_ACC_MPS2``,
+    ``CALM_RATE_RADPS``) when they make up at least 10 % of the data (the rest phases of a lab
+    trial), else a free intercept. The slopes come from window means (``MOTION_WINDOW_S``, windows at
+    least 95 % valid) of the squared error minus c0, regressed on window means of |a_k| and |w| by
+    non-negative least squares pooled over all recordings, so that recordings of different
+    intensity fix them. The slopes are the vibration's variance per unit intensity.
+    """
+    feats, ys, calm_e2, n_calm, n_all = [], [], np.zeros(3), 0, 0
+    fs = None
+    for tr in traces:  # a handful of recordings
+        e, ok, ti = imu_error(tr, cutoff_hz, offset_s=offset_s)
+        a_abs, w = _intensity(tr, cutoff_hz, offset_s)
+        fs = 1.0 / median_step_s(ti)
+        calm = ok & (np.linalg.norm(a_abs, axis=1) < CALM_ACC_MPS2) & (w < CALM_RATE_RADPS)
+        calm_e2 += np.sum(e[calm] ** 2, axis=0)
+        n_calm += int(calm.sum())
+        n_all += int(ok.sum())
+        w_n = int(round(MOTION_WINDOW_S * fs))
+        n_w = ti.size // w_n
+        if n_w == 0:
+            continue
+        sl = slice(0, n_w * w_n)
+        okw = ok[sl].reshape(n_w, w_n)
+        cnt = okw.sum(axis=1)
+        keep = (okw.mean(axis=1) >= 0.95) & (cnt > 0)
+
+        def wmean(x: np.ndarray, sl=sl, n_w=n_w, w_n=w_n, cnt=cnt, keep=keep, ok=ok) -> np.ndarray:
+            x = np.where(ok[sl].reshape((-1,) + (1,) * (x.ndim - 1)), np.nan_to_num(x[sl]), 0.0)
+            return (x.reshape((n_w, w_n) + x.shape[1:]).sum(axis=1).T / cnt).T[keep]
+
+        ys.append(wmean(e**2))
+        feats.append((wmean(a_abs), wmean(w)))
+    if not ys or fs is None:
+        raise CalibrationError("no IMU error window long enough for the motion-noise fit")
+    y = np.concatenate(ys)
+    a_w = np.concatenate([f[0] for f in feats])
+    w_w = np.concatenate([f[1] for f in feats])
+    use_w = use_rate and bool(np.any(w_w > CALM_RATE_RADPS))
+    calm_level = n_calm >= 0.1 * max(n_all, 1)
+    coef = np.zeros((3, 3))  # per axis: c0, c_acc, c_rate
+    for axis in range(3):
+        cols = [a_w[:, axis]] + ([w_w] if use_w else [])
+        x = np.stack(cols, axis=1)
+        if calm_level:
+            c0 = calm_e2[axis] / n_calm
+            target = y[:, axis] - c0
+        else:
+            x = np.concatenate([np.ones((x.shape[0], 1)), x], axis=1)
+            target = y[:, axis]
+        scale = np.maximum(np.abs(x).max(axis=0), 1e-12)
+        c, _ = nnls(x / scale, target)
+        c = c / scale
+        if calm_level:
+            c = np.concatenate([[c0], c])
+        coef[axis, : c.size] = c
+    return {"c0_mps2_sq": coef[:, 0], "acc_var_gain_mps2": coef[:, 1],
+            "rate_var_gain_mps4_per_radps": coef[:, 2], "n_windows": int(y.shape[0]),
+            "window_s": MOTION_WINDOW_S, "rate_term": use_w,
+            "c0_from": "calm samples" if calm_level else "regression intercept", "calm_frac": n_calm / max(n_all, 1)}
+
+
 def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, nperseg_s: float = 20.0,
-            defaults: ImuParams | None = None) -> Fit[ImuParams]:
+            defaults: ImuParams | None = None, motion_dependent: bool = True,
+            motion_rate_term: bool = False) -> Fit[ImuParams]:
     """Fit white noise, bias random walk and vibration to the IMU error of traces with IMU and truth.
 
     Parameters
@@ -255,6 +387,14 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
         min(10 Hz, 0.2 x truth rate).
     nperseg_s
         Welch segment length [s] (frequency resolution 1 / nperseg_s).
+    motion_dependent
+        Also fit the IMU-to-truth time offset (:func:`fit_time_offset`; kept when it lowers the error
+        variance by at least 0.5 %) and the motion-scaled noise (:func:`fit_motion_noise`; an axis's
+        gains kept when they carry at least 5 % of its mean error variance). The white-noise density is
+        fitted as before; the vibration amplitude comes from the error variance at zero motion, and
+        the vibration's power grows with the motion (:class:`~physynth.models.imu.MotionNoiseParams`).
+    motion_rate_term
+        Let the motion noise grow with the angular rate too (needs truth attitude rates).
 
     Returns
     -------
@@ -270,7 +410,39 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
     fs = 1.0 / median_step_s(trs[0].imu.t_s)
     truth_rate = 1.0 / median_step_s(trs[0].truth.t_s[np.all(np.isfinite(trs[0].truth.pos_enu_m), axis=1)])
     fc = float(cutoff_hz) if cutoff_hz is not None else float(min(10.0, 0.2 * truth_rate))
-    errs = [imu_error(t, fc) for t in trs]
+    offset, offset_diag = 0.0, None
+    motion, motion_var = None, np.zeros(3)
+    if motion_dependent:
+        offset, offset_diag = fit_time_offset(trs, fc)
+        if offset_diag["error_variance_reduction_frac"] < 0.005 or abs(offset) < 2.5e-4:
+            offset_diag["kept"] = False
+            offset = 0.0
+        motion = fit_motion_noise(trs, fc, offset, use_rate=motion_rate_term)
+    errs = [imu_error(t, fc, offset_s=offset) for t in trs]
+    if motion is not None:  # mean motion-noise variance over the samples used (per-sample, at the IMU rate)
+        num, cnt = np.zeros(3), 0
+        for tr, (_, ok, _) in zip(trs, errs, strict=True):
+            a_abs, w = _intensity(tr, fc, offset)
+            num += np.sum(a_abs[ok] * motion["acc_var_gain_mps2"][None, :]
+                          + w[ok, None] * motion["rate_var_gain_mps4_per_radps"][None, :], axis=0)
+            cnt += int(ok.sum())
+        motion_var = num / max(cnt, 1)  # (3,) [m^2 s^-4]
+        # the regression fixes how the power grows; its level is set so that, pooled over the
+        # recordings, zero-motion variance plus motion variance equals the error variance
+        pooled = np.sum([np.sum(e[ok] ** 2, axis=0) for e, ok, _ in errs], axis=0) / max(cnt, 1)
+        level = np.where(motion_var > 0,
+                         np.maximum(pooled - motion["c0_mps2_sq"], 0.0) / np.maximum(motion_var, 1e-300), 0.0)
+        motion["acc_var_gain_mps2"] = motion["acc_var_gain_mps2"] * level
+        motion["rate_var_gain_mps4_per_radps"] = motion["rate_var_gain_mps4_per_radps"] * level
+        motion["level_factor"] = level.tolist()
+        motion_var = motion_var * level
+        total = motion["c0_mps2_sq"] + motion_var
+        weak = motion_var < 0.05 * total
+        motion["acc_var_gain_mps2"][weak] = 0.0
+        motion["rate_var_gain_mps4_per_radps"][weak] = 0.0
+        motion_var[weak] = 0.0
+        motion["mean_motion_variance_mps2_sq"] = motion_var.tolist()
+        motion["axes_without_motion_term"] = [a for a, w in zip("enu", weak, strict=True) if w]
     nper = int(2 ** np.round(np.log2(nperseg_s * fs)))
     psds, weights, n_total, n_avg = [], [], 0, 0
     f = None
@@ -291,6 +463,8 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
     floor = np.median(psd[wb], axis=0)  # (3,) one-sided white level
     density = np.sqrt(floor / 2.0)
     err_std = np.sqrt(np.nanmean(np.concatenate([e[ok] for e, ok, _ in errs]) ** 2, axis=0))
+    if motion is not None:  # the vibration must explain what is left at zero motion
+        err_std = np.sqrt(np.maximum(np.minimum(err_std**2 - motion_var, motion["c0_mps2_sq"]), 1e-12))
     # vibration on the excess of the pooled (mean over axes) spectrum
     pooled = psd.mean(axis=1)
     pooled_floor = float(floor.mean())
@@ -325,7 +499,7 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
     seg_s = float(np.mean([(b_ - a_) / fs for e_, ok_, t_ in errs for a_, b_ in segments(t_, ok_, 1.5 / fs)]))
     other_var = density**2 * fs + bias_rw**2 * seg_s / 6.0
     resid_std = np.sqrt(np.maximum(err_std**2 - other_var, 0.0))
-    if vib is None or not resid_std.max() > 0:
+    if vib is None or (not resid_std.max() > 0 and motion is None):
         vibration = VibrationParams(amplitude_mps2=0.0)
         notes.append("imu.vibration (no spectral excess over the white floor)")
         vib_diag: dict[str, Any] = {"note": "no vibration found"}
@@ -338,7 +512,7 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
             f0, v = f0 * step, v[step - 1::step]
         keep = np.flatnonzero(v > 1e-3 * v.max())
         w = v[: int(keep.max()) + 1] / v.max()
-        white_frac = float(np.mean(density**2 * fs / err_std**2))
+        white_frac = float(np.mean(density**2 * fs / np.maximum(err_std, 1e-12) ** 2))
         if white_frac > 0.5:  # the error variance is mostly white noise: the spectral lines are more precise
             amp = float(np.sqrt(vib["comb_variance"]))
             amp_method = ("white noise dominates the error variance: amplitude from the variance of the fitted "
@@ -346,14 +520,19 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
             gain = np.ones(3)
         else:
             amp = float(resid_std.max())
-            gain = resid_std / amp
+            gain = resid_std / amp if amp > 0 else np.ones(3)
             amp_method = ("per-axis error std left after white noise and bias walk: amplitude of the strongest "
                           "axis, axis_gain for the others")
+        if motion is not None and amp > 0:  # at zero motion the vibration holds what c0 leaves, no more
+            cap = resid_std / np.maximum(gain, 1e-12)
+            if amp > float(cap.min()):
+                amp = float(cap.min())
+                amp_method += "; capped by the error variance at zero motion"
         vibration = VibrationParams(fundamental_hz=rounded(f0, 5), amplitude_mps2=rounded(amp, 5),
                                     harmonic_weights=[rounded(x, 4) for x in w],
                                     bandwidth_hz=rounded(vib["bandwidth_hz"], 4),
                                     axis_gain=[rounded(float(g), 4) for g in gain])
-        rel = (np.sqrt((amp * gain) ** 2 + other_var) / err_std - 1.0)
+        rel = (np.sqrt((amp * gain) ** 2 + other_var) / np.maximum(err_std, 1e-12) - 1.0)
         vib_diag = {"fundamental_hz": f0, "bandwidth_hz": vib["bandwidth_hz"], "amplitude_mps2": amp,
                     "harmonic_weights": w.tolist(), "n_harmonics_fitted": vib["n_harmonics"],
                     "frequency_resolution_hz": vib["resolution_hz"], "log_misfit": vib["log_misfit"],
@@ -363,8 +542,14 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
                     "per_axis_nonwhite_std_mps2": resid_std.tolist(),
                     "per_axis_model_std_rel_error": rel.tolist(),
                     "white_variance_frac": white_frac, "amplitude_method": amp_method}
+    motion_params = MotionNoiseParams()
+    if motion is not None:
+        motion_params = MotionNoiseParams(
+            acc_var_gain_mps2=[rounded(x, 5) for x in motion["acc_var_gain_mps2"]],
+            rate_var_gain_mps4_per_radps=[rounded(x, 5) for x in motion["rate_var_gain_mps4_per_radps"]])
     params = ImuParams(rate_hz=rounded(fs, 7), white_noise_density_mps2_per_sqrt_hz=[rounded(x, 5) for x in density],
-                       bias_rw_mps2_per_sqrt_s=rounded(bias_rw, 4), bias_initial_std_mps2=0.0, vibration=vibration)
+                       bias_rw_mps2_per_sqrt_s=rounded(bias_rw, 4), bias_initial_std_mps2=0.0, vibration=vibration,
+                       time_offset_s=rounded(offset, 4), motion_noise=motion_params)
     dec = max(1, f.size // 400)
     diag = {
         "truth_cutoff_hz": fc,
@@ -372,7 +557,10 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
         "white_band_hz": [float(lo), float(hi)],
         "white_noise_density_mps2_per_sqrt_hz": density.tolist(),
         "white_noise_rel_se": float(1.0 / np.sqrt(max(wb.sum() * len(psds), 1))),
-        "error_std_mps2": err_std.tolist(),
+        "error_std_mps2": np.sqrt(np.nanmean(np.concatenate([e[ok] for e, ok, _ in errs]) ** 2, axis=0)).tolist(),
+        "time_offset": offset_diag,
+        "motion_noise": None if motion is None else {k: (v.tolist() if isinstance(v, np.ndarray) else v)
+                                                     for k, v in motion.items()},
         "n_samples": n_total,
         "vibration": vib_diag,
         "bias_rw": {"value": bias_rw, "k2_estimate": float(k2_mean), "k2_std_error": k2_se,
@@ -386,7 +574,7 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
 
 
 def simulate_imu_on(t_s: np.ndarray, acc_enu_mps2: np.ndarray, params: ImuParams, *,
-                    rng: np.random.Generator) -> Imu:
+                    rng: np.random.Generator, omega_body_radps: np.ndarray | None = None) -> Imu:
     """The generator's IMU model (:func:`physynth.imu.simulate_imu`) applied to a given acceleration track.
 
     ``t_s`` (T,) uniform times [s] and ``acc_enu_mps2`` (T, 3) the true acceleration (e.g. derived
@@ -395,7 +583,7 @@ def simulate_imu_on(t_s: np.ndarray, acc_enu_mps2: np.ndarray, params: ImuParams
     acc = np.asarray(acc_enu_mps2, dtype=float)
     kin = Kinematics(t_s=np.asarray(t_s, dtype=float), s_m=np.zeros(len(t_s)), pos_enu_m=np.zeros_like(acc),
                      vel_enu_mps=np.zeros_like(acc), acc_enu_mps2=acc)
-    return simulate_imu(kin, params, rng=rng)
+    return simulate_imu(kin, params, rng=rng, omega_body_radps=omega_body_radps)
 
 
 def compare_imu_along_truth(real: Trace, params: ImuParams, cutoff_hz: float, *,
@@ -410,7 +598,8 @@ def compare_imu_along_truth(real: Trace, params: ImuParams, cutoff_hz: float, *,
     tg, acc, valid = truth_acceleration(real.truth.t_s, real.truth.pos_enu_m, cutoff_hz=cutoff_hz)
     filled = np.stack([np.interp(tg, tg[valid], acc[valid, k]) for k in range(3)], axis=1)
     synth = Trace(truth=real.truth, uwb=real.uwb, anchors=real.anchors,
-                  imu=simulate_imu_on(tg, filled, params, rng=rng))
+                  imu=simulate_imu_on(tg, filled, params, rng=rng,
+                                      omega_body_radps=smoothed_body_rate(real, tg, cutoff_hz)))
     e_r, ok_r, _ = imu_error(real, cutoff_hz)
     e_s, ok_s, _ = imu_error(synth, cutoff_hz)
     fs = params.rate_hz

@@ -161,26 +161,47 @@ class ModeEpisodes:
     """The episodes of one NLOS mode: runs of consecutive rows of one anchor most likely in that mode."""
 
     lengths: np.ndarray  # (E,) rows per episode
-    within_std_m: float | None  # pooled std of the residuals around their episode mean (episodes of >= 2 rows)
-    n_within: int  # rows behind within_std_m
+    within_dev_m: np.ndarray  # residuals minus their episode's median, rows of episodes of >= 2 rows
+    within_dev_rel: np.ndarray  # the same divided by the std of the episode's mode (pools modes of any width)
+
+    @property
+    def n_within(self) -> int:
+        return int(self.within_dev_m.size)
+
+    @property
+    def within_std_m(self) -> float | None:
+        """Robust (MAD) scatter of the residuals inside an episode: a few merged episodes do not count."""
+        if self.within_dev_m.size == 0:
+            return None
+        return float(1.4826 * np.median(np.abs(self.within_dev_m)))
+
+    @property
+    def within_std_rel(self) -> float | None:
+        """Within-episode scatter as a fraction of the mode's std (MAD): small when the offset is held."""
+        if self.within_dev_rel.size == 0:
+            return None
+        return float(1.4826 * np.median(np.abs(self.within_dev_rel)))
 
 
 def _mode_episodes(residual_m: np.ndarray, flags: list[np.ndarray], modes: Sequence[ModeFit]) -> list[ModeEpisodes]:
     """Episodes of each mode, with the spread of the residuals inside an episode (is the offset held?)."""
     lengths = _mode_runs(residual_m, flags, modes, keep_ids=True)
     out = []
-    for run_len, run_id in lengths:
+    for mode, (run_len, run_id) in zip(modes, lengths, strict=True):
         if run_id is None or run_len.size == 0:
-            out.append(ModeEpisodes(lengths=run_len, within_std_m=None, n_within=0))
+            out.append(ModeEpisodes(lengths=run_len, within_dev_m=np.zeros(0), within_dev_rel=np.zeros(0)))
             continue
         r = np.asarray(residual_m)[run_id >= 0]
         ids = run_id[run_id >= 0]
         counts = np.bincount(ids)
-        means = np.bincount(ids, weights=r) / np.maximum(counts, 1)
         multi = counts[ids] >= 2
-        dof = int(np.sum(counts[counts >= 2] - 1))
-        within = float(np.sqrt(np.sum((r[multi] - means[ids[multi]]) ** 2) / dof)) if dof > 0 else None
-        out.append(ModeEpisodes(lengths=run_len, within_std_m=within, n_within=dof))
+        order = np.lexsort((r, ids))  # rows sorted by episode, then value: the median of each episode
+        r_s, id_s = r[order], ids[order]
+        starts = np.searchsorted(id_s, np.arange(counts.size))
+        med = 0.5 * (r_s[np.minimum(starts + (counts - 1) // 2, r_s.size - 1)]
+                     + r_s[np.minimum(starts + counts // 2, r_s.size - 1)])
+        dev = r[multi] - med[ids[multi]]
+        out.append(ModeEpisodes(lengths=run_len, within_dev_m=dev, within_dev_rel=dev / mode.std_m))
     return out
 
 
@@ -230,50 +251,49 @@ def _is_short(ep: ModeEpisodes) -> bool:
 
 
 def _pool_episodes(eps: Sequence[ModeEpisodes]) -> ModeEpisodes:
-    """Episodes of several modes as one sample (within-episode variances pooled by degrees of freedom)."""
+    """Episodes of several modes as one sample."""
     lengths = np.concatenate([e.lengths for e in eps]) if eps else np.zeros(0, np.int64)
-    dof = sum(e.n_within for e in eps if e.within_std_m is not None)
-    ss = sum(e.n_within * e.within_std_m**2 for e in eps if e.within_std_m is not None)
-    return ModeEpisodes(lengths=lengths, within_std_m=float(np.sqrt(ss / dof)) if dof else None, n_within=dof)
+    dev = np.concatenate([e.within_dev_m for e in eps]) if eps else np.zeros(0)
+    rel = np.concatenate([e.within_dev_rel for e in eps]) if eps else np.zeros(0)
+    return ModeEpisodes(lengths=lengths, within_dev_m=dev, within_dev_rel=rel)
 
 
 HELD_MAX_STD_RATIO = 0.3
 """A mode's offset is *held* over an episode when the residuals inside its episodes scatter by less than
 this fraction of the mode's std (one reflector or one wrong range per episode, not a fresh draw per row)."""
-FIXED_MAX_VAR_RATIO = 0.5
-"""Episodes of a mode have a *fixed* length when the variance of their lengths (in rows) is below this
-fraction of the geometric variance m (m - 1) at the same mean m (exponential episodes give ~1)."""
+FIXED_MAX_EXCESS_ROWS = 1
+"""Short episodes have a *fixed* length K (the modal length, K >= 2) when 90 % of them last at most
+K + this many rows; exponential episodes give geometric lengths, whose mode is always 1."""
 
 
-def _episode_shape(mode: ModeFit, ep: ModeEpisodes, attempt_period_s: float, burst_period_s: float
-                   ) -> dict[str, Any]:
+def _episode_shape(mode: ModeFit, ep: ModeEpisodes, attempt_period_s: float, burst_period_s: float, *,
+                   short: bool) -> dict[str, Any]:
     """Episode length law and offset holding of one NLOS mode, from its episodes.
 
-    Exponential episodes (default) get the geometric MLE of their mean. Episodes of nearly constant
-    length (variance test :data:`FIXED_MAX_VAR_RATIO`, at least :data:`MIN_MODE_EPISODES` + 1 episodes)
-    are a wrong range the radio repeats for K bursts: K is the most common episode length in rows (lost
-    attempts shorten some episodes, never lengthen them) and the episode lasts K burst periods. The
-    offset is held when the within-episode scatter passes :data:`HELD_MAX_STD_RATIO`.
+    Exponential episodes (default) get the geometric MLE of their mean. Short episodes (``short``: the
+    pooled episodes of the short modes) of nearly constant length (:data:`FIXED_MAX_EXCESS_ROWS`, at
+    least :data:`MIN_MODE_EPISODES` + 1 episodes) are a wrong range the radio repeats for K bursts: K
+    is the most common episode length in rows (lost attempts shorten some episodes, never lengthen
+    them) and the episode lasts K burst periods. Their offset is held when the within-episode scatter
+    passes :data:`HELD_MAX_STD_RATIO`.
     """
     n = ep.lengths
     out: dict[str, Any] = {"n_episodes": int(n.size), "dwell_s": None, "fixed_dwell": False, "held_jitter_m": None,
-                           "within_episode_std_m": ep.within_std_m}
+                           "within_episode_std_m": ep.within_std_m, "within_episode_std_rel": ep.within_std_rel}
     if n.size < MIN_MODE_EPISODES:
         return out
-    m = float(n.mean())
-    var = float(n.var(ddof=1)) if n.size > 1 else 0.0
-    geo = m * (m - 1.0)
-    out["length_mean_rows"], out["length_var_rows"], out["geometric_var_rows"] = m, var, geo
-    if n.size > MIN_MODE_EPISODES and m > 1.5 and var < FIXED_MAX_VAR_RATIO * geo:
-        counts = np.bincount(n.astype(np.int64))
-        k = int(np.flatnonzero(counts == counts.max())[-1])  # modal length (ties: the longer)
+    counts = np.bincount(n.astype(np.int64))
+    k = int(np.flatnonzero(counts == counts.max())[-1])  # modal length (ties: the longer)
+    p90 = float(np.percentile(n, 90))
+    out["length_mean_rows"], out["length_modal_rows"], out["length_p90_rows"] = float(n.mean()), k, p90
+    if short and n.size > MIN_MODE_EPISODES and k >= 2 and p90 <= k + FIXED_MAX_EXCESS_ROWS:
         out["fixed_dwell"] = True
         out["hold_bursts"] = k
         out["dwell_s"] = k * burst_period_s
     else:
         out["dwell_s"] = _dwell_from_runs(n, attempt_period_s)
-    if ep.within_std_m is not None and ep.n_within >= MIN_MODE_EPISODES \
-            and ep.within_std_m < HELD_MAX_STD_RATIO * mode.std_m:
+    if short and ep.within_std_rel is not None and ep.n_within >= MIN_MODE_EPISODES \
+            and ep.within_std_rel < HELD_MAX_STD_RATIO and ep.within_std_m < HELD_MAX_STD_RATIO * mode.std_m:
         out["held_jitter_m"] = max(ep.within_std_m, 1e-3)
     return out
 
@@ -410,29 +430,32 @@ def refine_time_offset(rows: dict[str, AnchorRows], los: dict[str, np.ndarray]) 
             "sensitivity": sens}
 
 
-def run_offset_table(trs: Sequence[Trace], labels: Sequence[str], offset_s: float, chan: _Channels
-                     ) -> tuple[RunOffsets, dict[str, Any]]:
+def run_offset_table(trs: Sequence[Trace], labels: Sequence[str], chan: _Channels) -> tuple[RunOffsets, dict[str, Any]]:
     """Per-run LOS ranging offsets of every anchor and their run-to-run spreads (random effects).
 
     For run r and anchor a, d_ra is the mean LOS residual of the run (rows the anchor's mixture calls
-    LOS, after its range-proportional bias) minus the mean of d_ra over the runs that have the
-    anchor. A two-way method-of-moments split of the table gives the spread of an offset common to
-    every anchor of a run (``run_offset_std_m``: the truth system or the tag antenna moved) and of the
-    per-anchor remainder (``run_anchor_offset_std_m``: an anchor re-placed and re-surveyed). Each d_ra
-    carries a sampling variance sigma_LOS^2 / n_ra that is subtracted.
+    LOS, posterior NLOS probability < 0.5, after its range-proportional bias) minus the mean of d_ra
+    over the runs that have the anchor. A two-way method-of-moments split of the table gives the
+    spread of an offset common to every anchor of a run (``run_offset_std_m``: the truth system or the
+    tag antenna moved) and of the per-anchor remainder (``run_anchor_offset_std_m``: an anchor
+    re-placed and re-surveyed). Each d_ra carries a sampling variance, estimated from the difference
+    of its two halves in time (at least sigma_LOS^2 / n_ra), that is subtracted.
     """
     raw: dict[tuple[str, str], tuple[float, float]] = {}  # (run, anchor) -> (offset, sampling variance)
-    for t, lab in zip(trs, labels, strict=True):
-        r = corrected_residuals(t, offset_s)
-        for j, aid in enumerate(t.anchors.ids):
-            f = chan.mix.get(aid)
-            if f is None or aid not in chan.per_anchor_rows:
-                continue
-            m = r.anchor == j
-            x = r.residual_m[m] - f.range_bias_per_m * r.range_m[m] - f.los_mean_m
-            los = np.abs(x) < 3.0 * f.los_std_m
-            if los.sum() >= MIN_ANCHOR_ROWS:
-                raw[(lab, aid)] = (float(np.mean(x[los])), f.los_std_m**2 / float(los.sum()))
+    for aid, (ra, ga, _) in chan.per_anchor_rows.items():
+        f = chan.mix[aid]
+        runs_of = [lab for t, lab in zip(trs, labels, strict=True) if aid in t.anchors.ids]
+        start = 0
+        for lab, nlos in zip(runs_of, chan.flags[aid], strict=True):  # the anchor's rows, run by run
+            x = ra[start:start + nlos.size] - f.range_bias_per_m * ga[start:start + nlos.size] - f.los_mean_m
+            start += nlos.size
+            xl = x[~nlos]
+            if xl.size >= MIN_ANCHOR_ROWS:
+                # sampling variance of the mean from its two halves in time (slow error components and
+                # misclassified NLOS episodes make it larger than sigma^2 / n), at least sigma^2 / n
+                half = xl.size // 2
+                split = (float(np.mean(xl[:half])) - float(np.mean(xl[half:]))) ** 2 / 4.0
+                raw[(lab, aid)] = (float(np.mean(xl)), max(split, f.los_std_m**2 / float(xl.size)))
     ids = sorted({a for _, a in raw})
     runs = [lab for lab in labels if any((lab, a) in raw for a in ids)]
     centred: RunOffsets = {}
@@ -532,6 +555,11 @@ class AvailabilitySet:
 
 
 # ---------------------------------------------------------------- steps
+def _imu_only(t: Trace) -> bool:
+    """A recording with IMU samples and no UWB range (e.g. a lab trial)."""
+    return not (len(t.uwb) > 0 and bool(t.uwb.valid.any())) and t.imu is not None and t.imu.t_s.size > 100
+
+
 def prepare_inputs(traces: Trace | Sequence[Trace], *, anchor_policy: AnchorPolicy = "per-run",
                    layout_from: int | str | None = None, report: ReportBuilder) -> CalibrationInputs:
     """Check the recordings, label them, set the IMU-only ones aside and read the anchor layouts."""
@@ -688,7 +716,7 @@ def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, 
                      note="grid search on the robust spread, refined by least squares on the LOS rows")
     else:
         se_off = float(of.diagnostics["std_error_s"])
-    run_offsets, off_diag = run_offset_table(trs, labels, offset, chan)
+    run_offsets, off_diag = run_offset_table(trs, labels, chan)
     report.sections["run_offsets"] = off_diag
     if refined or run_offsets:
         chan = _fit_channels(trs, offset, ids, fixed_slope, labels, run_offsets=run_offsets)
@@ -735,7 +763,7 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
 
     # episodes of every mode; the short ones (gross outliers: a device behaviour, a few per anchor) are
     # pooled over modes and anchors to learn their length law and whether their offset is held
-    empty = ModeEpisodes(lengths=np.zeros(0, np.int64), within_std_m=None, n_within=0)
+    empty = ModeEpisodes(lengths=np.zeros(0, np.int64), within_dev_m=np.zeros(0), within_dev_rel=np.zeros(0))
     episodes_of = {aid: (_mode_episodes(chan.per_anchor_rows[aid][0], flags[aid], mix[aid].modes)
                          if aid in chan.per_anchor_rows else [empty] * len(mix[aid].modes)) for aid in ids}
     short_pool = _pool_episodes([e for eps in episodes_of.values() for e in eps if _is_short(e)])
@@ -745,7 +773,7 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
         "n_episodes": int(short_pool.lengths.size),
         "length_histogram_rows": np.bincount(short_pool.lengths.astype(np.int64)).tolist()
         if short_pool.lengths.size else [],
-        "within_episode_std_m": short_pool.within_std_m}
+        "within_episode_std_m": short_pool.within_std_m, "within_episode_std_rel": short_pool.within_std_rel}
     channel_diag: dict[str, Any] = {}
     per_channel: dict[str, ChannelParams] = {}
     for aid in ids:
@@ -764,7 +792,8 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
         # rest and short gross outliers are different processes
         episodes = episodes_of[aid]
         mode_runs = [e.lengths for e in episodes]
-        shapes = [_episode_shape(m, short_pool if _is_short(e) else e, periods[aid], 1.0 / burst_rate)
+        shapes = [_episode_shape(m, short_pool if _is_short(e) else e, periods[aid], 1.0 / burst_rate,
+                                 short=_is_short(e))
                   for m, e in zip(f.modes, episodes, strict=True)]
         mode_dwell = [sh["dwell_s"] for sh in shapes]
         modes = [NlosMode(weight=rounded(m.weight, 4), mean_m=rounded(m.mean_m, 5), std_m=rounded(m.std_m, 4),
@@ -895,7 +924,7 @@ def assemble_availability(inp: CalibrationInputs, avail: AvailabilityFit, timing
     means = [p.outage_mean_s for p in per_anchor.values() if p.outage_onset_prob > 0]
     # tag outages: n events over the up bursts of every run
     n_tag = tag["n_outages"] + tag["n_censored"]
-    up_s = tag["up_bursts"] / burst_rate
+    up_s = tag["effective_up_bursts"] / burst_rate  # outages too short to be told apart are not exposure
     tag_post = gamma_rate_posterior(events=float(n_tag), exposure_s=max(up_s, 1e-9))
     if n_tag:
         tag_onset = rounded(tag_post.mean_per_s / burst_rate, 5)
@@ -1024,6 +1053,11 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
     def tick(message: str) -> None:
         say(message, next(step, N_STEPS - 1), N_STEPS)
 
+    trs = as_trace_list(traces)
+    if trs and all(_imu_only(t) for t in trs):  # IMU recordings only: IMU models, path and motion, no anchors
+        from .imu_only import calibrate_imu_only
+
+        return calibrate_imu_only(trs, name=name, path_kind=path_kind, sources=sources, progress=progress)
     rep = ReportBuilder()
     tick("checking the recordings")
     inp = prepare_inputs(traces, anchor_policy=anchor_policy, layout_from=layout_from, report=rep)

@@ -30,7 +30,7 @@ OFFSET_FINE_HALF_S = 0.03
 OFFSET_FINE_STEP_S = 0.001
 MAX_NLOS_MODES = 3
 """Largest number of Gaussian NLOS modes tried (the order is chosen by BIC)."""
-LOS_LIKE_SIGMAS = 3.0
+LOS_LIKE_SIGMAS = 2.0
 """An NLOS mode whose mean lies within this many LOS sigmas of the LOS mean (at the median range) is
 not an offset distribution but a reshaping of the LOS peak (narrower core, heavier tails); a mixture
 with such a mode is not accepted, whatever its width."""

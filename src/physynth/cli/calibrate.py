@@ -68,6 +68,9 @@ def calibrate_cmd(
         check_output(target, kind=kind, overwrite=overwrite, inputs=inputs)
         if not target.parent.exists():
             raise PhySynthError(f"output folder {target.parent} does not exist")
+    if layout_from is not None and anchor_layout != "per-run":
+        raise PhySynthError("--layout-from needs --anchor-layout per-run")
+    chosen: int | str | None = int(layout_from) if layout_from is not None and layout_from.isdigit() else layout_from
     with guarded_outputs([out] + ([report] if report else [])) as real:  # locks; orphaned temp files removed
         for target, kind in [(out, "scenario")] + ([(report, "json")] if report else []):
             check_output(target, kind=kind, overwrite=overwrite, inputs=inputs)  # again, under the lock

@@ -27,8 +27,8 @@ def generate_cmd(
     n: int = typer.Option(20, "-n", "--n-traces", min=1, help="Number of traces to generate."),
     seed: int | None = typer.Option(None, "--seed", min=0, help="Root seed >= 0 (random when omitted; stored)."),
     out: Path = typer.Option(Path("runs/default"), "--out", "-o", help="Output dataset directory."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset PhySynth wrote (or "
-                                                              "discard an unfinished run of it)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset (only a dataset "
+                                                              "PhySynth wrote) or discard an unfinished run of it."),
     workers: int = typer.Option(0, "--workers", "-w", min=0,
                                 help="Worker processes (0 = all cores). More than one runs an embedded Dask "
                                      "cluster (physynth[scale]); the output is the same for any number."),

@@ -55,13 +55,13 @@ def validate_cmd(
     check_output(out, kind="report", overwrite=overwrite, inputs=inputs)  # fail before the (long) generation
     with guarded_outputs([out]) as (real_out,):  # lock; orphaned temp files removed
         check_output(out, kind="report", overwrite=overwrite, inputs=inputs)
-        _validate(real, synthetic, scenario, n, seed, transfer, anchors, out, real_out, figures, overwrite, force,
-                  quiet)
+        _validate(real, synthetic, scenario, n, seed, transfer, out, real_out, figures, overwrite, force, quiet,
+                  anchors)
 
 
 def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, seed: int | None, transfer: bool,
-              anchors: str | None, out: Path, real_out: Path, figures: bool, overwrite: bool, force: bool,
-              quiet: bool) -> None:
+              out: Path, real_out: Path, figures: bool, overwrite: bool, force: bool, quiet: bool,
+              anchors: str | None = None) -> None:
     from ..errors import AnchorMismatchError, PhySynthError
     from ..validate.render import require_matplotlib, write_report
     from ..workflows import validate_datasets
@@ -81,6 +81,13 @@ def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, 
     except AnchorMismatchError as exc:
         hint = "; use --transfer to take the anchor layout from the real dataset" if scenario else ""
         raise PhySynthError(str(exc).split("; transfer the scenario")[0] + hint) from None
+    from ..validate.imu_report import ImuValidationReport, write_imu_report
+
+    if isinstance(report, ImuValidationReport):  # an IMU-only real dataset: IMU error tables
+        written = write_imu_report(report, real_out, overwrite=True)
+        if not quiet:
+            _print_imu_summary(report, out, len(written))
+        return
     from ..io.safety import atomic_folder
 
     with atomic_folder(real_out) as tmp:  # the report folder appears complete or not at all
@@ -108,3 +115,13 @@ def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, 
 
 def _f(x: object, digits: int = 3) -> str:
     return "-" if not isinstance(x, (int, float)) or x != x else f"{x:.{digits}f}"
+
+
+def _print_imu_summary(report, out: Path, n_files: int) -> None:
+    for key, real in report.real.items():
+        synth, dev = report.synthetic.get(key), report.relative_deviation_pct.get(key)
+        if real is None or synth is None:
+            continue
+        typer.echo(f"  {key:26s} real {' / '.join(_f(x) for x in real)}  synth {' / '.join(_f(x) for x in synth)}  "
+                   f"({' / '.join(_f(x, 1) for x in dev)} %)")
+    typer.echo(f"wrote {n_files} file(s) to {out} (open {out / 'report.html'})")

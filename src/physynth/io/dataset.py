@@ -537,4 +537,7 @@ def read_dataset(path: str | os.PathLike) -> Dataset:
     """
     path = Path(path)
     meta = read_meta(path)
-    return Dataset(meta=meta, traces=list(iter_traces(path, meta)))
+    traces = list(iter_traces(path, meta))
+    if not traces:
+        raise DatasetError(f"dataset {path} holds no traces")
+    return Dataset(meta=meta, traces=traces)

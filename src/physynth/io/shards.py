@@ -33,7 +33,6 @@ from typing import Any
 from .. import __version__
 from .._json import jsonable
 from ..errors import DatasetError, OutputExistsError, PhySynthError
-from . import integrity
 from .atomic import atomic_write_text, temp_sibling
 from .dataset import TABLES, DatasetWriter
 
@@ -150,6 +149,7 @@ def finalize(out: Path, partial: Path, plan: ShardPlan, meta: dict[str, Any]) ->
         shutil.rmtree(stage)
     stage.mkdir()
     traces_meta: list[dict[str, Any]] = []
+    files: dict[str, Any] = {}  # integrity records (physynth.io.integrity) of the assembled layout
     shards = [partial / shard_name(k) for k in range(plan.n_shards)]
     missing = [s.name for s in shards if not s.is_dir()]
     if missing:
@@ -162,14 +162,16 @@ def finalize(out: Path, partial: Path, plan: ShardPlan, meta: dict[str, Any]) ->
                 else:
                     (stage / name).mkdir(exist_ok=True)
                     _link(shard / f"{name}.parquet", stage / name / f"part-{k:05d}.parquet")
-            traces_meta += json.loads((shard / "dataset.json").read_text(encoding="utf-8"))["traces"]
+            shard_meta = json.loads((shard / "dataset.json").read_text(encoding="utf-8"))
+            traces_meta += shard_meta["traces"]
+            for fname, rec in (shard_meta.get("files") or {}).items():
+                name = fname.removesuffix(".parquet")
+                files[fname if plan.n_shards == 1 else f"{name}/part-{k:05d}.parquet"] = rec
         first = json.loads((shards[0] / "dataset.json").read_text(encoding="utf-8"))
         first.pop("shard", None)
-        record = {**first, **jsonable(meta), "n_traces": len(traces_meta), "traces": traces_meta,
+        record = {**first, **jsonable(meta), "n_traces": len(traces_meta), "traces": traces_meta, "files": files,
                   "shards": {"n_shards": plan.n_shards, "shard_traces": plan.shard_traces,
-                             "layout": "single" if plan.n_shards == 1 else "parts"},
-                  # integrity hook (physynth.io.integrity): each shard's records under the final file names
-                  "files": integrity.shard_file_records(shards, TABLES, single=plan.n_shards == 1)}
+                             "layout": "single" if plan.n_shards == 1 else "parts"}}
         (stage / "dataset.json").write_text(json.dumps(record, indent=1), encoding="utf-8")
         old = out.with_name(f".{out.name}.old-{os.getpid()}")
         if out.exists():

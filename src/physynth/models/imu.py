@@ -46,12 +46,33 @@ class VibrationParams(ParamsModel):
     axis_gain: Annotated[list[NonNegFloat], Field(min_length=3, max_length=3)] = [1.0, 1.0, 1.0]
 
 
+class MotionNoiseParams(ParamsModel):
+    """Vibration whose power grows with the motion's intensity (unresolved motion, a cabin's rollers).
+
+    With either gain non-zero, the vibration comb's variance on axis k at time t is
+    ``(amplitude_mps2 * axis_gain_k)^2 + acc_var_gain_k * |a_k(t)| + rate_var_gain_k * |w(t)|``
+    [m^2 s^-4], with a_k the truth acceleration along axis k [m s^-2] and |w| the body angular rate
+    magnitude [rad/s]: ``acc_var_gain_mps2`` in m^2 s^-4 per m s^-2, ``rate_var_gain_mps4_per_radps``
+    in m^2 s^-4 per rad s^-1. The spectral shape (lines, widths) stays the comb's. Zero (the default)
+    switches the term off.
+    """
+
+    acc_var_gain_mps2: Annotated[list[NonNegFloat], Field(min_length=3, max_length=3)] = [0.0, 0.0, 0.0]
+    rate_var_gain_mps4_per_radps: Annotated[list[NonNegFloat], Field(min_length=3, max_length=3)] = [0.0, 0.0, 0.0]
+
+    @property
+    def active(self) -> bool:
+        return any(self.acc_var_gain_mps2) or any(self.rate_var_gain_mps4_per_radps)
+
+
 class ImuParams(ParamsModel):
     """Accelerometer in ENU, gravity-free [m s^-2].
 
     White noise of density ``white_noise_density_mps2_per_sqrt_hz`` per axis (per-sample standard
     deviation density * sqrt(rate_hz)); bias random walk whose standard deviation grows as
-    ``bias_rw_mps2_per_sqrt_s`` * sqrt(t); vibration as above.
+    ``bias_rw_mps2_per_sqrt_s`` * sqrt(t); vibration as above; ``time_offset_s``: the IMU clock lags
+    the truth, sample t reads the acceleration at t - offset [s]; ``motion_noise``: white noise
+    the vibration's power growing with the motion (:class:`MotionNoiseParams`).
     """
 
     rate_hz: PositiveFloat = 400.0
@@ -59,6 +80,8 @@ class ImuParams(ParamsModel):
     bias_rw_mps2_per_sqrt_s: NonNegFloat = 0.002
     bias_initial_std_mps2: NonNegFloat = 0.0
     vibration: VibrationParams = VibrationParams()
+    time_offset_s: Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False)] = 0.0
+    motion_noise: MotionNoiseParams = MotionNoiseParams()
 
 
 _BIAS_KNOT_S = 0.1  # bias random-walk knot spacing [s]
@@ -180,10 +203,23 @@ def _vibration_cf(t_s: np.ndarray, params: VibrationParams, *, rng: np.random.Ge
     return out
 
 
-def simulate_imu(kin: Kinematics, params: ImuParams, *, rng: np.random.Generator) -> Imu:
-    """IMU samples at ``params.rate_hz`` over the kinematics' time span (ENU, gravity-free)."""
-    slow = np.array(kin.acc_enu_mps2.T, order="C")  # a copy: the caller's kinematics stay untouched
-    slow += _vibration_cf(kin.t_s, params.vibration, rng=rng)
+def simulate_imu(kin: Kinematics, params: ImuParams, *, rng: np.random.Generator,
+                 omega_body_radps: np.ndarray | None = None) -> Imu:
+    """IMU samples at ``params.rate_hz`` over the kinematics' time span (ENU, gravity-free).
+
+    ``omega_body_radps`` (T, 3): the body angular rate at the truth times, used only by the
+    rate-dependent vibration power (zero when None). The modulated vibration makes the same draws as
+    the plain one, so the other terms' samples do not change when it is switched on.
+    """
+    if params.time_offset_s != 0.0:  # the sensor reads the motion at t - offset
+        acc_in = np.asarray(kin.acc_enu_mps2)
+        slow = np.stack([np.interp(kin.t_s - params.time_offset_s, kin.t_s, acc_in[:, k]) for k in range(3)])
+    else:
+        slow = np.array(kin.acc_enu_mps2.T, order="C")  # a copy: the model never writes into its inputs
+    if params.motion_noise.active:
+        slow += _modulated_vibration_cf(kin.t_s, kin.acc_enu_mps2, omega_body_radps, params, rng=rng)
+    else:
+        slow += _vibration_cf(kin.t_s, params.vibration, rng=rng)
     slow += _bias_cf(kin.t_s, params.bias_rw_mps2_per_sqrt_s, params.bias_initial_std_mps2, rng=rng)
     # IMU samples cover [t0, t_end) of the truth; the last truth instant itself has no IMU sample
     n_imu = int(np.ceil((kin.t_s[-1] - kin.t_s[0]) * params.rate_hz - 1e-9))
@@ -203,11 +239,33 @@ def simulate_imu(kin: Kinematics, params: ImuParams, *, rng: np.random.Generator
     return Imu(t_s=t_imu, acc_mps2=acc.T)
 
 
+def vibration_variance(acc_enu_mps2: np.ndarray, omega_body_radps: np.ndarray | None, params: ImuParams
+                       ) -> np.ndarray:
+    """(T, 3) vibration variance per axis [m^2 s^-4] at the motion's intensity (:class:`MotionNoiseParams`)."""
+    vib, mot = params.vibration, params.motion_noise
+    base = (vib.amplitude_mps2 * np.asarray(vib.axis_gain, dtype=float)) ** 2
+    var = base[None, :] + np.abs(acc_enu_mps2) * np.asarray(mot.acc_var_gain_mps2)[None, :]
+    if omega_body_radps is not None and any(mot.rate_var_gain_mps4_per_radps):
+        w = np.nan_to_num(np.linalg.norm(omega_body_radps, axis=1))
+        var = var + w[:, None] * np.asarray(mot.rate_var_gain_mps4_per_radps)[None, :]
+    return var
+
+
+def _modulated_vibration_cf(t_s, acc_enu_mps2, omega_body_radps, params: ImuParams, *, rng):
+    unit = params.vibration.model_copy(update={"amplitude_mps2": 1.0, "axis_gain": [1.0, 1.0, 1.0]})
+    out = _vibration_cf(t_s, unit, rng=rng)
+    out *= np.sqrt(vibration_variance(acc_enu_mps2, omega_body_radps, params)).T
+    return out
+
+
 # ---------------------------------------------------------------- body-frame IMU (strapdown sensor)
 class AccelerometerParams(ParamsModel):
     """Accelerometer triad errors (body frame, specific force) [m s^-2 based units].
 
-    Defaults are those of a MEMS IMU (ADIS16448 as in the EuRoC Kalibr ``imu.yaml``).
+    Defaults are those of a MEMS IMU (ADIS16448 as in the EuRoC Kalibr ``imu.yaml``). The vibration
+    comb's variance per axis is ``vibration_amplitude_mps2^2 + vibration_acc_var_gain_mps2 * |a(t)| +
+    vibration_rate_var_gain_mps4_per_radps * |w(t)|`` (|a| the truth acceleration magnitude, |w| the
+    body rate magnitude), as in :class:`MotionNoiseParams`.
     """
 
     noise_density_mps2_per_sqrt_hz: NonNegFloat = 1.86e-3
@@ -219,10 +277,16 @@ class AccelerometerParams(ParamsModel):
     misalignment_std_rad: NonNegFloat = 0.0
     quantisation_mps2: NonNegFloat = 0.0
     vibration_amplitude_mps2: NonNegFloat = 0.0
+    vibration_acc_var_gain_mps2: NonNegFloat = 0.0
+    vibration_rate_var_gain_mps4_per_radps: NonNegFloat = 0.0
 
 
 class GyroscopeParams(ParamsModel):
-    """Gyroscope triad errors (body frame, angular rate) [rad s^-1 based units]."""
+    """Gyroscope triad errors (body frame, angular rate) [rad s^-1 based units].
+
+    The vibration comb's variance per axis is ``vibration_amplitude_radps^2 +
+    vibration_rate_var_gain_radps * |w(t)|`` [rad^2 s^-2] (|w| the body rate magnitude [rad/s]).
+    """
 
     noise_density_radps_per_sqrt_hz: NonNegFloat = 1.87e-4
     bias_rw_radps_per_sqrt_s: NonNegFloat = 2.66e-5
@@ -233,6 +297,7 @@ class GyroscopeParams(ParamsModel):
     misalignment_std_rad: NonNegFloat = 0.0
     quantisation_radps: NonNegFloat = 0.0
     vibration_amplitude_radps: NonNegFloat = 0.0
+    vibration_rate_var_gain_radps: NonNegFloat = 0.0
     g_sensitivity_radps_per_mps2: NonNegFloat = 0.0
 
 
@@ -397,14 +462,43 @@ def _ideal_at(t_q: np.ndarray, t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: R
     return f.T, w.T
 
 
+def _upsampling_factor(t_s: np.ndarray, t_imu: np.ndarray) -> int:
+    """The integer ratio of IMU to truth rate when the IMU grid starts on the truth grid, else 0."""
+    if t_s.shape[0] < 2 or t_imu.shape[0] < 2 or abs(t_imu[0] - t_s[0]) > 1e-12:
+        return 0
+    ratio = (t_s[1] - t_s[0]) / (t_imu[1] - t_imu[0])
+    factor = int(round(ratio))
+    return factor if factor >= 1 and abs(ratio - factor) < 1e-9 else 0
+
+
+def _add_upsampled(out_cf: np.ndarray, slow_cf: np.ndarray, factor: int) -> None:
+    """out (3, (T-1) factor) += slow (3, T) linearly upsampled, in place, one phase at a time."""
+    view = out_cf.reshape(out_cf.shape[0], -1, factor)
+    base, step = slow_cf[:, :-1], np.diff(slow_cf, axis=1)
+    for r in range(factor):  # a handful of phases, each vectorised over time
+        view[:, :, r] += base + step * (r / factor)
+
+
+def _apply_device(matrix: np.ndarray, bias: np.ndarray, x_cf: np.ndarray) -> np.ndarray:
+    """matrix @ x + bias for (3, N) samples, skipping an identity matrix and a zero bias (a new array)."""
+    out = matrix @ x_cf if np.any(matrix != np.eye(3)) else np.array(x_cf, dtype=float, order="C")
+    if np.any(bias != 0.0):
+        out += bias[:, None]
+    return out
+
+
 def _triad_errors(t_s: np.ndarray, vib: VibrationParams, vib_amp: float, rw: float, bi: float, bi_tau: float,
-                  *, rng: np.random.Generator) -> np.ndarray | None:
+                  *, rng: np.random.Generator, vib_var: np.ndarray | None = None) -> np.ndarray | None:
     """Slow errors (vibration, bias walk, bias instability) of one triad at the truth times, (3, T).
 
-    None when all are zero. Each term draws only when it is on.
+    ``vib_var`` (T,): the vibration's variance over time, when it follows the motion (then
+    ``vib_amp`` is unused). None when all are zero. Each term draws only when it is on.
     """
     parts = []
-    if vib_amp > 0:
+    if vib_var is not None and np.any(vib_var > 0):
+        unit = vib.model_copy(update={"amplitude_mps2": 1.0})
+        parts.append(_vibration_cf(t_s, unit, rng=rng) * np.sqrt(vib_var)[None, :])
+    elif vib_amp > 0:
         parts.append(_vibration_cf(t_s, vib.model_copy(update={"amplitude_mps2": vib_amp}), rng=rng))
     if rw > 0:
         parts.append(_bias_cf(t_s, rw, 0.0, rng=rng))
@@ -431,23 +525,46 @@ def simulate_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, 
     dev = draw_imu_device(params, rng=rng)
     n_imu = int(np.ceil((t[-1] - t[0]) * params.rate_hz - 1e-9))
     t_imu = t[0] + np.arange(n_imu) / params.rate_hz
-    f, w = _ideal_at(t_imu - params.time_offset_s, t, acc_enu_mps2, rot, omega_body_radps)  # (3, N)
-    acc = dev.acc_matrix @ f
-    acc += dev.acc_turn_on_bias_mps2[:, None]
-    gyro = dev.gyro_matrix @ w
-    gyro += dev.gyro_turn_on_bias_radps[:, None]
-    if g.g_sensitivity_radps_per_mps2 > 0:
-        gyro += g.g_sensitivity_radps_per_mps2 * f
+    vib_var = None
+    if a.vibration_acc_var_gain_mps2 > 0 or a.vibration_rate_var_gain_mps4_per_radps > 0:
+        vib_var = (a.vibration_amplitude_mps2**2
+                   + a.vibration_acc_var_gain_mps2 * np.linalg.norm(np.asarray(acc_enu_mps2, dtype=float), axis=1)
+                   + a.vibration_rate_var_gain_mps4_per_radps * np.linalg.norm(omega_body_radps, axis=1))
     acc_err = _triad_errors(t, params.vibration, a.vibration_amplitude_mps2, a.bias_rw_mps2_per_sqrt_s,
-                            a.bias_instability_mps2, a.bias_instability_tau_s, rng=rng)
+                            a.bias_instability_mps2, a.bias_instability_tau_s, rng=rng, vib_var=vib_var)
+    gyro_var = (g.vibration_amplitude_radps**2 + g.vibration_rate_var_gain_radps
+                * np.linalg.norm(omega_body_radps, axis=1)) if g.vibration_rate_var_gain_radps > 0 else None
     gyro_err = _triad_errors(t, params.vibration, g.vibration_amplitude_radps, g.bias_rw_radps_per_sqrt_s,
-                             g.bias_instability_radps, g.bias_instability_tau_s, rng=rng)
-    if acc_err is not None:
-        acc += resample_cf(t_imu, t, acc_err)
-    if gyro_err is not None:
-        gyro += resample_cf(t_imu, t, gyro_err)
-    acc += _white_noise_cf(n_imu, np.full(3, a.noise_density_mps2_per_sqrt_hz), params.rate_hz, rng=rng)
-    gyro += _white_noise_cf(n_imu, np.full(3, g.noise_density_radps_per_sqrt_hz), params.rate_hz, rng=rng)
+                             g.bias_instability_radps, g.bias_instability_tau_s, rng=rng, vib_var=gyro_var)
+    acc = _white_noise_cf(n_imu, np.full(3, a.noise_density_mps2_per_sqrt_hz), params.rate_hz, rng=rng)
+    gyro = _white_noise_cf(n_imu, np.full(3, g.noise_density_radps_per_sqrt_hz), params.rate_hz, rng=rng)
+    factor = _upsampling_factor(t, t_imu)
+    turn = float(np.max(np.abs(omega_body_radps[:-1]) * np.diff(t)[:, None])) if t.size > 1 else 0.0
+    if params.time_offset_s == 0.0 and factor and turn <= ROTATION_EXACT_ABOVE_RAD and n_imu == (t.size - 1) * factor:
+        # the usual case: every term at the truth rate (linear maps commute with linear upsampling),
+        # added into the noise one phase at a time, without (3, N) temporaries
+        f_b, w_b = ideal_body_imu(t, acc_enu_mps2, rot, omega_body_radps)
+        acc_slow = _apply_device(dev.acc_matrix, dev.acc_turn_on_bias_mps2, f_b.T)
+        gyro_const = _apply_device(dev.gyro_matrix, dev.gyro_turn_on_bias_radps, w_b.T)
+        gyro_lin = g.g_sensitivity_radps_per_mps2 * f_b.T if g.g_sensitivity_radps_per_mps2 > 0 else None
+        if acc_err is not None:
+            acc_slow += acc_err
+        if gyro_err is not None:
+            gyro_lin = gyro_err if gyro_lin is None else gyro_lin + gyro_err
+        _add_upsampled(acc, acc_slow, factor)
+        gyro.reshape(3, -1, factor)[...] += gyro_const[:, :-1, None]
+        if gyro_lin is not None:
+            _add_upsampled(gyro, gyro_lin, factor)
+    else:
+        f, w = _ideal_at(t_imu - params.time_offset_s, t, acc_enu_mps2, rot, omega_body_radps)  # (3, N)
+        acc += _apply_device(dev.acc_matrix, dev.acc_turn_on_bias_mps2, f)
+        gyro += _apply_device(dev.gyro_matrix, dev.gyro_turn_on_bias_radps, w)
+        if g.g_sensitivity_radps_per_mps2 > 0:
+            gyro += g.g_sensitivity_radps_per_mps2 * f
+        if acc_err is not None:
+            acc += resample_cf(t_imu, t, acc_err)
+        if gyro_err is not None:
+            gyro += resample_cf(t_imu, t, gyro_err)
     if a.quantisation_mps2 > 0:
         acc = np.round(acc / a.quantisation_mps2) * a.quantisation_mps2
     if g.quantisation_radps > 0:

@@ -22,7 +22,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ...constants import G0_MPS2
 from ...errors import RecordingError
+from ...models.attitude import body_rates_from_quat
 from ...records import Anchors, Imu, Trace, Truth, Uwb
 from ._common import (
     ImportReport,
@@ -88,7 +90,7 @@ def import_csv(rec_dir: str | os.PathLike, *, velocity_window_s: float = 0.5,
 
     anchors = _read_anchors(find_table(rec, "anchors", required=True), rep)
     truth_path = find_table(rec, "truth", required=True)
-    t_truth, pos, vel = _read_truth(truth_path, rep)
+    t_truth, pos, vel, quat, omega = _read_truth(truth_path, rep)
     uwb_path = find_table(rec, "uwb", required=True)
     t_uwb, anchor, range_m, burst = _read_uwb(uwb_path, anchors, rep)
     imu_path = find_table(rec, "imu", required=False)
@@ -124,12 +126,12 @@ def import_csv(rec_dir: str | os.PathLike, *, velocity_window_s: float = 0.5,
 
     imu = None
     if imu_tab is not None:
-        t_imu, acc = imu_tab
+        t_imu, acc, acc_body, gyro = imu_tab
         t_imu = t_imu - t0
         check_time_spans(imu_path, t_imu, truth_path, t_truth)
         _check_overlap(imu_path, t_imu, truth_path, t_truth)
-        imu = Imu(t_s=t_imu, acc_mps2=acc)
-        meta["imu_processing"] = "as given: ENU, gravity removed (recording format)"
+        imu = Imu(t_s=t_imu, acc_mps2=acc, acc_body_mps2=acc_body, gyro_body_radps=gyro)
+        meta["imu_processing"] = "as given (recording format): " + ", ".join(imu.frames)
     n_out = int(np.count_nonzero((t_uwb < t_truth[0]) | (t_uwb > t_truth[-1])))
     if n_out:
         rep.note(f"{n_out} UWB row(s) lie outside the truth time span (kept; no residual for them)")
@@ -137,7 +139,7 @@ def import_csv(rec_dir: str | os.PathLike, *, velocity_window_s: float = 0.5,
         meta["recording_meta"] = user_meta
 
     trace = Trace(
-        truth=Truth(t_s=t_truth, pos_enu_m=pos, vel_enu_mps=vel),
+        truth=Truth(t_s=t_truth, pos_enu_m=pos, vel_enu_mps=vel, quat_wxyz=quat, omega_body_radps=omega),
         uwb=Uwb(t_s=t_uwb, anchor=anchor, range_m=range_m, burst=burst),
         anchors=anchors,
         imu=imu,
@@ -177,17 +179,39 @@ def _read_anchors(path: Path, rep: ReportBuilder) -> Anchors:
     return Anchors(ids=tuple(df["anchor_id"].tolist()), names=names, pos_enu_m=df[cols].to_numpy())
 
 
-def _read_truth(path: Path, rep: ReportBuilder) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+QUAT_COLS = [f"quat_{c}" for c in "wxyz"]
+OMEGA_COLS = [f"omega_{c}_radps" for c in "xyz"]
+BODY_ACC_COLS = [f"acc_{c}_mps2" for c in "xyz"]
+GYRO_COLS = [f"gyro_{c}_radps" for c in "xyz"]
+
+
+def _group(df: pd.DataFrame, path: Path, cols: list[str], what: str) -> bool:
+    """Whether an all-or-none column group is present (an incomplete one is an error)."""
+    has = [c in df.columns for c in cols]
+    if any(has) and not all(has):
+        missing = [c for c, h in zip(cols, has, strict=True) if not h]
+        raise RecordingError(f"{path}: {what} columns are incomplete (missing {', '.join(missing)}); "
+                             f"give all of {', '.join(cols)} or none")
+    return all(has)
+
+
+def _read_truth(path: Path, rep: ReportBuilder
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     df = read_table(path, rep)
     pos_cols = [f"{c}_m" for c in ENU]
     vel_cols = [f"v{c}_mps" for c in ENU]
-    require_columns(df, path, ["t_s", *pos_cols], optional=vel_cols)
+    require_columns(df, path, ["t_s", *pos_cols], optional=vel_cols + QUAT_COLS + OMEGA_COLS)
     has_vel = [c in df.columns for c in vel_cols]
     if any(has_vel) and not all(has_vel):
         missing = [c for c, h in zip(vel_cols, has_vel, strict=True) if not h]
         raise RecordingError(f"{path}: velocity columns are incomplete (missing {', '.join(missing)}); "
                              "give all of ve_mps, vn_mps, vu_mps or none")
-    num = ["t_s", *pos_cols, *(vel_cols if all(has_vel) else [])]
+    has_quat = _group(df, path, QUAT_COLS, "attitude quaternion")
+    has_omega = _group(df, path, OMEGA_COLS, "body angular rate")
+    if has_omega and not has_quat:
+        raise RecordingError(f"{path}: body angular rate columns need the attitude columns {', '.join(QUAT_COLS)}")
+    num = ["t_s", *pos_cols, *(vel_cols if all(has_vel) else []), *(QUAT_COLS if has_quat else []),
+           *(OMEGA_COLS if has_omega else [])]
     df = to_float(df, num)
     check_seconds(df["t_s"].to_numpy(), path, "t_s")
     check_time_steps(df["t_s"].to_numpy(), path, "t_s", "truth")
@@ -197,7 +221,17 @@ def _read_truth(path: Path, rep: ReportBuilder) -> tuple[np.ndarray, np.ndarray,
         raise RecordingError(f"{path}: fewer than 2 usable truth rows")
     rep.kept(path.name, len(df))
     vel = df[vel_cols].to_numpy() if all(has_vel) else None
-    return df["t_s"].to_numpy(), df[pos_cols].to_numpy(), vel
+    quat = omega = None
+    if has_quat:
+        quat = df[QUAT_COLS].to_numpy()
+        norm = np.linalg.norm(quat, axis=1)
+        if np.any(np.abs(norm - 1.0) > 0.01):
+            bad = int(np.count_nonzero(np.abs(norm - 1.0) > 0.01))
+            raise RecordingError(f"{path}: {bad} attitude quaternion(s) are not unit (|q| off by more than 1 %); "
+                                 "give quat_w, quat_x, quat_y, quat_z of the body-to-ENU rotation")
+        quat = quat / norm[:, None]
+        omega = df[OMEGA_COLS].to_numpy() if has_omega else body_rates_from_quat(df["t_s"].to_numpy(), quat)
+    return df["t_s"].to_numpy(), df[pos_cols].to_numpy(), vel, quat, omega
 
 
 def _read_uwb(path: Path, anchors: Anchors, rep: ReportBuilder
@@ -231,17 +265,38 @@ def _read_uwb(path: Path, anchors: Anchors, rep: ReportBuilder
     return df["t_s"].to_numpy(), df["anchor"].to_numpy(), range_m, burst
 
 
-def _read_imu(path: Path, rep: ReportBuilder) -> tuple[np.ndarray, np.ndarray]:
+def _read_imu(path: Path, rep: ReportBuilder) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None,
+                                                       np.ndarray | None]:
+    """(t, ENU gravity-free acc or None, body specific force or None, gyro or None)."""
     df = read_table(path, rep)
     acc_cols = [f"acc_{c}_mps2" for c in ENU]
-    require_columns(df, path, ["t_s", *acc_cols])
-    df = to_float(df, ["t_s", *acc_cols])
+    require_columns(df, path, ["t_s"], optional=acc_cols + BODY_ACC_COLS + GYRO_COLS)
+    has_enu = _group(df, path, acc_cols, "ENU acceleration")
+    has_body = _group(df, path, BODY_ACC_COLS, "body-frame specific force")
+    has_gyro = _group(df, path, GYRO_COLS, "gyroscope")
+    if not (has_enu or has_body or has_gyro):
+        raise RecordingError(f"{path}: no IMU columns; give acc_e_mps2, acc_n_mps2, acc_u_mps2 (ENU, gravity "
+                             "removed) and/or acc_x_mps2.. (body frame) and gyro_x_radps..")
+    cols = [*(acc_cols if has_enu else []), *(BODY_ACC_COLS if has_body else []), *(GYRO_COLS if has_gyro else [])]
+    df = to_float(df, ["t_s", *cols])
     check_seconds(df["t_s"].to_numpy(), path, "t_s")
     check_time_steps(df["t_s"].to_numpy(), path, "t_s", "imu")
-    df = drop_nan_rows(df, ["t_s", *acc_cols], path.name, rep)
-    df = sort_and_dedupe(df[["t_s", *acc_cols]], ["t_s"], path.name, rep)
+    df = drop_nan_rows(df, ["t_s", *cols], path.name, rep)
+    df = sort_and_dedupe(df[["t_s", *cols]], ["t_s"], path.name, rep)
     if df.empty:
         raise RecordingError(f"{path}: no usable IMU rows")
+    body = df[BODY_ACC_COLS].to_numpy() if has_body else None
+    gyro = df[GYRO_COLS].to_numpy() if has_gyro else None
+    if body is not None:
+        med = float(np.median(np.linalg.norm(body, axis=1)))
+        if not 0.5 * G0_MPS2 < med < MAX_PLAUSIBLE_ACC_MEDIAN_MPS2:
+            raise RecordingError(f"{path}: median |body specific force| {med:.4g} m/s^2 is implausible: an "
+                                 "accelerometer reads about 9.81 at rest (gravity included; m/s^2, not g)")
+    if gyro is not None and float(np.median(np.linalg.norm(gyro, axis=1))) > 30.0:
+        raise RecordingError(f"{path}: median |gyro| above 30 rad/s is implausible; convert deg/s to rad/s")
+    if not has_enu:
+        rep.kept(path.name, len(df))
+        return df["t_s"].to_numpy(), None, body, gyro
     acc = df[acc_cols].to_numpy()
     med = float(np.median(np.linalg.norm(acc, axis=1)))
     if med > MAX_PLAUSIBLE_ACC_MEDIAN_MPS2:
@@ -252,7 +307,7 @@ def _read_imu(path: Path, rep: ReportBuilder) -> tuple[np.ndarray, np.ndarray]:
         raise RecordingError(f"{path}: acc_u_mps2 averages {mean_u:.3g} m/s^2, so gravity is not removed; "
                              "PhySynth expects gravity-free ENU acceleration")
     rep.kept(path.name, len(df))
-    return df["t_s"].to_numpy(), acc
+    return df["t_s"].to_numpy(), acc, body, gyro
 
 
 def _read_meta(path: Path) -> dict[str, Any] | None:

@@ -1,0 +1,256 @@
+"""Validation of IMU recordings without UWB: IMU error statistics, real against synthetic.
+
+The IMU error of a trace is what the IMU reads minus what its truth says it should read:
+
+- ``imu`` (ENU, gravity-free accelerometer): IMU minus the truth position low-passed at
+  ``cutoff_hz`` and differentiated twice (:func:`physynth.calibrate.imu_fit.imu_error`);
+- ``acc_body`` (body-frame accelerometer): measured specific force minus R_wb^T (a_w - g_w), with the
+  truth attitude; ``gyro`` (gyroscope): measured rate minus the truth body rate low-passed at
+  ``cutoff_hz`` (:func:`physynth.calibrate.imu_only.body_truth`). Compared when both sides have them.
+
+Per error and side: the standard deviation per axis (pooled over traces), the Welch PSD (pooled) and
+the overlapping Allan deviation (averaged over traces). ``report.json`` holds, for each error
+``<e>`` in (``imu``, ``acc_body``, ``gyro``): ``real.<e>_error_std_<unit>`` and
+``synthetic.<e>_error_std_<unit>`` (3 axes), ``relative_deviation_pct.<e>_error_std_<unit>``
+((synthetic / real - 1) x 100 per axis), ``extended.<e>_log_spectral_distance_db`` (per axis, RMS of
+10 log10(PSD_synth / PSD_real) over 0.2 Hz to 0.95 x Nyquist) and ``extended.<e>_allan_ratio``
+(synthetic / real Allan deviation per tau and axis). Units: m s^-2 (``mps2``), rad s^-1 (``radps``).
+
+With ``transfer``, each synthetic trace runs the scenario's IMU models along a real trace's own truth
+(its acceleration and attitude), trace i along real trace i mod R, seeded per trace and component;
+without it, synthetic traces are generated from the scenario (its own path, motion and attitude).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.signal import welch
+from scipy.spatial.transform import Rotation
+
+from .. import __version__
+from .._json import jsonable
+from ..calibrate._base import CalibrationError, median_step_s, segments
+from ..calibrate.imu_fit import imu_error, simulate_imu_on, smoothed_body_rate, truth_acceleration
+from ..calibrate.imu_only import body_truth, has_body_imu
+from ..errors import OutputExistsError, PhySynthError
+from ..evaluate.stats import allan_deviation
+from ..generate import compile_scenario, generate_traces
+from ..io.atomic import atomic_write_text
+from ..models.imu import simulate_body_imu
+from ..records import Imu, Trace
+from ..rng import component_rng, new_root_seed
+from ..scenario import Scenario, scenario_to_dict
+
+CUTOFF_HZ = 10.0
+"""Low-pass cut-off of the truth before differentiation, both sides [Hz]."""
+ALLAN_TAUS_S = (0.01, 0.1, 1.0, 10.0)
+"""Averaging times of the Allan-deviation ratio [s]."""
+ERRORS = {"imu": "mps2", "acc_body": "mps2", "gyro": "radps"}
+
+
+def is_imu_only(traces: Sequence[Trace]) -> bool:
+    """True when no trace has anchors or UWB rows and every trace has IMU samples."""
+    return bool(traces) and all(len(t.anchors) == 0 and len(t.uwb) == 0 and t.imu is not None for t in traces)
+
+
+def _errors(trace: Trace) -> dict[str, tuple[np.ndarray, np.ndarray, float]]:
+    """Per error kind: (error (N, 3), valid mask (N,), sample rate) of one trace."""
+    out: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}
+    im = trace.imu
+    if im is None:
+        return out
+    fs = 1.0 / median_step_s(im.t_s)
+    if im.acc_mps2 is not None:
+        e, ok, _ = imu_error(trace, CUTOFF_HZ)
+        out["imu"] = (e, ok, fs)
+    if has_body_imu(trace):
+        f_b, w, ok, _ = body_truth(trace, CUTOFF_HZ)
+        out["acc_body"] = (im.acc_body_mps2 - f_b, ok & np.all(np.isfinite(im.acc_body_mps2), axis=1), fs)
+        out["gyro"] = (im.gyro_body_radps - w, ok & np.all(np.isfinite(im.gyro_body_radps), axis=1), fs)
+    return out
+
+
+def _summary(traces: Sequence[Trace]) -> dict[str, dict[str, Any]]:
+    """Per error kind: std per axis, pooled Welch PSD, mean Allan deviation at ALLAN_TAUS_S."""
+    acc: dict[str, dict[str, Any]] = {}
+    for tr in traces:  # a few traces, each vectorised
+        for kind, (e, ok, fs) in _errors(tr).items():
+            if ok.sum() < 100:
+                continue
+            a = acc.setdefault(kind, {"sq": np.zeros(3), "sum": np.zeros(3), "n": 0, "psd": None, "w": 0.0,
+                                      "adev": [], "fs": fs})
+            a["sq"] += np.sum(e[ok] ** 2, axis=0)
+            a["sum"] += np.sum(e[ok], axis=0)
+            a["n"] += int(ok.sum())
+            nper = int(min(2 ** int(np.log2(max(ok.sum() // 8, 64))), 8192))
+            f, p = welch(np.where(ok[:, None], np.nan_to_num(e), 0.0), fs=fs, nperseg=nper, axis=0)
+            if a["psd"] is None or a["psd"][1].shape != p.shape:
+                a["psd"] = (f, p * ok.sum()) if a["psd"] is None else a["psd"]
+            else:
+                a["psd"] = (f, a["psd"][1] + p * ok.sum())
+            a["w"] += float(ok.sum())
+            seg = max(segments(tr.imu.t_s, ok, max_gap_s=1.5 / fs), key=lambda s: s[1] - s[0])
+            x = e[seg[0]:seg[1]]
+            taus = [t for t in ALLAN_TAUS_S if 2 * t * fs < x.shape[0]]
+            if taus:
+                ad = np.full((len(ALLAN_TAUS_S), 3), np.nan)
+                ad[: len(taus)] = allan_deviation(x, fs, taus).T
+                a["adev"].append(ad)
+    out = {}
+    for kind, a in acc.items():
+        mean = a["sum"] / a["n"]
+        out[kind] = {"std": np.sqrt(np.maximum(a["sq"] / a["n"] - mean**2, 0.0)),
+                     "f": a["psd"][0], "psd": a["psd"][1] / a["w"],
+                     "adev": np.nanmean(np.stack(a["adev"]), axis=0) if a["adev"] else None, "fs": a["fs"]}
+    return out
+
+
+def _along_truth(real: Trace, scn: Scenario, root: int, index: int) -> Trace:
+    """The scenario's IMU models run along a real trace's own truth (acceleration, attitude)."""
+    tg, acc, valid = truth_acceleration(real.truth.t_s, real.truth.pos_enu_m, cutoff_hz=CUTOFF_HZ)
+    if valid.sum() < 10:
+        raise CalibrationError("too little valid truth to run the IMU along")
+    filled = np.stack([np.interp(tg, tg[valid], acc[valid, k]) for k in range(3)], axis=1)
+    w = smoothed_body_rate(real, tg, CUTOFF_HZ)
+    enu = simulate_imu_on(tg, filled, scn.imu, rng=component_rng(root, index, "imu"), omega_body_radps=w)
+    imu = Imu(t_s=enu.t_s, acc_mps2=enu.acc_mps2)
+    if has_body_imu(real) and "body-flu" in scn.imu_frames and w is not None:
+        q = real.truth.quat_wxyz
+        ok = np.all(np.isfinite(q), axis=1)
+        k = np.clip(np.searchsorted(real.truth.t_s[ok], tg), 0, int(ok.sum()) - 1)
+        rot = Rotation.from_quat(q[ok][k], scalar_first=True)  # nearest valid attitude (masked spans held)
+        params = scn.body_imu.model_copy(update={"rate_hz": scn.imu.rate_hz})
+        t_b, acc_b, gyro_b = simulate_body_imu(tg, filled, rot, w, params, rng=component_rng(root, index, "imu_body"))
+        n = min(t_b.size, enu.t_s.size)
+        imu = Imu(t_s=enu.t_s[:n], acc_mps2=enu.acc_mps2[:n], acc_body_mps2=acc_b[:n], gyro_body_radps=gyro_b[:n])
+    return Trace(truth=real.truth, uwb=real.uwb, anchors=real.anchors, imu=imu, meta={"source": "physynth"})
+
+
+@dataclass(frozen=True, slots=True)
+class ImuValidationReport:
+    """IMU error statistics of real and synthetic traces (keys in the module docstring)."""
+
+    real: dict[str, Any]
+    synthetic: dict[str, Any]
+    relative_deviation_pct: dict[str, Any]
+    extended: dict[str, Any]
+    inputs: dict[str, Any] = field(default_factory=dict)
+    transfer: dict[str, Any] | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return jsonable({"kind": "imu", "real": self.real, "synthetic": self.synthetic,
+                         "relative_deviation_pct": self.relative_deviation_pct, "extended": self.extended,
+                         "inputs": self.inputs, "transfer": self.transfer})
+
+
+def compare_imu(real: Sequence[Trace], synthetic: Sequence[Trace], *, inputs: dict[str, Any] | None = None,
+                transfer: dict[str, Any] | None = None) -> ImuValidationReport:
+    """IMU error statistics of both sides and their distances (module docstring)."""
+    rs, ss = _summary(real), _summary(synthetic)
+    if "imu" not in rs and "gyro" not in rs:
+        raise PhySynthError("the real dataset has no IMU samples with valid truth: nothing to compare")
+    if not set(rs) & set(ss):
+        raise PhySynthError(f"the synthetic traces have no IMU error of a kind the real dataset has "
+                            f"(real: {', '.join(sorted(rs))}; synthetic: {', '.join(sorted(ss)) or 'none'})")
+    out_r, out_s, dev, ext = {}, {}, {}, {}
+    for kind, unit in ERRORS.items():
+        key = f"{kind}_error_std_{unit}"
+        r, s = rs.get(kind), ss.get(kind)
+        out_r[key] = None if r is None else r["std"].tolist()
+        out_s[key] = None if s is None else s["std"].tolist()
+        if r is None or s is None:
+            dev[key] = None
+            ext[f"{kind}_log_spectral_distance_db"] = None
+            ext[f"{kind}_allan_ratio"] = None
+            continue
+        dev[key] = (100.0 * (s["std"] / r["std"] - 1.0)).tolist()
+        f = r["f"]
+        ps = np.stack([np.interp(f, s["f"], s["psd"][:, k]) for k in range(3)], axis=1)
+        band = (f > 0.2) & (f < 0.95 * r["fs"] / 2)
+        tiny = 1e-30
+        ratio_db = 10.0 * np.log10(np.maximum(ps[band], tiny) / np.maximum(r["psd"][band], tiny))
+        ext[f"{kind}_log_spectral_distance_db"] = {"axes": "xyz" if kind != "imu" else "enu",
+                                                   "per_axis": np.sqrt(np.mean(ratio_db**2, axis=0)).tolist(),
+                                                   "band_hz": [0.2, 0.95 * r["fs"] / 2]}
+        ext[f"{kind}_allan_ratio"] = (None if r["adev"] is None or s["adev"] is None else
+                                      {"tau_s": list(ALLAN_TAUS_S), "ratio": (s["adev"] / r["adev"]).tolist()})
+    return ImuValidationReport(real=out_r, synthetic=out_s, relative_deviation_pct=dev, extended=ext,
+                               inputs={**(inputs or {}), "n_traces": {"real": len(real), "synthetic": len(synthetic)},
+                                       "truth_cutoff_hz": CUTOFF_HZ, "physynth_version": __version__,
+                                       "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")},
+                               transfer=transfer)
+
+
+def validate_imu(real: Sequence[Trace], *, scenario: Scenario | None = None, synthetic: Sequence[Trace] | None = None,
+                 n: int = 10, seed: int | None = None, transfer: bool = False, inputs: dict[str, Any] | None = None,
+                 progress: Callable[[str, int, int], None] | None = None) -> ImuValidationReport:
+    """Validate IMU-only real traces against a synthetic dataset or traces from a scenario."""
+    inputs = dict(inputs or {})
+    if synthetic is not None:
+        return compare_imu(real, list(synthetic), inputs=inputs)
+    if scenario is None:
+        raise PhySynthError("give a synthetic dataset or a scenario")
+    root = new_root_seed() if seed is None else int(seed)
+    synth: list[Trace] = []
+    if transfer:
+        for i in range(n):  # n traces, each vectorised
+            synth.append(_along_truth(real[i % len(real)], scenario, root, i))
+            if progress is not None:
+                progress("running the IMU model along the real truth", i + 1, n)
+    else:
+        for i, tr in enumerate(generate_traces(compile_scenario(scenario), n, seed=root)):
+            synth.append(tr)
+            if progress is not None:
+                progress("generating synthetic traces", i + 1, n)
+    inputs["synthetic"] = {"scenario_name": scenario.name, "n_traces": int(n), "root_seed": root,
+                           "transfer": bool(transfer), "scenario_config": scenario_to_dict(scenario)}
+    tr_info = ({"what": "each synthetic trace runs the scenario's IMU models along a real trace's truth "
+                        "(acceleration, attitude); trace i along real trace i mod R"} if transfer else None)
+    return compare_imu(real, synth, inputs=inputs, transfer=tr_info)
+
+
+def write_imu_report(report: ImuValidationReport, out: str | os.PathLike, *, overwrite: bool = False) -> list[Path]:
+    """report.json, report.md and report.html (tables) into folder ``out``; each file written atomically."""
+    out = Path(out)
+    if (out / "report.json").exists() and not overwrite:
+        raise OutputExistsError(out, "holds a report")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise PhySynthError(f"cannot create {out}: {exc.strerror}") from None
+    d = report.to_dict()
+    rows = []
+    for kind, unit in ERRORS.items():
+        key = f"{kind}_error_std_{unit}"
+        if d["real"].get(key) is None or d["synthetic"].get(key) is None:
+            continue
+        lsd = (d["extended"].get(f"{kind}_log_spectral_distance_db") or {}).get("per_axis")
+        rows.append((key, d["real"][key], d["synthetic"][key], d["relative_deviation_pct"][key], lsd))
+
+    def fmt(v: Any, digits: int = 4) -> str:
+        return " / ".join(f"{x:.{digits}g}" for x in v) if v is not None else "-"
+
+    md = ["# IMU validation", "", "| error std | real | synthetic | deviation [%] | log-spectral distance [dB] |",
+          "|---|---|---|---|---|"]
+    md += [f"| {k} | {fmt(r)} | {fmt(s)} | {fmt(dv, 3)} | {fmt(lsd, 3)} |" for k, r, s, dv, lsd in rows]
+    html = ["<!doctype html><meta charset='utf-8'><title>IMU validation</title><h1>IMU validation</h1>",
+            "<table border=1><tr><th>error std</th><th>real</th><th>synthetic</th><th>deviation [%]</th>"
+            "<th>log-spectral distance [dB]</th></tr>"]
+    html += [f"<tr><td>{k}</td><td>{fmt(r)}</td><td>{fmt(s)}</td><td>{fmt(dv, 3)}</td><td>{fmt(lsd, 3)}</td></tr>"
+             for k, r, s, dv, lsd in rows]
+    html.append("</table>")
+    files = {"report.json": json.dumps(d, indent=1), "report.md": "\n".join(md) + "\n",
+             "report.html": "\n".join(html) + "\n"}
+    written = []
+    for name, text in files.items():
+        atomic_write_text(out / name, text)
+        written.append(out / name)
+    return written

@@ -1,0 +1,49 @@
+"""IMU error model that carries over to other motion, on the real BROAD trials (issue 12 item 5).
+
+Leave-one-out over the shared undisturbed trials: calibrated on two, applied along the third's own
+optical truth. The motion-scaled model must predict the left-out trial's per-axis error std better
+than the constant model (worst axis), and the fitted clock offset must say the IMU lags the truth.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from physynth.calibrate.imu_fit import compare_imu_along_truth, fit_imu, fit_time_offset
+from physynth.io.importers import import_broad
+
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "broad-imu" / "data_mat"
+pytestmark = pytest.mark.skipif(not (DATA / "trials.json").is_file(), reason=f"real BROAD data not found at {DATA}")
+
+
+@pytest.fixture(scope="module")
+def undisturbed():
+    index = json.loads((DATA / "trials.json").read_text(encoding="utf-8"))["trials"]
+    files = [f for f in sorted(DATA.glob("*.mat")) if "undisturbed" in index.get(f.stem, {}).get("groups", [])]
+    assert len(files) >= 3
+    return {f.stem: import_broad(f)[0] for f in files}
+
+
+def test_imu_lags_the_optical_truth_by_a_few_milliseconds(undisturbed):
+    for name in ("10_undisturbed_slow_translation_A", "15_undisturbed_fast_translation_A"):
+        offset, diag = fit_time_offset([undisturbed[name]], 10.0)
+        assert 0.0015 < offset < 0.0035, name  # SOURCE-independent measurement: ~2.5 ms on both
+        assert diag["error_variance_reduction_frac"] > 0.01
+
+
+def test_motion_scaled_error_predicts_left_out_trials_better_than_a_constant_model(undisturbed):
+    worst = {"constant": [], "motion": []}
+    for left in undisturbed:
+        rest = [t for k, t in undisturbed.items() if k != left]
+        for name, motion in (("constant", False), ("motion", True)):
+            params = fit_imu(rest, motion_dependent=motion).params
+            r = compare_imu_along_truth(undisturbed[left], params, 10.0, rng=np.random.default_rng(1))
+            worst[name].append(float(np.max(np.abs(r["std_synth"] / r["std_real"] - 1.0))))
+    # measured (docs/imu.md): worst-axis deviation 0.69 / 0.22 / 0.08 against 2.37 / 0.32 / 0.25;
+    # one synthetic realisation of ~100 s per trial: its error std scatters by ~1 %
+    assert np.mean(worst["motion"]) < 0.5 * np.mean(worst["constant"])
+    assert sum(m < c for m, c in zip(worst["motion"], worst["constant"], strict=True)) >= 2

@@ -1,0 +1,80 @@
+"""IMU-only recordings from the command line (issue 12 item 4): calibrate a BROAD trial, validate
+another with --transfer, read the documented IMU keys of report.json."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+from physynth.cli import main
+from physynth.io.scenario_file import load_scenario
+
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "broad-imu" / "data_mat"
+T10 = DATA / "10_undisturbed_slow_translation_A.mat"
+T21 = DATA / "21_undisturbed_fast_combined.mat"
+pytestmark = pytest.mark.skipif(not T21.is_file(), reason=f"real BROAD data not found at {DATA}")
+
+
+def run(capsys, *args):
+    with pytest.raises(SystemExit) as exc:
+        main([*map(str, args)])
+        raise SystemExit(0)
+    out = capsys.readouterr()
+    return exc.value.code or 0, out.out, out.err
+
+
+def test_calibrate_and_validate_imu_only_datasets(tmp_path, capsys):
+    for name, f in (("b10", T10), ("b21", T21)):
+        code, _, err = run(capsys, "import", "broad", f, "--out", tmp_path / name, "--quiet")
+        assert code == 0, err
+    code, _, err = run(capsys, "calibrate", tmp_path / "b10", "--out", tmp_path / "s.yaml", "--report",
+                       tmp_path / "r.json", "--quiet")
+    assert code == 0, err
+    scn = load_scenario(tmp_path / "s.yaml")
+    assert scn.anchors == [] and scn.imu_frames == ["enu-gravity-free", "body-flu"]
+    assert 0.0015 < scn.imu.time_offset_s < 0.0035  # the IMU lags the optical truth (~2.5 ms)
+    assert scn.motion.dwell_start_s > 20  # rest phases of the trial, from the truth
+    raw = yaml.safe_load((tmp_path / "s.yaml").read_text(encoding="utf-8"))
+    assert raw["path"]["kind"] == "waypoints"
+    code, out, err = run(capsys, "validate", "--real", tmp_path / "b21", "--scenario", tmp_path / "s.yaml",
+                         "--transfer", "-n", 2, "--seed", 3, "--out", tmp_path / "rep", "--no-figures")
+    assert code == 0, err
+    rep = json.loads((tmp_path / "rep" / "report.json").read_text(encoding="utf-8"))
+    assert rep["kind"] == "imu"
+    for side in ("real", "synthetic"):
+        assert len(rep[side]["imu_error_std_mps2"]) == 3 and len(rep[side]["gyro_error_std_radps"]) == 3
+    real, synth = rep["real"]["imu_error_std_mps2"], rep["synthetic"]["imu_error_std_mps2"]
+    dev = rep["relative_deviation_pct"]["imu_error_std_mps2"]
+    assert dev == pytest.approx([100 * (s / r - 1) for r, s in zip(real, synth, strict=True)])
+    assert len(rep["extended"]["imu_log_spectral_distance_db"]["per_axis"]) == 3
+    assert len(rep["extended"]["imu_allan_ratio"]["ratio"]) == 4
+    assert (tmp_path / "rep" / "report.md").is_file() and (tmp_path / "rep" / "report.html").is_file()
+    assert "imu_error_std_mps2" in out
+    # generation from the IMU-only scenario (no anchors): traces without UWB rows
+    code, _, err = run(capsys, "generate", "--scenario", tmp_path / "s.yaml", "-n", 1, "--seed", 1,
+                       "--out", tmp_path / "g", "--quiet")
+    assert code == 0, err
+
+
+def test_imu_only_validation_against_a_dataset_without_imu_is_one_clear_error(tmp_path, capsys):
+    code, _, err = run(capsys, "import", "broad", T10, "--out", tmp_path / "b10", "--quiet")
+    assert code == 0, err
+    code, _, err = run(capsys, "generate", "-n", 1, "--seed", 1, "--out", tmp_path / "g", "--quiet")
+    assert code == 0, err
+    import pyarrow.parquet as pq
+
+    # a synthetic dataset whose IMU table is empty: nothing to compare
+    table = pq.read_table(tmp_path / "g" / "imu.parquet")
+    pq.write_table(table.slice(0, 0), tmp_path / "g" / "imu.parquet")
+    import json
+
+    meta = json.loads((tmp_path / "g" / "dataset.json").read_text())
+    del meta["files"]  # a dataset written without integrity records (older PhySynth): read as it is
+    (tmp_path / "g" / "dataset.json").write_text(json.dumps(meta))
+    code, _, err = run(capsys, "validate", "--real", tmp_path / "b10", "--synthetic", tmp_path / "g",
+                       "--out", tmp_path / "rep", "--no-figures")
+    assert code == 2 and "no IMU error of a kind" in err and "Traceback" not in err
+    assert err.strip().count("\n") == 0
