@@ -13,14 +13,9 @@ from physynth.errors import OutputExistsError
 from physynth.evaluate.metrics import METRIC_KEYS
 from physynth.generate import compile_scenario, generate_traces
 from physynth.validate.compare import compare, read_report
-from physynth.validate.render import (
-    available_figures,
-    render_figures,
-    render_html,
-    render_markdown,
-    table_validation,
-    write_report,
-)
+from physynth.validate.figures import available_figures, render_figures
+from physynth.validate.render import render_html, render_markdown, write_report
+from physynth.validate.tables import table_validation
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ import typer
 
 from ._common import progress_bar
 
-study_app = typer.Typer(help="Deployment studies: anchor count x channel regime, anchor placement.",
+study_app = typer.Typer(help="Studies: anchor count x channel regime, anchor placement, tracking (Table IV).",
                         no_args_is_help=True)
 
 
@@ -23,6 +23,9 @@ def register(app: typer.Typer) -> None:
     """Add the ``study`` command group to the main app."""
     study_app.command("anchors")(anchors_cmd)
     study_app.command("placement")(placement_cmd)
+    from .track import tracking_cmd  # torch is imported only when the study runs
+
+    study_app.command("tracking")(tracking_cmd)
     app.add_typer(study_app, name="study")
 
 

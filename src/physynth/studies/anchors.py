@@ -406,7 +406,7 @@ def anchor_table_md(study: AnchorStudy) -> str:
 def anchor_figure_png(study: AnchorStudy) -> bytes:
     """Figure 6 of the paper: (left) S against anchor count per regime; (right) >= 1 and >= 2
     availability against count per regime, the reference as horizontal lines."""
-    from ..validate.render import _png, require_matplotlib
+    from ..validate.figures import figure_png, require_matplotlib
 
     figure_cls, canvas_cls = require_matplotlib()
     fig = figure_cls(figsize=(11, 4.8))
@@ -433,7 +433,7 @@ def anchor_figure_png(study: AnchorStudy) -> bytes:
         ax.set_xticks(counts)
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    return _png(fig, canvas_cls)
+    return figure_png(fig, canvas_cls)
 
 
 def write_anchor_study(study: AnchorStudy, out: str | os.PathLike, *, figures: bool = True,

@@ -235,7 +235,7 @@ def placement_table_md(p: Placement) -> str:
 
 
 def placement_figure_png(p: Placement) -> bytes:
-    from ..validate.render import _png, require_matplotlib
+    from ..validate.figures import figure_png, require_matplotlib
 
     figure_cls, canvas_cls = require_matplotlib()
     fig = figure_cls(figsize=(10, 4))
@@ -262,7 +262,7 @@ def placement_figure_png(p: Placement) -> bytes:
     for ax in (ax1, ax2):
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    return _png(fig, canvas_cls)
+    return figure_png(fig, canvas_cls)
 
 
 def write_placement(p: Placement, out: str | os.PathLike, *, figures: bool = True,

@@ -1,6 +1,8 @@
-"""Validation: real against synthetic traces (:mod:`~physynth.validate.compare`) and the report files
-(:mod:`~physynth.validate.render`). Reading datasets and generating the synthetic side is
-:func:`physynth.workflows.validate_datasets`.
+"""Validation: real against synthetic traces. :mod:`~physynth.validate.evidence` reduces each side trace
+by trace, :mod:`~physynth.validate.compare` builds the report, :mod:`~physynth.validate.tables`,
+:mod:`~physynth.validate.figures` and :mod:`~physynth.validate.render` turn it into files, and
+:mod:`~physynth.validate.imu_report` handles IMU-only recordings. Reading datasets and generating the
+synthetic side is :func:`physynth.workflows.validate_datasets`.
 """
 
 from .compare import EXTENDED_STATISTICS, ValidationReport, compare, read_report

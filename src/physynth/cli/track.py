@@ -1,0 +1,98 @@
+"""``physynth study tracking``: the tracking case study (Table IV) on real runs.
+
+Parses the options, calls :func:`physynth.studies.tracking.run_tracking_study`, writes the results and
+prints the table. Bad input (no truth in the test run, a training run without UWB, an unknown method,
+torch missing) is one line on stderr and exit 2 (raised as ``PhySynthError`` and turned into that line
+by :func:`physynth.cli.main`).
+
+The command joins the ``study`` group of :mod:`physynth.cli.study`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from ..errors import PhySynthError
+
+
+def tracking_cmd(
+    train: list[Path] = typer.Option(None, "--train", help="Training dataset directory (repeat for several; "
+                                     "every trace is one training run). Default: Hanyang Trajectory_A runs."),
+    test: list[Path] = typer.Option(None, "--test", help="Test dataset directory (repeatable)."),
+    scenario: str = typer.Option(None, "--scenario", "-s", help="Scenario (preset or YAML) for SYNTH_PHY "
+                                 "pre-training instead of calibrating one on the training runs."),
+    quick: bool = typer.Option(False, "--quick", help="Short schedule (< 10 min on 2 CPU cores)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of every random choice (deterministic on CPU)."),
+    methods: str = typer.Option(None, "--methods", help="Comma-separated subset of NOAUG,AUG_GAN,SYNTH_PHY,"
+                                "bilstm,ls,ekf (default: all)."),
+    epochs: int = typer.Option(None, "--epochs", help="Epochs of NOAUG, AUG_GAN and bilstm (paper: 200)."),
+    pretrain_epochs: int = typer.Option(None, "--pretrain-epochs", help="SYNTH_PHY pre-training epochs (300)."),
+    finetune_epochs: int = typer.Option(None, "--finetune-epochs", help="SYNTH_PHY fine-tuning epochs (200)."),
+    n_synth: int = typer.Option(None, "--n-synth", help="Number of synthetic pre-training traces."),
+    threads: int = typer.Option(1, "--threads", help="CPU threads for PyTorch (1: small recurrent nets gain nothing "
+                                "from more, and lose a lot on a shared machine)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder (results.json, results.md, paths.png)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress and no table."),
+) -> None:
+    """Train NOAUG, AUG_GAN, SYNTH_PHY, bilstm, ls and ekf on real runs; score them on a held-out run."""
+    from ..studies.tracking import (
+        METHODS,
+        StudyConfig,
+        hanyang_default_runs,
+        quick_config,
+        run_tracking_study,
+        runs_from_dataset,
+        write_results,
+    )
+    from ..track import require_torch
+
+    chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods else METHODS
+    over = {"seed": seed, "methods": chosen, "threads": threads}
+    for key, value in (("epochs", epochs), ("pretrain_epochs", pretrain_epochs),
+                       ("finetune_epochs", finetune_epochs), ("n_synth_traces", n_synth)):
+        if value is not None:
+            over[key] = value
+    cfg = quick_config(**over) if quick else StudyConfig(**over)
+    if {"NOAUG", "AUG_GAN", "SYNTH_PHY", "bilstm"} & set(cfg.methods):
+        require_torch()
+    if bool(train) != bool(test):
+        raise PhySynthError("give both --train and --test, or neither (default Hanyang runs)")
+    scn = None
+    if scenario is not None:
+        from ..io.scenario_file import load_scenario
+
+        scn = load_scenario(scenario)
+    if train:
+        train_runs = [r for p in train for r in runs_from_dataset(p)]
+        test_runs = [r for p in test for r in runs_from_dataset(p)]
+    else:
+        train_runs, test_run = hanyang_default_runs()
+        test_runs = [test_run]
+
+    if quiet:
+        result = run_tracking_study(train_runs, test_runs, scenario=scn, config=cfg)
+    else:
+        from rich.console import Console
+
+        console = Console(stderr=True)
+        with console.status("tracking study") as status:
+            result = run_tracking_study(train_runs, test_runs, scenario=scn, config=cfg,
+                                        progress=lambda m: status.update(m))
+    files = write_results(result, out)
+    if quiet:
+        return
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"test run {', '.join(r.label for r in test_runs)}")
+    for col in ("method", "RMSE (m)", "RMSE 2D (m)", "MAE (m)", "P50 (m)", "P95 (m)", "Δ RMSE (%)"):
+        table.add_column(col, justify="left" if col == "method" else "right")
+    for r in result.rows:
+        delta = "-" if r["delta_rmse_pct"] is None else f"{r['delta_rmse_pct']:+.1f}"
+        table.add_row(r["method"], *(f"{r[k]:.3f}" for k in ("rmse_m", "rmse_2d_m", "mae_m", "p50_m", "p95_m")),
+                      delta)
+    Console().print(table)
+    typer.echo(f"wrote {', '.join(str(f) for f in files.values())} "
+               f"(wall time {result.data['wall_time_s']:.0f} s)")

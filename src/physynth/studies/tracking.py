@@ -1,0 +1,481 @@
+"""The tracking case study (paper section V, Table IV) on real runs, with classical baselines beside it.
+
+Training runs are real traces with ground truth; the test run is a real trace that no model and no
+calibration sees. Rows of the table:
+
+- ``NOAUG``: ``aoi-fusion`` trained on the real training runs only (paper: 200 epochs, Adam 1e-3);
+- ``AUG_GAN``: the same, on the real runs plus copies whose range noise is replaced by samples of a
+  small GAN trained on the real training residuals (:mod:`physynth.track.gan`);
+- ``SYNTH_PHY``: ``aoi-fusion`` pre-trained on PhySynth traces only (paper: 300 epochs at 1e-3) of the
+  scenario calibrated on the training runs (or ``scenario``), with path and anchor layout varied around
+  the calibrated site (:class:`~physynth.track.synth.SynthVariation`), then fine-tuned on the real
+  training runs at a lower learning rate (paper: 200 epochs at 5e-5). The pre-trained network is also
+  scored before fine-tuning (``SYNTH_PHY (synthetic only)``): it has seen no real range at all;
+- ``bilstm``: a bidirectional LSTM trained like NOAUG; ``ls`` and ``ekf``: classical trackers;
+- reference rows: the dataset authors' own estimates shipped with the test run (``LS.csv``,
+  ``ESKF.csv``), scored with the same error definition (:mod:`physynth.track.scoring`).
+
+The UWB stamps of the real runs lag their truth (Hanyang ~0.18 s); the lag is estimated on the
+training runs only (:func:`physynth.calibrate.uwb_fit.fit_time_offset`) and removed from every run.
+
+The library never prints: ``progress`` receives one short line per step; errors about the inputs are
+:class:`~physynth.errors.PhySynthError` s.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .. import __version__
+from ..errors import PhySynthError
+from ..records import Trace
+from ..scenario import Scenario, scenario_to_dict
+from ..track.inputs import TrackInput, track_input
+from ..track.reference import reference_estimates
+from ..track.scoring import error_stats
+from ..track.synth import SynthVariation
+
+ProgressFn = Callable[[str], None]
+
+METHODS = ("NOAUG", "AUG_GAN", "SYNTH_PHY", "bilstm", "ls", "ekf")
+"""Methods of the study, in table order (reference rows come last)."""
+HANYANG_RUNS = ("LOS/Trajectory_A/Case_1", "LOS/Trajectory_A/Case_2", "NLOS/Trajectory_A/Case_1",
+                "NLOS/Trajectory_A/Case_2")
+"""The default runs (under ``hanyang-uwb/Dynamic_measurements``): train on the first three, test on the last."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StudyConfig:
+    """Every number of the study (recorded in ``results.json``). Epochs are passes over the windows."""
+
+    seed: int = 0
+    quick: bool = False
+    methods: tuple[str, ...] = METHODS
+    epochs: int = 200
+    lr: float = 1e-3
+    pretrain_epochs: int = 300
+    pretrain_lr: float = 1e-3
+    finetune_epochs: int = 200
+    finetune_lr: float = 5e-5
+    n_synth_traces: int = 64
+    synth_windows_per_trace: int = 64
+    gan_steps: int = 3000
+    gan_copies: int = 2
+    net: dict[str, Any] = field(default_factory=dict)
+    variation: SynthVariation = SynthVariation()
+    training_layouts: bool = True
+    threads: int = 1
+
+    def __post_init__(self) -> None:
+        unknown = [m for m in self.methods if m not in METHODS]
+        if unknown:
+            raise PhySynthError(f"unknown method(s) {', '.join(unknown)} (choose from {', '.join(METHODS)})")
+        if not self.methods:
+            raise PhySynthError("no method to run")
+        for name in ("epochs", "pretrain_epochs", "finetune_epochs", "n_synth_traces", "synth_windows_per_trace",
+                     "gan_steps", "threads"):
+            if getattr(self, name) < (0 if name.endswith("epochs") else 1):
+                raise PhySynthError(f"{name} must be positive, got {getattr(self, name)}")
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["variation"] = self.variation.to_dict()
+        d["methods"] = list(self.methods)
+        return d
+
+
+def quick_config(**overrides: Any) -> StudyConfig:
+    """The ``--quick`` schedule: fewer epochs and traces, same methods (< 10 min on 2 CPU cores).
+
+    Five times fewer epochs than the paper's, so the learning rates are higher (3e-3; fine-tuning 1e-3,
+    a third of the from-scratch rate, as the paper's 5e-5 is a twentieth of 1e-3 over 200 epochs).
+    """
+    base = {"quick": True, "epochs": 40, "lr": 3e-3, "pretrain_epochs": 15, "pretrain_lr": 3e-3,
+            "finetune_epochs": 40, "finetune_lr": 1e-3, "n_synth_traces": 24, "synth_windows_per_trace": 48,
+            "gan_steps": 1000, "gan_copies": 1}
+    return StudyConfig(**{**base, **overrides})
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StudyRun:
+    """One real run: a label, its trace and the folder of the dataset authors' estimates (if any)."""
+
+    label: str
+    trace: Trace
+    reference_dir: Path | None = None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StudyResult:
+    """Rows of the table, the configuration and what the data were; ``estimates`` per method (K, 3)."""
+
+    rows: list[dict[str, Any]]
+    config: dict[str, Any]
+    data: dict[str, Any]
+    estimates: dict[str, np.ndarray]
+    test_input: TrackInput
+
+    def to_json(self) -> dict[str, Any]:
+        return {"rows": self.rows, "config": self.config, "data": self.data}
+
+
+# --------------------------------------------------------------------------------------------------
+# inputs
+# --------------------------------------------------------------------------------------------------
+
+
+def default_data_root() -> Path:
+    """``../shared/data`` beside the repository (``PHYSYNTH_SHARED_DATA`` overrides it)."""
+    env = os.environ.get("PHYSYNTH_SHARED_DATA")
+    if env:
+        return Path(env)
+    return Path(__file__).resolve().parents[3].parent / "shared" / "data"
+
+
+def hanyang_default_runs(data_root: Path | None = None) -> tuple[list[StudyRun], StudyRun]:
+    """The default split: Hanyang Trajectory_A LOS Case_1, LOS Case_2, NLOS Case_1 / NLOS Case_2."""
+    from ..io.importers import import_hanyang
+
+    root = (data_root or default_data_root()) / "hanyang-uwb" / "Dynamic_measurements"
+    if not root.is_dir():
+        raise PhySynthError(f"default Hanyang runs not found under {root}; give training and test datasets")
+    runs = []
+    for rel in HANYANG_RUNS:
+        trace, _ = import_hanyang(root / rel, crop_to_uwb=True)
+        runs.append(StudyRun(label=rel, trace=trace, reference_dir=root / rel))
+    return runs[:3], runs[3]
+
+
+def runs_from_dataset(path: str | os.PathLike) -> list[StudyRun]:
+    """The traces of a PhySynth dataset directory as runs; a Hanyang import points to its own folder."""
+    from ..io.dataset import read_dataset
+
+    ds = read_dataset(path)
+    out = []
+    for i, t in enumerate(ds.traces):
+        ref = t.meta.get("path")
+        ref_dir = Path(ref) if isinstance(ref, str) and Path(ref).is_dir() else None
+        label = str(t.meta.get("run") or f"{Path(path).name}[{i}]")
+        out.append(StudyRun(label=label, trace=t, reference_dir=ref_dir))
+    return out
+
+
+def _check_runs(train: Sequence[StudyRun], test: Sequence[StudyRun]) -> None:
+    if not train:
+        raise PhySynthError("no training run")
+    if not test:
+        raise PhySynthError("no test run")
+    for r in train:
+        if len(r.trace.uwb) == 0 or not bool(r.trace.uwb.valid.any()):
+            raise PhySynthError(f"training run {r.label} has no UWB range")
+        if not np.any(np.all(np.isfinite(r.trace.truth.pos_enu_m), axis=1)):
+            raise PhySynthError(f"training run {r.label} has no ground truth")
+    for r in test:
+        if r.trace.truth.t_s.size < 2 or not np.any(np.all(np.isfinite(r.trace.truth.pos_enu_m), axis=1)):
+            raise PhySynthError(f"test run {r.label} has no ground truth to score against")
+        if len(r.trace.uwb) == 0 or not bool(r.trace.uwb.valid.any()):
+            raise PhySynthError(f"test run {r.label} has no UWB range")
+
+
+def _calibrate_training_runs(traces: Sequence[Trace], progress: ProgressFn) -> tuple[Scenario, dict[str, Any]]:
+    """The one place the study calibrates: the library calibration on all training runs.
+
+    The runs may place the anchors differently: each run is taken against its own layout, channels are
+    pooled per anchor id and the run-to-run ranging offsets are fitted (``anchor_policy="per-run"``);
+    the scenario generates with the first run's layout. The layouts of all runs still reach the
+    synthetic traces through :class:`SynthVariation` (``training_layouts``).
+    """
+    from ..calibrate import calibrate
+
+    res = calibrate(list(traces), name="tracking-study-calibrated", anchor_policy="per-run",
+                    progress=lambda m, *_: progress(f"calibrating: {m}"))
+    layout = res.report.get("anchor_layout", {})
+    return res.scenario, {"anchor_policy": "per-run", "anchor_conflicts": layout.get("conflicts", [])}
+
+
+def _time_offset(traces: Sequence[Trace]) -> tuple[float, dict[str, Any]]:
+    from ..calibrate.uwb_fit import fit_time_offset
+
+    fit = fit_time_offset(list(traces))
+    return float(fit.params), {"offset_s": float(fit.params), "std_error_s": fit.diagnostics.get("std_error_s"),
+                               "per_run_s": fit.diagnostics.get("per_run_s")}
+
+
+# --------------------------------------------------------------------------------------------------
+# the study
+# --------------------------------------------------------------------------------------------------
+
+
+def run_tracking_study(train: Sequence[StudyRun], test: StudyRun | Sequence[StudyRun], *,
+                       scenario: Scenario | None = None, config: StudyConfig | None = None,
+                       progress: ProgressFn | None = None) -> StudyResult:
+    """Train every method on ``train``, score it on ``test`` (see the module docstring)."""
+    from ..track import require_torch
+
+    cfg = config or StudyConfig()
+    say = progress or (lambda _m: None)
+    tests = [test] if isinstance(test, StudyRun) else list(test)
+    _check_runs(train, tests)
+    torch = require_torch() if {"NOAUG", "AUG_GAN", "SYNTH_PHY", "bilstm"} & set(cfg.methods) else None
+    t_start = time.perf_counter()
+    cpu_start = time.process_time()
+    old_threads = torch.get_num_threads() if torch is not None else None
+    if torch is not None:
+        torch.set_num_threads(cfg.threads)
+    try:
+        result = _run(train, tests, scenario, cfg, say, t_start)
+        result.data["cpu_time_s"] = time.process_time() - cpu_start  # this process, all threads
+        return result
+    finally:
+        if torch is not None and old_threads is not None:
+            torch.set_num_threads(old_threads)
+
+
+def _net(cfg: StudyConfig, arch: str = "aoi-fusion", **extra: Any) -> Any:
+    from ..track.trackers.nets import NetConfig, NetTracker
+
+    net_cfg = NetConfig(**{"seed": cfg.seed, "epochs": cfg.epochs, "lr": cfg.lr, **cfg.net, **extra})
+    return NetTracker(arch, net_cfg)
+
+
+def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | None, cfg: StudyConfig,
+         say: ProgressFn, t_start: float) -> StudyResult:
+    train_traces = [r.trace for r in train]
+    say("estimating the UWB time lag on the training runs")
+    offset, offset_info = _time_offset(train_traces)
+    train_inputs = [track_input(r.trace, time_offset_s=offset, label=r.label) for r in train]
+    test_inputs = [track_input(r.trace, time_offset_s=offset, label=r.label) for r in tests]
+    use_imu = all(i.acc_mps2 is not None for i in train_inputs + test_inputs)
+    net_extra = {"use_imu": use_imu}
+    estimates: dict[str, list[np.ndarray]] = {}
+    timing: dict[str, float] = {}
+    notes: dict[str, Any] = {}
+
+    def predict_all(name: str, tracker: Any) -> None:
+        t0 = time.perf_counter()
+        estimates[name] = [tracker.predict(i) for i in test_inputs]
+        timing[f"{name}.predict_s"] = time.perf_counter() - t0
+
+    for method in cfg.methods:
+        t0 = time.perf_counter()
+        if method in ("ls", "ekf"):
+            from ..track.trackers import make_tracker
+
+            say(f"{method}: running on the test run")
+            tr = make_tracker(method).fit(train_inputs)
+            if method == "ekf":
+                notes["ekf_range_std_m"] = tr.range_std_m
+        elif method == "NOAUG":
+            tr = _net(cfg, **net_extra).fit(train_inputs, progress=say)
+        elif method == "bilstm":
+            tr = _net(cfg, "bilstm", **net_extra).fit(train_inputs, progress=say)
+        elif method == "AUG_GAN":
+            from ..track.gan import GanConfig, ResidualGan, augment_trace
+
+            say("AUG_GAN: training the residual GAN")
+            gan = ResidualGan(GanConfig(steps=cfg.gan_steps, seed=cfg.seed)).fit(train_traces, offset, progress=say)
+            aug = [track_input(augment_trace(r.trace, gan, offset, seed=cfg.seed * 7919 + 31 * c + j),
+                               time_offset_s=offset, label=f"{r.label} (GAN copy {c})")
+                   for c in range(cfg.gan_copies) for j, r in enumerate(train)]
+            notes["gan_final_losses"] = {k: float(np.mean(v[-100:])) for k, v in gan.history.items()}
+            tr = _net(cfg, **net_extra).fit(train_inputs + aug, progress=say)
+        elif method == "SYNTH_PHY":
+            tr = _synth_phy(train, train_traces, train_inputs, scenario, cfg, net_extra, say, notes,
+                            lambda name, t: predict_all(name, t))
+        else:  # pragma: no cover - checked by StudyConfig
+            raise PhySynthError(f"unknown method {method}")
+        timing[f"{method}.fit_s"] = time.perf_counter() - t0
+        predict_all(method, tr)
+        if hasattr(tr, "history"):
+            notes[f"{method}.training"] = [{k: (v if k != "loss" else [round(x, 6) for x in v])
+                                             for k, v in h.items()} for h in tr.history]
+
+    refs: dict[str, list[np.ndarray]] = {}
+    for r, inp in zip(tests, test_inputs, strict=True):
+        origin = r.trace.meta.get("time_origin_unix_s")
+        for name, est in reference_estimates(r.reference_dir, origin, inp, offset).items():
+            refs.setdefault(name, []).append(est)
+    for name, ests in refs.items():
+        if len(ests) == len(tests):
+            estimates[name] = ests
+
+    rows = _rows(estimates, test_inputs, timing)
+    data = {
+        "train": [_describe(r) for r in train],
+        "test": [_describe(r) for r in tests],
+        "time_offset": offset_info,
+        "use_imu": use_imu,
+        "grid_rate_hz": test_inputs[0].rate_hz,
+        "error_definition": "||p_hat(t_k) - p(t_k)|| on the 100 Hz grid steps with truth, from the first valid "
+                            "range of the test run on; reference estimates interpolated onto the same steps "
+                            "(UWB lag removed as for every tracker)",
+        "physynth_version": __version__,
+        "wall_time_s": time.perf_counter() - t_start,
+        "timing_s": timing,
+        "notes": notes,
+    }
+    if "scenario" in notes:
+        data["scenario"] = notes.pop("scenario")
+    return StudyResult(rows=rows, config=cfg.to_dict(), data=data,
+                       estimates={k: v[0] for k, v in estimates.items()}, test_input=test_inputs[0])
+
+
+def _synth_phy(train: Sequence[StudyRun], train_traces: list[Trace], train_inputs: list[TrackInput],
+               scenario: Scenario | None, cfg: StudyConfig, net_extra: dict[str, Any], say: ProgressFn,
+               notes: dict[str, Any], score_pretrained: Callable[[str, Any], None]) -> Any:
+    from ..track.torch_data import SyntheticWindows, TraceWindows
+
+    if scenario is None:
+        say("SYNTH_PHY: calibrating a scenario on the training runs")
+        scenario, cal = _calibrate_training_runs(train_traces, say)
+        notes["calibration"] = cal
+    variation = cfg.variation
+    if cfg.training_layouts:
+        n = len(scenario.anchors)
+        layouts = tuple(tuple(tuple(round(float(v), 4) for v in p) for p in t.anchors.pos_enu_m)
+                        for t in train_traces if len(t.anchors) == n)
+        variation = replace(variation, layouts=layouts)
+    notes["scenario"] = {"name": scenario.name, "scenario": scenario_to_dict(scenario),
+                         "variation": variation.to_dict(), "root_seed": cfg.seed}
+    net = _net(cfg, **net_extra)
+    synth = SyntheticWindows(scenario, cfg.n_synth_traces, cfg.seed, net.window_spec(),
+                             windows_per_trace=cfg.synth_windows_per_trace, variation=variation,
+                             cache_size=cfg.n_synth_traces)
+    say(f"SYNTH_PHY: generating {cfg.n_synth_traces} synthetic traces")
+    for i in range(cfg.n_synth_traces):
+        synth.arrays(i)  # fill the cache once; every epoch then reads the same traces
+    net.train(synth, epochs=cfg.pretrain_epochs, lr=cfg.pretrain_lr, stage="pre-train (synthetic)", progress=say)
+    score_pretrained("SYNTH_PHY (synthetic only)", net)
+    if cfg.finetune_epochs > 0:
+        net.train(TraceWindows(train_inputs, net.window_spec()), epochs=cfg.finetune_epochs, lr=cfg.finetune_lr,
+                  stage="fine-tune (real)", progress=say)
+    return net
+
+
+def _describe(r: StudyRun) -> dict[str, Any]:
+    t = r.trace
+    return {"label": r.label, "duration_s": round(t.duration_s, 3), "n_uwb_valid": int(t.uwb.valid.sum()),
+            "anchors": {a: [round(float(v), 4) for v in p] for a, p in zip(t.anchors.ids, t.anchors.pos_enu_m,
+                                                                            strict=True)},
+            "has_imu": t.imu is not None, "reference_dir": str(r.reference_dir) if r.reference_dir else None}
+
+
+ROW_NAMES = {
+    "NOAUG": "NOAUG (aoi-fusion, real only)",
+    "AUG_GAN": "AUG_GAN (aoi-fusion, real + GAN residuals)",
+    "SYNTH_PHY": "SYNTH_PHY (aoi-fusion, PhySynth pre-train + real fine-tune)",
+    "SYNTH_PHY (synthetic only)": "SYNTH_PHY before fine-tuning (no real data)",
+    "bilstm": "bilstm (real only)",
+    "ls": "ls (robust multilateration)",
+    "ekf": "ekf (constant velocity)",
+}
+
+
+def _rows(estimates: dict[str, list[np.ndarray]], test_inputs: list[TrackInput],
+          timing: dict[str, float]) -> list[dict[str, Any]]:
+    truth = np.concatenate([i.pos_enu_m for i in test_inputs])
+    mask = np.concatenate([i.eval_mask() for i in test_inputs])
+    rows = []
+    for name, ests in estimates.items():
+        st = error_stats(np.concatenate(ests), truth, mask)
+        rows.append({"method": ROW_NAMES.get(name, name), "key": name, **st, "delta_rmse_pct": None,
+                     "fit_s": timing.get(f"{name}.fit_s"), "predict_s": timing.get(f"{name}.predict_s")})
+    base = next((r for r in rows if r["key"] == "NOAUG"), None)
+    for r in rows:
+        if base is not None and r is not base and np.isfinite(base["rmse_m"]) and base["rmse_m"] > 0:
+            r["delta_rmse_pct"] = 100.0 * (r["rmse_m"] - base["rmse_m"]) / base["rmse_m"]
+    return rows
+
+
+# --------------------------------------------------------------------------------------------------
+# writing
+# --------------------------------------------------------------------------------------------------
+
+
+def results_markdown(result: StudyResult) -> str:
+    """``results.md``: Table IV layout (plus the horizontal RMSE), then what was run."""
+    d, c = result.data, result.config
+    lines = [
+        f"# Tracking study (Table IV layout): test run {', '.join(t['label'] for t in d['test'])}",
+        "",
+        "| Method | RMSE (m) | RMSE 2D (m) | MAE (m) | P50 (m) | P95 (m) | Δ RMSE (%) |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in result.rows:
+        delta = "-" if r["delta_rmse_pct"] is None else f"{r['delta_rmse_pct']:+.1f}"
+        lines.append(f"| {r['method']} | {r['rmse_m']:.3f} | {r['rmse_2d_m']:.3f} | {r['mae_m']:.3f} | "
+                     f"{r['p50_m']:.3f} | {r['p95_m']:.3f} | {delta} |")
+    lines += [
+        "",
+        "Δ RMSE is relative to NOAUG. Errors on the 100 Hz grid against the test run's ground truth; "
+        "rows starting 'ref:' are the dataset authors' own estimates, scored the same way.",
+        "",
+        f"- training runs: {', '.join(t['label'] for t in d['train'])}",
+        f"- UWB time lag removed: {d['time_offset']['offset_s']:.3f} s (estimated on the training runs)",
+        f"- schedule: {c['epochs']} epochs at {c['lr']:g}; SYNTH_PHY {c['pretrain_epochs']} pre-training epochs "
+        f"at {c['pretrain_lr']:g} on {c['n_synth_traces']} synthetic traces, then {c['finetune_epochs']} "
+        f"fine-tuning epochs at {c['finetune_lr']:g}{' (--quick)' if c['quick'] else ''}",
+        f"- seed {c['seed']}, {c['threads']} thread(s), wall time {d['wall_time_s']:.0f} s, CPU time "
+        f"{d.get('cpu_time_s', float('nan')):.0f} s",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def write_results(result: StudyResult, out_dir: str | os.PathLike) -> dict[str, Path]:
+    """Write ``results.json``, ``results.md`` and ``paths.png`` (when matplotlib is installed) atomically."""
+    from .._json import jsonable
+    from ..io.atomic import atomic_write_text
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    files = {"json": out / "results.json", "md": out / "results.md"}
+    atomic_write_text(files["json"], json.dumps(jsonable(result.to_json()), indent=1, allow_nan=True) + "\n")
+    atomic_write_text(files["md"], results_markdown(result))
+    fig = plot_paths(result, out / "paths.png")
+    if fig is not None:
+        files["figure"] = fig
+    return files
+
+
+def plot_paths(result: StudyResult, path: Path) -> Path | None:
+    """Estimated against true horizontal paths on the test run (None without matplotlib)."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    inp = result.test_input
+    m = inp.eval_mask()
+    keys = [k for k in ("NOAUG", "AUG_GAN", "SYNTH_PHY", "ekf", "ref: authors' ESKF") if k in result.estimates]
+    fig, axes = plt.subplots(len(keys), 1, figsize=(9.0, 2.4 * len(keys)), sharex=True, sharey=True,
+                             squeeze=False)
+    truth = inp.pos_enu_m
+    anchors = inp.anchor_pos_enu_m
+    by_key = {r["key"]: r for r in result.rows}
+    for ax, k in zip(axes[:, 0], keys, strict=True):
+        est = result.estimates[k]
+        ax.plot(truth[m, 0], truth[m, 1], color="0.2", lw=1.2, label="truth")
+        ax.plot(est[m, 0], est[m, 1], lw=0.8, alpha=0.8, label="estimate")
+        ax.scatter(anchors[:, 0], anchors[:, 1], marker="^", color="tab:red", s=25, label="anchors", zorder=3)
+        ax.set_title(f"{k}: RMSE {by_key[k]['rmse_m']:.2f} m", fontsize=9)
+        ax.set_ylabel("north [m]")
+        ax.set_aspect("equal", adjustable="box")
+    axes[-1][0].set_xlabel("east [m]")
+    axes[0][0].legend(fontsize=7, loc="best")
+    fig.suptitle(f"test run {inp.label}", fontsize=10)
+    fig.tight_layout()
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}.png")
+    fig.savefig(tmp, dpi=120)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path

@@ -1,0 +1,248 @@
+"""Model inputs on the evaluation grid, one function for real and synthetic traces.
+
+For every grid step ``t_k`` (100 Hz, :mod:`physynth.grid`) and anchor ``i``:
+
+- ``range_m[k, i]``: the newest valid range of anchor ``i`` measured at or before ``t_k`` (NaN before
+  the first one, i.e. masked);
+- ``fresh[k, i]``: anchor ``i`` delivered a range in bin ``k`` (:func:`physynth.grid.fresh_mask`);
+- ``aoi_s[k, i]``: age of information [s] (:func:`physynth.grid.age_of_information`);
+- ``anchor_pos_rel_m[i]``: the anchor position relative to the trace's reference point;
+
+plus the IMU acceleration as the mean of the samples in each bin (:func:`physynth.grid.imu_on_grid`,
+NaN without IMU) and the truth position relative to the reference (NaN where unknown). The reference
+point is the anchor centroid, so a model sees the geometry of the site, not its coordinates.
+
+UWB stamps may lag the true time (Hanyang: ~0.18 s, ``uwb.time_offset_s`` of a calibrated scenario);
+``time_offset_s`` moves every UWB row back by that lag before the grid is built, so that ranges and
+truth refer to the same instant. Use the offset estimated on the *training* runs for every run.
+
+Networks run on every ``decimation``-th grid step (:func:`network_arrays`); their outputs are
+interpolated back onto every grid step.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..constants import DEFAULT_GRID_RATE_HZ
+from ..evaluate.grid import age_of_information, fresh_mask, grid_times, imu_on_grid
+from ..records import Trace, Uwb
+
+N_ANCHOR_FEATURES = 9
+"""Per-anchor network features: range, anchor position (3), fresh, AoI, has-range, mean range, range - mean."""
+RANGE_DIFF_SCALE_M = 1.0
+"""Scale of the feature ``range_i - mean range`` [m]: the direction to the tag lives in these differences,
+centimetres to a metre for anchors a few metres apart, invisible at the scale of the range itself."""
+N_GLOBAL_FEATURES = 6
+"""Per-step network features: far-field direction estimate u (3) and mean range x u / L (3)."""
+DIRECTION_RIDGE_M2 = 0.1
+"""Ridge [m^2] of the far-field direction solve (keeps it defined with few anchors or a flat layout)."""
+AOI_SCALE_S = 0.1
+"""AoI feature ``log1p(aoi_s / AOI_SCALE_S)``: about 0.7 at one nominal 10 Hz period, 5.4 at 22 s."""
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TrackInput:
+    """One trace on the grid, as every tracker sees it.
+
+    Shapes: ``t_s`` (K,) [s]; ``range_m``, ``fresh``, ``aoi_s`` (K, A); ``anchor_pos_rel_m`` (A, 3) [m];
+    ``acc_mps2`` (K, 3) [m s^-2] ENU gravity-free, or None without IMU; ``pos_rel_m`` (K, 3) [m]
+    truth (NaN where unknown); ``ref_enu_m`` (3,) [m] the reference point (anchor centroid) that
+    relative positions are measured from. ``first_range_s`` is the time of the first valid range.
+    """
+
+    t_s: np.ndarray
+    range_m: np.ndarray
+    fresh: np.ndarray
+    aoi_s: np.ndarray
+    anchor_pos_rel_m: np.ndarray
+    acc_mps2: np.ndarray | None
+    pos_rel_m: np.ndarray
+    ref_enu_m: np.ndarray
+    first_range_s: float
+    rate_hz: float
+    label: str = ""
+
+    @property
+    def n_steps(self) -> int:
+        return int(self.t_s.shape[0])
+
+    @property
+    def n_anchors(self) -> int:
+        return int(self.anchor_pos_rel_m.shape[0])
+
+    @property
+    def pos_enu_m(self) -> np.ndarray:
+        """Truth (K, 3) in the trace's own ENU frame [m]."""
+        return self.pos_rel_m + self.ref_enu_m
+
+    @property
+    def anchor_pos_enu_m(self) -> np.ndarray:
+        return self.anchor_pos_rel_m + self.ref_enu_m
+
+    @property
+    def has_truth(self) -> bool:
+        return bool(np.any(np.all(np.isfinite(self.pos_rel_m), axis=1)))
+
+    def eval_mask(self) -> np.ndarray:
+        """(K,) steps that are scored: truth known and at or after the first valid range."""
+        return np.all(np.isfinite(self.pos_rel_m), axis=1) & (self.t_s >= self.first_range_s)
+
+
+def shift_uwb(trace: Trace, time_offset_s: float) -> Trace:
+    """The trace with every UWB stamp moved back by ``time_offset_s`` [s] (stamp - offset = true time)."""
+    if time_offset_s == 0.0:
+        return trace
+    u = trace.uwb
+    uwb = Uwb(t_s=u.t_s - time_offset_s, anchor=u.anchor, range_m=u.range_m, true_range_m=u.true_range_m,
+              nlos=u.nlos, burst=u.burst, reason=u.reason, nlos_known=u.nlos_known)
+    return Trace(truth=trace.truth, uwb=uwb, anchors=trace.anchors, imu=trace.imu, meta=trace.meta)
+
+
+def latest_range(trace: Trace, t_s: np.ndarray) -> np.ndarray:
+    """(K, A) newest valid range [m] of each anchor at or before each time of ``t_s``; NaN before the first."""
+    uwb = trace.uwb
+    ok = uwb.valid
+    out = np.full((t_s.shape[0], len(trace.anchors)), np.nan)
+    for i in range(len(trace.anchors)):  # one pass per anchor, vectorised over time
+        sel = ok & (uwb.anchor == i)
+        ti, ri = uwb.t_s[sel], uwb.range_m[sel]
+        if ti.size == 0:
+            continue
+        j = np.searchsorted(ti, t_s + 1e-9, side="right") - 1
+        out[:, i] = np.where(j >= 0, ri[np.maximum(j, 0)], np.nan)
+    return out
+
+
+def track_input(trace: Trace, *, time_offset_s: float = 0.0, rate_hz: float = DEFAULT_GRID_RATE_HZ,
+                label: str = "") -> TrackInput:
+    """The grid inputs of one trace (real or synthetic) after removing the UWB lag ``time_offset_s`` [s]."""
+    tr = shift_uwb(trace, time_offset_s)
+    t_s = grid_times(tr.t0_s, tr.duration_s, rate_hz)
+    ref = tr.anchors.pos_enu_m.mean(axis=0) if len(tr.anchors) else np.zeros(3)
+    valid_t = tr.uwb.t_s[tr.uwb.valid]
+    return TrackInput(
+        t_s=t_s,
+        range_m=latest_range(tr, t_s),
+        fresh=fresh_mask(tr, t_s, rate_hz),
+        aoi_s=age_of_information(tr, t_s),
+        anchor_pos_rel_m=tr.anchors.pos_enu_m - ref,
+        acc_mps2=imu_on_grid(tr, t_s, rate_hz) if tr.imu is not None else None,
+        pos_rel_m=tr.truth.position_at(t_s) - ref,
+        ref_enu_m=ref,
+        first_range_s=float(valid_t[0]) if valid_t.size else float("inf"),
+        rate_hz=float(rate_hz),
+        label=label or str(trace.meta.get("run") or trace.meta.get("label") or ""),
+    )
+
+
+def window_starts(n_steps: int, length: int, stride: int) -> np.ndarray:
+    """Start indices of windows of ``length`` steps every ``stride`` steps; the last one ends at the end.
+
+    A sequence shorter than ``length`` gives one window starting at 0 (the caller pads it).
+    """
+    if length < 1 or stride < 1:
+        raise ValueError(f"window length and stride must be >= 1, got {length}, {stride}")
+    if n_steps <= length:
+        return np.zeros(1, dtype=np.int64)
+    starts = np.arange(0, n_steps - length + 1, stride, dtype=np.int64)
+    if starts[-1] != n_steps - length:
+        starts = np.append(starts, n_steps - length)
+    return starts
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class NetArrays:
+    """Network inputs of one trace on every ``decimation``-th grid step (T = ceil(K / decimation)).
+
+    ``x`` (T, A, 9) float32 per-anchor features: range / L, anchor position / ``anchor_scale_m``, fresh
+    in the last ``decimation`` bins, ``log1p(aoi / AOI_SCALE_S)``, has-range, mean range of the anchors
+    with a range / L, (range - mean range) / ``RANGE_DIFF_SCALE_M``; L = ``length_scale_m``; ``acc``
+    (T, 3) float32 bin-mean acceleration [m s^-2] (zeros without IMU); ``has_imu`` bool; ``y`` (T, 3)
+    float32 truth / L (0 where unknown); ``y_ok`` (T,) bool; ``step`` (T,) grid indices; ``g`` (T, 6)
+    float32 per-step features (:func:`far_field_direction` ``u`` and mean range x ``u`` / L).
+    """
+
+    x: np.ndarray
+    acc: np.ndarray
+    has_imu: bool
+    y: np.ndarray
+    y_ok: np.ndarray
+    step: np.ndarray
+    g: np.ndarray
+
+
+def far_field_direction(range_m: np.ndarray, has: np.ndarray, anchor_rel_m: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Mean range (T,) [m] and direction estimate (T, 3) from the anchor centroid to the tag.
+
+    Far from a compact anchor cluster, ``r_i - mean(r) ~ -(a_i - mean(a)) . u`` with ``u`` the unit
+    vector towards the tag, so ``u`` solves a small linear least-squares problem per step (ridge
+    ``DIRECTION_RIDGE_M2``), batched over steps. Near the anchors it is only a hint; the networks learn
+    how far to trust it. Steps with fewer than two ranges give ``u = 0``.
+    """
+    w = has.astype(float)
+    n = w.sum(axis=1, keepdims=True)
+    mean_r = (np.where(has, range_m, 0.0) * w).sum(axis=1, keepdims=True) / np.maximum(n, 1)
+    mean_a = (w[..., None] * anchor_rel_m[None]).sum(axis=1) / np.maximum(n, 1)
+    b = (anchor_rel_m[None] - mean_a[:, None, :]) * w[..., None]  # (T, A, 3)
+    dr = np.where(has, range_m - mean_r, 0.0)
+    m = np.einsum("tai,taj->tij", b, b) + DIRECTION_RIDGE_M2 * np.eye(3)
+    v = -np.einsum("tai,ta->ti", b, dr)
+    u = np.linalg.solve(m, v[..., None])[..., 0]
+    u = np.where(n >= 2, u, 0.0)
+    return mean_r[:, 0], u
+
+
+def network_arrays(inp: TrackInput, *, decimation: int = 10, length_scale_m: float = 10.0,
+                   anchor_scale_m: float = 2.0, use_imu: bool = True) -> NetArrays:
+    """Decimated, normalised network inputs of one :class:`TrackInput` (vectorised over steps)."""
+    k = np.arange(0, inp.n_steps, decimation, dtype=np.int64)
+    rng_m = inp.range_m[k]
+    has = np.isfinite(rng_m)
+    csum = np.concatenate([np.zeros((1, inp.n_anchors)), np.cumsum(inp.fresh, axis=0)])
+    lo = np.maximum(k + 1 - decimation, 0)
+    fresh = (csum[k + 1] - csum[lo]) > 0
+    a = inp.anchor_pos_rel_m[None, :, :] / anchor_scale_m
+    n_has = has.sum(axis=1, keepdims=True)
+    mean_r = np.where(n_has > 0, np.where(has, rng_m, 0.0).sum(axis=1, keepdims=True) / np.maximum(n_has, 1), 0.0)
+    x = np.concatenate([
+        np.where(has, rng_m, 0.0)[..., None] / length_scale_m,
+        np.broadcast_to(a, (k.size, inp.n_anchors, 3)),
+        fresh[..., None].astype(float),
+        np.log1p(inp.aoi_s[k] / AOI_SCALE_S)[..., None],
+        has[..., None].astype(float),
+        np.broadcast_to(mean_r / length_scale_m, has.shape)[..., None],
+        np.where(has, rng_m - mean_r, 0.0)[..., None] / RANGE_DIFF_SCALE_M,
+    ], axis=-1)
+    has_imu = use_imu and inp.acc_mps2 is not None
+    if has_imu:
+        acc_full = np.nan_to_num(inp.acc_mps2, nan=0.0)
+        cs = np.concatenate([np.zeros((1, 3)), np.cumsum(acc_full, axis=0)])
+        acc = (cs[k + 1] - cs[lo]) / (k + 1 - lo)[:, None]
+    else:
+        acc = np.zeros((k.size, 3))
+    y = inp.pos_rel_m[k] / length_scale_m
+    y_ok = np.all(np.isfinite(y), axis=1) & (inp.t_s[k] >= inp.first_range_s)
+    r_bar, u = far_field_direction(rng_m, has, inp.anchor_pos_rel_m)
+    g = np.concatenate([u, (r_bar[:, None] * u) / length_scale_m], axis=1)
+    return NetArrays(x=x.astype(np.float32), acc=acc.astype(np.float32), has_imu=bool(has_imu),
+                     y=np.where(y_ok[:, None], y, 0.0).astype(np.float32), y_ok=y_ok, step=k,
+                     g=g.astype(np.float32))
+
+
+def upsample(inp: TrackInput, step: np.ndarray, pos_rel_m: np.ndarray) -> np.ndarray:
+    """Positions (T, 3) at grid indices ``step`` -> (K, 3) ENU [m] at every grid step (linear, held at ends)."""
+    out = np.empty((inp.n_steps, 3))
+    ks = np.arange(inp.n_steps)
+    for c in range(3):
+        out[:, c] = np.interp(ks, step, pos_rel_m[:, c])
+    return out + inp.ref_enu_m
+
+
+def max_anchors(inputs: Sequence[TrackInput]) -> int:
+    """Largest anchor count over the inputs."""
+    return max((i.n_anchors for i in inputs), default=0)

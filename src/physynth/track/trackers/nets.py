@@ -1,0 +1,279 @@
+"""Learned trackers: ``aoi-fusion`` (AoI-aware attention fusion) and ``bilstm``, trained with PyTorch.
+
+Both read the windows of :mod:`physynth.track.torch_data` (per-anchor features on every
+``decimation``-th grid step) and regress the position relative to the anchor centroid, divided by
+``length_scale_m``. The loss is the mean squared position error over the steps of a window after its
+first ``burn_in_steps`` (the recurrent state has warmed up) where the truth is known.
+
+``aoi-fusion`` (in the spirit of AoI-FusionNet, paper ref. [9]):
+
+- a shared per-anchor embedding ``e_i = MLP(range_i, anchor_pos_i, fresh_i, aoi_i, has_range_i)``;
+- ``heads`` attention heads with logits ``w_h . e_i - softplus(g_h(aoi_i))``: a learned, per-head AoI
+  penalty, so stale anchors lose weight; anchors without a range and padding are masked, and a learned
+  "null" slot keeps the softmax defined when no anchor has a range; the pooled values of all heads
+  and the masked mean embedding form the fused vector. Any number and layout of anchors;
+- an IMU branch (MLP of the bin-mean acceleration, multiplied by the has-IMU flag, so it can be absent);
+- a recurrent temporal model (``rnn="gru"`` or ``"lstm"``) and an MLP position head.
+
+``bilstm``: the anchors' features concatenated in their order (padded to the anchor count seen in
+training) and the acceleration, a linear layer, a bidirectional LSTM and a linear head.
+
+Prediction runs the network over windows of ``window_steps`` overlapping by ``burn_in_steps`` (the
+training conditions), keeps each window's steps after the burn-in, and interpolates the positions back
+onto every grid step. Training runs on the GPU when one is present (``device="auto"``) and is
+deterministic for a seed on the CPU.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from ...errors import PhySynthError
+from .. import require_torch
+from ..inputs import N_ANCHOR_FEATURES, N_GLOBAL_FEATURES, TrackInput, network_arrays, upsample, window_starts
+from .base import ProgressFn
+
+torch = require_torch()
+nn = torch.nn
+F = torch.nn.functional
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class NetConfig:
+    """Architecture, windows and schedule of a learned tracker (lengths in network steps)."""
+
+    hidden: int = 64
+    heads: int = 4
+    rnn: str = "gru"
+    layers: int = 1
+    decimation: int = 10
+    length_scale_m: float = 10.0
+    anchor_scale_m: float = 2.0
+    window_steps: int = 64
+    stride_steps: int = 16
+    burn_in_steps: int = 8
+    batch_size: int = 32
+    epochs: int = 200
+    lr: float = 1e-3
+    weight_decay: float = 0.0
+    grad_clip: float = 5.0
+    use_imu: bool = False
+    seed: int = 0
+    device: str = "auto"
+
+    def __post_init__(self) -> None:
+        if self.rnn not in ("gru", "lstm"):
+            raise PhySynthError(f"unknown recurrent model '{self.rnn}' (gru or lstm)")
+        if self.burn_in_steps >= self.window_steps:
+            raise PhySynthError("burn_in_steps must be smaller than window_steps")
+        if min(self.hidden, self.heads, self.layers, self.decimation, self.window_steps, self.stride_steps,
+               self.batch_size) < 1 or self.hidden % self.heads:
+            raise PhySynthError(f"invalid network configuration: {self!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _mlp(n_in: int, hidden: int, n_out: int) -> nn.Module:
+    return nn.Sequential(nn.Linear(n_in, hidden), nn.GELU(), nn.Linear(hidden, n_out))
+
+
+class AoIFusionNet(nn.Module):
+    """AoI-aware attention fusion over a set of anchors, then a recurrent model (module docstring)."""
+
+    def __init__(self, cfg: NetConfig) -> None:
+        super().__init__()
+        h, self.heads = cfg.hidden, cfg.heads
+        self.embed = nn.Sequential(nn.Linear(N_ANCHOR_FEATURES, h), nn.GELU(), nn.Linear(h, h), nn.GELU())
+        self.score = nn.Linear(h, cfg.heads)
+        self.aoi_penalty = _mlp(1, 16, cfg.heads)
+        self.value = nn.Linear(h, h)
+        self.null_logit = nn.Parameter(torch.zeros(cfg.heads))
+        self.null_value = nn.Parameter(torch.zeros(h))
+        self.imu = _mlp(3, h // 2, h // 2)
+        self.fuse = nn.Sequential(nn.Linear(2 * h + h // 2 + N_GLOBAL_FEATURES, h), nn.GELU())
+        rnn = nn.GRU if cfg.rnn == "gru" else nn.LSTM
+        self.rnn = rnn(h, h, num_layers=cfg.layers, batch_first=True)
+        self.head = _mlp(h, h, 3)
+
+    def forward(self, x: Any, anchor_ok: Any, acc: Any, has_imu: Any, g: Any) -> Any:
+        """x (B, T, A, 9), anchor_ok (B, A), acc (B, T, 3), has_imu (B,), g (B, T, 6) -> positions (B, T, 3)."""
+        b, t, a, _ = x.shape
+        e = self.embed(x)  # (B, T, A, H)
+        avail = anchor_ok[:, None, :] & (x[..., 6] > 0.5)  # (B, T, A)
+        logits = self.score(e) - F.softplus(self.aoi_penalty(x[..., 5:6]))  # (B, T, A, heads)
+        logits = logits.masked_fill(~avail[..., None], float("-inf"))
+        logits = torch.cat([logits, self.null_logit.expand(b, t, 1, self.heads)], dim=2)
+        w = torch.softmax(logits, dim=2)  # over anchors + null slot
+        v = torch.cat([self.value(e), self.null_value.expand(b, t, 1, -1)], dim=2)
+        dh = v.shape[-1] // self.heads
+        pooled = torch.einsum("btah,btahd->bthd", w, v.view(b, t, a + 1, self.heads, dh)).reshape(b, t, -1)
+        m = avail[..., None].to(e.dtype)
+        mean = (e * m).sum(dim=2) / m.sum(dim=2).clamp(min=1.0)
+        imu = self.imu(acc) * has_imu[:, None, None].to(e.dtype)
+        z = self.fuse(torch.cat([pooled, mean, imu, g], dim=-1))
+        out, _ = self.rnn(z)
+        return self.head(out)
+
+
+class BiLstmNet(nn.Module):
+    """Concatenated per-anchor features (fixed anchor order) -> bidirectional LSTM -> position."""
+
+    def __init__(self, cfg: NetConfig, n_anchors: int) -> None:
+        super().__init__()
+        self.n_anchors = n_anchors
+        n_in = n_anchors * N_ANCHOR_FEATURES + 3 + N_GLOBAL_FEATURES
+        self.inp = nn.Sequential(nn.Linear(n_in, cfg.hidden), nn.GELU())
+        self.rnn = nn.LSTM(cfg.hidden, cfg.hidden, num_layers=cfg.layers, batch_first=True, bidirectional=True)
+        self.head = nn.Linear(2 * cfg.hidden, 3)
+
+    def forward(self, x: Any, anchor_ok: Any, acc: Any, has_imu: Any, g: Any) -> Any:
+        b, t, a, f = x.shape
+        if a > self.n_anchors:
+            raise PhySynthError(f"bilstm was trained on {self.n_anchors} anchors, got a trace with {a}")
+        x = x * anchor_ok[:, None, :, None].to(x.dtype)
+        if a < self.n_anchors:
+            x = F.pad(x, (0, 0, 0, self.n_anchors - a))
+        flat = torch.cat([x.reshape(b, t, -1), acc * has_imu[:, None, None].to(x.dtype), g], dim=-1)
+        out, _ = self.rnn(self.inp(flat))
+        return self.head(out)
+
+
+def masked_loss(pred: Any, batch: dict[str, Any], burn_in: int) -> Any:
+    """Mean squared position error over the steps after ``burn_in`` where the truth is known."""
+    ok = batch["y_ok"].clone()
+    ok[:, :burn_in] = False
+    se = ((pred - batch["y"]) ** 2).sum(dim=-1)
+    return (se * ok).sum() / ok.sum().clamp(min=1)
+
+
+class NetTracker:
+    """A learned tracker (``aoi-fusion`` or ``bilstm``) behind the :class:`~.base.Tracker` interface.
+
+    ``fit(inputs)`` trains from scratch (or continues, see :meth:`train`) for ``config.epochs`` at
+    ``config.lr``. :meth:`train` takes any window dataset (e.g. synthetic traces generated on the fly)
+    with its own epochs and learning rate, which is how pre-training and fine-tuning are done.
+    """
+
+    def __init__(self, arch: str = "aoi-fusion", config: NetConfig | None = None, **overrides: Any) -> None:
+        if arch not in ("aoi-fusion", "bilstm"):
+            raise PhySynthError(f"unknown network '{arch}' (aoi-fusion or bilstm)")
+        self.arch = arch
+        self.name = arch
+        self.config = replace(config or NetConfig(), **overrides)
+        self.model: Any = None
+        self.n_anchors = 0
+        self.history: list[dict[str, Any]] = []
+
+    # ------------------------------------------------------------------ training
+    def window_spec(self) -> Any:
+        from ..torch_data import WindowSpec
+
+        c = self.config
+        return WindowSpec(length=c.window_steps, stride=c.stride_steps, decimation=c.decimation,
+                          length_scale_m=c.length_scale_m, anchor_scale_m=c.anchor_scale_m, use_imu=c.use_imu)
+
+    def device(self) -> Any:
+        """``config.device``; ``auto``: the GPU when one is present, else the CPU (deterministic there)."""
+        if self.config.device == "auto":
+            return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+        return torch.device(self.config.device)
+
+    def _build(self, n_anchors: int) -> None:
+        torch.manual_seed(self.config.seed)
+        self.n_anchors = n_anchors
+        model = AoIFusionNet(self.config) if self.arch == "aoi-fusion" else BiLstmNet(self.config, n_anchors)
+        self.model = model.to(self.device())
+
+    def fit(self, inputs: Sequence[TrackInput], *, progress: ProgressFn | None = None) -> NetTracker:
+        """Train on the windows of ``inputs`` for ``config.epochs`` epochs at ``config.lr``."""
+        from ..torch_data import TraceWindows
+
+        self.train(TraceWindows(list(inputs), self.window_spec()), epochs=self.config.epochs, lr=self.config.lr,
+                   stage="train", progress=progress)
+        return self
+
+    def train(self, dataset: Any, *, epochs: int, lr: float, stage: str = "train",
+              progress: ProgressFn | None = None) -> list[float]:
+        """Adam for ``epochs`` passes over ``dataset`` (shuffled by a seeded generator); mean loss per epoch."""
+        from ..torch_data import collate_windows
+
+        if len(dataset) == 0:
+            raise PhySynthError(f"{stage}: no training windows")
+        if self.model is None:
+            self._build(int(dataset[0]["x"].shape[1]) if self.arch == "bilstm" else 0)
+        c = self.config
+        gen = torch.Generator().manual_seed(c.seed * 1000 + len(self.history))
+        loader = torch.utils.data.DataLoader(dataset, batch_size=c.batch_size, shuffle=True, generator=gen,
+                                             collate_fn=collate_windows, num_workers=0)
+        opt = torch.optim.Adam(self.model.parameters(), lr=lr, weight_decay=c.weight_decay)
+        self.model.train()
+        dev = self.device()
+        losses = []
+        for ep in range(epochs):
+            total, n = 0.0, 0
+            for batch in loader:
+                batch = {k: v.to(dev) for k, v in batch.items()}
+                pred = self.model(batch["x"], batch["anchor_ok"], batch["acc"], batch["has_imu"], batch["g"])
+                loss = masked_loss(pred, batch, c.burn_in_steps)
+                opt.zero_grad()
+                loss.backward()
+                if c.grad_clip > 0:
+                    nn.utils.clip_grad_norm_(self.model.parameters(), c.grad_clip)
+                opt.step()
+                total += float(loss.detach()) * len(batch["x"])
+                n += len(batch["x"])
+            losses.append(total / max(n, 1))
+            if progress is not None:
+                rmse = math.sqrt(max(losses[-1], 0.0)) * c.length_scale_m
+                progress(f"{self.name} {stage}: epoch {ep + 1}/{epochs}, training RMSE {rmse:.3f} m")
+        self.history.append({"stage": stage, "epochs": epochs, "lr": lr, "windows": len(dataset),
+                             "loss": losses})
+        self.model.eval()
+        return losses
+
+    # ------------------------------------------------------------------ prediction
+    def predict(self, inp: TrackInput) -> np.ndarray:
+        """(K, 3) ENU [m]: overlapping windows, their steps after the burn-in, interpolated to the grid."""
+        if self.model is None:
+            raise PhySynthError(f"{self.name}: predict before fit")
+        c = self.config
+        arr = network_arrays(inp, decimation=c.decimation, length_scale_m=c.length_scale_m,
+                             anchor_scale_m=c.anchor_scale_m, use_imu=c.use_imu)
+        n, w, burn = arr.x.shape[0], c.window_steps, c.burn_in_steps
+        starts = window_starts(n, w, w - burn)
+        idx = np.minimum(starts[:, None] + np.arange(w), n - 1)
+        dev = self.device()
+        x = torch.from_numpy(arr.x[idx]).to(dev)
+        acc = torch.from_numpy(arr.acc[idx]).to(dev)
+        ok = torch.ones(len(starts), arr.x.shape[1], dtype=torch.bool, device=dev)
+        imu = torch.full((len(starts),), arr.has_imu, device=dev)
+        g = torch.from_numpy(arr.g[idx]).to(dev)
+        with torch.no_grad():
+            pred = self.model(x, ok, acc, imu, g).cpu().numpy().astype(np.float64)
+        out = np.full((n, 3), np.nan)
+        for j, s in enumerate(starts):  # each window's warm steps (all of the first window)
+            keep = np.arange(w) >= (0 if s == 0 else burn)
+            out[idx[j][keep]] = pred[j][keep]
+        out = upsample(inp, arr.step, out * c.length_scale_m)
+        out[inp.t_s < inp.first_range_s] = np.nan
+        return out
+
+    # ------------------------------------------------------------------ persistence
+    def state(self) -> dict[str, Any]:
+        """A torch-saveable dict: architecture, configuration, anchor count and weights."""
+        weights = None if self.model is None else {k: v.cpu() for k, v in self.model.state_dict().items()}
+        return {"arch": self.arch, "config": self.config.to_dict(), "n_anchors": self.n_anchors, "weights": weights}
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any]) -> NetTracker:
+        tr = cls(state["arch"], NetConfig(**state["config"]))
+        tr._build(state["n_anchors"])
+        tr.model.load_state_dict(state["weights"])
+        tr.model.eval()
+        return tr

@@ -1,0 +1,263 @@
+"""Evidence: one side of a validation (real or synthetic) reduced trace by trace.
+
+:class:`_SideAccumulator` takes traces one at a time and keeps only what the report needs: the
+section-5 metric accumulators, streaming quantile sketches of residuals, gaps and AoI, the
+autocorrelation sums, the pooled Allan-variance sums and Welch spectra of the IMU, each trace's own
+metrics (for the ensemble's band) and, for at most ``MAX_PLOT_TRACES`` traces, the series the figures
+draw. Memory does not grow with the number of traces beyond those few numbers per trace.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..evaluate.grid import age_of_information, fresh_mask, grid_times
+from ..evaluate.metrics import Metrics, MetricsAccumulator, pool, summarize
+from ..evaluate.sketch import REPRESENTATIVES, QuantileSketch
+from ..evaluate.stats import overlapping_allan_variance_sums
+from ..records import Anchors, Trace
+
+ACF_MAX_LAG = 10
+"""Residual autocorrelation is reported at lags 1..ACF_MAX_LAG measurements of one anchor."""
+
+ALLAN_TAUS_S = (0.1, 1.0, 10.0)
+"""Averaging times [s] at which the IMU Allan-deviation ratio synthetic / real is reported."""
+
+WELCH_SEGMENT_S = 5.12
+"""Welch segment length [s] of the IMU acceleration spectrum (512 samples on the 100 Hz grid)."""
+
+IMU_MIN_FINITE_FRAC = 0.8
+"""A trace's IMU enters the spectrum and Allan deviation only when this fraction of its grid bins
+holds at least one sample; the empty bins are filled by linear interpolation."""
+
+MAX_PLOT_TRACES = 100
+"""At most this many traces per side keep their path, speed and per-step series for the figures."""
+
+# ---------------------------------------------------------------- small numeric helpers
+def _num(x: Any) -> float:
+    """A JSON number back to float (None -> NaN)."""
+    return float("nan") if x is None else float(x)
+
+
+def _fill_gaps(y: np.ndarray) -> np.ndarray | None:
+    """(K, 3) grid IMU with NaN rows -> linearly filled copy, or None when too few rows are finite."""
+    ok = np.all(np.isfinite(y), axis=1)
+    if y.shape[0] < 2 or ok.mean() < IMU_MIN_FINITE_FRAC:
+        return None
+    if ok.all():
+        return y
+    k = np.arange(y.shape[0])
+    return np.stack([np.interp(k, k[ok], y[ok, c]) for c in range(y.shape[1])], axis=1)
+
+
+def _allan_m_grid(rate_hz: float) -> np.ndarray:
+    """Averaging factors: log-spaced from one grid step to ~300 s, plus the reported taus exactly."""
+    top = max(np.log10(300.0 * rate_hz), 1.0)
+    m = np.round(np.logspace(0.0, top, int(10 * top) + 1))
+    m = np.concatenate([m, np.round(np.asarray(ALLAN_TAUS_S) * rate_hz)])
+    return np.unique(np.maximum(m, 1)).astype(np.int64)
+
+
+# ---------------------------------------------------------------- evidence (arrays for the figures)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SideEvidence:
+    """Everything the figures need about one side (real or synthetic), reduced from its traces.
+
+    Positions ENU [m], times [s] since each trace's start, residuals [m]. Per-trace lists hold at
+    most :data:`MAX_PLOT_TRACES` entries.
+    """
+
+    n_traces: int
+    anchors: Anchors
+    metrics: Metrics
+    residual_m: np.ndarray
+    residual_anchor: np.ndarray  # (R,) anchor id (object) of each residual
+    gap_s: np.ndarray
+    gap_anchor: np.ndarray  # (G,) anchor id (object) of each gap
+    aoi_s: np.ndarray  # every AoI value of every anchor and grid step, pooled
+    n_fresh_counts: np.ndarray  # (A+1,) grid steps with 0..A fresh anchors
+    paths_enu_m: tuple[np.ndarray, ...]  # decimated truth positions, (T', 3) each
+    speeds: tuple[tuple[np.ndarray, np.ndarray], ...]  # (t_s, speed_mps) each, decimated
+    mean_aoi_series: tuple[np.ndarray, ...]  # per grid step, mean AoI over anchors [s]
+    n_fresh_series: tuple[np.ndarray, ...]  # per grid step, number of fresh anchors
+    sample: Trace  # the first trace, for the range-versus-time figure
+    acf: np.ndarray  # (ACF_MAX_LAG,)
+    psd_f_hz: np.ndarray | None
+    psd_mps2_sq_per_hz: np.ndarray | None  # (3, F)
+    allan_tau_s: np.ndarray | None
+    allan_dev_mps2: np.ndarray | None  # (3, M), NaN where no trace is long enough
+    rate_hz: float
+    per_trace: tuple[dict[str, Any], ...]  # each trace's own metrics (Metrics.to_dict without per_anchor)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Evidence:
+    """The arrays behind a report (for :mod:`physynth.report`); never serialised."""
+
+    real: SideEvidence
+    synthetic: SideEvidence
+
+
+class _SideAccumulator:
+    """Reduces traces one at a time to their summaries and the extended-statistics ingredients."""
+
+    def __init__(self, rate_hz: float) -> None:
+        self.rate_hz = rate_hz
+        self.n_traces = 0
+        self.metrics = MetricsAccumulator()
+        self.per_trace: list[dict[str, Any]] = []
+        self.residuals: dict[str, QuantileSketch] = {}  # per anchor id
+        self.gaps: dict[str, QuantileSketch] = {}  # per anchor id
+        self.aoi = QuantileSketch()
+        self.n_fresh_counts = np.zeros(1, dtype=np.int64)
+        self.paths: list[np.ndarray] = []
+        self.speeds: list[tuple[np.ndarray, np.ndarray]] = []
+        self.mean_aoi_series: list[np.ndarray] = []
+        self.n_fresh_series: list[np.ndarray] = []
+        self.sample: Trace | None = None
+        self.anchors: Anchors | None = None
+        self.acf_num = np.zeros(ACF_MAX_LAG)
+        self.acf_den = 0.0
+        self.allan_m = _allan_m_grid(rate_hz)
+        self.allan_sums = np.zeros((3, self.allan_m.size))
+        self.allan_counts = np.zeros(self.allan_m.size, dtype=np.int64)
+        self.nperseg = max(int(round(WELCH_SEGMENT_S * rate_hz)), 8)
+        self.psd_sum: np.ndarray | None = None
+        self.psd_f: np.ndarray | None = None
+        self.psd_weight = 0.0
+
+    def add(self, trace: Trace) -> None:
+        rate = self.rate_hz
+        if self.sample is None:
+            self.sample, self.anchors = trace, trace.anchors
+        s = summarize(trace, rate)  # the section-5 ingredients, from physynth.metrics
+        self.metrics.add(s)
+        # the trace's own metrics (a few numbers, for the ensemble's 5-95 % band), not its arrays
+        self.per_trace.append({k: v for k, v in pool([s]).to_dict().items() if k != "per_anchor"})
+        self.n_traces += 1
+        ids = np.asarray(trace.anchors.ids, dtype=object)
+        for a in trace.anchors.ids:
+            if a not in self.residuals:
+                self.residuals[a], self.gaps[a] = QuantileSketch(), QuantileSketch()
+        if s.residual_m.size:
+            r_ids, r_inv = np.unique(s.residual_anchor.astype(str), return_inverse=True)
+            for j, a in enumerate(r_ids):
+                self.residuals[str(a)].add(s.residual_m[r_inv == j])
+
+        # grid: fresh anchors per step and AoI (physynth.grid, the one definition)
+        t = grid_times(trace.t0_s, trace.duration_s, rate)
+        fresh = fresh_mask(trace, t, rate)
+        aoi = age_of_information(trace, t)
+        n_fresh = fresh.sum(axis=1)
+        counts = np.bincount(n_fresh, minlength=len(trace.anchors) + 1)
+        if counts.size > self.n_fresh_counts.size:
+            self.n_fresh_counts = np.pad(self.n_fresh_counts, (0, counts.size - self.n_fresh_counts.size))
+        self.n_fresh_counts[:counts.size] += counts
+        self.aoi.add(aoi.ravel())
+
+        # gaps between consecutive valid ranges of one anchor
+        uwb = trace.uwb
+        ok = uwb.valid
+        tv, av = uwb.t_s[ok], uwb.anchor[ok]
+        order = np.lexsort((tv, av))
+        tv, av = tv[order], av[order]
+        same = av[1:] == av[:-1]
+        gap, gap_a = np.diff(tv)[same], av[1:][same]
+        for j in np.unique(gap_a):
+            self.gaps[str(ids[j])].add(gap[gap_a == j])
+
+        # residual autocorrelation within each anchor's (time-ordered) sequence
+        if s.residual_m.size:
+            _, a_idx = np.unique(s.residual_anchor.astype(str), return_inverse=True)
+            order = np.argsort(a_idx, kind="stable")  # keeps time order within an anchor
+            x, a = s.residual_m[order], a_idx[order]
+            x = x - (np.bincount(a, weights=x) / np.bincount(a))[a]
+            self.acf_den += float(x @ x)
+            for k in range(1, ACF_MAX_LAG + 1):
+                if x.size > k:
+                    same_k = a[k:] == a[:-k]
+                    self.acf_num[k - 1] += float(np.dot(x[k:][same_k], x[:-k][same_k]))
+
+        # IMU: Allan variance and Welch spectrum of the 100 Hz-grid acceleration
+        y = _fill_gaps(s.imu_grid_mps2) if trace.imu is not None else None
+        if y is not None:
+            sums, cnt = overlapping_allan_variance_sums(y, self.allan_m, rate)
+            self.allan_sums += sums
+            self.allan_counts += cnt
+            if y.shape[0] >= self.nperseg:
+                from scipy import signal  # imported where used: 0.9 s that most commands do not need
+
+                f, p = signal.welch(y, fs=rate, nperseg=self.nperseg, axis=0, detrend="constant")
+                w = y.shape[0] / self.nperseg
+                self.psd_sum = p.T * w if self.psd_sum is None else self.psd_sum + p.T * w
+                self.psd_f = f
+                self.psd_weight += w
+
+        # per-trace series for the figures (capped)
+        if len(self.paths) < MAX_PLOT_TRACES:
+            step = max(1, trace.truth.t_s.size // 1500)
+            tt = trace.truth.t_s[::step]
+            self.paths.append(trace.truth.pos_enu_m[::step].copy())
+            self.speeds.append((tt - trace.t0_s, np.linalg.norm(trace.truth.vel_enu_mps[::step], axis=1)))
+            self.mean_aoi_series.append(aoi.mean(axis=1).astype(np.float32))
+            self.n_fresh_series.append(n_fresh.astype(np.int8))
+
+    def finish(self) -> tuple[SideEvidence, np.ndarray]:
+        metrics = self.metrics.result()  # exactly what metrics.compute_metrics returns
+        assert self.sample is not None and self.anchors is not None
+        r, r_anchor = _pooled(self.residuals)
+        gap, gap_anchor = _pooled(self.gaps)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            acf = self.acf_num / self.acf_den if self.acf_den > 0 else np.full(ACF_MAX_LAG, np.nan)
+            allan = np.sqrt(self.allan_sums / np.where(self.allan_counts > 0, self.allan_counts, np.nan))
+        has_allan = bool(np.any(self.allan_counts > 0))
+        ev = SideEvidence(
+            n_traces=self.n_traces,
+            anchors=self.anchors,
+            metrics=metrics,
+            residual_m=r,
+            residual_anchor=r_anchor,
+            gap_s=gap,
+            gap_anchor=gap_anchor,
+            aoi_s=self.aoi.values(),
+            n_fresh_counts=self.n_fresh_counts,
+            paths_enu_m=tuple(self.paths),
+            speeds=tuple(self.speeds),
+            mean_aoi_series=tuple(self.mean_aoi_series),
+            n_fresh_series=tuple(self.n_fresh_series),
+            sample=self.sample,
+            acf=acf,
+            psd_f_hz=self.psd_f,
+            psd_mps2_sq_per_hz=None if self.psd_sum is None else self.psd_sum / self.psd_weight,
+            allan_tau_s=self.allan_m / self.rate_hz if has_allan else None,
+            allan_dev_mps2=allan if has_allan else None,
+            rate_hz=self.rate_hz,
+            per_trace=tuple(self.per_trace),
+        )
+        return ev, r
+
+
+def _pooled(sketches: Mapping[str, QuantileSketch]) -> tuple[np.ndarray, np.ndarray]:
+    """Values of per-anchor sketches pooled, with the anchor id of each value.
+
+    Exact values while a sketch is exact; a folded sketch stands in with evenly spaced quantiles in
+    proportion to its count (:mod:`physynth.evaluate.sketch`), so pooled statistics keep its weight.
+    """
+    total = sum(sk.n for sk in sketches.values())
+    vals, labels = [], []
+    for a, sk in sketches.items():
+        if sk.n == 0:
+            continue
+        k = max(1, round(REPRESENTATIVES * sk.n / total)) if sk.folded else sk.n
+        v = sk.values(k)
+        vals.append(v)
+        labels.append(np.full(v.size, a, dtype=object))
+    if not vals:
+        return np.zeros(0), np.array([], dtype=object)
+    return np.concatenate(vals), np.concatenate(labels)
+
+

@@ -1,0 +1,107 @@
+"""Learned trackers, torch datasets and the residual GAN (tiny sizes, fixed seeds)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from track_helpers import site_scenario  # noqa: E402
+
+from physynth.generate import generate_trace  # noqa: E402
+from physynth.track.gan import GanConfig, ResidualGan, augment_trace, range_residuals  # noqa: E402
+from physynth.track.inputs import track_input  # noqa: E402
+from physynth.track.synth import SynthVariation, synthetic_trace  # noqa: E402
+from physynth.track.torch_data import SyntheticWindows, TraceWindows, WindowSpec, collate_windows  # noqa: E402
+from physynth.track.trackers import make_tracker  # noqa: E402
+from physynth.track.trackers.nets import NetTracker  # noqa: E402
+
+SMALL = {"hidden": 16, "heads": 2, "window_steps": 12, "stride_steps": 4, "burn_in_steps": 2, "batch_size": 8,
+         "decimation": 10, "seed": 0}
+
+
+@pytest.fixture(scope="module")
+def inputs():
+    torch.set_num_threads(1)
+    scn = site_scenario(noise_m=0.05)
+    return [track_input(generate_trace(scn, i, 21)) for i in range(2)]
+
+
+@pytest.mark.parametrize("arch", ["aoi-fusion", "bilstm"])
+def test_network_loss_falls_on_a_small_task(inputs, arch):
+    net = make_tracker(arch, epochs=12, lr=3e-3, **SMALL)
+    net.fit(inputs)
+    loss = net.history[0]["loss"]
+    assert loss[-1] < 0.3 * loss[0], loss
+    est = net.predict(inputs[0])
+    assert est.shape == (inputs[0].n_steps, 3)
+    assert np.isfinite(est[inputs[0].eval_mask()]).all()
+
+
+def test_aoi_fusion_takes_any_anchor_count(inputs):
+    net = make_tracker("aoi-fusion", epochs=1, **SMALL).fit(inputs)
+    three = site_scenario(anchors=[{"id": "A1", "pos_enu_m": [0, -8, 2]}, {"id": "A2", "pos_enu_m": [40, -8, 0.5]},
+                                   {"id": "A3", "pos_enu_m": [20, 9, 2.5]}])
+    est = net.predict(track_input(generate_trace(three, 0, 1)))
+    assert np.isfinite(est[-1]).all()
+    mixed = TraceWindows([inputs[0], track_input(generate_trace(three, 0, 1))], net.window_spec())
+    batch = collate_windows([mixed[0], mixed[len(mixed) - 1]])
+    assert batch["x"].shape[2] == 4 and batch["anchor_ok"].sum().item() == 7
+
+
+def test_training_is_deterministic_and_state_round_trips(inputs):
+    a = make_tracker("aoi-fusion", epochs=2, **SMALL).fit(inputs)
+    b = make_tracker("aoi-fusion", epochs=2, **SMALL).fit(inputs)
+    assert a.history[0]["loss"] == b.history[0]["loss"]
+    c = NetTracker.from_state(a.state())
+    np.testing.assert_array_equal(a.predict(inputs[1]), c.predict(inputs[1]))
+
+
+def _all_items(ds, workers):
+    loader = torch.utils.data.DataLoader(ds, batch_size=5, shuffle=False, num_workers=workers,
+                                         collate_fn=collate_windows)
+    return [b for b in loader]
+
+
+def test_on_the_fly_windows_identical_across_workers_and_epochs():
+    scn = site_scenario(noise_m=0.1, **{"channel.nlos_prob": 0.1, "availability.dropout_prob": 0.1})
+    var = SynthVariation(layout_jitter_m=0.5, path_yaw_std_rad=0.1, path_shift_std_m=0.5, path_lateral_std_m=0.5,
+                         shuffle_anchors=True)
+    spec = WindowSpec(length=8, stride=4, decimation=10)
+    ds = SyntheticWindows(scn, 3, 1234, spec, windows_per_trace=4, variation=var, cache_size=1)
+    one = _all_items(ds, 0)
+    two = _all_items(SyntheticWindows(scn, 3, 1234, spec, windows_per_trace=4, variation=var), 2)
+    again = _all_items(ds, 0)
+    assert len(one) == len(two) == 3
+    for b1, b2, b3 in zip(one, two, again, strict=True):
+        for key in b1:
+            assert torch.equal(b1[key], b2[key]) and torch.equal(b1[key], b3[key]), key
+    other = SyntheticWindows(scn, 3, 1235, spec, windows_per_trace=4, variation=var)[0]
+    assert not torch.equal(other["x"], one[0]["x"][0])
+
+
+def test_variation_moves_layout_and_path_but_not_the_seeded_rest():
+    scn = site_scenario()
+    plain = synthetic_trace(scn, 0, 5)
+    varied = synthetic_trace(scn, 0, 5, SynthVariation(layout_jitter_m=0.5, path_shift_std_m=1.0))
+    assert not np.allclose(plain.anchors.pos_enu_m, varied.anchors.pos_enu_m)
+    assert not np.allclose(plain.truth.pos_enu_m[:10], varied.truth.pos_enu_m[:10])
+    np.testing.assert_array_equal(synthetic_trace(scn, 0, 5, SynthVariation()).uwb.range_m,
+                                  synthetic_trace(scn, 0, 5, SynthVariation()).uwb.range_m)
+
+
+def test_gan_learns_the_residual_scale_and_augments_only_ranges():
+    torch.set_num_threads(1)
+    scn = site_scenario(noise_m=0.2, **{"channel.los_mean_m": 0.3})
+    traces = [generate_trace(scn, i, 8) for i in range(2)]
+    gan = ResidualGan(GanConfig(steps=600, seed=0)).fit(traces, 0.0)
+    geo = np.full(4000, 20.0)
+    s = gan.sample(geo, seed=1)
+    np.testing.assert_array_equal(s, gan.sample(geo, seed=1))
+    assert 0.1 < np.median(s) < 0.5 and 0.08 < np.std(s) < 0.4
+    aug = augment_trace(traces[0], gan, 0.0, seed=2)
+    np.testing.assert_array_equal(aug.uwb.t_s, traces[0].uwb.t_s)
+    assert np.array_equal(np.isfinite(aug.uwb.range_m), np.isfinite(traces[0].uwb.range_m))
+    _, _, res = range_residuals(aug, 0.0)
+    assert 0.1 < np.median(res) < 0.5

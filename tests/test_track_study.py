@@ -1,0 +1,133 @@
+"""The tracking study end to end (tiny schedule), its results files, and the CLI's bad-input lines."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from track_helpers import site_scenario  # noqa: E402
+
+from physynth.cli import main  # noqa: E402
+from physynth.errors import PhySynthError  # noqa: E402
+from physynth.generate import generate_trace  # noqa: E402
+from physynth.io import write_dataset  # noqa: E402
+from physynth.records import Trace, Truth, Uwb  # noqa: E402
+from physynth.studies.tracking import (  # noqa: E402
+    METHODS,
+    StudyConfig,
+    StudyRun,
+    run_tracking_study,
+    write_results,
+)
+
+TINY = {"epochs": 2, "pretrain_epochs": 1, "finetune_epochs": 1, "n_synth_traces": 2, "synth_windows_per_trace": 4,
+        "gan_steps": 50, "gan_copies": 1, "threads": 1,
+        "net": {"hidden": 16, "heads": 2, "window_steps": 12, "stride_steps": 6, "burn_in_steps": 2}}
+
+
+@pytest.fixture(scope="module")
+def runs():
+    scn = site_scenario(noise_m=0.05, **{"uwb.time_offset_s": 0.05})
+    return scn, [StudyRun(label=f"run{i}", trace=generate_trace(scn, i, 99)) for i in range(3)]
+
+
+def test_tiny_study_end_to_end_and_results_parse(runs, tmp_path):
+    scn, rr = runs
+    res = run_tracking_study(rr[:2], rr[2], scenario=scn, config=StudyConfig(**TINY))
+    files = write_results(res, tmp_path)
+    data = json.loads(files["json"].read_text())
+    keys = [r["key"] for r in data["rows"]]
+    assert keys[:len(METHODS) + 1] == ["NOAUG", "AUG_GAN", "SYNTH_PHY (synthetic only)", "SYNTH_PHY", "bilstm",
+                                       "ls", "ekf"]
+    for row in data["rows"]:
+        assert {"method", "rmse_m", "rmse_2d_m", "mae_m", "p50_m", "p95_m", "delta_rmse_pct"} <= set(row)
+        assert np.isfinite(row["rmse_m"]) and row["p95_m"] >= row["p50_m"]
+    assert data["rows"][0]["delta_rmse_pct"] is None and data["rows"][1]["delta_rmse_pct"] is not None
+    assert data["config"]["epochs"] == 2 and data["config"]["finetune_lr"] == 5e-5
+    assert data["data"]["time_offset"]["offset_s"] == pytest.approx(0.05, abs=0.01)  # estimated, not given
+    ekf = next(r for r in data["rows"] if r["key"] == "ekf")
+    assert ekf["rmse_2d_m"] < 0.25  # height is weakly observed by this layout
+    md = files["md"].read_text()
+    assert "| Method | RMSE (m)" in md and "NOAUG" in md
+    assert files["figure"].stat().st_size > 1000
+
+
+def test_study_is_deterministic_for_a_seed(runs):
+    scn, rr = runs
+    cfg = StudyConfig(**{**TINY, "methods": ("NOAUG", "SYNTH_PHY")})
+    a = run_tracking_study(rr[:2], rr[2], scenario=scn, config=cfg)
+    b = run_tracking_study(rr[:2], rr[2], scenario=scn, config=cfg)
+    assert [r["rmse_m"] for r in a.rows] == [r["rmse_m"] for r in b.rows]
+
+
+def test_bad_inputs_are_user_errors(runs):
+    scn, rr = runs
+    with pytest.raises(PhySynthError, match="unknown method"):
+        StudyConfig(methods=("NOAUG", "kalman"))
+    t = rr[2].trace
+    no_truth = Trace(truth=Truth(t_s=t.truth.t_s, pos_enu_m=np.full_like(t.truth.pos_enu_m, np.nan),
+                                 vel_enu_mps=t.truth.vel_enu_mps), uwb=t.uwb, anchors=t.anchors)
+    with pytest.raises(PhySynthError, match="no ground truth"):
+        run_tracking_study(rr[:2], StudyRun(label="x", trace=no_truth), config=StudyConfig(methods=("ls",)))
+    no_uwb = Trace(truth=t.truth, uwb=Uwb(t_s=np.array([]), anchor=np.array([], np.int16), range_m=np.array([])),
+                   anchors=t.anchors)
+    with pytest.raises(PhySynthError, match="no UWB"):
+        run_tracking_study([StudyRun(label="y", trace=no_uwb)], rr[2], config=StudyConfig(methods=("ls",)))
+
+
+def _cli(capsys, *args):
+    with pytest.raises(SystemExit) as exc:
+        main([*map(str, args)])
+    return exc.value.code, capsys.readouterr()
+
+
+def test_cli_bad_input_exit_2_one_line(runs, tmp_path, capsys):
+    scn, rr = runs
+    train = write_dataset(tmp_path / "train", [r.trace for r in rr[:2]])
+    t = rr[2].trace
+    no_truth = Trace(truth=Truth(t_s=t.truth.t_s, pos_enu_m=np.full_like(t.truth.pos_enu_m, np.nan),
+                                 vel_enu_mps=t.truth.vel_enu_mps), uwb=t.uwb, anchors=t.anchors)
+    bad_test = write_dataset(tmp_path / "bad", [no_truth])
+    cases = [
+        (["--train", train, "--test", bad_test, "--methods", "ls"], "no ground truth"),
+        (["--train", train, "--test", train, "--methods", "NOAUG,kalman"], "unknown method"),
+        (["--train", train, "--methods", "ls"], "both --train and --test"),
+        (["--train", tmp_path / "missing", "--test", train, "--methods", "ls"], "does not exist"),
+    ]
+    for args, needle in cases:
+        code, out = _cli(capsys, "study", "tracking", *args, "--out", tmp_path / "o", "-q")
+        assert code == 2, (args, out.err)
+        assert needle in out.err and len(out.err.strip().splitlines()) == 1 and "Traceback" not in out.err
+
+
+def test_cli_classical_methods_write_results(runs, tmp_path, capsys):
+    scn, rr = runs
+    train = write_dataset(tmp_path / "train", [r.trace for r in rr[:2]])
+    test = write_dataset(tmp_path / "test", [rr[2].trace])
+    main(["study", "tracking", "--train", str(train), "--test", str(test), "--methods", "ls,ekf",
+          "--out", str(tmp_path / "out")])
+    assert "results.json" in capsys.readouterr().out
+    rows = json.loads((tmp_path / "out" / "results.json").read_text())["rows"]
+    assert [r["key"] for r in rows] == ["ls", "ekf"]
+
+
+def test_without_torch_the_command_names_the_extra(tmp_path):
+    import subprocess
+    import sys
+
+    code = ("import sys\n"
+            "class Block:\n"
+            "    def find_spec(self, name, path=None, target=None):\n"
+            "        if name == 'torch' or name.startswith('torch.'):\n"
+            "            raise ImportError('no torch here')\n"
+            "sys.meta_path.insert(0, Block())\n"
+            "import physynth, physynth.track, physynth.studies.tracking\n"
+            "from physynth.cli import main\n"
+            f"main(['study', 'tracking', '--methods', 'NOAUG', '--out', {str(tmp_path / 'o')!r}])\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip() == "physynth: error: this needs PyTorch: pip install 'physynth[ml]'"
