@@ -121,11 +121,19 @@ def test_symlinked_out_replaces_the_target_and_keeps_the_link(dataset, small, tm
 
 
 # ------------------------------------------------------------------ 2. interruption
+def _hidden(folder: Path) -> list[str]:
+    """Every hidden name below ``folder`` (temporary folders, locks), relative."""
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob(".*"))
+
+
 def _start_long_generate(out: Path, tmp_path: Path) -> subprocess.Popen:
-    proc = subprocess.Popen([*CLI, "generate", "-n", "2000", "--seed", "1", "--out", str(out), "-q", "--force"],
+    """A real ``physynth generate`` subprocess, returned once it is writing its (single) shard."""
+    proc = subprocess.Popen([*CLI, "generate", "-n", "3000", "--seed", "1", "--out", str(out), "-q", "--force",
+                             "--workers", "1", "--shard-traces", "100000"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     deadline = time.monotonic() + 120
-    while not any(p.name.startswith(f".{out.name}.tmp-") for p in out.parent.iterdir()):
+    partial = out.with_name(f".{out.name}.partial")
+    while not (partial.is_dir() and any(p.name.startswith(".shard-00000.tmp-") for p in partial.iterdir())):
         assert proc.poll() is None, proc.communicate()
         assert time.monotonic() < deadline, "the writer never started"
         time.sleep(0.05)
@@ -138,22 +146,39 @@ def test_signal_exits_128_plus_signal_and_removes_temporary_files(tmp_path, sig,
     out = tmp_path / "ds"
     proc = _start_long_generate(out, tmp_path)
     proc.send_signal(sig)
-    _, err = proc.communicate(timeout=120)
+    try:
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()  # never leave a writer behind, even when the test fails
     assert proc.returncode == code, err
-    assert err.count("\n") == 1 and "interrupted by SIG" in err and "Traceback" not in err
-    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no dataset, no temp folder, no lock
+    assert err.count("\n") == 1 and "interrupted by SIG" in err and "--resume" in err and "Traceback" not in err
+    # nothing that looks complete: no dataset, no temporary shard, no lock; only the resumable plan
+    assert not out.exists()
+    assert _hidden(tmp_path) == [".ds.partial"]
+    assert [p.name for p in (tmp_path / ".ds.partial").iterdir()] == ["run.json"]
 
 
-def test_after_sigkill_the_next_run_removes_the_orphan_and_says_so(tmp_path, small, capsys):
+def test_after_sigkill_the_next_run_says_so_and_starts_over_or_resumes(tmp_path, small, capsys):
     out = tmp_path / "ds"
     proc = _start_long_generate(out, tmp_path)
     proc.kill()
     proc.wait(timeout=60)
-    orphans = [p for p in tmp_path.iterdir() if p.name.startswith(".ds.tmp-")]
-    assert len(orphans) == 1 and not out.exists()
+    assert not out.exists() and any(".shard-00000.tmp-" in h for h in _hidden(tmp_path))
     code, _, err = run(capsys, "generate", "-s", small, "-n", 1, "--out", out, "-q")
-    assert code == 0 and "removed" in err and "interrupted run" in err and orphans[0].name in err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds", "walk.yaml"]
+    assert code == 2 and one_line(err) and "unfinished run" in err and "--resume" in err
+    code, _, err = run(capsys, "generate", "-s", small, "-n", 1, "--out", out, "-q", "--overwrite")
+    assert code == 0, err
+    assert _hidden(tmp_path) == [] and (out / "dataset.json").is_file()
+
+
+def test_an_orphaned_temporary_folder_is_removed_and_reported(tmp_path, small, capsys):
+    out = tmp_path / "ds"
+    orphan = tmp_path / ".ds.tmp-999999"  # what a kill during the final rename or an import leaves
+    orphan.mkdir()
+    (orphan / "truth.parquet").write_bytes(b"x" * 1000)
+    code, _, err = run(capsys, "generate", "-s", small, "-n", 1, "--out", out, "-q")
+    assert code == 0 and "removed" in err and "interrupted run (pid 999999)" in err and one_line(err)
+    assert _hidden(tmp_path) == [] and (out / "dataset.json").is_file()
 
 
 def test_typer_130_return_is_not_dropped(monkeypatch, capsys):
@@ -168,15 +193,16 @@ def test_typer_130_return_is_not_dropped(monkeypatch, capsys):
 def test_a_failure_inside_close_leaves_nothing(tmp_path, monkeypatch):
     from helpers import simple_scenario
 
+    from physynth.generate import generate_traces
     from physynth.io import dataset as dsmod
-    from physynth.workflows import generate_dataset
+    from physynth.io import write_dataset
 
     def boom(*a, **k):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(dsmod.integrity, "file_records", boom)
     with pytest.raises(OSError):
-        generate_dataset(simple_scenario(), 2, tmp_path / "ds", seed=1)
+        write_dataset(tmp_path / "ds", generate_traces(simple_scenario(), 2, seed=1))
     assert list(tmp_path.iterdir()) == []
 
 
@@ -190,7 +216,10 @@ def test_a_second_writer_is_refused_while_the_first_runs(tmp_path, small, capsys
         assert f"pid {proc.pid}" in err
     finally:
         proc.send_signal(signal.SIGINT)
-        proc.communicate(timeout=120)
+        try:
+            proc.communicate(timeout=120)
+        finally:
+            proc.kill()
 
 
 def test_a_stale_lock_is_taken_over(tmp_path, small, capsys):
@@ -198,8 +227,11 @@ def test_a_stale_lock_is_taken_over(tmp_path, small, capsys):
     lock_path(out).write_text("pid 999999 host elsewhere since 2020-01-01T00:00:00Z\n")
     code, _, err = run(capsys, "generate", "-s", small, "-n", 1, "--out", out, "-q")
     assert code == 0, err
-    assert "took over the stale lock" in err and "pid 999999" in err
     assert not lock_path(out).exists()
+    lock = OutputLock(out)
+    lock_path(out).write_text("pid 999999 host elsewhere since 2020-01-01T00:00:00Z\n")
+    with lock:
+        assert lock.stale_owner.startswith("pid 999999")
 
 
 def test_lock_held_in_this_process_blocks_another_holder(tmp_path):
@@ -522,3 +554,42 @@ def test_calibrate_overwrites_only_its_own_files(dataset, tmp_path, capsys):
     assert code == 0, err
     assert json.loads(rep.read_text())["generator"]["name"] == "physynth"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cal.yaml", "ds", "fit.json", "mine.yaml", "walk.yaml"]
+
+
+def test_a_swallowed_interrupt_is_raised_at_the_next_trace(tmp_path):
+    """A signal whose exception lands in a finaliser is lost; the writer re-raises it at the next trace."""
+    from helpers import simple_scenario
+
+    from physynth.errors import Interrupted
+    from physynth.generate import generate_traces
+    from physynth.io import safety, write_dataset
+
+    def traces():
+        for i, t in enumerate(generate_traces(simple_scenario(), 5, seed=1)):
+            if i == 2:
+                safety.set_interrupted(signal.SIGTERM)
+            yield t
+
+    try:
+        with pytest.raises(Interrupted):
+            write_dataset(tmp_path / "ds", traces())
+    finally:
+        safety.clear_interrupted()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_dataset_of_several_shards_is_verified_and_replaceable(tmp_path, small, capsys):
+    out = tmp_path / "ds"
+    args = ["generate", "-s", small, "-n", 5, "--seed", 3, "--out", out, "-q", "--workers", 1, "--shard-traces", 2]
+    assert run(capsys, *args)[0] == 0
+    meta = json.loads((out / "dataset.json").read_text())
+    assert "truth/part-00002.parquet" in meta["files"] and meta["n_traces"] == 5
+    code, stdout, _ = run(capsys, "verify", out)
+    assert code == 0 and "12 file(s)" in stdout
+    assert len(read_dataset(out)) == 5
+    _flip_byte(out / "uwb" / "part-00001.parquet")
+    code, _, err = run(capsys, "verify", out)
+    assert code == 2 and one_line(err) and "uwb/part-00001.parquet" in err
+    code, _, err = run(capsys, *args, "--overwrite")  # the parts folders are PhySynth's own
+    assert code == 0, err
+    assert run(capsys, "verify", out)[0] == 0

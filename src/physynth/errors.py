@@ -65,8 +65,9 @@ class Interrupted(BaseException):  # noqa: N818 - like KeyboardInterrupt
     cleans up on the way out. ``signum`` is the signal number (exit code ``128 + signum``).
     """
 
-    def __init__(self, signum: int) -> None:
+    def __init__(self, signum: int, note: str = "") -> None:
         self.signum = signum
+        self.note = note  # what was kept (e.g. complete shards for --resume); default: nothing
         super().__init__(signum)
 
 

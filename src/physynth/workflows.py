@@ -17,6 +17,7 @@ from .constants import DEFAULT_GRID_RATE_HZ
 from .errors import AnchorMismatchError, PhySynthError
 from .evaluate.metrics import Metrics, compute_metrics
 from .generate import compile_scenario, dataset_meta, generate_traces
+from .io import safety
 from .io.dataset import iter_traces, n_traces, read_dataset, read_meta, table_files
 from .io.scenario_file import load_scenario
 from .io.shards import DEFAULT_SHARD_TRACES
@@ -51,14 +52,16 @@ def generate_dataset(scn: Scenario, n: int, out: str | Path, *, seed: int | None
     shard_traces : int
         Traces per shard (:mod:`physynth.io.shards`). The output is the same for any ``workers``.
     force : bool
-        Go ahead even when the size estimate exceeds the budget (:func:`physynth.bounds.check_budget`).
+        Go ahead when the size estimate exceeds the budget (:func:`physynth.bounds.check_budget`, checked
+        before any work).
     inputs : sequence of paths
-        Files the scenario was read from: ``out`` may not be or hold one (:mod:`physynth.io.safety`).
+        Files the run reads (e.g. the scenario file): ``out`` may not be or hold one
+        (:func:`physynth.io.safety.check_output`).
 
     Returns the dataset path and the root seed used (drawn from OS entropy when ``seed`` is None and
     there is nothing to resume). ``progress(message, done, total)`` reports traces written.
     """
-    from .io import safety, shards
+    from .io import shards
 
     if n < 1:
         raise PhySynthError(f"the number of traces must be at least 1, got {n}")
@@ -69,8 +72,7 @@ def generate_dataset(scn: Scenario, n: int, out: str | Path, *, seed: int | None
     if workers < 1:
         raise PhySynthError(f"the number of workers must be at least 1, got {workers}")
     check_budget(scn, n, force=force)
-    # what --overwrite may replace, inputs, the lock (released when done); the partial shards of an
-    # unfinished run are kept for resume
+    # safety hook (physynth.io.safety): what may be replaced, inputs, the output's lock, orphaned temp folders
     out, lock = safety.prepare_output(out, kind="dataset", overwrite=overwrite, inputs=inputs)
     try:
         previous = shards.read_plan(out) if resume else None
@@ -112,15 +114,15 @@ def read_recordings(paths: Sequence[str | os.PathLike], *,
         raise CalibrationError("no dataset directories given")
     traces, sources, sites = [], [], []
     for p in paths:
-        meta = read_meta(p)
-        own = list(iter_traces(p, meta))  # streamed; calibration itself needs the traces together
-        sites.append(site_of(str(p), meta, own))
-        check_same_site(sites, allow_mixed=allow_mixed)
         sources.append(str(Path(p)))
-        for i, t in enumerate(own):
+        these = []
+        for i, t in enumerate(iter_traces(p)):  # streamed; calibration itself needs the traces together
             lab = f"{Path(p).name}/{t.meta.get('run') or f'trace {i}'}"
-            traces.append(Trace(truth=t.truth, uwb=t.uwb, anchors=t.anchors, imu=t.imu,
-                                meta={**t.meta, "label": lab}))
+            these.append(Trace(truth=t.truth, uwb=t.uwb, anchors=t.anchors, imu=t.imu,
+                               meta={**t.meta, "label": lab}))
+        sites.append(site_of(str(p), read_meta(p), these))
+        check_same_site(sites, allow_mixed=allow_mixed)
+        traces += these
     return traces, sources
 
 
@@ -188,8 +190,8 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
                       scenario: str | Path | Scenario | None = None,
                       n: int = 50, seed: int | None = None, transfer: bool = False,
                       rate_hz: float = DEFAULT_GRID_RATE_HZ,
-                      progress: ProgressCallback | None = None, anchors: Sequence[str] | None = None,
-                      force: bool = False) -> ValidationReport:
+                      progress: ProgressCallback | None = None,
+                      anchors: Sequence[str] | None = None, force: bool = False) -> ValidationReport:
     """Validate a real dataset against a synthetic dataset or against traces generated from a scenario.
 
     Parameters

@@ -80,7 +80,8 @@ def main(argv: list[str] | None = None) -> None:
             print("physynth: interrupted" if rc == EXIT_INTERRUPTED else f"physynth: exit {rc}", file=sys.stderr)
             sys.exit(rc)
     except Interrupted as exc:
-        print(f"physynth: interrupted by {signal_name(exc.signum)}; incomplete output removed", file=sys.stderr)
+        kept = exc.note or "incomplete output removed"
+        print(f"physynth: interrupted by {signal_name(exc.signum)}; {kept}", file=sys.stderr)
         sys.exit(128 + exc.signum)
     except OutputExistsError as exc:
         fail(f"{exc} (use --overwrite to replace it)")

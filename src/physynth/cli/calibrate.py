@@ -59,6 +59,9 @@ def calibrate_cmd(
     from ..errors import PhySynthError
     from ..io.safety import check_distinct, check_output, guarded_outputs
 
+    if layout_from is not None and anchor_layout != "per-run":
+        raise PhySynthError("--layout-from needs --anchor-layout per-run")
+    chosen: int | str | None = int(layout_from) if layout_from is not None and layout_from.isdigit() else layout_from
     inputs = [*datasets, *([static_sweeps] if static_sweeps else [])]
     check_distinct([("--out", out), ("--report", report)])
     for target, kind in [(out, "scenario")] + ([(report, "json")] if report else []):

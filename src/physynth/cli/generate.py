@@ -67,6 +67,7 @@ def generate_cmd(
         if not quiet and n > shard_traces:
             typer.echo("physynth: Dask is not installed, generating on one core "
                        "(pip install 'physynth[scale]' for all cores)", err=True)
+    resume_hint = f"complete shards are kept: run the same command with --resume to finish {out}"
     try:
         with progress_bar(not quiet) as progress:
             path, root = generate_dataset(scn, n, out, seed=seed, overwrite=overwrite, progress=progress,
@@ -78,11 +79,11 @@ def generate_cmd(
             raise PhySynthError(str(exc).replace(hint, "; add --resume to complete it or --overwrite to start "
                                                  "over")) from None
         raise
-    except (KeyboardInterrupt, Interrupted) as exc:
-        typer.echo(f"physynth: interrupted; complete shards are kept: run the same command with --resume "
-                   f"to finish {out}", err=True)
-        if isinstance(exc, Interrupted):
-            raise typer.Exit(128 + exc.signum) from None
+    except Interrupted as exc:  # physynth.cli.main prints one line and exits 128 + signal
+        exc.note = resume_hint
+        raise
+    except KeyboardInterrupt:
+        typer.echo(f"physynth: interrupted; {resume_hint}", err=True)
         raise typer.Exit(130) from None
     if not quiet:
         where = f"on {scheduler}" if scheduler else f"{min(n_workers, -(-n // shard_traces))} worker(s)"

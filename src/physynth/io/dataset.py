@@ -196,6 +196,7 @@ class DatasetWriter:
         try:
             safety.remove_tree(self.tmp)
             self.tmp.mkdir(parents=True)
+            safety.register_temporary(self.tmp)
         except OSError as exc:
             self._lock.release()
             raise DatasetError(f"cannot create {self.path}: {exc.strerror}") from None
@@ -220,6 +221,7 @@ class DatasetWriter:
             self.meta.setdefault("float32_columns", list(FLOAT32_COLUMNS))
 
     def add(self, trace: Trace, index: int | None = None) -> None:
+        safety.check_interrupted()  # a signal whose exception was swallowed (physynth.io.safety)
         index = len(self._trace_meta) if index is None else int(index)
         for name, table in _tables_of(trace, index, self.compact).items():
             self._pending[name].append(table)
@@ -275,6 +277,7 @@ class DatasetWriter:
         if os.path.lexists(self.path):
             os.replace(self.path, old)
         os.replace(self.tmp, self.path)
+        safety.unregister_temporary(self.tmp)
         self._closed = True
         safety.remove_tree(old)
         self._lock.release()
@@ -287,6 +290,7 @@ class DatasetWriter:
             except Exception:  # noqa: BLE001 - best effort clean-up of a failed write
                 pass
         shutil.rmtree(self.tmp, ignore_errors=True)
+        safety.unregister_temporary(self.tmp)
         self._closed = True
         self._lock.release()
 

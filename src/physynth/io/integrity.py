@@ -14,8 +14,9 @@ readers accept them, ``verify`` says they cannot be verified.
 from __future__ import annotations
 
 import hashlib
+import json
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -48,6 +49,22 @@ def file_records(folder: Path, rows: Mapping[str, int]) -> dict[str, dict[str, A
     return out
 
 
+def shard_file_records(shards: Sequence[Path], tables: Iterable[str], *, single: bool) -> dict[str, dict[str, Any]]:
+    """The records of the final dataset assembled from shard datasets (:mod:`physynth.io.shards`): each
+    shard's own records (its files are linked or copied unchanged) under the final names
+    (``truth.parquet`` for one shard, ``truth/part-00000.parquet`` ... for several)."""
+    out: dict[str, dict[str, Any]] = {}
+    for k, shard in enumerate(shards):
+        own = json.loads((shard / "dataset.json").read_text(encoding="utf-8")).get("files") or {}
+        for name in tables:
+            rec = own.get(f"{name}.parquet")
+            if rec is None:  # a shard written without records: hash it now
+                rows = pq.ParquetFile(shard / f"{name}.parquet").metadata.num_rows
+                rec = file_records(shard, {f"{name}.parquet": rows})[f"{name}.parquet"]
+            out[f"{name}.parquet" if single else f"{name}/part-{k:05d}.parquet"] = rec
+    return out
+
+
 @dataclass(frozen=True, slots=True)
 class VerifyResult:
     """What :func:`check_dataset` checked: files, total rows and bytes, and whether records existed."""
@@ -58,11 +75,10 @@ class VerifyResult:
     recorded: bool
 
 
-def check_dataset(path: Path, meta: Mapping[str, Any], *, hashes: bool = True,
-                  trace_tables: Iterable[str] = ("truth.parquet",)) -> VerifyResult:
+def check_dataset(path: Path, meta: Mapping[str, Any], *, hashes: bool = True) -> VerifyResult:
     """Check every recorded file of a dataset folder: present, same size, same row count (from the
     Parquet footer), same SHA-256 (when ``hashes``); and that the traces named in ``dataset.json``
-    are the traces in the tables of ``trace_tables``.
+    are the traces in the truth table (``truth.parquet`` or its parts ``truth/part-*.parquet``).
 
     Raises
     ------
@@ -99,7 +115,7 @@ def check_dataset(path: Path, meta: Mapping[str, Any], *, hashes: bool = True,
                                      f"{rec['rows']}")
         total_rows += int(rec["rows"])
         total_bytes += size
-    check_trace_ids(path, meta, trace_tables)
+    check_trace_ids(path, meta, [n for n in files if n == "truth.parquet" or n.startswith("truth/")])
     return VerifyResult(files=len(files), rows=total_rows, bytes=total_bytes, recorded=True)
 
 
@@ -117,21 +133,23 @@ def check_trace_ids(path: Path, meta: Mapping[str, Any], tables: Iterable[str] =
         raise IntegrityError(f"dataset {path}: dataset.json traces entries have no valid 'trace' id") from None
     if n_traces != len(ids):
         raise IntegrityError(f"dataset {path}: dataset.json says n_traces {n_traces} but lists {len(ids)} trace(s)")
+    tables = [t for t in tables if (path / t).is_file()]
+    if not tables:
+        return
+    cols = []
     for name in tables:
-        f = path / name
-        if not f.is_file():
-            continue
         try:
-            col = pq.read_table(f, columns=["trace"]).column("trace").to_numpy()
+            cols.append(pq.read_table(path / name, columns=["trace"]).column("trace").to_numpy())
         except (OSError, pa.ArrowException, KeyError) as exc:
             raise IntegrityError(f"dataset {path} is damaged: cannot read {name} ({type(exc).__name__})") from None
-        present = np.unique(col).tolist()
-        if present != ids:
-            missing = sorted(set(ids) - set(present))
-            extra = sorted(set(present) - set(ids))
-            what = (f"has no rows of trace(s) {missing[:5]}" if missing
-                    else f"has rows of unlisted trace(s) {extra[:5]}")
-            raise IntegrityError(f"dataset {path} is damaged: {name} {what} (dataset.json lists {n_traces})")
+    name = tables[0] if len(tables) == 1 else f"{tables[0].split('/')[0]}/*"
+    present = np.unique(np.concatenate(cols)).tolist()
+    if present != ids:
+        missing = sorted(set(ids) - set(present))
+        extra = sorted(set(present) - set(ids))
+        what = (f"has no rows of trace(s) {missing[:5]}" if missing
+                else f"has rows of unlisted trace(s) {extra[:5]}")
+        raise IntegrityError(f"dataset {path} is damaged: {name} {what} (dataset.json lists {n_traces})")
 
 
 def describe(result: VerifyResult) -> str:

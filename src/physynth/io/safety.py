@@ -40,6 +40,9 @@ except ImportError:  # pragma: no cover
 DATASET_FILES = frozenset({"dataset.json", "truth.parquet", "imu.parquet", "uwb.parquet", "anchors.parquet"})
 """Files PhySynth writes in a dataset folder (besides those listed in ``dataset.json`` ``files``)."""
 
+DATASET_FOLDERS = frozenset({"truth", "imu", "uwb", "anchors"})
+"""Folders of a dataset assembled from several shards (``truth/part-00000.parquet`` ...)."""
+
 REPORT_FILE_PATTERN = re.compile(r"^(report\.(json|md|html)|scenario\.yaml|[a-z0-9_]+\.png)$")
 """Files PhySynth writes in a validation report folder."""
 
@@ -87,8 +90,9 @@ def why_not_replaceable(path: Path, kind: str) -> str | None:
             meta = _physynth_json(path / "dataset.json")
             if not _marked(meta):
                 return "it is not a PhySynth dataset (no dataset.json written by physynth)"
-            listed = set((meta.get("files") or {}) if isinstance(meta.get("files"), dict) else ())
-            foreign = _foreign_entries(path, DATASET_FILES | listed)
+            listed = {str(n).split("/")[0] for n in ((meta.get("files") or {}) if isinstance(meta.get("files"), dict)
+                                                    else ())}
+            foreign = _foreign_entries(path, DATASET_FILES | DATASET_FOLDERS | listed)
         else:
             data = _physynth_json(path / "report.json")
             legacy = data is not None and {"inputs", "real", "synthetic", "ks_statistic"} <= set(data)
@@ -157,6 +161,48 @@ def check_distinct(named: Sequence[tuple[str, str | os.PathLike | None]]) -> Non
         if real in seen:
             raise UnsafeOutputError(f"{seen[real]} and {label} are the same file ({p}); give two different files")
         seen[real] = label
+
+
+# ---------------------------------------------------------------- interruption
+_interrupt: list[int] = []
+_active: set[Path] = set()
+
+
+def set_interrupted(signum: int) -> None:
+    """Record that a termination signal arrived (the command line's signal handler calls this)."""
+    if not _interrupt:
+        _interrupt.append(signum)
+
+
+def clear_interrupted() -> None:
+    """Forget a recorded signal (the command that received it has ended)."""
+    _interrupt.clear()
+
+
+def check_interrupted() -> None:
+    """Raise :class:`~physynth.errors.Interrupted` if a signal arrived. Writers call it for every trace:
+    a handler's exception can be swallowed when the signal lands inside a finaliser, so the flag is
+    checked again at the next safe point."""
+    if _interrupt:
+        from ..errors import Interrupted
+
+        raise Interrupted(_interrupt[0])
+
+
+def register_temporary(path: Path) -> None:
+    """A temporary file or folder being written: removed by :func:`remove_registered` on a hard exit."""
+    _active.add(path)
+
+
+def unregister_temporary(path: Path) -> None:
+    _active.discard(path)
+
+
+def remove_registered() -> None:
+    """Remove every registered temporary path (the last resort before a forced exit)."""
+    for p in list(_active):
+        remove_tree(p)
+        _active.discard(p)
 
 
 # ---------------------------------------------------------------- orphaned temporary files
@@ -242,6 +288,7 @@ class OutputLock:
         self.out = Path(out)
         self.path = lock_path(self.out)
         self._fd: int | None = None
+        self.stale_owner: str | None = None
 
     def acquire(self) -> OutputLock:
         for _ in range(20):
@@ -270,13 +317,14 @@ class OutputLock:
             if fcntl is None and owner and not self._stale(owner):  # pragma: no cover
                 os.close(fd)
                 raise OutputLockedError(f"{self.out} is being written by another physynth process ({owner})")
-            if owner != "owner unknown":  # a lock file whose owner died without releasing it
-                warnings.warn(f"took over the stale lock {self.path} ({owner}; that process is gone)",
-                              PhySynthWarning, stacklevel=2)
+            # a lock file with an owner but no flock: that process died (a killed run); it is taken over
+            # quietly, and the run's leftovers are reported by remove_orphans or the unfinished-run check
+            self.stale_owner = owner if owner != "owner unknown" else None
             os.ftruncate(fd, 0)
             os.write(fd, f"pid {os.getpid()} host {socket.gethostname()} since "
                          f"{time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())}\n".encode())
             self._fd = fd
+            register_temporary(self.path)
             return self
         raise OutputLockedError(f"{self.out}: could not take the lock {self.path}")  # pragma: no cover
 
@@ -301,6 +349,7 @@ class OutputLock:
         finally:
             os.close(self._fd)
             self._fd = None
+            unregister_temporary(self.path)
 
     @property
     def held(self) -> bool:
@@ -357,6 +406,7 @@ def atomic_folder(out: Path) -> Iterator[Path]:
     tmp = temp_sibling(out)
     remove_tree(tmp)
     tmp.mkdir(parents=True)
+    register_temporary(tmp)
     try:
         yield tmp
         old = out.with_name(f".{out.name}.old-{os.getpid()}")
@@ -367,3 +417,5 @@ def atomic_folder(out: Path) -> Iterator[Path]:
     except BaseException:
         remove_tree(tmp)
         raise
+    finally:
+        unregister_temporary(tmp)
