@@ -40,8 +40,9 @@ except ImportError:  # pragma: no cover
 DATASET_FILES = frozenset({"dataset.json", "truth.parquet", "imu.parquet", "uwb.parquet", "anchors.parquet"})
 """Files PhySynth writes in a dataset folder (besides those listed in ``dataset.json`` ``files``)."""
 
-DATASET_FOLDERS = frozenset({"truth", "imu", "uwb", "anchors"})
-"""Folders of a dataset assembled from several shards (``truth/part-00000.parquet`` ...)."""
+DATASET_FOLDERS = frozenset({"truth", "imu", "uwb", "anchors", "traces"})
+"""Folders of a dataset assembled from several shards (``truth/part-00000.parquet`` ..., and the per-trace
+metadata ``traces/part-00000.jsonl``)."""
 
 REPORT_FILE_PATTERN = re.compile(r"^(report\.(json|md|html)|scenario\.yaml|[a-z0-9_]+\.png)$")
 """Files PhySynth writes in a validation report folder."""
