@@ -94,6 +94,13 @@ def test_overwrite_replaces_a_physynth_dataset(dataset, small, capsys):
     assert [p.name for p in dataset.parent.iterdir() if p.name.startswith(".")] == []
 
 
+def test_generate_creates_missing_parent_folders(tmp_path, small, capsys):
+    out = tmp_path / "runs" / "default"  # `make run` in a fresh checkout
+    code, _, err = run(capsys, "generate", "-s", small, "-n", 1, "--seed", 1, "--out", out, "--overwrite", "-q")
+    assert code == 0, err
+    assert sorted(p.name for p in out.parent.iterdir()) == ["default"]
+
+
 def test_import_refuses_an_output_holding_its_input(tmp_path, capsys):
     rec = write_recording(tmp_path / "mydata" / "rec")
     before = sorted(p.name for p in rec.iterdir())

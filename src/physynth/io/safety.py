@@ -386,6 +386,11 @@ def prepare_output(out: str | os.PathLike, *, kind: str, overwrite: bool,
     """
     check_output(out, kind=kind, overwrite=overwrite, inputs=inputs)
     real = resolve_output(out)
+    if kind == "dataset":  # `--out runs/default` in a fresh checkout: create the parent folders
+        try:
+            real.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise PhySynthError(f"cannot create the output folder {real.parent}: {exc.strerror}") from None
     lock = OutputLock(real).acquire()
     try:
         if remove_orphaned:
