@@ -12,11 +12,14 @@ when more than one worker or a scheduler address is asked for.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import logging
 import os
-from collections.abc import Callable, Sequence
+import signal
+import threading
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +55,26 @@ def shard_task(scenario_json: str, root_seed: int, partial: str, k: int, start: 
                 on_trace()
 
     return write_shard(partial, k, traces(), meta)
+
+
+@contextlib.contextmanager
+def _children_ignore_terminal_signals() -> Iterator[None]:
+    """Start worker processes that ignore SIGINT and SIGHUP (an ignored signal is inherited).
+
+    A Ctrl-C in a terminal reaches the whole process group: this process turns it into
+    :class:`~physynth.errors.Interrupted` and closes the cluster, so the workers must not print
+    tracebacks of their own. While the workers start, this process ignores the two signals too.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    sigs = [getattr(signal, n) for n in ("SIGINT", "SIGHUP") if hasattr(signal, n)]
+    previous = {s: signal.signal(s, signal.SIG_IGN) for s in sigs}
+    try:
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
 
 
 def require_dask() -> Any:
@@ -101,8 +124,9 @@ def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, to
             raise PhySynthError(f"cannot connect to the Dask scheduler {scheduler}: {exc}") from None
         cluster = None
     else:
-        cluster = distributed.LocalCluster(n_workers=min(workers, len(todo)), threads_per_worker=1, processes=True,
-                                           dashboard_address=":0", silence_logs=logging.ERROR)
+        with _children_ignore_terminal_signals():
+            cluster = distributed.LocalCluster(n_workers=min(workers, len(todo)), threads_per_worker=1,
+                                               processes=True, dashboard_address=":0", silence_logs=logging.ERROR)
         client = distributed.Client(cluster)
     try:
         futures = {}
