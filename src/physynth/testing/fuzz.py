@@ -1,4 +1,4 @@
-"""A seeded fuzz campaign through the command line (docs/reliability.md, issue 14).
+"""A seeded fuzz campaign through the command line (docs/reliability.md).
 
     python -m physynth.testing.fuzz --n 10000 --seed 0 [--timeout 10] [--json]
 

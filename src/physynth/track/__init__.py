@@ -1,4 +1,4 @@
-"""Trackers trained and scored on PhySynth data (issue 9; paper section V, Table IV).
+"""Trackers trained and scored on PhySynth data (paper section V, Table IV).
 
 - :mod:`physynth.track.inputs`: model inputs on the 100 Hz grid, one function for real and synthetic
   traces (latest range, fresh flag, AoI and position of each anchor; IMU bin mean; truth), relative
