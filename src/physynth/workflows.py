@@ -227,7 +227,7 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
         without truth, anchors or valid ranges, and anchor ids that differ (without ``transfer``).
     """
 
-    from .validate.compare import anchor_ids, check_real, compare, describe_anchor_mismatch, transfer_record
+    from .validate.compare import anchor_ids, check_real, compare
 
     if (synthetic is None) == (scenario is None):
         raise PhySynthError("give exactly one of a synthetic dataset and a scenario "
@@ -235,7 +235,7 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
     if transfer and scenario is None:
         raise PhySynthError("transfer needs a scenario (it builds a scenario for the real run's geometry)")
     if scenario is not None and n < 1:
-        raise PhySynthError(f"-n must be at least 1, got {n}")
+        raise PhySynthError(f"the number of synthetic traces must be at least 1, got {n}")
     real_ds = _read(read_dataset, real, "real")
     real_traces = real_ds.traces
     from .validate.imu_report import is_imu_only
@@ -251,56 +251,16 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
 
     subset = None
     if anchors is not None:
-        from .studies.subset import check_subset, restrict_to_anchors
+        from .studies.subset import check_subset
 
         subset = check_subset(anchors, real_ids, "anchor subset (the real dataset's anchors)")
         inputs["anchor_subset"] = subset
 
     if synthetic is not None:
-        synth_meta = _read(read_meta, synthetic, "synthetic")
-        if synth_meta.get("n_traces") == 0:
-            raise PhySynthError(f"synthetic dataset: dataset {synthetic} holds no traces")
-        synth_ids = _read(_anchor_ids_of, synthetic, "synthetic")
-        if subset is not None:
-            check_subset(subset, synth_ids, f"anchor subset (the synthetic dataset {synthetic})")
-        else:
-            problem = describe_anchor_mismatch(real_ids, synth_ids, f"the synthetic dataset {synthetic}")
-            if problem:
-                raise AnchorMismatchError(problem)
-        total = n_traces(synth_meta)
-        inputs["synthetic"] = {"path": str(synthetic), "kind": synth_meta.get("kind"),
-                               "scenario_name": synth_meta.get("scenario_name"),
-                               "root_seed": synth_meta.get("root_seed"), "n_traces": total}
-        synth_iter: Iterable[Trace] = _checked_stream(synthetic, synth_meta)
-        if subset is not None:
-            synth_iter = (restrict_to_anchors(t, subset) for t in synth_iter if set(subset) <= set(t.anchors.ids))
+        synth_iter, total, inputs["synthetic"] = _synthetic_from_dataset(synthetic, real_ids, subset)
     else:
-        scn = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-        source = scn.name if isinstance(scenario, Scenario) else str(scenario)
-        if transfer:
-            try:
-                from .calibrate import transfer_scenario
-            except ImportError as exc:
-                raise PhySynthError(f"transfer is not available in this install ({exc})") from None
-            original = scn
-            scn = transfer_scenario(original, real_traces)
-            transfer_info = transfer_record(original, scn, str(real), real_ids)
-        elif subset is not None:
-            check_subset(subset, list(scn.anchor_ids), f"anchor subset (scenario '{scn.name}')")
-        else:
-            problem = describe_anchor_mismatch(real_ids, list(scn.anchor_ids), f"scenario '{scn.name}'")
-            if problem:
-                raise AnchorMismatchError(
-                    problem + "; transfer the scenario to take the anchor layout from the real dataset")
-        check_budget(scn, n, force=force)
-        root = new_root_seed() if seed is None else int(seed)
-        inputs["synthetic"] = {"scenario": source, "scenario_name": scn.name, "n_traces": int(n),
-                               "root_seed": root, "transfer": bool(transfer),
-                               "scenario_config": scenario_to_dict(scn)}
-        synth_iter = generate_traces(compile_scenario(scn), n, seed=root)
-        if subset is not None:
-            synth_iter = (restrict_to_anchors(t, subset) for t in synth_iter)
-        total = n
+        synth_iter, total, inputs["synthetic"], transfer_info = _synthetic_from_scenario(
+            scenario, real, real_traces, real_ids, subset, n=n, seed=seed, transfer=transfer, force=force)
 
     verb = "generating + reducing" if synthetic is None else "reducing"
     done = 0
@@ -321,6 +281,69 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
     if synthetic is not None and not report.inputs["n_residuals"]["synthetic"]:
         raise PhySynthError(f"synthetic dataset {synthetic} has no valid UWB range: nothing to compare")
     return report
+
+
+def _synthetic_from_dataset(synthetic: str | Path, real_ids: Sequence[str], subset: list[str] | None
+                            ) -> tuple[Iterable[Trace], int | None, dict[str, Any]]:
+    """The synthetic side read from a dataset: (streamed traces, count, provenance); anchors checked."""
+    from .studies.subset import check_subset, restrict_to_anchors
+    from .validate.compare import describe_anchor_mismatch
+
+    synth_meta = _read(read_meta, synthetic, "synthetic")
+    if synth_meta.get("n_traces") == 0:
+        raise PhySynthError(f"synthetic dataset: dataset {synthetic} holds no traces")
+    synth_ids = _read(_anchor_ids_of, synthetic, "synthetic")
+    if subset is not None:
+        check_subset(subset, synth_ids, f"anchor subset (the synthetic dataset {synthetic})")
+    else:
+        problem = describe_anchor_mismatch(real_ids, synth_ids, f"the synthetic dataset {synthetic}")
+        if problem:
+            raise AnchorMismatchError(problem)
+    total = n_traces(synth_meta)
+    provenance = {"path": str(synthetic), "kind": synth_meta.get("kind"),
+                  "scenario_name": synth_meta.get("scenario_name"), "root_seed": synth_meta.get("root_seed"),
+                  "n_traces": total}
+    traces: Iterable[Trace] = _checked_stream(synthetic, synth_meta)
+    if subset is not None:
+        traces = (restrict_to_anchors(t, subset) for t in traces if set(subset) <= set(t.anchors.ids))
+    return traces, total, provenance
+
+
+def _synthetic_from_scenario(scenario: str | Path | Scenario, real: str | Path, real_traces: Sequence[Trace],
+                             real_ids: Sequence[str], subset: list[str] | None, *, n: int, seed: int | None,
+                             transfer: bool, force: bool
+                             ) -> tuple[Iterable[Trace], int, dict[str, Any], dict[str, Any] | None]:
+    """The synthetic side generated from a scenario (transferred onto the real run when asked):
+    (lazy traces, count, provenance, transfer record)."""
+    from .studies.subset import check_subset, restrict_to_anchors
+    from .validate.compare import describe_anchor_mismatch, transfer_record
+
+    scn = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    source = scn.name if isinstance(scenario, Scenario) else str(scenario)
+    transfer_info = None
+    if transfer:
+        try:
+            from .calibrate import transfer_scenario
+        except ImportError as exc:
+            raise PhySynthError(f"transfer is not available in this install ({exc})") from None
+        original = scn
+        scn = transfer_scenario(original, real_traces)
+        transfer_info = transfer_record(original, scn, str(real), real_ids)
+    elif subset is not None:
+        check_subset(subset, list(scn.anchor_ids), f"anchor subset (scenario '{scn.name}')")
+    else:
+        problem = describe_anchor_mismatch(real_ids, list(scn.anchor_ids), f"scenario '{scn.name}'")
+        if problem:
+            raise AnchorMismatchError(
+                problem + "; transfer the scenario to take the anchor layout from the real dataset")
+    check_budget(scn, n, force=force)
+    root = new_root_seed() if seed is None else int(seed)
+    provenance = {"scenario": source, "scenario_name": scn.name, "n_traces": int(n), "root_seed": root,
+                  "transfer": bool(transfer), "scenario_config": scenario_to_dict(scn)}
+    traces: Iterable[Trace] = generate_traces(compile_scenario(scn), n, seed=root)
+    if subset is not None:
+        traces = (restrict_to_anchors(t, subset) for t in traces)
+    return traces, n, provenance, transfer_info
 
 
 def _checked_stream(path: str | Path, meta: dict[str, Any]) -> Iterable[Trace]:
