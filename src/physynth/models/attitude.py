@@ -27,15 +27,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import numpy as np
 from pydantic import Field
-from scipy.signal import cont2discrete, lfilter
-from scipy.spatial.transform import Rotation
-
 from ..constants import G0_MPS2
+from ._filters import ar1
 from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat
+
+if TYPE_CHECKING:
+    from scipy.spatial.transform import Rotation
 
 
 class AttitudeParams(ParamsModel):
@@ -52,15 +53,23 @@ class AttitudeParams(ParamsModel):
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Attitude:
-    """Attitude at the truth times: ``rot`` (T rotations body -> ENU), ``omega_body_radps`` (T, 3)."""
+    """Attitude at the truth times: ``quat_wxyz`` (T, 4) Hamilton unit quaternions body -> ENU, scalar
+    first; ``omega_body_radps`` (T, 3); ``rot`` the same attitude as scipy rotations (built on use:
+    scipy.spatial costs 0.4 s to import, and only the body-frame IMU needs it)."""
 
-    rot: Rotation
+    quat_wxyz: np.ndarray
     omega_body_radps: np.ndarray
 
+    @classmethod
+    def from_rotation(cls, rot: Rotation, omega_body_radps: np.ndarray) -> Attitude:
+        return cls(quat_wxyz=rot.as_quat(scalar_first=True), omega_body_radps=omega_body_radps)
+
     @property
-    def quat_wxyz(self) -> np.ndarray:
-        """(T, 4) Hamilton quaternions body -> ENU, scalar first."""
-        return self.rot.as_quat(scalar_first=True)
+    def rot(self) -> Rotation:
+        """(T) rotations body -> ENU."""
+        from scipy.spatial.transform import Rotation
+
+        return Rotation.from_quat(self.quat_wxyz, scalar_first=True)
 
 
 def heading_rad(vel_enu_mps: np.ndarray, min_speed_mps: float) -> np.ndarray:
@@ -81,6 +90,8 @@ def heading_rad(vel_enu_mps: np.ndarray, min_speed_mps: float) -> np.ndarray:
 
 @lru_cache(maxsize=64)
 def _swing_filter(dt: float, period_s: float, zeta: float) -> tuple[np.ndarray, np.ndarray]:
+    from scipy.signal import cont2discrete  # imported where used (0.9 s)
+
     w0 = 2.0 * np.pi / period_s
     num, den, _ = cont2discrete(([w0 * w0], [1.0, 2.0 * zeta * w0, w0 * w0]), dt, method="zoh")
     return np.ravel(num), np.asarray(den, dtype=float)
@@ -88,6 +99,8 @@ def _swing_filter(dt: float, period_s: float, zeta: float) -> tuple[np.ndarray, 
 
 def _swing(u: np.ndarray, dt: float, period_s: float, zeta: float) -> np.ndarray:
     """Response theta of theta'' + 2 zeta w0 theta' + w0^2 theta = w0^2 u, from rest (ZOH exact)."""
+    from scipy.signal import lfilter  # imported where used (0.9 s)
+
     num, den = _swing_filter(float(dt), float(period_s), float(zeta))
     return lfilter(num, den, u)
 
@@ -97,11 +110,13 @@ def _ou(n: int, dt: float, std: float, tau_s: float, *, rng: np.random.Generator
     rho = np.exp(-dt / tau_s)
     e = rng.standard_normal((3, n)) * std
     e[:, 1:] *= np.sqrt(1.0 - rho * rho)
-    return lfilter([1.0], [1.0, -rho], e, axis=1).T
+    return ar1(e, rho).T
 
 
 def _cumulative_compose(first: Rotation, steps: Rotation) -> Rotation:
     """R_0 = first, R_{k+1} = R_k * steps[k]: a prefix product in log2(K) vectorised compositions."""
+    from scipy.spatial.transform import Rotation
+
     q = steps.as_quat()
     n = q.shape[0]
     acc = Rotation.from_quat(q)
@@ -139,6 +154,8 @@ def body_rates_from_quat(t_s: np.ndarray, quat_wxyz: np.ndarray) -> np.ndarray:
     ok = np.all(np.isfinite(q), axis=1) & (np.linalg.norm(np.nan_to_num(q), axis=1) > 0)
     pair = np.flatnonzero(ok[:-1] & ok[1:])
     if pair.size:
+        from scipy.spatial.transform import Rotation
+
         r0 = Rotation.from_quat(q[pair], scalar_first=True)
         r1 = Rotation.from_quat(q[pair + 1], scalar_first=True)
         out[pair] = (r0.inv() * r1).as_rotvec() / np.diff(np.asarray(t_s, dtype=float))[pair, None]
@@ -158,19 +175,20 @@ def simulate_attitude(t_s: np.ndarray, vel_enu_mps: np.ndarray, acc_enu_mps2: np
         q = np.asarray(params.fixed_quat_wxyz, dtype=float)
         if not np.linalg.norm(q) > 0:
             raise ValueError("attitude.fixed_quat_wxyz must not be zero")
-        rot = Rotation.from_quat(np.tile(q / np.linalg.norm(q), (n, 1)), scalar_first=True)
-        return Attitude(rot=rot, omega_body_radps=np.zeros((n, 3)))
+        return Attitude(quat_wxyz=np.tile(q / np.linalg.norm(q), (n, 1)), omega_body_radps=np.zeros((n, 3)))
     dt = float(t[1] - t[0]) if n > 1 else 1.0
     if params.kind == "tumble":
         if rng is None:
             raise ValueError("a tumbling attitude needs a random generator")
+        from scipy.spatial.transform import Rotation
+
         omega = _ou(n, dt, params.tumble_rate_std_radps, params.tumble_correlation_s, rng=rng)
         first = Rotation.random(random_state=rng)
         if n == 1:
-            return Attitude(rot=Rotation.concatenate([first]), omega_body_radps=omega)
+            return Attitude.from_rotation(Rotation.concatenate([first]), omega)
         rot = _cumulative_compose(first, Rotation.from_rotvec(omega[:-1] * np.diff(t)[:, None]))
         omega[-1] = omega[-2]
-        return Attitude(rot=rot, omega_body_radps=omega)
+        return Attitude.from_rotation(rot, omega)
     yaw = heading_rad(vel_enu_mps, params.min_speed_mps)
     if params.kind == "tangent":  # turns about the fixed world z axis add up: exact rates without logs
         half = 0.5 * yaw
@@ -180,8 +198,10 @@ def simulate_attitude(t_s: np.ndarray, vel_enu_mps: np.ndarray, acc_enu_mps2: np
         if n > 1:
             omega[:-1, 2] = np.diff(yaw) / np.diff(t)
             omega[-1, 2] = omega[-2, 2]
-        return Attitude(rot=Rotation.from_quat(q, scalar_first=True), omega_body_radps=omega)
+        return Attitude(quat_wxyz=q, omega_body_radps=omega)
     else:  # pendulum
+        from scipy.spatial.transform import Rotation
+
         acc = np.asarray(acc_enu_mps2, dtype=float)
         c, s = np.cos(yaw), np.sin(yaw)
         a_fwd = acc[:, 0] * c + acc[:, 1] * s
@@ -192,4 +212,4 @@ def simulate_attitude(t_s: np.ndarray, vel_enu_mps: np.ndarray, acc_enu_mps2: np
         rot = (Rotation.from_rotvec(np.stack([zeros, zeros, yaw], axis=1))  # intrinsic z-y-x: yaw, pitch, roll
                * Rotation.from_rotvec(np.stack([zeros, pitch, zeros], axis=1))
                * Rotation.from_rotvec(np.stack([roll, zeros, zeros], axis=1)))
-    return Attitude(rot=rot, omega_body_radps=body_rates(rot, t))
+    return Attitude.from_rotation(rot, body_rates(rot, t))

@@ -21,7 +21,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from ._params import ParamsModel, PositiveFloat, Probability
 from .renewal import initial_pairs, switch_counts
@@ -57,6 +56,8 @@ class RatePosterior:
 
     def interval_per_s(self, lo: float = 0.05, hi: float = 0.95) -> tuple[float, float]:
         """Equal-tailed credible interval of the rate [1/s]."""
+        from scipy import stats  # imported where used
+
         q = stats.gamma.ppf([lo, hi], a=self.shape, scale=1.0 / self.rate_s)
         return float(q[0]), float(q[1])
 

@@ -18,16 +18,19 @@ IMU rate; only the white noise is drawn per IMU sample.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import numpy as np
 from pydantic import Field, model_validator
-from scipy.spatial.transform import Rotation
 
 from ..constants import G0_MPS2
 from ..records import Imu
+from ._filters import ar1 as _ar1
 from ._params import NonNegFloat, ParamsModel, PositiveFloat, Vec3
 from .motion import Kinematics
+
+if TYPE_CHECKING:
+    from scipy.spatial.transform import Rotation
 
 
 class VibrationParams(ParamsModel):
@@ -111,13 +114,15 @@ def _knots(t_s: np.ndarray, spacing_s: float) -> np.ndarray:
 def upsample_linear(values_cf: np.ndarray, factor: int) -> np.ndarray:
     """Linear interpolation of uniform samples (C, K) by an integer factor -> (C, (K-1)*factor).
 
-    Output sample j sits at knot position j / factor; the last knot itself is not repeated.
+    Output sample j sits at knot position j / factor; the last knot itself is not repeated. One
+    matrix product: [value, slope] per knot interval times [1, r / factor] per phase r.
     """
     c, k = values_cf.shape
-    inner = np.empty((c, k - 1, factor), dtype=values_cf.dtype)  # contiguous: fast broadcasting
-    np.multiply(np.diff(values_cf, axis=1)[:, :, None], np.arange(factor) / factor, out=inner)
-    inner += values_cf[:, :-1, None]
-    return inner.reshape(c, -1)
+    lhs = np.empty((c, k - 1, 2), dtype=np.result_type(values_cf.dtype, float))
+    lhs[:, :, 0] = values_cf[:, :-1]
+    np.subtract(values_cf[:, 1:], values_cf[:, :-1], out=lhs[:, :, 1])
+    rhs = np.vstack([np.ones(factor), np.arange(factor) / factor])
+    return (lhs.reshape(-1, 2) @ rhs).reshape(c, -1)
 
 
 def resample_cf(t_s: np.ndarray, knots_t: np.ndarray, values_cf: np.ndarray) -> np.ndarray:
@@ -144,15 +149,35 @@ def _bias_cf(t_s, sigma, initial_std, *, rng):
     return resample_cf(t_s, knots_t, np.cumsum(steps, axis=1))
 
 
-def _ar1(x_ck: np.ndarray, rho: float) -> np.ndarray:
-    """y_k = x_k + rho y_(k-1) along the last axis (what scipy.signal.lfilter([1], [1, -rho]) computes,
-    with the same rounding), without importing scipy.signal (0.9 s) on every command."""
-    y = np.empty_like(x_ck)
-    prev = np.zeros(x_ck.shape[0])
-    for k in range(x_ck.shape[1]):  # a few hundred knots per trace, vectorised over components
-        prev = x_ck[:, k] + rho * prev
-        y[:, k] = prev
-    return y
+def _comb(t_s: np.ndarray, knots_t: np.ndarray, z_hak: np.ndarray, amp_h: np.ndarray, freq_h: np.ndarray,
+          phase_h: np.ndarray) -> np.ndarray:
+    """(A, N) sum over lines h of amp_h Re(z_h,a(t) exp(i (2 pi freq_h (t - t_0) + phase_h))), with the
+    complex envelopes z (H, A, K) linearly interpolated from uniform knots.
+
+    On the usual aligned grid (knots every r samples from t_0, t = t_k + j dt) the carrier factorises
+    as C_k R_j, so z(t) c(t) = (z_k C_k) R_j + (dz_k C_k) (j / r) R_j: one (A K, 4H) @ (4H, r) matrix
+    product, with no trigonometry per sample. Otherwise the envelopes are interpolated in full.
+    """
+    h, a, k = z_hak.shape
+    n = t_s.shape[0]
+    dt = t_s[1] - t_s[0] if n > 1 else 0.0
+    ratio = (knots_t[1] - knots_t[0]) / dt if n > 1 and k > 1 else 0.0
+    r = int(round(ratio))
+    if r >= 1 and abs(ratio - r) < 1e-9 and abs(t_s[0] - knots_t[0]) < 1e-12 and (k - 1) * r >= n:
+        c_k = amp_h[:, None] * np.exp(1j * (2.0 * np.pi * freq_h[:, None] * (knots_t[None, :-1] - t_s[0])
+                                            + phase_h[:, None]))  # (H, K-1)
+        p = z_hak[:, :, :-1] * c_k[:, None, :]
+        q = np.diff(z_hak, axis=2) * c_k[:, None, :]
+        lhs = np.concatenate([p.real, -p.imag, q.real, -q.imag], axis=0)  # (4H, A, K-1)
+        rot = np.exp(1j * 2.0 * np.pi * freq_h[:, None] * (np.arange(r) * dt)[None, :])  # (H, r)
+        frac = np.arange(r) / r
+        rhs = np.concatenate([rot.real, rot.imag, rot.real * frac, rot.imag * frac], axis=0)  # (4H, r)
+        out = lhs.transpose(1, 2, 0).reshape(a * (k - 1), 4 * h) @ rhs
+        return np.ascontiguousarray(out.reshape(a, -1)[:, :n])
+    z = resample_cf(t_s, knots_t, z_hak.real.reshape(h * a, k)) + 1j * resample_cf(
+        t_s, knots_t, z_hak.imag.reshape(h * a, k))
+    carrier = amp_h[:, None] * np.exp(1j * (2.0 * np.pi * freq_h[:, None] * (t_s - t_s[0]) + phase_h[:, None]))
+    return np.einsum("han,hn->an", z.reshape(h, a, n), carrier).real
 
 
 def vibration(t_s: np.ndarray, params: VibrationParams, *, rng: np.random.Generator) -> np.ndarray:
@@ -183,20 +208,10 @@ def _vibration_cf(t_s: np.ndarray, params: VibrationParams, *, rng: np.random.Ge
     # exact complex OU recursion z_k = rho z_{k-1} + sqrt(1 - rho^2) e_k, started in its stationary law
     innov = rng.standard_normal((2 * 3 * n_h, env_t.shape[0])) * np.sqrt(0.5)
     innov[:, 1:] *= np.sqrt(1.0 - rho**2)
-    env = resample_cf(t_s, env_t, _ar1(innov, rho))  # (2*3*H, N): re, im
+    env = _ar1(innov, rho).reshape(n_h, 2, 3, -1)  # on the knots: (line, re/im, axis, knot)
     phase0 = rng.uniform(0.0, 2.0 * np.pi, n_h)
-    out = np.zeros((3, n))
-    base = np.exp(1j * 2.0 * np.pi * params.fundamental_hz * (t_s - t_s[0]))  # harmonics by powers
-    carrier = np.ones(n, dtype=complex)
-    j = 0
-    for h in range(w.size):  # a handful of spectral lines, vectorised over time
-        carrier = carrier * base
-        if w[h] == 0:
-            continue
-        c = carrier * np.exp(1j * phase0[j])
-        re, im = env[6 * j:6 * j + 3], env[6 * j + 3:6 * j + 6]
-        out += amp[h] * (re * c.real - im * c.imag)
-        j += 1
+    harmonic = np.flatnonzero(w) + 1
+    out = _comb(t_s, env_t, env[:, 0] + 1j * env[:, 1], amp[harmonic - 1], harmonic * params.fundamental_hz, phase0)
     gain = np.asarray(params.axis_gain, dtype=float)
     if np.any(gain != 1.0):
         out *= gain[:, None]
@@ -229,11 +244,8 @@ def simulate_imu(kin: Kinematics, params: ImuParams, *, rng: np.random.Generator
     ratio = (kin.t_s[1] - kin.t_s[0]) * params.rate_hz if kin.t_s.shape[0] > 1 else 0.0
     factor = int(round(ratio))
     if factor >= 1 and abs(ratio - factor) < 1e-9 and n_imu == (kin.t_s.shape[0] - 1) * factor:
-        # the usual case: add the linear upsampling straight into the noise, one phase at a time
-        view = acc.reshape(3, -1, factor)
-        base, step = slow[:, :-1], np.diff(slow, axis=1)
-        for r in range(factor):
-            view[:, :, r] += base + step * (r / factor)
+        # the usual case: the slow terms upsampled by an integer factor (one matrix product)
+        acc += upsample_linear(slow, factor)
     else:
         acc += resample_cf(t_imu, kin.t_s, slow)
     return Imu(t_s=t_imu, acc_mps2=acc.T)
@@ -458,6 +470,8 @@ def _ideal_at(t_q: np.ndarray, t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: R
     f = u[k] + r[:, None] * d[k]
     w = np.asarray(omega_body_radps, dtype=float)[k]
     if turn > ROTATION_EXACT_ABOVE_RAD:
+        from scipy.spatial.transform import Rotation
+
         f = Rotation.from_rotvec(w * (-(r * dt[k]))[:, None]).apply(f)
     return f.T, w.T
 
@@ -472,11 +486,8 @@ def _upsampling_factor(t_s: np.ndarray, t_imu: np.ndarray) -> int:
 
 
 def _add_upsampled(out_cf: np.ndarray, slow_cf: np.ndarray, factor: int) -> None:
-    """out (3, (T-1) factor) += slow (3, T) linearly upsampled, in place, one phase at a time."""
-    view = out_cf.reshape(out_cf.shape[0], -1, factor)
-    base, step = slow_cf[:, :-1], np.diff(slow_cf, axis=1)
-    for r in range(factor):  # a handful of phases, each vectorised over time
-        view[:, :, r] += base + step * (r / factor)
+    """out (3, (T-1) factor) += slow (3, T) linearly upsampled, in place."""
+    out_cf += upsample_linear(slow_cf, factor)
 
 
 def _apply_device(matrix: np.ndarray, bias: np.ndarray, x_cf: np.ndarray) -> np.ndarray:
@@ -542,7 +553,7 @@ def simulate_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, 
     turn = float(np.max(np.abs(omega_body_radps[:-1]) * np.diff(t)[:, None])) if t.size > 1 else 0.0
     if params.time_offset_s == 0.0 and factor and turn <= ROTATION_EXACT_ABOVE_RAD and n_imu == (t.size - 1) * factor:
         # the usual case: every term at the truth rate (linear maps commute with linear upsampling),
-        # added into the noise one phase at a time, without (3, N) temporaries
+        # added into the noise
         f_b, w_b = ideal_body_imu(t, acc_enu_mps2, rot, omega_body_radps)
         acc_slow = _apply_device(dev.acc_matrix, dev.acc_turn_on_bias_mps2, f_b.T)
         gyro_const = _apply_device(dev.gyro_matrix, dev.gyro_turn_on_bias_radps, w_b.T)
