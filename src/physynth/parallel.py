@@ -57,6 +57,25 @@ def shard_task(scenario_json: str, root_seed: int, partial: str, k: int, start: 
     return write_shard(partial, k, traces(), meta)
 
 
+WORKER_CONFIG = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "500ms",
+    "distributed.worker.memory.monitor-interval": "1s",
+}
+"""Dask settings of the embedded cluster's workers. Dask's statistical profiler samples every worker
+thread's stack every 10 ms, and the event-loop tick and memory monitor wake up every 20 and 100 ms:
+together 15-40 % more CPU per trace in a worker than in a plain process on this 2-core machine, for
+a dashboard nobody looks at during a batch run (``benchmarks/bench_dask_overhead.py``)."""
+
+
+@contextlib.contextmanager
+def _quiet_workers() -> Iterator[None]:
+    import dask
+
+    with dask.config.set(WORKER_CONFIG):
+        yield
+
+
 @contextlib.contextmanager
 def _children_ignore_terminal_signals() -> Iterator[None]:
     """Start worker processes that ignore SIGINT and SIGHUP (an ignored signal is inherited).
@@ -124,7 +143,7 @@ def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, to
             raise PhySynthError(f"cannot connect to the Dask scheduler {scheduler}: {exc}") from None
         cluster = None
     else:
-        with _children_ignore_terminal_signals():
+        with _children_ignore_terminal_signals(), _quiet_workers():
             cluster = distributed.LocalCluster(n_workers=min(workers, len(todo)), threads_per_worker=1,
                                                processes=True, dashboard_address=":0", silence_logs=logging.ERROR)
         client = distributed.Client(cluster)
