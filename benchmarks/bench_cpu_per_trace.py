@@ -35,6 +35,10 @@ def main() -> None:
     generate_trace(cs, 0, 0)
     params = inspect.signature(DatasetWriter).parameters
     kw = {"compact": True, "row_group_traces": 16} if "compact" in params else {}  # as generate writes
+    if "column_groups" in params:
+        from physynth.io.dataset import generated_column_groups
+
+        kw["column_groups"] = generated_column_groups(cs.scenario.imu_frames)
     best_m = best_p = float("inf")
     size = 0
     for _ in range(3):

@@ -102,3 +102,30 @@ def test_top_level_names_resolve_lazily():
 
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         physynth.nope  # noqa: B018
+
+
+def test_declared_column_groups_leave_out_null_columns_and_refuse_undeclared_data(tmp_path):
+    from physynth.constants import IMU_BODY_FRAME, IMU_FRAME
+    from physynth.errors import DatasetError
+    from physynth.io.dataset import DatasetWriter, generated_column_groups
+
+    enu = compile_scenario(load_scenario("cablecar-descending"))
+    body = compile_scenario(load_scenario("cablecar-descending").model_copy(
+        update={"imu_frames": [IMU_FRAME, IMU_BODY_FRAME]}))
+    traces = [generate_trace(enu, i, 3) for i in range(2)]
+    with DatasetWriter(tmp_path / "d", compact=True, column_groups=generated_column_groups([IMU_FRAME])) as w:
+        for i, t in enumerate(traces):
+            w.add(t, index=i)
+    names = pq.read_schema(tmp_path / "d" / "imu.parquet").names
+    assert names == ["trace", "t_s", "acc_e_mps2", "acc_n_mps2", "acc_u_mps2"]  # no columns of nulls
+    assert not pq.read_schema(tmp_path / "d" / "imu.parquet").field("t_s").nullable
+    back = read_dataset(tmp_path / "d")
+    for a, b in zip(traces, back, strict=True):
+        assert b.imu.acc_body_mps2 is None and b.imu.gyro_body_radps is None
+        np.testing.assert_allclose(b.imu.acc_mps2, a.imu.acc_mps2, rtol=1e-6, atol=1e-6)  # float32
+        np.testing.assert_allclose(b.truth.quat_wxyz, a.truth.quat_wxyz, rtol=0, atol=1.2e-7)  # float32
+
+    with pytest.raises(DatasetError, match="not declared"):  # body IMU data into an ENU-only dataset
+        with DatasetWriter(tmp_path / "e", column_groups=generated_column_groups([IMU_FRAME])) as w:
+            w.add(generate_trace(body, 0, 3), index=0)
+    assert not (tmp_path / "e").exists()  # nothing half-written appears

@@ -12,7 +12,7 @@ import datetime as _dt
 import json
 import os
 import shutil
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -53,17 +53,48 @@ SCHEMAS = {
 }
 
 FLOAT32_COLUMNS = ("acc_e_mps2", "acc_n_mps2", "acc_u_mps2", "acc_x_mps2", "acc_y_mps2", "acc_z_mps2",
-                   "gyro_x_radps", "gyro_y_radps", "gyro_z_radps", "vel_e_mps", "vel_n_mps", "vel_u_mps")
+                   "gyro_x_radps", "gyro_y_radps", "gyro_z_radps", "vel_e_mps", "vel_n_mps", "vel_u_mps",
+                   "quat_w", "quat_x", "quat_y", "quat_z", "omega_x_radps", "omega_y_radps", "omega_z_radps")
 """Columns that generated datasets store as float32 (``DatasetWriter(compact=True)``): IMU acceleration
 and angular rate (float32 keeps 7 significant digits, about 1e-6 m/s^2 at 10 m/s^2, against a per-sample
-noise of metres per second squared) and truth velocity (1e-6 m/s at 10 m/s). Times, positions, ranges and anchor
-positions stay float64: times may be epoch seconds, positions are training labels (float32 would round
-them to 0.2 mm at 2 km) and range residuals are the metric of the paper. Readers return float64."""
+noise of metres per second squared), truth velocity (1e-6 m/s at 10 m/s) and truth attitude (quaternion
+components to 6e-8, an attitude within 1.2e-7 rad; body rates to 7 digits). Times, positions, ranges and
+anchor positions stay float64: times may be epoch seconds, positions are training labels (float32 would
+round them to 0.2 mm at 2 km, and their second difference, an acceleration, to metres per second
+squared) and range residuals are the metric of the paper. Readers return float64."""
 
 SCHEMAS_COMPACT = {
     name: pa.schema([pa.field(f.name, pa.float32()) if f.name in FLOAT32_COLUMNS else f for f in schema])
     for name, schema in SCHEMAS.items()
 }
+
+REQUIRED_COLUMNS = frozenset({"trace", "t_s"})
+"""Columns never null in any table: written as Parquet REQUIRED (no definition levels to encode)."""
+
+
+def _schema(name: str, compact: bool, groups: Mapping[str, Iterable[str]] | None) -> pa.Schema:
+    """The table's schema, restricted to the optional groups ``groups[name]`` (all when None)."""
+    schema = (SCHEMAS_COMPACT if compact else SCHEMAS)[name]
+    if groups is None or name not in OPTIONAL_COLUMNS:
+        keep = schema
+    else:
+        wanted = set(groups.get(name, ()))
+        unknown = wanted - set(OPTIONAL_COLUMNS[name])
+        if unknown:
+            raise ValueError(f"unknown optional column groups of table {name}: {sorted(unknown)}")
+        drop = {c for attr, cols in OPTIONAL_COLUMNS[name].items() if attr not in wanted for c in cols}
+        keep = pa.schema([f for f in schema if f.name not in drop])
+    return pa.schema([f.with_nullable(False) if f.name in REQUIRED_COLUMNS else f for f in keep])
+
+
+def generated_column_groups(imu_frames: Iterable[str]) -> dict[str, list[str]]:
+    """The optional column groups a generated dataset holds: the truth attitude always, the IMU streams
+    of ``imu_frames`` (a scenario's ``imu_frames``)."""
+    frames = set(imu_frames)
+    imu = (["acc_mps2"] if IMU_FRAME in frames else []) + (
+        ["acc_body_mps2", "gyro_body_radps"] if IMU_BODY_FRAME in frames else [])
+    return {"truth": list(OPTIONAL_COLUMNS["truth"]), "imu": imu}
+
 
 _FLOAT_COLUMNS = {name: [f.name for f in schema if pa.types.is_floating(f.type)] for name, schema in SCHEMAS.items()}
 """Float columns are written with Parquet's BYTE_STREAM_SPLIT encoding: noisy floats then compress
@@ -130,20 +161,27 @@ def _strings_at(values: Sequence[str], index: np.ndarray) -> pa.Array:
     return pa.Array.from_buffers(pa.string(), index.size, [None, pa.py_buffer(offsets), pa.py_buffer(data)])
 
 
-def _table(name: str, cols: list[Any], compact: bool = False) -> pa.Table:
-    """A table of ``SCHEMAS[name]`` (or ``SCHEMAS_COMPACT[name]``) from NumPy columns."""
-    schema = (SCHEMAS_COMPACT if compact else SCHEMAS)[name]
+def _table(name: str, cols: list[Any], schema: pa.Schema) -> pa.Table:
+    """A table of ``schema`` (one of ``SCHEMAS``, compact or restricted by :func:`_schema`) from NumPy columns."""
     n = len(cols[0])
     return pa.Table.from_arrays([pa.nulls(n, f.type) if c is None else _arrow(c, f.type)
                                  for c, f in zip(cols, schema, strict=True)], schema=schema)
 
 
-def _optional(record: Any, table: str) -> list[np.ndarray | None]:
-    """Columns of the optional groups of ``record`` in schema order; None (written as nulls) where absent."""
+def _optional(record: Any, table: str, schema: pa.Schema) -> list[np.ndarray | None]:
+    """Columns of the optional groups of ``record`` that ``schema`` holds, in schema order; None (written
+    as nulls) where the record lacks a group. A group the record has but the schema lacks is an error
+    (it would be lost)."""
     out: list[np.ndarray | None] = []
-    for attr, names in OPTIONAL_COLUMNS[table].items():
+    names = set(schema.names)
+    for attr, cols in OPTIONAL_COLUMNS[table].items():
         value = getattr(record, attr)
-        out += [None if value is None else value[:, k] for k in range(len(names))]
+        if cols[0] not in names:
+            if value is not None:
+                raise DatasetError(f"a trace has {table} columns {', '.join(cols)} that this dataset was not "
+                                   "declared to hold")
+            continue
+        out += [None if value is None else value[:, k] for k in range(len(cols))]
     return out
 
 
@@ -158,22 +196,23 @@ def _optional_group(cols: dict[str, np.ndarray], table: str, attr: str) -> np.nd
     return arr
 
 
-def _tables_of(trace: Trace, index: int, compact: bool = False) -> dict[str, pa.Table]:
+def _tables_of(trace: Trace, index: int, schemas: Mapping[str, pa.Schema]) -> dict[str, pa.Table]:
     tr = trace.truth
     n = tr.t_s.shape[0]
     out = {"truth": _table("truth", [np.full(n, index, np.int32), tr.t_s, *tr.pos_enu_m.T, *tr.vel_enu_mps.T,
-                                     *_optional(tr, "truth")], compact)}
+                                     *_optional(tr, "truth", schemas["truth"])], schemas["truth"])}
     if trace.imu is not None:
         im = trace.imu
-        out["imu"] = _table("imu", [np.full(im.t_s.shape[0], index, np.int32), im.t_s, *_optional(im, "imu")],
-                            compact)
+        out["imu"] = _table("imu", [np.full(im.t_s.shape[0], index, np.int32), im.t_s,
+                                    *_optional(im, "imu", schemas["imu"])], schemas["imu"])
     u = trace.uwb
     nlos = (_arrow(u.nlos, pa.bool_()) if u.nlos_known else pa.nulls(len(u), pa.bool_()))
     anchor_id = _strings_at(trace.anchors.ids, u.anchor)
     out["uwb"] = _table("uwb", [np.full(len(u), index, np.int32), u.t_s, anchor_id, u.range_m, u.true_range_m,
-                                nlos, u.burst, u.reason])
+                                nlos, u.burst, u.reason], schemas["uwb"])
     a = trace.anchors
-    out["anchors"] = _table("anchors", [np.full(len(a), index, np.int32), a.ids, a.names, *a.pos_enu_m.T])
+    out["anchors"] = _table("anchors", [np.full(len(a), index, np.int32), a.ids, a.names, *a.pos_enu_m.T],
+                            schemas["anchors"])
     return out
 
 
@@ -183,11 +222,18 @@ class DatasetWriter:
     >>> with DatasetWriter(out, meta={"kind": "synthetic"}) as w:   # doctest: +SKIP
     ...     for trace in traces:
     ...         w.add(trace)
+
+    ``compact``: store :data:`FLOAT32_COLUMNS` as float32 (generated data). ``column_groups``: the
+    optional column groups (:data:`OPTIONAL_COLUMNS`, by record attribute) the dataset holds, per table,
+    e.g. :func:`generated_column_groups`; None holds them all, with nulls where a trace lacks a group.
+    Naming them saves writing (and reading) columns of nulls; a trace that has a group the dataset does
+    not hold raises :class:`DatasetError` rather than lose it.
     """
 
     def __init__(self, path: str | os.PathLike, *, meta: dict[str, Any] | None = None,
                  overwrite: bool = False, row_group_traces: int = 64, compact: bool = False,
-                 inputs: Sequence[str | os.PathLike] = ()) -> None:
+                 inputs: Sequence[str | os.PathLike] = (),
+                 column_groups: Mapping[str, Iterable[str]] | None = None) -> None:
         # safety hook (physynth.io.safety): what --overwrite may replace, inputs, lock, orphaned temp folders
         self.path, self._lock = safety.prepare_output(path, kind="dataset", overwrite=overwrite, inputs=inputs)
         self.overwrite = overwrite
@@ -204,9 +250,10 @@ class DatasetWriter:
             self._lock.release()
             raise
         self._rows = {name: 0 for name in TABLES}
+        self._schemas = {name: _schema(name, compact, column_groups) for name in TABLES}
         self._writers = {
-            name: pq.ParquetWriter(self.tmp / f"{name}.parquet", (SCHEMAS_COMPACT if compact else SCHEMAS)[name],
-                                   compression="snappy", use_byte_stream_split=_FLOAT_COLUMNS[name],
+            name: pq.ParquetWriter(self.tmp / f"{name}.parquet", self._schemas[name],
+                                   compression="snappy", use_byte_stream_split=[c for c in _FLOAT_COLUMNS[name] if c in self._schemas[name].names],
                                    use_dictionary=["anchor_id", "name"], write_statistics=["trace"])
             for name in TABLES
         }
@@ -223,7 +270,7 @@ class DatasetWriter:
     def add(self, trace: Trace, index: int | None = None) -> None:
         safety.check_interrupted()  # a signal whose exception was swallowed (physynth.io.safety)
         index = len(self._trace_meta) if index is None else int(index)
-        for name, table in _tables_of(trace, index, self.compact).items():
+        for name, table in _tables_of(trace, index, self._schemas).items():
             self._pending[name].append(table)
         self._trace_meta.append({"trace": index, **jsonable(trace.meta)})
         if trace.imu is not None:

@@ -34,7 +34,7 @@ from .. import __version__
 from .._json import jsonable
 from ..errors import DatasetError, OutputExistsError, PhySynthError
 from .atomic import atomic_write_text, temp_sibling
-from .dataset import TABLES, DatasetWriter
+from .dataset import TABLES, DatasetWriter, generated_column_groups
 
 DEFAULT_SHARD_TRACES = 128
 """Traces per shard: small enough that a killed run loses little, large enough to keep files few."""
@@ -79,7 +79,8 @@ def write_shard(partial: str | os.PathLike, k: int, traces: Any, meta: dict[str,
     if dest.is_dir():
         return 0
     n = 0
-    with DatasetWriter(dest, meta=meta, row_group_traces=ROW_GROUP_TRACES, compact=True) as w:
+    groups = generated_column_groups(meta["imu_frames"]) if "imu_frames" in meta else None
+    with DatasetWriter(dest, meta=meta, row_group_traces=ROW_GROUP_TRACES, compact=True, column_groups=groups) as w:
         for index, trace in traces:
             w.add(trace, index=index)
             n += 1
