@@ -129,6 +129,12 @@ class ValidationReport:
         ``deviation_kind`` (``relative_pct`` or, for :data:`SIGNED_METRICS`, ``absolute`` in the
         metric's unit), the synthetic ensemble's per-trace ``band_5_95`` and ``real_in_band``
         (docs/validation.md). Lists per axis for ``imu_std_mps2``.
+    imu_errors : dict or None
+        When both sides hold a body-frame IMU (:data:`BODY_IMU_ERRORS`: the accelerometer's specific
+        force and the gyroscope's rate minus what the truth says they should read): ``real`` and
+        ``synthetic`` error std per axis, ``relative_deviation_pct`` and ``extended`` log-spectral
+        distance and Allan ratio, with the keys of :mod:`physynth.validate.imu_report` (``imu_*``
+        keys there are None here). None otherwise.
     """
 
     real: dict[str, Any]
@@ -141,6 +147,7 @@ class ValidationReport:
     inputs: dict[str, Any] = field(default_factory=dict)
     transfer: dict[str, Any] | None = None
     comparison: dict[str, Any] = field(default_factory=dict)
+    imu_errors: dict[str, Any] | None = None
     evidence: Evidence | None = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -159,6 +166,7 @@ class ValidationReport:
             "inputs": self.inputs,
             "transfer": self.transfer,
             "comparison": self.comparison,
+            "imu_errors": self.imu_errors,
         })
 
     def to_json(self) -> str:
@@ -173,7 +181,7 @@ class ValidationReport:
                        ks_statistic=data["ks_statistic"], fidelity_score=data.get("fidelity_score"),
                        extended=dict(data["extended"]), per_anchor=dict(data["per_anchor"]),
                        inputs=dict(data.get("inputs") or {}), transfer=data.get("transfer"),
-                       comparison=dict(data.get("comparison") or {}))
+                       comparison=dict(data.get("comparison") or {}), imu_errors=data.get("imu_errors"))
         except (KeyError, TypeError) as exc:
             raise PhySynthError(f"not a validation report: missing or bad field {exc}") from None
 
@@ -336,16 +344,19 @@ def compare(real: Iterable[Trace], synthetic: Iterable[Trace], *, rate_hz: float
     PhySynthError
         When a side holds no trace.
     """
-    sides = {}
+    from .imu_report import ImuErrorAccumulator
+
+    sides, imu_err = {}, {}
     for name, traces in (("real", real), ("synthetic", synthetic)):
-        acc = _SideAccumulator(rate_hz)
+        acc, errs = _SideAccumulator(rate_hz), ImuErrorAccumulator(BODY_IMU_ERRORS)
         for tr in traces:
             acc.add(tr)
+            errs.add(tr)
             if name == "synthetic" and on_trace is not None:
                 on_trace()
         if not acc.n_traces:
             raise PhySynthError(f"the {name} side holds no traces")
-        sides[name] = acc.finish()
+        sides[name], imu_err[name] = acc.finish(), errs.finish()
     (ev_r, r_real), (ev_s, r_synth) = sides["real"], sides["synthetic"]
     m_real, m_synth = ev_r.metrics.to_dict(), ev_s.metrics.to_dict()
     info = {
@@ -367,8 +378,25 @@ def compare(real: Iterable[Trace], synthetic: Iterable[Trace], *, rate_hz: float
         inputs=jsonable(info),
         transfer=jsonable(dict(transfer)) if transfer is not None else None,
         comparison=comparison_table(m_real, m_synth, ev_s.per_trace),
+        imu_errors=_imu_errors(imu_err["real"], imu_err["synthetic"]),
         evidence=Evidence(real=ev_r, synthetic=ev_s),
     )
+
+
+BODY_IMU_ERRORS = ("acc_body", "gyro")
+"""IMU error kinds compared by :func:`compare` (body-frame accelerometer and gyroscope, when both sides
+have them). The ENU acceleration is compared by Table I, the spectrum and the Allan deviation of the
+extended statistics; its error against the truth is compared by the IMU-only validation."""
+
+
+def _imu_errors(rs: dict[str, Any], ss: dict[str, Any]) -> dict[str, Any] | None:
+    """The ``imu_errors`` block: IMU error statistics of the kinds both sides have, else None."""
+    from .imu_report import imu_error_comparison
+
+    if not set(rs) & set(ss):
+        return None
+    r, s, dev, ext = imu_error_comparison(rs, ss)
+    return jsonable({"real": r, "synthetic": s, "relative_deviation_pct": dev, "extended": ext})
 
 
 # ---------------------------------------------------------------- datasets and scenarios (the CLI's entry)

@@ -26,7 +26,7 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -61,56 +61,109 @@ def is_imu_only(traces: Sequence[Trace]) -> bool:
     return bool(traces) and all(len(t.anchors) == 0 and len(t.uwb) == 0 and t.imu is not None for t in traces)
 
 
-def _errors(trace: Trace) -> dict[str, tuple[np.ndarray, np.ndarray, float]]:
-    """Per error kind: (error (N, 3), valid mask (N,), sample rate) of one trace."""
+def _errors(trace: Trace, kinds: Iterable[str] = tuple(ERRORS)) -> dict[str, tuple[np.ndarray, np.ndarray, float]]:
+    """Per error kind (of ``kinds``): (error (N, 3), valid mask (N,), sample rate) of one trace."""
     out: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}
     im = trace.imu
     if im is None:
         return out
+    kinds = set(kinds)
     fs = 1.0 / median_step_s(im.t_s)
-    if im.acc_mps2 is not None:
+    if im.acc_mps2 is not None and "imu" in kinds:
         e, ok, _ = imu_error(trace, CUTOFF_HZ)
         out["imu"] = (e, ok, fs)
-    if has_body_imu(trace):
+    if has_body_imu(trace) and kinds & {"acc_body", "gyro"}:
         f_b, w, ok, _ = body_truth(trace, CUTOFF_HZ)
         out["acc_body"] = (im.acc_body_mps2 - f_b, ok & np.all(np.isfinite(im.acc_body_mps2), axis=1), fs)
         out["gyro"] = (im.gyro_body_radps - w, ok & np.all(np.isfinite(im.gyro_body_radps), axis=1), fs)
     return out
 
 
-def _summary(traces: Sequence[Trace]) -> dict[str, dict[str, Any]]:
-    """Per error kind: std per axis, pooled Welch PSD, mean Allan deviation at ALLAN_TAUS_S."""
-    acc: dict[str, dict[str, Any]] = {}
-    for tr in traces:  # a few traces, each vectorised
-        for kind, (e, ok, fs) in _errors(tr).items():
+class ImuErrorAccumulator:
+    """Per error kind (:data:`ERRORS`), reduced trace by trace: std per axis (pooled), Welch PSD
+    (pooled, weighted by valid samples) and the overlapping Allan deviation (mean over traces).
+    Memory does not grow with the number of traces. ``kinds``: the error kinds to compute."""
+
+    def __init__(self, kinds: Iterable[str] = tuple(ERRORS)) -> None:
+        self._acc: dict[str, dict[str, Any]] = {}
+        self.kinds = tuple(kinds)
+
+    def add(self, trace: Trace) -> None:
+        for kind, (e, ok, fs) in _errors(trace, self.kinds).items():
             if ok.sum() < 100:
                 continue
-            a = acc.setdefault(kind, {"sq": np.zeros(3), "sum": np.zeros(3), "n": 0, "psd": None, "w": 0.0,
-                                      "adev": [], "fs": fs})
+            a = self._acc.setdefault(kind, {"sq": np.zeros(3), "sum": np.zeros(3), "n": 0, "psd": None, "w": 0.0,
+                                            "adev_sum": np.zeros((len(ALLAN_TAUS_S), 3)),
+                                            "adev_n": np.zeros((len(ALLAN_TAUS_S), 3)), "fs": fs})
             a["sq"] += np.sum(e[ok] ** 2, axis=0)
             a["sum"] += np.sum(e[ok], axis=0)
             a["n"] += int(ok.sum())
             nper = int(min(2 ** int(np.log2(max(ok.sum() // 8, 64))), 8192))
             f, p = welch(np.where(ok[:, None], np.nan_to_num(e), 0.0), fs=fs, nperseg=nper, axis=0)
-            if a["psd"] is None or a["psd"][1].shape != p.shape:
-                a["psd"] = (f, p * ok.sum()) if a["psd"] is None else a["psd"]
-            else:
+            if a["psd"] is None:
+                a["psd"] = (f, p * ok.sum())
+            elif a["psd"][1].shape == p.shape:
                 a["psd"] = (f, a["psd"][1] + p * ok.sum())
             a["w"] += float(ok.sum())
-            seg = max(segments(tr.imu.t_s, ok, max_gap_s=1.5 / fs), key=lambda s: s[1] - s[0])
+            seg = max(segments(trace.imu.t_s, ok, max_gap_s=1.5 / fs), key=lambda s: s[1] - s[0])
             x = e[seg[0]:seg[1]]
             taus = [t for t in ALLAN_TAUS_S if 2 * t * fs < x.shape[0]]
             if taus:
-                ad = np.full((len(ALLAN_TAUS_S), 3), np.nan)
-                ad[: len(taus)] = allan_deviation(x, fs, taus).T
-                a["adev"].append(ad)
-    out = {}
-    for kind, a in acc.items():
-        mean = a["sum"] / a["n"]
-        out[kind] = {"std": np.sqrt(np.maximum(a["sq"] / a["n"] - mean**2, 0.0)),
-                     "f": a["psd"][0], "psd": a["psd"][1] / a["w"],
-                     "adev": np.nanmean(np.stack(a["adev"]), axis=0) if a["adev"] else None, "fs": a["fs"]}
-    return out
+                ad = allan_deviation(x, fs, taus).T  # (len(taus), 3)
+                fin = np.isfinite(ad)
+                a["adev_sum"][: len(taus)] += np.where(fin, ad, 0.0)
+                a["adev_n"][: len(taus)] += fin
+
+    def finish(self) -> dict[str, dict[str, Any]]:
+        out = {}
+        for kind, a in self._acc.items():
+            mean = a["sum"] / a["n"]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                adev = np.where(a["adev_n"] > 0, a["adev_sum"] / a["adev_n"], np.nan)
+            out[kind] = {"std": np.sqrt(np.maximum(a["sq"] / a["n"] - mean**2, 0.0)),
+                         "f": a["psd"][0], "psd": a["psd"][1] / a["w"],
+                         "adev": adev if np.any(a["adev_n"] > 0) else None, "fs": a["fs"]}
+        return out
+
+
+def _summary(traces: Iterable[Trace]) -> dict[str, dict[str, Any]]:
+    """Per error kind: std per axis, pooled Welch PSD, mean Allan deviation at ALLAN_TAUS_S."""
+    acc = ImuErrorAccumulator()
+    for tr in traces:  # a few traces, each vectorised
+        acc.add(tr)
+    return acc.finish()
+
+
+def imu_error_comparison(rs: dict[str, dict[str, Any]], ss: dict[str, dict[str, Any]]
+                         ) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """(real, synthetic, relative_deviation_pct, extended) of the module docstring, from two
+    :class:`ImuErrorAccumulator` summaries; None for a kind that a side lacks."""
+    out_r: dict[str, Any] = {}
+    out_s: dict[str, Any] = {}
+    dev: dict[str, Any] = {}
+    ext: dict[str, Any] = {}
+    for kind, unit in ERRORS.items():
+        key = f"{kind}_error_std_{unit}"
+        r, s = rs.get(kind), ss.get(kind)
+        out_r[key] = None if r is None else r["std"].tolist()
+        out_s[key] = None if s is None else s["std"].tolist()
+        if r is None or s is None:
+            dev[key] = None
+            ext[f"{kind}_log_spectral_distance_db"] = None
+            ext[f"{kind}_allan_ratio"] = None
+            continue
+        dev[key] = (100.0 * (s["std"] / r["std"] - 1.0)).tolist()
+        f = r["f"]
+        ps = np.stack([np.interp(f, s["f"], s["psd"][:, k]) for k in range(3)], axis=1)
+        band = (f > 0.2) & (f < 0.95 * r["fs"] / 2)
+        tiny = 1e-30
+        ratio_db = 10.0 * np.log10(np.maximum(ps[band], tiny) / np.maximum(r["psd"][band], tiny))
+        ext[f"{kind}_log_spectral_distance_db"] = {"axes": "xyz" if kind != "imu" else "enu",
+                                                   "per_axis": np.sqrt(np.mean(ratio_db**2, axis=0)).tolist(),
+                                                   "band_hz": [0.2, 0.95 * r["fs"] / 2]}
+        ext[f"{kind}_allan_ratio"] = (None if r["adev"] is None or s["adev"] is None else
+                                      {"tau_s": list(ALLAN_TAUS_S), "ratio": (s["adev"] / r["adev"]).tolist()})
+    return out_r, out_s, dev, ext
 
 
 def _along_truth(real: Trace, scn: Scenario, root: int, index: int) -> Trace:
@@ -160,28 +213,7 @@ def compare_imu(real: Sequence[Trace], synthetic: Sequence[Trace], *, inputs: di
     if not set(rs) & set(ss):
         raise PhySynthError(f"the synthetic traces have no IMU error of a kind the real dataset has "
                             f"(real: {', '.join(sorted(rs))}; synthetic: {', '.join(sorted(ss)) or 'none'})")
-    out_r, out_s, dev, ext = {}, {}, {}, {}
-    for kind, unit in ERRORS.items():
-        key = f"{kind}_error_std_{unit}"
-        r, s = rs.get(kind), ss.get(kind)
-        out_r[key] = None if r is None else r["std"].tolist()
-        out_s[key] = None if s is None else s["std"].tolist()
-        if r is None or s is None:
-            dev[key] = None
-            ext[f"{kind}_log_spectral_distance_db"] = None
-            ext[f"{kind}_allan_ratio"] = None
-            continue
-        dev[key] = (100.0 * (s["std"] / r["std"] - 1.0)).tolist()
-        f = r["f"]
-        ps = np.stack([np.interp(f, s["f"], s["psd"][:, k]) for k in range(3)], axis=1)
-        band = (f > 0.2) & (f < 0.95 * r["fs"] / 2)
-        tiny = 1e-30
-        ratio_db = 10.0 * np.log10(np.maximum(ps[band], tiny) / np.maximum(r["psd"][band], tiny))
-        ext[f"{kind}_log_spectral_distance_db"] = {"axes": "xyz" if kind != "imu" else "enu",
-                                                   "per_axis": np.sqrt(np.mean(ratio_db**2, axis=0)).tolist(),
-                                                   "band_hz": [0.2, 0.95 * r["fs"] / 2]}
-        ext[f"{kind}_allan_ratio"] = (None if r["adev"] is None or s["adev"] is None else
-                                      {"tau_s": list(ALLAN_TAUS_S), "ratio": (s["adev"] / r["adev"]).tolist()})
+    out_r, out_s, dev, ext = imu_error_comparison(rs, ss)
     return ImuValidationReport(real=out_r, synthetic=out_s, relative_deviation_pct=dev, extended=ext,
                                inputs={**(inputs or {}), "n_traces": {"real": len(real), "synthetic": len(synthetic)},
                                        "truth_cutoff_hz": CUTOFF_HZ, "physynth_version": __version__,
