@@ -62,7 +62,7 @@ def safe_load_bounded(text: str, source: str) -> Any:
     """``yaml.safe_load`` that refuses recursive aliases and documents expanding past MAX_YAML_NODES."""
     if len(text) > MAX_YAML_BYTES:
         raise ScenarioError(f"scenario {source}: the file is larger than {MAX_YAML_BYTES / 1e6:g} MB")
-    loader = yaml.SafeLoader(text)
+    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)(text)  # libyaml when PyYAML has it: ~10x faster
     try:
         node = loader.get_single_node()
         if node is None:
