@@ -429,7 +429,7 @@ def ideal_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, ome
     """
     f_w = np.array(acc_enu_mps2, dtype=float)
     f_w[:, 2] += G0_MPS2
-    return rot.inv().apply(f_w), np.array(omega_body_radps, dtype=float)
+    return rot.apply(f_w, inverse=True), np.array(omega_body_radps, dtype=float)
 
 
 ROTATION_EXACT_ABOVE_RAD = 1e-4
