@@ -132,12 +132,14 @@ def lever_arm_design(trace: Trace, cutoff_hz: float, offset_s: float = 0.0) -> t
 
     A sensor at r [m] in the body frame reads this on top of the reference point's acceleration
     (:func:`physynth.models.imu.lever_arm_acceleration`): w the truth body rate low-passed at
-    ``cutoff_hz`` (:func:`smoothed_body_rate`), alpha its derivative, R the truth attitude, all at the
+    ``cutoff_hz`` (:func:`smoothed_body_rate`, each step's rate at the step's middle), alpha its derivative, R the truth attitude, all at the
     IMU time minus ``offset_s``. Zero with mask False where the truth has no attitude.
     """
     ti = trace.imu.t_s - offset_s
     att = truth_attitude_at(trace, ti)
-    w = smoothed_body_rate(trace, ti, cutoff_hz)
+    # the truth's rates hold over [t_k, t_{k+1}), i.e. belong to the middle of the step
+    half = 0.5 * median_step_s(trace.truth.t_s) if trace.truth.t_s.size > 1 else 0.0
+    w = smoothed_body_rate(trace, ti - half, cutoff_hz)
     if att is None or w is None:
         return np.zeros((ti.size, 3, 3)), np.zeros(ti.size, dtype=bool)
     rot, ok = att

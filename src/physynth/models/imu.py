@@ -248,8 +248,10 @@ def lever_arm_acceleration(t_s: np.ndarray, attitude: Rotation, omega_body_radps
                            lever_arm_m: np.ndarray) -> np.ndarray:
     """(T, 3) ENU acceleration [m s^-2] a sensor at ``lever_arm_m`` (body frame [m]) adds to the reference point's.
 
-    R (alpha x r + w x (w x r)) with w the body rate (T, 3) [rad/s], alpha = dw/dt its derivative
-    (central differences on ``t_s``) and R the attitude (body -> ENU). NaN rates count as zero.
+    R (alpha x r + w x (w x r)) with w the body rate (T, 3) at the times ``t_s`` [rad/s], alpha = dw/dt
+    its derivative (central differences on ``t_s``) and R the attitude (body -> ENU). NaN rates count
+    as zero. :func:`simulate_imu` first moves the truth's step rates (row k over [t_k, t_{k+1})) to the
+    sample times.
     """
     w = np.nan_to_num(np.asarray(omega_body_radps, dtype=float))
     r = np.asarray(lever_arm_m, dtype=float)
@@ -261,7 +263,10 @@ def _with_lever_arm(kin: Kinematics, params: ImuParams, omega_body_radps, attitu
     acc = np.asarray(kin.acc_enu_mps2)
     if attitude is None or omega_body_radps is None or not any(params.lever_arm_m):
         return acc
-    return acc + lever_arm_acceleration(kin.t_s, attitude, omega_body_radps, params.lever_arm_m)
+    # the truth's rates hold over [t_k, t_{k+1}): the rate at t_k is the mean of rows k-1 and k
+    w = np.nan_to_num(np.asarray(omega_body_radps, dtype=float))
+    w_at = 0.5 * (w + np.concatenate([w[:1], w[:-1]]))
+    return acc + lever_arm_acceleration(kin.t_s, attitude, w_at, params.lever_arm_m)
 
 
 def vibration_variance(acc_enu_mps2: np.ndarray, omega_body_radps: np.ndarray | None, params: ImuParams
