@@ -424,7 +424,7 @@ def fit_motion_noise(traces: Sequence[Trace], cutoff_hz: float, offset_s: float,
 
         def wmean(x: np.ndarray, sl=sl, n_w=n_w, w_n=w_n, cnt=cnt, keep=keep, ok=ok) -> np.ndarray:
             x = np.where(ok[sl].reshape((-1,) + (1,) * (x.ndim - 1)), np.nan_to_num(x[sl]), 0.0)
-            return (x.reshape((n_w, w_n) + x.shape[1:]).sum(axis=1).T / cnt).T[keep]
+            return (x.reshape((n_w, w_n) + x.shape[1:]).sum(axis=1).T / np.maximum(cnt, 1)).T[keep]
 
         ys.append(wmean(e**2))
         feats.append((wmean(a_abs), wmean(w)))
