@@ -54,7 +54,7 @@ INPUT_CUTOFF_HZ = 14.0  # tools/broad_imu_loo.py: the widest band where the opti
 
 def test_lever_arm_model_predicts_left_out_trials_within_a_measured_bound(undisturbed):
     """Calibrated against the 14 Hz truth with the lever arm (fit_imu(..., lever_arm=True)) and fed that
-    truth, compared against the 10 Hz one: measured worst axis 44 / 7 / 11 % (mean 20.5 %, 20.5-21.9 %
+    truth, compared against the 10 Hz one: measured worst axis 48 / 8 / 11 % (mean 22.4 %, 21.8-24.7 %
     over seeds 1-5) against 237 / 32 / 25 % for the constant model (docs/imu.md)."""
     worst = {"constant": [], "lever": []}
     for left in undisturbed:
@@ -78,6 +78,7 @@ def test_lever_arm_fitted_on_the_real_trials(undisturbed):
     fit = fit_imu(list(undisturbed.values()), cutoff_hz=INPUT_CUTOFF_HZ, lever_arm=True)
     lev = fit.diagnostics["lever_arm"]
     r = np.asarray(fit.params.lever_arm_m)
-    # measured 2.0 / -1.2 / 9.0 mm pooled, z 6.5-12.4 mm over the leave-one-out folds
+    # measured 2.0 / -1.2 / 9.9 mm pooled (standard error 0.1-0.2 mm), z 8.4-12.4 mm over the
+    # leave-one-out folds: the folds scatter more than the standard error says
     assert lev["kept"] and lev["mean_square_reduction_frac"] > 0.2
     assert 0.005 < r[2] < 0.013 and np.all(np.abs(r[:2]) < 0.004)

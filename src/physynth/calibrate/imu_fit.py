@@ -98,14 +98,25 @@ def imu_error(trace: Trace, cutoff_hz: float, offset_s: float = 0.0, *, lever_ar
     """
     if trace.imu is None or trace.imu.acc_mps2 is None:
         raise CalibrationError("trace has no ENU (gravity-free) IMU samples")
-    err, ok, ti = _error_against(trace, truth_acceleration(trace.truth.t_s, trace.truth.pos_enu_m,
-                                                           cutoff_hz=cutoff_hz), offset_s)
-    if lever_arm_m is not None and np.any(np.asarray(lever_arm_m, dtype=float) != 0.0):
-        design, ok_att = lever_arm_design(trace, cutoff_hz, offset_s)
-        err = err - design @ np.asarray(lever_arm_m, dtype=float)
-        ok = ok & ok_att
-        err[~ok] = np.nan
-    return err, ok, ti
+    return _error_against(trace, sensor_truth_acceleration(trace, cutoff_hz, lever_arm_m), offset_s)
+
+
+def sensor_truth_acceleration(trace: Trace, cutoff_hz: float, lever_arm_m: Sequence[float] | None = None
+                              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`truth_acceleration` of the trace's truth plus, with a non-zero ``lever_arm_m`` (body frame
+    [m]), the rotational acceleration of a sensor there (:func:`physynth.models.imu.lever_arm_acceleration`
+    along the truth attitude and its body rate low-passed at ``cutoff_hz``); invalid where the truth has
+    no attitude."""
+    tg, acc, valid = truth_acceleration(trace.truth.t_s, trace.truth.pos_enu_m, cutoff_hz=cutoff_hz)
+    r = None if lever_arm_m is None else np.asarray(lever_arm_m, dtype=float)
+    if r is None or not np.any(r != 0.0):
+        return tg, acc, valid
+    att = truth_attitude_at(trace, tg)
+    # the truth's rates hold over [t_k, t_{k+1}), i.e. belong to the middle of the step
+    w = smoothed_body_rate(trace, tg - 0.5 * median_step_s(trace.truth.t_s), cutoff_hz)
+    if att is None or w is None:
+        raise CalibrationError("a lever arm needs the truth attitude")
+    return tg, acc + lever_arm_acceleration(tg, att[0], w, r), valid & att[1]
 
 
 def truth_attitude_at(trace: Trace, t_q: np.ndarray) -> tuple[Rotation, np.ndarray] | None:
@@ -336,17 +347,18 @@ MOTION_WINDOW_S = 2.0
 """Window of the motion-noise regression: mean squared error against mean |a|^2 and |w|^2 [s]."""
 
 
-def fit_time_offset(traces: Sequence[Trace], cutoff_hz: float, *, max_offset_s: float = 0.01
-                    ) -> tuple[float, dict[str, Any]]:
+def fit_time_offset(traces: Sequence[Trace], cutoff_hz: float, *, max_offset_s: float = 0.01,
+                    lever_arm_m: Sequence[float] | None = None) -> tuple[float, dict[str, Any]]:
     """IMU-to-truth clock offset [s] minimising the pooled IMU error variance (IMU lags truth: > 0).
 
     A grid of 0.25 ms steps over +-``max_offset_s`` (per-axis error variances summed, pooled over
-    the traces by sample count), refined by a parabola through the best three points.
+    the traces by sample count), refined by a parabola through the best three points. With
+    ``lever_arm_m`` the truth is the sensor point's (:func:`sensor_truth_acceleration`), shifted as a whole.
     """
     grid = np.arange(-max_offset_s, max_offset_s + 1e-12, 2.5e-4)
     cost = np.zeros(grid.size)
     for tr in traces:  # a handful of recordings, each vectorised
-        ta = truth_acceleration(tr.truth.t_s, tr.truth.pos_enu_m, cutoff_hz=cutoff_hz)
+        ta = sensor_truth_acceleration(tr, cutoff_hz, lever_arm_m)
         for j, off in enumerate(grid):  # ~80 offsets
             e, ok, _ = _error_against(tr, ta, float(off))
             cost[j] += float(np.sum(np.var(e[ok], axis=0))) * int(ok.sum())
@@ -511,6 +523,14 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
         r, lever_diag = fit_lever_arm(trs, fc, offset)
         lever_diag["kept"] = lever_diag["mean_square_reduction_frac"] >= 0.005
         lever = r if lever_diag["kept"] else None
+        if lever is not None and motion_dependent:  # the clock offset again, now of the sensor point
+            off2, od2 = fit_time_offset(trs, fc, lever_arm_m=lever)
+            od2["kept"] = not (od2["error_variance_reduction_frac"] < 0.005 or abs(off2) < 2.5e-4)
+            offset = off2 if od2["kept"] else 0.0
+            offset_diag = {**od2, "without_lever_arm": offset_diag}
+            r, lever_diag = fit_lever_arm(trs, fc, offset)
+            lever_diag["kept"] = lever_diag["mean_square_reduction_frac"] >= 0.005
+            lever = r if lever_diag["kept"] else None
     if motion_dependent:
         motion = fit_motion_noise(trs, fc, offset, use_rate=motion_rate_term, lever_arm_m=lever)
     errs = [imu_error(t, fc, offset_s=offset, lever_arm_m=lever) for t in trs]
