@@ -35,8 +35,8 @@ ROOT = Path(__file__).resolve().parents[1]
 DEFAULT = ROOT / ".." / "shared" / "data" / "broad-imu" / "data_mat"
 INPUT_CUTOFF_HZ = 14.0
 """Cut-off [Hz] of the truth the wide and lever models are calibrated against and fed with: the widest
-band where the optical acceleration still follows the IMU (correlation 0.6-0.98 at 11-14 Hz on the
-shared trials, 0.1-0.5 above 15 Hz where the optical noise dominates)."""
+band where the optical acceleration still follows the IMU (correlation 0.37-0.96 per axis at 11-14 Hz
+on the shared trials, at most 0.54 above 15 Hz where the optical noise dominates; docs/imu.md)."""
 WIDE = ({"cutoff_hz": INPUT_CUTOFF_HZ}, {"input_cutoff_hz": INPUT_CUTOFF_HZ})
 MODELS = (("constant", {"motion_dependent": False}, {}), ("motion", {}, {}),
           ("motion+w", {"motion_rate_term": True}, {}), ("wide", *WIDE),
