@@ -130,6 +130,7 @@ BOUNDS: dict[str, Bound] = {
                                                             "rate-dependent vibration"),
     "body_imu.rate_hz": Bound(1.0, 10_000.0, "Hz", "MEMS IMU output rates"),
     "body_imu.time_offset_s": Bound(-1.0, 1.0, "s", "IMU clock offset"),
+    "body_imu.lever_arm_m[]": Bound(-10.0, 10.0, "m", "sensor position in the body frame (a vehicle's size)"),
     "body_imu.accelerometer.noise_density_mps2_per_sqrt_hz": Bound(0.0, 10.0, "m/s^2/sqrt(Hz)", "noise density"),
     "body_imu.accelerometer.bias_rw_mps2_per_sqrt_s": Bound(0.0, 10.0, "m/s^2/sqrt(s)", "bias random walk"),
     "body_imu.accelerometer.bias_instability_mps2": Bound(0.0, 10.0, "m/s^2", "bias instability"),

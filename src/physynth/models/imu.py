@@ -260,13 +260,19 @@ def lever_arm_acceleration(t_s: np.ndarray, attitude: Rotation, omega_body_radps
 
 
 def _with_lever_arm(kin: Kinematics, params: ImuParams, omega_body_radps, attitude) -> np.ndarray:
-    acc = np.asarray(kin.acc_enu_mps2)
-    if attitude is None or omega_body_radps is None or not any(params.lever_arm_m):
+    return _sensor_point_acc(kin.t_s, kin.acc_enu_mps2, attitude, omega_body_radps, params.lever_arm_m)
+
+
+def _sensor_point_acc(t_s, acc_enu_mps2, attitude, omega_body_radps, lever_arm_m) -> np.ndarray:
+    """The acceleration (T, 3) of the point at ``lever_arm_m``; the input itself when it is zero or
+    the attitude or rates are missing."""
+    acc = np.asarray(acc_enu_mps2)
+    if attitude is None or omega_body_radps is None or not any(lever_arm_m):
         return acc
     # the truth's rates hold over [t_k, t_{k+1}): the rate at t_k is the mean of rows k-1 and k
     w = np.nan_to_num(np.asarray(omega_body_radps, dtype=float))
     w_at = 0.5 * (w + np.concatenate([w[:1], w[:-1]]))
-    return acc + lever_arm_acceleration(kin.t_s, attitude, w_at, params.lever_arm_m)
+    return acc + lever_arm_acceleration(np.asarray(t_s, dtype=float), attitude, w_at, lever_arm_m)
 
 
 def vibration_variance(acc_enu_mps2: np.ndarray, omega_body_radps: np.ndarray | None, params: ImuParams
@@ -339,6 +345,8 @@ class BodyImuParams(ParamsModel):
     """A strapdown IMU: accelerometer and gyroscope in the body frame (FLU), sampled at ``rate_hz``.
 
     ``time_offset_s``: the sensor's clock lags the truth, sample t reads the motion at t - offset.
+    ``lever_arm_m``: the sensor's position in the body frame [m]; it reads the specific force of that
+    point, alpha x r + w x (w x r) more than the truth's reference point (zero by default).
     ``vibration``: the spectral comb (lines, widths, axis gains) shared by both sensors; its amplitude
     is ignored here: the accelerometer's and gyroscope's ``vibration_amplitude_*`` set the RMS per
     axis. The Kalibr ``imu.yaml`` keys (``accelerometer_noise_density`` ...) are accepted in place of
@@ -350,6 +358,7 @@ class BodyImuParams(ParamsModel):
     gyroscope: GyroscopeParams = GyroscopeParams()
     time_offset_s: Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False)] = 0.0
     vibration: VibrationParams = VibrationParams(amplitude_mps2=0.0)
+    lever_arm_m: Vec3 = [0.0, 0.0, 0.0]
 
     @model_validator(mode="before")
     @classmethod
@@ -548,9 +557,10 @@ def simulate_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, 
     (:func:`draw_imu_device`); vibration, bias random walk and bias instability (slow, at the truth
     rate, linearly interpolated); white noise per IMU sample; quantisation. The angular rate is constant
     over each truth interval, so the noiseless gyroscope integrates to the truth attitude exactly.
-    Inputs are not modified.
+    Inputs are not modified. A non-zero ``lever_arm_m`` moves the acceleration to the sensor's point first.
     """
     t = np.asarray(t_s, dtype=float)
+    acc_enu_mps2 = _sensor_point_acc(t, acc_enu_mps2, rot, omega_body_radps, params.lever_arm_m)
     a, g = params.accelerometer, params.gyroscope
     dev = draw_imu_device(params, rng=rng)
     n_imu = int(np.ceil((t[-1] - t[0]) * params.rate_hz - 1e-9))
