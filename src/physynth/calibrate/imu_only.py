@@ -32,8 +32,7 @@ from ..models.imu import AccelerometerParams, BodyImuParams, GyroscopeParams
 from ..records import Trace
 from ..scenario import Scenario, scenario_from_dict
 from ._base import CalibrationError, Fit, median_step_s, rounded, segments, trace_label
-from .imu_fit import (CALM_ACC_MPS2, CALM_RATE_RADPS, _intensity, fit_imu, sensor_truth_acceleration,
-                      smoothed_body_rate)
+from .imu_fit import CALM_ACC_MPS2, CALM_RATE_RADPS, _intensity, fit_imu, sensor_truth_acceleration, smoothed_body_rate
 
 ALLAN_WHITE_TAU_S = 0.05
 """Averaging time at which the white noise is read off the Allan deviation, N = adev * sqrt(tau) [s]."""
