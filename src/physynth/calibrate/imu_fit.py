@@ -144,7 +144,8 @@ def lever_arm_design(trace: Trace, cutoff_hz: float, offset_s: float = 0.0) -> t
     A sensor at r [m] in the body frame reads this on top of the reference point's acceleration
     (:func:`physynth.models.imu.lever_arm_acceleration`): w the truth body rate low-passed at
     ``cutoff_hz`` (:func:`smoothed_body_rate`, each step's rate at the step's middle), alpha its
-    derivative, R the truth attitude, all at the IMU time minus ``offset_s``. Zero with mask False where the truth has no attitude.
+    derivative, R the truth attitude, all at the IMU time minus ``offset_s``. Zero with mask False
+    where the truth has no attitude.
     """
     ti = trace.imu.t_s - offset_s
     att = truth_attitude_at(trace, ti)
