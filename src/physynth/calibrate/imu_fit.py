@@ -23,9 +23,10 @@ from typing import Any
 import numpy as np
 from scipy.optimize import nnls
 from scipy.signal import butter, sosfiltfilt, welch
+from scipy.spatial.transform import Rotation, Slerp
 
 from ..evaluate.stats import allan_deviation
-from ..models.imu import MotionNoiseParams, simulate_imu
+from ..models.imu import MotionNoiseParams, lever_arm_acceleration, simulate_imu
 from ..models.motion import Kinematics
 from ..records import Imu, Trace
 from ..scenario import ImuParams, VibrationParams
@@ -85,17 +86,111 @@ def truth_acceleration(t_s: np.ndarray, pos_m: np.ndarray, *, cutoff_hz: float,
     return tg, acc, valid
 
 
-def imu_error(trace: Trace, cutoff_hz: float, offset_s: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def imu_error(trace: Trace, cutoff_hz: float, offset_s: float = 0.0, *, lever_arm_m: Sequence[float] | None = None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """IMU error (N, 3) = IMU minus truth-derived acceleration at the IMU times, its mask and the times.
 
     The error is NaN (mask False) where the IMU or the truth is masked, near truth gaps and segment
     ends. The IMU is assumed to be ENU, gravity-free (the trace's ``imu.frame``). ``offset_s``: the
     IMU sample at t is compared with the truth at t - offset (an IMU clock lagging the truth).
+    ``lever_arm_m`` (body frame [m]): the rotational acceleration of a sensor there
+    (:func:`lever_arm_design`) counts as part of the truth; needs the truth attitude.
     """
     if trace.imu is None or trace.imu.acc_mps2 is None:
         raise CalibrationError("trace has no ENU (gravity-free) IMU samples")
-    return _error_against(trace, truth_acceleration(trace.truth.t_s, trace.truth.pos_enu_m, cutoff_hz=cutoff_hz),
-                          offset_s)
+    return _error_against(trace, sensor_truth_acceleration(trace, cutoff_hz, lever_arm_m), offset_s)
+
+
+def sensor_truth_acceleration(trace: Trace, cutoff_hz: float, lever_arm_m: Sequence[float] | None = None
+                              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`truth_acceleration` of the trace's truth plus, with a non-zero ``lever_arm_m`` (body frame
+    [m]), the rotational acceleration of a sensor there (:func:`physynth.models.imu.lever_arm_acceleration`
+    along the truth attitude and its body rate low-passed at ``cutoff_hz``); invalid where the truth has
+    no attitude."""
+    tg, acc, valid = truth_acceleration(trace.truth.t_s, trace.truth.pos_enu_m, cutoff_hz=cutoff_hz)
+    r = None if lever_arm_m is None else np.asarray(lever_arm_m, dtype=float)
+    if r is None or not np.any(r != 0.0):
+        return tg, acc, valid
+    att = truth_attitude_at(trace, tg)
+    # the truth's rates hold over [t_k, t_{k+1}), i.e. belong to the middle of the step
+    w = smoothed_body_rate(trace, tg - 0.5 * median_step_s(trace.truth.t_s), cutoff_hz)
+    if att is None or w is None:
+        raise CalibrationError("a lever arm needs the truth attitude")
+    return tg, acc + lever_arm_acceleration(tg, att[0], w, r), valid & att[1]
+
+
+def truth_attitude_at(trace: Trace, t_q: np.ndarray) -> tuple[Rotation, np.ndarray] | None:
+    """The truth attitude (body -> ENU) at times ``t_q``, spherically interpolated between the finite
+    truth quaternions, and a mask (False outside them or within a masked span); None without attitude."""
+    q = trace.truth.quat_wxyz
+    if q is None:
+        return None
+    t = trace.truth.t_s
+    fin = np.all(np.isfinite(q), axis=1)
+    if fin.sum() < 2:
+        return None
+    slerp = Slerp(t[fin], Rotation.from_quat(q[fin], scalar_first=True))
+    tc = np.clip(t_q, t[fin][0], t[fin][-1])
+    # a query is valid when both neighbouring truth samples are finite
+    k = np.clip(np.searchsorted(t, t_q, side="right") - 1, 0, t.size - 1)
+    k1 = np.minimum(k + 1, t.size - 1)
+    ok = fin[k] & fin[k1] & (t_q >= t[0]) & (t_q <= t[-1])
+    return slerp(tc), ok
+
+
+def lever_arm_design(trace: Trace, cutoff_hz: float, offset_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3, 3) matrices D at the IMU times with D r = R (alpha x r + w x (w x r)), and their mask.
+
+    A sensor at r [m] in the body frame reads this on top of the reference point's acceleration
+    (:func:`physynth.models.imu.lever_arm_acceleration`): w the truth body rate low-passed at
+    ``cutoff_hz`` (:func:`smoothed_body_rate`, each step's rate at the step's middle), alpha its
+    derivative, R the truth attitude, all at the IMU time minus ``offset_s``. Zero with mask False
+    where the truth has no attitude.
+    """
+    ti = trace.imu.t_s - offset_s
+    att = truth_attitude_at(trace, ti)
+    # the truth's rates hold over [t_k, t_{k+1}), i.e. belong to the middle of the step
+    half = 0.5 * median_step_s(trace.truth.t_s) if trace.truth.t_s.size > 1 else 0.0
+    w = smoothed_body_rate(trace, ti - half, cutoff_hz)
+    if att is None or w is None:
+        return np.zeros((ti.size, 3, 3)), np.zeros(ti.size, dtype=bool)
+    rot, ok = att
+    # column j: the acceleration of a unit lever arm along body axis j
+    cols = [lever_arm_acceleration(ti, rot, w, e) for e in np.eye(3)]
+    return np.nan_to_num(np.stack(cols, axis=2)), ok
+
+
+def fit_lever_arm(traces: Sequence[Trace], cutoff_hz: float, offset_s: float) -> tuple[np.ndarray, dict[str, Any]]:
+    """Sensor position r (3,) [m] in the body frame by least squares pooled over the traces.
+
+    The IMU error (:func:`imu_error` at ``offset_s``) regressed on the lever-arm design
+    (:func:`lever_arm_design`) of each trace's truth attitude, all three axes at once. The standard
+    error is from 2 s blocks of the residual (the error is coloured, so per-sample statistics would
+    overstate the precision).
+    """
+    rows, rhs, blocks = [], [], []
+    for tr in traces:  # a handful of recordings, each vectorised
+        e, ok, ti = imu_error(tr, cutoff_hz, offset_s=offset_s)
+        d, ok_att = lever_arm_design(tr, cutoff_hz, offset_s)
+        ok = ok & ok_att
+        rows.append(d[ok].reshape(-1, 3))
+        rhs.append(e[ok].reshape(-1))
+        fs = 1.0 / median_step_s(ti)
+        blocks.append(np.repeat(np.flatnonzero(ok) // int(round(MOTION_WINDOW_S * fs)), 3) + 10**9 * len(blocks))
+    a, b, blk = np.concatenate(rows), np.concatenate(rhs), np.concatenate(blocks)
+    if a.shape[0] < 30 or not np.any(a):
+        raise CalibrationError("no truth attitude: the lever arm cannot be fitted")
+    r, *_ = np.linalg.lstsq(a, b, rcond=None)
+    res = b - a @ r
+    # block-bootstrap-free sandwich estimate: sum over blocks of (A_b^T res_b)(A_b^T res_b)^T
+    _, inv = np.unique(blk, return_inverse=True)
+    score = np.zeros((inv.max() + 1, 3))
+    np.add.at(score, inv, a * res[:, None])
+    ata_inv = np.linalg.inv(a.T @ a)
+    cov = ata_inv @ (score.T @ score) @ ata_inv
+    gain = float(1.0 - np.sum(res**2) / np.sum(b**2))
+    return r, {"lever_arm_m": r.tolist(), "std_error_m": np.sqrt(np.diag(cov)).tolist(),
+               "mean_square_reduction_frac": gain, "n_samples": int(a.shape[0] // 3)}
 
 
 def _error_against(trace: Trace, truth_acc: tuple[np.ndarray, np.ndarray, np.ndarray], offset_s: float
@@ -253,17 +348,18 @@ MOTION_WINDOW_S = 2.0
 """Window of the motion-noise regression: mean squared error against mean |a|^2 and |w|^2 [s]."""
 
 
-def fit_time_offset(traces: Sequence[Trace], cutoff_hz: float, *, max_offset_s: float = 0.01
-                    ) -> tuple[float, dict[str, Any]]:
+def fit_time_offset(traces: Sequence[Trace], cutoff_hz: float, *, max_offset_s: float = 0.01,
+                    lever_arm_m: Sequence[float] | None = None) -> tuple[float, dict[str, Any]]:
     """IMU-to-truth clock offset [s] minimising the pooled IMU error variance (IMU lags truth: > 0).
 
     A grid of 0.25 ms steps over +-``max_offset_s`` (per-axis error variances summed, pooled over
-    the traces by sample count), refined by a parabola through the best three points.
+    the traces by sample count), refined by a parabola through the best three points. With
+    ``lever_arm_m`` the truth is the sensor point's (:func:`sensor_truth_acceleration`), shifted as a whole.
     """
     grid = np.arange(-max_offset_s, max_offset_s + 1e-12, 2.5e-4)
     cost = np.zeros(grid.size)
     for tr in traces:  # a handful of recordings, each vectorised
-        ta = truth_acceleration(tr.truth.t_s, tr.truth.pos_enu_m, cutoff_hz=cutoff_hz)
+        ta = sensor_truth_acceleration(tr, cutoff_hz, lever_arm_m)
         for j, off in enumerate(grid):  # ~80 offsets
             e, ok, _ = _error_against(tr, ta, float(off))
             cost[j] += float(np.sum(np.var(e[ok], axis=0))) * int(ok.sum())
@@ -309,7 +405,7 @@ CALM_RATE_RADPS = 0.1
 
 
 def fit_motion_noise(traces: Sequence[Trace], cutoff_hz: float, offset_s: float, *,
-                     use_rate: bool = True) -> dict[str, Any]:
+                     use_rate: bool = True, lever_arm_m: Sequence[float] | None = None) -> dict[str, Any]:
     """Joint fit over recordings of the error variance per axis as c0 + ca_k |a_k| + cw_k |w|.
 
     c0 (per axis) is the mean squared error of the calm samples (``CALM_ACC_MPS2``,
@@ -317,12 +413,13 @@ def fit_motion_noise(traces: Sequence[Trace], cutoff_hz: float, offset_s: float,
     trial), else a free intercept. The slopes come from window means (``MOTION_WINDOW_S``, windows at
     least 95 % valid) of the squared error minus c0, regressed on window means of |a_k| and |w| by
     non-negative least squares pooled over all recordings, so that recordings of different
-    intensity fix them. The slopes are the vibration's variance per unit intensity.
+    intensity fix them. The slopes are the vibration's variance per unit intensity. ``lever_arm_m``:
+    the error is taken with the sensor's lever-arm acceleration removed (:func:`imu_error`).
     """
     feats, ys, calm_e2, n_calm, n_all = [], [], np.zeros(3), 0, 0
     fs = None
     for tr in traces:  # a handful of recordings
-        e, ok, ti = imu_error(tr, cutoff_hz, offset_s=offset_s)
+        e, ok, ti = imu_error(tr, cutoff_hz, offset_s=offset_s, lever_arm_m=lever_arm_m)
         a_abs, w = _intensity(tr, cutoff_hz, offset_s)
         fs = 1.0 / median_step_s(ti)
         calm = ok & (np.linalg.norm(a_abs, axis=1) < CALM_ACC_MPS2) & (w < CALM_RATE_RADPS)
@@ -340,7 +437,7 @@ def fit_motion_noise(traces: Sequence[Trace], cutoff_hz: float, offset_s: float,
 
         def wmean(x: np.ndarray, sl=sl, n_w=n_w, w_n=w_n, cnt=cnt, keep=keep, ok=ok) -> np.ndarray:
             x = np.where(ok[sl].reshape((-1,) + (1,) * (x.ndim - 1)), np.nan_to_num(x[sl]), 0.0)
-            return (x.reshape((n_w, w_n) + x.shape[1:]).sum(axis=1).T / cnt).T[keep]
+            return (x.reshape((n_w, w_n) + x.shape[1:]).sum(axis=1).T / np.maximum(cnt, 1)).T[keep]
 
         ys.append(wmean(e**2))
         feats.append((wmean(a_abs), wmean(w)))
@@ -375,7 +472,7 @@ def fit_motion_noise(traces: Sequence[Trace], cutoff_hz: float, offset_s: float,
 
 def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, nperseg_s: float = 20.0,
             defaults: ImuParams | None = None, motion_dependent: bool = True,
-            motion_rate_term: bool = False) -> Fit[ImuParams]:
+            motion_rate_term: bool = False, lever_arm: bool = False) -> Fit[ImuParams]:
     """Fit white noise, bias random walk and vibration to the IMU error of traces with IMU and truth.
 
     Parameters
@@ -395,6 +492,11 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
         the vibration's power grows with the motion (:class:`~physynth.models.imu.MotionNoiseParams`).
     motion_rate_term
         Let the motion noise grow with the angular rate too (needs truth attitude rates).
+    lever_arm
+        Also fit the sensor's position in the body frame (:func:`fit_lever_arm`, after the time
+        offset, before the motion noise; needs the truth attitude), kept when it lowers the mean
+        squared error by at least 0.5 %; the noise terms are then fitted to the error with its
+        lever-arm acceleration removed.
 
     Returns
     -------
@@ -417,8 +519,22 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
         if offset_diag["error_variance_reduction_frac"] < 0.005 or abs(offset) < 2.5e-4:
             offset_diag["kept"] = False
             offset = 0.0
-        motion = fit_motion_noise(trs, fc, offset, use_rate=motion_rate_term)
-    errs = [imu_error(t, fc, offset_s=offset) for t in trs]
+    lever, lever_diag = None, None
+    if lever_arm:
+        r, lever_diag = fit_lever_arm(trs, fc, offset)
+        lever_diag["kept"] = lever_diag["mean_square_reduction_frac"] >= 0.005
+        lever = r if lever_diag["kept"] else None
+        if lever is not None and motion_dependent:  # the clock offset again, now of the sensor point
+            off2, od2 = fit_time_offset(trs, fc, lever_arm_m=lever)
+            od2["kept"] = not (od2["error_variance_reduction_frac"] < 0.005 or abs(off2) < 2.5e-4)
+            offset = off2 if od2["kept"] else 0.0
+            offset_diag = {**od2, "without_lever_arm": offset_diag}
+            r, lever_diag = fit_lever_arm(trs, fc, offset)
+            lever_diag["kept"] = lever_diag["mean_square_reduction_frac"] >= 0.005
+            lever = r if lever_diag["kept"] else None
+    if motion_dependent:
+        motion = fit_motion_noise(trs, fc, offset, use_rate=motion_rate_term, lever_arm_m=lever)
+    errs = [imu_error(t, fc, offset_s=offset, lever_arm_m=lever) for t in trs]
     if motion is not None:  # mean motion-noise variance over the samples used (per-sample, at the IMU rate)
         num, cnt = np.zeros(3), 0
         for tr, (_, ok, _) in zip(trs, errs, strict=True):
@@ -549,7 +665,8 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
             rate_var_gain_mps4_per_radps=[rounded(x, 5) for x in motion["rate_var_gain_mps4_per_radps"]])
     params = ImuParams(rate_hz=rounded(fs, 7), white_noise_density_mps2_per_sqrt_hz=[rounded(x, 5) for x in density],
                        bias_rw_mps2_per_sqrt_s=rounded(bias_rw, 4), bias_initial_std_mps2=0.0, vibration=vibration,
-                       time_offset_s=rounded(offset, 4), motion_noise=motion_params)
+                       time_offset_s=rounded(offset, 4), motion_noise=motion_params,
+                       lever_arm_m=[0.0, 0.0, 0.0] if lever is None else [rounded(float(x), 4) for x in lever])
     dec = max(1, f.size // 400)
     diag = {
         "truth_cutoff_hz": fc,
@@ -559,6 +676,7 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
         "white_noise_rel_se": float(1.0 / np.sqrt(max(wb.sum() * len(psds), 1))),
         "error_std_mps2": np.sqrt(np.nanmean(np.concatenate([e[ok] for e, ok, _ in errs]) ** 2, axis=0)).tolist(),
         "time_offset": offset_diag,
+        "lever_arm": lever_diag,
         "motion_noise": None if motion is None else {k: (v.tolist() if isinstance(v, np.ndarray) else v)
                                                      for k, v in motion.items()},
         "n_samples": n_total,
@@ -574,32 +692,42 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
 
 
 def simulate_imu_on(t_s: np.ndarray, acc_enu_mps2: np.ndarray, params: ImuParams, *,
-                    rng: np.random.Generator, omega_body_radps: np.ndarray | None = None) -> Imu:
+                    rng: np.random.Generator, omega_body_radps: np.ndarray | None = None,
+                    attitude: Rotation | None = None) -> Imu:
     """The generator's IMU model (:func:`physynth.imu.simulate_imu`) applied to a given acceleration track.
 
     ``t_s`` (T,) uniform times [s] and ``acc_enu_mps2`` (T, 3) the true acceleration (e.g. derived
     from a real trial's truth, NaN spans filled); the IMU is sampled at ``params.rate_hz`` from t_s[0].
+    ``omega_body_radps`` (T, 3) and ``attitude`` (T rotations): for the rate-scaled noise and the lever arm.
     """
     acc = np.asarray(acc_enu_mps2, dtype=float)
     kin = Kinematics(t_s=np.asarray(t_s, dtype=float), s_m=np.zeros(len(t_s)), pos_enu_m=np.zeros_like(acc),
                      vel_enu_mps=np.zeros_like(acc), acc_enu_mps2=acc)
-    return simulate_imu(kin, params, rng=rng, omega_body_radps=omega_body_radps)
+    return simulate_imu(kin, params, rng=rng, omega_body_radps=omega_body_radps, attitude=attitude)
 
 
 def compare_imu_along_truth(real: Trace, params: ImuParams, cutoff_hz: float, *,
-                            rng: np.random.Generator) -> dict[str, np.ndarray]:
+                            rng: np.random.Generator, input_cutoff_hz: float | None = None) -> dict[str, np.ndarray]:
     """Apply the IMU error model ``params`` along a real trace's own truth and compare the IMU errors.
 
-    The error of both sides is IMU minus the truth-derived acceleration (:func:`imu_error`). Returns
+    The error of both sides is IMU minus the truth-derived acceleration low-passed at ``cutoff_hz``
+    (:func:`imu_error`). The synthetic IMU reads the truth low-passed at ``input_cutoff_hz`` (default
+    ``cutoff_hz``): above ``cutoff_hz`` the real IMU reads motion that the reference filters out, so a
+    model calibrated on the error against a wider-band truth (``fit_imu(..., cutoff_hz=input_cutoff_hz)``)
+    is compared with the same band of real motion in its input. With a truth attitude, the model's
+    lever arm acts along the truth's rotation (body rate low-passed at ``input_cutoff_hz``). Returns
     per-axis error std (``std_real``, ``std_synth``), and on log10 Welch PSDs (8192-sample segments,
     0.2 Hz to 0.95 x Nyquist, masked samples zeroed) the correlation (``log_psd_corr``) and the
     log-spectral distance in dB (``lsd_db``).
     """
-    tg, acc, valid = truth_acceleration(real.truth.t_s, real.truth.pos_enu_m, cutoff_hz=cutoff_hz)
+    fc_in = cutoff_hz if input_cutoff_hz is None else float(input_cutoff_hz)
+    tg, acc, valid = truth_acceleration(real.truth.t_s, real.truth.pos_enu_m, cutoff_hz=fc_in)
     filled = np.stack([np.interp(tg, tg[valid], acc[valid, k]) for k in range(3)], axis=1)
+    att = truth_attitude_at(real, tg) if any(params.lever_arm_m) else None
     synth = Trace(truth=real.truth, uwb=real.uwb, anchors=real.anchors,
                   imu=simulate_imu_on(tg, filled, params, rng=rng,
-                                      omega_body_radps=smoothed_body_rate(real, tg, cutoff_hz)))
+                                      omega_body_radps=smoothed_body_rate(real, tg, fc_in),
+                                      attitude=None if att is None else att[0]))
     e_r, ok_r, _ = imu_error(real, cutoff_hz)
     e_s, ok_s, _ = imu_error(synth, cutoff_hz)
     fs = params.rate_hz

@@ -32,7 +32,7 @@ from ..models.imu import AccelerometerParams, BodyImuParams, GyroscopeParams
 from ..records import Trace
 from ..scenario import Scenario, scenario_from_dict
 from ._base import CalibrationError, Fit, median_step_s, rounded, segments, trace_label
-from .imu_fit import CALM_ACC_MPS2, CALM_RATE_RADPS, _intensity, fit_imu, smoothed_body_rate, truth_acceleration
+from .imu_fit import CALM_ACC_MPS2, CALM_RATE_RADPS, _intensity, fit_imu, sensor_truth_acceleration, smoothed_body_rate
 
 ALLAN_WHITE_TAU_S = 0.05
 """Averaging time at which the white noise is read off the Allan deviation, N = adev * sqrt(tau) [s]."""
@@ -44,16 +44,17 @@ def has_body_imu(trace: Trace) -> bool:
             and trace.truth.quat_wxyz is not None)
 
 
-def body_truth(trace: Trace, cutoff_hz: float, offset_s: float = 0.0
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def body_truth(trace: Trace, cutoff_hz: float, offset_s: float = 0.0, *,
+               lever_arm_m: Sequence[float] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Truth-derived specific force and body rate (N, 3) at the IMU times read at t - offset, a
     validity mask (N,) and a calm mask (|a| < CALM_ACC_MPS2 and |w| < CALM_RATE_RADPS).
 
     f_b = R_wb^T (a_w - g_w): a_w the low-passed, twice-differentiated truth position, R_wb the truth
-    attitude (nearest sample), g_w = (0, 0, -G0). The body rate is the truth's, low-passed.
+    attitude (nearest sample), g_w = (0, 0, -G0). The body rate is the truth's, low-passed. With
+    ``lever_arm_m`` a_w is the sensor point's (:func:`~physynth.calibrate.imu_fit.sensor_truth_acceleration`).
     """
     ti = trace.imu.t_s - offset_s
-    tg, a, valid = truth_acceleration(trace.truth.t_s, trace.truth.pos_enu_m, cutoff_hz=cutoff_hz)
+    tg, a, valid = sensor_truth_acceleration(trace, cutoff_hz, lever_arm_m)
     a_i = np.stack([np.interp(ti, tg, np.where(valid, a[:, k], 0.0)) for k in range(3)], axis=1)
     ok = np.interp(ti, tg, valid.astype(float)) > 0.999
     q = trace.truth.quat_wxyz
@@ -132,7 +133,8 @@ def _noise_from_allan(resid: np.ndarray, t_s: np.ndarray, calm: np.ndarray, fs: 
 
 
 def fit_body_imu(traces: Sequence[Trace], *, cutoff_hz: float = 10.0, offset_s: float = 0.0,
-                 defaults: BodyImuParams | None = None) -> Fit[BodyImuParams]:
+                 defaults: BodyImuParams | None = None, lever_arm_m: Sequence[float] | None = None
+                 ) -> Fit[BodyImuParams]:
     """Fit the body-frame accelerometer and gyroscope on recordings with raw IMU and truth attitude.
 
     Per sensor: M (scale factor = diag - 1, misalignment = off-diagonal) and bias by least squares
@@ -140,7 +142,9 @@ def fit_body_imu(traces: Sequence[Trace], *, cutoff_hz: float = 10.0, offset_s: 
     noise and bias random walk from the Allan deviation of the residual over the calm span of each
     recording (median over recordings). With one device, the per-device spreads of the scenario
     (``scale_factor_std``, ``misalignment_std_rad``, ``turn_on_bias_std_*``) are set to the RMS of the
-    fitted values (one draw of the population).
+    fitted values (one draw of the population). ``lever_arm_m`` (body frame [m], e.g. from
+    :func:`~physynth.calibrate.imu_fit.fit_imu` with ``lever_arm=True``): the truth is the sensor
+    point's, and the scenario keeps it.
     """
     trs = [t for t in traces if has_body_imu(t)]
     if not trs:
@@ -150,7 +154,7 @@ def fit_body_imu(traces: Sequence[Trace], *, cutoff_hz: float = 10.0, offset_s: 
     xs_f, ys_f, xs_w, ys_w = [], [], [], []
     per = []
     for tr in trs:  # a handful of recordings, each vectorised
-        f_b, w, ok, calm = body_truth(tr, cutoff_hz, offset_s)
+        f_b, w, ok, calm = body_truth(tr, cutoff_hz, offset_s, lever_arm_m=lever_arm_m)
         acc, gyr = tr.imu.acc_body_mps2, tr.imu.gyro_body_radps
         ok &= np.all(np.isfinite(acc), axis=1) & np.all(np.isfinite(gyr), axis=1)
         # the measurement low-passed like the truth: the matrix compares the same frequency band (a
@@ -211,6 +215,7 @@ def fit_body_imu(traces: Sequence[Trace], *, cutoff_hz: float = 10.0, offset_s: 
     gyro_gain = max((e2 - c0_g * n_ok) / w_sum, 0.0) if w_sum > 0 else 0.0
     params = BodyImuParams(
         rate_hz=rounded(fs, 7), time_offset_s=rounded(offset_s, 4), vibration=base.vibration,
+        lever_arm_m=[0.0, 0.0, 0.0] if lever_arm_m is None else [rounded(float(x), 4) for x in lever_arm_m],
         accelerometer=AccelerometerParams(
             noise_density_mps2_per_sqrt_hz=rounded(float(na.mean()), 4), bias_rw_mps2_per_sqrt_s=rounded(ka, 4),
             turn_on_bias_std_mps2=rounded(float(np.sqrt(np.mean(b_a**2))), 4),

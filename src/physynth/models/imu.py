@@ -75,7 +75,10 @@ class ImuParams(ParamsModel):
     deviation density * sqrt(rate_hz)); bias random walk whose standard deviation grows as
     ``bias_rw_mps2_per_sqrt_s`` * sqrt(t); vibration as above; ``time_offset_s``: the IMU clock lags
     the truth, sample t reads the acceleration at t - offset [s]; ``motion_noise``: white noise
-    the vibration's power growing with the motion (:class:`MotionNoiseParams`).
+    the vibration's power growing with the motion (:class:`MotionNoiseParams`); ``lever_arm_m``: the
+    sensor's position in the body frame relative to the truth's reference point [m], so that it also
+    reads the rotational acceleration R (alpha x r + w x (w x r)) (:func:`lever_arm_acceleration`;
+    needs the truth attitude, zero by default).
     """
 
     rate_hz: PositiveFloat = 400.0
@@ -85,6 +88,7 @@ class ImuParams(ParamsModel):
     vibration: VibrationParams = VibrationParams()
     time_offset_s: Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False)] = 0.0
     motion_noise: MotionNoiseParams = MotionNoiseParams()
+    lever_arm_m: Vec3 = [0.0, 0.0, 0.0]
 
 
 _BIAS_KNOT_S = 0.1  # bias random-walk knot spacing [s]
@@ -219,18 +223,19 @@ def _vibration_cf(t_s: np.ndarray, params: VibrationParams, *, rng: np.random.Ge
 
 
 def simulate_imu(kin: Kinematics, params: ImuParams, *, rng: np.random.Generator,
-                 omega_body_radps: np.ndarray | None = None) -> Imu:
+                 omega_body_radps: np.ndarray | None = None, attitude: Rotation | None = None) -> Imu:
     """IMU samples at ``params.rate_hz`` over the kinematics' time span (ENU, gravity-free).
 
-    ``omega_body_radps`` (T, 3): the body angular rate at the truth times, used only by the
-    rate-dependent vibration power (zero when None). The modulated vibration makes the same draws as
-    the plain one, so the other terms' samples do not change when it is switched on.
+    ``omega_body_radps`` (T, 3): the body angular rate at the truth times, used by the rate-dependent
+    vibration power (zero when None) and with ``attitude`` (T rotations body -> ENU) by the lever arm
+    (:func:`lever_arm_acceleration`; ignored without both). The modulated vibration makes the same draws
+    as the plain one, so the other terms' samples do not change when it is switched on.
     """
+    acc_in = _with_lever_arm(kin, params, omega_body_radps, attitude)
     if params.time_offset_s != 0.0:  # the sensor reads the motion at t - offset
-        acc_in = np.asarray(kin.acc_enu_mps2)
         slow = np.stack([np.interp(kin.t_s - params.time_offset_s, kin.t_s, acc_in[:, k]) for k in range(3)])
     else:
-        slow = np.array(kin.acc_enu_mps2.T, order="C")  # a copy: the model never writes into its inputs
+        slow = np.array(acc_in.T, order="C")  # a copy: the model never writes into its inputs
     if params.motion_noise.active:
         slow += _modulated_vibration_cf(kin.t_s, kin.acc_enu_mps2, omega_body_radps, params, rng=rng)
     else:
@@ -249,6 +254,37 @@ def simulate_imu(kin: Kinematics, params: ImuParams, *, rng: np.random.Generator
     else:
         acc += resample_cf(t_imu, kin.t_s, slow)
     return Imu(t_s=t_imu, acc_mps2=acc.T)
+
+
+def lever_arm_acceleration(t_s: np.ndarray, attitude: Rotation, omega_body_radps: np.ndarray,
+                           lever_arm_m: np.ndarray) -> np.ndarray:
+    """(T, 3) ENU acceleration [m s^-2] a sensor at ``lever_arm_m`` (body frame [m]) adds to the reference point's.
+
+    R (alpha x r + w x (w x r)) with w the body rate (T, 3) at the times ``t_s`` [rad/s], alpha = dw/dt
+    its derivative (central differences on ``t_s``) and R the attitude (body -> ENU). NaN rates count
+    as zero. :func:`simulate_imu` first moves the truth's step rates (row k over [t_k, t_{k+1})) to the
+    sample times.
+    """
+    w = np.nan_to_num(np.asarray(omega_body_radps, dtype=float))
+    r = np.asarray(lever_arm_m, dtype=float)
+    alpha = np.gradient(w, t_s, axis=0) if w.shape[0] > 1 else np.zeros_like(w)
+    return attitude.apply(np.cross(alpha, r) + np.cross(w, np.cross(w, r)))
+
+
+def _with_lever_arm(kin: Kinematics, params: ImuParams, omega_body_radps, attitude) -> np.ndarray:
+    return _sensor_point_acc(kin.t_s, kin.acc_enu_mps2, attitude, omega_body_radps, params.lever_arm_m)
+
+
+def _sensor_point_acc(t_s, acc_enu_mps2, attitude, omega_body_radps, lever_arm_m) -> np.ndarray:
+    """The acceleration (T, 3) of the point at ``lever_arm_m``; the input itself when it is zero or
+    the attitude or rates are missing."""
+    acc = np.asarray(acc_enu_mps2)
+    if attitude is None or omega_body_radps is None or not any(lever_arm_m):
+        return acc
+    # the truth's rates hold over [t_k, t_{k+1}): the rate at t_k is the mean of rows k-1 and k
+    w = np.nan_to_num(np.asarray(omega_body_radps, dtype=float))
+    w_at = 0.5 * (w + np.concatenate([w[:1], w[:-1]]))
+    return acc + lever_arm_acceleration(np.asarray(t_s, dtype=float), attitude, w_at, lever_arm_m)
 
 
 def vibration_variance(acc_enu_mps2: np.ndarray, omega_body_radps: np.ndarray | None, params: ImuParams
@@ -321,6 +357,8 @@ class BodyImuParams(ParamsModel):
     """A strapdown IMU: accelerometer and gyroscope in the body frame (FLU), sampled at ``rate_hz``.
 
     ``time_offset_s``: the sensor's clock lags the truth, sample t reads the motion at t - offset.
+    ``lever_arm_m``: the sensor's position in the body frame [m]; it reads the specific force of that
+    point, alpha x r + w x (w x r) more than the truth's reference point (zero by default).
     ``vibration``: the spectral comb (lines, widths, axis gains) shared by both sensors; its amplitude
     is ignored here: the accelerometer's and gyroscope's ``vibration_amplitude_*`` set the RMS per
     axis. The Kalibr ``imu.yaml`` keys (``accelerometer_noise_density`` ...) are accepted in place of
@@ -332,6 +370,7 @@ class BodyImuParams(ParamsModel):
     gyroscope: GyroscopeParams = GyroscopeParams()
     time_offset_s: Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False)] = 0.0
     vibration: VibrationParams = VibrationParams(amplitude_mps2=0.0)
+    lever_arm_m: Vec3 = [0.0, 0.0, 0.0]
 
     @model_validator(mode="before")
     @classmethod
@@ -529,9 +568,10 @@ def simulate_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, 
     (:func:`draw_imu_device`); vibration, bias random walk and bias instability (slow, at the truth
     rate, linearly interpolated); white noise per IMU sample; quantisation. The angular rate is constant
     over each truth interval, so the noiseless gyroscope integrates to the truth attitude exactly.
-    Inputs are not modified.
+    Inputs are not modified. A non-zero ``lever_arm_m`` moves the acceleration to the sensor's point first.
     """
     t = np.asarray(t_s, dtype=float)
+    acc_enu_mps2 = _sensor_point_acc(t, acc_enu_mps2, rot, omega_body_radps, params.lever_arm_m)
     a, g = params.accelerometer, params.gyroscope
     dev = draw_imu_device(params, rng=rng)
     n_imu = int(np.ceil((t[-1] - t[0]) * params.rate_hz - 1e-9))
