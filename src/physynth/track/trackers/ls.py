@@ -1,14 +1,17 @@
 """``ls``: robust multilateration per grid step.
 
-At each grid step the position minimises the robust (``soft_l1``) sum of squared range residuals
-``||p - a_i|| - r_i`` over the anchors whose newest range is younger than ``max_aoi_s``, plus a weak pull
+At each grid step the position minimises the robust sum over the anchors whose newest range is younger
+than ``max_aoi_s`` of ``f_scale^2 rho((||p - a_i|| - r_i)^2 / f_scale^2)`` (``rho`` the ``loss``:
+``soft_l1`` by default, as in ``scipy.optimize.least_squares``) plus the same robust cost of a weak pull
 ``prior_weight * (p - p_warm)`` towards the warm start (the solution of the previous block of steps),
 which keeps a step with fewer than three usable ranges where it was.
 
 Steps whose usable ranges are identical to the previous step's (ranges change at ~10 Hz, the grid runs
-at 100 Hz) share its solution. The distinct steps are solved in blocks of ``block_steps``: one
-``scipy.optimize.least_squares`` call per block with a sparse (block-diagonal) Jacobian, warm-started
-from the previous block's last position, so there is no Python loop per step.
+at 100 Hz) share its solution. The distinct steps are taken in blocks of ``block_steps``; every step of
+a block is warm-started from (and pulled towards) the previous block's last solution. Only that chain of
+block ends is solved one block after the other; every other step is then solved in one batch
+(:func:`multilaterate`: damped Gauss-Newton on all steps at once, each step with its own damping and
+convergence test, converged to ``1e-10`` m), so there is no Python loop per step.
 """
 
 from __future__ import annotations
@@ -17,50 +20,108 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.sparse import coo_matrix
 
+from ...errors import PhySynthError
 from ..inputs import TrackInput
 from .base import ProgressFn
 
+LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
+"""Robust losses rho(z) of ``scipy.optimize.least_squares``, z = (residual / f_scale)^2."""
 
-def _block_problem(ranges: np.ndarray, use: np.ndarray, anchors: np.ndarray, warm: np.ndarray, prior_weight: float):
-    n, a = ranges.shape
-    ri, ai = np.nonzero(use)  # residual rows: (step, anchor) pairs that are used
-    r_obs = ranges[ri, ai]
-    a_pos = anchors[ai]
-    m = ri.size
+STEP_TOL_M = 1e-10
+"""A step has converged when its accepted Gauss-Newton step is shorter than this [m]."""
+INITIAL_RADIUS_M = 10.0
+"""First trust radius of every step [m]: doubled after an accepted step, a quarter of the step after a
+rejected one."""
+MAX_ITER = 200
+"""Iterations of the batched solver at most (a well-posed step converges in 5-20)."""
 
-    def fun(x: np.ndarray) -> np.ndarray:
-        p = x.reshape(n, 3)
-        d = np.linalg.norm(p[ri] - a_pos, axis=1)
-        return np.concatenate([d - r_obs, prior_weight * (p - warm).ravel()])
 
-    def jac(x: np.ndarray) -> coo_matrix:
-        p = x.reshape(n, 3)
-        diff = p[ri] - a_pos
-        d = np.maximum(np.linalg.norm(diff, axis=1, keepdims=True), 1e-9)
-        u = diff / d
-        rows = np.concatenate([np.repeat(np.arange(m), 3), m + np.arange(3 * n)])
-        cols = np.concatenate([(3 * ri[:, None] + np.arange(3)).ravel(), np.arange(3 * n)])
-        vals = np.concatenate([u.ravel(), np.full(3 * n, prior_weight)])
-        return coo_matrix((vals, (rows, cols)), shape=(m + 3 * n, 3 * n))
+def _loss(z: np.ndarray, loss: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """rho(z), rho'(z) and the Gauss-Newton weight max(rho' + 2 z rho'', 0) of ``loss``, elementwise."""
+    if loss == "linear":
+        one = np.ones_like(z)
+        return z, one, one
+    if loss == "soft_l1":
+        t = 1.0 + z
+        s = np.sqrt(t)
+        return 2.0 * (s - 1.0), 1.0 / s, 1.0 / (t * s)
+    if loss == "huber":
+        big = z > 1.0
+        sz = np.sqrt(np.where(big, z, 1.0))
+        return np.where(big, 2.0 * sz - 1.0, z), np.where(big, 1.0 / sz, 1.0), np.where(big, 0.0, 1.0)
+    if loss == "cauchy":
+        t = 1.0 + z
+        return np.log1p(z), 1.0 / t, np.maximum((1.0 - z) / (t * t), 0.0)
+    if loss == "arctan":
+        t = 1.0 + z * z
+        return np.arctan(z), 1.0 / t, np.maximum((1.0 - 3.0 * z * z) / (t * t), 0.0)
+    raise PhySynthError(f"unknown loss '{loss}' (choose from {', '.join(LOSSES)})")
 
-    return fun, jac
+
+def _cost_terms(p: np.ndarray, ranges: np.ndarray, use: np.ndarray, anchors: np.ndarray, warm: np.ndarray,
+                fs: float, w: float, loss: str) -> tuple[np.ndarray, ...]:
+    """Per-step robust cost (N,), residuals, distances, unit vectors and loss weights at ``p`` (N, 3)."""
+    diff = p[:, None, :] - anchors[None]  # (N, A, 3)
+    d = np.maximum(np.sqrt(np.einsum("nai,nai->na", diff, diff)), 1e-9)
+    f = np.where(use, d - ranges, 0.0)
+    fp = w * (p - warm)
+    na = f.shape[1]
+    rho, rho1, wgn = _loss(np.concatenate([f, fp], axis=1) ** 2 / fs**2, loss)
+    rho[:, :na] *= use
+    cost = 0.5 * fs**2 * rho.sum(axis=1)
+    return cost, f, d, fp, diff / d[..., None], rho1[:, :na] * use, rho1[:, na:], wgn[:, :na] * use, wgn[:, na:]
 
 
 def multilaterate(ranges_m: np.ndarray, use: np.ndarray, anchor_pos_m: np.ndarray, x0_m: np.ndarray, *,
                   loss: str = "soft_l1", f_scale_m: float = 0.3, prior_weight: float = 1e-2) -> np.ndarray:
     """Positions (N, 3) [m] from ranges (N, A) [m] (``use`` (N, A) selects them) to anchors (A, 3) [m].
 
-    Every step is pulled weakly towards ``x0_m`` (3,) [m], which is also the initial guess.
+    Each step minimises its own robust cost (module docstring), pulled weakly towards ``x0_m`` ((3,) or
+    (N, 3) [m]), which is also the initial guess. Damped Newton batched over the steps: the Hessian
+    includes the curvature of the ranges (a tag in line with its anchors sits in a flat valley that
+    Gauss-Newton crosses only slowly), its eigenvalues floored at the prior's curvature; every step
+    keeps its own damping, accepts a step only when its cost falls, and leaves the batch when its step
+    is shorter than :data:`STEP_TOL_M`.
     """
-    n = ranges_m.shape[0]
-    warm = np.broadcast_to(np.asarray(x0_m, float), (n, 3))
-    fun, jac = _block_problem(ranges_m, use, anchor_pos_m, warm, prior_weight)
-    sol = least_squares(fun, warm.ravel().copy(), jac=jac, method="trf", loss=loss, f_scale=f_scale_m,
-                        tr_solver="lsmr", x_scale=1.0, max_nfev=50)
-    return sol.x.reshape(n, 3)
+    ranges = np.asarray(ranges_m, float)
+    use = np.asarray(use, bool)
+    anchors = np.asarray(anchor_pos_m, float)
+    n = ranges.shape[0]
+    warm_all = np.array(np.broadcast_to(np.asarray(x0_m, float), (n, 3)))
+    p_all = warm_all.copy()
+    fs, w = float(f_scale_m), float(prior_weight)
+    floor = 0.5 * w * w  # eigenvalues of the Hessian at least half the prior's curvature
+    act = np.arange(n)
+    cost, *terms = _cost_terms(p_all, ranges, use, anchors, warm_all, fs, w, loss)
+    radius = np.full(n, INITIAL_RADIUS_M)
+    eye = np.eye(3)
+    for _ in range(MAX_ITER):
+        if act.size == 0:
+            break
+        p, warm, r, us = p_all[act], warm_all[act], ranges[act], use[act]
+        f, d, fp, u, rho1, rho1p, wgn, wgnp = (t[act] for t in terms)
+        curv = rho1 * f / d  # curvature of the ranges: rho' f / d (I - u u^T)
+        h = (np.einsum("na,nai,naj->nij", wgn - curv, u, u) + curv.sum(axis=1)[:, None, None] * eye
+             + (w * w) * wgnp[:, :, None] * eye)
+        g = np.einsum("na,nai->ni", rho1 * f, u) + w * rho1p * fp
+        ev, vec = np.linalg.eigh(h)
+        dx = -np.einsum("nij,nj->ni", vec, np.einsum("nji,nj->ni", vec, g) / np.maximum(ev, floor))
+        step = np.sqrt(np.einsum("ni,ni->n", dx, dx))
+        rad = radius[act]
+        dx *= np.minimum(1.0, rad / np.maximum(step, 1e-300))[:, None]
+        step = np.minimum(step, rad)
+        p_new = p + dx
+        c_new, *t_new = _cost_terms(p_new, r, us, anchors, warm, fs, w, loss)
+        ok = c_new <= cost[act]
+        acc = act[ok]
+        p_all[acc] = p_new[ok]
+        cost[acc] = c_new[ok]
+        for t, tn in zip(terms, t_new, strict=True):
+            t[acc] = tn[ok]
+        radius[act] = np.where(ok, np.maximum(rad, 2.0 * step), step / 4.0)
+        act = act[step >= STEP_TOL_M]
+    return p_all
 
 
 @dataclass(slots=True, kw_only=True)
@@ -80,22 +141,35 @@ class LsTracker:
 
     def predict(self, inp: TrackInput) -> np.ndarray:
         """(K, 3) ENU [m]: one multilateration per grid step (NaN before the first range)."""
-        use = np.isfinite(inp.range_m) & (inp.aoi_s <= self.max_aoi_s)
-        r = np.where(use, inp.range_m, 0.0)
+        return self.predict_rel(inp) + inp.ref_enu_m
+
+    def predict_rel(self, inp: TrackInput, n_steps: int | None = None) -> np.ndarray:
+        """(n, 3) [m] relative to ``inp.ref_enu_m`` on the first ``n_steps`` grid steps (default all).
+
+        A step's solution depends on the steps before it and on the first step with three usable ranges
+        (the start of the first block), so a prefix costs a prefix's time.
+        """
+        n_steps = inp.n_steps if n_steps is None else int(n_steps)
+        use_all = np.isfinite(inp.range_m) & (inp.aoi_s <= self.max_aoi_s)
+        r_all = np.where(use_all, inp.range_m, 0.0)
+        anchors = inp.anchor_pos_rel_m
+        start = _initial_guess(r_all, use_all, anchors)  # from the first step with three ranges, wherever
+        use, r = use_all[:n_steps], r_all[:n_steps]
         key = np.where(use, r, -1.0)
-        change = np.ones(inp.n_steps, dtype=bool)
+        change = np.ones(n_steps, dtype=bool)
         change[1:] = np.any(key[1:] != key[:-1], axis=1)
         idx = np.flatnonzero(change)
-        warm = _initial_guess(r[idx], use[idx], inp.anchor_pos_rel_m)  # later blocks warm-start
-        sol = np.empty((idx.size, 3))
-        for s in range(0, idx.size, self.block_steps):  # one solve per block of distinct steps
-            sl = slice(s, s + self.block_steps)
-            sol[sl] = multilaterate(r[idx][sl], use[idx][sl], inp.anchor_pos_rel_m, warm, loss=self.loss,
-                                    f_scale_m=self.f_scale_m, prior_weight=self.prior_weight)
-            warm = sol[sl][-1]
-        seg = np.cumsum(change) - 1
-        out = sol[seg] + inp.ref_enu_m
-        out[inp.t_s < inp.first_range_s] = np.nan
+        r_d, use_d = r[idx], use[idx]
+        opts = {"loss": self.loss, "f_scale_m": self.f_scale_m, "prior_weight": self.prior_weight}
+        # the chain of block ends: block b starts from the last solution of block b - 1
+        ends = np.arange(self.block_steps - 1, idx.size, self.block_steps)
+        warms = np.empty((-(-idx.size // self.block_steps), 3))
+        warms[0] = start
+        for b, e in enumerate(ends[: warms.shape[0] - 1]):
+            warms[b + 1] = multilaterate(r_d[e:e + 1], use_d[e:e + 1], anchors, warms[b], **opts)[0]
+        sol = multilaterate(r_d, use_d, anchors, warms[np.arange(idx.size) // self.block_steps], **opts)
+        out = sol[np.cumsum(change) - 1]
+        out[inp.t_s[:n_steps] < inp.first_range_s] = np.nan
         return out
 
 
@@ -105,13 +179,14 @@ def _initial_guess(r: np.ndarray, use: np.ndarray, anchors: np.ndarray) -> np.nd
     if full.size == 0:
         return np.array([3.0, 0.0, 0.0])
     k = full[0]
-    rr, uu = r[k:k + 1], use[k:k + 1]
+    rr, uu = r[k], use[k]
     dist = float(np.mean(rr[uu]))
+    ang = np.arange(8) * np.pi / 4  # eight starts, solved as one batch
+    guess = np.stack([dist * np.cos(ang), dist * np.sin(ang), np.zeros(8)], axis=1)
+    p = multilaterate(np.tile(rr, (8, 1)), np.tile(uu, (8, 1)), anchors, guess, prior_weight=1e-4)
+    cost = np.sum((np.linalg.norm(p[:, None, :] - anchors[uu][None], axis=2) - rr[uu]) ** 2, axis=1)
     best, best_cost = np.zeros(3), np.inf
-    for ang in np.arange(8) * np.pi / 4:  # eight starts, not one per step
-        guess = np.array([dist * np.cos(ang), dist * np.sin(ang), 0.0])
-        p = multilaterate(rr, uu, anchors, guess, prior_weight=1e-4)[0]
-        cost = float(np.sum((np.linalg.norm(p - anchors[uu[0]], axis=1) - rr[0][uu[0]]) ** 2))
-        if cost < best_cost - 1e-9:
-            best, best_cost = p, cost
+    for j in range(8):  # the first of the best, as one after the other
+        if cost[j] < best_cost - 1e-9:
+            best, best_cost = p[j], float(cost[j])
     return best
