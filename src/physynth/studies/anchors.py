@@ -60,13 +60,21 @@ DEFAULT_REGIMES = ("dense", "sparse", "degraded")
 # ---------------------------------------------------------------- per-cell columns
 class CellColumn(Protocol):
     """A per-cell quantity beyond the metrics: ``per_trace`` runs in a worker on one cell trace (must be
-    picklable and cheap to return); ``reduce`` pools the parts of a cell's traces into named numbers."""
+    picklable and cheap to return); ``reduce`` pools the parts of a cell's traces into named numbers.
+    A column that needs the cell's scenario also has ``bind(scenario) -> CellColumn`` (:func:`bind_column`)."""
 
     name: str
 
     def per_trace(self, trace: Trace) -> Any: ...
 
     def reduce(self, parts: Sequence[Any]) -> dict[str, float]: ...
+
+
+def bind_column(column: CellColumn, scn: Scenario) -> CellColumn:
+    """``column`` for the cells of ``scn``: its ``bind(scn)`` when it has one (a column that needs the
+    scenario, such as the tracker column's UWB time lag), otherwise the column itself."""
+    bind = getattr(column, "bind", None)
+    return bind(scn) if bind is not None else column
 
 
 class GdopColumn:
@@ -86,8 +94,80 @@ class GdopColumn:
         return out
 
 
-CELL_COLUMNS: tuple[CellColumn, ...] = (GdopColumn(),)
-"""Columns every cell reports besides S and availability (a tracker-error column is appended here)."""
+TRACKERS = ("ls", "ekf")
+"""The classical trackers of the tracker-error column (:mod:`physynth.track.trackers`)."""
+TRACKER_TRACES = 10
+"""Traces per cell the trackers run on by default: trace indices 0 .. TRACKER_TRACES - 1 (the same traces
+in every count and regime, by common random numbers)."""
+
+
+class TrackerColumn:
+    """Position error of the classical trackers ``ls`` and ``ekf`` on the cell's traces.
+
+    Each trace becomes the trackers' grid input (:func:`physynth.track.inputs.track_input`, UWB stamps
+    moved back by the scenario's ``uwb.time_offset_s``); ``ls`` runs as it is, ``ekf`` with its range
+    noise fitted on the trace itself (1.4826 MAD of the range residuals: the deployment's own ranging, as
+    ``study tracking`` fits it on its training runs) and the IMU as control when the trace has one.
+    Over the 100 Hz grid steps with known truth, per tracker ``t``:
+
+    - ``t_fix_frac``: the fraction of steps with an estimate (``ls`` from the first range on, ``ekf``
+      from its first fix: a step with a fresh range and three anchors ranged);
+    - ``t_median_m``, ``t_p95_m``, ``t_rmse_m``: the 3-D error over the steps with an estimate, and
+      ``t_h_median_m``, ``t_h_p95_m``, ``t_h_rmse_m`` the horizontal (E-N) error;
+    - ``tracker_traces``: the number of traces the trackers ran on.
+
+    ``max_traces`` limits the trackers to trace indices 0 .. max_traces - 1 (None: every trace).
+    """
+
+    name = "trackers"
+
+    def __init__(self, max_traces: int | None = TRACKER_TRACES, time_offset_s: float = 0.0) -> None:
+        if max_traces is not None and max_traces < 1:
+            raise PhySynthError(f"the number of traces the trackers run on must be at least 1, got {max_traces}")
+        self.max_traces = max_traces
+        self.time_offset_s = float(time_offset_s)
+
+    def bind(self, scn: Scenario) -> TrackerColumn:
+        """The column for the cells of ``scn`` (its UWB time lag)."""
+        return TrackerColumn(self.max_traces, scn.uwb.time_offset_s)
+
+    def per_trace(self, trace: Trace) -> dict[str, tuple[int, int, np.ndarray, np.ndarray]] | None:
+        from ..track.inputs import track_input
+        from ..track.trackers.ekf import EkfTracker
+        from ..track.trackers.ls import LsTracker
+
+        index = int((trace.meta.get("spawn_key") or [0])[0])
+        if self.max_traces is not None and index >= self.max_traces:
+            return None
+        inp = track_input(trace, time_offset_s=self.time_offset_s)
+        truth = np.all(np.isfinite(inp.pos_rel_m), axis=1)
+        out = {}
+        for name in TRACKERS:
+            est = (LsTracker().predict_rel(inp) if name == "ls"
+                   else EkfTracker().fit([inp]).predict_rel(inp))
+            have = truth & np.all(np.isfinite(est), axis=1)
+            d = est[have] - inp.pos_rel_m[have]
+            out[name] = (int(truth.sum()), int(have.sum()), np.linalg.norm(d, axis=1).astype(np.float32),
+                         np.linalg.norm(d[:, :2], axis=1).astype(np.float32))
+        return out
+
+    def reduce(self, parts: Sequence[dict[str, tuple[int, int, np.ndarray, np.ndarray]] | None]) -> dict[str, float]:
+        parts = [p for p in parts if p is not None]
+        out: dict[str, float] = {"tracker_traces": float(len(parts))}
+        for name in TRACKERS:
+            n_truth = sum(p[name][0] for p in parts)
+            out[f"{name}_fix_frac"] = sum(p[name][1] for p in parts) / n_truth if n_truth else float("nan")
+            for j, tag in ((2, ""), (3, "h_")):
+                e = np.concatenate([p[name][j] for p in parts]).astype(np.float64) if parts else np.array([])
+                stats = ((float(np.median(e)), float(np.percentile(e, 95)), float(np.sqrt(np.mean(e * e))))
+                         if e.size else (float("nan"),) * 3)
+                out.update(zip((f"{name}_{tag}median_m", f"{name}_{tag}p95_m", f"{name}_{tag}rmse_m"), stats,
+                               strict=True))
+        return out
+
+
+CELL_COLUMNS: tuple[CellColumn, ...] = (GdopColumn(), TrackerColumn())
+"""Columns every cell reports besides S and availability: GDOP and the trackers' position error."""
 
 
 # ---------------------------------------------------------------- results
@@ -144,6 +224,7 @@ def _cell_chunk(scn: Scenario, order: Sequence[str], counts: Sequence[int], seed
                 columns: Sequence[CellColumn]) -> list[tuple[int, dict[int, tuple[TraceSummary, list[Any]]]]]:
     """Traces ``indices`` of one regime, each reduced for every anchor count."""
     cs = compile_scenario(scn)
+    columns = [bind_column(c, scn) for c in columns]
     out = []
     for i in indices:
         full = generate_trace(cs, i, seed)

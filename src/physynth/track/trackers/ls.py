@@ -17,6 +17,7 @@ convergence test, converged to ``1e-10`` m), so there is no Python loop per step
 from __future__ import annotations
 
 from collections.abc import Sequence
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,7 +29,7 @@ from .base import ProgressFn
 LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 """Robust losses rho(z) of ``scipy.optimize.least_squares``, z = (residual / f_scale)^2."""
 
-STEP_TOL_M = 1e-10
+STEP_TOL_M = 1e-8
 """A step has converged when its accepted Gauss-Newton step is shorter than this [m]."""
 INITIAL_RADIUS_M = 10.0
 """First trust radius of every step [m]: doubled after an accepted step, a quarter of the step after a
@@ -73,6 +74,25 @@ def _cost_terms(p: np.ndarray, ranges: np.ndarray, use: np.ndarray, anchors: np.
     return cost, f, d, fp, diff / d[..., None], rho1[:, :na] * use, rho1[:, na:], wgn[:, :na] * use, wgn[:, na:]
 
 
+def _newton_step(h: np.ndarray, g: np.ndarray, floor: float) -> np.ndarray:
+    """-H^-1 g for symmetric (N, 3, 3) ``h``, with eigenvalues below ``floor`` raised to it.
+
+    Where H - floor I is positive definite (leading minors, checked in closed form) a plain solve;
+    elsewhere (negative curvature across a ring of solutions) through the eigendecomposition."""
+    m = h - floor * np.eye(3)
+    m1 = m[:, 0, 0]
+    m2 = m1 * m[:, 1, 1] - m[:, 0, 1] * m[:, 1, 0]
+    pd = (m1 > 0) & (m2 > 0) & (np.linalg.det(m) > 0)
+    dx = np.empty_like(g)
+    if pd.any():
+        dx[pd] = -np.linalg.solve(h[pd], g[pd][..., None])[..., 0]
+    if not pd.all():
+        ev, vec = np.linalg.eigh(h[~pd])
+        gi = g[~pd]
+        dx[~pd] = -np.einsum("nij,nj->ni", vec, np.einsum("nji,nj->ni", vec, gi) / np.maximum(ev, floor))
+    return dx
+
+
 def multilaterate(ranges_m: np.ndarray, use: np.ndarray, anchor_pos_m: np.ndarray, x0_m: np.ndarray, *,
                   loss: str = "soft_l1", f_scale_m: float = 0.3, prior_weight: float = 1e-2) -> np.ndarray:
     """Positions (N, 3) [m] from ranges (N, A) [m] (``use`` (N, A) selects them) to anchors (A, 3) [m].
@@ -102,11 +122,10 @@ def multilaterate(ranges_m: np.ndarray, use: np.ndarray, anchor_pos_m: np.ndarra
         p, warm, r, us = p_all[act], warm_all[act], ranges[act], use[act]
         f, d, fp, u, rho1, rho1p, wgn, wgnp = (t[act] for t in terms)
         curv = rho1 * f / d  # curvature of the ranges: rho' f / d (I - u u^T)
-        h = (np.einsum("na,nai,naj->nij", wgn - curv, u, u) + curv.sum(axis=1)[:, None, None] * eye
+        h = (np.matmul(u.transpose(0, 2, 1) * (wgn - curv)[:, None, :], u) + curv.sum(axis=1)[:, None, None] * eye
              + (w * w) * wgnp[:, :, None] * eye)
         g = np.einsum("na,nai->ni", rho1 * f, u) + w * rho1p * fp
-        ev, vec = np.linalg.eigh(h)
-        dx = -np.einsum("nij,nj->ni", vec, np.einsum("nji,nj->ni", vec, g) / np.maximum(ev, floor))
+        dx = _newton_step(h, g, floor)
         step = np.sqrt(np.einsum("ni,ni->n", dx, dx))
         rad = radius[act]
         dx *= np.minimum(1.0, rad / np.maximum(step, 1e-300))[:, None]
@@ -122,6 +141,106 @@ def multilaterate(ranges_m: np.ndarray, use: np.ndarray, anchor_pos_m: np.ndarra
         radius[act] = np.where(ok, np.maximum(rad, 2.0 * step), step / 4.0)
         act = act[step >= STEP_TOL_M]
     return p_all
+
+
+def _loss_one(z: float, loss: str) -> tuple[float, float, float]:
+    """:func:`_loss` of one value, in plain floats."""
+    if loss == "soft_l1":
+        t = 1.0 + z
+        s = math.sqrt(t)
+        return 2.0 * (s - 1.0), 1.0 / s, 1.0 / (t * s)
+    if loss == "linear":
+        return z, 1.0, 1.0
+    if loss == "huber":
+        if z > 1.0:
+            sz = math.sqrt(z)
+            return 2.0 * sz - 1.0, 1.0 / sz, 0.0
+        return z, 1.0, 1.0
+    if loss == "cauchy":
+        t = 1.0 + z
+        return math.log1p(z), 1.0 / t, max((1.0 - z) / (t * t), 0.0)
+    if loss == "arctan":
+        t = 1.0 + z * z
+        return math.atan(z), 1.0 / t, max((1.0 - 3.0 * z * z) / (t * t), 0.0)
+    raise PhySynthError(f"unknown loss '{loss}' (choose from {', '.join(LOSSES)})")
+
+
+def _terms_one(p: list[float], rs: list[float], an: list[list[float]], warm: list[float], fs: float, w: float,
+               loss: str) -> tuple[float, list[tuple[float, ...]], list[tuple[float, float, float]]]:
+    """:func:`_cost_terms` of one step in plain floats: cost, per range (f, d, ux, uy, uz, rho', weight)
+    and per axis of the prior (fp, rho', weight)."""
+    cost = 0.0
+    rows = []
+    for r, a in zip(rs, an, strict=True):
+        ex, ey, ez = p[0] - a[0], p[1] - a[1], p[2] - a[2]
+        d = max(math.sqrt(ex * ex + ey * ey + ez * ez), 1e-9)
+        f = d - r
+        rho, rho1, wgn = _loss_one(f * f / (fs * fs), loss)
+        cost += rho
+        rows.append((f, d, ex / d, ey / d, ez / d, rho1, wgn))
+    prior = []
+    for c in range(3):
+        fp = w * (p[c] - warm[c])
+        rho, rho1, wgn = _loss_one(fp * fp / (fs * fs), loss)
+        cost += rho
+        prior.append((fp, rho1, wgn))
+    return 0.5 * fs * fs * cost, rows, prior
+
+
+def _solve_one(rs: list[float], an: list[list[float]], warm: list[float], fs: float, w: float,
+               loss: str) -> list[float]:
+    """:func:`multilaterate` of one step (the same iteration in plain floats: no array overhead for the
+    chain of block ends, which is solved one step after the other)."""
+    floor = 0.5 * w * w
+    p = list(warm)
+    cost, rows, prior = _terms_one(p, rs, an, warm, fs, w, loss)
+    radius = INITIAL_RADIUS_M
+    for _ in range(MAX_ITER):
+        h = [[0.0] * 3 for _ in range(3)]
+        g = [0.0, 0.0, 0.0]
+        csum = 0.0
+        for f, d, ux, uy, uz, rho1, wgn in rows:
+            curv = rho1 * f / d
+            csum += curv
+            u = (ux, uy, uz)
+            c = wgn - curv
+            for i in range(3):
+                g[i] += rho1 * f * u[i]
+                for j in range(3):
+                    h[i][j] += c * u[i] * u[j]
+        for i, (fp, rho1p, wgnp) in enumerate(prior):
+            h[i][i] += csum + w * w * wgnp
+            g[i] += w * rho1p * fp
+        m1 = h[0][0] - floor
+        m2 = m1 * (h[1][1] - floor) - h[0][1] * h[1][0]
+        m = [[h[i][j] - (floor if i == j else 0.0) for j in range(3)] for i in range(3)]
+        det_m = (m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+                 + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]))
+        if m1 > 0 and m2 > 0 and det_m > 0:  # Cramer's rule
+            (a, b, c), (d_, e, f_), (g_, h_, k) = h
+            co = (e * k - f_ * h_, -(d_ * k - f_ * g_), d_ * h_ - e * g_)
+            det = a * co[0] + b * co[1] + c * co[2]
+            inv = ((co[0], -(b * k - c * h_), b * f_ - c * e),
+                   (co[1], a * k - c * g_, -(a * f_ - c * d_)),
+                   (co[2], -(a * h_ - b * g_), a * e - b * d_))
+            dx = [-(inv[i][0] * g[0] + inv[i][1] * g[1] + inv[i][2] * g[2]) / det for i in range(3)]
+        else:
+            ev, vec = np.linalg.eigh(np.array(h))
+            dx = list(-(vec @ ((vec.T @ np.array(g)) / np.maximum(ev, floor))))
+        step = math.sqrt(dx[0] * dx[0] + dx[1] * dx[1] + dx[2] * dx[2])
+        if step > radius:
+            dx = [x * (radius / step) for x in dx]
+            step = radius
+        p_new = [p[0] + dx[0], p[1] + dx[1], p[2] + dx[2]]
+        c_new, rows_new, prior_new = _terms_one(p_new, rs, an, warm, fs, w, loss)
+        if c_new <= cost:
+            p, cost, rows, prior = p_new, c_new, rows_new, prior_new
+            radius = max(radius, 2.0 * step)
+        else:
+            radius = step / 4.0
+        if step < STEP_TOL_M:
+            break
+    return p
 
 
 @dataclass(slots=True, kw_only=True)
@@ -165,8 +284,10 @@ class LsTracker:
         ends = np.arange(self.block_steps - 1, idx.size, self.block_steps)
         warms = np.empty((-(-idx.size // self.block_steps), 3))
         warms[0] = start
+        fs, w = float(self.f_scale_m), float(self.prior_weight)
         for b, e in enumerate(ends[: warms.shape[0] - 1]):
-            warms[b + 1] = multilaterate(r_d[e:e + 1], use_d[e:e + 1], anchors, warms[b], **opts)[0]
+            sel = use_d[e]
+            warms[b + 1] = _solve_one(r_d[e][sel].tolist(), anchors[sel].tolist(), warms[b].tolist(), fs, w, self.loss)
         sol = multilaterate(r_d, use_d, anchors, warms[np.arange(idx.size) // self.block_steps], **opts)
         out = sol[np.cumsum(change) - 1]
         out[inp.t_s[:n_steps] < inp.first_range_s] = np.nan
