@@ -476,6 +476,24 @@ def anchor_table_md(study: AnchorStudy) -> str:
             cells.append(" | ".join(f"{_fmt(c.get(p + '_median'), 1)} ({_fmt(c.get(p + '_le5_frac'), 2)})"
                                     for p in ("gdop", "fresh_gdop", "fresh_hdop")))
         lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    if any("ekf_fix_frac" in study.columns[r][k] for r in regimes for k in counts):
+        n_tr = int(min(study.columns[r][k].get("tracker_traces", 0) for r in regimes for k in counts))
+        for title, tag in (("3-D", ""), ("horizontal (E-N)", "h_")):
+            lines += ["", f"Tracker position error, {title} [m]: median (P95) over the 100 Hz grid steps with an "
+                          "estimate" + ("; fraction of the time with an estimate" if not tag else "")
+                      + f"; {n_tr} trace(s) per cell. '-' = no estimate.", "",
+                      "| Anchors | " + " | ".join(f"{r} {t}" for r in regimes for t in TRACKERS) + " |",
+                      "|---|" + "---|" * (len(regimes) * len(TRACKERS))]
+            for k in counts:
+                cells = []
+                for r in regimes:
+                    c = study.columns[r][k]
+                    for t in TRACKERS:
+                        cell = f"{_fmt(c.get(f'{t}_{tag}median_m'), 1)} ({_fmt(c.get(f'{t}_{tag}p95_m'), 1)})"
+                        if not tag:
+                            cell += f"; {_fmt(c.get(f'{t}_fix_frac'), 2)}"
+                        cells.append(cell)
+                lines.append(f"| {k} | " + " | ".join(cells) + " |")
     lines += ["", "Regimes:", ""]
     for r, d in study.regimes.items():
         lines.append(f"- {r}: {d['summary']} ({'; '.join(d['changes']) or 'no change'})")
@@ -485,20 +503,28 @@ def anchor_table_md(study: AnchorStudy) -> str:
 
 
 def anchor_figure_png(study: AnchorStudy) -> bytes:
-    """Figure 6 of the paper: (left) S against anchor count per regime; (right) >= 1 and >= 2
-    availability against count per regime, the reference as horizontal lines."""
+    """Figure 6 of the paper: (left) S against anchor count per regime; (middle) >= 1 and >= 2
+    availability against count per regime, the reference as horizontal lines; (right, when the study
+    has the tracker column) the median 3-D position error of ``ekf`` and ``ls`` against count."""
     from ..validate.figures import figure_png, require_matplotlib
 
     figure_cls, canvas_cls = require_matplotlib()
-    fig = figure_cls(figsize=(11, 4.8))
-    ax1, ax2 = fig.subplots(1, 2)
     counts = study.counts
+    trackers = any("ekf_median_m" in study.columns[r][k] for r in study.scores for k in counts)
+    fig = figure_cls(figsize=(16.5 if trackers else 11, 4.8))
+    axes = fig.subplots(1, 3 if trackers else 2)
+    ax1, ax2 = axes[0], axes[1]
     colors = {"nominal": "k", "dense": "tab:blue", "sparse": "tab:orange", "degraded": "tab:red"}
     for r in study.scores:
         c = colors.get(r)
         ax1.plot(counts, [study.scores[r][k] for k in counts], "o-", color=c, label=r)
         ax2.plot(counts, [study.availability[r][str(k)]["ge1"] for k in counts], "o-", color=c, label=f"{r} >= 1")
         ax2.plot(counts, [study.availability[r][str(k)]["ge2"] for k in counts], "s--", color=c, label=f"{r} >= 2")
+        if trackers:
+            for t, style in (("ekf", "o-"), ("ls", "s:")):
+                y = [study.columns[r][k].get(f"{t}_median_m", float("nan")) for k in counts]
+                axes[2].plot(counts, [v if math.isfinite(v) else float("nan") for v in y], style, color=c,
+                             label=f"{r} {t}")
     ref = study.reference
     ax2.axhline(ref["ge1"], color="0.3", lw=1.5, label=f"{ref['kind']} >= 1")
     ax2.axhline(ref["ge2"], color="0.3", lw=1.5, ls=":", label=f"{ref['kind']} >= 2")
@@ -510,7 +536,14 @@ def anchor_figure_png(study: AnchorStudy) -> bytes:
     ax2.set_ylabel("fraction of 10 ms bins")
     ax2.set_title(">= 1 and >= 2 fresh anchors")
     ax2.legend(fontsize=7, ncol=4, loc="upper center", bbox_to_anchor=(0.5, -0.16))
-    for ax in (ax1, ax2):
+    if trackers:
+        ax3 = axes[2]
+        ax3.set_xlabel("anchors")
+        ax3.set_ylabel("median 3-D position error [m]")
+        ax3.set_yscale("log")
+        ax3.set_title("tracker error: ekf (solid), ls (dotted)")
+        ax3.legend(fontsize=7, ncol=3, loc="upper center", bbox_to_anchor=(0.5, -0.16))
+    for ax in axes:
         ax.set_xticks(counts)
         ax.grid(alpha=0.3)
     fig.tight_layout()
