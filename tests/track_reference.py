@@ -6,18 +6,14 @@ comparison is of the filter recursion alone."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
-
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import coo_matrix
 from scipy.stats import chi2
 
 from physynth.track.inputs import TrackInput
+from physynth.track.trackers.ekf import EkfTracker
 from physynth.track.trackers.ls import LsTracker
-
-ProgressFn = object
 
 
 def _block_problem(ranges: np.ndarray, use: np.ndarray, anchors: np.ndarray, warm: np.ndarray, prior_weight: float):
@@ -59,20 +55,8 @@ def multilaterate(ranges_m: np.ndarray, use: np.ndarray, anchor_pos_m: np.ndarra
     return sol.x.reshape(n, 3)
 
 
-@dataclass(slots=True, kw_only=True)
-class ReferenceLsTracker:
-    """Robust multilateration (see the module docstring). Distances [m], ages [s]."""
-
-    max_aoi_s: float = 0.5
-    loss: str = "soft_l1"
-    f_scale_m: float = 0.3
-    prior_weight: float = 1e-2
-    block_steps: int = 64
-    name: str = "ls"
-
-    def fit(self, inputs: Sequence[TrackInput], *, progress: ProgressFn | None = None) -> ReferenceLsTracker:
-        """Nothing to learn."""
-        return self
+class ReferenceLsTracker(LsTracker):
+    """The package's ``ls`` (same options) with its first ``predict``."""
 
     def predict(self, inp: TrackInput) -> np.ndarray:
         """(K, 3) ENU [m]: one multilateration per grid step (NaN before the first range)."""
@@ -113,35 +97,8 @@ def _initial_guess(r: np.ndarray, use: np.ndarray, anchors: np.ndarray) -> np.nd
     return best
 
 
-@dataclass(slots=True, kw_only=True)
-class ReferenceEkfTracker:
-    """Constant-velocity (or IMU-driven) EKF with chi-square gating; see the module docstring."""
-
-    accel_psd_m2ps3: float = 0.5
-    imu_accel_psd_m2ps3: float = 0.05
-    range_std_m: float = 0.15
-    gate_prob: float = 0.997
-    reset_after: int = 20
-    init_pos_std_m: float = 2.0
-    init_vel_std_mps: float = 1.0
-    use_imu: bool = True
-    fit_range_std: bool = True
-    name: str = "ekf"
-
-    def fit(self, inputs: Sequence[TrackInput], *, progress: ProgressFn | None = None) -> ReferenceEkfTracker:
-        """Set ``range_std_m`` to the robust spread (1.4826 MAD) of the training range residuals."""
-        if not self.fit_range_std:
-            return self
-        res = []
-        for inp in inputs:
-            ok = inp.fresh & np.isfinite(inp.range_m) & np.all(np.isfinite(inp.pos_rel_m), axis=1)[:, None]
-            k, a = np.nonzero(ok)
-            geo = np.linalg.norm(inp.pos_rel_m[k] - inp.anchor_pos_rel_m[a], axis=1)
-            res.append(inp.range_m[k, a] - geo)
-        r = np.concatenate(res) if res else np.array([])
-        if r.size > 20:
-            self.range_std_m = float(max(1.4826 * np.median(np.abs(r - np.median(r))), 0.02))
-        return self
+class ReferenceEkfTracker(EkfTracker):
+    """The package's ``ekf`` (same options and ``fit``) with its first, per-step ``predict``."""
 
     def predict(self, inp: TrackInput) -> np.ndarray:
         """(K, 3) ENU [m] filtered positions (NaN before the first fix)."""

@@ -67,7 +67,7 @@ def anchors_cmd(
     order: str | None = typer.Option(None, "--order", help="Anchor ids in the order they are added "
                                                            "(default: decreasing availability)."),
     workers: int | None = typer.Option(None, "--workers", min=1, help="Processes (default: all cores)."),
-    tracker_traces: int = typer.Option(10, "--tracker-traces", min=0,
+    tracker_traces: int = typer.Option(10, "--tracker-traces", min=0,  # studies.anchors.TRACKER_TRACES
                                        help="Traces per cell the ls and ekf trackers run on (traces 0..N-1 of "
                                             "every cell; 0: no tracker column)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (table.json, table.md, anchors.png)."),

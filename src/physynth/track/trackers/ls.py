@@ -16,8 +16,8 @@ convergence test, converged to ``1e-10`` m), so there is no Python loop per step
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
