@@ -78,10 +78,16 @@ def test_fast_ekf_equals_the_reference_through_gating_and_resets(walk):
     _same(fast.predict(walk), ref.predict(walk))
 
 
-def test_ekf_prefix_start_equals_the_full_ls(cablecar):
-    k = cablecar.n_steps // 3
-    full = LsTracker(block_steps=32).predict_rel(cablecar)
-    np.testing.assert_allclose(LsTracker(block_steps=32).predict_rel(cablecar, k), full[:k], rtol=0, atol=1e-9)
+@pytest.mark.parametrize("name", ["cablecar", "hanyang"])
+def test_ls_prefix_and_single_step_equal_the_full_solution(name, request):
+    inp = request.getfixturevalue(name)
+    ls = LsTracker(block_steps=32)
+    full = ls.predict_rel(inp)
+    k = inp.n_steps // 3
+    np.testing.assert_allclose(ls.predict_rel(inp, k), full[:k], rtol=0, atol=1e-9)
+    first = int(np.searchsorted(inp.t_s, inp.first_range_s))
+    for j in (first, first + 1, k, inp.n_steps - 1):  # the ekf's first fix takes one step this way
+        np.testing.assert_allclose(ls.solve_step(inp, j), full[j], rtol=0, atol=1e-9)
 
 
 @pytest.mark.parametrize("seed", [7, 8])

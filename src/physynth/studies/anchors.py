@@ -143,8 +143,7 @@ class TrackerColumn:
         truth = np.all(np.isfinite(inp.pos_rel_m), axis=1)
         out = {}
         for name in TRACKERS:
-            est = (LsTracker().predict_rel(inp) if name == "ls"
-                   else EkfTracker().fit([inp]).predict_rel(inp))
+            est = LsTracker().predict_rel(inp) if name == "ls" else EkfTracker().fit([inp]).predict_rel(inp)
             have = truth & np.all(np.isfinite(est), axis=1)
             d = est[have] - inp.pos_rel_m[have]
             out[name] = (int(truth.sum()), int(have.sum()), np.linalg.norm(d, axis=1).astype(np.float32),

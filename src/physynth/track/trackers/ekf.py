@@ -72,7 +72,7 @@ class EkfTracker:
         if started.size == 0:
             return out
         k0 = int(started[0])
-        x0 = LsTracker(block_steps=32).predict_rel(inp, k0 + 1)[k0]
+        x0 = LsTracker(block_steps=32).solve_step(inp, k0)
         upd = k0 + np.flatnonzero(fresh_any[k0:])  # steps with a fresh range; upd[0] == k0
         states = self._filter(inp, k0, x0, upd)
         # every step from the last update step's state, propagated without noise (vectorised)

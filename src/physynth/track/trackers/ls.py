@@ -11,7 +11,7 @@ at 100 Hz) share its solution. The distinct steps are taken in blocks of ``block
 a block is warm-started from (and pulled towards) the previous block's last solution. Only that chain of
 block ends is solved one block after the other; every other step is then solved in one batch
 (:func:`multilaterate`: damped Gauss-Newton on all steps at once, each step with its own damping and
-convergence test, converged to ``1e-10`` m), so there is no Python loop per step.
+convergence test, converged to ``STEP_TOL_M`` = 1e-8 m), so there is no Python loop per step.
 """
 
 from __future__ import annotations
@@ -269,29 +269,45 @@ class LsTracker:
         (the start of the first block), so a prefix costs a prefix's time.
         """
         n_steps = inp.n_steps if n_steps is None else int(n_steps)
+        r_d, use_d, idx, change, warms = self._blocks(inp, n_steps)
+        sol = multilaterate(r_d, use_d, inp.anchor_pos_rel_m, warms[np.arange(idx.size) // self.block_steps],
+                            loss=self.loss, f_scale_m=self.f_scale_m, prior_weight=self.prior_weight)
+        out = sol[np.cumsum(change) - 1]
+        out[inp.t_s[:n_steps] < inp.first_range_s] = np.nan
+        return out
+
+    def solve_step(self, inp: TrackInput, k: int) -> np.ndarray:
+        """(3,) [m]: ``predict_rel(inp)[k]`` alone (the chain of block ends up to step ``k``, then one
+        solve), for a step at or after the first range."""
+        r_d, use_d, idx, _, warms = self._blocks(inp, k + 1)
+        j = idx.size - 1  # step k's distinct step, solved as in the batch of predict_rel
+        return multilaterate(r_d[j:], use_d[j:], inp.anchor_pos_rel_m, warms[j // self.block_steps], loss=self.loss,
+                             f_scale_m=self.f_scale_m, prior_weight=self.prior_weight)[0]
+
+    def _blocks(self, inp: TrackInput, n_steps: int):
+        """The distinct steps of the first ``n_steps`` (ranges (D, A), use (D, A), their grid indices
+        (D,), the change mask (n_steps,)) and the warm start of every block (the chain of block ends)."""
         use_all = np.isfinite(inp.range_m) & (inp.aoi_s <= self.max_aoi_s)
         r_all = np.where(use_all, inp.range_m, 0.0)
         anchors = inp.anchor_pos_rel_m
-        start = _initial_guess(r_all, use_all, anchors)  # from the first step with three ranges, wherever
         use, r = use_all[:n_steps], r_all[:n_steps]
         key = np.where(use, r, -1.0)
         change = np.ones(n_steps, dtype=bool)
         change[1:] = np.any(key[1:] != key[:-1], axis=1)
         idx = np.flatnonzero(change)
         r_d, use_d = r[idx], use[idx]
-        opts = {"loss": self.loss, "f_scale_m": self.f_scale_m, "prior_weight": self.prior_weight}
         # the chain of block ends: block b starts from the last solution of block b - 1
-        ends = np.arange(self.block_steps - 1, idx.size, self.block_steps)
         warms = np.empty((-(-idx.size // self.block_steps), 3))
-        warms[0] = start
-        fs, w = float(self.f_scale_m), float(self.prior_weight)
-        for b, e in enumerate(ends[: warms.shape[0] - 1]):
-            sel = use_d[e]
-            warms[b + 1] = _solve_one(r_d[e][sel].tolist(), anchors[sel].tolist(), warms[b].tolist(), fs, w, self.loss)
-        sol = multilaterate(r_d, use_d, anchors, warms[np.arange(idx.size) // self.block_steps], **opts)
-        out = sol[np.cumsum(change) - 1]
-        out[inp.t_s[:n_steps] < inp.first_range_s] = np.nan
-        return out
+        warms[0] = _initial_guess(r_all, use_all, anchors)  # from the first step with three ranges, wherever
+        for b, e in enumerate(np.arange(self.block_steps - 1, idx.size, self.block_steps)[: warms.shape[0] - 1]):
+            warms[b + 1] = _solve_step(r_d[e], use_d[e], anchors, warms[b], self)
+        return r_d, use_d, idx, change, warms
+
+
+def _solve_step(r: np.ndarray, use: np.ndarray, anchors: np.ndarray, warm: np.ndarray, tr: LsTracker) -> np.ndarray:
+    """One step (ranges (A,), use (A,)) from ``warm`` (3,) with the options of ``tr`` (plain floats)."""
+    return np.array(_solve_one(r[use].tolist(), anchors[use].tolist(), warm.tolist(), float(tr.f_scale_m),
+                               float(tr.prior_weight), tr.loss))
 
 
 def _initial_guess(r: np.ndarray, use: np.ndarray, anchors: np.ndarray) -> np.ndarray:
