@@ -10,8 +10,8 @@ Steps whose usable ranges are identical to the previous step's (ranges change at
 at 100 Hz) share its solution. The distinct steps are taken in blocks of ``block_steps``; every step of
 a block is warm-started from (and pulled towards) the previous block's last solution. Only that chain of
 block ends is solved one block after the other; every other step is then solved in one batch
-(:func:`multilaterate`: damped Gauss-Newton on all steps at once, each step with its own damping and
-convergence test, converged to ``STEP_TOL_M`` = 1e-8 m), so there is no Python loop per step.
+(:func:`multilaterate`: trust-region Newton on all steps at once, each step with its own trust radius
+and convergence test, converged to ``STEP_TOL_M`` = 1e-8 m), so there is no Python loop per step.
 """
 
 from __future__ import annotations
@@ -62,16 +62,20 @@ def _loss(z: np.ndarray, loss: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 def _cost_terms(p: np.ndarray, ranges: np.ndarray, use: np.ndarray, anchors: np.ndarray, warm: np.ndarray,
                 fs: float, w: float, loss: str) -> tuple[np.ndarray, ...]:
-    """Per-step robust cost (N,), residuals, distances, unit vectors and loss weights at ``p`` (N, 3)."""
+    """Per-step robust cost (N,) at positions ``p`` (N, 3) and what the Newton step needs there: unit
+    vectors u (N, A, 3), the weights of u u^T (N, A) and of I (N,) in the Hessian of the ranges, the
+    gradient weights of u (N, A), and the prior's gradient (N, 3) and Hessian diagonal (N, 3)."""
     diff = p[:, None, :] - anchors[None]  # (N, A, 3)
     d = np.maximum(np.sqrt(np.einsum("nai,nai->na", diff, diff)), 1e-9)
     f = np.where(use, d - ranges, 0.0)
     fp = w * (p - warm)
-    na = f.shape[1]
-    rho, rho1, wgn = _loss(np.concatenate([f, fp], axis=1) ** 2 / fs**2, loss)
-    rho[:, :na] *= use
-    cost = 0.5 * fs**2 * rho.sum(axis=1)
-    return cost, f, d, fp, diff / d[..., None], rho1[:, :na] * use, rho1[:, na:], wgn[:, :na] * use, wgn[:, na:]
+    rho, rho1, wgn = _loss(f * f / fs**2, loss)
+    rho_p, rho1_p, wgn_p = _loss(fp * fp / fs**2, loss)
+    cost = 0.5 * fs**2 * ((rho * use).sum(axis=1) + rho_p.sum(axis=1))
+    g_a = rho1 * f * use
+    curv = g_a / d  # the curvature of a range: rho' f / d (I - u u^T)
+    return (cost, diff / d[..., None], wgn * use - curv, curv.sum(axis=1), g_a, w * rho1_p * fp,
+            (w * w) * wgn_p)
 
 
 def _newton_step(h: np.ndarray, g: np.ndarray, floor: float) -> np.ndarray:
@@ -98,11 +102,11 @@ def multilaterate(ranges_m: np.ndarray, use: np.ndarray, anchor_pos_m: np.ndarra
     """Positions (N, 3) [m] from ranges (N, A) [m] (``use`` (N, A) selects them) to anchors (A, 3) [m].
 
     Each step minimises its own robust cost (module docstring), pulled weakly towards ``x0_m`` ((3,) or
-    (N, 3) [m]), which is also the initial guess. Damped Newton batched over the steps: the Hessian
+    (N, 3) [m]), which is also the initial guess. Newton steps batched over the steps: the Hessian
     includes the curvature of the ranges (a tag in line with its anchors sits in a flat valley that
-    Gauss-Newton crosses only slowly), its eigenvalues floored at the prior's curvature; every step
-    keeps its own damping, accepts a step only when its cost falls, and leaves the batch when its step
-    is shorter than :data:`STEP_TOL_M`.
+    Gauss-Newton crosses only slowly), its eigenvalues floored at half the prior's curvature; every step
+    keeps its own trust radius (:data:`INITIAL_RADIUS_M`), accepts a step only when its cost does not
+    rise, and leaves the batch when its step is shorter than :data:`STEP_TOL_M`.
     """
     ranges = np.asarray(ranges_m, float)
     use = np.asarray(use, bool)
@@ -112,34 +116,35 @@ def multilaterate(ranges_m: np.ndarray, use: np.ndarray, anchor_pos_m: np.ndarra
     p_all = warm_all.copy()
     fs, w = float(f_scale_m), float(prior_weight)
     floor = 0.5 * w * w  # eigenvalues of the Hessian at least half the prior's curvature
-    act = np.arange(n)
-    cost, *terms = _cost_terms(p_all, ranges, use, anchors, warm_all, fs, w, loss)
+    todo = np.arange(n)  # the working set: steps not yet converged, compressed as they finish
+    p, warm, r, us = p_all, warm_all, ranges, use
+    cost, *terms = _cost_terms(p, r, us, anchors, warm, fs, w, loss)
     radius = np.full(n, INITIAL_RADIUS_M)
     eye = np.eye(3)
     for _ in range(MAX_ITER):
-        if act.size == 0:
-            break
-        p, warm, r, us = p_all[act], warm_all[act], ranges[act], use[act]
-        f, d, fp, u, rho1, rho1p, wgn, wgnp = (t[act] for t in terms)
-        curv = rho1 * f / d  # curvature of the ranges: rho' f / d (I - u u^T)
-        h = (np.matmul(u.transpose(0, 2, 1) * (wgn - curv)[:, None, :], u) + curv.sum(axis=1)[:, None, None] * eye
-             + (w * w) * wgnp[:, :, None] * eye)
-        g = np.einsum("na,nai->ni", rho1 * f, u) + w * rho1p * fp
+        u, hw, hi, g_a, g_p, h_p = terms
+        h = np.matmul(u.transpose(0, 2, 1) * hw[:, None, :], u) + (hi[:, None] + h_p)[:, :, None] * eye
+        g = np.einsum("na,nai->ni", g_a, u) + g_p
         dx = _newton_step(h, g, floor)
         step = np.sqrt(np.einsum("ni,ni->n", dx, dx))
-        rad = radius[act]
-        dx *= np.minimum(1.0, rad / np.maximum(step, 1e-300))[:, None]
-        step = np.minimum(step, rad)
+        dx *= np.minimum(1.0, radius / np.maximum(step, 1e-300))[:, None]
+        step = np.minimum(step, radius)
         p_new = p + dx
         c_new, *t_new = _cost_terms(p_new, r, us, anchors, warm, fs, w, loss)
-        ok = c_new <= cost[act]
-        acc = act[ok]
-        p_all[acc] = p_new[ok]
-        cost[acc] = c_new[ok]
-        for t, tn in zip(terms, t_new, strict=True):
-            t[acc] = tn[ok]
-        radius[act] = np.where(ok, np.maximum(rad, 2.0 * step), step / 4.0)
-        act = act[step >= STEP_TOL_M]
+        ok = c_new <= cost
+        p = np.where(ok[:, None], p_new, p)
+        cost = np.where(ok, c_new, cost)
+        terms = [np.where(ok.reshape((-1,) + (1,) * (t.ndim - 1)), tn, t) for t, tn in zip(terms, t_new, strict=True)]
+        radius = np.where(ok, np.maximum(radius, 2.0 * step), step / 4.0)
+        done = step < STEP_TOL_M
+        if done.any():
+            p_all[todo[done]] = p[done]
+            keep = ~done
+            todo, p, warm, r, us, cost, radius = (a[keep] for a in (todo, p, warm, r, us, cost, radius))
+            terms = [t[keep] for t in terms]
+            if todo.size == 0:
+                break
+    p_all[todo] = p
     return p_all
 
 
