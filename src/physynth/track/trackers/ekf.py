@@ -18,6 +18,7 @@ The recursion is sequential by nature (one small update per fresh range); everyt
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -105,7 +106,8 @@ class EkfTracker:
         Between two update steps T = n dt apart the filter is linear: one jump with F(T) = [[I, T I],
         [0, I]], Q(T) = q [[T^3/3 I, T^2/2 I], [T^2/2 I, T I]] (the exact composition of n grid steps)
         and the control of :meth:`_control`. The scalar range updates run one after the other (the
-        accepted per-range loop: a few thousand per trace), on preallocated 6-vectors and one 6x6 buffer.
+        accepted per-range loop: a few thousand per trace), in plain floats: at this size a Python
+        float is faster than a NumPy call, and nothing is allocated per update but the 6-vector P h.
         """
         dt = 1.0 / inp.rate_hz
         imu = self.use_imu and inp.acc_mps2 is not None
@@ -114,14 +116,7 @@ class EkfTracker:
         var_r = self.range_std_m**2
         reset = self.init_pos_std_m**2
         n_upd = upd.size
-        # the jumps between consecutive update steps, all at once
-        gaps = np.diff(upd) * dt
-        f_all = np.broadcast_to(np.eye(6), (n_upd - 1, 6, 6)).copy()
-        f_all[:, :3, 3:] = gaps[:, None, None] * np.eye(3)
-        q_all = np.zeros((n_upd - 1, 6, 6))
-        q_all[:, :3, :3] = (q * gaps**3 / 3)[:, None, None] * np.eye(3)
-        q_all[:, :3, 3:] = q_all[:, 3:, :3] = (q * gaps**2 / 2)[:, None, None] * np.eye(3)
-        q_all[:, 3:, 3:] = (q * gaps)[:, None, None] * np.eye(3)
+        gaps = np.diff(upd) * dt  # the jumps between consecutive update steps
         dp, dv = self._control(inp, upd[:-1], upd[1:])
         # the fresh ranges of the update steps, in step then anchor order (as the reference loop)
         rows, cols = np.nonzero(inp.fresh[upd])
@@ -131,40 +126,55 @@ class EkfTracker:
         anchors = inp.anchor_pos_rel_m
         a_rows = [anchors[c] for c in cols.tolist()]
 
-        x = np.concatenate([x0, np.zeros(3)])
-        p = np.diag([self.init_pos_std_m**2] * 3 + [self.init_vel_std_mps**2] * 3)
-        h = np.zeros(6)
-        buf = np.empty((6, 6))
+        x = [float(v) for v in x0] + [0.0, 0.0, 0.0]
+        p = np.diag([self.init_pos_std_m**2] * 3 + [self.init_vel_std_mps**2] * 3).tolist()
         states = np.empty((n_upd, 6))
         rejected = 0
+        gaps_l, dp_l, dv_l = gaps.tolist(), dp.tolist(), dv.tolist()
+        rng3, rng6 = range(3), range(6)
         for j in range(n_upd):  # sequential by nature: one jump, then the scalar updates of the step
             if j:
-                x[:3] += gaps[j - 1] * x[3:] + dp[j - 1]
-                x[3:] += dv[j - 1]
-                fj = f_all[j - 1]
-                p = fj @ p @ fj.T + q_all[j - 1]
+                t = gaps_l[j - 1]
+                dpj, dvj = dp_l[j - 1], dv_l[j - 1]
+                for i in rng3:
+                    x[i] += t * x[i + 3] + dpj[i]
+                    x[i + 3] += dvj[i]
+                q3, q2, q1 = q * t**3 / 3.0, q * t * t / 2.0, q * t
+                for i in rng3:  # P <- F(T) P F(T)^T + Q(T), block by block
+                    pi, pv = p[i], p[i + 3]
+                    for k in rng3:
+                        a, b, c, e = pi[k], pi[k + 3], pv[k], pv[k + 3]
+                        pi[k] = a + t * (b + c) + t * t * e
+                        pi[k + 3] = b + t * e
+                        pv[k] = c + t * e
+                    pi[i] += q3
+                    pi[i + 3] += q2
+                    pv[i] += q2
+                    pv[i + 3] += q1
             for u in range(first[j], first[j + 1]):
                 age = age_list[u]  # the range was measured ``age`` before the step: p - v * age
-                diff = x[:3] - age * x[3:] - a_rows[u]
-                d = float(np.sqrt(diff @ diff)) or 1e-9
-                np.divide(diff, d, out=h[:3])
-                np.multiply(h[:3], -age, out=h[3:])
-                ph = p @ h
-                s = float(h @ ph) + var_r
+                an = a_rows[u]
+                e0, e1, e2 = x[0] - age * x[3] - an[0], x[1] - age * x[4] - an[1], x[2] - age * x[5] - an[2]
+                d = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2) or 1e-9
+                h0, h1, h2 = e0 / d, e1 / d, e2 / d
+                h3, h4, h5 = -age * h0, -age * h1, -age * h2
+                ph = [r[0] * h0 + r[1] * h1 + r[2] * h2 + r[3] * h3 + r[4] * h4 + r[5] * h5 for r in p]
+                s = h0 * ph[0] + h1 * ph[1] + h2 * ph[2] + h3 * ph[3] + h4 * ph[4] + h5 * ph[5] + var_r
                 nu = r_list[u] - d
                 if nu * nu / s > gate:
                     rejected += 1
                     if rejected >= self.reset_after:
-                        p[0, 0] += reset
-                        p[1, 1] += reset
-                        p[2, 2] += reset
+                        for i in rng3:
+                            p[i][i] += reset
                         rejected = 0
                     continue
                 rejected = 0
-                ph /= s  # the gain
-                x += ph * nu
-                np.multiply(ph[:, None], (ph * s)[None, :], out=buf)
-                p -= buf
+                for i in rng6:
+                    gi = ph[i] / s  # the gain
+                    x[i] += gi * nu
+                    row = p[i]
+                    for k in rng6:
+                        row[k] -= gi * ph[k]
             states[j] = x
         return states
 
