@@ -188,6 +188,15 @@ def test_tracker_column(study, tmp_path):
     assert "Tracker position error, 3-D [m]" in md and "| nominal ls | nominal ekf |" in md
 
 
+def test_command_line_default_of_tracker_traces_is_the_library_one():
+    import inspect
+
+    from physynth.cli.study import anchors_cmd
+    from physynth.studies.anchors import TRACKER_TRACES
+
+    assert inspect.signature(anchors_cmd).parameters["tracker_traces"].default.default == TRACKER_TRACES
+
+
 def test_tracker_column_on_the_cable_car_beats_knowing_nothing():
     """With all six anchors the ekf's median error is below that of the estimate 'at the anchor centroid'."""
     scn = load_scenario("cablecar-descending")

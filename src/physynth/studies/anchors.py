@@ -96,7 +96,7 @@ class GdopColumn:
 
 TRACKERS = ("ls", "ekf")
 """The classical trackers of the tracker-error column (:mod:`physynth.track.trackers`)."""
-TRACKER_TRACES = 10
+TRACKER_TRACES = 20
 """Traces per cell the trackers run on by default: trace indices 0 .. TRACKER_TRACES - 1 (the same traces
 in every count and regime, by common random numbers)."""
 
