@@ -17,10 +17,9 @@ the >= 1 / >= 2 availability fractions:
   too), so this is a k-anchor deployment; differences between counts are then not sampling noise and
   the >= 1 availability can never fall when an anchor is added;
 - every cell also reports the GDOP along the path (:mod:`physynth.studies.dop`) with all its anchors
-  and with the anchors heard within the last second. Further per-cell columns plug in through
-  :class:`CellColumn` (a tracker's position error once :mod:`physynth.track` exists: a class with
-  ``per_trace`` running the tracker on a cell trace and ``reduce`` pooling the errors, added to
-  :data:`CELL_COLUMNS`).
+  and with the anchors heard within the last second, and the position error of the classical trackers
+  ``ls`` and ``ekf`` (:class:`TrackerColumn`, on the first :data:`TRACKER_TRACES` traces of the cell).
+  Per-cell columns are :class:`CellColumn` objects listed in :data:`CELL_COLUMNS`.
 
 Cells run in parallel (``concurrent.futures.ProcessPoolExecutor``); trace i of every cell draws from
 ``SeedSequence(root, spawn_key=(i, component))`` whichever worker runs it, so results do not depend on
