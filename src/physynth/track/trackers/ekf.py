@@ -12,8 +12,12 @@ an update whose normalised innovation squared exceeds the ``gate_prob`` quantile
 rejected. After ``reset_after`` consecutive rejections the position covariance is re-inflated (the
 filter has lost track). The filter starts at the first multilateration fix (:mod:`.ls`).
 
-The recursion is sequential by nature (one small update per fresh range); everything per step is a
-6x6 matrix product, about 2 s for a 250 s run at 100 Hz.
+Between two steps with a fresh range nothing but the prediction happens, so the filter jumps from one
+such step to the next in closed form (F(T), Q(T) and the IMU control over T, exact: the composition of
+the grid steps in between) and fills the steps in between vectorised from the last updated state. Only
+the scalar updates run one after the other (a few thousand per trace, the one Python loop; in plain
+floats): about 0.1 s for a 104 s cable-car trace with six anchors. ``tests/track_reference.py`` keeps
+the per-step recursion it equals to 1e-9.
 """
 
 from __future__ import annotations
