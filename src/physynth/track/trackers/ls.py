@@ -30,7 +30,7 @@ LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 """Robust losses rho(z) of ``scipy.optimize.least_squares``, z = (residual / f_scale)^2."""
 
 STEP_TOL_M = 1e-8
-"""A step has converged when its accepted Gauss-Newton step is shorter than this [m]."""
+"""A step has converged when its proposed Newton step (after the trust radius) is shorter than this [m]."""
 INITIAL_RADIUS_M = 10.0
 """First trust radius of every step [m]: doubled after an accepted step, a quarter of the step after a
 rejected one."""
