@@ -81,15 +81,23 @@ def _cost_terms(p: np.ndarray, ranges: np.ndarray, use: np.ndarray, anchors: np.
 def _newton_step(h: np.ndarray, g: np.ndarray, floor: float) -> np.ndarray:
     """-H^-1 g for symmetric (N, 3, 3) ``h``, with eigenvalues below ``floor`` raised to it.
 
-    Where H - floor I is positive definite (leading minors, checked in closed form) a plain solve;
-    elsewhere (negative curvature across a ring of solutions) through the eigendecomposition."""
-    m = h - floor * np.eye(3)
-    m1 = m[:, 0, 0]
-    m2 = m1 * m[:, 1, 1] - m[:, 0, 1] * m[:, 1, 0]
-    pd = (m1 > 0) & (m2 > 0) & (np.linalg.det(m) > 0)
-    dx = np.empty_like(g)
-    if pd.any():
-        dx[pd] = -np.linalg.solve(h[pd], g[pd][..., None])[..., 0]
+    Where H - floor I is positive definite (leading minors, checked in closed form) the closed-form
+    inverse; elsewhere (negative curvature across a ring of solutions) the eigendecomposition."""
+    a, b, c = h[:, 0, 0], h[:, 0, 1], h[:, 0, 2]
+    e, f, k = h[:, 1, 1], h[:, 1, 2], h[:, 2, 2]
+    m1 = a - floor
+    m2 = m1 * (e - floor) - b * b
+    det_m = (m1 * ((e - floor) * (k - floor) - f * f) - b * (b * (k - floor) - f * c)
+             + c * (b * f - (e - floor) * c))
+    pd = (m1 > 0) & (m2 > 0) & (det_m > 0)
+    # symmetric 3x3 inverse by cofactors (Cramer's rule), elementwise over the steps
+    c00, c01, c02 = e * k - f * f, c * f - b * k, b * f - c * e
+    c11, c12, c22 = a * k - c * c, b * c - a * f, a * e - b * b
+    det = a * c00 + b * c01 + c * c02
+    g0, g1, g2 = g[:, 0], g[:, 1], g[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dx = -np.stack([c00 * g0 + c01 * g1 + c02 * g2, c01 * g0 + c11 * g1 + c12 * g2,
+                        c02 * g0 + c12 * g1 + c22 * g2], axis=1) / det[:, None]
     if not pd.all():
         ev, vec = np.linalg.eigh(h[~pd])
         gi = g[~pd]
