@@ -15,7 +15,7 @@ from physynth.evaluate.metrics import compute_metrics
 from physynth.generate import compile_scenario, generate_trace
 from physynth.io.scenario_file import load_scenario, save_scenario
 from physynth.scenario import scenario_from_dict, scenario_to_dict
-from physynth.studies.anchors import AnchorStudy, run_anchor_study, write_anchor_study
+from physynth.studies.anchors import TRACKERS, AnchorStudy, TrackerColumn, run_anchor_study, write_anchor_study
 from physynth.studies.placement import greedy_placement, read_candidates
 from physynth.studies.regimes import REGIMES, apply_regime
 from physynth.studies.subset import restrict_to_anchors
@@ -69,9 +69,11 @@ def test_more_anchors_never_lower_ge1_for_the_same_seed(study):
 
 def test_workers_do_not_change_the_numbers():
     scn = _rated_scenario()
-    a = run_anchor_study(scn, n=3, seed=5, counts=[1, 2], regimes=("dense",), workers=1)
-    b = run_anchor_study(scn, n=3, seed=5, counts=[1, 2], regimes=("dense",), workers=2)
+    a = run_anchor_study(scn, n=3, seed=5, counts=[1, 3], regimes=("dense",), workers=1)
+    b = run_anchor_study(scn, n=3, seed=5, counts=[1, 3], regimes=("dense",), workers=2)
     assert a.scores == b.scores and a.availability == b.availability and a.order == b.order
+    np.testing.assert_equal(a.columns, b.columns)  # GDOP and the trackers' errors too (NaN = NaN here)
+    assert np.isfinite(a.columns["dense"][3]["ekf_median_m"])
 
 
 def _flat(d, prefix=""):
@@ -153,6 +155,59 @@ def test_table_files_parse(study, tmp_path):
     assert back.scores == study.scores and back.order == study.order and back.counts == study.counts
     with pytest.raises(PhySynthError, match="already holds an anchor study"):
         write_anchor_study(study, tmp_path)
+
+
+def test_tracker_column(study, tmp_path):
+    """ls and ekf errors per cell: present, sane, and what holds by construction under common random numbers."""
+    for r in study.scores:
+        fix = {t: [study.columns[r][k][f"{t}_fix_frac"] for k in study.counts] for t in TRACKERS}
+        for t in TRACKERS:
+            # more anchors: the first range (ls) and the first step with three ranged anchors (ekf) come no later
+            assert fix[t] == sorted(fix[t]) and all(0.0 <= f <= 1.0 for f in fix[t]), (r, t)
+        assert fix["ekf"][:2] == [0.0, 0.0] and fix["ekf"][2] > 0.9  # the ekf starts on three anchors
+        assert fix["ls"][0] > 0.9
+        for k in study.counts:
+            c = study.columns[r][k]
+            assert c["tracker_traces"] == 4  # min(n, TRACKER_TRACES)
+            for t in TRACKERS:
+                if c[f"{t}_fix_frac"] > 0:
+                    assert 0 <= c[f"{t}_h_median_m"] <= c[f"{t}_h_p95_m"] and c[f"{t}_median_m"] <= c[f"{t}_p95_m"]
+                    assert c[f"{t}_h_median_m"] <= c[f"{t}_median_m"] + 1e-9
+                else:
+                    assert np.isnan(c[f"{t}_median_m"])
+    # nominal: exact ranges (1e-12 m) from three anchors 20 m off the line at 3 m height, tag at 1 m, 3 m/s,
+    # a range per anchor every 1/15 s (dropouts 10 %): horizontally the ekf lags by at most a few range
+    # periods of motion; in height it may sit on the mirror fix across the anchors' plane (3 + 2 m)
+    c = study.columns["nominal"][3]
+    assert c["ekf_h_median_m"] < 3.0 * 3.0 / 15.0
+    assert c["ekf_median_m"] < 2 * (3.0 - 1.0) + 3.0 * 3.0 / 15.0
+    write_anchor_study(study, tmp_path, figures=False)
+    d = json.loads((tmp_path / "table.json").read_text())
+    assert {"ls_median_m", "ekf_p95_m", "ekf_h_rmse_m", "ekf_fix_frac"} <= set(d["columns"]["nominal"]["3"])
+    md = (tmp_path / "table.md").read_text()
+    assert "Tracker position error, 3-D [m]" in md and "| nominal ls | nominal ekf |" in md
+
+
+def test_command_line_default_of_tracker_traces_is_the_library_one():
+    import inspect
+
+    from physynth.cli.study import anchors_cmd
+    from physynth.studies.anchors import TRACKER_TRACES
+
+    assert inspect.signature(anchors_cmd).parameters["tracker_traces"].default.default == TRACKER_TRACES
+
+
+def test_tracker_column_on_the_cable_car_beats_knowing_nothing():
+    """With all six anchors the ekf's median error is below that of the estimate 'at the anchor centroid'."""
+    scn = load_scenario("cablecar-descending")
+    s = run_anchor_study(scn, n=1, seed=2, counts=[2, 6], regimes=("dense",), workers=1,
+                         columns=(TrackerColumn(),))
+    tr = generate_trace(compile_scenario(apply_regime(scn, "dense")), 0, 2)
+    centroid = tr.anchors.pos_enu_m.mean(axis=0)
+    know_nothing = float(np.median(np.linalg.norm(tr.truth.pos_enu_m - centroid, axis=1)))
+    six = s.columns["dense"][6]
+    assert six["ekf_fix_frac"] > 0.5 and six["ekf_median_m"] < know_nothing
+    assert s.columns["dense"][2]["ekf_fix_frac"] == 0.0  # two anchors: no 3-D fix to start from
 
 
 def test_gdop_column(study):

@@ -384,13 +384,16 @@ def _scenario(scenario: str | Path | Scenario) -> Scenario:
 def anchor_study(scenario: str | Path | Scenario, *, real: str | Path | None = None, n: int = 50,
                  seed: int | None = None, counts: Sequence[int] | None = None,
                  regimes: Sequence[str] = ("dense", "sparse", "degraded"), order: Sequence[str] | None = None,
-                 workers: int | None = None, progress: ProgressCallback | None = None) -> Any:
+                 workers: int | None = None, tracker_traces: int | None = None,
+                 progress: ProgressCallback | None = None) -> Any:
     """:func:`physynth.studies.anchors.run_anchor_study` on a scenario (preset, file or object) and,
     optionally, a real dataset directory (its traces need truth and valid ranges).
 
-    ``seed=None`` draws a root seed from OS entropy; it is recorded in the result.
+    ``seed=None`` draws a root seed from OS entropy; it is recorded in the result. ``tracker_traces``:
+    traces per cell the trackers run on (default :data:`physynth.studies.anchors.TRACKER_TRACES`; 0: no
+    tracker column).
     """
-    from .studies.anchors import run_anchor_study
+    from .studies.anchors import TRACKER_TRACES, GdopColumn, TrackerColumn, run_anchor_study
     from .validate.compare import check_real
 
     scn = _scenario(scenario)
@@ -399,8 +402,10 @@ def anchor_study(scenario: str | Path | Scenario, *, real: str | Path | None = N
         real_traces = _read(read_dataset, real, "real").traces
         check_real(real_traces, f"real dataset {real}")
     root = new_root_seed() if seed is None else int(seed)
+    tracker_traces = TRACKER_TRACES if tracker_traces is None else int(tracker_traces)
+    columns = (GdopColumn(),) if tracker_traces == 0 else (GdopColumn(), TrackerColumn(tracker_traces))
     study = run_anchor_study(scn, real=real_traces, n=n, seed=root, counts=counts, regimes=regimes, order=order,
-                             workers=workers, progress=progress)
+                             workers=workers, columns=columns, progress=progress)
     if real is not None:
         study.reference["path"] = str(real)
     return study

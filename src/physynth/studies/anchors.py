@@ -17,10 +17,9 @@ the >= 1 / >= 2 availability fractions:
   too), so this is a k-anchor deployment; differences between counts are then not sampling noise and
   the >= 1 availability can never fall when an anchor is added;
 - every cell also reports the GDOP along the path (:mod:`physynth.studies.dop`) with all its anchors
-  and with the anchors heard within the last second. Further per-cell columns plug in through
-  :class:`CellColumn` (a tracker's position error once :mod:`physynth.track` exists: a class with
-  ``per_trace`` running the tracker on a cell trace and ``reduce`` pooling the errors, added to
-  :data:`CELL_COLUMNS`).
+  and with the anchors heard within the last second, and the position error of the classical trackers
+  ``ls`` and ``ekf`` (:class:`TrackerColumn`, on the first :data:`TRACKER_TRACES` traces of the cell).
+  Per-cell columns are :class:`CellColumn` objects listed in :data:`CELL_COLUMNS`.
 
 Cells run in parallel (``concurrent.futures.ProcessPoolExecutor``); trace i of every cell draws from
 ``SeedSequence(root, spawn_key=(i, component))`` whichever worker runs it, so results do not depend on
@@ -60,13 +59,21 @@ DEFAULT_REGIMES = ("dense", "sparse", "degraded")
 # ---------------------------------------------------------------- per-cell columns
 class CellColumn(Protocol):
     """A per-cell quantity beyond the metrics: ``per_trace`` runs in a worker on one cell trace (must be
-    picklable and cheap to return); ``reduce`` pools the parts of a cell's traces into named numbers."""
+    picklable and cheap to return); ``reduce`` pools the parts of a cell's traces into named numbers.
+    A column that needs the cell's scenario also has ``bind(scenario) -> CellColumn`` (:func:`bind_column`)."""
 
     name: str
 
     def per_trace(self, trace: Trace) -> Any: ...
 
     def reduce(self, parts: Sequence[Any]) -> dict[str, float]: ...
+
+
+def bind_column(column: CellColumn, scn: Scenario) -> CellColumn:
+    """``column`` for the cells of ``scn``: its ``bind(scn)`` when it has one (a column that needs the
+    scenario, such as the tracker column's UWB time lag), otherwise the column itself."""
+    bind = getattr(column, "bind", None)
+    return bind(scn) if bind is not None else column
 
 
 class GdopColumn:
@@ -86,8 +93,79 @@ class GdopColumn:
         return out
 
 
-CELL_COLUMNS: tuple[CellColumn, ...] = (GdopColumn(),)
-"""Columns every cell reports besides S and availability (a tracker-error column is appended here)."""
+TRACKERS = ("ls", "ekf")
+"""The classical trackers of the tracker-error column (:mod:`physynth.track.trackers`)."""
+TRACKER_TRACES = 20
+"""Traces per cell the trackers run on by default: trace indices 0 .. TRACKER_TRACES - 1 (the same traces
+in every count and regime, by common random numbers)."""
+
+
+class TrackerColumn:
+    """Position error of the classical trackers ``ls`` and ``ekf`` on the cell's traces.
+
+    Each trace becomes the trackers' grid input (:func:`physynth.track.inputs.track_input`, UWB stamps
+    moved back by the scenario's ``uwb.time_offset_s``); ``ls`` runs as it is, ``ekf`` with its range
+    noise fitted on the trace itself (1.4826 MAD of the range residuals: the deployment's own ranging, as
+    ``study tracking`` fits it on its training runs) and the IMU as control when the trace has one.
+    Over the 100 Hz grid steps with known truth, per tracker ``t``:
+
+    - ``t_fix_frac``: the fraction of steps with an estimate (``ls`` from the first range on, ``ekf``
+      from its first fix: a step with a fresh range and three anchors ranged);
+    - ``t_median_m``, ``t_p95_m``, ``t_rmse_m``: the 3-D error over the steps with an estimate, and
+      ``t_h_median_m``, ``t_h_p95_m``, ``t_h_rmse_m`` the horizontal (E-N) error;
+    - ``tracker_traces``: the number of traces the trackers ran on.
+
+    ``max_traces`` limits the trackers to trace indices 0 .. max_traces - 1 (None: every trace).
+    """
+
+    name = "trackers"
+
+    def __init__(self, max_traces: int | None = TRACKER_TRACES, time_offset_s: float = 0.0) -> None:
+        if max_traces is not None and max_traces < 1:
+            raise PhySynthError(f"the number of traces the trackers run on must be at least 1, got {max_traces}")
+        self.max_traces = max_traces
+        self.time_offset_s = float(time_offset_s)
+
+    def bind(self, scn: Scenario) -> TrackerColumn:
+        """The column for the cells of ``scn`` (its UWB time lag)."""
+        return TrackerColumn(self.max_traces, scn.uwb.time_offset_s)
+
+    def per_trace(self, trace: Trace) -> dict[str, tuple[int, int, np.ndarray, np.ndarray]] | None:
+        from ..track.inputs import track_input
+        from ..track.trackers.ekf import EkfTracker
+        from ..track.trackers.ls import LsTracker
+
+        index = int((trace.meta.get("spawn_key") or [0])[0])
+        if self.max_traces is not None and index >= self.max_traces:
+            return None
+        inp = track_input(trace, time_offset_s=self.time_offset_s)
+        truth = np.all(np.isfinite(inp.pos_rel_m), axis=1)
+        out = {}
+        for name in TRACKERS:
+            est = LsTracker().predict_rel(inp) if name == "ls" else EkfTracker().fit([inp]).predict_rel(inp)
+            have = truth & np.all(np.isfinite(est), axis=1)
+            d = est[have] - inp.pos_rel_m[have]
+            out[name] = (int(truth.sum()), int(have.sum()), np.linalg.norm(d, axis=1).astype(np.float32),
+                         np.linalg.norm(d[:, :2], axis=1).astype(np.float32))
+        return out
+
+    def reduce(self, parts: Sequence[dict[str, tuple[int, int, np.ndarray, np.ndarray]] | None]) -> dict[str, float]:
+        parts = [p for p in parts if p is not None]
+        out: dict[str, float] = {"tracker_traces": float(len(parts))}
+        for name in TRACKERS:
+            n_truth = sum(p[name][0] for p in parts)
+            out[f"{name}_fix_frac"] = sum(p[name][1] for p in parts) / n_truth if n_truth else float("nan")
+            for j, tag in ((2, ""), (3, "h_")):
+                e = np.concatenate([p[name][j] for p in parts]).astype(np.float64) if parts else np.array([])
+                stats = ((float(np.median(e)), float(np.percentile(e, 95)), float(np.sqrt(np.mean(e * e))))
+                         if e.size else (float("nan"),) * 3)
+                out.update(zip((f"{name}_{tag}median_m", f"{name}_{tag}p95_m", f"{name}_{tag}rmse_m"), stats,
+                               strict=True))
+        return out
+
+
+CELL_COLUMNS: tuple[CellColumn, ...] = (GdopColumn(), TrackerColumn())
+"""Columns every cell reports besides S and availability: GDOP and the trackers' position error."""
 
 
 # ---------------------------------------------------------------- results
@@ -144,6 +222,7 @@ def _cell_chunk(scn: Scenario, order: Sequence[str], counts: Sequence[int], seed
                 columns: Sequence[CellColumn]) -> list[tuple[int, dict[int, tuple[TraceSummary, list[Any]]]]]:
     """Traces ``indices`` of one regime, each reduced for every anchor count."""
     cs = compile_scenario(scn)
+    columns = [bind_column(c, scn) for c in columns]
     out = []
     for i in indices:
         full = generate_trace(cs, i, seed)
@@ -395,6 +474,24 @@ def anchor_table_md(study: AnchorStudy) -> str:
             cells.append(" | ".join(f"{_fmt(c.get(p + '_median'), 1)} ({_fmt(c.get(p + '_le5_frac'), 2)})"
                                     for p in ("gdop", "fresh_gdop", "fresh_hdop")))
         lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    if any("ekf_fix_frac" in study.columns[r][k] for r in regimes for k in counts):
+        n_tr = int(min(study.columns[r][k].get("tracker_traces", 0) for r in regimes for k in counts))
+        for title, tag in (("3-D", ""), ("horizontal (E-N)", "h_")):
+            lines += ["", f"Tracker position error, {title} [m]: median (P95) over the 100 Hz grid steps with an "
+                          "estimate" + ("; fraction of the time with an estimate" if not tag else "")
+                      + f"; {n_tr} trace(s) per cell. '-' = no estimate.", "",
+                      "| Anchors | " + " | ".join(f"{r} {t}" for r in regimes for t in TRACKERS) + " |",
+                      "|---|" + "---|" * (len(regimes) * len(TRACKERS))]
+            for k in counts:
+                cells = []
+                for r in regimes:
+                    c = study.columns[r][k]
+                    for t in TRACKERS:
+                        cell = f"{_fmt(c.get(f'{t}_{tag}median_m'), 1)} ({_fmt(c.get(f'{t}_{tag}p95_m'), 1)})"
+                        if not tag:
+                            cell += f"; {_fmt(c.get(f'{t}_fix_frac'), 2)}"
+                        cells.append(cell)
+                lines.append(f"| {k} | " + " | ".join(cells) + " |")
     lines += ["", "Regimes:", ""]
     for r, d in study.regimes.items():
         lines.append(f"- {r}: {d['summary']} ({'; '.join(d['changes']) or 'no change'})")
@@ -404,20 +501,28 @@ def anchor_table_md(study: AnchorStudy) -> str:
 
 
 def anchor_figure_png(study: AnchorStudy) -> bytes:
-    """Figure 6 of the paper: (left) S against anchor count per regime; (right) >= 1 and >= 2
-    availability against count per regime, the reference as horizontal lines."""
+    """Figure 6 of the paper: (left) S against anchor count per regime; (middle) >= 1 and >= 2
+    availability against count per regime, the reference as horizontal lines; (right, when the study
+    has the tracker column) the median 3-D position error of ``ekf`` and ``ls`` against count."""
     from ..validate.figures import figure_png, require_matplotlib
 
     figure_cls, canvas_cls = require_matplotlib()
-    fig = figure_cls(figsize=(11, 4.8))
-    ax1, ax2 = fig.subplots(1, 2)
     counts = study.counts
+    trackers = any("ekf_median_m" in study.columns[r][k] for r in study.scores for k in counts)
+    fig = figure_cls(figsize=(16.5 if trackers else 11, 4.8))
+    axes = fig.subplots(1, 3 if trackers else 2)
+    ax1, ax2 = axes[0], axes[1]
     colors = {"nominal": "k", "dense": "tab:blue", "sparse": "tab:orange", "degraded": "tab:red"}
     for r in study.scores:
         c = colors.get(r)
         ax1.plot(counts, [study.scores[r][k] for k in counts], "o-", color=c, label=r)
         ax2.plot(counts, [study.availability[r][str(k)]["ge1"] for k in counts], "o-", color=c, label=f"{r} >= 1")
         ax2.plot(counts, [study.availability[r][str(k)]["ge2"] for k in counts], "s--", color=c, label=f"{r} >= 2")
+        if trackers:
+            for t, style in (("ekf", "o-"), ("ls", "s:")):
+                y = [study.columns[r][k].get(f"{t}_median_m", float("nan")) for k in counts]
+                axes[2].plot(counts, [v if math.isfinite(v) else float("nan") for v in y], style, color=c,
+                             label=f"{r} {t}")
     ref = study.reference
     ax2.axhline(ref["ge1"], color="0.3", lw=1.5, label=f"{ref['kind']} >= 1")
     ax2.axhline(ref["ge2"], color="0.3", lw=1.5, ls=":", label=f"{ref['kind']} >= 2")
@@ -429,7 +534,14 @@ def anchor_figure_png(study: AnchorStudy) -> bytes:
     ax2.set_ylabel("fraction of 10 ms bins")
     ax2.set_title(">= 1 and >= 2 fresh anchors")
     ax2.legend(fontsize=7, ncol=4, loc="upper center", bbox_to_anchor=(0.5, -0.16))
-    for ax in (ax1, ax2):
+    if trackers:
+        ax3 = axes[2]
+        ax3.set_xlabel("anchors")
+        ax3.set_ylabel("median 3-D position error [m]")
+        ax3.set_yscale("log")
+        ax3.set_title("tracker error: ekf (solid), ls (dotted)")
+        ax3.legend(fontsize=7, ncol=3, loc="upper center", bbox_to_anchor=(0.5, -0.16))
+    for ax in axes:
         ax.set_xticks(counts)
         ax.grid(alpha=0.3)
     fig.tight_layout()
