@@ -417,11 +417,11 @@ class AnchorSequence:
     code: np.ndarray
 
 
-def _anchor_sequences(traces: Sequence[Trace], tabs: Sequence[AttemptTable],
+def _anchor_sequences(trace_anchor_ids: Sequence[Sequence[str]], tabs: Sequence[AttemptTable],
                       in_range: Sequence[np.ndarray]) -> list[AnchorSequence]:
     out = []
-    for i, (tr, tab, ok) in enumerate(zip(traces, tabs, in_range, strict=True)):
-        for j, aid in enumerate(tr.anchors.ids):  # one pass per anchor
+    for i, (ids, tab, ok) in enumerate(zip(trace_anchor_ids, tabs, in_range, strict=True)):
+        for j, aid in enumerate(ids):  # one pass per anchor
             att = np.flatnonzero(tab.attempted[:, j])
             code = np.where(ok[att, j], np.where(tab.heard[att, j], 1, 0), -1).astype(np.int8)
             out.append(AnchorSequence(trace=i, anchor_id=aid, burst=att, code=code))
@@ -646,6 +646,42 @@ def fit_tag_outages(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarra
     return tag, masks, stats_t, cur_fits
 
 
+def fit_outages(tabs: Sequence[AttemptTable], in_range: Sequence[np.ndarray], trace_anchor_ids: Sequence[Sequence[str]],
+                anchor_ids: Sequence[str], att_period: dict[str, float],
+                burst_rate_hz: float) -> tuple[dict[str, RunStats], dict[str, dict[str, Any]], dict[str, Any]]:
+    """Dropout and outages per anchor and tag outages, jointly, from attempt tables (pooled over traces).
+
+    ``in_range[i]`` (bursts x anchors of trace i) marks attempts inside link range, ``trace_anchor_ids[i]``
+    names the columns of trace i, ``att_period`` is each anchor's mean attempt interval [s]. Returns the
+    per-anchor run statistics and fits (with the tag outages unobserved when a tag process is kept) and the
+    tag report (:func:`fit_tag_outages`).
+    """
+    def per_anchor_runs(exclude: list[np.ndarray]) -> dict[str, RunStats]:
+        stats = {a: RunStats() for a in anchor_ids}
+        for ids, tab, ok, ex in zip(trace_anchor_ids, tabs, in_range, exclude, strict=True):
+            for j, aid in enumerate(ids):  # one pass per anchor
+                att = tab.attempted[:, j]
+                code = np.where(tab.heard[:, j], 1, 0)
+                code = np.where(ok[:, j] & ~ex, code, -1)[att]
+                add_runs(stats[aid], tab.t_s[att], code)
+        return stats
+
+    stats = per_anchor_runs([np.zeros(t.t_s.size, dtype=bool) for t in tabs])
+    fits = {a: fit_dropout_outage(stats[a], att_period[a], burst_rate_hz) for a in anchor_ids}
+    dark = [_dark_runs(tab, ok) for tab, ok in zip(tabs, in_range, strict=True)]
+    seqs = _anchor_sequences(trace_anchor_ids, tabs, in_range)
+
+    def refit(excl: list[np.ndarray], prev: dict[str, dict[str, Any]]) -> tuple[dict[str, RunStats], dict]:
+        st = per_anchor_runs(excl)
+        return st, {a: fit_dropout_outage(st[a], att_period[a], burst_rate_hz, start=prev.get(a))
+                    for a in anchor_ids}
+
+    tag, _, stats_t, fits_t = fit_tag_outages(tabs, dark, seqs, fits, refit, burst_rate_hz)
+    if tag.get("onset_prob", 0.0) > 0:
+        stats, fits = stats_t, fits_t
+    return stats, fits, tag
+
+
 def fit_availability(traces: Sequence[Trace], offset_s: float, burst_rate_hz: float,
                      anchor_ids: Sequence[str]) -> Fit[dict[str, Any]]:
     """Link range, attempt rate, dropout and outages per anchor, and tag outages, pooled over traces."""
@@ -680,32 +716,9 @@ def fit_availability(traces: Sequence[Trace], offset_s: float, burst_rate_hz: fl
                 ok[:, j] &= r_all[:, j] <= lim
         in_range.append(ok)
 
-    def per_anchor_runs(exclude: list[np.ndarray]) -> dict[str, RunStats]:
-        stats = {a: RunStats() for a in anchor_ids}
-        for tr, tab, ok, ex in zip(traces, tabs, in_range, exclude, strict=True):
-            for j, aid in enumerate(tr.anchors.ids):
-                att = tab.attempted[:, j]
-                code = np.where(tab.heard[:, j], 1, 0)
-                code = np.where(ok[:, j] & ~ex, code, -1)[att]
-                add_runs(stats[aid], tab.t_s[att], code)
-        return stats
-
-    no_ex = [np.zeros(t.t_s.size, dtype=bool) for t in tabs]
-    stats = per_anchor_runs(no_ex)
     att_period = {a: period * burst_count[a] / max(att_count[a], 1) for a in anchor_ids}
-    fits = {a: fit_dropout_outage(stats[a], att_period[a], burst_rate_hz) for a in anchor_ids}
-    # tag-level outages: joint attribution of the dark runs (no in-range anchor heard) of >= TAG_OUTAGE_MIN_S
-    dark = [_dark_runs(tab, ok) for tab, ok in zip(tabs, in_range, strict=True)]
-    seqs = _anchor_sequences(traces, tabs, in_range)
-
-    def refit(excl: list[np.ndarray], prev: dict[str, dict[str, Any]]) -> tuple[dict[str, RunStats], dict]:
-        st = per_anchor_runs(excl)
-        return st, {a: fit_dropout_outage(st[a], att_period[a], burst_rate_hz, start=prev.get(a))
-                    for a in anchor_ids}
-
-    tag, excl, stats_t, fits_t = fit_tag_outages(tabs, dark, seqs, fits, refit, burst_rate_hz)
-    if tag.get("onset_prob", 0.0) > 0:
-        stats, fits = stats_t, fits_t
+    stats, fits, tag = fit_outages(tabs, in_range, [tr.anchors.ids for tr in traces], anchor_ids, att_period,
+                                   burst_rate_hz)
     for a in anchor_ids:
         st = stats[a]
         dur = np.concatenate(st.durations_s) if st.durations_s else np.zeros(0)
