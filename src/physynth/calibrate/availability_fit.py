@@ -535,31 +535,50 @@ def _tag_log_odds(s: np.ndarray, e: np.ndarray, n_bursts: int, alpha: float, bet
     return ll1 - ll0
 
 
-def _tag_m_step(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarray, ...]], z: list[np.ndarray],
+def _tag_m_step(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarray, ...]], w: list[np.ndarray],
                 period: float) -> dict[str, Any]:
-    """Exponential tag outages seen only above TAG_OUTAGE_MIN_S: onset rate and mean of the attributed runs."""
+    """Exponential tag outages seen only above TAG_OUTAGE_MIN_S: onset rate and mean of the dark runs.
+
+    ``w`` weights each dark run by the probability that it is a tag outage (0 or 1 for a hard split).
+    """
     d_min = TAG_OUTAGE_MIN_S
-    dur = np.concatenate([(e - s)[zz] * period for (s, e, _), zz in zip(dark, z, strict=True)])
-    cens = np.concatenate([c[zz] for (_, _, c), zz in zip(dark, z, strict=True)])
-    up_bursts = int(sum(t.t_s.size for t in tabs) - sum(((e - s)[zz]).sum() for (s, e, _), zz
-                                                          in zip(dark, z, strict=True)))
-    out: dict[str, Any] = {"min_duration_s": d_min, "n_outages": int((~cens).sum()), "n_censored": int(cens.sum()),
-                           "up_bursts": up_bursts, "effective_up_bursts": float(up_bursts),
-                           "durations_s": dur[~cens].tolist(), "censored_s": dur[cens].tolist()}
-    if dur.size == 0:
+    dur = np.concatenate([(e - s) * period for s, e, _ in dark])
+    cens = np.concatenate([c for _, _, c in dark])
+    wt = np.concatenate(w).astype(float)
+    hard = wt > 0.5
+    up_bursts = float(sum(t.t_s.size for t in tabs) - np.sum(wt * dur / period))
+    out: dict[str, Any] = {"min_duration_s": d_min, "n_outages": int((hard & ~cens).sum()),
+                           "n_censored": int((hard & cens).sum()), "events": float(wt.sum()),
+                           "up_bursts": up_bursts, "effective_up_bursts": up_bursts,
+                           "durations_s": dur[hard & ~cens].tolist(), "censored_s": dur[hard & cens].tolist()}
+    if wt.sum() < 0.5:
         out["onset_prob"] = 0.0
         return out
     # exponential durations seen only above d_min: the excess D - d_min is exponential with the same mean,
     # and only a share exp(-d_min / mean) of the outages is long enough to be attributed
-    mean_s = max(float((dur - d_min).clip(0).sum()) / max(int((~cens).sum()), 1), period)
+    mean_s = max(float(np.sum(wt * (dur - d_min).clip(0))) / max(float(np.sum(wt[~cens])), 0.5), period)
     seen = float(np.exp(-d_min / mean_s))
     out.update(mean_s=mean_s, effective_up_bursts=up_bursts * seen,
-               onset_prob=float(dur.size / max(up_bursts * seen, 1)))
+               onset_prob=float(wt.sum() / max(up_bursts * seen, 1)))
     return out
 
 
-TAG_EM_MAX_ITER = 20
-"""Classification-EM iterations of the tag attribution (it stops as soon as no attribution changes)."""
+def _masks(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarray, ...]],
+           z: list[np.ndarray]) -> list[np.ndarray]:
+    """Bursts inside the dark runs flagged in ``z``, per trace."""
+    masks = []
+    for tab, (s, e, _), zz in zip(tabs, dark, z, strict=True):
+        m = np.zeros(tab.t_s.size + 1, dtype=np.int64)
+        np.add.at(m, s[zz], 1)
+        np.add.at(m, e[zz], -1)
+        masks.append(np.cumsum(m)[:-1] > 0)
+    return masks
+
+
+TAG_EM_MAX_ITER = 30
+"""EM iterations of the tag attribution (it stops when no attribution and no tag parameter changes)."""
+TAG_EM_RTOL = 1e-3
+"""Relative change of the tag onset and mean below which the EM has converged."""
 TAG_LR_MIN = 10.0
 """Likelihood-ratio statistic a tag process needs over independent per-anchor outages alone."""
 
@@ -567,7 +586,7 @@ TAG_LR_MIN = 10.0
 def fit_tag_outages(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarray, ...]],
                     seqs: Sequence[AnchorSequence], fits: dict[str, dict[str, Any]],
                     refit: Any, burst_rate_hz: float) -> tuple[dict[str, Any], list[np.ndarray], Any, Any]:
-    """Tag outages and per-anchor outages jointly: which dark runs are tag outages (classification EM).
+    """Tag outages and per-anchor outages jointly: which dark runs are tag outages (EM).
 
     Model: every anchor alternates up/outage on its own (the per-anchor chain of
     :func:`fit_dropout_outage`); a tag process of the same kind, on the burst grid, silences every
@@ -575,10 +594,11 @@ def fit_tag_outages(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarra
     or an overlap of per-anchor outages. E-step: for each dark run the log-odds of the two, the tag
     chain's term (off exactly over the run vs up throughout) plus, per anchor in link range over the
     run, the exact likelihood of its run of misses through the dark run whole (no tag outage) or cut
-    by it (tag outage); a run is attributed to the tag when the log-odds is positive. M-step: per-anchor
-    fits with the attributed runs unobserved (``refit``), tag onset and mean from the attributed runs
-    (left-truncated at TAG_OUTAGE_MIN_S). Starts from every dark run attributed to the tag; stops when
-    no attribution changes. The tag process is kept when the classification likelihood beats the
+    by it (tag outage); its posterior probability of being a tag outage is expit(log-odds). M-step:
+    tag onset and mean from the dark runs weighted by that probability (left-truncated at
+    TAG_OUTAGE_MIN_S); per-anchor fits with the runs of probability > 0.5 unobserved (``refit``, only
+    when that set changes). Starts from every dark run attributed to the tag. The tag process is kept
+    when the classification likelihood (tag chain plus per-anchor fits, runs split at 0.5) beats the
     per-anchor fits alone by TAG_LR_MIN. Returns (tag report, excluded bursts per trace, per-anchor
     stats, per-anchor fits); per-anchor stats are None when no tag process is kept.
     """
@@ -586,30 +606,35 @@ def fit_tag_outages(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarra
     d_min_bursts = TAG_OUTAGE_MIN_S * burst_rate_hz - 1e-9
     cand = [(e - s) >= d_min_bursts for s, e, _ in dark]
     no_ex = [np.zeros(t.t_s.size, dtype=bool) for t in tabs]
+    n_cand = int(sum(c.sum() for c in cand))
     ll_indep = float(sum(f.get("log_likelihood", 0.0) for f in fits.values()))
-    if not any(c.any() for c in cand):
-        tag = _tag_m_step(tabs, dark, [np.zeros_like(c) for c in cand], period)
+    if not n_cand:
+        tag = _tag_m_step(tabs, dark, [np.zeros(c.size) for c in cand], period)
         tag["note"] = f"no run of >= {TAG_OUTAGE_MIN_S:.3g} s without any in-range anchor: no tag outage"
         return tag, no_ex, None, None
+    w = [c.astype(float) for c in cand]
     z = [c.copy() for c in cand]
-    history = []
-    cur_fits, stats_t = fits, None
+    z_fitted: list[np.ndarray] | None = None
+    history: list[float] = []
+    cur_fits, stats_t, prev = fits, None, None
+    masks = no_ex
     for _ in range(TAG_EM_MAX_ITER):
-        # M-step
-        masks = []
-        for tab, (s, e, _), zz in zip(tabs, dark, z, strict=True):
-            m = np.zeros(tab.t_s.size + 1, dtype=np.int64)
-            np.add.at(m, s[zz], 1)
-            np.add.at(m, e[zz], -1)
-            masks.append(np.cumsum(m)[:-1] > 0)
-        if any(zz.any() for zz in z):
-            stats_t, cur_fits = refit(masks, cur_fits)
-        else:
-            stats_t, cur_fits = None, fits
-        tag = _tag_m_step(tabs, dark, z, period)
-        history.append(int(sum(zz.sum() for zz in z)))
+        # M-step: per-anchor fits when the set of tag outages changed, tag process from the weights
+        if z_fitted is None or not all(np.array_equal(a, b) for a, b in zip(z, z_fitted, strict=True)):
+            masks = _masks(tabs, dark, z)
+            if any(zz.any() for zz in z):
+                stats_t, cur_fits = refit(masks, cur_fits)
+            else:
+                stats_t, cur_fits = None, fits
+            z_fitted = [zz.copy() for zz in z]
+        tag = _tag_m_step(tabs, dark, w, period)
+        history.append(round(tag["events"], 2))
         if not tag["onset_prob"]:
             break
+        par = np.array([tag["onset_prob"], tag["mean_s"]])
+        if prev is not None and np.all(np.abs(par - prev) <= TAG_EM_RTOL * prev):
+            break
+        prev = par
         al_t, be_t = _from_rates(tag["onset_prob"] * burst_rate_hz, tag["mean_s"], period)
         # E-step
         chains = {a: _chain_of_fit(f, burst_rate_hz) for a, f in cur_fits.items()}
@@ -617,31 +642,29 @@ def fit_tag_outages(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarra
         for sq in seqs:  # one pass per anchor and trace
             s, e, _ = dark[sq.trace]
             odds[sq.trace] += _anchor_log_odds(sq, s, e, masks[sq.trace], chains[sq.anchor_id])
-        z_new = [(o > 0) & c for o, c in zip(odds, cand, strict=True)]
-        if all(np.array_equal(a, b) for a, b in zip(z, z_new, strict=True)):
-            break
-        z = z_new
-    n_tag = int(sum(zz.sum() for zz in z))
+        w = [np.where(c, expit(o), 0.0) for o, c in zip(odds, cand, strict=True)]
+        z = [ww > 0.5 for ww in w]
+    n_tag = int(sum(zz.sum() for zz in z_fitted or z))
     ll_tag = 0.0
     if n_tag and tag["onset_prob"]:
         al_t, be_t = _from_rates(tag["onset_prob"] * burst_rate_hz, tag["mean_s"], period)
         # tag chain: up -> up on every transition, plus each attributed run's log-odds against staying up
         ll_tag = float(sum((tab.t_s.size - 1) * np.log1p(-al_t) + np.sum(_tag_log_odds(s[zz], e[zz], tab.t_s.size,
                                                                                         al_t, be_t))
-                           for tab, (s, e, _), zz in zip(tabs, dark, z, strict=True)))
+                           for tab, (s, e, _), zz in zip(tabs, dark, z_fitted or z, strict=True)))
     ll_joint = float(sum(f.get("log_likelihood", 0.0) for f in cur_fits.values())) + ll_tag
     lr = 2.0 * (ll_joint - ll_indep) if n_tag else 0.0
-    tag.update(method=("classification EM over the dark runs (no in-range anchor heard) of at least min_duration_s: "
-                       "each is a tag outage or an overlap of per-anchor outages, by the joint likelihood of the "
-                       "per-anchor up/outage chains and the tag chain; exponential tag durations truncated at "
-                       "min_duration_s"),
-               n_candidates=int(sum(c.sum() for c in cand)), em_iterations=len(history),
-               attributed_per_iteration=history, lr_statistic=float(lr))
+    tag.update(method=("EM over the dark runs (no in-range anchor heard) of at least min_duration_s: each is a tag "
+                       "outage or an overlap of per-anchor outages, by the joint likelihood of the per-anchor "
+                       "up/outage chains and the tag chain; exponential tag durations truncated at min_duration_s; "
+                       "events = sum of the runs' tag probabilities"),
+               n_candidates=n_cand, em_iterations=len(history), events_per_iteration=history,
+               lr_statistic=float(lr))
     if n_tag == 0 or lr < TAG_LR_MIN:
-        tag = _tag_m_step(tabs, dark, [np.zeros_like(c) for c in cand], period)
-        tag.update(n_candidates=int(sum(c.sum() for c in cand)), lr_statistic=float(lr),
-                   note=(f"{int(sum(c.sum() for c in cand))} dark runs of >= {TAG_OUTAGE_MIN_S:.3g} s, explained by "
-                         f"overlapping per-anchor outages (tag process LR {lr:.1f} < {TAG_LR_MIN:g}): no tag outage"))
+        tag = _tag_m_step(tabs, dark, [np.zeros(c.size) for c in cand], period)
+        tag.update(n_candidates=n_cand, lr_statistic=float(lr),
+                   note=(f"{n_cand} dark runs of >= {TAG_OUTAGE_MIN_S:.3g} s, explained by overlapping per-anchor "
+                         f"outages (tag process LR {lr:.1f} < {TAG_LR_MIN:g}): no tag outage"))
         return tag, no_ex, None, None
     return tag, masks, stats_t, cur_fits
 

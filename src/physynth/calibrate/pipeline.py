@@ -922,8 +922,8 @@ def assemble_availability(inp: CalibrationInputs, avail: AvailabilityFit, timing
     weights = np.array([av[a]["dropout_outage"]["n_attempts"] for a in ids], dtype=float)
     weights = weights / weights.sum() if weights.sum() > 0 else np.full(len(ids), 1.0 / len(ids))
     means = [p.outage_mean_s for p in per_anchor.values() if p.outage_onset_prob > 0]
-    # tag outages: n events over the up bursts of every run
-    n_tag = tag["n_outages"] + tag["n_censored"]
+    # tag outages: n events (the dark runs' tag probabilities summed) over the up bursts of every run
+    n_tag = tag.get("events", tag["n_outages"] + tag["n_censored"])
     up_s = tag["effective_up_bursts"] / burst_rate  # outages too short to be told apart are not exposure
     tag_post = gamma_rate_posterior(events=float(n_tag), exposure_s=max(up_s, 1e-9))
     if n_tag:
