@@ -68,6 +68,7 @@ from .uwb_fit import (
     Residuals,
     corrected_residuals,
     fit_burst_schedule,
+    fit_mode_dwell,
     fit_time_offset,
     select_mixture,
 )
@@ -299,6 +300,35 @@ def _episode_shape(mode: ModeFit, ep: ModeEpisodes, attempt_period_s: float, bur
     return out
 
 
+def _hmm_mode_dwell(chan: _Channels, aid: str, f: MixtureFit, shapes: list[dict[str, Any]],
+                    default_s: float) -> dict[str, Any] | None:
+    """Episode lengths of an anchor's exponential NLOS modes by the LOS / NLOS-mode chain (in place).
+
+    Replaces ``dwell_s`` of every mode without fixed-length episodes in ``shapes`` by the maximum-likelihood
+    mean of :func:`fit_mode_dwell` (the run-length estimate, or ``default_s``, is its start and stays in
+    ``dwell_s_runs``); fixed-length modes are held at their length. Returns the fit's diagnostics.
+    """
+    if not f.modes or f.nlos_prob <= 0 or aid not in chan.per_anchor_rows or not chan.per_anchor_t.get(aid):
+        return None
+    free = np.array([not sh["fixed_dwell"] for sh in shapes])
+    if not free.any():
+        return None
+    start = np.array([sh["dwell_s"] or default_s for sh in shapes], dtype=float)
+    ra, ga, _ = chan.per_anchor_rows[aid]
+    ts = chan.per_anchor_t[aid]
+    sizes = np.array([x.size for x in ts])
+    new_run = np.zeros(ra.size, dtype=bool)
+    first = np.cumsum(np.concatenate([[0], sizes[:-1]]))[sizes > 0]
+    new_run[first] = True
+    out = fit_mode_dwell(ra, ga, np.concatenate(ts), new_run, f, start, free)
+    for sh, tau, fr in zip(shapes, out["dwell_s"], free, strict=True):
+        if fr:
+            sh["dwell_s_runs"] = sh["dwell_s"]
+            sh["dwell_s"] = float(tau)
+    return {**out, "dwell_s": out["dwell_s"].tolist(), "start_s": start.tolist(), "free": free.tolist(),
+            "method": "ML of the LOS / NLOS-mode Markov chain with the mixture densities as emissions"}
+
+
 def _dwell_from_runs(lengths: np.ndarray, period_s: float) -> float | None:
     """Mean NLOS episode [s] from run lengths n >= 1 of samples every ``period_s`` (geometric MLE)."""
     if lengths.size == 0:
@@ -324,6 +354,7 @@ class _Channels:
     flags: dict[str, list[np.ndarray]]
     per_anchor_rows: dict[str, AnchorRows]
     notes: list[str]
+    per_anchor_t: dict[str, list[np.ndarray]] = field(default_factory=dict)  # row times per run
 
     def los_masks(self) -> dict[str, np.ndarray]:
         return {a: self.mix[a].nlos_resp < 0.5 for a in self.per_anchor_rows}
@@ -360,9 +391,10 @@ def _fit_channels(trs: Sequence[Trace], offset: float, ids: Sequence[str], fixed
     mix_diag: dict[str, Any] = {}
     flags: dict[str, list[np.ndarray]] = {}
     rows: dict[str, AnchorRows] = {}
+    times: dict[str, list[np.ndarray]] = {}
     notes: list[str] = []
     for aid in ids:  # one mixture per anchor (one physical device), pooled over the runs
-        parts = [(r.residual_m[m], r.range_m[m], r.range_rate_mps[m])
+        parts = [(r.residual_m[m], r.range_m[m], r.range_rate_mps[m], r.t_s[m])
                  for t, r in zip(trs, res, strict=True) if aid in t.anchors.ids
                  for m in [r.anchor == t.anchors.index(aid)]]
         sizes = [p[0].size for p in parts]
@@ -389,8 +421,9 @@ def _fit_channels(trs: Sequence[Trace], offset: float, ids: Sequence[str], fixed
         bounds = np.cumsum([0] + sizes)
         flags[aid] = [f.nlos_resp[a:b] > 0.5 for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
         rows[aid] = (ra, ga, np.concatenate([p[2] for p in parts]))
+        times[aid] = [p[3] for p in parts]
     return _Channels(pooled_r=pooled_r, pooled_fit=pooled_fit, pooled_sel=pooled_sel, mix=mix, mix_diag=mix_diag,
-                     flags=flags, per_anchor_rows=rows, notes=notes)
+                     flags=flags, per_anchor_rows=rows, notes=notes, per_anchor_t=times)
 
 
 def refine_time_offset(rows: dict[str, AnchorRows], los: dict[str, np.ndarray]) -> dict[str, Any] | None:
@@ -871,6 +904,7 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
         shapes = [_episode_shape(m, short_pool if _is_short(e) else e, periods[aid], 1.0 / burst_rate,
                                  short=_is_short(e))
                   for m, e in zip(f.modes, episodes, strict=True)]
+        hmm_dwell = _hmm_mode_dwell(chan, aid, f, shapes, nlos_dwell)
         mode_dwell = [sh["dwell_s"] for sh in shapes]
         modes = [NlosMode(weight=rounded(m.weight, 4), mean_m=rounded(m.mean_m, 5), std_m=rounded(m.std_m, 4),
                           dwell_s=None if sh["dwell_s"] is None else rounded(sh["dwell_s"], 4),
@@ -897,7 +931,8 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
             se["nlos_prob"] = float(max(se["nlos_prob"],
                                         np.sqrt(2.0 * f.nlos_prob * (1.0 - f.nlos_prob) * tau / max(t_obs, 1e-9))))
             se["nlos_prob_method"] = "episodes: sqrt(2 p (1-p) dwell (1-p) / T_obs), at least the binomial SE"
-        channel_diag[aid] = {**mix_diag[aid], "std_errors": se, "nlos_dwell_s": per_anchor_dwell[aid],
+        channel_diag[aid] = {**mix_diag[aid], "std_errors": se,
+                             "nlos_mode_dwell_hmm": hmm_dwell, "nlos_dwell_s": per_anchor_dwell[aid],
                              "nlos_mode_episodes": [int(x.size) for x in mode_runs], "nlos_mode_dwell_s": mode_dwell,
                              "nlos_mode_episode_shape": shapes,
                              "n_nlos_episodes": int(_nlos_runs(flags[aid]).size)}
