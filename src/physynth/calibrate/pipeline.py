@@ -300,17 +300,20 @@ def _episode_shape(mode: ModeFit, ep: ModeEpisodes, attempt_period_s: float, bur
     return out
 
 
-def _hmm_mode_dwell(chan: _Channels, aid: str, f: MixtureFit, shapes: list[dict[str, Any]],
+def _hmm_mode_dwell(chan: _Channels, aid: str, f: MixtureFit, shapes: list[dict[str, Any]], short: list[bool],
                     default_s: float) -> dict[str, Any] | None:
-    """Episode lengths of an anchor's exponential NLOS modes by the LOS / NLOS-mode chain (in place).
+    """Episode lengths of an anchor's fragmented NLOS modes by the LOS / NLOS-mode chain (in place).
 
-    Replaces ``dwell_s`` of every mode without fixed-length episodes in ``shapes`` by the maximum-likelihood
-    mean of :func:`fit_mode_dwell` (the run-length estimate, or ``default_s``, is its start and stays in
-    ``dwell_s_runs``); fixed-length modes are held at their length. Returns the fit's diagnostics.
+    A mode whose classified episodes are *short* (at most SHORT_EPISODE_MAX_ROWS rows on average) but
+    not of a fixed length may be a mode close to the LOS peak whose episodes the row classification
+    cuts into fragments: its ``dwell_s`` in ``shapes`` is replaced by the maximum-likelihood mean of
+    :func:`fit_mode_dwell` (the run-length estimate, or ``default_s``, is its start and stays in
+    ``dwell_s_runs``); the other modes are held at their run-length or fixed lengths. Returns the
+    fit's diagnostics (None when no mode qualifies).
     """
     if not f.modes or f.nlos_prob <= 0 or aid not in chan.per_anchor_rows or not chan.per_anchor_t.get(aid):
         return None
-    free = np.array([not sh["fixed_dwell"] for sh in shapes])
+    free = np.array([sh_short and not sh["fixed_dwell"] for sh, sh_short in zip(shapes, short, strict=True)])
     if not free.any():
         return None
     start = np.array([sh["dwell_s"] or default_s for sh in shapes], dtype=float)
@@ -904,7 +907,7 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
         shapes = [_episode_shape(m, short_pool if _is_short(e) else e, periods[aid], 1.0 / burst_rate,
                                  short=_is_short(e))
                   for m, e in zip(f.modes, episodes, strict=True)]
-        hmm_dwell = _hmm_mode_dwell(chan, aid, f, shapes, nlos_dwell)
+        hmm_dwell = _hmm_mode_dwell(chan, aid, f, shapes, [_is_short(e) for e in episodes], nlos_dwell)
         mode_dwell = [sh["dwell_s"] for sh in shapes]
         modes = [NlosMode(weight=rounded(m.weight, 4), mean_m=rounded(m.mean_m, 5), std_m=rounded(m.std_m, 4),
                           dwell_s=None if sh["dwell_s"] is None else rounded(sh["dwell_s"], 4),
