@@ -22,7 +22,11 @@ with no row at all included):
    needs the lengths of the runs of missed attempts; a run cut off by the end of the data (or by
    unobserved attempts) is censored. For long outages this reduces to the exponential MLE
    sum(durations incl. censored) / n_uncensored; for short ones it accounts for outages too short to
-   cover an attempt and for dropouts next to outages.
+   cover an attempt and for dropouts next to outages;
+4. tag outages jointly with the per-anchor outages (:func:`fit_tag_outages`): every dark run of at
+   least TAG_OUTAGE_MIN_S is a tag outage or an overlap of per-anchor outages, decided by EM over the
+   joint likelihood of the per-anchor chains of step 3 and the tag chain; the per-anchor fits are
+   redone with the tag outages unobserved.
 
 A descriptive table of observed outages (runs of >= 2 missed attempts) is reported beside the fit.
 """
@@ -48,7 +52,8 @@ MIN_ATTEMPTS_BEYOND_HORIZON = 30
 OBSERVED_OUTAGE_MIN_MISSES = 2
 """Descriptive outage table: runs of at least this many consecutive missed attempts."""
 TAG_OUTAGE_MIN_S = 1.0
-"""A tag outage lasts at least this long [s] and at least 5 x the longest per-anchor outage mean."""
+"""Dark runs (no in-range anchor heard) at least this long [s] are candidate tag outages; shorter ones are
+left to coincident dropouts and outages (the tag durations are fitted left-truncated here)."""
 
 
 # --------------------------------------------------------------------------------------------------
