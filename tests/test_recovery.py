@@ -6,7 +6,7 @@ seed-to-seed spread at 8 traces of cablecar-descending (relative std over root s
 ``python tools/recovery_check.py cablecar-descending -n 8 --spread-seeds 20``): UWB >= 1 8.1 %,
 UWB >= 2 7.7 %, residual std 2.2 %, median 2.4 %, |r| P95 0.6 %, mean AoI 12.7 % (over seeds 11-14
 only, as measured before, UWB >= 1 gave 3.1 %: four seeds are too few for a standard deviation; the
-fifth, seed 15, lies below all four). Two independent ensembles differ by
+fifth, seed 15, has fewer bursts with an anchor heard than any of them). Two independent ensembles differ by
 sqrt(2) times that; the tolerance is 3 such standard deviations. The tag-outage estimator itself is
 checked more sharply, on many events, in tests/test_tag_outages.py.
 """
