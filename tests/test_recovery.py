@@ -1,11 +1,14 @@
-"""Calibration recovers what generated the data (issue 12 item 6).
+"""Calibration recovers what generated the data.
 
 Generate traces of a cable-car preset, calibrate on them, generate again from the calibrated
 scenario: every metric must land within the seed-to-seed spread of the preset itself. Measured
-seed-to-seed spread at 8 traces of cablecar-descending (relative std over root seeds 11-14,
-``python tools/recovery_check.py cablecar-descending -n 8``): UWB >= 1 3.1 %, UWB >= 2 7.2 %, residual std
-2.9 %, median 1.8 %, |r| P95 0.7 %, mean AoI 6.2 %. Two independent ensembles differ by sqrt(2) times
-that; the tolerance is 3 such standard deviations.
+seed-to-seed spread at 8 traces of cablecar-descending (relative std over root seeds 11-30,
+``python tools/recovery_check.py cablecar-descending -n 8 --spread-seeds 20``): UWB >= 1 8.1 %,
+UWB >= 2 7.7 %, residual std 2.2 %, median 2.4 %, |r| P95 0.6 %, mean AoI 12.7 % (over seeds 11-14
+only, as measured before, UWB >= 1 gave 3.1 %: four seeds are too few for a standard deviation; the
+fifth, seed 15, has fewer bursts with an anchor heard than any of them). Two independent ensembles differ by
+sqrt(2) times that; the tolerance is 3 such standard deviations. The tag-outage estimator itself is
+checked more sharply, on many events, in tests/test_tag_outages.py.
 """
 
 from __future__ import annotations
@@ -19,14 +22,9 @@ from physynth.generate import compile_scenario, generate_trace
 from physynth.io.scenario_file import load_scenario
 
 N = 8
-SEED_SPREAD = {"uwb_ge1_frac": 0.031, "uwb_ge2_frac": 0.072, "residual_std_m": 0.029,
-               "residual_median_m": 0.018, "abs_residual_p95_m": 0.007, "mean_aoi_s": 0.062}
+SEED_SPREAD = {"uwb_ge1_frac": 0.081, "uwb_ge2_frac": 0.077, "residual_std_m": 0.022,
+               "residual_median_m": 0.024, "abs_residual_p95_m": 0.006, "mean_aoi_s": 0.127}
 TOL_PCT = {k: 100.0 * 3.0 * np.sqrt(2.0) * v for k, v in SEED_SPREAD.items()}
-KNOWN_BIASED = ("uwb_ge1_frac",)
-"""Tag outages (mean 20 s) cannot be told apart from overlapping per-anchor outages (mean 16 s, each
-anchor out about half the time) by their length: the calibration finds none, turns them into
-independent per-anchor outages and overestimates UWB >= 1 by ~18 %. Needs a joint model of the
-anchors' outages (docs/calibration.md)."""
 
 
 @pytest.fixture(scope="module")
@@ -41,21 +39,28 @@ def recovered():
     return m_preset, m_recal, res
 
 
-@pytest.mark.parametrize("key", [k for k in SEED_SPREAD if k not in KNOWN_BIASED])
+@pytest.mark.parametrize("key", list(SEED_SPREAD))
 def test_recalibrated_metrics_within_seed_spread(recovered, key):
     m_preset, m_recal, _ = recovered
     dev = relative_deviation_pct(getattr(m_preset, key), getattr(m_recal, key))
     assert dev <= TOL_PCT[key], f"{key}: {dev:.1f} % > {TOL_PCT[key]:.1f} %"
 
 
-@pytest.mark.xfail(strict=True, reason="tag outages not separable from overlapping per-anchor outages")
-@pytest.mark.parametrize("key", KNOWN_BIASED)
-def test_known_biased_metrics(recovered, key):
-    m_preset, m_recal, _ = recovered
-    assert relative_deviation_pct(getattr(m_preset, key), getattr(m_recal, key)) <= TOL_PCT[key]
+def test_tag_outages_recovered(recovered):
+    # the preset's tag outages (0.0006 per burst, mean 20 s) are found beside its per-anchor outages
+    # (mean 16 s, each anchor out about half the time); rate and mean within 3 relative standard errors
+    # (1 / sqrt(n) for n events)
+    _, _, res = recovered
+    av, tag = res.scenario.availability, res.report["availability"]["tag_outages"]
+    assert tag["events"] >= 5
+    assert av.tag_outage_onset_prob == pytest.approx(0.0006, rel=3.0 / np.sqrt(tag["events"]))
+    assert av.tag_outage_mean_s == pytest.approx(20.0, rel=3.0 / np.sqrt(tag["n_outages"]))
 
 
 def test_no_spread_invented(recovered):
-    # the preset has no run-to-run ranging offsets: the calibration may find a few cm of noise, not more
+    # the preset has no run-to-run ranging offsets: the REML spreads are not told from 0 (likelihood ratio
+    # against no spread below the threshold), so none is generated
     _, _, res = recovered
-    assert res.scenario.uwb.run_offset_std_m < 0.05
+    off = res.report["run_offsets"]
+    assert off["identifiable"] and not off["significant"]
+    assert res.scenario.uwb.run_offset_std_m == 0.0 and res.scenario.uwb.run_anchor_offset_std_m == 0.0

@@ -22,7 +22,11 @@ with no row at all included):
    needs the lengths of the runs of missed attempts; a run cut off by the end of the data (or by
    unobserved attempts) is censored. For long outages this reduces to the exponential MLE
    sum(durations incl. censored) / n_uncensored; for short ones it accounts for outages too short to
-   cover an attempt and for dropouts next to outages.
+   cover an attempt and for dropouts next to outages;
+4. tag outages jointly with the per-anchor outages (:func:`fit_tag_outages`): every dark run of at
+   least TAG_OUTAGE_MIN_S is a tag outage or an overlap of per-anchor outages, decided by EM over the
+   joint likelihood of the per-anchor chains of step 3 and the tag chain; the per-anchor fits are
+   redone with the tag outages unobserved.
 
 A descriptive table of observed outages (runs of >= 2 missed attempts) is reported beside the fit.
 """
@@ -48,7 +52,8 @@ MIN_ATTEMPTS_BEYOND_HORIZON = 30
 OBSERVED_OUTAGE_MIN_MISSES = 2
 """Descriptive outage table: runs of at least this many consecutive missed attempts."""
 TAG_OUTAGE_MIN_S = 1.0
-"""A tag outage lasts at least this long [s] and at least 5 x the longest per-anchor outage mean."""
+"""Dark runs (no in-range anchor heard) at least this long [s] are candidate tag outages; shorter ones are
+left to coincident dropouts and outages (the tag durations are fitted left-truncated here)."""
 
 
 # --------------------------------------------------------------------------------------------------
@@ -301,8 +306,12 @@ def _from_rates(lam: float, mean_s: float, period_s: float) -> tuple[float, floa
     return lam / s * f, nu / s * f
 
 
-def fit_dropout_outage(stats: RunStats, period_s: float, burst_rate_hz: float) -> dict[str, Any]:
-    """ML dropout probability, outage onset per burst and outage mean from run-length statistics."""
+def fit_dropout_outage(stats: RunStats, period_s: float, burst_rate_hz: float,
+                       start: dict[str, Any] | None = None) -> dict[str, Any]:
+    """ML dropout probability, outage onset per burst and outage mean from run-length statistics.
+
+    ``start``: an earlier fit of the same anchor (on slightly different data) to start the search from.
+    """
     runs = stats.arrays()
     n_att, n_heard = stats.n_attempts, stats.n_heard
     out: dict[str, Any] = {"n_attempts": n_att, "n_heard": n_heard, "attempt_period_s": period_s}
@@ -319,8 +328,12 @@ def fit_dropout_outage(stats: RunStats, period_s: float, burst_rate_hz: float) -
         return -_hmm_loglik(al, be, pd, runs)
 
     best = None
-    for a0, b0, d0 in ((0.01, 0.3, 0.5 * miss_frac), (0.001, 0.05, 0.8 * miss_frac), (0.05, 0.6, 0.1 * miss_frac),
-                       (1e-4, 0.005, 0.5 * miss_frac)):  # a few starts of a 3-parameter optimisation
+    starts = [(0.01, 0.3, 0.5 * miss_frac), (0.001, 0.05, 0.8 * miss_frac), (0.05, 0.6, 0.1 * miss_frac),
+              (1e-4, 0.005, 0.5 * miss_frac)]
+    if start is not None and start.get("identifiable") and start.get("outage_onset_prob", 0.0) > 0:
+        a0, b0 = _from_rates(start["outage_onset_prob"] * burst_rate_hz, start["outage_mean_s"], period_s)
+        starts = [(a0, b0, start["dropout_prob"]), starts[0]]
+    for a0, b0, d0 in starts:  # a few starts of a 3-parameter optimisation
         x0 = logit(np.clip([a0, b0, d0], 1e-6, 1 - 1e-6))
         res = minimize(nll, x0, method="Nelder-Mead", options={"xatol": 1e-7, "fatol": 1e-9, "maxiter": 4000})
         if best is None or res.fun < best.fun:
@@ -382,18 +395,319 @@ def _hmm_standard_errors(pd: float, onset: float, mean_s: float, period_s: float
 
 
 def _dark_runs(tab: AttemptTable, in_range: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Runs of bursts where no anchor is heard although at least one is in link range.
+    """Runs of bursts where no anchor is heard, each with at least one burst where an anchor is in range.
 
-    Returns (start index, end index exclusive, censored) of each run.
+    Bursts without any in-range attempt do not end a run (they say nothing about the tag). Returns
+    (start index, end index exclusive, censored) of each run; censored runs touch the data's ends.
     """
     any_heard = tab.heard.any(axis=1)
     any_in = (in_range & tab.attempted).any(axis=1)
-    dark = ~any_heard & any_in
-    x = np.concatenate([[0], dark.astype(np.int8), [0]])
+    x = np.concatenate([[0], (~any_heard).astype(np.int8), [0]])
     d = np.diff(x)
     s, e = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
-    cens = (s == 0) | (e == dark.size)
+    n_in = np.concatenate([[0], np.cumsum(any_in & ~any_heard)])
+    keep = n_in[e] > n_in[s]
+    s, e = s[keep], e[keep]
+    cens = (s == 0) | (e == any_heard.size)
     return s, e, cens
+
+
+@dataclass(frozen=True, slots=True)
+class AnchorSequence:
+    """One anchor's attempts in one trace: burst index of each attempt, code 1 heard / 0 missed / -1 out of range."""
+
+    trace: int
+    anchor_id: str
+    burst: np.ndarray
+    code: np.ndarray
+
+
+def _anchor_sequences(trace_anchor_ids: Sequence[Sequence[str]], tabs: Sequence[AttemptTable],
+                      in_range: Sequence[np.ndarray]) -> list[AnchorSequence]:
+    out = []
+    for i, (ids, tab, ok) in enumerate(zip(trace_anchor_ids, tabs, in_range, strict=True)):
+        for j, aid in enumerate(ids):  # one pass per anchor
+            att = np.flatnonzero(tab.attempted[:, j])
+            code = np.where(ok[att, j], np.where(tab.heard[att, j], 1, 0), -1).astype(np.int8)
+            out.append(AnchorSequence(trace=i, anchor_id=aid, burst=att, code=code))
+    return out
+
+
+def _log_vbw(b: np.ndarray, v: np.ndarray, w: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """log(v B^m w) for a non-negative 2x2 matrix B and integer powers m (N,), in log space (no underflow)."""
+    m = np.asarray(m, dtype=float)
+    tr, det = np.trace(b), np.linalg.det(b)
+    disc = max(tr * tr / 4.0 - det, 0.0)
+    l1, l2 = tr / 2.0 + np.sqrt(disc), tr / 2.0 - np.sqrt(disc)  # l1 >= |l2| (Perron-Frobenius)
+    vw, vbw = float(v @ w), float(v @ b @ w)
+    l1 = max(l1, 1e-300)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if l1 - l2 < 1e-9 * l1:  # repeated eigenvalue: v B^m w = l^(m-1) (m vBw - (m-1) l vw)
+            val = np.where(m == 0, vw, (m * vbw - (m - 1) * l1 * vw) / l1)
+        else:
+            r = l2 / l1
+            c1, c2 = (vbw - l2 * vw) / (l1 - l2), (l1 * vw - vbw) / (l1 - l2)
+            val = c1 + c2 * np.sign(r) ** m * np.abs(r) ** m
+        return m * np.log(l1) + np.log(np.maximum(val, 1e-300))
+
+
+def _run_logp(alpha: float, beta: float, pd: float, kind: str, m: np.ndarray) -> np.ndarray:
+    """Log-probability of runs of m missed attempts of one anchor (the kinds of :class:`RunStats`).
+
+    internal: heard, m misses, heard (the first heard not counted); leading: block start, m misses,
+    heard; trailing: heard, m misses, block end; full: block start, m misses, block end (m = 0: no block).
+    """
+    a, dm, dh, pi = _chain(alpha, beta, pd)
+    b = a @ dm
+    up, one = np.array([1.0, 0.0]), np.ones(2)
+    m = np.asarray(m, dtype=np.int64)
+    mm1 = np.maximum(m - 1, 0)
+    if kind == "internal":
+        return _log_vbw(b, up, a @ dh, m)
+    if kind == "trailing":
+        return _log_vbw(b, up, one, m)
+    if kind == "leading":
+        return np.where(m == 0, np.log(max(float(pi @ dh), 1e-300)), _log_vbw(b, pi @ dm, a @ dh, mm1))
+    if kind == "full":
+        return np.where(m == 0, 0.0, _log_vbw(b, pi @ dm, one, mm1))
+    raise ValueError(kind)
+
+
+def _chain_of_fit(fit: dict[str, Any], burst_rate_hz: float) -> tuple[float, float, float]:
+    """(alpha, beta, dropout) per attempt interval of a per-anchor fit (alpha = 0: no outages)."""
+    pd = float(np.clip(fit.get("dropout_prob", 0.0), 1e-9, 1 - 1e-9))
+    if fit.get("identifiable") and fit.get("outage_onset_prob", 0.0) > 0 and fit.get("outage_mean_s"):
+        al, be = _from_rates(fit["outage_onset_prob"] * burst_rate_hz, fit["outage_mean_s"], fit["attempt_period_s"])
+        return al, be, pd
+    return 0.0, 1.0, pd
+
+
+def _anchor_log_odds(seq: AnchorSequence, s: np.ndarray, e: np.ndarray, masked: np.ndarray,
+                     chain: tuple[float, float, float]) -> np.ndarray:
+    """log P(anchor's attempts | dark run k is a tag outage) - log P(... | it is not), for every run k.
+
+    A tag outage makes the anchor's attempts inside it unobserved: the anchor's run of misses through
+    the dark run splits into a trailing run (censored by the tag outage) and a leading run after it
+    (the chain restarts from its stationary state, as after any unobserved stretch). ``masked`` (bursts)
+    marks the dark runs currently attributed to the tag: they bound the anchor's runs of misses.
+    An anchor out of link range during part of run k says nothing about it (0).
+    """
+    burst, code0 = seq.burst, seq.code
+    code = np.where(masked[burst], -1, code0)
+    ps, pe = np.searchsorted(burst, s), np.searchsorted(burst, e)  # its attempts inside [s, e)
+    oor = np.concatenate([[0], np.cumsum(code0 == -1)])
+    use = (pe > ps) & (oor[pe] == oor[ps])
+    nz = np.flatnonzero(code != 0)
+    n = code.size
+    ip = np.searchsorted(nz, ps) - 1
+    has_prev = ip >= 0
+    prev = np.where(has_prev, nz[np.maximum(ip, 0)] if nz.size else -1, -1)
+    left_heard = has_prev & (code[np.maximum(prev, 0)] == 1)
+    m1 = ps - prev - 1
+    inx = np.searchsorted(nz, pe)
+    has_next = inx < nz.size
+    nxt = np.where(has_next, nz[np.minimum(inx, nz.size - 1)] if nz.size else n, n)
+    right_heard = has_next & (code[np.minimum(nxt, n - 1)] == 1)
+    m2 = nxt - pe
+    m0 = m1 + (pe - ps) + m2
+    al, be, pd = chain
+    out = np.zeros(s.size)
+    for lh in (False, True):  # the four kinds of the run through the dark run, and its two pieces
+        for rh in (False, True):
+            sel = use & (left_heard == lh) & (right_heard == rh)
+            if not sel.any():
+                continue
+            kind0 = {(True, True): "internal", (True, False): "trailing", (False, True): "leading",
+                     (False, False): "full"}[(lh, rh)]
+            ll0 = _run_logp(al, be, pd, kind0, m0[sel])
+            ll1 = (_run_logp(al, be, pd, "trailing" if lh else "full", m1[sel])
+                   + _run_logp(al, be, pd, "leading" if rh else "full", m2[sel]))
+            out[sel] = ll1 - ll0
+    return out
+
+
+def _tag_log_odds(s: np.ndarray, e: np.ndarray, n_bursts: int, alpha: float, beta: float) -> np.ndarray:
+    """log P(tag off exactly over [s, e), up around it) - log P(tag up throughout), per burst-grid run."""
+    length = e - s
+    lo_a, lo_1a = np.log(max(alpha, 1e-300)), np.log1p(-min(alpha, 1 - 1e-12))
+    lo_b, lo_1b = np.log(max(beta, 1e-300)), np.log1p(-min(beta, 1 - 1e-12))
+    pi_off = alpha / (alpha + beta)
+    left1 = np.where(s > 0, lo_a, np.log(max(pi_off, 1e-300)))
+    right1 = np.where(e < n_bursts, lo_b, 0.0)
+    ll1 = left1 + (length - 1) * lo_1b + right1
+    n_trans = length + 1 - (s == 0) - (e == n_bursts)
+    ll0 = n_trans * lo_1a + np.where(s > 0, 0.0, np.log1p(-min(pi_off, 1 - 1e-12)))
+    return ll1 - ll0
+
+
+def _tag_m_step(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarray, ...]], w: list[np.ndarray],
+                period: float) -> dict[str, Any]:
+    """Exponential tag outages seen only above TAG_OUTAGE_MIN_S: onset rate and mean of the dark runs.
+
+    ``w`` weights each dark run by the probability that it is a tag outage (0 or 1 for a hard split).
+    """
+    d_min = TAG_OUTAGE_MIN_S
+    dur = np.concatenate([(e - s) * period for s, e, _ in dark])
+    cens = np.concatenate([c for _, _, c in dark])
+    wt = np.concatenate(w).astype(float)
+    hard = wt > 0.5
+    up_bursts = float(sum(t.t_s.size for t in tabs) - np.sum(wt * dur / period))
+    out: dict[str, Any] = {"min_duration_s": d_min, "n_outages": int((hard & ~cens).sum()),
+                           "n_censored": int((hard & cens).sum()), "events": float(wt.sum()),
+                           "up_bursts": up_bursts, "effective_up_bursts": up_bursts,
+                           "durations_s": dur[hard & ~cens].tolist(), "censored_s": dur[hard & cens].tolist()}
+    if wt.sum() < 0.5:
+        out["onset_prob"] = 0.0
+        return out
+    # exponential durations seen only above d_min: the excess D - d_min is exponential with the same mean,
+    # and only a share exp(-d_min / mean) of the outages is long enough to be attributed
+    mean_s = max(float(np.sum(wt * (dur - d_min).clip(0))) / max(float(np.sum(wt[~cens])), 0.5), period)
+    seen = float(np.exp(-d_min / mean_s))
+    out.update(mean_s=mean_s, effective_up_bursts=up_bursts * seen,
+               onset_prob=float(wt.sum() / max(up_bursts * seen, 1)))
+    return out
+
+
+def _masks(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarray, ...]],
+           z: list[np.ndarray]) -> list[np.ndarray]:
+    """Bursts inside the dark runs flagged in ``z``, per trace."""
+    masks = []
+    for tab, (s, e, _), zz in zip(tabs, dark, z, strict=True):
+        m = np.zeros(tab.t_s.size + 1, dtype=np.int64)
+        np.add.at(m, s[zz], 1)
+        np.add.at(m, e[zz], -1)
+        masks.append(np.cumsum(m)[:-1] > 0)
+    return masks
+
+
+TAG_EM_MAX_ITER = 30
+"""EM iterations of the tag attribution (it stops when no attribution and no tag parameter changes)."""
+TAG_EM_RTOL = 1e-3
+"""Relative change of the tag onset and mean below which the EM has converged."""
+TAG_LR_MIN = 10.0
+"""Likelihood-ratio statistic a tag process needs over independent per-anchor outages alone."""
+
+
+def fit_tag_outages(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarray, ...]],
+                    seqs: Sequence[AnchorSequence], fits: dict[str, dict[str, Any]],
+                    refit: Any, burst_rate_hz: float) -> tuple[dict[str, Any], list[np.ndarray], Any, Any]:
+    """Tag outages and per-anchor outages jointly: which dark runs are tag outages (EM).
+
+    Model: every anchor alternates up/outage on its own (the per-anchor chain of
+    :func:`fit_dropout_outage`); a tag process of the same kind, on the burst grid, silences every
+    anchor while it lasts. A *dark run* (no anchor heard, >= TAG_OUTAGE_MIN_S) is either a tag outage
+    or an overlap of per-anchor outages. E-step: for each dark run the log-odds of the two, the tag
+    chain's term (off exactly over the run vs up throughout) plus, per anchor in link range over the
+    run, the exact likelihood of its run of misses through the dark run whole (no tag outage) or cut
+    by it (tag outage); its posterior probability of being a tag outage is expit(log-odds). M-step:
+    tag onset and mean from the dark runs weighted by that probability (left-truncated at
+    TAG_OUTAGE_MIN_S); per-anchor fits with the runs of probability > 0.5 unobserved (``refit``, only
+    when that set changes). Starts from every dark run attributed to the tag. The tag process is kept
+    when the classification likelihood (tag chain plus per-anchor fits, runs split at 0.5) beats the
+    per-anchor fits alone by TAG_LR_MIN. Returns (tag report, excluded bursts per trace, per-anchor
+    stats, per-anchor fits); per-anchor stats are None when no tag process is kept.
+    """
+    period = 1.0 / burst_rate_hz
+    d_min_bursts = TAG_OUTAGE_MIN_S * burst_rate_hz - 1e-9
+    cand = [(e - s) >= d_min_bursts for s, e, _ in dark]
+    no_ex = [np.zeros(t.t_s.size, dtype=bool) for t in tabs]
+    n_cand = int(sum(c.sum() for c in cand))
+    ll_indep = float(sum(f.get("log_likelihood", 0.0) for f in fits.values()))
+    if not n_cand:
+        tag = _tag_m_step(tabs, dark, [np.zeros(c.size) for c in cand], period)
+        tag["note"] = f"no run of >= {TAG_OUTAGE_MIN_S:.3g} s without any in-range anchor: no tag outage"
+        return tag, no_ex, None, None
+    w = [c.astype(float) for c in cand]
+    z = [c.copy() for c in cand]
+    z_fitted: list[np.ndarray] | None = None
+    history: list[float] = []
+    cur_fits, stats_t, prev = fits, None, None
+    masks = no_ex
+    for _ in range(TAG_EM_MAX_ITER):
+        # M-step: per-anchor fits when the set of tag outages changed, tag process from the weights
+        if z_fitted is None or not all(np.array_equal(a, b) for a, b in zip(z, z_fitted, strict=True)):
+            masks = _masks(tabs, dark, z)
+            if any(zz.any() for zz in z):
+                stats_t, cur_fits = refit(masks, cur_fits)
+            else:
+                stats_t, cur_fits = None, fits
+            z_fitted = [zz.copy() for zz in z]
+        tag = _tag_m_step(tabs, dark, w, period)
+        history.append(round(tag["events"], 2))
+        if not tag["onset_prob"]:
+            break
+        par = np.array([tag["onset_prob"], tag["mean_s"]])
+        if prev is not None and np.all(np.abs(par - prev) <= TAG_EM_RTOL * prev):
+            break
+        prev = par
+        al_t, be_t = _from_rates(tag["onset_prob"] * burst_rate_hz, tag["mean_s"], period)
+        # E-step
+        chains = {a: _chain_of_fit(f, burst_rate_hz) for a, f in cur_fits.items()}
+        odds = [_tag_log_odds(s, e, tab.t_s.size, al_t, be_t) for tab, (s, e, _) in zip(tabs, dark, strict=True)]
+        for sq in seqs:  # one pass per anchor and trace
+            s, e, _ = dark[sq.trace]
+            odds[sq.trace] += _anchor_log_odds(sq, s, e, masks[sq.trace], chains[sq.anchor_id])
+        w = [np.where(c, expit(o), 0.0) for o, c in zip(odds, cand, strict=True)]
+        z = [ww > 0.5 for ww in w]
+    n_tag = int(sum(zz.sum() for zz in z_fitted or z))
+    ll_tag = 0.0
+    if n_tag and tag["onset_prob"]:
+        al_t, be_t = _from_rates(tag["onset_prob"] * burst_rate_hz, tag["mean_s"], period)
+        # tag chain: up -> up on every transition, plus each attributed run's log-odds against staying up
+        ll_tag = float(sum((tab.t_s.size - 1) * np.log1p(-al_t) + np.sum(_tag_log_odds(s[zz], e[zz], tab.t_s.size,
+                                                                                        al_t, be_t))
+                           for tab, (s, e, _), zz in zip(tabs, dark, z_fitted or z, strict=True)))
+    ll_joint = float(sum(f.get("log_likelihood", 0.0) for f in cur_fits.values())) + ll_tag
+    lr = 2.0 * (ll_joint - ll_indep) if n_tag else 0.0
+    tag.update(method=("EM over the dark runs (no in-range anchor heard) of at least min_duration_s: each is a tag "
+                       "outage or an overlap of per-anchor outages, by the joint likelihood of the per-anchor "
+                       "up/outage chains and the tag chain; exponential tag durations truncated at min_duration_s; "
+                       "events = sum of the runs' tag probabilities"),
+               n_candidates=n_cand, em_iterations=len(history), events_per_iteration=history,
+               lr_statistic=float(lr))
+    if n_tag == 0 or lr < TAG_LR_MIN:
+        tag = _tag_m_step(tabs, dark, [np.zeros(c.size) for c in cand], period)
+        tag.update(n_candidates=n_cand, lr_statistic=float(lr),
+                   note=(f"{n_cand} dark runs of >= {TAG_OUTAGE_MIN_S:.3g} s, explained by overlapping per-anchor "
+                         f"outages (tag process LR {lr:.1f} < {TAG_LR_MIN:g}): no tag outage"))
+        return tag, no_ex, None, None
+    return tag, masks, stats_t, cur_fits
+
+
+def fit_outages(tabs: Sequence[AttemptTable], in_range: Sequence[np.ndarray], trace_anchor_ids: Sequence[Sequence[str]],
+                anchor_ids: Sequence[str], att_period: dict[str, float],
+                burst_rate_hz: float) -> tuple[dict[str, RunStats], dict[str, dict[str, Any]], dict[str, Any]]:
+    """Dropout and outages per anchor and tag outages, jointly, from attempt tables (pooled over traces).
+
+    ``in_range[i]`` (bursts x anchors of trace i) marks attempts inside link range, ``trace_anchor_ids[i]``
+    names the columns of trace i, ``att_period`` is each anchor's mean attempt interval [s]. Returns the
+    per-anchor run statistics and fits (with the tag outages unobserved when a tag process is kept) and the
+    tag report (:func:`fit_tag_outages`).
+    """
+    def per_anchor_runs(exclude: list[np.ndarray]) -> dict[str, RunStats]:
+        stats = {a: RunStats() for a in anchor_ids}
+        for ids, tab, ok, ex in zip(trace_anchor_ids, tabs, in_range, exclude, strict=True):
+            for j, aid in enumerate(ids):  # one pass per anchor
+                att = tab.attempted[:, j]
+                code = np.where(tab.heard[:, j], 1, 0)
+                code = np.where(ok[:, j] & ~ex, code, -1)[att]
+                add_runs(stats[aid], tab.t_s[att], code)
+        return stats
+
+    stats = per_anchor_runs([np.zeros(t.t_s.size, dtype=bool) for t in tabs])
+    fits = {a: fit_dropout_outage(stats[a], att_period[a], burst_rate_hz) for a in anchor_ids}
+    dark = [_dark_runs(tab, ok) for tab, ok in zip(tabs, in_range, strict=True)]
+    seqs = _anchor_sequences(trace_anchor_ids, tabs, in_range)
+
+    def refit(excl: list[np.ndarray], prev: dict[str, dict[str, Any]]) -> tuple[dict[str, RunStats], dict]:
+        st = per_anchor_runs(excl)
+        return st, {a: fit_dropout_outage(st[a], att_period[a], burst_rate_hz, start=prev.get(a))
+                    for a in anchor_ids}
+
+    tag, _, stats_t, fits_t = fit_tag_outages(tabs, dark, seqs, fits, refit, burst_rate_hz)
+    if tag.get("onset_prob", 0.0) > 0:
+        stats, fits = stats_t, fits_t
+    return stats, fits, tag
 
 
 def fit_availability(traces: Sequence[Trace], offset_s: float, burst_rate_hz: float,
@@ -430,57 +744,9 @@ def fit_availability(traces: Sequence[Trace], offset_s: float, burst_rate_hz: fl
                 ok[:, j] &= r_all[:, j] <= lim
         in_range.append(ok)
 
-    def per_anchor_runs(exclude: list[np.ndarray]) -> dict[str, RunStats]:
-        stats = {a: RunStats() for a in anchor_ids}
-        for tr, tab, ok, ex in zip(traces, tabs, in_range, exclude, strict=True):
-            for j, aid in enumerate(tr.anchors.ids):
-                att = tab.attempted[:, j]
-                code = np.where(tab.heard[:, j], 1, 0)
-                code = np.where(ok[:, j] & ~ex, code, -1)[att]
-                add_runs(stats[aid], tab.t_s[att], code)
-        return stats
-
-    no_ex = [np.zeros(t.t_s.size, dtype=bool) for t in tabs]
-    stats = per_anchor_runs(no_ex)
     att_period = {a: period * burst_count[a] / max(att_count[a], 1) for a in anchor_ids}
-    fits = {a: fit_dropout_outage(stats[a], att_period[a], burst_rate_hz) for a in anchor_ids}
-    # tag-level outages: long runs of bursts where no in-range anchor is heard
-    longest = max([f["outage_mean_s"] for f in fits.values() if f.get("outage_mean_s")] or [0.0])
-    tag_min_s = max(TAG_OUTAGE_MIN_S, 5.0 * longest)
-    tag_durations, tag_censored, excl = [], [], []
-    up_bursts = 0
-    for tab, ok in zip(tabs, in_range, strict=True):
-        s, e, cens = _dark_runs(tab, ok)
-        dur = (e - s) * period
-        long = dur >= tag_min_s
-        ex = np.zeros(tab.t_s.size, dtype=bool)
-        for a, b in zip(s[long], e[long], strict=True):  # a handful of long dark runs
-            ex[a:b] = True
-        excl.append(ex)
-        tag_durations.append(dur[long & ~cens])
-        tag_censored.append(dur[long & cens])
-        up_bursts += int((~ex).sum())
-    td, tc = np.concatenate(tag_durations), np.concatenate(tag_censored)
-    tag: dict[str, Any] = {"min_duration_s": tag_min_s, "n_outages": int(td.size), "n_censored": int(tc.size),
-                           "up_bursts": up_bursts, "effective_up_bursts": float(up_bursts),
-                           "durations_s": td.tolist(), "censored_s": tc.tolist()}
-    if td.size + tc.size:
-        # exponential durations seen only above the threshold d: the excess D - d is exponential with
-        # the same mean, and only a share exp(-d / mean) of the outages is long enough to be seen
-        excess = float((td - tag_min_s).clip(0).sum() + (tc - tag_min_s).clip(0).sum())
-        mean_s = max(excess / max(td.size, 1), period)
-        seen = float(np.exp(-tag_min_s / mean_s))
-        tag["effective_up_bursts"] = up_bursts * seen
-        tag["onset_prob"] = float((td.size + tc.size) / max(up_bursts * seen, 1))
-        tag["mean_s"] = mean_s
-        tag["method"] = ("dark runs (no in-range anchor heard) of at least min_duration_s; exponential durations "
-                         "truncated at min_duration_s: mean = sum(durations - min incl. censored) / n_uncensored, "
-                         "onset = n / (up bursts x exp(-min / mean))")
-        stats = per_anchor_runs(excl)
-        fits = {a: fit_dropout_outage(stats[a], att_period[a], burst_rate_hz) for a in anchor_ids}
-    else:
-        tag["onset_prob"] = 0.0
-        tag["note"] = f"no run of >= {tag_min_s:.3g} s without any in-range anchor: no tag outage"
+    stats, fits, tag = fit_outages(tabs, in_range, [tr.anchors.ids for tr in traces], anchor_ids, att_period,
+                                   burst_rate_hz)
     for a in anchor_ids:
         st = stats[a]
         dur = np.concatenate(st.durations_s) if st.durations_s else np.zeros(0)

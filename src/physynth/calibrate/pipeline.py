@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
+from scipy.optimize import minimize
 
 from .. import __version__
 from ..models.availability import AvailabilityOverride, RatePosterior, gamma_rate_posterior
@@ -67,6 +68,7 @@ from .uwb_fit import (
     Residuals,
     corrected_residuals,
     fit_burst_schedule,
+    fit_mode_dwell,
     fit_time_offset,
     select_mixture,
 )
@@ -298,6 +300,38 @@ def _episode_shape(mode: ModeFit, ep: ModeEpisodes, attempt_period_s: float, bur
     return out
 
 
+def _hmm_mode_dwell(chan: _Channels, aid: str, f: MixtureFit, shapes: list[dict[str, Any]], short: list[bool],
+                    default_s: float) -> dict[str, Any] | None:
+    """Episode lengths of an anchor's fragmented NLOS modes by the LOS / NLOS-mode chain (in place).
+
+    A mode whose classified episodes are *short* (at most SHORT_EPISODE_MAX_ROWS rows on average) but
+    not of a fixed length may be a mode close to the LOS peak whose episodes the row classification
+    cuts into fragments: its ``dwell_s`` in ``shapes`` is replaced by the maximum-likelihood mean of
+    :func:`fit_mode_dwell` (the run-length estimate, or ``default_s``, is its start and stays in
+    ``dwell_s_runs``); the other modes are held at their run-length or fixed lengths. Returns the
+    fit's diagnostics (None when no mode qualifies).
+    """
+    if not f.modes or f.nlos_prob <= 0 or aid not in chan.per_anchor_rows or not chan.per_anchor_t.get(aid):
+        return None
+    free = np.array([sh_short and not sh["fixed_dwell"] for sh, sh_short in zip(shapes, short, strict=True)])
+    if not free.any():
+        return None
+    start = np.array([sh["dwell_s"] or default_s for sh in shapes], dtype=float)
+    ra, ga, _ = chan.per_anchor_rows[aid]
+    ts = chan.per_anchor_t[aid]
+    sizes = np.array([x.size for x in ts])
+    new_run = np.zeros(ra.size, dtype=bool)
+    first = np.cumsum(np.concatenate([[0], sizes[:-1]]))[sizes > 0]
+    new_run[first] = True
+    out = fit_mode_dwell(ra, ga, np.concatenate(ts), new_run, f, start, free)
+    for sh, tau, fr in zip(shapes, out["dwell_s"], free, strict=True):
+        if fr:
+            sh["dwell_s_runs"] = sh["dwell_s"]
+            sh["dwell_s"] = float(tau)
+    return {**out, "dwell_s": out["dwell_s"].tolist(), "start_s": start.tolist(), "free": free.tolist(),
+            "method": "ML of the LOS / NLOS-mode Markov chain with the mixture densities as emissions"}
+
+
 def _dwell_from_runs(lengths: np.ndarray, period_s: float) -> float | None:
     """Mean NLOS episode [s] from run lengths n >= 1 of samples every ``period_s`` (geometric MLE)."""
     if lengths.size == 0:
@@ -323,6 +357,7 @@ class _Channels:
     flags: dict[str, list[np.ndarray]]
     per_anchor_rows: dict[str, AnchorRows]
     notes: list[str]
+    per_anchor_t: dict[str, list[np.ndarray]] = field(default_factory=dict)  # row times per run
 
     def los_masks(self) -> dict[str, np.ndarray]:
         return {a: self.mix[a].nlos_resp < 0.5 for a in self.per_anchor_rows}
@@ -359,9 +394,10 @@ def _fit_channels(trs: Sequence[Trace], offset: float, ids: Sequence[str], fixed
     mix_diag: dict[str, Any] = {}
     flags: dict[str, list[np.ndarray]] = {}
     rows: dict[str, AnchorRows] = {}
+    times: dict[str, list[np.ndarray]] = {}
     notes: list[str] = []
     for aid in ids:  # one mixture per anchor (one physical device), pooled over the runs
-        parts = [(r.residual_m[m], r.range_m[m], r.range_rate_mps[m])
+        parts = [(r.residual_m[m], r.range_m[m], r.range_rate_mps[m], r.t_s[m])
                  for t, r in zip(trs, res, strict=True) if aid in t.anchors.ids
                  for m in [r.anchor == t.anchors.index(aid)]]
         sizes = [p[0].size for p in parts]
@@ -388,8 +424,9 @@ def _fit_channels(trs: Sequence[Trace], offset: float, ids: Sequence[str], fixed
         bounds = np.cumsum([0] + sizes)
         flags[aid] = [f.nlos_resp[a:b] > 0.5 for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
         rows[aid] = (ra, ga, np.concatenate([p[2] for p in parts]))
+        times[aid] = [p[3] for p in parts]
     return _Channels(pooled_r=pooled_r, pooled_fit=pooled_fit, pooled_sel=pooled_sel, mix=mix, mix_diag=mix_diag,
-                     flags=flags, per_anchor_rows=rows, notes=notes)
+                     flags=flags, per_anchor_rows=rows, notes=notes, per_anchor_t=times)
 
 
 def refine_time_offset(rows: dict[str, AnchorRows], los: dict[str, np.ndarray]) -> dict[str, Any] | None:
@@ -430,18 +467,82 @@ def refine_time_offset(rows: dict[str, AnchorRows], los: dict[str, np.ndarray]) 
             "sensitivity": sens}
 
 
+RUN_OFFSET_MAX_BLOCKS = 10
+"""Sampling variance of a run's mean LOS residual: batch means over at most this many blocks in time."""
+RUN_OFFSET_BLOCK_ROWS = 50
+"""... of at least this many rows each (at least two blocks)."""
+RUN_OFFSET_LR_MIN = 10.0
+"""REML likelihood-ratio statistic (spreads vs none) below which both run-to-run spreads are 0."""
+
+
+def _batch_mean_var(x: np.ndarray, floor: float) -> float:
+    """Variance of the mean of ``x`` (rows in time order) from the scatter of its block means.
+
+    Slow error components (NLOS episodes, misclassified rows) make it larger than sigma^2 / n; the
+    block means see them, up to the block length. At least ``floor``.
+    """
+    b = int(np.clip(x.size // RUN_OFFSET_BLOCK_ROWS, 2, RUN_OFFSET_MAX_BLOCKS))
+    means = np.array([blk.mean() for blk in np.array_split(x, b)])  # b <= 10 blocks
+    return max(float(means.var(ddof=1)) / b, floor)
+
+
+def _reml_two_way(y: np.ndarray, anchor: np.ndarray, run: np.ndarray,
+                  v: np.ndarray) -> tuple[float, float, np.ndarray, np.ndarray]:
+    """REML of y = mu_anchor + u_run + e_cell + eps, u ~ N(0, s_r), e ~ N(0, s_e), eps ~ N(0, v) known.
+
+    Returns (s_r, s_e, BLUP of u_run + e_cell per cell, the REML profile at the optimum's corners).
+    """
+    n_a, n_r = int(anchor.max()) + 1, int(run.max()) + 1
+    x = np.eye(n_a)[anchor]
+    z = np.eye(n_r)[run]
+    zz = z @ z.T
+    scale = float(np.mean(v) + np.var(y))
+
+    def parts(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        vm = scale * (q[0] * zz + np.diag(q[1] + v / scale))
+        return vm, np.linalg.inv(vm)
+
+    def nll(q: np.ndarray) -> float:
+        vm, vi = parts(q)
+        xtvx = x.T @ vi @ x
+        p = vi - vi @ x @ np.linalg.solve(xtvx, x.T @ vi)
+        return 0.5 * float(np.linalg.slogdet(vm)[1] + np.linalg.slogdet(xtvx)[1] + y @ p @ y)
+
+    best = None
+    for q0 in ((0.1, 0.1), (1.0, 0.01), (0.01, 1.0), (1e-4, 1e-4)):  # a few starts of a 2-parameter search
+        res = minimize(nll, np.array(q0), method="L-BFGS-B", bounds=[(0.0, 1e3), (0.0, 1e3)])
+        if best is None or res.fun < best.fun:
+            best = res
+    q = best.x
+    vm, vi = parts(q)
+    beta = np.linalg.solve(x.T @ vi @ x, x.T @ vi @ y)
+    cov_re = scale * (q[0] * zz + q[1] * np.eye(y.size))
+    blup = cov_re @ vi @ (y - x @ beta)
+    profile = np.array([nll(np.array([0.0, 0.0])), nll(np.array([q[0], 0.0])), nll(np.array([0.0, q[1]])),
+                        float(best.fun)])
+    return float(scale * q[0]), float(scale * q[1]), blup, profile
+
+
 def run_offset_table(trs: Sequence[Trace], labels: Sequence[str], chan: _Channels) -> tuple[RunOffsets, dict[str, Any]]:
     """Per-run LOS ranging offsets of every anchor and their run-to-run spreads (random effects).
 
     For run r and anchor a, d_ra is the mean LOS residual of the run (rows the anchor's mixture calls
-    LOS, posterior NLOS probability < 0.5, after its range-proportional bias) minus the mean of d_ra
-    over the runs that have the anchor. A two-way method-of-moments split of the table gives the
-    spread of an offset common to every anchor of a run (``run_offset_std_m``: the truth system or the
-    tag antenna moved) and of the per-anchor remainder (``run_anchor_offset_std_m``: an anchor
-    re-placed and re-surveyed). Each d_ra carries a sampling variance, estimated from the difference
-    of its two halves in time (at least sigma_LOS^2 / n_ra), that is subtracted.
+    LOS, posterior NLOS probability < 0.5, after its range-proportional bias). Model:
+    d_ra = mu_a + u_r + e_ra + eps_ra, with an offset u_r common to every anchor of a run
+    (``run_offset_std_m``: the truth system or the tag antenna moved), a per-anchor remainder e_ra
+    (``run_anchor_offset_std_m``: an anchor re-placed and re-surveyed) and the sampling error eps_ra of
+    the run's mean, whose variance is estimated for each cell from its block means in time (at least
+    sigma_LOS^2 / n_ra, pooled over the anchor's runs). The two spreads are the REML estimates
+    (restricted maximum likelihood, non-negative); when the REML likelihood ratio against no spread is
+    below :data:`RUN_OFFSET_LR_MIN` the sampling errors explain the table and both are 0 (a point
+    estimate of a spread nobody can tell from 0 would be drawn for every synthetic run). The offsets
+    returned for removal from the rows are each run's own d_ra minus the anchor's mean over runs, 0
+    when the spreads are (the best linear unbiased predictions, shrunk by the sampling variances, are
+    in the report: removing those instead moved the left-out Hanyang medians by up to 1 cm, two of
+    three for the worse).
     """
     raw: dict[tuple[str, str], tuple[float, float]] = {}  # (run, anchor) -> (offset, sampling variance)
+    n_los: dict[tuple[str, str], int] = {}
     for aid, (ra, ga, _) in chan.per_anchor_rows.items():
         f = chan.mix[aid]
         runs_of = [lab for t, lab in zip(trs, labels, strict=True) if aid in t.anchors.ids]
@@ -451,14 +552,11 @@ def run_offset_table(trs: Sequence[Trace], labels: Sequence[str], chan: _Channel
             start += nlos.size
             xl = x[~nlos]
             if xl.size >= MIN_ANCHOR_ROWS:
-                # sampling variance of the mean from its two halves in time (slow error components and
-                # misclassified NLOS episodes make it larger than sigma^2 / n), at least sigma^2 / n
-                half = xl.size // 2
-                split = (float(np.mean(xl[:half])) - float(np.mean(xl[half:]))) ** 2 / 4.0
-                raw[(lab, aid)] = (float(np.mean(xl)), max(split, f.los_std_m**2 / float(xl.size)))
+                raw[(lab, aid)] = (float(np.mean(xl)), _batch_mean_var(xl, f.los_std_m**2 / float(xl.size)))
+                n_los[(lab, aid)] = int(xl.size)
     ids = sorted({a for _, a in raw})
     runs = [lab for lab in labels if any((lab, a) in raw for a in ids)]
-    centred: RunOffsets = {}
+    centred: dict[tuple[str, str], float] = {}
     for aid in ids:
         vals = [raw[(lab, aid)][0] for lab in runs if (lab, aid) in raw]
         mean = float(np.mean(vals)) if vals else 0.0
@@ -472,21 +570,35 @@ def run_offset_table(trs: Sequence[Trace], labels: Sequence[str], chan: _Channel
         diag.update(identifiable=False, why="fewer than two runs share an anchor", run_offset_std_m=0.0,
                     run_anchor_offset_std_m=0.0)
         return {}, diag
-    # two-way random effects (runs x anchors, possibly incomplete): run means, then the remainder
+    cells = [(lab, a) for lab in runs for a in shared if (lab, a) in raw]
+    y = np.array([raw[k][0] for k in cells])
+    # each cell's sampling variance: n_ra x (variance of the mean) is a per-row variance inflated by the
+    # slow error components; it belongs to the anchor (its channel), so it is pooled over the anchor's
+    # runs (a few block means per run are too few for one cell) and divided by each run's row count
+    n_rows = np.array([n_los[k] for k in cells], dtype=float)
+    infl = {a: float(np.mean([raw[k][1] * n_los[k] for k in cells if k[1] == a])) for a in shared}
+    v = np.array([infl[a] for _, a in cells]) / n_rows
+    a_idx = np.array([shared.index(a) for _, a in cells])
+    r_idx = np.array([runs.index(lab) for lab, _ in cells])
+    s_r, s_e, blup, prof = _reml_two_way(y, a_idx, r_idx, v)
+    lr = float(2.0 * (prof[0] - prof[3]))
+    significant = lr >= RUN_OFFSET_LR_MIN
+    if not significant:  # the sampling errors explain the table: no spread, nothing removed
+        s_r, s_e = 0.0, 0.0
     run_mean = {lab: float(np.mean([centred[(lab, a)] for a in shared if (lab, a) in centred])) for lab in runs}
-    n_a = np.array([sum((lab, a) in centred for a in shared) for lab in runs], dtype=float)
-    rem = np.array([centred[(lab, a)] - run_mean[lab] for lab in runs for a in shared if (lab, a) in centred])
-    noise = float(np.mean([raw[k][1] for k in centred if k[1] in shared]))
-    n_cells = rem.size
-    dof_rem = max(n_cells - len(runs) - len(shared) + 1, 1)
-    var_rem = max(float(rem @ rem) / dof_rem - noise, 0.0)
-    means = np.array([run_mean[lab] for lab in runs])
-    var_runs = max(float(np.var(means, ddof=1)) - float(np.mean((var_rem + noise) / n_a)), 0.0)
+    offsets: RunOffsets = {k: (centred[k] if significant else 0.0) for k in cells}
     diag.update(identifiable=True, n_runs=len(runs), n_anchors=len(shared), run_means_m=run_mean,
-                run_offset_std_m=float(np.sqrt(var_runs)), run_anchor_offset_std_m=float(np.sqrt(var_rem)),
-                sampling_var_m2=noise,
-                method="two-way method of moments on the per-run mean LOS residuals (anchor means removed)")
-    return centred, diag
+                run_offset_std_m=float(np.sqrt(s_r)), run_anchor_offset_std_m=float(np.sqrt(s_e)),
+                sampling_var_m2=float(np.mean(v)), sampling_var_per_cell_m2={f"{r} {a}": float(x)
+                                                                             for (r, a), x in zip(cells, v,
+                                                                                                  strict=True)},
+                removed_offsets_m={f"{r} {a}": offsets[(r, a)] for r, a in cells},
+                blup_offsets_m={f"{r} {a}": float(b) for (r, a), b in zip(cells, blup, strict=True)},
+                reml_lr_vs_no_spread=lr, significant=significant,
+                method=("two-way random effects (run, run x anchor) on the per-run mean LOS residuals, "
+                        "REML with each cell's sampling variance (block means in time) known; removed "
+                        "offsets = each run's own (anchor mean removed) when the spreads are significant, else 0"))
+    return offsets, diag
 
 
 # ---------------------------------------------------------------- step records
@@ -795,6 +907,7 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
         shapes = [_episode_shape(m, short_pool if _is_short(e) else e, periods[aid], 1.0 / burst_rate,
                                  short=_is_short(e))
                   for m, e in zip(f.modes, episodes, strict=True)]
+        hmm_dwell = _hmm_mode_dwell(chan, aid, f, shapes, [_is_short(e) for e in episodes], nlos_dwell)
         mode_dwell = [sh["dwell_s"] for sh in shapes]
         modes = [NlosMode(weight=rounded(m.weight, 4), mean_m=rounded(m.mean_m, 5), std_m=rounded(m.std_m, 4),
                           dwell_s=None if sh["dwell_s"] is None else rounded(sh["dwell_s"], 4),
@@ -821,7 +934,8 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
             se["nlos_prob"] = float(max(se["nlos_prob"],
                                         np.sqrt(2.0 * f.nlos_prob * (1.0 - f.nlos_prob) * tau / max(t_obs, 1e-9))))
             se["nlos_prob_method"] = "episodes: sqrt(2 p (1-p) dwell (1-p) / T_obs), at least the binomial SE"
-        channel_diag[aid] = {**mix_diag[aid], "std_errors": se, "nlos_dwell_s": per_anchor_dwell[aid],
+        channel_diag[aid] = {**mix_diag[aid], "std_errors": se,
+                             "nlos_mode_dwell_hmm": hmm_dwell, "nlos_dwell_s": per_anchor_dwell[aid],
                              "nlos_mode_episodes": [int(x.size) for x in mode_runs], "nlos_mode_dwell_s": mode_dwell,
                              "nlos_mode_episode_shape": shapes,
                              "n_nlos_episodes": int(_nlos_runs(flags[aid]).size)}
@@ -922,8 +1036,8 @@ def assemble_availability(inp: CalibrationInputs, avail: AvailabilityFit, timing
     weights = np.array([av[a]["dropout_outage"]["n_attempts"] for a in ids], dtype=float)
     weights = weights / weights.sum() if weights.sum() > 0 else np.full(len(ids), 1.0 / len(ids))
     means = [p.outage_mean_s for p in per_anchor.values() if p.outage_onset_prob > 0]
-    # tag outages: n events over the up bursts of every run
-    n_tag = tag["n_outages"] + tag["n_censored"]
+    # tag outages: n events (the dark runs' tag probabilities summed) over the up bursts of every run
+    n_tag = tag.get("events", tag["n_outages"] + tag["n_censored"])
     up_s = tag["effective_up_bursts"] / burst_rate  # outages too short to be told apart are not exposure
     tag_post = gamma_rate_posterior(events=float(n_tag), exposure_s=max(up_s, 1e-9))
     if n_tag:

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.optimize import minimize
 from scipy.special import logsumexp
 
 from ..models.uwb import range_error_log_components
@@ -510,3 +511,98 @@ def fit_burst_schedule(traces: Sequence[Trace]) -> Fit[dict[str, float]]:
     return Fit(params={"burst_rate_hz": 1.0 / period, "burst_jitter_s": jitter, "slot_s": slot_direct,
                        "burst_phase_s": phase},
                n_samples=diag["n_bursts"], diagnostics=diag)
+
+
+# --------------------------------------------------------------------------------------------------
+# NLOS episode lengths: hidden Markov chain over LOS and the NLOS modes
+# --------------------------------------------------------------------------------------------------
+
+
+def _log_norm_pdf(x: np.ndarray, m: np.ndarray | float, s: float) -> np.ndarray:
+    return -0.5 * ((x - m) / s) ** 2 - np.log(s) - 0.5 * np.log(2.0 * np.pi)
+
+
+def _chain_log_product(mats: np.ndarray) -> tuple[np.ndarray, float]:
+    """Product M_0 M_1 ... M_{n-1} of (n, K, K) non-negative matrices by pairwise reduction, rescaled.
+
+    Returns (product divided by exp(log scale), log scale): log2(n) vectorised levels, no loop per row.
+    """
+    m, log_scale = mats, 0.0
+    k = mats.shape[1]
+    while m.shape[0] > 1:
+        if m.shape[0] % 2:
+            m = np.concatenate([m, np.eye(k)[None]], axis=0)
+        m = m[0::2] @ m[1::2]
+        s = m.max(axis=(1, 2), keepdims=True)
+        s = np.where(s > 0, s, 1.0)
+        m = m / s
+        log_scale += float(np.log(s).sum())
+    return m[0], log_scale
+
+
+def mode_dwell_loglik(tau_s: np.ndarray, log_emis: np.ndarray, dt_s: np.ndarray, nlos_prob: float,
+                      weights: np.ndarray) -> float:
+    """Log-likelihood of an anchor's rows under the LOS / NLOS-mode chain with mean episode ``tau_s``.
+
+    States 0 (LOS) and 1..M (NLOS mode m): LOS -> m at rate p w_m / ((1 - p) tau_m), m -> LOS at
+    1 / tau_m (the generator's episodes: stationary shares 1 - p and p w_m, no mode-to-mode switch).
+    ``log_emis`` (n, M + 1) is each row's log density in each state, ``dt_s`` (n,) the time since the
+    previous row (a very large value starts a new run from the stationary law).
+    """
+    pi = np.concatenate([[1.0 - nlos_prob], nlos_prob * weights])
+    m = weights.size
+    q = np.zeros((m + 1, m + 1))
+    q[0, 1:] = nlos_prob * weights / ((1.0 - nlos_prob) * tau_s)
+    q[1:, 0] = 1.0 / tau_s
+    q[np.diag_indices(m + 1)] = -q.sum(axis=1)
+    d = np.sqrt(pi)
+    sym = (d[:, None] * q) / d[None, :]
+    sym = 0.5 * (sym + sym.T)
+    lam, u = np.linalg.eigh(sym)
+    lam = np.minimum(lam, 0.0)  # a generator's eigenvalues are <= 0 (rounding aside)
+    a, b = u / d[:, None], u.T * d[None, :]
+    p = np.einsum("ik,nk,kj->nij", a, np.exp(np.outer(np.minimum(dt_s, 1e6), lam)), b)
+    p = np.clip(p, 0.0, None)
+    mx = log_emis.max(axis=1, keepdims=True)
+    e = np.exp(log_emis - mx)
+    first = pi * e[0]
+    prod, log_scale = _chain_log_product(p[1:] * e[1:, None, :]) if e.shape[0] > 1 else (np.eye(m + 1), 0.0)
+    return float(np.log(max(float(first @ prod @ np.ones(m + 1)), 1e-300)) + log_scale + mx.sum())
+
+
+def fit_mode_dwell(residual_m: np.ndarray, range_m: np.ndarray, t_s: np.ndarray, new_run: np.ndarray,
+                   fit: MixtureFit, start_s: np.ndarray, free: np.ndarray) -> dict[str, Any]:
+    """Maximum-likelihood mean episode length of each NLOS mode from an anchor's rows (all runs).
+
+    Run lengths of rows classified NLOS cut an episode wherever one of its rows falls on the LOS side
+    (modes close to the LOS peak) and count LOS rows in the tail as episodes of one row; the chain
+    over the true state, with the mixture's densities as emissions, does not. ``start_s`` (M,) starts
+    the search and holds the modes not ``free`` (e.g. fixed-length episodes) at their value.
+    ``new_run`` (n,) marks each run's first row.
+    """
+    modes = fit.modes
+    w = np.array([md.weight for md in modes])
+    log_emis = np.column_stack([_log_norm_pdf(residual_m, fit.los_mean_m + fit.range_bias_per_m * range_m,
+                                              fit.los_std_m)]
+                               + [_log_norm_pdf(residual_m, md.mean_m, md.std_m) for md in modes])
+    dt = np.diff(t_s, prepend=t_s[0])
+    dt = np.where(new_run, 1e9, np.maximum(dt, 1e-6))
+    p = float(np.clip(fit.nlos_prob, 1e-6, 1 - 1e-6))
+    tau0 = np.asarray(start_s, dtype=float).copy()
+
+    def nll(x: np.ndarray) -> float:
+        tau = tau0.copy()
+        tau[free] = np.exp(x)
+        return -mode_dwell_loglik(tau, log_emis, dt, p, w)
+
+    x0 = np.log(tau0[free])
+    if x0.size == 0:
+        return {"dwell_s": tau0, "converged": True}
+    # from 3 x the run-length estimate (fragmentation only shortens it); log tau within [1 ms, 100 s]
+    best = minimize(nll, np.clip(x0 + np.log(3.0), np.log(1e-3), np.log(100.0)), method="Nelder-Mead",
+                    bounds=[(np.log(1e-3), np.log(100.0))] * int(free.sum()),
+                    options={"xatol": 0.01, "fatol": 0.05, "maxiter": 200})
+    tau = tau0.copy()
+    tau[free] = np.clip(np.exp(best.x), 1e-3, 1e3)
+    return {"dwell_s": tau, "log_likelihood": float(-best.fun), "log_likelihood_start": float(-nll(x0)),
+            "converged": bool(best.success)}
