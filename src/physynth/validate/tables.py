@@ -44,7 +44,8 @@ def table_imu(report: ValidationReport) -> _Table | None:
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(s))):
         return None
     d = np.abs(s - r)
-    rel = d / np.abs(r) * 100.0
+    with np.errstate(divide="ignore", invalid="ignore"):  # a zero real std has no relative deviation (shown as —)
+        rel = d / np.abs(r) * 100.0
     rows = [(axis, _fmt(r[i]), _fmt(s[i]), _fmt(d[i]), _pct(rel[i]))
             for i, axis in enumerate(("East", "North", "Up"))]
     rows.append(("Mean", _fmt(r.mean()), _fmt(s.mean()), _fmt(d.mean()), _pct(rel.mean())))
