@@ -95,7 +95,7 @@ def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int)
 def _imu(kin, att, s: Scenario, root_seed: int, index: int) -> Imu:
     """The IMU record in the scenario's frames: ENU gravity-free (stream ``imu``), body (``imu_body``)."""
     enu = (simulate_imu(kin, s.imu, rng=component_rng(root_seed, index, "imu"), omega_body_radps=att.omega_body_radps,
-                        attitude=att.rot)
+                        attitude=att.rot if any(s.imu.lever_arm_m) else None)  # rotations only for a lever arm
            if IMU_FRAME in s.imu_frames else None)
     if IMU_BODY_FRAME not in s.imu_frames:
         return enu
