@@ -69,7 +69,12 @@ class StudyConfig:
     synth_windows_per_trace: int = 64
     gan_steps: int = 3000
     gan_copies: int = 2
+    finetune_synth_ratio: float = 0.0
+    """SYNTH_PHY fine-tuning keeps ``ratio`` synthetic pre-training windows per real window in its
+    training set (a fixed random subset, drawn from the seed); 0 fine-tunes on the real runs only."""
     net: dict[str, Any] = field(default_factory=dict)
+    """Overrides of :class:`~physynth.track.trackers.nets.NetConfig` for every network (e.g.
+    ``{"age_weighted_direction": False}``)."""
     variation: SynthVariation = SynthVariation()
     training_layouts: bool = True
     threads: int = 1
@@ -84,6 +89,8 @@ class StudyConfig:
                      "gan_steps", "threads"):
             if getattr(self, name) < (0 if name.endswith("epochs") else 1):
                 raise PhySynthError(f"{name} must be positive, got {getattr(self, name)}")
+        if not 0.0 <= self.finetune_synth_ratio <= 100.0:
+            raise PhySynthError(f"finetune_synth_ratio must be in [0, 100], got {self.finetune_synth_ratio}")
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -313,6 +320,7 @@ def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | 
         "test": [_describe(r) for r in tests],
         "time_offset": offset_info,
         "use_imu": use_imu,
+        "inputs": _input_settings(cfg),
         "grid_rate_hz": test_inputs[0].rate_hz,
         "error_definition": "||p_hat(t_k) - p(t_k)|| on the 100 Hz grid steps with truth, from the first valid "
                             "range of the test run on; reference estimates interpolated onto the same steps "
@@ -326,6 +334,17 @@ def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | 
         data["scenario"] = notes.pop("scenario")
     return StudyResult(rows=rows, config=cfg.to_dict(), data=data,
                        estimates={k: v[0] for k, v in estimates.items()}, test_input=test_inputs[0])
+
+
+def _input_settings(cfg: StudyConfig) -> dict[str, Any]:
+    """How the network inputs were built (recorded in ``results.json``)."""
+    from ..track import inputs as ti
+
+    weighted = bool(cfg.net.get("age_weighted_direction", True))
+    return {"age_weighted_direction": weighted,
+            "direction_range_std_m": ti.DIRECTION_RANGE_STD_M if weighted else None,
+            "direction_range_rate_mps": ti.DIRECTION_RANGE_RATE_MPS if weighted else None,
+            "direction_ridge_m2": ti.DIRECTION_RIDGE_M2}
 
 
 def _synth_phy(train: Sequence[StudyRun], train_traces: list[Trace], train_inputs: list[TrackInput],
@@ -355,9 +374,34 @@ def _synth_phy(train: Sequence[StudyRun], train_traces: list[Trace], train_input
     net.train(synth, epochs=cfg.pretrain_epochs, lr=cfg.pretrain_lr, stage="pre-train (synthetic)", progress=say)
     score_pretrained("SYNTH_PHY (synthetic only)", net)
     if cfg.finetune_epochs > 0:
-        net.train(TraceWindows(train_inputs, net.window_spec()), epochs=cfg.finetune_epochs, lr=cfg.finetune_lr,
-                  stage="fine-tune (real)", progress=say)
+        real = TraceWindows(train_inputs, net.window_spec())
+        data, n_synth = finetune_windows(real, synth, cfg.finetune_synth_ratio, cfg.seed)
+        notes["finetune_windows"] = {"real": len(real), "synthetic": n_synth}
+        net.train(data, epochs=cfg.finetune_epochs, lr=cfg.finetune_lr,
+                  stage="fine-tune (real)" if n_synth == 0 else "fine-tune (real + synthetic)", progress=say)
     return net
+
+
+FINETUNE_MIX_KEY = 7
+"""spawn_key of the draw of the synthetic windows kept for fine-tuning (``SeedSequence(seed, (key,))``)."""
+
+
+def finetune_windows(real: Any, synth: Any, ratio: float, seed: int) -> tuple[Any, int]:
+    """The fine-tuning set: every real window plus ``round(ratio * len(real))`` synthetic windows.
+
+    The synthetic windows are a fixed subset of the pre-training windows drawn without replacement from
+    ``SeedSequence(seed, spawn_key=(FINETUNE_MIX_KEY,))`` (at most all of them), so the network keeps
+    seeing the variety of layouts, outages and NLOS episodes of the synthetic traces while it adapts to
+    the real runs (rehearsal against forgetting). Returns the dataset and the number of synthetic windows.
+    """
+    import torch
+
+    n = min(int(round(ratio * len(real))), len(synth))
+    if n <= 0:
+        return real, 0
+    rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(FINETUNE_MIX_KEY,)))
+    idx = np.sort(rng.choice(len(synth), size=n, replace=False))
+    return torch.utils.data.ConcatDataset([real, torch.utils.data.Subset(synth, idx.tolist())]), n
 
 
 def _describe(r: StudyRun) -> dict[str, Any]:
