@@ -140,6 +140,8 @@ def test_cli_bad_input_exit_2_one_line(runs, tmp_path, capsys):
         (["--train", train, "--test", train, "--methods", "NOAUG,kalman"], "unknown method"),
         (["--train", train, "--methods", "ls"], "both --train and --test"),
         (["--train", tmp_path / "missing", "--test", train, "--methods", "ls"], "does not exist"),
+        (["--train", train, "--test", train, "--methods", "ls", "--finetune-synth-ratio", "-1"],
+         "finetune_synth_ratio must be in [0, 100]"),
     ]
     for args, needle in cases:
         code, out = _cli(capsys, "study", "tracking", *args, "--out", tmp_path / "o", "-q")
