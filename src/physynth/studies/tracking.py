@@ -9,7 +9,8 @@ calibration sees. Rows of the table:
 - ``SYNTH_PHY``: ``aoi-fusion`` pre-trained on PhySynth traces only (paper: 300 epochs at 1e-3) of the
   scenario calibrated on the training runs (or ``scenario``), with path and anchor layout varied around
   the calibrated site (:class:`~physynth.track.synth.SynthVariation`), then fine-tuned on the real
-  training runs at a lower learning rate (paper: 200 epochs at 5e-5). The pre-trained network is also
+  training runs at a lower learning rate (paper: 200 epochs at 5e-5), optionally keeping a fixed subset
+  of synthetic windows in the fine-tuning set (``finetune_synth_ratio``). The pre-trained network is also
   scored before fine-tuning (``SYNTH_PHY (synthetic only)``): it has seen no real range at all;
 - ``bilstm``: a bidirectional LSTM trained like NOAUG; ``ls`` and ``ekf``: classical trackers;
 - reference rows: the dataset authors' own estimates shipped with the test run (``LS.csv``,
