@@ -469,7 +469,10 @@ def results_markdown(result: StudyResult) -> str:
         f"- UWB time lag removed: {d['time_offset']['offset_s']:.3f} s (estimated on the training runs)",
         f"- schedule: {c['epochs']} epochs at {c['lr']:g}; SYNTH_PHY {c['pretrain_epochs']} pre-training epochs "
         f"at {c['pretrain_lr']:g} on {c['n_synth_traces']} synthetic traces, then {c['finetune_epochs']} "
-        f"fine-tuning epochs at {c['finetune_lr']:g}{' (--quick)' if c['quick'] else ''}",
+        f"fine-tuning epochs at {c['finetune_lr']:g}"
+        + (f" with {c['finetune_synth_ratio']:g} synthetic windows per real window" if c["finetune_synth_ratio"] else "")
+        + (" (--quick)" if c["quick"] else ""),
+        f"- inputs: far-field direction {'weighted by the age of each range' if d.get('inputs', {}).get('age_weighted_direction', True) else 'unweighted'}",
         f"- seed {c['seed']}, {c['threads']} thread(s), wall time {d['wall_time_s']:.0f} s, CPU time "
         f"{d.get('cpu_time_s', float('nan')):.0f} s",
     ]
