@@ -450,6 +450,7 @@ def _rows(estimates: dict[str, list[np.ndarray]], test_inputs: list[TrackInput],
 def results_markdown(result: StudyResult) -> str:
     """``results.md``: Table IV layout (plus the horizontal RMSE), then what was run."""
     d, c = result.data, result.config
+    weighted = d.get("inputs", {}).get("age_weighted_direction", True)
     lines = [
         f"# Tracking study (Table IV layout): test run {', '.join(t['label'] for t in d['test'])}",
         "",
@@ -470,9 +471,10 @@ def results_markdown(result: StudyResult) -> str:
         f"- schedule: {c['epochs']} epochs at {c['lr']:g}; SYNTH_PHY {c['pretrain_epochs']} pre-training epochs "
         f"at {c['pretrain_lr']:g} on {c['n_synth_traces']} synthetic traces, then {c['finetune_epochs']} "
         f"fine-tuning epochs at {c['finetune_lr']:g}"
-        + (f" with {c['finetune_synth_ratio']:g} synthetic windows per real window" if c["finetune_synth_ratio"] else "")
+        + (f" with {c['finetune_synth_ratio']:g} synthetic windows per real window"
+           if c.get("finetune_synth_ratio") else "")
         + (" (--quick)" if c["quick"] else ""),
-        f"- inputs: far-field direction {'weighted by the age of each range' if d.get('inputs', {}).get('age_weighted_direction', True) else 'unweighted'}",
+        "- inputs: far-field direction " + ("weighted by the age of each range" if weighted else "unweighted"),
         f"- seed {c['seed']}, {c['threads']} thread(s), wall time {d['wall_time_s']:.0f} s, CPU time "
         f"{d.get('cpu_time_s', float('nan')):.0f} s",
     ]
