@@ -45,7 +45,11 @@ F = torch.nn.functional
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class NetConfig:
-    """Architecture, windows and schedule of a learned tracker (lengths in network steps)."""
+    """Architecture, windows and schedule of a learned tracker (lengths in network steps).
+
+    ``age_weighted_direction``: the far-field direction input weights each range by its age
+    (:func:`~physynth.track.inputs.network_arrays`); False restores the unweighted solve.
+    """
 
     hidden: int = 64
     heads: int = 4
