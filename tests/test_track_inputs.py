@@ -9,6 +9,7 @@ import pytest
 from track_helpers import site_scenario
 
 from physynth.generate import generate_trace
+from physynth.records import Trace, Uwb
 from physynth.track.inputs import far_field_direction, network_arrays, shift_uwb, track_input, window_starts
 from physynth.track.reference import read_reference_csv, reference_estimates
 from physynth.track.scoring import error_stats
@@ -68,6 +69,45 @@ def test_far_field_direction_points_at_a_distant_tag():
     true_u = tag[0] / np.linalg.norm(tag[0])
     assert np.degrees(np.arccos(np.dot(u[0], true_u) / np.linalg.norm(u[0]))) < 3.0
     assert mean_r[0] == pytest.approx(np.linalg.norm(tag), rel=0.01)
+
+
+def test_far_field_direction_ignores_a_range_held_while_the_tag_moved():
+    """An anchor not heard for 6 s keeps its old range (3 m too long at walking pace): with the ages the
+    direction stays on the tag, without them it is bent far off (the weights are relative to the
+    newest range, so ranges that are all equally old keep the unweighted answer)."""
+    anchors = np.array([[1.36, -0.62, 0.88], [-1.58, 0.12, 0.3], [-0.88, -0.62, -0.59], [1.1, 1.12, -0.59]])
+    anchors -= anchors.mean(axis=0)
+    tag = np.array([[44.0, 4.0, 0.0]])
+    r = np.linalg.norm(tag[:, None, :] - anchors[None], axis=-1)
+    r[0, 1] += 3.0  # held since the tag was 3 m farther
+    has = np.ones_like(r, bool)
+    aoi = np.array([[0.05, 6.0, 0.05, 0.05]])
+    true_u = tag[0] / np.linalg.norm(tag[0])
+
+    def angle(u):
+        return np.degrees(np.arccos(np.dot(u[0], true_u) / np.linalg.norm(u[0])))
+
+    _, u_plain = far_field_direction(r, has, anchors)
+    _, u_aged = far_field_direction(r, has, anchors, aoi_s=aoi)
+    assert angle(u_plain) > 40.0 and np.linalg.norm(u_plain[0]) > 1.5
+    assert angle(u_aged) < 25.0 and 0.5 < np.linalg.norm(u_aged[0]) < 1.2
+    m_same, u_same = far_field_direction(r, has, anchors, aoi_s=np.full_like(aoi, 6.0))
+    np.testing.assert_allclose(u_same, u_plain, atol=1e-9)
+
+
+def test_network_arrays_age_weighting_switch_changes_only_the_direction_features(trace):
+    u = trace.uwb
+    t_mid = 0.5 * (trace.t0_s + trace.t0_s + trace.duration_s)
+    drop = (u.anchor == 1) & (u.t_s > t_mid) & (u.t_s < t_mid + 8.0)  # anchor 1 not heard for 8 s
+    keep = ~drop
+    uwb = Uwb(t_s=u.t_s[keep], anchor=u.anchor[keep], range_m=u.range_m[keep], true_range_m=u.true_range_m[keep],
+              nlos=u.nlos[keep], burst=u.burst[keep], reason=u.reason[keep], nlos_known=u.nlos_known)
+    inp = track_input(Trace(truth=trace.truth, uwb=uwb, anchors=trace.anchors, imu=trace.imu, meta=trace.meta))
+    a = network_arrays(inp)
+    b = network_arrays(inp, age_weighted_direction=False)
+    np.testing.assert_array_equal(a.x, b.x)
+    assert not np.allclose(a.g, b.g)
+    assert np.linalg.norm(b.g[:, :3], axis=1).max() > np.linalg.norm(a.g[:, :3], axis=1).max()
 
 
 def test_window_starts_cover_the_sequence():

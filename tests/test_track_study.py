@@ -20,6 +20,7 @@ from physynth.studies.tracking import (  # noqa: E402
     METHODS,
     StudyConfig,
     StudyRun,
+    finetune_windows,
     run_tracking_study,
     write_results,
 )
@@ -64,6 +65,48 @@ def test_study_is_deterministic_for_a_seed(runs):
     assert [r["rmse_m"] for r in a.rows] == [r["rmse_m"] for r in b.rows]
 
 
+def test_finetune_mix_draws_real_and_synthetic_windows_deterministically(runs):
+    from physynth.track.inputs import track_input
+    from physynth.track.torch_data import SyntheticWindows, TraceWindows, WindowSpec
+
+    scn, rr = runs
+    spec = WindowSpec(length=12, stride=6)
+    real = TraceWindows([track_input(r.trace) for r in rr[:2]], spec)
+    synth = SyntheticWindows(scn, 3, 5, spec, windows_per_trace=8, cache_size=3)
+    same, n0 = finetune_windows(real, synth, 0.0, 1)
+    assert same is real and n0 == 0
+    mixed, n = finetune_windows(real, synth, 0.5, 1)
+    assert n == round(0.5 * len(real)) and len(mixed) == len(real) + n
+    first, second = mixed.datasets
+    assert first is real and second.dataset is synth and len(set(second.indices)) == n
+    again, _ = finetune_windows(real, synth, 0.5, 1)
+    other, _ = finetune_windows(real, synth, 0.5, 2)
+    assert list(again.datasets[1].indices) == list(second.indices) != list(other.datasets[1].indices)
+    capped, n_all = finetune_windows(real, synth, 100.0, 1)
+    assert n_all == len(synth)  # never more than the pre-training set
+    with pytest.raises(PhySynthError):
+        StudyConfig(finetune_synth_ratio=-0.1)
+
+
+def test_finetune_mix_and_input_switch_are_honoured_and_recorded(runs):
+    scn, rr = runs
+    base = {**TINY, "methods": ("SYNTH_PHY",)}
+    plain = run_tracking_study(rr[:2], rr[2], scenario=scn, config=StudyConfig(**base))
+    mixed = run_tracking_study(rr[:2], rr[2], scenario=scn, config=StudyConfig(**base, finetune_synth_ratio=1.0))
+    off = run_tracking_study(rr[:2], rr[2], scenario=scn,
+                             config=StudyConfig(**{**base, "net": {**TINY["net"], "age_weighted_direction": False}}))
+    n_real = plain.data["notes"]["finetune_windows"]["real"]
+    assert plain.data["notes"]["finetune_windows"] == {"real": n_real, "synthetic": 0}
+    assert mixed.data["notes"]["finetune_windows"] == {"real": n_real, "synthetic": min(n_real, 8)}
+    assert mixed.config["finetune_synth_ratio"] == 1.0 and plain.config["finetune_synth_ratio"] == 0.0
+    stages = [h["stage"] for h in mixed.data["notes"]["SYNTH_PHY.training"]]
+    assert stages[-1] == "fine-tune (real + synthetic)"
+    assert mixed.rows[-1]["rmse_m"] != plain.rows[-1]["rmse_m"]
+    assert plain.data["inputs"]["age_weighted_direction"] is True
+    assert off.data["inputs"] == {"age_weighted_direction": False, "direction_range_std_m": None,
+                                  "direction_range_rate_mps": None, "direction_ridge_m2": 0.1}
+
+
 def test_bad_inputs_are_user_errors(runs):
     scn, rr = runs
     with pytest.raises(PhySynthError, match="unknown method"):
@@ -97,6 +140,8 @@ def test_cli_bad_input_exit_2_one_line(runs, tmp_path, capsys):
         (["--train", train, "--test", train, "--methods", "NOAUG,kalman"], "unknown method"),
         (["--train", train, "--methods", "ls"], "both --train and --test"),
         (["--train", tmp_path / "missing", "--test", train, "--methods", "ls"], "does not exist"),
+        (["--train", train, "--test", train, "--methods", "ls", "--finetune-synth-ratio", "-1"],
+         "finetune_synth_ratio must be in [0, 100]"),
     ]
     for args, needle in cases:
         code, out = _cli(capsys, "study", "tracking", *args, "--out", tmp_path / "o", "-q")

@@ -31,6 +31,8 @@ def tracking_cmd(
     pretrain_epochs: int = typer.Option(None, "--pretrain-epochs", help="SYNTH_PHY pre-training epochs (300)."),
     finetune_epochs: int = typer.Option(None, "--finetune-epochs", help="SYNTH_PHY fine-tuning epochs (200)."),
     n_synth: int = typer.Option(None, "--n-synth", help="Number of synthetic pre-training traces."),
+    finetune_synth_ratio: float = typer.Option(None, "--finetune-synth-ratio", help="Synthetic windows kept per "
+                                               "real window while SYNTH_PHY fine-tunes (0: real only)."),
     threads: int = typer.Option(1, "--threads", help="CPU threads for PyTorch (1: small recurrent nets gain nothing "
                                 "from more, and lose a lot on a shared machine)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (results.json, results.md, paths.png)."),
@@ -51,7 +53,8 @@ def tracking_cmd(
     chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods else METHODS
     over = {"seed": seed, "methods": chosen, "threads": threads}
     for key, value in (("epochs", epochs), ("pretrain_epochs", pretrain_epochs),
-                       ("finetune_epochs", finetune_epochs), ("n_synth_traces", n_synth)):
+                       ("finetune_epochs", finetune_epochs), ("n_synth_traces", n_synth),
+                       ("finetune_synth_ratio", finetune_synth_ratio)):
         if value is not None:
             over[key] = value
     cfg = quick_config(**over) if quick else StudyConfig(**over)

@@ -9,7 +9,8 @@ calibration sees. Rows of the table:
 - ``SYNTH_PHY``: ``aoi-fusion`` pre-trained on PhySynth traces only (paper: 300 epochs at 1e-3) of the
   scenario calibrated on the training runs (or ``scenario``), with path and anchor layout varied around
   the calibrated site (:class:`~physynth.track.synth.SynthVariation`), then fine-tuned on the real
-  training runs at a lower learning rate (paper: 200 epochs at 5e-5). The pre-trained network is also
+  training runs at a lower learning rate (paper: 200 epochs at 5e-5), optionally keeping a fixed subset
+  of synthetic windows in the fine-tuning set (``finetune_synth_ratio``). The pre-trained network is also
   scored before fine-tuning (``SYNTH_PHY (synthetic only)``): it has seen no real range at all;
 - ``bilstm``: a bidirectional LSTM trained like NOAUG; ``ls`` and ``ekf``: classical trackers;
 - reference rows: the dataset authors' own estimates shipped with the test run (``LS.csv``,
@@ -69,7 +70,12 @@ class StudyConfig:
     synth_windows_per_trace: int = 64
     gan_steps: int = 3000
     gan_copies: int = 2
+    finetune_synth_ratio: float = 0.0
+    """SYNTH_PHY fine-tuning keeps ``ratio`` synthetic pre-training windows per real window in its
+    training set (a fixed random subset, drawn from the seed); 0 fine-tunes on the real runs only."""
     net: dict[str, Any] = field(default_factory=dict)
+    """Overrides of :class:`~physynth.track.trackers.nets.NetConfig` for every network (e.g.
+    ``{"age_weighted_direction": False}``)."""
     variation: SynthVariation = SynthVariation()
     training_layouts: bool = True
     threads: int = 1
@@ -84,6 +90,8 @@ class StudyConfig:
                      "gan_steps", "threads"):
             if getattr(self, name) < (0 if name.endswith("epochs") else 1):
                 raise PhySynthError(f"{name} must be positive, got {getattr(self, name)}")
+        if not 0.0 <= self.finetune_synth_ratio <= 100.0:
+            raise PhySynthError(f"finetune_synth_ratio must be in [0, 100], got {self.finetune_synth_ratio}")
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -97,10 +105,12 @@ def quick_config(**overrides: Any) -> StudyConfig:
 
     Five times fewer epochs than the paper's, so the learning rates are higher (3e-3; fine-tuning 1e-3,
     a third of the from-scratch rate, as the paper's 5e-5 is a twentieth of 1e-3 over 200 epochs).
+    SYNTH_PHY fine-tunes on the real windows plus half as many synthetic ones (``finetune_synth_ratio``
+    0.5), chosen by leave-one-run-out validation inside the training runs (docs/tracking.md).
     """
     base = {"quick": True, "epochs": 40, "lr": 3e-3, "pretrain_epochs": 15, "pretrain_lr": 3e-3,
             "finetune_epochs": 40, "finetune_lr": 1e-3, "n_synth_traces": 24, "synth_windows_per_trace": 48,
-            "gan_steps": 1000, "gan_copies": 1}
+            "gan_steps": 1000, "gan_copies": 1, "finetune_synth_ratio": 0.5}
     return StudyConfig(**{**base, **overrides})
 
 
@@ -313,6 +323,7 @@ def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | 
         "test": [_describe(r) for r in tests],
         "time_offset": offset_info,
         "use_imu": use_imu,
+        "inputs": _input_settings(cfg),
         "grid_rate_hz": test_inputs[0].rate_hz,
         "error_definition": "||p_hat(t_k) - p(t_k)|| on the 100 Hz grid steps with truth, from the first valid "
                             "range of the test run on; reference estimates interpolated onto the same steps "
@@ -326,6 +337,17 @@ def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | 
         data["scenario"] = notes.pop("scenario")
     return StudyResult(rows=rows, config=cfg.to_dict(), data=data,
                        estimates={k: v[0] for k, v in estimates.items()}, test_input=test_inputs[0])
+
+
+def _input_settings(cfg: StudyConfig) -> dict[str, Any]:
+    """How the network inputs were built (recorded in ``results.json``)."""
+    from ..track import inputs as ti
+
+    weighted = bool(cfg.net.get("age_weighted_direction", True))
+    return {"age_weighted_direction": weighted,
+            "direction_range_std_m": ti.DIRECTION_RANGE_STD_M if weighted else None,
+            "direction_range_rate_mps": ti.DIRECTION_RANGE_RATE_MPS if weighted else None,
+            "direction_ridge_m2": ti.DIRECTION_RIDGE_M2}
 
 
 def _synth_phy(train: Sequence[StudyRun], train_traces: list[Trace], train_inputs: list[TrackInput],
@@ -355,9 +377,34 @@ def _synth_phy(train: Sequence[StudyRun], train_traces: list[Trace], train_input
     net.train(synth, epochs=cfg.pretrain_epochs, lr=cfg.pretrain_lr, stage="pre-train (synthetic)", progress=say)
     score_pretrained("SYNTH_PHY (synthetic only)", net)
     if cfg.finetune_epochs > 0:
-        net.train(TraceWindows(train_inputs, net.window_spec()), epochs=cfg.finetune_epochs, lr=cfg.finetune_lr,
-                  stage="fine-tune (real)", progress=say)
+        real = TraceWindows(train_inputs, net.window_spec())
+        data, n_synth = finetune_windows(real, synth, cfg.finetune_synth_ratio, cfg.seed)
+        notes["finetune_windows"] = {"real": len(real), "synthetic": n_synth}
+        net.train(data, epochs=cfg.finetune_epochs, lr=cfg.finetune_lr,
+                  stage="fine-tune (real)" if n_synth == 0 else "fine-tune (real + synthetic)", progress=say)
     return net
+
+
+FINETUNE_MIX_KEY = 7
+"""spawn_key of the draw of the synthetic windows kept for fine-tuning (``SeedSequence(seed, (key,))``)."""
+
+
+def finetune_windows(real: Any, synth: Any, ratio: float, seed: int) -> tuple[Any, int]:
+    """The fine-tuning set: every real window plus ``round(ratio * len(real))`` synthetic windows.
+
+    The synthetic windows are a fixed subset of the pre-training windows drawn without replacement from
+    ``SeedSequence(seed, spawn_key=(FINETUNE_MIX_KEY,))`` (at most all of them), so the network keeps
+    seeing the variety of layouts, outages and NLOS episodes of the synthetic traces while it adapts to
+    the real runs (rehearsal against forgetting). Returns the dataset and the number of synthetic windows.
+    """
+    import torch
+
+    n = min(int(round(ratio * len(real))), len(synth))
+    if n <= 0:
+        return real, 0
+    rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(FINETUNE_MIX_KEY,)))
+    idx = np.sort(rng.choice(len(synth), size=n, replace=False))
+    return torch.utils.data.ConcatDataset([real, torch.utils.data.Subset(synth, idx.tolist())]), n
 
 
 def _describe(r: StudyRun) -> dict[str, Any]:
@@ -403,6 +450,7 @@ def _rows(estimates: dict[str, list[np.ndarray]], test_inputs: list[TrackInput],
 def results_markdown(result: StudyResult) -> str:
     """``results.md``: Table IV layout (plus the horizontal RMSE), then what was run."""
     d, c = result.data, result.config
+    weighted = d.get("inputs", {}).get("age_weighted_direction", True)
     lines = [
         f"# Tracking study (Table IV layout): test run {', '.join(t['label'] for t in d['test'])}",
         "",
@@ -422,7 +470,11 @@ def results_markdown(result: StudyResult) -> str:
         f"- UWB time lag removed: {d['time_offset']['offset_s']:.3f} s (estimated on the training runs)",
         f"- schedule: {c['epochs']} epochs at {c['lr']:g}; SYNTH_PHY {c['pretrain_epochs']} pre-training epochs "
         f"at {c['pretrain_lr']:g} on {c['n_synth_traces']} synthetic traces, then {c['finetune_epochs']} "
-        f"fine-tuning epochs at {c['finetune_lr']:g}{' (--quick)' if c['quick'] else ''}",
+        f"fine-tuning epochs at {c['finetune_lr']:g}"
+        + (f" with {c['finetune_synth_ratio']:g} synthetic windows per real window"
+           if c.get("finetune_synth_ratio") else "")
+        + (" (--quick)" if c["quick"] else ""),
+        "- inputs: far-field direction " + ("weighted by the age of each range" if weighted else "unweighted"),
         f"- seed {c['seed']}, {c['threads']} thread(s), wall time {d['wall_time_s']:.0f} s, CPU time "
         f"{d.get('cpu_time_s', float('nan')):.0f} s",
     ]

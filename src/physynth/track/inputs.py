@@ -40,6 +40,11 @@ N_GLOBAL_FEATURES = 6
 """Per-step network features: far-field direction estimate u (3) and mean range x u / L (3)."""
 DIRECTION_RIDGE_M2 = 0.1
 """Ridge [m^2] of the far-field direction solve (keeps it defined with few anchors or a flat layout)."""
+DIRECTION_RANGE_STD_M = 0.1
+"""Ranging noise [m] in the weights of the far-field direction solve (:func:`far_field_direction`)."""
+DIRECTION_RANGE_RATE_MPS = 1.0
+"""Range-rate scale [m/s] in the weights of the far-field direction solve: a range measured ``dt`` before
+the newest one may be off by up to the tag speed times ``dt`` (walking pace; see :func:`far_field_direction`)."""
 AOI_SCALE_S = 0.1
 """AoI feature ``log1p(aoi_s / AOI_SCALE_S)``: about 0.7 at one nominal 10 Hz period, 5.4 at 22 s."""
 
@@ -175,31 +180,51 @@ class NetArrays:
     g: np.ndarray
 
 
-def far_field_direction(range_m: np.ndarray, has: np.ndarray, anchor_rel_m: np.ndarray
-                        ) -> tuple[np.ndarray, np.ndarray]:
+def far_field_direction(range_m: np.ndarray, has: np.ndarray, anchor_rel_m: np.ndarray,
+                        aoi_s: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Mean range (T,) [m] and direction estimate (T, 3) from the anchor centroid to the tag.
 
     Far from a compact anchor cluster, ``r_i - mean(r) ~ -(a_i - mean(a)) . u`` with ``u`` the unit
     vector towards the tag, so ``u`` solves a small linear least-squares problem per step (ridge
     ``DIRECTION_RIDGE_M2``), batched over steps. Near the anchors it is only a hint; the networks learn
     how far to trust it. Steps with fewer than two ranges give ``u = 0``.
+
+    The direction lives in centimetre differences between ranges, so the ranges must refer to the same
+    instant. With ``aoi_s`` (T, A) [s], the ages of the ranges, the solve is weighted by the inverse
+    variance of each range as a stand-in for the newest one:
+    ``w_i = s0^2 / (s0^2 + (v (aoi_i - min_j aoi_j))^2)`` with ``s0 = DIRECTION_RANGE_STD_M`` and
+    ``v = DIRECTION_RANGE_RATE_MPS``: a range held for seconds while the tag moves (an anchor not heard)
+    no longer bends the direction, while ranges of one burst (a tag-level outage: all equally old) keep
+    full weight. Without ``aoi_s`` every range has weight 1.
     """
     w = has.astype(float)
-    n = w.sum(axis=1, keepdims=True)
-    mean_r = (np.where(has, range_m, 0.0) * w).sum(axis=1, keepdims=True) / np.maximum(n, 1)
-    mean_a = (w[..., None] * anchor_rel_m[None]).sum(axis=1) / np.maximum(n, 1)
-    b = (anchor_rel_m[None] - mean_a[:, None, :]) * w[..., None]  # (T, A, 3)
+    if aoi_s is not None:
+        newest = np.min(np.where(has, aoi_s, np.inf), axis=1, keepdims=True)
+        rel = np.where(has, aoi_s - np.where(np.isfinite(newest), newest, 0.0), 0.0)
+        s0 = DIRECTION_RANGE_STD_M ** 2
+        w = np.where(has, s0 / (s0 + (DIRECTION_RANGE_RATE_MPS * rel) ** 2), 0.0)
+    n = has.sum(axis=1, keepdims=True)
+    sw = w.sum(axis=1, keepdims=True)
+    mean_r = (np.where(has, range_m, 0.0) * w).sum(axis=1, keepdims=True) / np.maximum(sw, 1e-12)
+    mean_a = (w[..., None] * anchor_rel_m[None]).sum(axis=1) / np.maximum(sw, 1e-12)
+    b = anchor_rel_m[None] - mean_a[:, None, :]  # (T, A, 3)
     dr = np.where(has, range_m - mean_r, 0.0)
-    m = np.einsum("tai,taj->tij", b, b) + DIRECTION_RIDGE_M2 * np.eye(3)
-    v = -np.einsum("tai,ta->ti", b, dr)
+    m = np.einsum("ta,tai,taj->tij", w, b, b) + DIRECTION_RIDGE_M2 * np.eye(3)
+    v = -np.einsum("ta,tai,ta->ti", w, b, dr)
     u = np.linalg.solve(m, v[..., None])[..., 0]
     u = np.where(n >= 2, u, 0.0)
-    return mean_r[:, 0], u
+    return np.where(n[:, 0] > 0, mean_r[:, 0], 0.0), u
 
 
 def network_arrays(inp: TrackInput, *, decimation: int = 10, length_scale_m: float = 10.0,
-                   anchor_scale_m: float = 2.0, use_imu: bool = True) -> NetArrays:
-    """Decimated, normalised network inputs of one :class:`TrackInput` (vectorised over steps)."""
+                   anchor_scale_m: float = 2.0, use_imu: bool = True,
+                   age_weighted_direction: bool = True) -> NetArrays:
+    """Decimated, normalised network inputs of one :class:`TrackInput` (vectorised over steps).
+
+    ``age_weighted_direction``: the far-field direction solve weights each range by its age relative
+    to the newest one (:func:`far_field_direction`); False gives every range weight 1 (the
+    unweighted solve of earlier releases).
+    """
     k = np.arange(0, inp.n_steps, decimation, dtype=np.int64)
     rng_m = inp.range_m[k]
     has = np.isfinite(rng_m)
@@ -227,7 +252,8 @@ def network_arrays(inp: TrackInput, *, decimation: int = 10, length_scale_m: flo
         acc = np.zeros((k.size, 3))
     y = inp.pos_rel_m[k] / length_scale_m
     y_ok = np.all(np.isfinite(y), axis=1) & (inp.t_s[k] >= inp.first_range_s)
-    r_bar, u = far_field_direction(rng_m, has, inp.anchor_pos_rel_m)
+    r_bar, u = far_field_direction(rng_m, has, inp.anchor_pos_rel_m,
+                                   aoi_s=inp.aoi_s[k] if age_weighted_direction else None)
     g = np.concatenate([u, (r_bar[:, None] * u) / length_scale_m], axis=1)
     return NetArrays(x=x.astype(np.float32), acc=acc.astype(np.float32), has_imu=bool(has_imu),
                      y=np.where(y_ok[:, None], y, 0.0).astype(np.float32), y_ok=y_ok, step=k,

@@ -39,6 +39,7 @@ class WindowSpec:
     length_scale_m: float = 10.0
     anchor_scale_m: float = 2.0
     use_imu: bool = False
+    age_weighted_direction: bool = True
 
     def __post_init__(self) -> None:
         if min(self.length, self.stride, self.decimation) < 1 or self.length_scale_m <= 0:
@@ -97,7 +98,8 @@ class TraceWindows(torch.utils.data.Dataset):
         inputs = [s if isinstance(s, TrackInput) else track_input(s, time_offset_s=time_offset_s) for s in source]
         self.spec = spec
         self.arrays = [network_arrays(i, decimation=spec.decimation, length_scale_m=spec.length_scale_m,
-                                      anchor_scale_m=spec.anchor_scale_m, use_imu=spec.use_imu) for i in inputs]
+                                      anchor_scale_m=spec.anchor_scale_m, use_imu=spec.use_imu,
+                                      age_weighted_direction=spec.age_weighted_direction) for i in inputs]
         self.index = [(t, int(s)) for t, a in enumerate(self.arrays)
                       for s in window_starts(a.x.shape[0], spec.length, spec.stride)]
 
@@ -147,8 +149,8 @@ class SyntheticWindows(torch.utils.data.Dataset):
             return self._cache[i]
         inp = track_input(self.trace(i), time_offset_s=self.time_offset_s)
         arr = network_arrays(inp, decimation=self.spec.decimation, length_scale_m=self.spec.length_scale_m,
-                             anchor_scale_m=self.spec.anchor_scale_m,
-                             use_imu=self.spec.use_imu)
+                             anchor_scale_m=self.spec.anchor_scale_m, use_imu=self.spec.use_imu,
+                             age_weighted_direction=self.spec.age_weighted_direction)
         self._cache[i] = arr
         while len(self._cache) > self.cache_size:
             self._cache.popitem(last=False)

@@ -45,7 +45,11 @@ F = torch.nn.functional
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class NetConfig:
-    """Architecture, windows and schedule of a learned tracker (lengths in network steps)."""
+    """Architecture, windows and schedule of a learned tracker (lengths in network steps).
+
+    ``age_weighted_direction``: the far-field direction input weights each range by its age
+    (:func:`~physynth.track.inputs.network_arrays`); False restores the unweighted solve.
+    """
 
     hidden: int = 64
     heads: int = 4
@@ -63,6 +67,7 @@ class NetConfig:
     weight_decay: float = 0.0
     grad_clip: float = 5.0
     use_imu: bool = False
+    age_weighted_direction: bool = True
     seed: int = 0
     device: str = "auto"
 
@@ -176,7 +181,8 @@ class NetTracker:
 
         c = self.config
         return WindowSpec(length=c.window_steps, stride=c.stride_steps, decimation=c.decimation,
-                          length_scale_m=c.length_scale_m, anchor_scale_m=c.anchor_scale_m, use_imu=c.use_imu)
+                          length_scale_m=c.length_scale_m, anchor_scale_m=c.anchor_scale_m, use_imu=c.use_imu,
+                          age_weighted_direction=c.age_weighted_direction)
 
     def device(self) -> Any:
         """``config.device``; ``auto``: the GPU when one is present, else the CPU (deterministic there)."""
@@ -244,7 +250,8 @@ class NetTracker:
             raise PhySynthError(f"{self.name}: predict before fit")
         c = self.config
         arr = network_arrays(inp, decimation=c.decimation, length_scale_m=c.length_scale_m,
-                             anchor_scale_m=c.anchor_scale_m, use_imu=c.use_imu)
+                             anchor_scale_m=c.anchor_scale_m, use_imu=c.use_imu,
+                             age_weighted_direction=c.age_weighted_direction)
         n, w, burn = arr.x.shape[0], c.window_steps, c.burn_in_steps
         starts = window_starts(n, w, w - burn)
         idx = np.minimum(starts[:, None] + np.arange(w), n - 1)
