@@ -15,7 +15,6 @@ from typing import TYPE_CHECKING, Any
 from .bounds import check_budget
 from .constants import DEFAULT_GRID_RATE_HZ
 from .errors import AnchorMismatchError, PhySynthError
-from .evaluate.metrics import Metrics, compute_metrics
 from .generate import compile_scenario, dataset_meta, generate_traces
 from .io import safety
 from .io.dataset import iter_traces, n_traces, read_dataset, read_meta, table_files
@@ -29,6 +28,7 @@ from .scenario import Scenario, scenario_to_dict
 
 if TYPE_CHECKING:
     from .calibrate import CalibrationResult
+    from .evaluate.metrics import Metrics
     from .validate.compare import ValidationReport
 
 
@@ -158,6 +158,8 @@ def inspect_dataset(path: str | Path, *, rate_hz: float = DEFAULT_GRID_RATE_HZ,
             progress("reading traces", done, total)
 
     try:
+        from .evaluate.metrics import compute_metrics  # imported where used: not before a first trace
+
         return compute_metrics(iter_traces(path, meta), rate_hz, on_trace=on_trace), meta
     except ValueError as exc:  # a table that reads but does not make valid records
         raise PhySynthError(f"dataset {path}: invalid content: {exc}") from None
