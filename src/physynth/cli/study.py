@@ -1,7 +1,7 @@
 """``physynth study``: deployment studies on the generator.
 
     physynth study anchors   --scenario S [--real DATASET] [-n 50] [--seed S] [--counts 1..6]
-                             [--regimes dense,sparse,degraded] [--order A,B,...] [--tracker-traces 20] --out DIR
+                             [--regimes dense,sparse,degraded] [--order A,B,...] [--tracker-traces 50] --out DIR
     physynth study placement --scenario S --candidates FILE -k K [--objective ge1|ge2|ge3|gdop|hdop] --out DIR
 
 Thin commands over :mod:`physynth.workflows`; bad input is one line on stderr and exit code 2.
@@ -67,7 +67,7 @@ def anchors_cmd(
     order: str | None = typer.Option(None, "--order", help="Anchor ids in the order they are added "
                                                            "(default: decreasing availability)."),
     workers: int | None = typer.Option(None, "--workers", min=1, help="Processes (default: all cores)."),
-    tracker_traces: int = typer.Option(20, "--tracker-traces", min=0,  # studies.anchors.TRACKER_TRACES
+    tracker_traces: int = typer.Option(50, "--tracker-traces", min=0,  # studies.anchors.TRACKER_TRACES
                                        help="Traces per cell the ls and ekf trackers run on (traces 0..N-1 of "
                                             "every cell; 0: no tracker column)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (table.json, table.md, anchors.png)."),

@@ -95,9 +95,9 @@ class GdopColumn:
 
 TRACKERS = ("ls", "ekf")
 """The classical trackers of the tracker-error column (:mod:`physynth.track.trackers`)."""
-TRACKER_TRACES = 20
+TRACKER_TRACES = 50
 """Traces per cell the trackers run on by default: trace indices 0 .. TRACKER_TRACES - 1 (the same traces
-in every count and regime, by common random numbers)."""
+in every count and regime, by common random numbers); with the default 50 traces per cell, every one."""
 
 
 class TrackerColumn:
