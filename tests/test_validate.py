@@ -417,3 +417,19 @@ def test_body_imu_errors_compared_when_both_sides_have_them():
     rep2 = compare([generate_trace(enu, 0, 1)], [generate_trace(real, 0, 2)])
     assert rep2.imu_errors is None  # only one side has a body IMU
     assert "IMU errors" not in render_markdown(rep2)
+
+
+def test_cli_prints_body_imu_error_deviations(tmp_path, capsys):
+    from physynth.generate import compile_scenario
+    from physynth.io.scenario_file import load_scenario
+
+    cs = compile_scenario(load_scenario("cablecar-descending").model_copy(
+        update={"imu_frames": ["enu-gravity-free", "body-flu"]}))
+    write_dataset(tmp_path / "r", [generate_trace(cs, 0, 1)])
+    write_dataset(tmp_path / "s", [generate_trace(cs, 0, 2)])
+    capsys.readouterr()
+    assert main(["validate", "--real", str(tmp_path / "r"), "--synthetic", str(tmp_path / "s"),
+                 "--no-figures", "--out", str(tmp_path / "rep")]) in (0, None)
+    out = capsys.readouterr().out
+    assert re.search(r"gyro_error_std_radps\s+deviation [+-]\d+\.\d / [+-]\d+\.\d / [+-]\d+\.\d % \(x / y / z\)", out), out
+    assert json.loads((tmp_path / "rep" / "report.json").read_text())["imu_errors"] is not None

@@ -110,6 +110,9 @@ def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, 
         inside = "" if band is None else (f"  synth 5-95 % [{_f(band[0])}, {_f(band[1])}]"
                                           + (" (real inside)" if c.get("real_in_band") else " (real OUTSIDE)"))
         typer.echo(f"  {key:20s} real {_f(report.real[key])}  synth {_f(report.synthetic[key])}  ({delta}){inside}")
+    for key, d in (report.imu_errors or {}).get("relative_deviation_pct", {}).items():
+        if d is not None:  # body-frame IMU errors, when both sides have them
+            typer.echo(f"  {key:24s} deviation {' / '.join(f'{x:+.1f}' for x in d)} % (x / y / z)")
     typer.echo(f"wrote {len(written)} file(s) to {out} (open {out / 'report.html'})")
 
 
