@@ -470,6 +470,53 @@ def fit_motion_noise(traces: Sequence[Trace], cutoff_hz: float, offset_s: float,
             "c0_from": "calm samples" if calm_level else "regression intercept", "calm_frac": n_calm / max(n_all, 1)}
 
 
+def _pooled_error_psd(errs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], fs: float, nper: int
+                      ) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """Welch PSD of the IMU errors pooled over recordings (weighted by the samples each used):
+    (f, psd (F, 3), samples used, segments averaged)."""
+    psds, weights, n_total, n_avg = [], [], 0, 0
+    f = None
+    for e, ok, t in errs:
+        f, p, n_used, k_avg = _welch_segments(e, ok, t, fs, nper)
+        psds.append(p)
+        weights.append(n_used)
+        n_total += n_used
+        n_avg += k_avg
+    minlen = min(p.shape[0] for p in psds)
+    psd = sum(p[:minlen] * w for p, w in zip(psds, weights, strict=True)) / sum(weights)
+    return f[:minlen], psd, n_total, n_avg
+
+
+def _fit_bias_walk(errs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], fs: float, density: np.ndarray,
+                   prior_rw: float) -> tuple[float, dict[str, Any]]:
+    """Bias random walk from the long-tau end of the Allan deviation of the longest valid segment,
+    net of the white noise ``density``; where it is not identifiable (below two standard errors), the
+    smaller of ``prior_rw`` and the upper bound. Returns the value and its diagnostics (with a note
+    when not identifiable)."""
+    e0, ok0, t0 = max(errs, key=lambda x: int(x[1].sum()))
+    segs = segments(t0, ok0, max_gap_s=1.5 / fs)
+    a, b = max(segs, key=lambda s: s[1] - s[0])
+    x = e0[a:b]
+    dur = (b - a) / fs
+    taus = np.geomspace(2.0 / fs, max(dur / 5.0, 4.0 / fs), 25)
+    adev = allan_deviation(x, fs, taus).T  # (T, 3)
+    white_avar = (density**2)[None, :] / taus[:, None]
+    long = taus >= taus[-1] / 4.0
+    k2 = 3.0 * (adev[long] ** 2 - white_avar[long]) / taus[long, None]
+    k2_mean = np.nanmean(k2)
+    n_indep = max(dur / taus[long].max(), 1.0)
+    k2_se = float(np.nanmean(adev[long] ** 2) * 3.0 / taus[long].mean() / np.sqrt(n_indep))
+    if k2_mean > 2.0 * k2_se:
+        bias_rw = float(np.sqrt(k2_mean))
+        note = None
+    else:
+        upper = float(np.sqrt(max(k2_mean, 0.0) + 2.0 * k2_se))
+        bias_rw = min(prior_rw, upper)
+        note = f"bias random walk not identifiable over {dur:.0f} s (upper bound {upper:.3g}); {bias_rw:.3g} used"
+    return bias_rw, {"value": bias_rw, "k2_estimate": float(k2_mean), "k2_std_error": k2_se, "note": note,
+                     "allan_deviation": {"tau_s": taus.tolist(), "adev_mps2": adev.tolist()}}
+
+
 def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, nperseg_s: float = 20.0,
             defaults: ImuParams | None = None, motion_dependent: bool = True,
             motion_rate_term: bool = False, lever_arm: bool = False) -> Fit[ImuParams]:
@@ -560,17 +607,7 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
         motion["mean_motion_variance_mps2_sq"] = motion_var.tolist()
         motion["axes_without_motion_term"] = [a for a, w in zip("enu", weak, strict=True) if w]
     nper = int(2 ** np.round(np.log2(nperseg_s * fs)))
-    psds, weights, n_total, n_avg = [], [], 0, 0
-    f = None
-    for e, ok, t in errs:
-        f, p, n_used, k_avg = _welch_segments(e, ok, t, fs, nper)
-        psds.append(p)
-        weights.append(n_used)
-        n_total += n_used
-        n_avg += k_avg
-    minlen = min(p.shape[0] for p in psds)
-    psd = sum(p[:minlen] * w for p, w in zip(psds, weights, strict=True)) / sum(weights)
-    f = f[:minlen]
+    f, psd, n_total, n_avg = _pooled_error_psd(errs, fs, nper)
     nyq = fs / 2.0
     lo, hi = max(WHITE_BAND[0] * nyq, 1.5 * fc), WHITE_BAND[1] * nyq
     if lo >= hi:
@@ -587,29 +624,9 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
     vib = _fit_vibration(f, pooled - pooled_floor, pooled, pooled_floor, 3 * n_avg, f_lo=max(0.3, 3.0 / (nper / fs)),
                          f_hi=min(0.45 * nyq, lo))
     notes: list[str] = []
-    # bias random walk from the long-tau end of the Allan deviation
-    e0, ok0, t0 = max(errs, key=lambda x: int(x[1].sum()))
-    segs = segments(t0, ok0, max_gap_s=1.5 / fs)
-    a, b = max(segs, key=lambda s: s[1] - s[0])
-    x = e0[a:b]
-    dur = (b - a) / fs
-    taus = np.geomspace(2.0 / fs, max(dur / 5.0, 4.0 / fs), 25)
-    adev = allan_deviation(x, fs, taus).T  # (T, 3)
-    white_avar = (density**2)[None, :] / taus[:, None]
-    long = taus >= taus[-1] / 4.0
-    k2 = 3.0 * (adev[long] ** 2 - white_avar[long]) / taus[long, None]
-    k2_mean = np.nanmean(k2)
-    n_indep = max(dur / taus[long].max(), 1.0)
-    k2_se = float(np.nanmean(adev[long] ** 2) * 3.0 / taus[long].mean() / np.sqrt(n_indep))
-    if k2_mean > 2.0 * k2_se:
-        bias_rw = float(np.sqrt(k2_mean))
-        bias_note = None
-    else:
-        upper = float(np.sqrt(max(k2_mean, 0.0) + 2.0 * k2_se))
-        bias_rw = min(base.bias_rw_mps2_per_sqrt_s, upper)
-        bias_note = (f"bias random walk not identifiable over {dur:.0f} s (upper bound {upper:.3g}); "
-                     f"{bias_rw:.3g} used")
-        notes.append("imu.bias_rw_mps2_per_sqrt_s (" + bias_note + ")")
+    bias_rw, bias_diag = _fit_bias_walk(errs, fs, density, base.bias_rw_mps2_per_sqrt_s)
+    if bias_diag["note"] is not None:
+        notes.append("imu.bias_rw_mps2_per_sqrt_s (" + bias_diag["note"] + ")")
     # vibration: spectral shape from the comb fit, amplitude from the variance the white noise and the
     # bias walk leave unexplained (per axis), one amplitude for all axes (the generator's model)
     seg_s = float(np.mean([(b_ - a_) / fs for e_, ok_, t_ in errs for a_, b_ in segments(t_, ok_, 1.5 / fs)]))
@@ -673,7 +690,7 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
         "imu_rate_hz": fs,
         "white_band_hz": [float(lo), float(hi)],
         "white_noise_density_mps2_per_sqrt_hz": density.tolist(),
-        "white_noise_rel_se": float(1.0 / np.sqrt(max(wb.sum() * len(psds), 1))),
+        "white_noise_rel_se": float(1.0 / np.sqrt(max(wb.sum() * len(errs), 1))),
         "error_std_mps2": np.sqrt(np.nanmean(np.concatenate([e[ok] for e, ok, _ in errs]) ** 2, axis=0)).tolist(),
         "time_offset": offset_diag,
         "lever_arm": lever_diag,
@@ -681,9 +698,8 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
                                                      for k, v in motion.items()},
         "n_samples": n_total,
         "vibration": vib_diag,
-        "bias_rw": {"value": bias_rw, "k2_estimate": float(k2_mean), "k2_std_error": k2_se,
-                    "note": bias_note},
-        "allan_deviation": {"tau_s": taus.tolist(), "adev_mps2": adev.tolist()},
+        "bias_rw": {k: bias_diag[k] for k in ("value", "k2_estimate", "k2_std_error", "note")},
+        "allan_deviation": bias_diag["allan_deviation"],
         "psd": {"f_hz": f[::dec].tolist(), "psd_mps2_sq_per_hz": psd[::dec].tolist()},
         "recordings": [trace_label(t, i) for i, t in enumerate(trs)],
         "not_identifiable": notes,
