@@ -87,6 +87,40 @@ def import_hanyang(run_dir: str | os.PathLike, *, tag_height_offset_m: float = T
         UWB/GNSS time lag is not corrected (``trace.meta["uwb_time_lag_applied"]`` is False).
     """
     run = Path(run_dir)
+    files, traj = _run_files(run)
+    rep = ReportBuilder("hanyang", run)
+
+    ts_ns, pos = _read_trajectory(traj, rep)
+    origin_ns = int(ts_ns[0])
+    t_truth = (ts_ns - float(origin_ns)) * 1e-9
+    pos[:, 2] += tag_height_offset_m
+
+    ids, anchor_pos, t_uwb, anchor, range_m = _read_uwb(run, files, origin_ns, rep)
+    if not np.any((t_uwb >= t_truth[0]) & (t_uwb <= t_truth[-1])):
+        raise RecordingError(f"{run}: UWB stamps do not overlap the trajectory.csv time span")
+
+    if crop_to_uwb:
+        after = t_truth > t_uwb[-1]
+        rep.drop(traj.name, "after_last_uwb", int(after.sum()))
+        t_truth, pos = t_truth[~after], pos[~after]
+    rep.kept(traj.name, t_truth.size)
+    vel = velocity_from_position(t_truth, pos, window_s=velocity_window_s, max_gap_s=1.0)
+    burst = gap_bursts(t_uwb, burst_gap_s)
+    rates, gaps = _note_uwb_coverage(rep, t_truth, t_uwb, anchor, range_m, burst, ids, burst_gap_s)
+
+    meta = _run_meta(run, origin_ns, tag_height_offset_m=tag_height_offset_m, burst_gap_s=burst_gap_s,
+                     velocity_window_s=velocity_window_s, crop_to_uwb=crop_to_uwb, rates=rates, gaps=gaps)
+    trace = Trace(
+        truth=Truth(t_s=t_truth, pos_enu_m=pos, vel_enu_mps=vel),
+        uwb=Uwb(t_s=t_uwb, anchor=anchor, range_m=range_m, burst=burst),
+        anchors=Anchors(ids=tuple(ids), pos_enu_m=np.array(anchor_pos)),
+        meta=meta,
+    )
+    return trace, rep.build()
+
+
+def _run_files(run: Path) -> tuple[list[Path], Path]:
+    """The ``A<id>.csv`` files of a dynamic run (in numeric anchor order) and its ``trajectory.csv``."""
     if not run.exists():
         raise RecordingError(f"Hanyang run folder {run} does not exist")
     if not run.is_dir():
@@ -98,13 +132,15 @@ def import_hanyang(run_dir: str | os.PathLike, *, tag_height_offset_m: float = T
     traj = run / "trajectory.csv"
     if not traj.is_file():
         raise RecordingError(f"{run}: missing file trajectory.csv")
-    rep = ReportBuilder("hanyang", run)
+    return files, traj
 
-    ts_ns, pos = _read_trajectory(traj, rep)
-    origin_ns = int(ts_ns[0])
-    t_truth = (ts_ns - float(origin_ns)) * 1e-9
-    pos[:, 2] += tag_height_offset_m
 
+def _read_uwb(run: Path, files: list[Path], origin_ns: int, rep: ReportBuilder
+              ) -> tuple[list[str], list[np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
+    """Anchor ids and positions, and the UWB rows of all anchor files merged in time order.
+
+    Returns ``(ids, anchor_pos, t_uwb, anchor, range_m)``; ``anchor`` indexes ``ids``.
+    """
     ids, anchor_pos, parts = [], [], []
     for k, f in enumerate(files):  # one pass per anchor file
         aid = int(_ANCHOR_FILE.match(f.name).group(1))  # type: ignore[union-attr]
@@ -118,16 +154,14 @@ def import_hanyang(run_dir: str | os.PathLike, *, tag_height_offset_m: float = T
     range_m = uwb["range_m"].to_numpy()
     if t_uwb.size == 0:
         raise RecordingError(f"{run}: no UWB measurements in any A<id>.csv")
-    if not np.any((t_uwb >= t_truth[0]) & (t_uwb <= t_truth[-1])):
-        raise RecordingError(f"{run}: UWB stamps do not overlap the trajectory.csv time span")
+    return ids, anchor_pos, t_uwb, anchor, range_m
 
-    if crop_to_uwb:
-        after = t_truth > t_uwb[-1]
-        rep.drop(traj.name, "after_last_uwb", int(after.sum()))
-        t_truth, pos = t_truth[~after], pos[~after]
-    rep.kept(traj.name, t_truth.size)
-    vel = velocity_from_position(t_truth, pos, window_s=velocity_window_s, max_gap_s=1.0)
-    burst = gap_bursts(t_uwb, burst_gap_s)
+
+def _note_uwb_coverage(rep: ReportBuilder, t_truth: np.ndarray, t_uwb: np.ndarray, anchor: np.ndarray,
+                       range_m: np.ndarray, burst: np.ndarray, ids: list[str], burst_gap_s: float
+                       ) -> tuple[dict[str, float], dict[str, float]]:
+    """Note repeated anchors in a burst, UWB rows outside the truth span, a truth tail without UWB,
+    long per-anchor outages and the uncorrected time lag; return the per-anchor rates and max gaps."""
     repeated = pd.DataFrame({"b": burst, "a": anchor}).duplicated().sum()
     if repeated:
         rep.note(f"{int(repeated)} burst(s) hold the same anchor twice (burst gap {burst_gap_s} s)")
@@ -147,9 +181,15 @@ def import_hanyang(run_dir: str | os.PathLike, *, tag_height_offset_m: float = T
     if outages:
         rep.note("longest UWB gap per anchor [s]: " + ", ".join(f"{a}={g:.1f}" for a, g in outages.items()))
     rep.note(LAG_NOTE)
+    return rates, gaps
 
+
+def _run_meta(run: Path, origin_ns: int, *, tag_height_offset_m: float, burst_gap_s: float,
+              velocity_window_s: float, crop_to_uwb: bool, rates: dict[str, float],
+              gaps: dict[str, float]) -> dict[str, Any]:
+    """``trace.meta`` of a dynamic run."""
     env = next((p for p in run.parts[::-1] if p in ("LOS", "NLOS")), None)
-    meta: dict[str, Any] = {
+    return {
         "source": "hanyang-uwb",
         "run": "/".join(run.parts[-3:]),
         "environment": env,
@@ -170,13 +210,6 @@ def import_hanyang(run_dir: str | os.PathLike, *, tag_height_offset_m: float = T
         "uwb_max_gap_s": gaps,
         "cropped_to_uwb": bool(crop_to_uwb),
     }
-    trace = Trace(
-        truth=Truth(t_s=t_truth, pos_enu_m=pos, vel_enu_mps=vel),
-        uwb=Uwb(t_s=t_uwb, anchor=anchor, range_m=range_m, burst=burst),
-        anchors=Anchors(ids=tuple(ids), pos_enu_m=np.array(anchor_pos)),
-        meta=meta,
-    )
-    return trace, rep.build()
 
 
 def _read_trajectory(path: Path, rep: ReportBuilder) -> tuple[np.ndarray, np.ndarray]:
