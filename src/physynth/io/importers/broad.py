@@ -58,6 +58,37 @@ def import_broad(mat_file: str | os.PathLike, *, velocity_window_s: float = 0.1
         attitude and the body rates between consecutive quaternions.
     """
     path = Path(mat_file)
+    mat = _load_trial(path)
+    acc_b, gyr_b, quat, pos, moving, rate_hz = _trial_arrays(path, mat)
+    n = acc_b.shape[0]
+    rep = ReportBuilder("broad", path)
+    masked = _report_dropouts(rep, path.name, acc_b, quat, pos, rate_hz)
+
+    good = ~masked
+    q = quat[good]
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    acc, g_rest, rest = _gravity_free_acc(path, acc_b, q, good, moving)
+    truth_pos = np.where(good[:, None], pos, np.nan)
+    truth_quat = np.full((n, 4), np.nan)
+    truth_quat[good] = q
+    t = np.arange(n) / rate_hz
+    vel = velocity_from_position(t, truth_pos, window_s=velocity_window_s, max_gap_s=2.0 / rate_hz)
+
+    meta = _trial_meta(path, mat, rate_hz=rate_hz, g_rest=g_rest, rest=rest, masked=masked,
+                       velocity_window_s=velocity_window_s)
+    trace = Trace(
+        truth=Truth(t_s=t, pos_enu_m=truth_pos, vel_enu_mps=vel, quat_wxyz=truth_quat,
+                    omega_body_radps=body_rates_from_quat(t, truth_quat)),
+        uwb=Uwb(t_s=np.zeros(0), anchor=np.zeros(0, np.int16), range_m=np.zeros(0)),
+        anchors=Anchors(ids=(), pos_enu_m=np.zeros((0, 3))),
+        imu=Imu(t_s=t, acc_mps2=acc, acc_body_mps2=acc_b, gyro_body_radps=gyr_b),
+        meta=meta,
+    )
+    return trace, rep.build()
+
+
+def _load_trial(path: Path) -> dict[str, Any]:
+    """The variables of a BROAD ``.mat`` file, with the required ones present."""
     if not path.is_file():
         raise RecordingError(f"BROAD trial file {path} does not exist")
     try:
@@ -68,6 +99,12 @@ def import_broad(mat_file: str | os.PathLike, *, velocity_window_s: float = 0.1
     missing = [k for k in _KEYS if k not in mat]
     if missing:
         raise RecordingError(f"{path}: missing variable(s) {', '.join(missing)} (not a BROAD trial?)")
+    return mat
+
+
+def _trial_arrays(path: Path, mat: dict[str, Any]
+                  ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray, np.ndarray, float]:
+    """``(imu_acc, imu_gyr or None, opt_quat, opt_pos, movement, sampling_rate)`` with checked shapes."""
     acc_b = np.asarray(mat["imu_acc"], dtype=np.float64)
     gyr_b = np.asarray(mat[_GYRO_KEY], dtype=np.float64) if _GYRO_KEY in mat else None
     quat = np.asarray(mat["opt_quat"], dtype=np.float64)
@@ -83,9 +120,13 @@ def import_broad(mat_file: str | os.PathLike, *, velocity_window_s: float = 0.1
         raise RecordingError(f"{path}: movement has {moving.size} samples, expected {n}")
     if not (np.isfinite(rate_hz) and rate_hz > 0):
         raise RecordingError(f"{path}: sampling_rate {rate_hz} is not a positive number")
+    return acc_b, gyr_b, quat, pos, moving, rate_hz
 
-    name = path.name
-    rep = ReportBuilder("broad", path)
+
+def _report_dropouts(rep: ReportBuilder, name: str, acc_b: np.ndarray, quat: np.ndarray, pos: np.ndarray,
+                     rate_hz: float) -> np.ndarray:
+    """Count the samples read, the optical dropouts and NaN IMU rows; return the optical-dropout mask."""
+    n = acc_b.shape[0]
     rep.read(name, n)
     masked = ~np.all(np.isfinite(quat), axis=1) | ~np.all(np.isfinite(pos), axis=1)
     bad_imu = ~np.all(np.isfinite(acc_b), axis=1) & ~masked
@@ -97,29 +138,32 @@ def import_broad(mat_file: str | os.PathLike, *, velocity_window_s: float = 0.1
         rep.note(f"{run_len.size} optical NaN run(s), longest {run_len.max()} samples "
                  f"({run_len.max() / rate_hz:.2f} s); IMU and truth masked (NaN) there, not filled")
     rep.kept(name, n)
+    return masked
 
-    good = ~masked
-    acc_w = np.full((n, 3), np.nan)
-    q = quat[good]
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+
+def _gravity_free_acc(path: Path, acc_b: np.ndarray, q: np.ndarray, good: np.ndarray, moving: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World-frame acceleration minus the rest-phase gravity vector (NaN where ``good`` is false).
+
+    ``q`` holds the normalised quaternions of the ``good`` samples. Returns ``(acc, g_rest, rest)``.
+    """
+    acc_w = np.full((acc_b.shape[0], 3), np.nan)
     acc_w[good] = Rotation.from_quat(q, scalar_first=True).apply(acc_b[good])
     rest = ~moving & np.all(np.isfinite(acc_w), axis=1)
     if rest.sum() < 10:
         raise RecordingError(f"{path}: fewer than 10 rest samples (movement false) with optical data; "
                              "cannot estimate gravity")
     g_rest = acc_w[rest].mean(axis=0)
-    acc = acc_w - g_rest
-    truth_pos = np.where(good[:, None], pos, np.nan)
-    truth_quat = np.full((n, 4), np.nan)
-    truth_quat[good] = q
-    t = np.arange(n) / rate_hz
-    vel = velocity_from_position(t, truth_pos, window_s=velocity_window_s, max_gap_s=2.0 / rate_hz)
+    return acc_w - g_rest, g_rest, rest
 
-    trial = path.stem
+
+def _trial_meta(path: Path, mat: dict[str, Any], *, rate_hz: float, g_rest: np.ndarray, rest: np.ndarray,
+                masked: np.ndarray, velocity_window_s: float) -> dict[str, Any]:
+    """``trace.meta`` of a BROAD trial."""
     info = np.asarray(mat.get("info", np.array([""]))).reshape(-1)
-    meta: dict[str, Any] = {
+    return {
         "source": "broad",
-        "run": trial,
+        "run": path.stem,
         "path": str(path.resolve()),
         "citation": CITATION,
         "info": str(info[0]) if info.size else "",
@@ -139,12 +183,3 @@ def import_broad(mat_file: str | os.PathLike, *, velocity_window_s: float = 0.1
         "imu_body": "imu_acc [m/s^2] and imu_gyr [rad/s] as recorded, in the sensor frame (body-flu columns; the "
                     "sensor's own axes, not necessarily forward-left-up)",
     }
-    trace = Trace(
-        truth=Truth(t_s=t, pos_enu_m=truth_pos, vel_enu_mps=vel, quat_wxyz=truth_quat,
-                    omega_body_radps=body_rates_from_quat(t, truth_quat)),
-        uwb=Uwb(t_s=np.zeros(0), anchor=np.zeros(0, np.int16), range_m=np.zeros(0)),
-        anchors=Anchors(ids=(), pos_enu_m=np.zeros((0, 3))),
-        imu=Imu(t_s=t, acc_mps2=acc, acc_body_mps2=acc_b, gyro_body_radps=gyr_b),
-        meta=meta,
-    )
-    return trace, rep.build()
