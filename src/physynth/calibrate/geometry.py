@@ -21,7 +21,7 @@ from typing import Any, Literal
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..models.motion import compile_speed_shape
+from ..models.motion import SpeedShape, compile_speed_shape
 from ..models.path import compile_path
 from ..records import Trace
 from ..scenario import AnchorSpec, MotionParams, PathParams, Scenario, SpeedProfileParams, scenario_from_dict
@@ -344,45 +344,11 @@ def fit_motion(traces: Trace | Sequence[Trace], *, profile: Literal["auto", "pol
         if tr.trip_s <= 0 or tr.trip_length_m <= 0:
             raise CalibrationError(f"{tr.label}: no motion found in the ground truth")
     base = defaults or MotionParams(cruise_speed_mps=1.0)
-    # shape: degree-4 polynomial on the pooled runs
-    us, gs = zip(*(_profile_samples(tr, 401) for tr in tracks), strict=True)
-    u_all, g_all = np.concatenate(us), np.concatenate(gs)
-    coeffs = np.polynomial.Polynomial.fit(u_all, g_all, SPEED_POLY_DEGREE, domain=[0.0, 1.0]).convert(
-        domain=[0.0, 1.0], window=[0.0, 1.0]).coef
-    fit_g = np.polynomial.polynomial.polyval(u_all, coeffs)
-    ss_res = float(np.sum((g_all - fit_g) ** 2))
-    ss_tot = float(np.sum((g_all - g_all.mean()) ** 2))
-    r2 = 1.0 - ss_res / ss_tot if ss_tot > 0 else 1.0
-    per_run_r2 = []
-    for u, g in zip(us, gs, strict=True):
-        res = g - np.polynomial.polynomial.polyval(u, coeffs)
-        tot = np.sum((g - g.mean()) ** 2)
-        per_run_r2.append(float(1.0 - np.sum(res**2) / tot) if tot > 0 else 1.0)
-    if profile == "auto":
-        kind = "polynomial" if r2 >= min_r2 else "empirical"
-    else:
-        kind = profile
-    if kind == "polynomial":
-        prof = SpeedProfileParams(kind="polynomial", coeffs=[rounded(c, 8) for c in coeffs])
-    elif kind == "empirical":
-        ref = tracks[0]
-        n = int(np.clip(round(ref.trip_s / empirical_step_s) + 1, 50, 4000))
-        _, g = _profile_samples(ref, n)
-        # smoothing spline penalty for a half-power cut-off near EMPIRICAL_CUTOFF_HZ of trip time:
-        # lam * omega_c^4 = du, omega_c = 2 pi f_c T in radians per unit of u
-        lam = (1.0 / (n - 1)) / (2.0 * np.pi * EMPIRICAL_CUTOFF_HZ * ref.trip_s) ** 4
-        prof = SpeedProfileParams(kind="empirical", samples=[round(float(x), 4) for x in np.clip(g, 0.0, None)],
-                                  smoothing=rounded(max(lam, 1e-300), 4))
-    else:
-        raise CalibrationError(f"unknown speed profile kind {profile!r} (use auto, polynomial or empirical)")
+    us, gs, coeffs, r2, poly_rms, per_run_r2 = _fit_speed_poly(tracks)
+    kind = ("polynomial" if r2 >= min_r2 else "empirical") if profile == "auto" else profile
+    prof = _speed_profile(kind, profile, coeffs, tracks[0], empirical_step_s)
     shape = compile_speed_shape(prof)
-    if kind == "empirical":
-        u_s = np.linspace(0.0, 1.0, len(prof.samples))
-        tab = np.interp(u_s, shape.u, shape.g) * float(np.max(prof.samples))
-        profile_rms = float(np.sqrt(np.mean((tab - np.asarray(prof.samples)) ** 2)))
-    else:
-        u_s, g_s = us[0], gs[0]
-        profile_rms = float(np.sqrt(np.mean((np.interp(u_s, shape.u, shape.g) - g_s) ** 2)))
+    profile_rms = _profile_rms_error(kind, prof, shape, us[0], gs[0])
     lengths = np.array([tr.trip_length_m for tr in tracks])
     trips = np.array([tr.trip_s for tr in tracks])
     v_runs = lengths / (trips * shape.mean)
@@ -403,16 +369,87 @@ def fit_motion(traces: Trace | Sequence[Trace], *, profile: Literal["auto", "pol
         "shape_mean_g": shape.mean,
         "profile_rms_error": profile_rms,
         "empirical_rms_improvement": (f"empirical profile RMS error {profile_rms:.3f} against the "
-                                      f"polynomial's {np.sqrt(ss_res / g_all.size):.3f} (in units of peak speed)"
+                                      f"polynomial's {poly_rms:.3f} (in units of peak speed)"
                                       if kind == "empirical" else None),
-        "per_run": {tr.label: {"trip_s": tr.trip_s, "trip_length_m": tr.trip_length_m,
-                               "cruise_speed_mps": float(v), "peak_speed_mps": tr.peak_speed_mps,
-                               "mean_speed_mps": tr.trip_length_m / tr.trip_s,
-                               "dwell_start_s": tr.dwell_start_s, "dwell_end_s": tr.dwell_end_s,
-                               "stop_speed_mps": tr.stop_speed_mps}
-                    for tr, v in zip(tracks, v_runs, strict=True)},
+        "per_run": _per_run_motion(tracks, v_runs),
         "n_runs": len(tracks),
     }
+    speed_spread, length_spread = _run_to_run_spreads(tracks, v_runs, lengths, base, diag)
+    dwell_start = float(np.mean([tr.dwell_start_s for tr in tracks]))
+    dwell_end = float(np.mean([tr.dwell_end_s for tr in tracks]))
+    params = MotionParams(cruise_speed_mps=rounded(cruise, 6), profile=prof,
+                          cruise_speed_spread_frac=rounded(speed_spread, 4),
+                          length_spread_frac=rounded(length_spread, 4),
+                          dwell_start_s=round(dwell_start, 3), dwell_end_s=round(dwell_end, 3))
+    diag["cruise_speed_mps"] = params.cruise_speed_mps
+    n = int(sum(tr.i_end - tr.i_start + 1 for tr in tracks))
+    return Fit(params=params, n_samples=n, diagnostics=diag)
+
+
+def _fit_speed_poly(tracks: Sequence[TrackSummary]
+                    ) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...], np.ndarray, float, float, list[float]]:
+    """Degree-4 polynomial g(u) on the pooled runs.
+
+    Returns ``(us, gs, coeffs, r2, poly_rms, per_run_r2)``: the samples of each run, the power-series
+    coefficients in u, the pooled R^2, the pooled RMS error and the R^2 of each run.
+    """
+    us, gs = zip(*(_profile_samples(tr, 401) for tr in tracks), strict=True)
+    u_all, g_all = np.concatenate(us), np.concatenate(gs)
+    coeffs = np.polynomial.Polynomial.fit(u_all, g_all, SPEED_POLY_DEGREE, domain=[0.0, 1.0]).convert(
+        domain=[0.0, 1.0], window=[0.0, 1.0]).coef
+    fit_g = np.polynomial.polynomial.polyval(u_all, coeffs)
+    ss_res = float(np.sum((g_all - fit_g) ** 2))
+    ss_tot = float(np.sum((g_all - g_all.mean()) ** 2))
+    r2 = 1.0 - ss_res / ss_tot if ss_tot > 0 else 1.0
+    per_run_r2 = []
+    for u, g in zip(us, gs, strict=True):
+        res = g - np.polynomial.polynomial.polyval(u, coeffs)
+        tot = np.sum((g - g.mean()) ** 2)
+        per_run_r2.append(float(1.0 - np.sum(res**2) / tot) if tot > 0 else 1.0)
+    return us, gs, coeffs, r2, np.sqrt(ss_res / g_all.size), per_run_r2
+
+
+def _speed_profile(kind: str, profile: str, coeffs: np.ndarray, ref: TrackSummary,
+                   empirical_step_s: float) -> SpeedProfileParams:
+    """The ``polynomial`` profile from ``coeffs`` or the ``empirical`` one sampled from ``ref``."""
+    if kind == "polynomial":
+        return SpeedProfileParams(kind="polynomial", coeffs=[rounded(c, 8) for c in coeffs])
+    if kind == "empirical":
+        n = int(np.clip(round(ref.trip_s / empirical_step_s) + 1, 50, 4000))
+        _, g = _profile_samples(ref, n)
+        # smoothing spline penalty for a half-power cut-off near EMPIRICAL_CUTOFF_HZ of trip time:
+        # lam * omega_c^4 = du, omega_c = 2 pi f_c T in radians per unit of u
+        lam = (1.0 / (n - 1)) / (2.0 * np.pi * EMPIRICAL_CUTOFF_HZ * ref.trip_s) ** 4
+        return SpeedProfileParams(kind="empirical", samples=[round(float(x), 4) for x in np.clip(g, 0.0, None)],
+                                  smoothing=rounded(max(lam, 1e-300), 4))
+    raise CalibrationError(f"unknown speed profile kind {profile!r} (use auto, polynomial or empirical)")
+
+
+def _profile_rms_error(kind: str, prof: SpeedProfileParams, shape: SpeedShape, u_ref: np.ndarray,
+                       g_ref: np.ndarray) -> float:
+    """RMS error of the generator's tabulated shape against the empirical samples, or against the
+    reference run's g(u) for a polynomial profile (units of peak speed)."""
+    if kind == "empirical":
+        u_s = np.linspace(0.0, 1.0, len(prof.samples))
+        tab = np.interp(u_s, shape.u, shape.g) * float(np.max(prof.samples))
+        return float(np.sqrt(np.mean((tab - np.asarray(prof.samples)) ** 2)))
+    return float(np.sqrt(np.mean((np.interp(u_ref, shape.u, shape.g) - g_ref) ** 2)))
+
+
+def _per_run_motion(tracks: Sequence[TrackSummary], v_runs: np.ndarray) -> dict[str, dict[str, Any]]:
+    """Trip time, length, speeds and dwells of each run, keyed by label."""
+    return {tr.label: {"trip_s": tr.trip_s, "trip_length_m": tr.trip_length_m,
+                       "cruise_speed_mps": float(v), "peak_speed_mps": tr.peak_speed_mps,
+                       "mean_speed_mps": tr.trip_length_m / tr.trip_s,
+                       "dwell_start_s": tr.dwell_start_s, "dwell_end_s": tr.dwell_end_s,
+                       "stop_speed_mps": tr.stop_speed_mps}
+            for tr, v in zip(tracks, v_runs, strict=True)}
+
+
+def _run_to_run_spreads(tracks: Sequence[TrackSummary], v_runs: np.ndarray, lengths: np.ndarray,
+                        base: MotionParams, diag: dict[str, Any]) -> tuple[float, float]:
+    """Cruise-speed and length spreads (uniform half-widths) over the runs, or ``base``'s with one run;
+    records the method (and what is not identifiable) in ``diag``."""
     if len(tracks) >= 2:
         speed_spread = min(_uniform_half_width(v_runs), 0.95)
         length_spread = min(_uniform_half_width(lengths), 0.95)
@@ -423,15 +460,7 @@ def fit_motion(traces: Trace | Sequence[Trace], *, profile: Literal["auto", "pol
         diag["not_identifiable"] = ["cruise_speed_spread_frac", "length_spread_frac"]
         diag["spread_method"] = (f"one run: run-to-run spread not identifiable, defaults kept "
                                  f"(cruise {speed_spread}, length {length_spread})")
-    dwell_start = float(np.mean([tr.dwell_start_s for tr in tracks]))
-    dwell_end = float(np.mean([tr.dwell_end_s for tr in tracks]))
-    params = MotionParams(cruise_speed_mps=rounded(cruise, 6), profile=prof,
-                          cruise_speed_spread_frac=rounded(speed_spread, 4),
-                          length_spread_frac=rounded(length_spread, 4),
-                          dwell_start_s=round(dwell_start, 3), dwell_end_s=round(dwell_end, 3))
-    diag["cruise_speed_mps"] = params.cruise_speed_mps
-    n = int(sum(tr.i_end - tr.i_start + 1 for tr in tracks))
-    return Fit(params=params, n_samples=n, diagnostics=diag)
+    return speed_spread, length_spread
 
 
 def fit_path_perturbation(traces: Sequence[Trace], path: PathParams, *,
