@@ -58,7 +58,7 @@ def _one_pass(cs, n: int) -> dict[str, float]:
         tries = simulate_uwb(kin, s.uwb, cs.channel, rng=component_rng(1, i, "uwb"))
         t0 = lap("UWB attempts", t0)
         outage, dropped = simulate_availability(tries.t_true_s, tries.anchor, tries.burst, tries.bursts_s,
-                                                cs.availability, s.uwb.burst_rate_hz,
+                                                cs.availability, s.uwb.burst_rate_hz, range_m=tries.true_range_m,
                                                 rng=component_rng(1, i, "availability"))
         t0 = lap("availability", t0)
         uwb_record(tries, s.uwb, outage=outage, dropped=dropped)

@@ -43,6 +43,7 @@ from scipy.special import expit, logit
 
 from ..records import Reason, Trace
 from ._base import Fit, trace_label
+from .outage_range import anchor_runs, fit_long_outages
 from .uwb_fit import burst_ids, geometric_range
 
 LINK_IN_RANGE_PROB = 0.999
@@ -710,6 +711,30 @@ def fit_outages(tabs: Sequence[AttemptTable], in_range: Sequence[np.ndarray], tr
     return stats, fits, tag
 
 
+def _fit_long(traces: Sequence[Trace], tabs: Sequence[AttemptTable], in_range: Sequence[np.ndarray],
+              ranges: Sequence[np.ndarray], att_period: dict[str, float], *, tag_kept: bool) -> dict[str, Any]:
+    """Long outages (:mod:`physynth.calibrate.outage_range`) from every anchor's attempt sequence; the
+    dark runs of a kept tag process (every anchor silent for TAG_OUTAGE_MIN_S or more) are unobserved."""
+    codes: dict[str, list[np.ndarray]] = {}
+    rngs: dict[str, list[np.ndarray]] = {}
+    for tr, tab, ok, r_all in zip(traces, tabs, in_range, ranges, strict=True):
+        dark = np.zeros(tab.t_s.size + 1, dtype=np.int64)
+        if tag_kept:
+            s, e, _ = _dark_runs(tab, ok)
+            last = np.minimum(e, tab.t_s.size) - 1
+            long_dark = tab.t_s[last] - tab.t_s[s] >= TAG_OUTAGE_MIN_S
+            np.add.at(dark, s[long_dark], 1)
+            np.add.at(dark, e[long_dark], -1)
+        dark_mask = np.cumsum(dark)[:-1] > 0
+        for j, aid in enumerate(tr.anchors.ids):  # one pass per anchor
+            att = tab.attempted[:, j]
+            code = np.where(ok[:, j] & ~dark_mask, np.where(tab.heard[:, j], 1, 0), -1)
+            codes.setdefault(aid, []).append(code[att])
+            rngs.setdefault(aid, []).append(r_all[att, j])
+    runs = [anchor_runs(a, att_period[a], codes[a], rngs[a]) for a in codes]
+    return fit_long_outages(runs)
+
+
 def fit_availability(traces: Sequence[Trace], offset_s: float, burst_rate_hz: float,
                      anchor_ids: Sequence[str]) -> Fit[dict[str, Any]]:
     """Link range, attempt rate, dropout and outages per anchor, and tag outages, pooled over traces."""
@@ -747,6 +772,7 @@ def fit_availability(traces: Sequence[Trace], offset_s: float, burst_rate_hz: fl
     att_period = {a: period * burst_count[a] / max(att_count[a], 1) for a in anchor_ids}
     stats, fits, tag = fit_outages(tabs, in_range, [tr.anchors.ids for tr in traces], anchor_ids, att_period,
                                    burst_rate_hz)
+    long_outages = _fit_long(traces, tabs, in_range, rng_tab, att_period, tag_kept=tag.get("onset_prob", 0.0) > 0)
     for a in anchor_ids:
         st = stats[a]
         dur = np.concatenate(st.durations_s) if st.durations_s else np.zeros(0)
@@ -764,6 +790,6 @@ def fit_availability(traces: Sequence[Trace], offset_s: float, burst_rate_hz: fl
             "observed_outages": observed,
         }
     n = int(sum(att_count.values()))
-    return Fit(params={"per_anchor": per_anchor, "tag": tag}, n_samples=n,
+    return Fit(params={"per_anchor": per_anchor, "tag": tag, "long_outages": long_outages}, n_samples=n,
                diagnostics={"attempts_recorded": [t.recorded for t in tabs],
                             "labels": [trace_label(t, i) for i, t in enumerate(traces)]})

@@ -651,6 +651,7 @@ class RangingFit:
 class AvailabilityFit:
     per_anchor: dict[str, dict[str, Any]]
     tag: dict[str, Any]
+    long_outages: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -850,9 +851,10 @@ def fit_link_availability(inp: CalibrationInputs, ranging: RangingFit, timing: T
                           report: ReportBuilder) -> AvailabilityFit:
     """Link range, attempt rate, dropout and outages per anchor, and tag outages, pooled over runs."""
     af = fit_availability(inp.traces, ranging.offset_s, timing.burst_rate_hz, inp.anchor_ids)
-    av, tag = af.params["per_anchor"], af.params["tag"]
-    report.sections["availability"] = {"per_anchor": av, "tag_outages": tag, **af.diagnostics}
-    return AvailabilityFit(per_anchor=av, tag=tag)
+    av, tag, long_ = af.params["per_anchor"], af.params["tag"], af.params["long_outages"]
+    report.sections["availability"] = {"per_anchor": av, "tag_outages": tag, "long_outages": long_,
+                                       **af.diagnostics}
+    return AvailabilityFit(per_anchor=av, tag=tag, long_outages=long_)
 
 
 def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: AvailabilityFit, timing: TimingFit,
@@ -995,8 +997,34 @@ def _rate_report(rep: ReportBuilder, key: str, post: RatePosterior, burst_rate_h
                    f"{post.prior_rate_s:g} s)), {post.events:.3g} events in {post.exposure_s:.4g} s")
 
 
+def _long_outage_params(fit: dict[str, Any], rep: ReportBuilder, *, use: bool) -> dict[str, Any]:
+    """The ``long_outage_*`` fields of the pooled availability (:mod:`physynth.calibrate.outage_range`);
+    with ``use`` False they are reported and left out of the scenario."""
+    if not fit.get("identifiable"):
+        if fit:
+            rep.not_identifiable.append(f"availability.long_outage_* ({fit.get('why')}; none generated)")
+        return {}
+    slope = fit["range_slope_per_m"]
+    out = {"long_outage_rate_per_s": rounded(fit["rate_per_s"], 8), "long_outage_mean_s": rounded(fit["mean_s"], 5),
+           "long_outage_range_slope_per_m": rounded(slope, 5), "long_outage_ref_range_m": rounded(fit["ref_range_m"], 3),
+           "long_outage_max_range_m": rounded(fit["max_range_m"], 3) if slope else None}
+    note = (f"{fit['n_runs']} runs of >= {fit['min_missed_attempts']} missed attempts; likelihood ratio "
+            f"{fit['lr_long']:.3g} against no long outages")
+    rep.param("availability.long_outage_rate_per_s", out["long_outage_rate_per_s"], n=fit["n_runs"], summary=True,
+              note=note + f"; rate at {out['long_outage_ref_range_m']} m")
+    rep.param("availability.long_outage_mean_s", out["long_outage_mean_s"], n=fit["n_runs"], summary=True)
+    rep.param("availability.long_outage_range_slope_per_m", out["long_outage_range_slope_per_m"], n=fit["n_runs"],
+              summary=True, note=f"likelihood ratio {fit['lr_slope']:.3g} against slope 0"
+              + ("" if slope else " (< 10: not kept)"))
+    if not use:
+        rep.not_identifiable.append("availability.long_outage_* (fitted and reported; not generated unless "
+                                    "long_outages=True)")
+        return {}
+    return out
+
+
 def assemble_availability(inp: CalibrationInputs, avail: AvailabilityFit, timing: TimingFit,
-                          report: ReportBuilder) -> AvailabilitySet:
+                          report: ReportBuilder, *, long_outages: bool = False) -> AvailabilitySet:
     """Availability parameters: dropout per anchor, outage and tag-outage rates with Gamma posteriors.
 
     An outage onset rate is estimated from a handful of events, so it is reported as the posterior of
@@ -1052,6 +1080,7 @@ def assemble_availability(inp: CalibrationInputs, avail: AvailabilityFit, timing
         tag_outage_onset_prob=tag_onset,
         tag_outage_mean_s=rounded(tag["mean_s"], 5) if tag.get("mean_s") else AvailabilityParams().tag_outage_mean_s,
         tag_outage_onset_shape=tag_shape,
+        **_long_outage_params(avail.long_outages, rep, use=long_outages),
     )
     if up_s > 0:
         _rate_report(rep, "availability.tag_outage_onset_prob", tag_post, burst_rate,
@@ -1135,7 +1164,8 @@ N_STEPS = 8
 def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path_kind: PathKind = "auto",
               anchor_policy: AnchorPolicy = "per-run", layout_from: int | str | None = None,
               static_sweeps: str | os.PathLike | None = None, range_bias: Literal["dynamic", "static"] = "dynamic",
-              sources: Sequence[str] | None = None, progress: ProgressCallback | None = None) -> CalibrationResult:
+              sources: Sequence[str] | None = None, long_outages: bool = False,
+              progress: ProgressCallback | None = None) -> CalibrationResult:
     """Calibrate a scenario on one or several recordings (real or synthetic Traces).
 
     Parameters
@@ -1158,6 +1188,11 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
         the static sweeps (reported), and used for every anchor when ``range_bias="static"``.
     sources
         Names of the datasets the traces came from (provenance).
+    long_outages
+        Generate the long outages (``availability.long_outage_*``) when the fit identifies them. They
+        are always fitted and reported; off by default because on the shared Hanyang runs they belong
+        to one anchor placement, not to range alone, and generating them everywhere worsens the
+        leave-one-out age of information (docs/calibration.md, "Long outages").
     progress
         ``progress(message, done, total)`` before each step (:mod:`physynth.progress`).
     """
@@ -1193,7 +1228,7 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
         rep.param("static.range_bias_per_m", static["range_bias_per_m"], se=static["std_error"],
                   n=static["n_rows"], note=f"static sweeps ({static['environment']}), {static['n_files']} files",
                   summary=True)
-    availability = assemble_availability(inp, avail, timing, rep)
+    availability = assemble_availability(inp, avail, timing, rep, long_outages=long_outages)
     imu = fit_imu_step(inp, rep, lambda msg, *_: tick(msg))
     scn = build_scenario(name, inp, geometry, timing, ranging, channels, availability, imu,
                          sources=list(sources or []), created_utc=rep.sections["created_utc"], report=rep)

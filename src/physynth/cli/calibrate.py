@@ -4,6 +4,7 @@
                        [--path-kind auto|polynomial|waypoints] [--name NAME]
                        [--anchor-layout per-run|strict|first] [--layout-from RUN]
                        [--static-sweeps DIR] [--range-bias dynamic|static]
+                       [--long-outages]
                        [--overwrite] [--quiet]
 
 The command parses, calls :func:`physynth.workflows.calibrate_datasets`, writes the scenario with
@@ -49,6 +50,10 @@ def calibrate_cmd(
     range_bias: Literal["dynamic", "static"] = typer.Option("dynamic", "--range-bias",
                                    help="dynamic: range bias per anchor from the recordings; static: the "
                                         "static-sweep slope for every anchor (needs --static-sweeps)."),
+    long_outages: bool = typer.Option(False, "--long-outages",
+                                      help="Also generate the long outages the fit finds (multi-second fades "
+                                           "whose rate may grow with range; always reported). See "
+                                           "docs/calibration.md."),
     allow_mixed: bool = typer.Option(False, "--allow-mixed",
                                      help="Pool datasets even when they are not the same kind of site."),
     overwrite: bool = typer.Option(False, "--overwrite",
@@ -76,7 +81,8 @@ def calibrate_cmd(
             check_output(target, kind=kind, overwrite=overwrite, inputs=inputs)  # again, under the lock
         _calibrate(datasets, out, report, quiet, real[0], real[1] if report else None, name=name or out.stem,
                    path_kind=path_kind, anchor_policy=anchor_layout, layout_from=chosen,
-                   static_sweeps=static_sweeps, range_bias=range_bias, allow_mixed=allow_mixed)
+                   static_sweeps=static_sweeps, range_bias=range_bias, allow_mixed=allow_mixed,
+                   long_outages=long_outages)
 
 
 def _calibrate(datasets: list[Path], out: Path, report: Path | None, quiet: bool, real_out: Path,

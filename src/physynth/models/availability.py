@@ -13,6 +13,14 @@ When ``outage_onset_shape`` / ``tag_outage_onset_shape`` is set, every trace dra
 onset_prob x G with G ~ Gamma(shape, 1 / shape) (mean 1: the posterior of the rate, scaled), so an
 ensemble spreads as widely as the evidence allows; unset (the default), the rate is fixed and nothing
 is drawn, so scenarios without it generate what they always did.
+
+Long outages (``long_outage_*``): links also fade for seconds where the margin is thin, far from the
+anchor. Each anchor gets a second outage process, overlaid on the first: onsets form a Poisson process
+of rate ``long_outage_rate_per_s * exp(long_outage_range_slope_per_m * (r - long_outage_ref_range_m))``
+at the tag-anchor range r (r clipped to ``long_outage_max_range_m`` when set, so that the rate is not
+extrapolated beyond the ranges it was fitted on), each lasting an exponential time of mean
+``long_outage_mean_s``; overlapping outages merge. With ``long_outage_rate_per_s`` 0 (the default)
+nothing is drawn. :mod:`physynth.calibrate.outage_range` fits it.
 """
 
 from __future__ import annotations
@@ -22,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._params import ParamsModel, PositiveFloat, Probability
+from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Probability
 from .renewal import initial_pairs, switch_counts
 
 RATE_PRIOR_SHAPE = 0.5
@@ -91,6 +99,11 @@ class AvailabilityParams(ParamsModel):
     start_stationary: bool = True
     outage_onset_shape: PositiveFloat | None = None
     tag_outage_onset_shape: PositiveFloat | None = None
+    long_outage_rate_per_s: NonNegFloat = 0.0
+    long_outage_mean_s: PositiveFloat = 1.5
+    long_outage_range_slope_per_m: FiniteFloat = 0.0
+    long_outage_ref_range_m: NonNegFloat = 0.0
+    long_outage_max_range_m: PositiveFloat | None = None
 
 
 class AvailabilityOverride(ParamsModel):
@@ -112,6 +125,8 @@ class AvailabilityArrays:
     start_stationary: bool
     outage_onset_shape: np.ndarray  # (A,) Gamma shape of the per-trace rate; NaN: fixed rate
     tag_outage_onset_shape: float  # NaN: fixed rate
+    long_outage: tuple[float, float, float, float, float] = (0.0, 1.5, 0.0, 0.0, np.inf)
+    """(rate [1/s] at the reference range, mean [s], slope [1/m], reference range [m], range cap [m])."""
 
 
 def availability_arrays(params: AvailabilityParams, per_anchor: Sequence[AvailabilityParams]) -> AvailabilityArrays:
@@ -127,6 +142,9 @@ def availability_arrays(params: AvailabilityParams, per_anchor: Sequence[Availab
                                      for a in per_anchor], dtype=float),
         tag_outage_onset_shape=(np.nan if params.tag_outage_onset_shape is None
                                 else float(params.tag_outage_onset_shape)),
+        long_outage=(float(params.long_outage_rate_per_s), float(params.long_outage_mean_s),
+                     float(params.long_outage_range_slope_per_m), float(params.long_outage_ref_range_m),
+                     np.inf if params.long_outage_max_range_m is None else float(params.long_outage_max_range_m)),
     )
 
 
@@ -145,7 +163,8 @@ def draw_trace_rates(av: AvailabilityArrays, *, rng: np.random.Generator) -> Ava
         dropout_prob=av.dropout_prob, outage_onset_prob=np.clip(av.outage_onset_prob * factor[:-1], 0.0, 1.0),
         outage_mean_s=av.outage_mean_s, tag_outage_onset_prob=float(min(av.tag_outage_onset_prob * factor[-1], 1.0)),
         tag_outage_mean_s=av.tag_outage_mean_s, start_stationary=av.start_stationary,
-        outage_onset_shape=av.outage_onset_shape, tag_outage_onset_shape=av.tag_outage_onset_shape)
+        outage_onset_shape=av.outage_onset_shape, tag_outage_onset_shape=av.tag_outage_onset_shape,
+        long_outage=av.long_outage)
 
 
 def alternating_renewal(t_s: np.ndarray, mean_on_s: float, mean_off_s: float, *, start_on_prob: float,
@@ -188,12 +207,38 @@ def stationary_availability(onset_prob_per_burst: float, burst_rate_hz: float, o
     return mean_up_s / (mean_up_s + outage_mean_s)
 
 
+def long_outage_mask(t_s: np.ndarray, range_m: np.ndarray, rate_per_s: float, mean_s: float, slope_per_m: float,
+                     ref_range_m: float, max_range_m: float = np.inf, *, start_stationary: bool = True,
+                     rng: np.random.Generator) -> np.ndarray:
+    """True where one anchor is in a long outage, at its sorted attempt times ``t_s`` with ranges ``range_m``.
+
+    Onsets: a Poisson process of rate ``rate_per_s * exp(slope_per_m * (min(r, max_range_m) - ref_range_m))``,
+    drawn by inverting its cumulative rate (trapezoids between attempts); durations exponential of mean
+    ``mean_s``; overlapping outages merge. With ``start_stationary`` the process also runs for 10 mean
+    durations before the first attempt at the first attempt's rate, so a trace can start inside one.
+    """
+    t = np.asarray(t_s, dtype=float)
+    if t.size == 0 or rate_per_s <= 0:
+        return np.zeros(t.shape, dtype=bool)
+    r = np.minimum(np.nan_to_num(np.asarray(range_m, dtype=float), nan=ref_range_m), max_range_m)
+    rate = rate_per_s * np.exp(slope_per_m * (r - ref_range_m))
+    lead_s = 10.0 * mean_s if start_stationary else 0.0
+    cum = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t))]) + rate[0] * lead_s
+    n = rng.poisson(cum[-1])
+    u = np.sort(rng.uniform(0.0, cum[-1], n))
+    lead = u < rate[0] * lead_s
+    onset = np.where(lead, t[0] - (rate[0] * lead_s - u) / rate[0], np.interp(u, cum, t))
+    end = np.sort(onset + rng.exponential(mean_s, n))
+    return np.searchsorted(onset, t, side="right") > np.searchsorted(end, t, side="right")
+
+
 def simulate_availability(t_s: np.ndarray, anchor: np.ndarray, burst: np.ndarray, bursts_s: np.ndarray,
-                          av: AvailabilityArrays, burst_rate_hz: float, *,
+                          av: AvailabilityArrays, burst_rate_hz: float, *, range_m: np.ndarray | None = None,
                           rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Outage and dropout flags of ranging attempts (true times ``t_s``, anchor and burst indices).
 
-    ``bursts_s`` holds the start time of every tag burst (the tag-level process runs on the bursts).
+    ``bursts_s`` holds the start time of every tag burst (the tag-level process runs on the bursts);
+    ``range_m`` (N,), the true range of every attempt, is needed only by long outages.
     Returns (outage, dropped), both (N,) bool. Rates with a Gamma shape are drawn for the trace first.
     """
     av = draw_trace_rates(av, rng=rng)
@@ -207,4 +252,11 @@ def simulate_availability(t_s: np.ndarray, anchor: np.ndarray, burst: np.ndarray
                               start_stationary=av.start_stationary, rng=rng)
         outage |= tag_out[burst]
     dropped = rng.random(t_s.shape[0]) < av.dropout_prob[anchor]
+    if av.long_outage[0] > 0:  # drawn last: scenarios without long outages draw what they always did
+        if range_m is None:
+            raise ValueError("long outages need the range of every attempt (range_m)")
+        for i in range(av.dropout_prob.shape[0]):
+            rows = np.flatnonzero(anchor == i)
+            outage[rows] |= long_outage_mask(t_s[rows], range_m[rows], *av.long_outage,
+                                             start_stationary=av.start_stationary, rng=rng)
     return outage, dropped
