@@ -94,6 +94,55 @@ def test_fit_recovers_rate_mean_and_slope():
     assert abs(np.log(rate_at_ref / rate_l)) < rel + 4.0 / (np.sqrt(n_long) * sd_r) * 25.0, fit
 
 
+def test_fit_recovers_the_spread_between_placements():
+    """Each placement (anchor x run) fades at its own rate G x h, G ~ Gamma(k, 1/k): the fit finds k."""
+    from scipy.special import polygamma
+
+    k, rate_l, mean_l, n_place = 0.5, 0.05, 2.0, 60
+    rng = np.random.default_rng(21)
+    g = rng.gamma(k, 1.0 / k, n_place)
+    runs = []
+    for i in range(n_place):
+        codes, ranges = _synthetic_sequences(100 + i, 1, rate_l * g[i], mean_l, 0.0, 0.0)
+        runs.append(anchor_runs("A1", 0.1, codes, ranges))
+    fit = fit_long_outages(runs)
+    assert fit["identifiable"] and fit["frailty_shape"] is not None, fit
+    # with G observed, var(log k_hat) = 1 / (n k^2 (trigamma(k) - 1 / k)); G is seen through ~12 long
+    # outages per placement at G = 1 (Poisson noise adds ~1/12 to var(G) = 1/k = 2): 10 % more
+    sd = 1.1 / np.sqrt(n_place * k**2 * (float(polygamma(1, k)) - 1.0 / k))
+    assert abs(np.log(fit["frailty_shape"] / k)) < 4.0 * sd, fit
+    assert abs(fit["mean_s"] / mean_l - 1.0) < 0.2, fit
+
+
+def test_placements_alike_keep_no_frailty():
+    runs = [anchor_runs("A1", 0.1, *_synthetic_sequences(200 + i, 1, 0.02, 2.0, 0.0, 0.0)) for i in range(20)]
+    fit = fit_long_outages(runs)
+    assert fit["identifiable"] and fit["frailty_shape"] is None, fit
+    assert fit["lr_frailty"] < 10.0
+
+
+def test_generated_frailty_spreads_the_anchors_and_keeps_the_mean():
+    from physynth.models.availability import availability_arrays, simulate_availability
+
+    t = np.arange(0.0, 2000.0, 0.1)
+    n_a = 50
+    params = AvailabilityParams(dropout_prob=0.0, outage_onset_prob=0.0, long_outage_rate_per_s=0.01,
+                                long_outage_mean_s=1.0, long_outage_frailty_shape=0.5)
+    av = availability_arrays(params, [params] * n_a)
+    tt = np.tile(t, n_a)
+    anchor = np.repeat(np.arange(n_a), t.size)
+    out, _ = simulate_availability(tt, anchor, np.zeros(tt.size, np.int64), t, av, 10.0,
+                                   range_m=np.full(tt.size, 20.0), rng=np.random.default_rng(8))
+    frac = out.reshape(n_a, t.size).mean(axis=1)
+    # per anchor the busy fraction is 1 - exp(-G h m); over anchors its mean is E[1 - exp(-G h m)]
+    # = 1 - (1 + h m / k)^-k and its spread that of G (sd sqrt(1/k) h m): far wider than one rate's
+    h_m, k = 0.01 * 1.0, 0.5
+    want = 1.0 - (1.0 + h_m / k) ** -k
+    assert abs(frac.mean() - want) < 4.0 * np.sqrt(1.0 / k) * h_m / np.sqrt(n_a)
+    one_rate_sd = np.sqrt(0.01 * 2000.0 * 2.0) / 2000.0  # compound Poisson spread of one anchor at G = 1
+    assert frac.std() > 3.0 * one_rate_sd
+
+
 def test_fit_finds_no_long_outages_where_there_are_none():
     codes, ranges = _synthetic_sequences(12, 30, 0.0, 2.0, 0.0, 0.0)
     fit = fit_long_outages([anchor_runs("A1", 0.1, codes, ranges)])

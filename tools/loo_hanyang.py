@@ -13,7 +13,7 @@ difference, whether the real P95 lies in the synthetic 5-95 % band, and the larg
 difference over lags 1..10. Targets (issue 12): KS <= 0.10, UWB >= 1 and mean AoI within 15 %,
 median within 3 cm, real P95 inside the band.
 
-    .venv/bin/python tools/loo_hanyang.py [--n 50] [--seed 1] [--out DIR] [--data ../shared/data/hanyang-uwb]
+    .venv/bin/python tools/loo_hanyang.py [--n 50] [--seed 1] [--long-outages] [--out DIR] [--data ../shared/data/hanyang-uwb]
 """
 
 from __future__ import annotations
@@ -40,6 +40,7 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA, help="hanyang-uwb folder")
     ap.add_argument("--n", type=int, default=50, help="synthetic traces per validation")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--long-outages", action="store_true", help="calibrate with long_outages=True")
     ap.add_argument("--out", type=Path, default=None, help="write the four reports (and scenarios) here")
     args = ap.parse_args()
 
@@ -56,7 +57,7 @@ def main() -> None:
         for left in traces:
             t0 = time.perf_counter()
             others = [traces[k] for k in traces if k != left]
-            res = calibrate(others, name=f"loo-without-{left.replace(' ', '-')}")
+            res = calibrate(others, name=f"loo-without-{left.replace(' ', '-')}", long_outages=args.long_outages)
             rep = validate_datasets(dirs[left], scenario=res.scenario, n=args.n, seed=args.seed, transfer=True)
             if args.out is not None:
                 out = args.out / left.replace(" ", "-")

@@ -94,6 +94,7 @@ BOUNDS: dict[str, Bound] = {
     "availability.long_outage_range_slope_per_m": Bound(-10.0, 10.0, "1/m", "log-rate slope against range"),
     "availability.long_outage_ref_range_m": Bound(0.0, 1e7, "m", "reference range of the long-outage rate"),
     "availability.long_outage_max_range_m": Bound(1e-3, 1e7, "m", "range beyond which the rate stays constant"),
+    "availability.long_outage_frailty_shape": Bound(1e-3, 1e6, "", "Gamma shape of the per-anchor rate factor"),
     "uwb.run_offset_std_m": Bound(0.0, 10.0, "m", "run-to-run ranging offset"),
     "uwb.run_anchor_offset_std_m": Bound(0.0, 10.0, "m", "per-anchor run-to-run offset"),
     "uwb.terrain.spacing_m": Bound(0.01, 10_000.0, "m", "terrain grid spacing"),

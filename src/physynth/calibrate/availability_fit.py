@@ -713,10 +713,10 @@ def fit_outages(tabs: Sequence[AttemptTable], in_range: Sequence[np.ndarray], tr
 
 def _fit_long(traces: Sequence[Trace], tabs: Sequence[AttemptTable], in_range: Sequence[np.ndarray],
               ranges: Sequence[np.ndarray], att_period: dict[str, float], *, tag_kept: bool) -> dict[str, Any]:
-    """Long outages (:mod:`physynth.calibrate.outage_range`) from every anchor's attempt sequence; the
-    dark runs of a kept tag process (every anchor silent for TAG_OUTAGE_MIN_S or more) are unobserved."""
-    codes: dict[str, list[np.ndarray]] = {}
-    rngs: dict[str, list[np.ndarray]] = {}
+    """Long outages (:mod:`physynth.calibrate.outage_range`) from every placement's attempt sequence (one
+    anchor in one run); the dark runs of a kept tag process (every anchor silent for TAG_OUTAGE_MIN_S or
+    more) are unobserved."""
+    runs = []
     for tr, tab, ok, r_all in zip(traces, tabs, in_range, ranges, strict=True):
         dark = np.zeros(tab.t_s.size + 1, dtype=np.int64)
         if tag_kept:
@@ -729,9 +729,7 @@ def _fit_long(traces: Sequence[Trace], tabs: Sequence[AttemptTable], in_range: S
         for j, aid in enumerate(tr.anchors.ids):  # one pass per anchor
             att = tab.attempted[:, j]
             code = np.where(ok[:, j] & ~dark_mask, np.where(tab.heard[:, j], 1, 0), -1)
-            codes.setdefault(aid, []).append(code[att])
-            rngs.setdefault(aid, []).append(r_all[att, j])
-    runs = [anchor_runs(a, att_period[a], codes[a], rngs[a]) for a in codes]
+            runs.append(anchor_runs(aid, att_period[aid], [code[att]], [r_all[att, j]]))  # one placement
     return fit_long_outages(runs)
 
 

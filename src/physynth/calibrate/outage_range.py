@@ -99,81 +99,134 @@ def _log_pk(mu: np.ndarray | float, t: float, k: int) -> tuple[np.ndarray, np.nd
     return -(k - 1) * x + log_1mq - np.log(x), -x, log_1mq
 
 
-def _neg_loglik(theta: np.ndarray, runs: Sequence[AnchorRuns], r_ref: float, k: int, mode: str) -> float:
-    """mode "none": ordinary outages only; "flat": plus long ones at a constant rate; "slope": full model."""
-    n_a = len(runs)
-    nuis = theta[: 2 * n_a]
-    if mode != "none":
-        log_rate_l, log_mu_l = theta[2 * n_a], theta[2 * n_a + 1]
-        slope = theta[2 * n_a + 2] if mode == "slope" else 0.0
+@dataclass(frozen=True, slots=True)
+class _Model:
+    long: bool = False  # a long-outage process at all
+    slope: bool = False  # its rate depends on range
+    frailty: bool = False  # its rate is scaled per placement by G ~ Gamma(k, 1/k)
+
+
+_G_GRID = np.logspace(-4.0, 3.0, 281)
+"""Grid of the frailty G for the integral over its Gamma law; G below the grid counts as G = 0."""
+
+
+def _frailty_log_weights(log_k: float) -> tuple[float, np.ndarray]:
+    """log prior mass of G < grid (taken as G = 0) and log weights of the grid points (trapezoids in log G)."""
+    from scipy import stats
+
+    k = float(np.exp(log_k))
+    law = stats.gamma(a=k, scale=1.0 / k)
+    m0 = float(law.cdf(_G_GRID[0]))
+    dens = law.logpdf(_G_GRID) + np.log(_G_GRID)  # density in log G
+    h = np.diff(np.log(_G_GRID))
+    tw = np.zeros(_G_GRID.size)
+    tw[:-1] += h / 2.0
+    tw[1:] += h / 2.0
+    logw = dens + np.log(tw)
+    total = np.logaddexp(np.log(max(m0, 1e-300)), np.logaddexp.reduce(logw))
+    return np.log(max(m0, 1e-300)) - total, logw - total  # renormalised: the grid's ends are cut
+
+
+def _neg_loglik(theta: np.ndarray, runs: Sequence[AnchorRuns], ids: Sequence[str], r_ref: float, k: int,
+                model: _Model) -> float:
+    """Minus the log likelihood of the long runs of every placement (one anchor in one run)."""
+    col = {a: i for i, a in enumerate(ids)}
+    nuis = theta[: 2 * len(ids)]
+    rest = list(theta[2 * len(ids):])
+    log_rate_l = rest.pop(0) if model.long else -np.inf
+    log_mu_l = rest.pop(0) if model.long else 0.0
+    slope = rest.pop(0) if model.slope else 0.0
+    fr = _frailty_log_weights(rest.pop(0)) if model.frailty else None
     nll = 0.0
-    for j, a in enumerate(runs):
+    for a in runs:
         t = a.period_s
-        log_h, log_mu = nuis[2 * j], nuis[2 * j + 1]
+        log_h, log_mu = nuis[2 * col[a.anchor_id]], nuis[2 * col[a.anchor_id] + 1]
         lpk_s, lq_s, l1q_s = _log_pk(np.exp(log_mu), t, k)
-        rate_x = np.exp(log_h + lpk_s) * a.exposure_range_m.size * t
-        if mode != "none":
-            lpk_l, lq_l, l1q_l = _log_pk(np.exp(log_mu_l), t, k)
-            rate_x += float(np.sum(np.exp(log_rate_l + slope * (a.exposure_range_m - r_ref) + lpk_l))) * t
-        nll += float(rate_x)
-        if not a.onset_range_m.size:
-            continue
+        nll += float(np.exp(log_h + lpk_s) * a.exposure_range_m.size * t)
         short = log_h + lpk_s + l1q_s + a.extra_misses * lq_s  # log(rate x P(length)) of each run
-        if mode == "none":
+        if not model.long:
             nll -= float(np.sum(short))
-        else:
-            long_ = log_rate_l + slope * (a.onset_range_m - r_ref) + lpk_l + l1q_l + a.extra_misses * lq_l
-            nll -= float(np.sum(np.logaddexp(short, long_)))
+            continue
+        lpk_l, lq_l, l1q_l = _log_pk(np.exp(log_mu_l), t, k)
+        e_long = float(np.sum(np.exp(log_rate_l + slope * (a.exposure_range_m - r_ref) + lpk_l))) * t
+        long_ = log_rate_l + slope * (a.onset_range_m - r_ref) + lpk_l + l1q_l + a.extra_misses * lq_l
+        if fr is None:
+            nll += e_long - float(np.sum(np.logaddexp(short, long_)))
+            continue
+        log_m0, logw = fr  # integrate the placement's likelihood over its frailty G
+        at0 = float(np.sum(short))
+        per_g = np.logaddexp(short[:, None], long_[:, None] + np.log(_G_GRID)[None, :]).sum(axis=0)
+        per_g = per_g - _G_GRID * e_long + logw
+        nll -= float(np.logaddexp(log_m0 + at0, np.logaddexp.reduce(per_g)))
     return nll
 
 
-def _fit(runs: Sequence[AnchorRuns], r_ref: float, k: int, mode: str, start: np.ndarray | None = None
-         ) -> tuple[np.ndarray, float]:
+MAX_FRAILTY_SHAPE = 50.0
+"""Upper bound of the frailty shape k (placements all alike: no frailty kept)."""
+
+
+def _fit(runs: Sequence[AnchorRuns], ids: Sequence[str], r_ref: float, k: int, model: _Model,
+         start: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     x0, bounds = [], []
-    for a in runs:
-        span = max(a.exposure_range_m.size * a.period_s, a.period_s)
-        mean_extra = float(a.extra_misses.mean()) if a.extra_misses.size else 0.5
-        x0 += [np.log(max(a.onset_range_m.size, 0.5) / span) + 1.0, np.log(a.period_s * (1.0 + mean_extra))]
-        bounds += [(-30.0, 10.0), (np.log(a.period_s) - 5.0, np.log(a.period_s) + 5.0)]
+    for aid in ids:
+        mine = [a for a in runs if a.anchor_id == aid]
+        span = max(sum(a.exposure_range_m.size * a.period_s for a in mine), 1e-3)
+        n = sum(a.onset_range_m.size for a in mine)
+        extra = np.concatenate([a.extra_misses for a in mine])
+        period = mine[0].period_s
+        x0 += [np.log(max(n, 0.5) / span) + 1.0, np.log(period * (1.0 + (float(extra.mean()) if extra.size else 0.5)))]
+        bounds += [(-30.0, 10.0), (np.log(period) - 5.0, np.log(period) + 5.0)]
     longest = max(a.period_s for a in runs) * 200.0
-    if mode != "none":
+    if model.long:
         x0 += [np.log(1e-3), np.log(2.0)]
         bounds += [(-30.0, 5.0), (np.log(0.3), np.log(longest))]
-    if mode == "slope":
+    if model.slope:
         x0 += [0.0]
         bounds += [(-MAX_SLOPE_PER_M, MAX_SLOPE_PER_M)]
+    if model.frailty:
+        x0 += [0.0]
+        bounds += [(np.log(0.02), np.log(MAX_FRAILTY_SHAPE))]
     x = np.array(x0) if start is None else np.asarray(start, dtype=float)
-    res = minimize(_neg_loglik, x, args=(runs, r_ref, k, mode), method="L-BFGS-B", bounds=bounds)
+    res = minimize(_neg_loglik, x, args=(runs, ids, r_ref, k, model), method="L-BFGS-B", bounds=bounds)
     return res.x, float(res.fun)
 
 
 def fit_long_outages(runs: Sequence[AnchorRuns], *, min_misses: int = LONG_RUN_MISSES) -> dict[str, Any]:
-    """The long-outage process (module docstring) from the anchors' runs of missed attempts.
+    """The long-outage process (module docstring) from runs of missed attempts, one AnchorRuns per placement.
 
-    Returns a report with ``identifiable``; when true ``rate_per_s`` (at ``ref_range_m``), ``mean_s``,
-    ``range_slope_per_m`` (0 when the slope is not kept), the likelihood ratios ``lr_long`` (long process
-    against none) and ``lr_slope`` (slope against none), the number of runs and the expected number of
-    long outages among them.
+    A *placement* is one anchor in one run (pass one :class:`AnchorRuns` per placement; the ordinary
+    outages are per anchor id, pooled over its placements). Returns a report with ``identifiable``;
+    when true ``rate_per_s`` (at ``ref_range_m``), ``mean_s``, ``range_slope_per_m`` (0 when the slope
+    is not kept), ``frailty_shape`` (None when not kept) and the likelihood ratios ``lr_long`` (long
+    process against none), ``lr_slope`` (slope against none) and ``lr_frailty`` (placements differing
+    against all alike).
     """
     used = [a for a in runs if a.exposure_range_m.size > 0]
     n_events = int(sum(a.onset_range_m.size for a in used))
-    out: dict[str, Any] = {"min_missed_attempts": min_misses, "n_runs": n_events, "identifiable": False}
+    out: dict[str, Any] = {"min_missed_attempts": min_misses, "n_runs": n_events, "n_placements": len(used),
+                           "identifiable": False}
     if n_events < 10:
         out["why"] = f"{n_events} runs of >= {min_misses} missed attempts (need 10)"
         return out
+    ids = list(dict.fromkeys(a.anchor_id for a in used))
     r_ref = float(np.median(np.concatenate([a.exposure_range_m for a in used])))
-    th0, nll0 = _fit(used, r_ref, min_misses, "none")
-    n_a = len(used)
-    th1, nll1 = _fit(used, r_ref, min_misses, "flat", start=np.r_[th0, np.log(1e-3), np.log(2.0)])
-    th2, nll2 = _fit(used, r_ref, min_misses, "slope", start=np.r_[th1, 0.0])
-    mu_ord = float(np.exp(th0[1:2 * n_a:2]).max())
-    out.update(ref_range_m=r_ref, max_range_m=float(max(a.exposure_range_m.max() for a in used)), lr_long=2.0 * (nll0 - min(nll1, nll2)), lr_slope=2.0 * (nll1 - nll2),
-               ordinary_mean_s_max=mu_ord)
-    keep_slope = out["lr_slope"] >= MIN_LIKELIHOOD_RATIO
-    th = th2 if keep_slope else th1
+    th0, nll0 = _fit(used, ids, r_ref, min_misses, _Model())
+    th1, nll1 = _fit(used, ids, r_ref, min_misses, _Model(long=True), start=np.r_[th0, np.log(1e-3), np.log(2.0)])
+    th2, nll2 = _fit(used, ids, r_ref, min_misses, _Model(long=True, slope=True), start=np.r_[th1, 0.0])
+    keep_slope = 2.0 * (nll1 - nll2) >= MIN_LIKELIHOOD_RATIO
+    th_s, nll_s = (th2, nll2) if keep_slope else (th1, nll1)
+    th3, nll3 = _fit(used, ids, r_ref, min_misses, _Model(long=True, slope=keep_slope, frailty=True),
+                     start=np.r_[th_s, 0.0])
+    keep_frailty = len(used) > 1 and 2.0 * (nll_s - nll3) >= MIN_LIKELIHOOD_RATIO
+    th, nll_best = (th3, nll3) if keep_frailty else (th_s, nll_s)
+    n_a = len(ids)
+    mu_ord = float(np.exp(th[1:2 * n_a:2]).max())  # the ordinary outages of the model with long ones
     mean_l = float(np.exp(th[2 * n_a + 1]))
-    out.update(rate_per_s=float(np.exp(th[2 * n_a])), mean_s=mean_l,
-               range_slope_per_m=float(th[2 * n_a + 2]) if keep_slope else 0.0)
+    out.update(ref_range_m=r_ref, max_range_m=float(max(a.exposure_range_m.max() for a in used)),
+               lr_long=2.0 * (nll0 - nll_best), lr_slope=2.0 * (nll1 - nll2), lr_frailty=2.0 * (nll_s - nll3),
+               ordinary_mean_s_max=mu_ord, rate_per_s=float(np.exp(th[2 * n_a])), mean_s=mean_l,
+               range_slope_per_m=float(th[2 * n_a + 2]) if keep_slope else 0.0,
+               frailty_shape=float(np.exp(th[-1])) if keep_frailty else None)
     if not out["lr_long"] >= MIN_LIKELIHOOD_RATIO:
         out["why"] = f"likelihood ratio {out['lr_long']:.3g} < {MIN_LIKELIHOOD_RATIO:g}: no long outages"
     elif mean_l < MIN_LONG_MEAN_FACTOR * mu_ord:

@@ -1007,7 +1007,9 @@ def _long_outage_params(fit: dict[str, Any], rep: ReportBuilder, *, use: bool) -
     slope = fit["range_slope_per_m"]
     out = {"long_outage_rate_per_s": rounded(fit["rate_per_s"], 8), "long_outage_mean_s": rounded(fit["mean_s"], 5),
            "long_outage_range_slope_per_m": rounded(slope, 5), "long_outage_ref_range_m": rounded(fit["ref_range_m"], 3),
-           "long_outage_max_range_m": rounded(fit["max_range_m"], 3) if slope else None}
+           "long_outage_max_range_m": rounded(fit["max_range_m"], 3) if slope else None,
+           "long_outage_frailty_shape": (rounded(fit["frailty_shape"], 5) if fit.get("frailty_shape") is not None
+                                         else None)}
     note = (f"{fit['n_runs']} runs of >= {fit['min_missed_attempts']} missed attempts; likelihood ratio "
             f"{fit['lr_long']:.3g} against no long outages")
     rep.param("availability.long_outage_rate_per_s", out["long_outage_rate_per_s"], n=fit["n_runs"], summary=True,
@@ -1016,6 +1018,10 @@ def _long_outage_params(fit: dict[str, Any], rep: ReportBuilder, *, use: bool) -
     rep.param("availability.long_outage_range_slope_per_m", out["long_outage_range_slope_per_m"], n=fit["n_runs"],
               summary=True, note=f"likelihood ratio {fit['lr_slope']:.3g} against slope 0"
               + ("" if slope else " (< 10: not kept)"))
+    rep.param("availability.long_outage_frailty_shape", out["long_outage_frailty_shape"], n=fit["n_placements"],
+              summary=True, note=f"placements (anchor x run); likelihood ratio {fit['lr_frailty']:.3g} against "
+                                 "all placements alike" + ("" if out["long_outage_frailty_shape"] else
+                                                          " (< 10: not kept)"))
     if not use:
         rep.not_identifiable.append("availability.long_outage_* (fitted and reported; not generated unless "
                                     "long_outages=True)")

@@ -19,8 +19,11 @@ anchor. Each anchor gets a second outage process, overlaid on the first: onsets 
 of rate ``long_outage_rate_per_s * exp(long_outage_range_slope_per_m * (r - long_outage_ref_range_m))``
 at the tag-anchor range r (r clipped to ``long_outage_max_range_m`` when set, so that the rate is not
 extrapolated beyond the ranges it was fitted on), each lasting an exponential time of mean
-``long_outage_mean_s``; overlapping outages merge. With ``long_outage_rate_per_s`` 0 (the default)
-nothing is drawn. :mod:`physynth.calibrate.outage_range` fits it.
+``long_outage_mean_s``; overlapping outages merge. Anchors are not alike: some placements fade far
+more than others (an antenna turned away, a wall near the anchor). With ``long_outage_frailty_shape``
+k set, each trace draws for each anchor a factor G ~ Gamma(k, 1/k) (mean 1) on its long-outage rate,
+so that most anchors of a trace fade rarely and a few often. With ``long_outage_rate_per_s`` 0 (the
+default) nothing is drawn. :mod:`physynth.calibrate.outage_range` fits it.
 """
 
 from __future__ import annotations
@@ -104,6 +107,7 @@ class AvailabilityParams(ParamsModel):
     long_outage_range_slope_per_m: FiniteFloat = 0.0
     long_outage_ref_range_m: NonNegFloat = 0.0
     long_outage_max_range_m: PositiveFloat | None = None
+    long_outage_frailty_shape: PositiveFloat | None = None
 
 
 class AvailabilityOverride(ParamsModel):
@@ -127,6 +131,7 @@ class AvailabilityArrays:
     tag_outage_onset_shape: float  # NaN: fixed rate
     long_outage: tuple[float, float, float, float, float] = (0.0, 1.5, 0.0, 0.0, np.inf)
     """(rate [1/s] at the reference range, mean [s], slope [1/m], reference range [m], range cap [m])."""
+    long_outage_frailty_shape: float = np.nan  # NaN: every anchor at the same rate
 
 
 def availability_arrays(params: AvailabilityParams, per_anchor: Sequence[AvailabilityParams]) -> AvailabilityArrays:
@@ -145,6 +150,8 @@ def availability_arrays(params: AvailabilityParams, per_anchor: Sequence[Availab
         long_outage=(float(params.long_outage_rate_per_s), float(params.long_outage_mean_s),
                      float(params.long_outage_range_slope_per_m), float(params.long_outage_ref_range_m),
                      np.inf if params.long_outage_max_range_m is None else float(params.long_outage_max_range_m)),
+        long_outage_frailty_shape=(np.nan if params.long_outage_frailty_shape is None
+                                   else float(params.long_outage_frailty_shape)),
     )
 
 
@@ -164,7 +171,7 @@ def draw_trace_rates(av: AvailabilityArrays, *, rng: np.random.Generator) -> Ava
         outage_mean_s=av.outage_mean_s, tag_outage_onset_prob=float(min(av.tag_outage_onset_prob * factor[-1], 1.0)),
         tag_outage_mean_s=av.tag_outage_mean_s, start_stationary=av.start_stationary,
         outage_onset_shape=av.outage_onset_shape, tag_outage_onset_shape=av.tag_outage_onset_shape,
-        long_outage=av.long_outage)
+        long_outage=av.long_outage, long_outage_frailty_shape=av.long_outage_frailty_shape)
 
 
 def alternating_renewal(t_s: np.ndarray, mean_on_s: float, mean_off_s: float, *, start_on_prob: float,
@@ -255,8 +262,11 @@ def simulate_availability(t_s: np.ndarray, anchor: np.ndarray, burst: np.ndarray
     if av.long_outage[0] > 0:  # drawn last: scenarios without long outages draw what they always did
         if range_m is None:
             raise ValueError("long outages need the range of every attempt (range_m)")
-        for i in range(av.dropout_prob.shape[0]):
+        n_a, k = av.dropout_prob.shape[0], av.long_outage_frailty_shape
+        frailty = rng.gamma(k, 1.0 / k, n_a) if np.isfinite(k) else np.ones(n_a)
+        rate, *rest = av.long_outage
+        for i in range(n_a):
             rows = np.flatnonzero(anchor == i)
-            outage[rows] |= long_outage_mask(t_s[rows], range_m[rows], *av.long_outage,
+            outage[rows] |= long_outage_mask(t_s[rows], range_m[rows], rate * frailty[i], *rest,
                                              start_stationary=av.start_stationary, rng=rng)
     return outage, dropped
