@@ -517,6 +517,185 @@ def _fit_bias_walk(errs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], fs: fl
                      "allan_deviation": {"tau_s": taus.tolist(), "adev_mps2": adev.tolist()}}
 
 
+def _imu_traces(traces: Trace | Sequence[Trace]) -> list[Trace]:
+    """The traces with more than 100 IMU samples (an error when there is none)."""
+    trs = [traces] if isinstance(traces, Trace) else list(traces)
+    trs = [t for t in trs if t.imu is not None and t.imu.t_s.size > 100]
+    if not trs:
+        raise CalibrationError("no trace with IMU samples: IMU noise cannot be calibrated")
+    return trs
+
+
+def _fit_offset_and_lever(trs: list[Trace], fc: float, motion_dependent: bool, lever_arm: bool
+                          ) -> tuple[float, dict[str, Any] | None, np.ndarray | None, dict[str, Any] | None]:
+    """The kept IMU-to-truth time offset and lever arm with their diagnostics: (offset, offset_diag,
+    lever or None, lever_diag).
+
+    The offset is kept when it lowers the error variance by at least 0.5 % and exceeds 0.25 ms; the
+    lever arm when it lowers the mean squared error by at least 0.5 %, and then the offset is fitted
+    again for the sensor point (the first fit kept under ``without_lever_arm``).
+    """
+    offset, offset_diag = 0.0, None
+    if motion_dependent:
+        offset, offset_diag = fit_time_offset(trs, fc)
+        if offset_diag["error_variance_reduction_frac"] < 0.005 or abs(offset) < 2.5e-4:
+            offset_diag["kept"] = False
+            offset = 0.0
+    lever, lever_diag = None, None
+    if lever_arm:
+        r, lever_diag = fit_lever_arm(trs, fc, offset)
+        lever_diag["kept"] = lever_diag["mean_square_reduction_frac"] >= 0.005
+        lever = r if lever_diag["kept"] else None
+        if lever is not None and motion_dependent:  # the clock offset again, now of the sensor point
+            off2, od2 = fit_time_offset(trs, fc, lever_arm_m=lever)
+            od2["kept"] = not (od2["error_variance_reduction_frac"] < 0.005 or abs(off2) < 2.5e-4)
+            offset = off2 if od2["kept"] else 0.0
+            offset_diag = {**od2, "without_lever_arm": offset_diag}
+            r, lever_diag = fit_lever_arm(trs, fc, offset)
+            lever_diag["kept"] = lever_diag["mean_square_reduction_frac"] >= 0.005
+            lever = r if lever_diag["kept"] else None
+    return offset, offset_diag, lever, lever_diag
+
+
+def _level_motion_noise(trs: list[Trace], errs: list, fc: float, offset: float, motion: dict[str, Any]
+                        ) -> np.ndarray:
+    """Scale the motion-noise gains of ``motion`` (in place) so that, pooled over the recordings,
+    zero-motion variance plus motion variance equals the error variance; drop an axis's gains when
+    they carry less than 5 % of its variance. Returns the mean motion variance (3,) [m^2 s^-4]."""
+    # mean motion-noise variance over the samples used (per-sample, at the IMU rate)
+    num, cnt = np.zeros(3), 0
+    for tr, (_, ok, _) in zip(trs, errs, strict=True):
+        a_abs, w = _intensity(tr, fc, offset)
+        num += np.sum(a_abs[ok] * motion["acc_var_gain_mps2"][None, :]
+                      + w[ok, None] * motion["rate_var_gain_mps4_per_radps"][None, :], axis=0)
+        cnt += int(ok.sum())
+    motion_var = num / max(cnt, 1)  # (3,) [m^2 s^-4]
+    # the regression fixes how the power grows; its level is set so that, pooled over the
+    # recordings, zero-motion variance plus motion variance equals the error variance
+    pooled = np.sum([np.sum(e[ok] ** 2, axis=0) for e, ok, _ in errs], axis=0) / max(cnt, 1)
+    level = np.where(motion_var > 0,
+                     np.maximum(pooled - motion["c0_mps2_sq"], 0.0) / np.maximum(motion_var, 1e-300), 0.0)
+    motion["acc_var_gain_mps2"] = motion["acc_var_gain_mps2"] * level
+    motion["rate_var_gain_mps4_per_radps"] = motion["rate_var_gain_mps4_per_radps"] * level
+    motion["level_factor"] = level.tolist()
+    motion_var = motion_var * level
+    total = motion["c0_mps2_sq"] + motion_var
+    weak = motion_var < 0.05 * total
+    motion["acc_var_gain_mps2"][weak] = 0.0
+    motion["rate_var_gain_mps4_per_radps"][weak] = 0.0
+    motion_var[weak] = 0.0
+    motion["mean_motion_variance_mps2_sq"] = motion_var.tolist()
+    motion["axes_without_motion_term"] = [a for a, w in zip("enu", weak, strict=True) if w]
+    return motion_var
+
+
+def _error_spectrum_white_floor(errs: list, fs: float, fc: float, nperseg_s: float) -> tuple:
+    """Pooled Welch PSD of the IMU error and its white floor in ``WHITE_BAND`` (above 1.5 fc):
+    (nper, f, psd, n_total, n_avg, lo, hi, wb, floor (3,) one-sided, density (3,))."""
+    nper = int(2 ** np.round(np.log2(nperseg_s * fs)))
+    f, psd, n_total, n_avg = _pooled_error_psd(errs, fs, nper)
+    nyq = fs / 2.0
+    lo, hi = max(WHITE_BAND[0] * nyq, 1.5 * fc), WHITE_BAND[1] * nyq
+    if lo >= hi:
+        lo = 0.5 * (fc + nyq)
+    wb = (f >= lo) & (f <= hi)
+    floor = np.median(psd[wb], axis=0)  # (3,) one-sided white level
+    density = np.sqrt(floor / 2.0)
+    return nper, f, psd, n_total, n_avg, lo, hi, wb, floor, density
+
+
+def _vibration_params(vib: dict[str, Any] | None, density: np.ndarray, fs: float, err_std: np.ndarray,
+                      resid_std: np.ndarray, other_var: np.ndarray, motion: dict[str, Any] | None,
+                      notes: list[str]) -> tuple[VibrationParams, dict[str, Any]]:
+    """The vibration model and its diagnostics from the comb fit ``vib``: spectral shape from the
+    comb, amplitude from the variance left by white noise and bias walk (or from the lines when
+    white noise dominates), capped at zero motion by the error variance. Appends to ``notes``."""
+    if vib is None or (not resid_std.max() > 0 and motion is None):
+        notes.append("imu.vibration (no spectral excess over the white floor)")
+        return VibrationParams(amplitude_mps2=0.0), {"note": "no vibration found"}
+    v = vib["harmonic_variances"]
+    f0 = vib["fundamental_hz"]
+    nz = np.flatnonzero(v > 1e-3 * v.max()) + 1
+    step = int(np.gcd.reduce(nz)) if nz.size else 1
+    if step > 1:  # only multiples of step carry power: the fundamental is step * f0
+        f0, v = f0 * step, v[step - 1::step]
+    keep = np.flatnonzero(v > 1e-3 * v.max())
+    w = v[: int(keep.max()) + 1] / v.max()
+    white_frac = float(np.mean(density**2 * fs / np.maximum(err_std, 1e-12) ** 2))
+    if white_frac > 0.5:  # the error variance is mostly white noise: the spectral lines are more precise
+        amp = float(np.sqrt(vib["comb_variance"]))
+        amp_method = ("white noise dominates the error variance: amplitude from the variance of the fitted "
+                      "spectral lines (axis-mean spectrum)")
+        gain = np.ones(3)
+    else:
+        amp = float(resid_std.max())
+        gain = resid_std / amp if amp > 0 else np.ones(3)
+        amp_method = ("per-axis error std left after white noise and bias walk: amplitude of the strongest "
+                      "axis, axis_gain for the others")
+    if motion is not None and amp > 0:  # at zero motion the vibration holds what c0 leaves, no more
+        cap = resid_std / np.maximum(gain, 1e-12)
+        if amp > float(cap.min()):
+            amp = float(cap.min())
+            amp_method += "; capped by the error variance at zero motion"
+    vibration = VibrationParams(fundamental_hz=rounded(f0, 5), amplitude_mps2=rounded(amp, 5),
+                                harmonic_weights=[rounded(x, 4) for x in w],
+                                bandwidth_hz=rounded(vib["bandwidth_hz"], 4),
+                                axis_gain=[rounded(float(g), 4) for g in gain])
+    rel = (np.sqrt((amp * gain) ** 2 + other_var) / np.maximum(err_std, 1e-12) - 1.0)
+    vib_diag = {"fundamental_hz": f0, "bandwidth_hz": vib["bandwidth_hz"], "amplitude_mps2": amp,
+                "harmonic_weights": w.tolist(), "n_harmonics_fitted": vib["n_harmonics"],
+                "frequency_resolution_hz": vib["resolution_hz"], "log_misfit": vib["log_misfit"],
+                "candidate_fundamentals_misfit": vib["candidates"],
+                "comb_fit_amplitude_mps2": float(np.sqrt(vib["harmonic_variances"].sum())),
+                "line_variance_method": vib["line_variance_method"],
+                "per_axis_nonwhite_std_mps2": resid_std.tolist(),
+                "per_axis_model_std_rel_error": rel.tolist(),
+                "white_variance_frac": white_frac, "amplitude_method": amp_method}
+    return vibration, vib_diag
+
+
+def _imu_params(fs: float, density: np.ndarray, bias_rw: float, vibration: VibrationParams, offset: float,
+                motion: dict[str, Any] | None, lever: np.ndarray | None) -> ImuParams:
+    """The fitted values, rounded, as the scenario's IMU section."""
+    motion_params = MotionNoiseParams()
+    if motion is not None:
+        motion_params = MotionNoiseParams(
+            acc_var_gain_mps2=[rounded(x, 5) for x in motion["acc_var_gain_mps2"]],
+            rate_var_gain_mps4_per_radps=[rounded(x, 5) for x in motion["rate_var_gain_mps4_per_radps"]])
+    return ImuParams(rate_hz=rounded(fs, 7), white_noise_density_mps2_per_sqrt_hz=[rounded(x, 5) for x in density],
+                     bias_rw_mps2_per_sqrt_s=rounded(bias_rw, 4), bias_initial_std_mps2=0.0, vibration=vibration,
+                     time_offset_s=rounded(offset, 4), motion_noise=motion_params,
+                     lever_arm_m=[0.0, 0.0, 0.0] if lever is None else [rounded(float(x), 4) for x in lever])
+
+
+def _imu_fit_diagnostics(trs: list[Trace], errs: list, fc: float, fs: float, spectrum: tuple,
+                         offset_diag: dict[str, Any] | None, lever_diag: dict[str, Any] | None,
+                         motion: dict[str, Any] | None, vib_diag: dict[str, Any], bias_diag: dict[str, Any],
+                         notes: list[str]) -> dict[str, Any]:
+    """The diagnostics dict of :func:`fit_imu` (``spectrum`` from :func:`_error_spectrum_white_floor`)."""
+    _, f, psd, n_total, _, lo, hi, wb, _, density = spectrum
+    dec = max(1, f.size // 400)
+    return {
+        "truth_cutoff_hz": fc,
+        "imu_rate_hz": fs,
+        "white_band_hz": [float(lo), float(hi)],
+        "white_noise_density_mps2_per_sqrt_hz": density.tolist(),
+        "white_noise_rel_se": float(1.0 / np.sqrt(max(wb.sum() * len(errs), 1))),
+        "error_std_mps2": np.sqrt(np.nanmean(np.concatenate([e[ok] for e, ok, _ in errs]) ** 2, axis=0)).tolist(),
+        "time_offset": offset_diag,
+        "lever_arm": lever_diag,
+        "motion_noise": None if motion is None else {k: (v.tolist() if isinstance(v, np.ndarray) else v)
+                                                     for k, v in motion.items()},
+        "n_samples": n_total,
+        "vibration": vib_diag,
+        "bias_rw": {k: bias_diag[k] for k in ("value", "k2_estimate", "k2_std_error", "note")},
+        "allan_deviation": bias_diag["allan_deviation"],
+        "psd": {"f_hz": f[::dec].tolist(), "psd_mps2_sq_per_hz": psd[::dec].tolist()},
+        "recordings": [trace_label(t, i) for i, t in enumerate(trs)],
+        "not_identifiable": notes,
+    }
+
+
 def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, nperseg_s: float = 20.0,
             defaults: ImuParams | None = None, motion_dependent: bool = True,
             motion_rate_term: bool = False, lever_arm: bool = False) -> Fit[ImuParams]:
@@ -551,76 +730,27 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
         Diagnostics: per-axis white-noise density and error standard deviation, the PSD (decimated),
         the vibration fit, the Allan deviation table, what was not identifiable.
     """
-    trs = [traces] if isinstance(traces, Trace) else list(traces)
-    trs = [t for t in trs if t.imu is not None and t.imu.t_s.size > 100]
-    if not trs:
-        raise CalibrationError("no trace with IMU samples: IMU noise cannot be calibrated")
+    trs = _imu_traces(traces)
     base = defaults or ImuParams()
     fs = 1.0 / median_step_s(trs[0].imu.t_s)
     truth_rate = 1.0 / median_step_s(trs[0].truth.t_s[np.all(np.isfinite(trs[0].truth.pos_enu_m), axis=1)])
     fc = float(cutoff_hz) if cutoff_hz is not None else float(min(10.0, 0.2 * truth_rate))
-    offset, offset_diag = 0.0, None
+    offset, offset_diag, lever, lever_diag = _fit_offset_and_lever(trs, fc, motion_dependent, lever_arm)
     motion, motion_var = None, np.zeros(3)
-    if motion_dependent:
-        offset, offset_diag = fit_time_offset(trs, fc)
-        if offset_diag["error_variance_reduction_frac"] < 0.005 or abs(offset) < 2.5e-4:
-            offset_diag["kept"] = False
-            offset = 0.0
-    lever, lever_diag = None, None
-    if lever_arm:
-        r, lever_diag = fit_lever_arm(trs, fc, offset)
-        lever_diag["kept"] = lever_diag["mean_square_reduction_frac"] >= 0.005
-        lever = r if lever_diag["kept"] else None
-        if lever is not None and motion_dependent:  # the clock offset again, now of the sensor point
-            off2, od2 = fit_time_offset(trs, fc, lever_arm_m=lever)
-            od2["kept"] = not (od2["error_variance_reduction_frac"] < 0.005 or abs(off2) < 2.5e-4)
-            offset = off2 if od2["kept"] else 0.0
-            offset_diag = {**od2, "without_lever_arm": offset_diag}
-            r, lever_diag = fit_lever_arm(trs, fc, offset)
-            lever_diag["kept"] = lever_diag["mean_square_reduction_frac"] >= 0.005
-            lever = r if lever_diag["kept"] else None
     if motion_dependent:
         motion = fit_motion_noise(trs, fc, offset, use_rate=motion_rate_term, lever_arm_m=lever)
     errs = [imu_error(t, fc, offset_s=offset, lever_arm_m=lever) for t in trs]
-    if motion is not None:  # mean motion-noise variance over the samples used (per-sample, at the IMU rate)
-        num, cnt = np.zeros(3), 0
-        for tr, (_, ok, _) in zip(trs, errs, strict=True):
-            a_abs, w = _intensity(tr, fc, offset)
-            num += np.sum(a_abs[ok] * motion["acc_var_gain_mps2"][None, :]
-                          + w[ok, None] * motion["rate_var_gain_mps4_per_radps"][None, :], axis=0)
-            cnt += int(ok.sum())
-        motion_var = num / max(cnt, 1)  # (3,) [m^2 s^-4]
-        # the regression fixes how the power grows; its level is set so that, pooled over the
-        # recordings, zero-motion variance plus motion variance equals the error variance
-        pooled = np.sum([np.sum(e[ok] ** 2, axis=0) for e, ok, _ in errs], axis=0) / max(cnt, 1)
-        level = np.where(motion_var > 0,
-                         np.maximum(pooled - motion["c0_mps2_sq"], 0.0) / np.maximum(motion_var, 1e-300), 0.0)
-        motion["acc_var_gain_mps2"] = motion["acc_var_gain_mps2"] * level
-        motion["rate_var_gain_mps4_per_radps"] = motion["rate_var_gain_mps4_per_radps"] * level
-        motion["level_factor"] = level.tolist()
-        motion_var = motion_var * level
-        total = motion["c0_mps2_sq"] + motion_var
-        weak = motion_var < 0.05 * total
-        motion["acc_var_gain_mps2"][weak] = 0.0
-        motion["rate_var_gain_mps4_per_radps"][weak] = 0.0
-        motion_var[weak] = 0.0
-        motion["mean_motion_variance_mps2_sq"] = motion_var.tolist()
-        motion["axes_without_motion_term"] = [a for a, w in zip("enu", weak, strict=True) if w]
-    nper = int(2 ** np.round(np.log2(nperseg_s * fs)))
-    f, psd, n_total, n_avg = _pooled_error_psd(errs, fs, nper)
-    nyq = fs / 2.0
-    lo, hi = max(WHITE_BAND[0] * nyq, 1.5 * fc), WHITE_BAND[1] * nyq
-    if lo >= hi:
-        lo = 0.5 * (fc + nyq)
-    wb = (f >= lo) & (f <= hi)
-    floor = np.median(psd[wb], axis=0)  # (3,) one-sided white level
-    density = np.sqrt(floor / 2.0)
+    if motion is not None:
+        motion_var = _level_motion_noise(trs, errs, fc, offset, motion)
+    spectrum = _error_spectrum_white_floor(errs, fs, fc, nperseg_s)
+    nper, f, psd, n_total, n_avg, lo, hi, _, floor, density = spectrum
     err_std = np.sqrt(np.nanmean(np.concatenate([e[ok] for e, ok, _ in errs]) ** 2, axis=0))
     if motion is not None:  # the vibration must explain what is left at zero motion
         err_std = np.sqrt(np.maximum(np.minimum(err_std**2 - motion_var, motion["c0_mps2_sq"]), 1e-12))
     # vibration on the excess of the pooled (mean over axes) spectrum
     pooled = psd.mean(axis=1)
     pooled_floor = float(floor.mean())
+    nyq = fs / 2.0
     vib = _fit_vibration(f, pooled - pooled_floor, pooled, pooled_floor, 3 * n_avg, f_lo=max(0.3, 3.0 / (nper / fs)),
                          f_hi=min(0.45 * nyq, lo))
     notes: list[str] = []
@@ -632,78 +762,10 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
     seg_s = float(np.mean([(b_ - a_) / fs for e_, ok_, t_ in errs for a_, b_ in segments(t_, ok_, 1.5 / fs)]))
     other_var = density**2 * fs + bias_rw**2 * seg_s / 6.0
     resid_std = np.sqrt(np.maximum(err_std**2 - other_var, 0.0))
-    if vib is None or (not resid_std.max() > 0 and motion is None):
-        vibration = VibrationParams(amplitude_mps2=0.0)
-        notes.append("imu.vibration (no spectral excess over the white floor)")
-        vib_diag: dict[str, Any] = {"note": "no vibration found"}
-    else:
-        v = vib["harmonic_variances"]
-        f0 = vib["fundamental_hz"]
-        nz = np.flatnonzero(v > 1e-3 * v.max()) + 1
-        step = int(np.gcd.reduce(nz)) if nz.size else 1
-        if step > 1:  # only multiples of step carry power: the fundamental is step * f0
-            f0, v = f0 * step, v[step - 1::step]
-        keep = np.flatnonzero(v > 1e-3 * v.max())
-        w = v[: int(keep.max()) + 1] / v.max()
-        white_frac = float(np.mean(density**2 * fs / np.maximum(err_std, 1e-12) ** 2))
-        if white_frac > 0.5:  # the error variance is mostly white noise: the spectral lines are more precise
-            amp = float(np.sqrt(vib["comb_variance"]))
-            amp_method = ("white noise dominates the error variance: amplitude from the variance of the fitted "
-                          "spectral lines (axis-mean spectrum)")
-            gain = np.ones(3)
-        else:
-            amp = float(resid_std.max())
-            gain = resid_std / amp if amp > 0 else np.ones(3)
-            amp_method = ("per-axis error std left after white noise and bias walk: amplitude of the strongest "
-                          "axis, axis_gain for the others")
-        if motion is not None and amp > 0:  # at zero motion the vibration holds what c0 leaves, no more
-            cap = resid_std / np.maximum(gain, 1e-12)
-            if amp > float(cap.min()):
-                amp = float(cap.min())
-                amp_method += "; capped by the error variance at zero motion"
-        vibration = VibrationParams(fundamental_hz=rounded(f0, 5), amplitude_mps2=rounded(amp, 5),
-                                    harmonic_weights=[rounded(x, 4) for x in w],
-                                    bandwidth_hz=rounded(vib["bandwidth_hz"], 4),
-                                    axis_gain=[rounded(float(g), 4) for g in gain])
-        rel = (np.sqrt((amp * gain) ** 2 + other_var) / np.maximum(err_std, 1e-12) - 1.0)
-        vib_diag = {"fundamental_hz": f0, "bandwidth_hz": vib["bandwidth_hz"], "amplitude_mps2": amp,
-                    "harmonic_weights": w.tolist(), "n_harmonics_fitted": vib["n_harmonics"],
-                    "frequency_resolution_hz": vib["resolution_hz"], "log_misfit": vib["log_misfit"],
-                    "candidate_fundamentals_misfit": vib["candidates"],
-                    "comb_fit_amplitude_mps2": float(np.sqrt(vib["harmonic_variances"].sum())),
-                    "line_variance_method": vib["line_variance_method"],
-                    "per_axis_nonwhite_std_mps2": resid_std.tolist(),
-                    "per_axis_model_std_rel_error": rel.tolist(),
-                    "white_variance_frac": white_frac, "amplitude_method": amp_method}
-    motion_params = MotionNoiseParams()
-    if motion is not None:
-        motion_params = MotionNoiseParams(
-            acc_var_gain_mps2=[rounded(x, 5) for x in motion["acc_var_gain_mps2"]],
-            rate_var_gain_mps4_per_radps=[rounded(x, 5) for x in motion["rate_var_gain_mps4_per_radps"]])
-    params = ImuParams(rate_hz=rounded(fs, 7), white_noise_density_mps2_per_sqrt_hz=[rounded(x, 5) for x in density],
-                       bias_rw_mps2_per_sqrt_s=rounded(bias_rw, 4), bias_initial_std_mps2=0.0, vibration=vibration,
-                       time_offset_s=rounded(offset, 4), motion_noise=motion_params,
-                       lever_arm_m=[0.0, 0.0, 0.0] if lever is None else [rounded(float(x), 4) for x in lever])
-    dec = max(1, f.size // 400)
-    diag = {
-        "truth_cutoff_hz": fc,
-        "imu_rate_hz": fs,
-        "white_band_hz": [float(lo), float(hi)],
-        "white_noise_density_mps2_per_sqrt_hz": density.tolist(),
-        "white_noise_rel_se": float(1.0 / np.sqrt(max(wb.sum() * len(errs), 1))),
-        "error_std_mps2": np.sqrt(np.nanmean(np.concatenate([e[ok] for e, ok, _ in errs]) ** 2, axis=0)).tolist(),
-        "time_offset": offset_diag,
-        "lever_arm": lever_diag,
-        "motion_noise": None if motion is None else {k: (v.tolist() if isinstance(v, np.ndarray) else v)
-                                                     for k, v in motion.items()},
-        "n_samples": n_total,
-        "vibration": vib_diag,
-        "bias_rw": {k: bias_diag[k] for k in ("value", "k2_estimate", "k2_std_error", "note")},
-        "allan_deviation": bias_diag["allan_deviation"],
-        "psd": {"f_hz": f[::dec].tolist(), "psd_mps2_sq_per_hz": psd[::dec].tolist()},
-        "recordings": [trace_label(t, i) for i, t in enumerate(trs)],
-        "not_identifiable": notes,
-    }
+    vibration, vib_diag = _vibration_params(vib, density, fs, err_std, resid_std, other_var, motion, notes)
+    params = _imu_params(fs, density, bias_rw, vibration, offset, motion, lever)
+    diag = _imu_fit_diagnostics(trs, errs, fc, fs, spectrum, offset_diag, lever_diag, motion, vib_diag, bias_diag,
+                                notes)
     return Fit(params=params, n_samples=n_total, diagnostics=diag)
 
 
