@@ -857,15 +857,10 @@ def fit_link_availability(inp: CalibrationInputs, ranging: RangingFit, timing: T
     return AvailabilityFit(per_anchor=av, tag=tag, long_outages=long_)
 
 
-def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: AvailabilityFit, timing: TimingFit,
-                      report: ReportBuilder) -> ChannelSet:
-    """Per-anchor channel parameters (LOS, NLOS modes with their episode lengths, rate, link range)."""
-    ids, chan, av, rep = inp.anchor_ids, ranging.channels, avail.per_anchor, report
-    burst_rate = timing.burst_rate_hz
-    mix, mix_diag, flags = chan.mix, chan.mix_diag, chan.flags
-    ref, se_off, fixed_slope = ranging.refinement, ranging.offset_se_s, ranging.fixed_slope
-    # NLOS dwell: one value for the generator, pooled over anchors
-    periods = {a: av[a]["dropout_outage"]["attempt_period_s"] for a in ids}
+def _pooled_nlos_dwell(ids: Sequence[str], flags: dict[str, list[np.ndarray]], periods: dict[str, float]
+                       ) -> tuple[dict[str, float | None], np.ndarray, float | None, float]:
+    """NLOS dwell per anchor and one value for the generator, pooled over anchors:
+    (per-anchor dwell, all NLOS run lengths, pooled dwell or None, dwell used)."""
     runs_all, per_anchor_dwell = [], {}
     for aid in ids:
         lengths = _nlos_runs(flags[aid])
@@ -874,7 +869,14 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
     all_runs = np.concatenate(runs_all) if runs_all else np.zeros(0)
     dwell = _dwell_from_runs(all_runs, float(np.mean(list(periods.values()))))
     nlos_dwell = dwell if dwell is not None else UwbParams().nlos_dwell_s
+    return per_anchor_dwell, all_runs, dwell, nlos_dwell
 
+
+def _episodes_and_short_pool(ids: Sequence[str], chan: _Channels, rep: ReportBuilder
+                             ) -> tuple[dict[str, list[ModeEpisodes]], ModeEpisodes]:
+    """Episodes of every mode per anchor, and the short ones pooled over modes and anchors (reported
+    under ``short_nlos_episodes``)."""
+    flags, mix = chan.flags, chan.mix
     # episodes of every mode; the short ones (gross outliers: a device behaviour, a few per anchor) are
     # pooled over modes and anchors to learn their length law and whether their offset is held
     empty = ModeEpisodes(lengths=np.zeros(0, np.int64), within_dev_m=np.zeros(0), within_dev_rel=np.zeros(0))
@@ -888,93 +890,140 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
         "length_histogram_rows": np.bincount(short_pool.lengths.astype(np.int64)).tolist()
         if short_pool.lengths.size else [],
         "within_episode_std_m": short_pool.within_std_m, "within_episode_std_rel": short_pool.within_std_rel}
+    return episodes_of, short_pool
+
+
+def _anchor_link_range(aid: str, link: dict[str, Any], rep: ReportBuilder) -> tuple[float, float]:
+    """(max range, edge width) of an anchor's link; above the largest range seen when not identifiable."""
+    seen = link.get("max_range_seen_m") or 0.0
+    if link.get("identifiable"):
+        max_range, edge = link["max_range_m"], link["edge_width_m"]
+    else:
+        max_range, edge = 2.0 * seen + 10.0, 5.0
+        rep.not_identifiable.append(f"channel_per_anchor.{aid}.max_range_m ({link.get('why', 'not identifiable')}; "
+                                    f"set to {max_range:.0f} m, above the largest range {seen:.1f} m)")
+    return max_range, edge
+
+
+def _anchor_nlos_modes(chan: _Channels, aid: str, f: MixtureFit, episodes: list[ModeEpisodes],
+                       short_pool: ModeEpisodes, period_s: float, burst_rate: float, nlos_dwell: float
+                       ) -> tuple[list[NlosMode], list[dict[str, Any]], Any]:
+    """An anchor's NLOS modes, each with its own episode length: (modes, episode shapes, HMM dwell)."""
+    # each mode keeps its own episode length (an episode keeps one reflector): a long, small offset at
+    # rest and short gross outliers are different processes
+    shapes = [_episode_shape(m, short_pool if _is_short(e) else e, period_s, 1.0 / burst_rate,
+                             short=_is_short(e))
+              for m, e in zip(f.modes, episodes, strict=True)]
+    hmm_dwell = _hmm_mode_dwell(chan, aid, f, shapes, [_is_short(e) for e in episodes], nlos_dwell)
+    modes = [NlosMode(weight=rounded(m.weight, 4), mean_m=rounded(m.mean_m, 5), std_m=rounded(m.std_m, 4),
+                      dwell_s=None if sh["dwell_s"] is None else rounded(sh["dwell_s"], 4),
+                      fixed_dwell=sh["fixed_dwell"],
+                      held_jitter_m=None if sh["held_jitter_m"] is None else rounded(sh["held_jitter_m"], 4))
+             for m, sh in zip(f.modes, shapes, strict=True)]
+    if not modes:
+        modes = ChannelParams().nlos_modes
+    return modes, shapes, hmm_dwell
+
+
+def _anchor_std_errors(aid: str, f: MixtureFit, ranging: RangingFit, n_rows: int, period_s: float,
+                       anchor_dwell: float | None, nlos_dwell: float) -> dict[str, Any]:
+    """An anchor's standard errors, widened by the time-offset uncertainty and by NLOS episodes."""
+    se = dict(f.se)
+    sens = ((ranging.refinement or {}).get("sensitivity") or {}).get(aid)
+    se_off = ranging.offset_se_s
+    if sens:  # the LOS mean and slope move with the time offset: add its uncertainty
+        se["los_mean_m"] = float(np.hypot(se["los_mean_m"], sens["d_los_mean_per_s"] * se_off))
+        se["range_bias_per_m"] = float(np.hypot(se["range_bias_per_m"], sens["d_range_bias_per_s"] * se_off))
+        se["includes_time_offset_uncertainty"] = True
+    if f.nlos_prob > 0:
+        # NLOS comes in episodes: Var(p) ~ 2 p (1 - p) tau_c / T_obs with tau_c = dwell (1 - p)
+        t_obs = n_rows * period_s
+        tau = (anchor_dwell or nlos_dwell) * (1.0 - f.nlos_prob)
+        se["nlos_prob"] = float(max(se["nlos_prob"],
+                                    np.sqrt(2.0 * f.nlos_prob * (1.0 - f.nlos_prob) * tau / max(t_obs, 1e-9))))
+        se["nlos_prob_method"] = "episodes: sqrt(2 p (1-p) dwell (1-p) / T_obs), at least the binomial SE"
+    return se
+
+
+def _report_anchor_channel(aid: str, f: MixtureFit, se: dict[str, Any], n_a: int, a_av: dict[str, Any],
+                           rate: float, max_range: float, chan: _Channels, fixed_slope: float | None,
+                           rep: ReportBuilder) -> None:
+    """An anchor's channel in the report: what was not identifiable, modes below the LOS mean, parameters."""
+    link = a_av["link"]
+    if not f.modes:
+        rep.not_identifiable.append(f"channel_per_anchor.{aid}.nlos_modes (no NLOS rows; nlos_prob = 0, "
+                                    "default mode kept)")
+    centre = f.los_mean_m + f.range_bias_per_m * float(np.median(chan.per_anchor_rows.get(aid, ([0.0],) * 3)[1]))
+    negative = [m.mean_m for m in f.modes if m.mean_m < centre]
+    if negative:
+        rep.warnings.append(
+            f"{aid}: {len(negative)} NLOS mode(s) below the LOS mean (means "
+            f"{', '.join(f'{m:.2f}' for m in negative)} m): ranges shorter than the truth are not radio NLOS "
+            "(that lengthens ranges) but truth errors or ranging outliers; the mixture reproduces them")
+    pre = f"channel_per_anchor.{aid}"
+    rep.param(f"{pre}.los_mean_m", f.los_mean_m, se=se["los_mean_m"], n=n_a, summary=True)
+    rep.param(f"{pre}.los_std_m", f.los_std_m, se=se["los_std_m"], n=n_a, summary=True)
+    rep.param(f"{pre}.range_bias_per_m", f.range_bias_per_m, se=se["range_bias_per_m"], n=n_a,
+              note="fixed to the static-sweep slope" if fixed_slope is not None else None)
+    rep.param(f"{pre}.nlos_prob", f.nlos_prob, se=se["nlos_prob"], n=n_a, summary=True)
+    rep.param(f"{pre}.nlos_modes", [[m.weight, m.mean_m, m.std_m] for m in f.modes], se=f.se.get("mode_mean_m"),
+              n=n_a, note="(weight, mean_m, std_m); std error of the means")
+    rep.param(f"{pre}.rate_hz", rate, n=a_av["attempts"],
+              note="recorded attempts" if a_av["attempts_recorded"] else "one attempt per burst (inferred)")
+    rep.param(f"{pre}.max_range_m", max_range, n=link.get("n_attempts"),
+              note=None if link.get("identifiable") else "not identifiable")
+
+
+def _pooled_channel(pooled_fit: MixtureFit, per_channel: dict[str, ChannelParams], ids: Sequence[str],
+                    burst_rate: float) -> ChannelParams:
+    """The channel pooled over anchors (the mean rate, the largest link range, the median edge)."""
+    pooled_rate = float(np.mean([per_channel[a].rate_hz for a in ids]))
+    pooled_modes = ([NlosMode(weight=rounded(m.weight, 4), mean_m=rounded(m.mean_m, 5), std_m=rounded(m.std_m, 4))
+                     for m in pooled_fit.modes] or ChannelParams().nlos_modes)
+    return ChannelParams(rate_hz=min(rounded(pooled_rate, 6), burst_rate),
+                         los_mean_m=rounded(pooled_fit.los_mean_m, 5),
+                         los_std_m=rounded(pooled_fit.los_std_m, 5),
+                         range_bias_per_m=rounded(pooled_fit.range_bias_per_m, 5),
+                         nlos_prob=rounded(pooled_fit.nlos_prob, 5), nlos_modes=pooled_modes,
+                         max_range_m=rounded(max(c.max_range_m for c in per_channel.values()), 5),
+                         edge_width_m=rounded(float(np.median([c.edge_width_m for c in per_channel.values()])), 4))
+
+
+def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: AvailabilityFit, timing: TimingFit,
+                      report: ReportBuilder) -> ChannelSet:
+    """Per-anchor channel parameters (LOS, NLOS modes with their episode lengths, rate, link range)."""
+    ids, chan, av, rep = inp.anchor_ids, ranging.channels, avail.per_anchor, report
+    burst_rate = timing.burst_rate_hz
+    mix, mix_diag, flags = chan.mix, chan.mix_diag, chan.flags
+    # NLOS dwell: one value for the generator, pooled over anchors
+    periods = {a: av[a]["dropout_outage"]["attempt_period_s"] for a in ids}
+    per_anchor_dwell, all_runs, dwell, nlos_dwell = _pooled_nlos_dwell(ids, flags, periods)
+    episodes_of, short_pool = _episodes_and_short_pool(ids, chan, rep)
     channel_diag: dict[str, Any] = {}
     per_channel: dict[str, ChannelParams] = {}
     for aid in ids:
         f = mix[aid]
         a_av = av[aid]
-        link = a_av["link"]
         rate = min(a_av["attempt_prob"] * burst_rate, burst_rate)
-        seen = link.get("max_range_seen_m") or 0.0
-        if link.get("identifiable"):
-            max_range, edge = link["max_range_m"], link["edge_width_m"]
-        else:
-            max_range, edge = 2.0 * seen + 10.0, 5.0
-            rep.not_identifiable.append(f"channel_per_anchor.{aid}.max_range_m ({link.get('why', 'not identifiable')}; "
-                                        f"set to {max_range:.0f} m, above the largest range {seen:.1f} m)")
-        # each mode keeps its own episode length (an episode keeps one reflector): a long, small offset at
-        # rest and short gross outliers are different processes
+        max_range, edge = _anchor_link_range(aid, a_av["link"], rep)
         episodes = episodes_of[aid]
-        mode_runs = [e.lengths for e in episodes]
-        shapes = [_episode_shape(m, short_pool if _is_short(e) else e, periods[aid], 1.0 / burst_rate,
-                                 short=_is_short(e))
-                  for m, e in zip(f.modes, episodes, strict=True)]
-        hmm_dwell = _hmm_mode_dwell(chan, aid, f, shapes, [_is_short(e) for e in episodes], nlos_dwell)
-        mode_dwell = [sh["dwell_s"] for sh in shapes]
-        modes = [NlosMode(weight=rounded(m.weight, 4), mean_m=rounded(m.mean_m, 5), std_m=rounded(m.std_m, 4),
-                          dwell_s=None if sh["dwell_s"] is None else rounded(sh["dwell_s"], 4),
-                          fixed_dwell=sh["fixed_dwell"],
-                          held_jitter_m=None if sh["held_jitter_m"] is None else rounded(sh["held_jitter_m"], 4))
-                 for m, sh in zip(f.modes, shapes, strict=True)]
-        if not modes:
-            modes = ChannelParams().nlos_modes
+        modes, shapes, hmm_dwell = _anchor_nlos_modes(chan, aid, f, episodes, short_pool, periods[aid], burst_rate,
+                                                      nlos_dwell)
         per_channel[aid] = ChannelParams(
             rate_hz=min(rounded(rate, 6), burst_rate), los_mean_m=rounded(f.los_mean_m, 5),
             los_std_m=rounded(f.los_std_m, 5),
             range_bias_per_m=rounded(f.range_bias_per_m, 5), nlos_prob=rounded(f.nlos_prob, 5), nlos_modes=modes,
             max_range_m=rounded(max_range, 5), edge_width_m=rounded(edge, 4))
-        se = dict(f.se)
-        sens = ((ref or {}).get("sensitivity") or {}).get(aid)
-        if sens:  # the LOS mean and slope move with the time offset: add its uncertainty
-            se["los_mean_m"] = float(np.hypot(se["los_mean_m"], sens["d_los_mean_per_s"] * se_off))
-            se["range_bias_per_m"] = float(np.hypot(se["range_bias_per_m"], sens["d_range_bias_per_s"] * se_off))
-            se["includes_time_offset_uncertainty"] = True
-        if f.nlos_prob > 0:
-            # NLOS comes in episodes: Var(p) ~ 2 p (1 - p) tau_c / T_obs with tau_c = dwell (1 - p)
-            t_obs = mix_diag[aid]["n"] * periods[aid]
-            tau = (per_anchor_dwell[aid] or nlos_dwell) * (1.0 - f.nlos_prob)
-            se["nlos_prob"] = float(max(se["nlos_prob"],
-                                        np.sqrt(2.0 * f.nlos_prob * (1.0 - f.nlos_prob) * tau / max(t_obs, 1e-9))))
-            se["nlos_prob_method"] = "episodes: sqrt(2 p (1-p) dwell (1-p) / T_obs), at least the binomial SE"
+        se = _anchor_std_errors(aid, f, ranging, mix_diag[aid]["n"], periods[aid], per_anchor_dwell[aid], nlos_dwell)
         channel_diag[aid] = {**mix_diag[aid], "std_errors": se,
                              "nlos_mode_dwell_hmm": hmm_dwell, "nlos_dwell_s": per_anchor_dwell[aid],
-                             "nlos_mode_episodes": [int(x.size) for x in mode_runs], "nlos_mode_dwell_s": mode_dwell,
+                             "nlos_mode_episodes": [int(e.lengths.size) for e in episodes],
+                             "nlos_mode_dwell_s": [sh["dwell_s"] for sh in shapes],
                              "nlos_mode_episode_shape": shapes,
                              "n_nlos_episodes": int(_nlos_runs(flags[aid]).size)}
-        if not f.modes:
-            rep.not_identifiable.append(f"channel_per_anchor.{aid}.nlos_modes (no NLOS rows; nlos_prob = 0, "
-                                        "default mode kept)")
-        centre = f.los_mean_m + f.range_bias_per_m * float(np.median(chan.per_anchor_rows.get(aid, ([0.0],) * 3)[1]))
-        negative = [m.mean_m for m in f.modes if m.mean_m < centre]
-        if negative:
-            rep.warnings.append(
-                f"{aid}: {len(negative)} NLOS mode(s) below the LOS mean (means "
-                f"{', '.join(f'{m:.2f}' for m in negative)} m): ranges shorter than the truth are not radio NLOS "
-                "(that lengthens ranges) but truth errors or ranging outliers; the mixture reproduces them")
-        pre = f"channel_per_anchor.{aid}"
-        n_a = mix_diag[aid]["n"]
-        rep.param(f"{pre}.los_mean_m", f.los_mean_m, se=se["los_mean_m"], n=n_a, summary=True)
-        rep.param(f"{pre}.los_std_m", f.los_std_m, se=se["los_std_m"], n=n_a, summary=True)
-        rep.param(f"{pre}.range_bias_per_m", f.range_bias_per_m, se=se["range_bias_per_m"], n=n_a,
-                  note="fixed to the static-sweep slope" if fixed_slope is not None else None)
-        rep.param(f"{pre}.nlos_prob", f.nlos_prob, se=se["nlos_prob"], n=n_a, summary=True)
-        rep.param(f"{pre}.nlos_modes", [[m.weight, m.mean_m, m.std_m] for m in f.modes], se=f.se.get("mode_mean_m"),
-                  n=n_a, note="(weight, mean_m, std_m); std error of the means")
-        rep.param(f"{pre}.rate_hz", rate, n=a_av["attempts"],
-                  note="recorded attempts" if a_av["attempts_recorded"] else "one attempt per burst (inferred)")
-        rep.param(f"{pre}.max_range_m", max_range, n=link.get("n_attempts"),
-                  note=None if link.get("identifiable") else "not identifiable")
+        _report_anchor_channel(aid, f, se, mix_diag[aid]["n"], a_av, rate, max_range, chan, ranging.fixed_slope, rep)
     pooled_fit = chan.pooled_fit
-    pooled_rate = float(np.mean([per_channel[a].rate_hz for a in ids]))
-    pooled_modes = ([NlosMode(weight=rounded(m.weight, 4), mean_m=rounded(m.mean_m, 5), std_m=rounded(m.std_m, 4))
-                     for m in pooled_fit.modes] or ChannelParams().nlos_modes)
-    pooled = ChannelParams(rate_hz=min(rounded(pooled_rate, 6), burst_rate),
-                           los_mean_m=rounded(pooled_fit.los_mean_m, 5),
-                           los_std_m=rounded(pooled_fit.los_std_m, 5),
-                           range_bias_per_m=rounded(pooled_fit.range_bias_per_m, 5),
-                           nlos_prob=rounded(pooled_fit.nlos_prob, 5), nlos_modes=pooled_modes,
-                           max_range_m=rounded(max(c.max_range_m for c in per_channel.values()), 5),
-                           edge_width_m=rounded(float(np.median([c.edge_width_m for c in per_channel.values()])), 4))
+    pooled = _pooled_channel(pooled_fit, per_channel, ids, burst_rate)
     rep.sections["channel"] = {"pooled": {"n": int(chan.pooled_r.size), **chan.pooled_sel,
                                           "std_errors": pooled_fit.se},
                                "per_anchor": channel_diag}
