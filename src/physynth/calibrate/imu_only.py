@@ -132,25 +132,10 @@ def _noise_from_allan(resid: np.ndarray, t_s: np.ndarray, calm: np.ndarray, fs: 
                        "white_tau_s": tau_w}
 
 
-def fit_body_imu(traces: Sequence[Trace], *, cutoff_hz: float = 10.0, offset_s: float = 0.0,
-                 defaults: BodyImuParams | None = None, lever_arm_m: Sequence[float] | None = None
-                 ) -> Fit[BodyImuParams]:
-    """Fit the body-frame accelerometer and gyroscope on recordings with raw IMU and truth attitude.
-
-    Per sensor: M (scale factor = diag - 1, misalignment = off-diagonal) and bias by least squares
-    over the valid samples of all recordings pooled, with a prior M ~ I +- ``MATRIX_PRIOR_STD``; white
-    noise and bias random walk from the Allan deviation of the residual over the calm span of each
-    recording (median over recordings). With one device, the per-device spreads of the scenario
-    (``scale_factor_std``, ``misalignment_std_rad``, ``turn_on_bias_std_*``) are set to the RMS of the
-    fitted values (one draw of the population). ``lever_arm_m`` (body frame [m], e.g. from
-    :func:`~physynth.calibrate.imu_fit.fit_imu` with ``lever_arm=True``): the truth is the sensor
-    point's, and the scenario keeps it.
-    """
-    trs = [t for t in traces if has_body_imu(t)]
-    if not trs:
-        raise CalibrationError("no recording with a body-frame accelerometer + gyroscope and truth attitude")
-    base = defaults or BodyImuParams()
-    fs = 1.0 / median_step_s(trs[0].imu.t_s)
+def _pooled_body_regressions(trs: list[Trace], fs: float, cutoff_hz: float, offset_s: float,
+                             lever_arm_m: Sequence[float] | None) -> tuple:
+    """Accelerometer and gyroscope matrix and bias fitted on the valid samples of all recordings pooled:
+    (m_a, b_a, m_g, b_g, per-recording (trace, f_b, w, valid, calm), number of samples)."""
     xs_f, ys_f, xs_w, ys_w = [], [], [], []
     per = []
     for tr in trs:  # a handful of recordings, each vectorised
@@ -166,8 +151,15 @@ def fit_body_imu(traces: Sequence[Trace], *, cutoff_hz: float = 10.0, offset_s: 
         per.append((tr, f_b, w, ok, calm & ok))
     m_a, b_a = _affine_fit(np.concatenate(xs_f), np.concatenate(ys_f))
     m_g, b_g = _affine_fit(np.concatenate(xs_w), np.concatenate(ys_w))
+    return m_a, b_a, m_g, b_g, per, int(sum(x.shape[0] for x in xs_f))
+
+
+def _body_noise_per_recording(per: list[tuple], m_a: np.ndarray, b_a: np.ndarray, m_g: np.ndarray,
+                              b_g: np.ndarray, fs: float, notes: list[str]) -> tuple:
+    """White noise and bias random walk of each recording's residual (Allan deviation over its calm
+    span, or over the whole recording without one): (noise_a, noise_g, rw_a, rw_g, per-recording
+    diagnostics, gyro residual sums for the rate-scaled power). Appends to ``notes``."""
     noise_a, noise_g, rw_a, rw_g, diag_rec = [], [], [], [], []
-    notes: list[str] = []
     gyro_motion: list[tuple[float, float, int, float, int]] = []
     for tr, f_b, w, ok, calm in per:
         ra = np.where(ok[:, None], tr.imu.acc_body_mps2 - (f_b @ m_a.T + b_a), np.nan)
@@ -193,27 +185,35 @@ def fit_body_imu(traces: Sequence[Trace], *, cutoff_hz: float = 10.0, offset_s: 
                          "calm_span_s": da["calm_span_s"],
                          "acc_error_std_mps2": np.nanstd(ra[ok], axis=0).tolist(),
                          "gyro_error_std_radps": np.nanstd(rg[ok], axis=0).tolist()})
-    if not noise_a:
-        raise CalibrationError("no recording has a valid span: the body-frame IMU noise cannot be read")
-    na, ng = np.median(noise_a, axis=0), np.median(noise_g, axis=0)
+    return noise_a, noise_g, rw_a, rw_g, diag_rec, gyro_motion
 
-    def _rw(vals: list[float | None], default: float, name: str) -> float:
-        got = [v for v in vals if v is not None]
-        if got:
-            return float(np.median(got))
-        notes.append(f"{name} (calm spans too short for the +1/2 Allan slope; default {default:g} kept)")
-        return default
 
-    ka = _rw(rw_a, base.accelerometer.bias_rw_mps2_per_sqrt_s, "body_imu.accelerometer.bias_rw_mps2_per_sqrt_s")
-    kg = _rw(rw_g, base.gyroscope.bias_rw_radps_per_sqrt_s, "body_imu.gyroscope.bias_rw_radps_per_sqrt_s")
-    off = ~np.eye(3, dtype=bool)
+def _median_bias_walk(vals: list[float | None], default: float, name: str, notes: list[str]) -> float:
+    """The median of the identified bias random walks, else ``default`` (with a note)."""
+    got = [v for v in vals if v is not None]
+    if got:
+        return float(np.median(got))
+    notes.append(f"{name} (calm spans too short for the +1/2 Allan slope; default {default:g} kept)")
+    return default
+
+
+def _gyro_rate_gain(gyro_motion: list[tuple[float, float, int, float, int]]) -> tuple[float, float]:
+    """(calm variance c0, gain) of the gyro residual variance c0 + gain |w|, pooled over recordings."""
     # the gyro residual's power that grows with the rate (rotation above the truth's cut-off, truth
     # noise): variance = c0 + gain |w|, c0 from the calm samples, gain by pooled ratio of means;
     # reported only (see the note below)
     e2, w_sum, n_ok, e2_calm, n_calm = (np.sum([g[i] for g in gyro_motion]) for i in range(5))
     c0_g = e2_calm / n_calm if n_calm > 0 else 0.0
     gyro_gain = max((e2 - c0_g * n_ok) / w_sum, 0.0) if w_sum > 0 else 0.0
-    params = BodyImuParams(
+    return c0_g, gyro_gain
+
+
+def _body_imu_params(fs: float, offset_s: float, base: BodyImuParams, lever_arm_m: Sequence[float] | None,
+                     na: np.ndarray, ng: np.ndarray, ka: float, kg: float, m_a: np.ndarray, b_a: np.ndarray,
+                     m_g: np.ndarray, b_g: np.ndarray) -> BodyImuParams:
+    """The fitted values, rounded; the per-device spreads are the RMS of this device's errors."""
+    off = ~np.eye(3, dtype=bool)
+    return BodyImuParams(
         rate_hz=rounded(fs, 7), time_offset_s=rounded(offset_s, 4), vibration=base.vibration,
         lever_arm_m=[0.0, 0.0, 0.0] if lever_arm_m is None else [rounded(float(x), 4) for x in lever_arm_m],
         accelerometer=AccelerometerParams(
@@ -227,6 +227,40 @@ def fit_body_imu(traces: Sequence[Trace], *, cutoff_hz: float = 10.0, offset_s: 
             scale_factor_std=rounded(float(np.sqrt(np.mean((np.diag(m_g) - 1.0) ** 2))), 4),
             misalignment_std_rad=rounded(float(np.sqrt(np.mean(m_g[off] ** 2))), 4)),
     )
+
+
+def fit_body_imu(traces: Sequence[Trace], *, cutoff_hz: float = 10.0, offset_s: float = 0.0,
+                 defaults: BodyImuParams | None = None, lever_arm_m: Sequence[float] | None = None
+                 ) -> Fit[BodyImuParams]:
+    """Fit the body-frame accelerometer and gyroscope on recordings with raw IMU and truth attitude.
+
+    Per sensor: M (scale factor = diag - 1, misalignment = off-diagonal) and bias by least squares
+    over the valid samples of all recordings pooled, with a prior M ~ I +- ``MATRIX_PRIOR_STD``; white
+    noise and bias random walk from the Allan deviation of the residual over the calm span of each
+    recording (median over recordings). With one device, the per-device spreads of the scenario
+    (``scale_factor_std``, ``misalignment_std_rad``, ``turn_on_bias_std_*``) are set to the RMS of the
+    fitted values (one draw of the population). ``lever_arm_m`` (body frame [m], e.g. from
+    :func:`~physynth.calibrate.imu_fit.fit_imu` with ``lever_arm=True``): the truth is the sensor
+    point's, and the scenario keeps it.
+    """
+    trs = [t for t in traces if has_body_imu(t)]
+    if not trs:
+        raise CalibrationError("no recording with a body-frame accelerometer + gyroscope and truth attitude")
+    base = defaults or BodyImuParams()
+    fs = 1.0 / median_step_s(trs[0].imu.t_s)
+    m_a, b_a, m_g, b_g, per, n_samples = _pooled_body_regressions(trs, fs, cutoff_hz, offset_s, lever_arm_m)
+    notes: list[str] = []
+    noise_a, noise_g, rw_a, rw_g, diag_rec, gyro_motion = _body_noise_per_recording(per, m_a, b_a, m_g, b_g, fs,
+                                                                                    notes)
+    if not noise_a:
+        raise CalibrationError("no recording has a valid span: the body-frame IMU noise cannot be read")
+    na, ng = np.median(noise_a, axis=0), np.median(noise_g, axis=0)
+    ka = _median_bias_walk(rw_a, base.accelerometer.bias_rw_mps2_per_sqrt_s,
+                           "body_imu.accelerometer.bias_rw_mps2_per_sqrt_s", notes)
+    kg = _median_bias_walk(rw_g, base.gyroscope.bias_rw_radps_per_sqrt_s,
+                           "body_imu.gyroscope.bias_rw_radps_per_sqrt_s", notes)
+    c0_g, gyro_gain = _gyro_rate_gain(gyro_motion)
+    params = _body_imu_params(fs, offset_s, base, lever_arm_m, na, ng, ka, kg, m_a, b_a, m_g, b_g)
     notes.append(f"body_imu.gyroscope.vibration_rate_var_gain_radps (measured {gyro_gain:.3g} rad^2/s^2 per rad/s on "
                  "these recordings but not used: fitted on BROAD translation trials it overshoots a fast-rotating "
                  "trial by 35-160 %; the gyro residual mixes optical-truth noise with sensor error)")
@@ -237,7 +271,7 @@ def fit_body_imu(traces: Sequence[Trace], *, cutoff_hz: float = 10.0, offset_s: 
             "recordings": diag_rec, "truth_cutoff_hz": cutoff_hz, "time_offset_s": offset_s,
             "not_identifiable": notes,
             "note": "one device: per-device spreads are the RMS of this device's fitted errors"}
-    return Fit(params=params, n_samples=int(sum(x.shape[0] for x in xs_f)), diagnostics=diag)
+    return Fit(params=params, n_samples=n_samples, diagnostics=diag)
 
 
 def _attitude_section(traces: Sequence[Trace], cutoff_hz: float) -> dict[str, Any]:
