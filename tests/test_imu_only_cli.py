@@ -78,3 +78,25 @@ def test_imu_only_validation_against_a_dataset_without_imu_is_one_clear_error(tm
                        "--out", tmp_path / "rep", "--no-figures")
     assert code == 2 and "no IMU error of a kind" in err and "Traceback" not in err
     assert err.strip().count("\n") == 0
+
+
+def test_calibrating_every_trial_together_clips_the_run_spreads_and_says_so(tmp_path, capsys):
+    """Slow and fast lab trials differ in speed by more than a scenario can draw (uniform half-width of
+    the cruise speed 1.10 over the four shared trials): the spread is clipped to 0.9 with a warning,
+    not refused by the scenario's bounds."""
+    from physynth.calibrate.geometry import MAX_RUN_SPREAD_FRAC
+
+    dirs = []
+    for i, f in enumerate(sorted(DATA.glob("*.mat"))):
+        code, _, err = run(capsys, "import", "broad", f, "--out", tmp_path / f"b{i}", "--quiet")
+        assert code == 0, err
+        dirs.append(tmp_path / f"b{i}")
+    code, _, err = run(capsys, "calibrate", *dirs, "--out", tmp_path / "s.yaml", "--report", tmp_path / "r.json",
+                       "--quiet")
+    assert code == 0, err
+    scn = load_scenario(tmp_path / "s.yaml")
+    assert scn.motion.cruise_speed_spread_frac == MAX_RUN_SPREAD_FRAC
+    rep = json.loads((tmp_path / "r.json").read_text(encoding="utf-8"))
+    clip = rep["motion"]["spread_clipped"]
+    assert "cruise_speed_spread_frac" in clip["fields"] and clip["raw"][0] > MAX_RUN_SPREAD_FRAC
+    assert any("cruise_speed_spread_frac" in w and "clipped" in w for w in rep["warnings"])

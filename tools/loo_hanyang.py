@@ -13,7 +13,8 @@ difference, whether the real P95 lies in the synthetic 5-95 % band, and the larg
 difference over lags 1..10. Targets (issue 12): KS <= 0.10, UWB >= 1 and mean AoI within 15 %,
 median within 3 cm, real P95 inside the band.
 
-    .venv/bin/python tools/loo_hanyang.py [--n 50] [--seed 1] [--long-outages] [--out DIR] [--data ../shared/data/hanyang-uwb]
+    .venv/bin/python tools/loo_hanyang.py [--n 50] [--seed 1] [--long-outages] [--out DIR]
+                                          [--data ../shared/data/hanyang-uwb]
 """
 
 from __future__ import annotations

@@ -446,14 +446,35 @@ def _per_run_motion(tracks: Sequence[TrackSummary], v_runs: np.ndarray) -> dict[
             for tr, v in zip(tracks, v_runs, strict=True)}
 
 
+MAX_RUN_SPREAD_FRAC = 0.9
+"""Largest run-to-run speed or length spread (uniform half-width / mean) a scenario accepts
+(``physynth.bounds``: a run at 1 - spread of the mean speed must still move); wider fitted spreads are
+clipped to it and the report says so (``motion.spread_clipped``)."""
+
+
+def spread_clip_warnings(diag: dict[str, Any]) -> list[str]:
+    """Report warnings for run-to-run spreads clipped to :data:`MAX_RUN_SPREAD_FRAC` (none if not clipped)."""
+    clip = diag.get("spread_clipped")
+    if not clip:
+        return []
+    return [f"motion.{name}: the runs differ by more than a scenario can draw (fitted {raw:.3g}); clipped to "
+            f"{clip['max']} (runs of very different speed or length pooled)"
+            for name, raw in zip(("cruise_speed_spread_frac", "length_spread_frac"), clip["raw"], strict=True)
+            if name in clip["fields"]]
+
+
 def _run_to_run_spreads(tracks: Sequence[TrackSummary], v_runs: np.ndarray, lengths: np.ndarray,
                         base: MotionParams, diag: dict[str, Any]) -> tuple[float, float]:
     """Cruise-speed and length spreads (uniform half-widths) over the runs, or ``base``'s with one run;
     records the method (and what is not identifiable) in ``diag``."""
     if len(tracks) >= 2:
-        speed_spread = min(_uniform_half_width(v_runs), 0.95)
-        length_spread = min(_uniform_half_width(lengths), 0.95)
+        raw = (_uniform_half_width(v_runs), _uniform_half_width(lengths))
+        speed_spread, length_spread = (min(x, MAX_RUN_SPREAD_FRAC) for x in raw)
         diag["spread_method"] = "uniform half-width sqrt(3) * std(ddof=1) / mean over runs"
+        clipped = [name for name, x in zip(("cruise_speed_spread_frac", "length_spread_frac"), raw, strict=True)
+                   if x > MAX_RUN_SPREAD_FRAC]
+        if clipped:  # runs of very different speed or length (e.g. slow and fast lab trials pooled)
+            diag["spread_clipped"] = {"fields": clipped, "raw": [float(x) for x in raw], "max": MAX_RUN_SPREAD_FRAC}
         diag["cruise_speed_mps_std_error"] = float(np.std(v_runs, ddof=1) / np.sqrt(len(tracks)))
     else:
         speed_spread, length_spread = base.cruise_speed_spread_frac, base.length_spread_frac

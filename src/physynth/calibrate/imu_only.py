@@ -303,7 +303,7 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
 
     Returns a :class:`physynth.calibrate.CalibrationResult`.
     """
-    from .geometry import fit_motion, fit_path
+    from .geometry import fit_motion, fit_path, spread_clip_warnings
     from .pipeline import CalibrationResult
 
     say = progress or (lambda _msg: None)
@@ -388,4 +388,7 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
         + ([] if body is None else body.diagnostics["not_identifiable"]),
         "scenario": scn.model_dump(mode="json"),
     }
+    warnings = spread_clip_warnings(motion_fit.diagnostics)
+    if warnings:
+        report["warnings"] = warnings
     return CalibrationResult(scenario=scn, report=report)

@@ -59,6 +59,7 @@ from .geometry import (
     fit_motion,
     fit_path,
     fit_path_perturbation,
+    spread_clip_warnings,
     summarize_track,
 )
 from .uwb_fit import (
@@ -774,6 +775,7 @@ def fit_geometry(inp: CalibrationInputs, path_kind: PathKind, report: ReportBuil
     rep.param("motion.speed_poly_r2", mf.diagnostics["speed_poly_r2"], n=mf.n_samples)
     for key in ("cruise_speed_spread_frac", "length_spread_frac"):
         rep.param(f"motion.{key}", getattr(mp, key), n=len(trs), note=mf.diagnostics["spread_method"])
+    rep.warnings.extend(spread_clip_warnings(mf.diagnostics))
     for key in ("dwell_start_s", "dwell_end_s"):
         vals = [r[key] for r in mf.diagnostics["per_run"].values()]
         rep.param(f"motion.{key}", getattr(mp, key),
@@ -1055,7 +1057,8 @@ def _long_outage_params(fit: dict[str, Any], rep: ReportBuilder, *, use: bool) -
         return {}
     slope = fit["range_slope_per_m"]
     out = {"long_outage_rate_per_s": rounded(fit["rate_per_s"], 8), "long_outage_mean_s": rounded(fit["mean_s"], 5),
-           "long_outage_range_slope_per_m": rounded(slope, 5), "long_outage_ref_range_m": rounded(fit["ref_range_m"], 3),
+           "long_outage_range_slope_per_m": rounded(slope, 5),
+           "long_outage_ref_range_m": rounded(fit["ref_range_m"], 3),
            "long_outage_max_range_m": rounded(fit["max_range_m"], 3) if slope else None,
            "long_outage_frailty_shape": (rounded(fit["frailty_shape"], 5) if fit.get("frailty_shape") is not None
                                          else None)}

@@ -253,7 +253,9 @@ class DatasetWriter:
         self._schemas = {name: _schema(name, compact, column_groups) for name in TABLES}
         self._writers = {
             name: pq.ParquetWriter(self.tmp / f"{name}.parquet", self._schemas[name],
-                                   compression="snappy", use_byte_stream_split=[c for c in _FLOAT_COLUMNS[name] if c in self._schemas[name].names],
+                                   compression="snappy",
+                                   use_byte_stream_split=[c for c in _FLOAT_COLUMNS[name]
+                                                          if c in self._schemas[name].names],
                                    use_dictionary=["anchor_id", "name"], write_statistics=["trace"])
             for name in TABLES
         }

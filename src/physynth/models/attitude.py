@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Annotated, Literal
 
 import numpy as np
 from pydantic import Field
+
 from ..constants import G0_MPS2
 from ._filters import ar1
 from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat

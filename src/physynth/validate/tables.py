@@ -197,7 +197,8 @@ def _transfer_lines(report: ValidationReport) -> list[str]:
     return lines
 
 
-_IMU_ERROR_ROWS = (("imu", "mps2", "ENU acceleration (m/s²)", "ENU"), ("acc_body", "mps2", "Accelerometer (m/s²)", "xyz"),
+_IMU_ERROR_ROWS = (("imu", "mps2", "ENU acceleration (m/s²)", "ENU"),
+                   ("acc_body", "mps2", "Accelerometer (m/s²)", "xyz"),
                    ("gyro", "radps", "Gyroscope (rad/s)", "xyz"))
 
 
