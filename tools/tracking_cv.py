@@ -1,0 +1,113 @@
+"""Leave-one-run-out tracking study on the four shared Hanyang Trajectory_A runs.
+
+Each run in turn is the test run; the three others are the training runs (the real training data of
+NOAUG and AUG_GAN, and the runs SYNTH_PHY's scenario is calibrated on). Every fold is the command
+
+    physynth study tracking --quick --seed S --train A --train B --train C --test D \\
+        --methods NOAUG,AUG_GAN,SYNTH_PHY,ekf --out DIR
+
+on datasets made by ``physynth import hanyang RUN --crop-to-uwb``. With ``--long-outages`` each fold
+also calibrates its training runs with ``physynth calibrate --long-outages`` and trains SYNTH_PHY on
+that scenario (``--scenario``). Prints one table: RMSE (m) per fold and seed, the mean over all, and
+how often each method beats NOAUG of the same fold and seed.
+
+    .venv/bin/python tools/tracking_cv.py [--seeds 0,1] [--jobs 2] [--long-outages] [--out runs/tracking-cv]
+
+Each study takes 2-4 min on one core (quick schedule, one torch thread); ``--jobs`` runs that many
+at once (the default 2 suits a 2-core machine: 4 folds x 2 seeds in about 20 min).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+RUNS = ("LOS/Case_1", "LOS/Case_2", "NLOS/Case_1", "NLOS/Case_2")
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hanyang-uwb" / "Dynamic_measurements"
+CLI = [sys.executable, "-m", "physynth.cli"]
+ORDER = ("NOAUG", "AUG_GAN", "SYNTH_PHY (synthetic only)", "SYNTH_PHY", "ekf", "ref: authors' ESKF")
+
+
+def _run(cmd: list[str], log: Path) -> None:
+    with log.open("w") as fh:
+        done = subprocess.run(cmd, stdout=fh, stderr=subprocess.STDOUT, check=False)
+    if done.returncode != 0:
+        raise SystemExit(f"failed ({done.returncode}): {' '.join(cmd)}; see {log}")
+
+
+def _name(run: str) -> str:
+    return run.replace("/", "-")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=DATA, help="Hanyang Dynamic_measurements folder")
+    ap.add_argument("--seeds", default="0,1", help="comma-separated seeds")
+    ap.add_argument("--jobs", type=int, default=2, help="studies run at once")
+    ap.add_argument("--long-outages", action="store_true", help="also SYNTH_PHY on --long-outages scenarios")
+    ap.add_argument("--out", type=Path, default=Path("runs/tracking-cv"))
+    args = ap.parse_args()
+    seeds = [int(s) for s in args.seeds.split(",")]
+    args.out.mkdir(parents=True, exist_ok=True)
+    ds = {}
+    for run in RUNS:  # the four runs as datasets
+        env, case = run.split("/")
+        ds[run] = args.out / "data" / _name(run)
+        if not (ds[run] / "dataset.json").is_file():
+            _run(CLI + ["import", "hanyang", str(args.data / env / "Trajectory_A" / case), "--crop-to-uwb",
+                        "--out", str(ds[run]), "--quiet"], args.out / f"import-{_name(run)}.log")
+    jobs = []
+    for test in RUNS:
+        train = [r for r in RUNS if r != test]
+        train_args = [a for r in train for a in ("--train", str(ds[r]))]
+        if args.long_outages:
+            scn = args.out / f"long-without-{_name(test)}.yaml"
+            if not scn.is_file():
+                _run(CLI + ["calibrate", *[str(ds[r]) for r in train], "--long-outages", "--out", str(scn),
+                            "--quiet"], args.out / f"calibrate-{_name(test)}.log")
+        for seed in seeds:
+            base = ["study", "tracking", "--quick", "--seed", str(seed), *train_args, "--test", str(ds[test]),
+                    "--quiet"]
+            out = args.out / f"{_name(test)}-s{seed}"
+            jobs.append((test, seed, "", CLI + base + ["--methods", "NOAUG,AUG_GAN,SYNTH_PHY,ekf", "--out", str(out)]))
+            if args.long_outages:
+                out = args.out / f"{_name(test)}-s{seed}-long"
+                jobs.append((test, seed, "+long", CLI + base + ["--scenario", str(scn), "--methods", "SYNTH_PHY",
+                                                                "--out", str(out)]))
+
+    def one(job: tuple[str, int, str, list[str]]) -> tuple[str, int, str, list[dict]]:
+        test, seed, tag, cmd = job
+        out = Path(cmd[cmd.index("--out") + 1])
+        if not (out / "results.json").is_file():
+            _run(cmd, out.with_suffix(".log"))
+        print(f"done: test {test}, seed {seed}{tag}", file=sys.stderr)
+        return test, seed, tag, json.loads((out / "results.json").read_text())["rows"]
+
+    with ThreadPoolExecutor(max_workers=max(args.jobs, 1)) as pool:
+        results = list(pool.map(one, jobs))
+    table: dict[str, dict[tuple[str, int], float]] = {}
+    for test, seed, tag, rows in results:
+        for r in rows:
+            if tag and r["key"].startswith("ref:"):
+                continue  # the reference rows do not depend on the scenario
+            table.setdefault(r["key"] + tag, {})[(test, seed)] = r["rmse_m"]
+    keys = [k for base in ORDER for k in (base, base + "+long") if k in table]
+    print(f"leave-one-run-out, quick schedule, seeds {args.seeds}: RMSE (m) per test run, seed by seed")
+    print("| method | " + " | ".join(r.replace("/", " ") for r in RUNS) + " | mean | beats NOAUG |")
+    print("|---|" + "---|" * (len(RUNS) + 2))
+    for k in keys:
+        v = table[k]
+        cells = [" / ".join(f"{v[(r, s)]:.3f}" for s in seeds) for r in RUNS]
+        wins = sum(v[(r, s)] < table["NOAUG"][(r, s)] for r in RUNS for s in seeds)
+        print(f"| {k} | " + " | ".join(cells) + f" | {np.mean([v[(r, s)] for r in RUNS for s in seeds]):.3f} "
+              f"| {wins}/{len(RUNS) * len(seeds)} |")
+
+
+if __name__ == "__main__":
+    main()
