@@ -106,7 +106,7 @@ class _Model:
     frailty: bool = False  # its rate is scaled per placement by G ~ Gamma(k, 1/k)
 
 
-_G_GRID = np.logspace(-4.0, 3.0, 281)
+_G_GRID = np.logspace(-4.0, 3.0, 141)
 """Grid of the frailty G for the integral over its Gamma law; G below the grid counts as G = 0."""
 
 
