@@ -11,7 +11,13 @@ also calibrates its training runs with ``physynth calibrate --long-outages`` and
 that scenario (``--scenario``). Prints one table: RMSE (m) per fold and seed, the mean over all, and
 how often each method beats NOAUG of the same fold and seed.
 
-    .venv/bin/python tools/tracking_cv.py [--seeds 0,1] [--jobs 2] [--long-outages] [--out runs/tracking-cv]
+    .venv/bin/python tools/tracking_cv.py [--seeds 0,1] [--jobs 2] [--long-outages] [--isometry]
+                                          [--turn-test DEG] [--mirror-test] [--methods M,...] [--out DIR]
+
+``--turn-test DEG`` / ``--mirror-test`` test on the left-out run turned by DEG about the vertical through
+its anchor centroid (and mirrored): the same ranges in a world laid out in another direction
+(:func:`physynth.transform.turn_trace`), a real run along a direction no training run took.
+``--isometry`` passes ``--isometry`` to every study (networks trained on randomly turned windows).
 
 Each study takes 2-4 min on one core (quick schedule, one torch thread); ``--jobs`` runs that many
 at once (the default 2 suits a 2-core machine: 4 folds x 2 seeds in about 20 min).
@@ -45,12 +51,31 @@ def _name(run: str) -> str:
     return run.replace("/", "-")
 
 
+def _turned(path: Path, args: argparse.Namespace) -> Path:
+    """The dataset at ``path`` turned by ``--turn-test`` degrees (and mirrored), written beside it once."""
+    if args.turn_test == 0.0 and not args.mirror_test:
+        return path
+    from physynth.io.dataset import read_dataset, write_dataset
+    from physynth.transform import turn_trace
+
+    out = path.with_name(f"{path.name}-turn{args.turn_test:g}{'m' if args.mirror_test else ''}")
+    if not (out / "dataset.json").is_file():
+        traces = [turn_trace(t, np.deg2rad(args.turn_test), mirror=args.mirror_test)
+                  for t in read_dataset(path).traces]
+        write_dataset(out, traces, inputs=[path])
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA, help="Hanyang Dynamic_measurements folder")
     ap.add_argument("--seeds", default="0,1", help="comma-separated seeds")
     ap.add_argument("--jobs", type=int, default=2, help="studies run at once")
     ap.add_argument("--long-outages", action="store_true", help="also SYNTH_PHY on --long-outages scenarios")
+    ap.add_argument("--isometry", action="store_true", help="train every network on randomly turned windows")
+    ap.add_argument("--turn-test", type=float, default=0.0, help="turn each test run by this many degrees")
+    ap.add_argument("--mirror-test", action="store_true", help="mirror each test run (before the turn)")
+    ap.add_argument("--methods", default="NOAUG,AUG_GAN,SYNTH_PHY,ekf")
     ap.add_argument("--out", type=Path, default=Path("runs/tracking-cv"))
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
@@ -62,6 +87,8 @@ def main() -> None:
         if not (ds[run] / "dataset.json").is_file():
             _run(CLI + ["import", "hanyang", str(args.data / env / "Trajectory_A" / case), "--crop-to-uwb",
                         "--out", str(ds[run]), "--quiet"], args.out / f"import-{_name(run)}.log")
+    test_ds = {run: _turned(ds[run], args) for run in RUNS}
+    extra = ["--isometry"] if args.isometry else []
     jobs = []
     for test in RUNS:
         train = [r for r in RUNS if r != test]
@@ -72,10 +99,10 @@ def main() -> None:
                 _run(CLI + ["calibrate", *[str(ds[r]) for r in train], "--long-outages", "--out", str(scn),
                             "--quiet"], args.out / f"calibrate-{_name(test)}.log")
         for seed in seeds:
-            base = ["study", "tracking", "--quick", "--seed", str(seed), *train_args, "--test", str(ds[test]),
-                    "--quiet"]
+            base = ["study", "tracking", "--quick", "--seed", str(seed), *train_args, "--test", str(test_ds[test]),
+                    *extra, "--quiet"]
             out = args.out / f"{_name(test)}-s{seed}"
-            jobs.append((test, seed, "", CLI + base + ["--methods", "NOAUG,AUG_GAN,SYNTH_PHY,ekf", "--out", str(out)]))
+            jobs.append((test, seed, "", CLI + base + ["--methods", args.methods, "--out", str(out)]))
             if args.long_outages:
                 out = args.out / f"{_name(test)}-s{seed}-long"
                 jobs.append((test, seed, "+long", CLI + base + ["--scenario", str(scn), "--methods", "SYNTH_PHY",

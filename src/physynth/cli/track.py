@@ -33,6 +33,8 @@ def tracking_cmd(
     n_synth: int = typer.Option(None, "--n-synth", help="Number of synthetic pre-training traces."),
     finetune_synth_ratio: float = typer.Option(None, "--finetune-synth-ratio", help="Synthetic windows kept per "
                                                "real window while SYNTH_PHY fine-tunes (0: real only)."),
+    isometry: bool = typer.Option(None, "--isometry/--no-isometry", help="Train every network on windows "
+                                  "turned by random angles about the vertical and mirrored at random."),
     threads: int = typer.Option(1, "--threads", help="CPU threads for PyTorch (1: small recurrent nets gain nothing "
                                 "from more, and lose a lot on a shared machine)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (results.json, results.md, paths.png)."),
@@ -54,7 +56,7 @@ def tracking_cmd(
     over = {"seed": seed, "methods": chosen, "threads": threads}
     for key, value in (("epochs", epochs), ("pretrain_epochs", pretrain_epochs),
                        ("finetune_epochs", finetune_epochs), ("n_synth_traces", n_synth),
-                       ("finetune_synth_ratio", finetune_synth_ratio)):
+                       ("finetune_synth_ratio", finetune_synth_ratio), ("random_isometry", isometry)):
         if value is not None:
             over[key] = value
     cfg = quick_config(**over) if quick else StudyConfig(**over)

@@ -43,6 +43,7 @@ from ..track.inputs import TrackInput, track_input
 from ..track.reference import reference_estimates
 from ..track.scoring import error_stats
 from ..track.synth import SynthVariation
+from ..transform import apply_isometry
 
 ProgressFn = Callable[[str], None]
 
@@ -77,6 +78,9 @@ class StudyConfig:
     """Overrides of :class:`~physynth.track.trackers.nets.NetConfig` for every network (e.g.
     ``{"age_weighted_direction": False}``)."""
     variation: SynthVariation = SynthVariation()
+    random_isometry: bool = False
+    """Every network (NOAUG, AUG_GAN, SYNTH_PHY, bilstm) trains on windows turned by a random angle
+    about the vertical and mirrored at random (``NetConfig.random_isometry``)."""
     training_layouts: bool = True
     threads: int = 1
 
@@ -254,7 +258,8 @@ def run_tracking_study(train: Sequence[StudyRun], test: StudyRun | Sequence[Stud
 def _net(cfg: StudyConfig, arch: str = "aoi-fusion", **extra: Any) -> Any:
     from ..track.trackers.nets import NetConfig, NetTracker
 
-    net_cfg = NetConfig(**{"seed": cfg.seed, "epochs": cfg.epochs, "lr": cfg.lr, **cfg.net, **extra})
+    net_cfg = NetConfig(**{"seed": cfg.seed, "epochs": cfg.epochs, "lr": cfg.lr,
+                           "random_isometry": cfg.random_isometry, **cfg.net, **extra})
     return NetTracker(arch, net_cfg)
 
 
@@ -314,7 +319,7 @@ def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | 
     for r, inp in zip(tests, test_inputs, strict=True):
         origin = r.trace.meta.get("time_origin_unix_s")
         for name, est in reference_estimates(r.reference_dir, origin, inp, offset).items():
-            refs.setdefault(name, []).append(est)
+            refs.setdefault(name, []).append(apply_isometry(r.trace.meta, est))  # a turned test run
     for name, ests in refs.items():
         if len(ests) == len(tests):
             estimates[name] = ests

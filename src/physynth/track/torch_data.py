@@ -11,6 +11,10 @@ count (``anchor_ok`` False on padding), so traces with different anchor counts m
   (``SeedSequence(root_seed, spawn_key=(i, component))``, DESIGN section 3) with an optional
   :class:`~physynth.track.synth.SynthVariation` of path and anchor layout, so item ``j`` is the same in
   every DataLoader worker, epoch and process; a small per-process LRU cache keeps the last few traces.
+- :class:`IsometryWindows`: the windows of another dataset, each turned about the vertical axis through
+  the anchor centroid by a uniform angle and mirrored with probability 1/2 (a fixed draw per item). A
+  range is a distance, so a turned window is what the same run gives in a turned world: a network trained
+  on such windows cannot learn the heading of its training paths instead of the geometry.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from ..transform import isometry_matrix
 from . import require_torch
 from .inputs import NetArrays, TrackInput, network_arrays, track_input, window_starts
 
@@ -81,6 +86,52 @@ def collate_windows(items: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "has_imu": torch.stack([it["has_imu"] for it in items]),
         "y": torch.stack([it["y"] for it in items]), "y_ok": torch.stack([it["y_ok"] for it in items]),
     }
+
+
+ISOMETRY_COMPONENT = 11
+"""spawn_key component of the per-item draws of :class:`IsometryWindows`."""
+
+
+def turn_window(item: dict[str, Any], matrix: np.ndarray) -> dict[str, Any]:
+    """``item`` as seen in a world moved by the isometry ``matrix`` (about the anchor centroid).
+
+    Every vector feature turns with the world: the anchor positions (``x[..., 1:4]``), the far-field
+    direction and its scaled copy (``g[:, 0:3]``, ``g[:, 3:6]``), the ENU acceleration and the target;
+    ranges, ages and flags are distances and counts and do not change. The same as building the window
+    from the moved trace (``tests/test_isometry.py``).
+    """
+    m = torch.from_numpy(np.ascontiguousarray(matrix.T, dtype=np.float32))
+    x = item["x"].clone()
+    x[..., 1:4] = x[..., 1:4] @ m
+    g = item["g"].clone()
+    g[:, 0:3] = g[:, 0:3] @ m
+    g[:, 3:6] = g[:, 3:6] @ m
+    return {**item, "x": x, "g": g, "acc": item["acc"] @ m, "y": item["y"] @ m}
+
+
+class IsometryWindows(torch.utils.data.Dataset):
+    """The items of ``base``, item ``j`` turned by its own isometry (see :func:`turn_window`).
+
+    The angle is uniform on [0, 2 pi) and the mirror has probability ``mirror_prob``, both drawn from
+    ``SeedSequence(seed, spawn_key=(j, ISOMETRY_COMPONENT))``: the same in every epoch and process.
+    """
+
+    def __init__(self, base: Any, seed: int, *, mirror_prob: float = 0.5) -> None:
+        if not 0.0 <= mirror_prob <= 1.0:
+            raise ValueError(f"mirror_prob must be in [0, 1], got {mirror_prob}")
+        self.base, self.seed, self.mirror_prob = base, int(seed), float(mirror_prob)
+
+    def __len__(self) -> int:
+        return len(self.base)
+
+    def matrix(self, j: int) -> np.ndarray:
+        """The isometry of item ``j``."""
+        rng = np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=(int(j), ISOMETRY_COMPONENT)))
+        yaw = float(rng.uniform(0.0, 2.0 * np.pi))
+        return isometry_matrix(yaw, bool(rng.random() < self.mirror_prob))
+
+    def __getitem__(self, j: int) -> dict[str, Any]:
+        return turn_window(self.base[j], self.matrix(j))
 
 
 class TraceWindows(torch.utils.data.Dataset):

@@ -49,6 +49,11 @@ class NetConfig:
 
     ``age_weighted_direction``: the far-field direction input weights each range by its age
     (:func:`~physynth.track.inputs.network_arrays`); False restores the unweighted solve.
+    ``random_isometry``: every training window is turned about the vertical through the anchor
+    centroid by a uniform angle and mirrored with probability 1/2
+    (:class:`~physynth.track.torch_data.IsometryWindows`), so the network learns the geometry of
+    ranges and anchors, not the heading of its training paths; a test run along another direction then
+    works (docs/tracking.md, "Runs in other directions").
     """
 
     hidden: int = 64
@@ -68,6 +73,7 @@ class NetConfig:
     grad_clip: float = 5.0
     use_imu: bool = False
     age_weighted_direction: bool = True
+    random_isometry: bool = False
     seed: int = 0
     device: str = "auto"
 
@@ -215,6 +221,10 @@ class NetTracker:
             self._build(int(dataset[0]["x"].shape[1]) if self.arch == "bilstm" else 0)
         c = self.config
         gen = torch.Generator().manual_seed(c.seed * 1000 + len(self.history))
+        if c.random_isometry:
+            from ..torch_data import IsometryWindows
+
+            dataset = IsometryWindows(dataset, c.seed * 1000 + len(self.history))
         loader = torch.utils.data.DataLoader(dataset, batch_size=c.batch_size, shuffle=True, generator=gen,
                                              collate_fn=collate_windows, num_workers=0)
         opt = torch.optim.Adam(self.model.parameters(), lr=lr, weight_decay=c.weight_decay)
@@ -239,7 +249,7 @@ class NetTracker:
                 rmse = math.sqrt(max(losses[-1], 0.0)) * c.length_scale_m
                 progress(f"{self.name} {stage}: epoch {ep + 1}/{epochs}, training RMSE {rmse:.3f} m")
         self.history.append({"stage": stage, "epochs": epochs, "lr": lr, "windows": len(dataset),
-                             "loss": losses})
+                             "random_isometry": c.random_isometry, "loss": losses})
         self.model.eval()
         return losses
 
