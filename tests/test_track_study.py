@@ -142,6 +142,7 @@ def test_cli_bad_input_exit_2_one_line(runs, tmp_path, capsys):
         (["--train", tmp_path / "missing", "--test", train, "--methods", "ls"], "does not exist"),
         (["--train", train, "--test", train, "--methods", "ls", "--finetune-synth-ratio", "-1"],
          "finetune_synth_ratio must be in [0, 100]"),
+        (["--train", train, "--test", train, "--methods", "ls", "--turn-test", "nan"], "--turn-test"),
     ]
     for args, needle in cases:
         code, out = _cli(capsys, "study", "tracking", *args, "--out", tmp_path / "o", "-q")
@@ -158,6 +159,17 @@ def test_cli_classical_methods_write_results(runs, tmp_path, capsys):
     assert "results.json" in capsys.readouterr().out
     rows = json.loads((tmp_path / "out" / "results.json").read_text())["rows"]
     assert [r["key"] for r in rows] == ["ls", "ekf"]
+    # the same test run turned by 120 degrees and mirrored: the same ranges, a path in another direction;
+    # the classical trackers do not depend on the direction, so their errors are the same (to the
+    # stopping tolerances of the iterative least-squares solver: 1e-8 m steps, well inside 1e-3)
+    main(["study", "tracking", "--train", str(train), "--test", str(test), "--methods", "ls,ekf",
+          "--turn-test", "120", "--mirror-test", "--out", str(tmp_path / "turned"), "-q"])
+    res = json.loads((tmp_path / "turned" / "results.json").read_text())
+    assert res["data"]["test"][0]["label"].endswith("(turned 120 deg, mirrored)")
+    m = np.asarray(res["data"]["test"][0]["isometry"]["matrix"])
+    assert abs(np.linalg.det(m) + 1) < 1e-9 and abs(m[0, 0] - np.cos(np.radians(120))) < 1e-9
+    for a, b in zip(rows, res["rows"], strict=True):
+        assert abs(a["rmse_m"] - b["rmse_m"]) < 1e-3 * a["rmse_m"], (a, b)
 
 
 def test_without_torch_the_command_names_the_extra(tmp_path):

@@ -33,6 +33,11 @@ def tracking_cmd(
     n_synth: int = typer.Option(None, "--n-synth", help="Number of synthetic pre-training traces."),
     finetune_synth_ratio: float = typer.Option(None, "--finetune-synth-ratio", help="Synthetic windows kept per "
                                                "real window while SYNTH_PHY fine-tunes (0: real only)."),
+    turn_test: float = typer.Option(0.0, "--turn-test", help="Turn every test run by this many degrees "
+                                    "(counter-clockwise) about the vertical through its anchor centroid: the "
+                                    "same ranges along another direction."),
+    mirror_test: bool = typer.Option(False, "--mirror-test", help="Mirror every test run (y -> -y about its "
+                                     "anchor centroid) before the turn."),
     isometry: bool = typer.Option(None, "--isometry/--no-isometry", help="Train every network on windows "
                                   "turned by random angles about the vertical and mirrored at random."),
     threads: int = typer.Option(1, "--threads", help="CPU threads for PyTorch (1: small recurrent nets gain nothing "
@@ -76,6 +81,18 @@ def tracking_cmd(
         train_runs, test_run = hanyang_default_runs()
         test_runs = [test_run]
 
+    if turn_test or mirror_test:
+        import dataclasses
+        import math
+
+        from ..transform import turn_trace
+
+        if not math.isfinite(turn_test):
+            raise PhySynthError(f"--turn-test must be a finite angle in degrees, got {turn_test}")
+        how = f"turned {turn_test:g} deg" + (", mirrored" if mirror_test else "")
+        test_runs = [dataclasses.replace(r, label=f"{r.label} ({how})",
+                                         trace=turn_trace(r.trace, math.radians(turn_test), mirror=mirror_test))
+                     for r in test_runs]
     if quiet:
         result = run_tracking_study(train_runs, test_runs, scenario=scn, config=cfg)
     else:

@@ -43,7 +43,7 @@ from ..track.inputs import TrackInput, track_input
 from ..track.reference import reference_estimates
 from ..track.scoring import error_stats
 from ..track.synth import SynthVariation
-from ..transform import apply_isometry
+from ..transform import ISOMETRY_META_KEY, apply_isometry
 
 ProgressFn = Callable[[str], None]
 
@@ -419,7 +419,8 @@ def _describe(r: StudyRun) -> dict[str, Any]:
     return {"label": r.label, "duration_s": round(t.duration_s, 3), "n_uwb_valid": int(t.uwb.valid.sum()),
             "anchors": {a: [round(float(v), 4) for v in p] for a, p in zip(t.anchors.ids, t.anchors.pos_enu_m,
                                                                             strict=True)},
-            "has_imu": t.imu is not None, "reference_dir": str(r.reference_dir) if r.reference_dir else None}
+            "has_imu": t.imu is not None, "reference_dir": str(r.reference_dir) if r.reference_dir else None,
+            "isometry": t.meta.get(ISOMETRY_META_KEY)}
 
 
 ROW_NAMES = {
