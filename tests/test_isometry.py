@@ -8,6 +8,7 @@ from helpers import simple_scenario
 from scipy import stats
 from track_helpers import site_scenario
 
+from physynth.errors import PhySynthError
 from physynth.generate import generate_trace
 from physynth.transform import apply_isometry, turn_trace
 
@@ -161,3 +162,33 @@ def test_a_network_trained_on_turned_windows_tracks_a_run_in_another_direction()
     assert min(plain_err[1:]) > 4 * plain_err[0], plain_err
     assert max(turned_err) < 1.5 * min(turned_err), turned_err
     assert max(turned_err) < 0.5 * min(plain_err[1:]), (plain_err, turned_err)
+
+
+def test_test_time_isometries_make_predictions_exactly_equivariant():
+    """With the 8 test-time isometries (turns by multiples of 90 deg and their mirrors), a run turned by
+    90 deg or mirrored is predicted as the turned prediction of the original run; with 1, it is not."""
+    torch = pytest.importorskip("torch")
+    from physynth.track.inputs import track_input
+    from physynth.track.trackers import make_tracker
+    from physynth.transform import isometry_matrix
+
+    torch.set_num_threads(1)
+    small = {"hidden": 16, "heads": 2, "window_steps": 12, "stride_steps": 4, "burn_in_steps": 2, "batch_size": 8,
+             "decimation": 10, "seed": 0, "epochs": 2, "lr": 3e-3, "random_isometry": True}
+    scn = site_scenario(noise_m=0.05)
+    train = [track_input(generate_trace(scn, i, 21)) for i in range(2)]
+    test = generate_trace(scn, 9, 21)
+    net = make_tracker("aoi-fusion", **small).fit(train)
+    base = track_input(test)
+    centre = base.ref_enu_m
+    for yaw, mirror in ((np.pi / 2, False), (0.0, True), (np.pi, True)):
+        m = isometry_matrix(yaw, mirror)
+        moved = track_input(turn_trace(test, yaw, mirror=mirror))
+        expect = (net.predict(base) - centre) @ m.T + centre
+        np.testing.assert_allclose(net.predict(moved), expect, atol=2e-4)
+    net.config = net.config.__class__(**{**net.config.to_dict(), "test_isometries": 1})
+    moved = track_input(turn_trace(test, np.pi / 2))
+    expect = (net.predict(base) - centre) @ isometry_matrix(np.pi / 2).T + centre
+    assert np.nanmax(np.abs(net.predict(moved) - expect)) > 1e-2
+    with pytest.raises(PhySynthError, match="test_isometries"):
+        make_tracker("aoi-fusion", test_isometries=3)

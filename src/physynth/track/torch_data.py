@@ -98,15 +98,18 @@ def turn_window(item: dict[str, Any], matrix: np.ndarray) -> dict[str, Any]:
     Every vector feature turns with the world: the anchor positions (``x[..., 1:4]``), the far-field
     direction and its scaled copy (``g[:, 0:3]``, ``g[:, 3:6]``), the ENU acceleration and the target;
     ranges, ages and flags are distances and counts and do not change. The same as building the window
-    from the moved trace (``tests/test_isometry.py``).
+    from the moved trace (``tests/test_isometry.py``). Leading batch axes are allowed; ``y`` is optional.
     """
-    m = torch.from_numpy(np.ascontiguousarray(matrix.T, dtype=np.float32))
+    m = torch.from_numpy(np.ascontiguousarray(matrix.T, dtype=np.float32)).to(item["x"].device)
     x = item["x"].clone()
     x[..., 1:4] = x[..., 1:4] @ m
     g = item["g"].clone()
-    g[:, 0:3] = g[:, 0:3] @ m
-    g[:, 3:6] = g[:, 3:6] @ m
-    return {**item, "x": x, "g": g, "acc": item["acc"] @ m, "y": item["y"] @ m}
+    g[..., 0:3] = g[..., 0:3] @ m
+    g[..., 3:6] = g[..., 3:6] @ m
+    out = {**item, "x": x, "g": g, "acc": item["acc"] @ m}
+    if "y" in item:
+        out["y"] = item["y"] @ m
+    return out
 
 
 class IsometryWindows(torch.utils.data.Dataset):

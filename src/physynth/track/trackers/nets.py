@@ -53,7 +53,9 @@ class NetConfig:
     centroid by a uniform angle and mirrored with probability 1/2
     (:class:`~physynth.track.torch_data.IsometryWindows`), so the network learns the geometry of
     ranges and anchors, not the heading of its training paths; a test run along another direction then
-    works (docs/tracking.md, "Runs in other directions").
+    works (docs/tracking.md, "Runs in other directions"). Such a network also predicts on
+    ``test_isometries`` copies of the test run (1, 2, 4 or 8: the turns by multiples of 90 deg, with their
+    mirror images from 2 on) and averages the predictions moved back (test-time augmentation; 1: none).
     """
 
     hidden: int = 64
@@ -74,10 +76,13 @@ class NetConfig:
     use_imu: bool = False
     age_weighted_direction: bool = True
     random_isometry: bool = False
+    test_isometries: int = 8
     seed: int = 0
     device: str = "auto"
 
     def __post_init__(self) -> None:
+        if self.test_isometries not in (1, 2, 4, 8):
+            raise PhySynthError(f"test_isometries must be 1, 2, 4 or 8, got {self.test_isometries}")
         if self.rnn not in ("gru", "lstm"):
             raise PhySynthError(f"unknown recurrent model '{self.rnn}' (gru or lstm)")
         if self.burn_in_steps >= self.window_steps:
@@ -272,7 +277,7 @@ class NetTracker:
         imu = torch.full((len(starts),), arr.has_imu, device=dev)
         g = torch.from_numpy(arr.g[idx]).to(dev)
         with torch.no_grad():
-            pred = self.model(x, ok, acc, imu, g).cpu().numpy().astype(np.float64)
+            pred = self._predict_windows(x, ok, acc, imu, g)
         out = np.full((n, 3), np.nan)
         for j, s in enumerate(starts):  # each window's warm steps (all of the first window)
             keep = np.arange(w) >= (0 if s == 0 else burn)
@@ -280,6 +285,29 @@ class NetTracker:
         out = upsample(inp, arr.step, out * c.length_scale_m)
         out[inp.t_s < inp.first_range_s] = np.nan
         return out
+
+    def _isometries(self) -> list[np.ndarray]:
+        from ...transform import isometry_matrix
+
+        k = self.config.test_isometries if self.config.random_isometry else 1
+        mirrors = (False, True) if k >= 2 else (False,)
+        turns = max(k // len(mirrors), 1)
+        return [isometry_matrix(2.0 * np.pi * i / turns, m) for m in mirrors for i in range(turns)]
+
+    def _predict_windows(self, x: Any, ok: Any, acc: Any, imu: Any, g: Any) -> np.ndarray:
+        """Network outputs (B, W, 3) in the test frame, averaged over the test-time isometries."""
+        from ..torch_data import turn_window
+
+        mats = self._isometries()
+        if len(mats) == 1:
+            return self.model(x, ok, acc, imu, g).cpu().numpy().astype(np.float64)
+        n = x.shape[0]
+        moved = [turn_window({"x": x, "g": g, "acc": acc}, m) for m in mats]
+        out = self.model(torch.cat([d["x"] for d in moved]), ok.repeat(len(mats), 1),
+                         torch.cat([d["acc"] for d in moved]), imu.repeat(len(mats)),
+                         torch.cat([d["g"] for d in moved])).cpu().numpy().astype(np.float64)
+        back = [out[i * n:(i + 1) * n] @ m for i, m in enumerate(mats)]  # y = y' M for y' = y M^T
+        return np.mean(back, axis=0)
 
     # ------------------------------------------------------------------ persistence
     def state(self) -> dict[str, Any]:
