@@ -54,7 +54,7 @@ def test_network_arrays_shapes_and_scaling(trace):
     arr = network_arrays(inp, decimation=10, length_scale_m=10.0)
     t = int(np.ceil(inp.n_steps / 10))
     assert arr.x.shape == (t, 4, 9) and arr.x.dtype == np.float32
-    assert arr.g.shape == (t, 6) and arr.acc.shape == (t, 3) and arr.has_imu
+    assert arr.g.shape == (t, 12) and arr.acc.shape == (t, 3) and arr.has_imu
     ok = arr.y_ok
     np.testing.assert_allclose(arr.y[ok] * 10.0, inp.pos_rel_m[arr.step][ok], atol=1e-5)
     assert not network_arrays(inp, use_imu=False).has_imu
@@ -69,6 +69,26 @@ def test_far_field_direction_points_at_a_distant_tag():
     true_u = tag[0] / np.linalg.norm(tag[0])
     assert np.degrees(np.arccos(np.dot(u[0], true_u) / np.linalg.norm(u[0]))) < 3.0
     assert mean_r[0] == pytest.approx(np.linalg.norm(tag), rel=0.01)
+
+
+def test_the_level_direction_tells_a_tag_from_its_mirror_image_with_three_anchors():
+    """Three anchors of the shared NLOS Case_2 layout (A5 not heard), tag 45 m out at 1 m height: the
+    full solve sees only the direction's part in the anchors' (tilted) plane and leaves the rest to its
+    ridge; the level solve (u_z = 0) recovers the azimuth."""
+    anchors = np.array([[2.5775, -0.87, 1.97], [0.335, -0.87, 0.5], [2.31, 0.87, 0.5]])
+    centre = anchors.mean(axis=0)
+    tags = np.array([[45.0, 4.0, 1.0], [45.0, -4.0, 1.0], [30.0, 25.0, 1.0]]) - centre
+    rel = anchors - centre
+    r = np.linalg.norm(tags[:, None, :] - rel[None], axis=-1)
+    has = np.ones_like(r, bool)
+    _, u3 = far_field_direction(r, has, rel)
+    _, ul = far_field_direction(r, has, rel, level=True)
+    az_true = np.degrees(np.arctan2(tags[:, 1], tags[:, 0]))
+    err3 = np.abs(np.degrees(np.arctan2(u3[:, 1], u3[:, 0])) - az_true)
+    errl = np.abs(np.degrees(np.arctan2(ul[:, 1], ul[:, 0])) - az_true)
+    assert np.all(ul[:, 2] == 0.0)
+    assert errl.max() < 3.0, errl
+    assert err3.max() > 4 * errl.max() and err3.max() > 5.0, (err3, errl)
 
 
 def test_far_field_direction_ignores_a_range_held_while_the_tag_moved():

@@ -2,7 +2,7 @@
 
 Every item is one window of :func:`~physynth.track.inputs.network_arrays` as a dict of tensors:
 ``x`` (W, A, 9) float32 per-anchor features, ``anchor_ok`` (A,) bool, ``acc`` (W, 3) float32, ``g``
-(W, 6) float32 per-step features, ``has_imu`` () bool, ``y`` (W, 3) float32 relative truth / length
+(W, 12) float32 per-step features, ``has_imu`` () bool, ``y`` (W, 3) float32 relative truth / length
 scale, ``y_ok`` (W,) bool. :func:`collate_windows` pads the anchor axis of a batch to its largest anchor
 count (``anchor_ok`` False on padding), so traces with different anchor counts mix in one batch.
 
@@ -96,7 +96,7 @@ def turn_window(item: dict[str, Any], matrix: np.ndarray) -> dict[str, Any]:
     """``item`` as seen in a world moved by the isometry ``matrix`` (about the anchor centroid).
 
     Every vector feature turns with the world: the anchor positions (``x[..., 1:4]``), the far-field
-    direction and its scaled copy (``g[:, 0:3]``, ``g[:, 3:6]``), the ENU acceleration and the target;
+    directions and their scaled copies (every three columns of ``g``), the ENU acceleration and the target;
     ranges, ages and flags are distances and counts and do not change. The same as building the window
     from the moved trace (``tests/test_isometry.py``). Leading batch axes are allowed; ``y`` is optional.
     """
@@ -104,8 +104,8 @@ def turn_window(item: dict[str, Any], matrix: np.ndarray) -> dict[str, Any]:
     x = item["x"].clone()
     x[..., 1:4] = x[..., 1:4] @ m
     g = item["g"].clone()
-    g[..., 0:3] = g[..., 0:3] @ m
-    g[..., 3:6] = g[..., 3:6] @ m
+    for j in range(0, g.shape[-1], 3):  # every per-step feature is a 3-vector
+        g[..., j:j + 3] = g[..., j:j + 3] @ m
     out = {**item, "x": x, "g": g, "acc": item["acc"] @ m}
     if "y" in item:
         out["y"] = item["y"] @ m
