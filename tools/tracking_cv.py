@@ -11,13 +11,14 @@ also calibrates its training runs with ``physynth calibrate --long-outages`` and
 that scenario (``--scenario``). Prints one table: RMSE (m) per fold and seed, the mean over all, and
 how often each method beats NOAUG of the same fold and seed.
 
-    .venv/bin/python tools/tracking_cv.py [--seeds 0,1] [--jobs 2] [--long-outages] [--isometry]
+    .venv/bin/python tools/tracking_cv.py [--seeds 0,1] [--jobs 2] [--long-outages] [--no-isometry]
                                           [--turn-test DEG] [--mirror-test] [--methods M,...] [--out DIR]
 
 ``--turn-test DEG`` / ``--mirror-test`` test on the left-out run turned by DEG about the vertical through
 its anchor centroid (and mirrored): the same ranges in a world laid out in another direction
 (:func:`physynth.transform.turn_trace`), a real run along a direction no training run took.
-``--isometry`` passes ``--isometry`` to every study (networks trained on randomly turned windows).
+``--no-isometry`` passes ``--no-isometry`` to every study (networks that learn the heading of the
+training runs instead of training on randomly turned windows).
 
 Each study takes 2-4 min on one core (quick schedule, one torch thread); ``--jobs`` runs that many
 at once (the default 2 suits a 2-core machine: 4 folds x 2 seeds in about 20 min).
@@ -72,7 +73,7 @@ def main() -> None:
     ap.add_argument("--seeds", default="0,1", help="comma-separated seeds")
     ap.add_argument("--jobs", type=int, default=2, help="studies run at once")
     ap.add_argument("--long-outages", action="store_true", help="also SYNTH_PHY on --long-outages scenarios")
-    ap.add_argument("--isometry", action="store_true", help="train every network on randomly turned windows")
+    ap.add_argument("--no-isometry", action="store_true", help="networks that learn the training runs' heading")
     ap.add_argument("--turn-test", type=float, default=0.0, help="turn each test run by this many degrees")
     ap.add_argument("--mirror-test", action="store_true", help="mirror each test run (before the turn)")
     ap.add_argument("--methods", default="NOAUG,AUG_GAN,SYNTH_PHY,ekf")
@@ -88,7 +89,7 @@ def main() -> None:
             _run(CLI + ["import", "hanyang", str(args.data / env / "Trajectory_A" / case), "--crop-to-uwb",
                         "--out", str(ds[run]), "--quiet"], args.out / f"import-{_name(run)}.log")
     test_ds = {run: _turned(ds[run], args) for run in RUNS}
-    extra = ["--isometry"] if args.isometry else []
+    extra = ["--no-isometry"] if args.no_isometry else []
     jobs = []
     for test in RUNS:
         train = [r for r in RUNS if r != test]

@@ -39,7 +39,9 @@ def tracking_cmd(
     mirror_test: bool = typer.Option(False, "--mirror-test", help="Mirror every test run (y -> -y about its "
                                      "anchor centroid) before the turn."),
     isometry: bool = typer.Option(None, "--isometry/--no-isometry", help="Train every network on windows "
-                                  "turned by random angles about the vertical and mirrored at random."),
+                                  "turned by random angles about the vertical and mirrored at random (default); "
+                                  "--no-isometry lets them learn the training runs' heading: better on the same "
+                                  "route, lost on any other."),
     threads: int = typer.Option(1, "--threads", help="CPU threads for PyTorch (1: small recurrent nets gain nothing "
                                 "from more, and lose a lot on a shared machine)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (results.json, results.md, paths.png)."),

@@ -78,9 +78,12 @@ class StudyConfig:
     """Overrides of :class:`~physynth.track.trackers.nets.NetConfig` for every network (e.g.
     ``{"age_weighted_direction": False}``)."""
     variation: SynthVariation = SynthVariation()
-    random_isometry: bool = False
+    random_isometry: bool = True
     """Every network (NOAUG, AUG_GAN, SYNTH_PHY, bilstm) trains on windows turned by a random angle
-    about the vertical and mirrored at random (``NetConfig.random_isometry``)."""
+    about the vertical and mirrored at random, and predicts on 8 turned copies of the test run
+    (``NetConfig.random_isometry``): networks that track a run along any direction. False lets them
+    learn the heading of the training runs, better on runs that follow the same route and lost on any
+    other (docs/tracking.md, "Runs in other directions")."""
     training_layouts: bool = True
     threads: int = 1
 
