@@ -9,6 +9,7 @@ torch = pytest.importorskip("torch")
 
 from track_helpers import site_scenario  # noqa: E402
 
+from physynth.errors import PhySynthError  # noqa: E402
 from physynth.generate import generate_trace  # noqa: E402
 from physynth.track.gan import GanConfig, ResidualGan, augment_trace, range_residuals  # noqa: E402
 from physynth.track.inputs import track_input  # noqa: E402
@@ -56,6 +57,11 @@ def test_training_is_deterministic_and_state_round_trips(inputs):
     assert a.history[0]["loss"] == b.history[0]["loss"]
     c = NetTracker.from_state(a.state())
     np.testing.assert_array_equal(a.predict(inputs[1]), c.predict(inputs[1]))
+    old = a.state()  # a state of a release whose fusion layer took 6 per-step features, not 12
+    weights = dict(old["weights"])
+    weights["fuse.0.weight"] = weights["fuse.0.weight"][:, :-6]
+    with pytest.raises(PhySynthError, match="does not fit this release"):
+        NetTracker.from_state({**old, "weights": weights})
 
 
 def _all_items(ds, workers):

@@ -319,6 +319,11 @@ class NetTracker:
     def from_state(cls, state: dict[str, Any]) -> NetTracker:
         tr = cls(state["arch"], NetConfig(**state["config"]))
         tr._build(state["n_anchors"])
-        tr.model.load_state_dict(state["weights"])
+        try:
+            tr.model.load_state_dict(state["weights"])
+        except RuntimeError as exc:  # a state saved by a release with other inputs (e.g. 6 per-step features)
+            raise PhySynthError(f"this network state does not fit this release's {state['arch']} inputs "
+                                f"({N_GLOBAL_FEATURES} per-step features); retrain it: "
+                                f"{str(exc).splitlines()[0]}") from None
         tr.model.eval()
         return tr
