@@ -14,9 +14,10 @@ how often each method beats NOAUG of the same fold and seed.
     .venv/bin/python tools/tracking_cv.py [--seeds 0,1] [--jobs 2] [--long-outages] [--no-isometry]
                                           [--turn-test DEG] [--mirror-test] [--methods M,...] [--out DIR]
 
-``--turn-test DEG`` / ``--mirror-test`` test on the left-out run turned by DEG about the vertical through
-its anchor centroid (and mirrored): the same ranges in a world laid out in another direction
-(:func:`physynth.transform.turn_trace`), a real run along a direction no training run took.
+``--turn-test DEG`` / ``--mirror-test`` pass the same options to every study: each left-out run is scored
+turned by DEG about the vertical through its anchor centroid (and mirrored): the same ranges in a world
+laid out in another direction (:func:`physynth.transform.turn_trace`), a real run along a direction no
+training run took.
 ``--no-isometry`` passes ``--no-isometry`` to every study (networks that learn the heading of the
 training runs instead of training on randomly turned windows).
 
@@ -52,21 +53,6 @@ def _name(run: str) -> str:
     return run.replace("/", "-")
 
 
-def _turned(path: Path, args: argparse.Namespace) -> Path:
-    """The dataset at ``path`` turned by ``--turn-test`` degrees (and mirrored), written beside it once."""
-    if args.turn_test == 0.0 and not args.mirror_test:
-        return path
-    from physynth.io.dataset import read_dataset, write_dataset
-    from physynth.transform import turn_trace
-
-    out = path.with_name(f"{path.name}-turn{args.turn_test:g}{'m' if args.mirror_test else ''}")
-    if not (out / "dataset.json").is_file():
-        traces = [turn_trace(t, np.deg2rad(args.turn_test), mirror=args.mirror_test)
-                  for t in read_dataset(path).traces]
-        write_dataset(out, traces, inputs=[path])
-    return out
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA, help="Hanyang Dynamic_measurements folder")
@@ -88,8 +74,11 @@ def main() -> None:
         if not (ds[run] / "dataset.json").is_file():
             _run(CLI + ["import", "hanyang", str(args.data / env / "Trajectory_A" / case), "--crop-to-uwb",
                         "--out", str(ds[run]), "--quiet"], args.out / f"import-{_name(run)}.log")
-    test_ds = {run: _turned(ds[run], args) for run in RUNS}
     extra = ["--no-isometry"] if args.no_isometry else []
+    if args.turn_test:
+        extra += ["--turn-test", f"{args.turn_test:g}"]
+    if args.mirror_test:
+        extra += ["--mirror-test"]
     jobs = []
     for test in RUNS:
         train = [r for r in RUNS if r != test]
@@ -100,7 +89,7 @@ def main() -> None:
                 _run(CLI + ["calibrate", *[str(ds[r]) for r in train], "--long-outages", "--out", str(scn),
                             "--quiet"], args.out / f"calibrate-{_name(test)}.log")
         for seed in seeds:
-            base = ["study", "tracking", "--quick", "--seed", str(seed), *train_args, "--test", str(test_ds[test]),
+            base = ["study", "tracking", "--quick", "--seed", str(seed), *train_args, "--test", str(ds[test]),
                     *extra, "--quiet"]
             out = args.out / f"{_name(test)}-s{seed}"
             jobs.append((test, seed, "", CLI + base + ["--methods", args.methods, "--out", str(out)]))

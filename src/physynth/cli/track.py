@@ -84,17 +84,7 @@ def tracking_cmd(
         test_runs = [test_run]
 
     if turn_test or mirror_test:
-        import dataclasses
-        import math
-
-        from ..transform import turn_trace
-
-        if not math.isfinite(turn_test):
-            raise PhySynthError(f"--turn-test must be a finite angle in degrees, got {turn_test}")
-        how = f"turned {turn_test:g} deg" + (", mirrored" if mirror_test else "")
-        test_runs = [dataclasses.replace(r, label=f"{r.label} ({how})",
-                                         trace=turn_trace(r.trace, math.radians(turn_test), mirror=mirror_test))
-                     for r in test_runs]
+        test_runs = _turned(test_runs, turn_test, mirror_test)
     if quiet:
         result = run_tracking_study(train_runs, test_runs, scenario=scn, config=cfg)
     else:
@@ -107,6 +97,27 @@ def tracking_cmd(
     files = write_results(result, out)
     if quiet:
         return
+    _print_table(result, test_runs)
+    typer.echo(f"wrote {', '.join(str(f) for f in files.values())} "
+               f"(wall time {result.data['wall_time_s']:.0f} s)")
+
+
+def _turned(runs: list, turn_deg: float, mirror: bool) -> list:
+    """``--turn-test`` / ``--mirror-test``: the test runs turned about their anchor centroids."""
+    import dataclasses
+    import math
+
+    from ..transform import turn_trace
+
+    if not math.isfinite(turn_deg):
+        raise PhySynthError(f"--turn-test must be a finite angle in degrees, got {turn_deg}")
+    how = f"turned {turn_deg:g} deg" + (", mirrored" if mirror else "")
+    return [dataclasses.replace(r, label=f"{r.label} ({how})",
+                                trace=turn_trace(r.trace, math.radians(turn_deg), mirror=mirror)) for r in runs]
+
+
+def _print_table(result, test_runs: list) -> None:
+    """The study's rows as a table on stdout."""
     from rich.console import Console
     from rich.table import Table
 
@@ -118,5 +129,3 @@ def tracking_cmd(
         table.add_row(r["method"], *(f"{r[k]:.3f}" for k in ("rmse_m", "rmse_2d_m", "mae_m", "p50_m", "p95_m")),
                       delta)
     Console().print(table)
-    typer.echo(f"wrote {', '.join(str(f) for f in files.values())} "
-               f"(wall time {result.data['wall_time_s']:.0f} s)")
