@@ -22,7 +22,7 @@ from physynth.generate import generate_trace, generate_traces
 from physynth.io import read_dataset, write_dataset
 from physynth.records import Trace, Truth, Uwb
 from physynth.scenario import scenario_from_dict
-from physynth.validate.compare import EXTENDED_STATISTICS, read_report
+from physynth.validate.compare import EXTENDED_STATISTICS, read_report, typical_value
 from physynth.workflows import validate_datasets
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -375,10 +375,28 @@ def test_comparison_bands_and_absolute_median(data, full_report):
         if key != "residual_median_m":
             assert c["deviation_kind"] == "relative_pct"
             assert c["deviation"] == pytest.approx(rep["relative_deviation_pct"][key])
+    # the heavy-tailed mean AoI: deviation against the median synthetic run (one real trace), pooled kept
+    aoi = comp["mean_aoi_s"]
+    typical = float(np.median([compute_metrics([t]).mean_aoi_s for t in traces]))
+    assert aoi["typical"] == pytest.approx(typical) and aoi["deviation_against"] == "typical"
+    assert aoi["synthetic"] == pytest.approx(compute_metrics(traces).mean_aoi_s)
+    assert aoi["deviation"] == pytest.approx(100 * abs(typical - rep["real"]["mean_aoi_s"]) / rep["real"]["mean_aoi_s"])
+    assert all("typical" not in comp[k] for k in ("uwb_ge1_frac", "abs_residual_p95_m"))
     assert len(comp["imu_std_mps2"]) == 3 and all(len(c["band_5_95"]) == 2 for c in comp["imu_std_mps2"])
     for page in ("report.md", "report.html"):
         text = (full_report / page).read_text()
         assert "Synth 5–95 %" in text and "Real in band" in text, page
+
+
+def test_typical_value_is_the_median_group_pooled_by_duration():
+    per_trace = [{"m": v, "duration_s": d} for v, d in ((1.0, 1.0), (1.0, 1.0), (1.0, 1.0), (101.0, 1.0))]
+    assert typical_value(per_trace, "m", 1) == 1.0  # one rare outlier does not move the typical run
+    assert typical_value(per_trace, "m", 2) == pytest.approx(0.5 * (1.0 + 51.0))  # groups [1, 1], [1, 101]
+    assert typical_value(per_trace, "m", 4) == pytest.approx(26.0)  # one group: the pooled mean
+    assert typical_value(per_trace, "m", 9) == pytest.approx(26.0)  # fewer traces than the real side
+    weighted = [{"m": 1.0, "duration_s": 3.0}, {"m": 3.0, "duration_s": 1.0}]
+    assert typical_value(weighted, "m", 2) == pytest.approx(1.5)  # a time average weighs by duration
+    assert np.isnan(typical_value([], "m", 1))
 
 
 def test_docs_explain_every_extended_statistic():
