@@ -11,17 +11,22 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
+# An editable install leaves src/ uncompiled; where PYTHONDONTWRITEBYTECODE is set, every command would
+# then recompile PhySynth's modules (about 65 ms of start-up), so compile them once here.
 run: $(BIN)/python
 	$(BIN)/pip install --quiet -e .
+	$(BIN)/python -m compileall -q src
 	$(BIN)/physynth generate --scenario cablecar-descending -n 20 --seed 2026 --out runs/default --overwrite
 	$(BIN)/physynth inspect runs/default
 
 test: $(BIN)/python
 	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/python -m compileall -q src
 	$(BIN)/python -m pytest -q
 
 bench: $(BIN)/python
 	$(BIN)/pip install --quiet -e '.[test,bench]'
+	$(BIN)/python -m compileall -q src
 	$(BIN)/physynth bench
 	$(BIN)/python benchmarks/bench_imu_vs_imusim.py
 
