@@ -11,7 +11,7 @@ also calibrates its training runs with ``physynth calibrate --long-outages`` and
 that scenario (``--scenario``). Prints one table: RMSE (m) per fold and seed, the mean over all, and
 how often each method beats NOAUG of the same fold and seed.
 
-    .venv/bin/python tools/tracking_cv.py [--seeds 0,1] [--jobs 2] [--long-outages] [--no-isometry]
+    .venv/bin/python tools/tracking_cv.py [--seeds 0,1] [--jobs 2] [--long-outages] [--no-isometry] [--route-frame]
                                           [--turn-test DEG] [--mirror-test] [--methods M,...] [--out DIR]
 
 ``--turn-test DEG`` / ``--mirror-test`` pass the same options to every study: each left-out run is scored
@@ -19,7 +19,8 @@ turned by DEG about the vertical through its anchor centroid (and mirrored): the
 laid out in another direction (:func:`physynth.transform.turn_trace`), a real run along a direction no
 training run took.
 ``--no-isometry`` passes ``--no-isometry`` to every study (networks that learn the heading of the
-training runs instead of training on randomly turned windows).
+training runs instead of training on randomly turned windows); ``--route-frame`` passes ``--route-frame``
+(networks in each run's own route frame, estimated from its ranges).
 
 Each study takes 2-4 min on one core (quick schedule, one torch thread); ``--jobs`` runs that many
 at once (the default 2 suits a 2-core machine: 4 folds x 2 seeds in about 20 min).
@@ -60,6 +61,7 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2, help="studies run at once")
     ap.add_argument("--long-outages", action="store_true", help="also SYNTH_PHY on --long-outages scenarios")
     ap.add_argument("--no-isometry", action="store_true", help="networks that learn the training runs' heading")
+    ap.add_argument("--route-frame", action="store_true", help="networks in each run's own route frame")
     ap.add_argument("--turn-test", type=float, default=0.0, help="turn each test run by this many degrees")
     ap.add_argument("--mirror-test", action="store_true", help="mirror each test run (before the turn)")
     ap.add_argument("--methods", default="NOAUG,AUG_GAN,SYNTH_PHY,ekf")
@@ -75,6 +77,7 @@ def main() -> None:
             _run(CLI + ["import", "hanyang", str(args.data / env / "Trajectory_A" / case), "--crop-to-uwb",
                         "--out", str(ds[run]), "--quiet"], args.out / f"import-{_name(run)}.log")
     extra = ["--no-isometry"] if args.no_isometry else []
+    extra += ["--route-frame"] if args.route_frame else []
     if args.turn_test:
         extra += ["--turn-test", f"{args.turn_test:g}"]
     if args.mirror_test:

@@ -42,6 +42,10 @@ def tracking_cmd(
                                   "turned by random angles about the vertical and mirrored at random (default); "
                                   "--no-isometry lets them learn the training runs' heading: better on the same "
                                   "route, lost on any other."),
+    route_frame: bool = typer.Option(False, "--route-frame", help="Train and run every network in each run's "
+                                     "own route frame (turned so that the route, estimated from its ranges, "
+                                     "heads east) instead of on randomly turned windows: keeps a prior on the "
+                                     "route's shape, on any heading. Implies --no-isometry."),
     threads: int = typer.Option(1, "--threads", help="CPU threads for PyTorch (1: small recurrent nets gain nothing "
                                 "from more, and lose a lot on a shared machine)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (results.json, results.md, paths.png)."),
@@ -61,6 +65,10 @@ def tracking_cmd(
 
     chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods else METHODS
     over = {"seed": seed, "methods": chosen, "threads": threads}
+    if route_frame:
+        if isometry:
+            raise PhySynthError("--route-frame and --isometry exclude each other")
+        over.update(route_frame=True, random_isometry=False)
     for key, value in (("epochs", epochs), ("pretrain_epochs", pretrain_epochs),
                        ("finetune_epochs", finetune_epochs), ("n_synth_traces", n_synth),
                        ("finetune_synth_ratio", finetune_synth_ratio), ("random_isometry", isometry)):

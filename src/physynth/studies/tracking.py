@@ -84,6 +84,11 @@ class StudyConfig:
     (``NetConfig.random_isometry``): networks that track a run along any direction. False lets them
     learn the heading of the training runs, better on runs that follow the same route and lost on any
     other (docs/tracking.md, "Runs in other directions")."""
+    route_frame: bool = False
+    """Every network trains and predicts in each run's own route frame (``NetConfig.route_frame``: the run
+    turned so that its route heading, estimated from its ranges, points east): the networks keep a prior
+    on the route's shape relative to its heading without tying it to the compass. Needs
+    ``random_isometry`` False."""
     training_layouts: bool = True
     threads: int = 1
 
@@ -93,6 +98,9 @@ class StudyConfig:
             raise PhySynthError(f"unknown method(s) {', '.join(unknown)} (choose from {', '.join(METHODS)})")
         if not self.methods:
             raise PhySynthError("no method to run")
+        if self.route_frame and self.random_isometry:
+            raise PhySynthError("route_frame needs random_isometry off (random turns would remove the route "
+                                "heading the frame keeps)")
         for name in ("epochs", "pretrain_epochs", "finetune_epochs", "n_synth_traces", "synth_windows_per_trace",
                      "gan_steps", "threads"):
             if getattr(self, name) < (0 if name.endswith("epochs") else 1):
@@ -262,7 +270,8 @@ def _net(cfg: StudyConfig, arch: str = "aoi-fusion", **extra: Any) -> Any:
     from ..track.trackers.nets import NetConfig, NetTracker
 
     net_cfg = NetConfig(**{"seed": cfg.seed, "epochs": cfg.epochs, "lr": cfg.lr,
-                           "random_isometry": cfg.random_isometry, **cfg.net, **extra})
+                           "random_isometry": cfg.random_isometry, "route_frame": cfg.route_frame,
+                           **cfg.net, **extra})
     return NetTracker(arch, net_cfg)
 
 

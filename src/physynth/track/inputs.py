@@ -272,6 +272,42 @@ def network_arrays(inp: TrackInput, *, decimation: int = 10, length_scale_m: flo
                      g=g.astype(np.float32))
 
 
+def turn_arrays(arr: NetArrays, matrix: np.ndarray) -> NetArrays:
+    """``arr`` in a world moved by the isometry ``matrix`` about the anchor centroid (numpy twin of
+    :func:`physynth.track.torch_data.turn_window`): anchor positions, every 3-vector of ``g``, the
+    acceleration and the target turn; ranges, ages and flags do not."""
+    m = np.asarray(matrix, dtype=np.float32).T
+    x = arr.x.copy()
+    x[..., 1:4] = x[..., 1:4] @ m
+    g = arr.g.copy()
+    for j in range(0, g.shape[-1], 3):
+        g[..., j:j + 3] = g[..., j:j + 3] @ m
+    return NetArrays(x=x, acc=arr.acc @ m, has_imu=arr.has_imu, y=arr.y @ m, y_ok=arr.y_ok, step=arr.step, g=g)
+
+
+def route_heading_rad(arr: NetArrays) -> float:
+    """Heading [rad, counter-clockwise from east] of the run's route, from its ranges alone.
+
+    The sum over the run of the level far-field vectors (mean range x level direction, the last three
+    columns of ``g``): where the tag mostly was, seen from the anchor centroid, far points weighing
+    most. 0 when the ranges give no direction (a run without ranges, or one that circles the anchors).
+    """
+    v = np.nansum(arr.g[:, 9:11].astype(np.float64), axis=0)
+    return float(np.arctan2(v[1], v[0])) if np.hypot(v[0], v[1]) > 1e-9 else 0.0
+
+
+def route_frame(arr: NetArrays) -> tuple[NetArrays, np.ndarray]:
+    """``arr`` turned so that its route heading (:func:`route_heading_rad`) points east, and the turn.
+
+    A network trained and run in this frame learns the shape of a route relative to its own heading,
+    not its compass heading: predictions ``y'`` go back to the world as ``y' @ matrix``.
+    """
+    from ..transform import isometry_matrix
+
+    matrix = isometry_matrix(-route_heading_rad(arr))
+    return turn_arrays(arr, matrix), matrix
+
+
 def upsample(inp: TrackInput, step: np.ndarray, pos_rel_m: np.ndarray) -> np.ndarray:
     """Positions (T, 3) at grid indices ``step`` -> (K, 3) ENU [m] at every grid step (linear, held at ends)."""
     out = np.empty((inp.n_steps, 3))

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..transform import isometry_matrix
 from . import require_torch
-from .inputs import NetArrays, TrackInput, network_arrays, track_input, window_starts
+from .inputs import NetArrays, TrackInput, network_arrays, route_frame, track_input, window_starts
 
 torch = require_torch()
 
@@ -45,6 +45,14 @@ class WindowSpec:
     anchor_scale_m: float = 2.0
     use_imu: bool = False
     age_weighted_direction: bool = True
+    route_frame: bool = False  # every trace turned into its own route frame (inputs.route_frame)
+
+    def arrays(self, inp: TrackInput) -> NetArrays:
+        """The network arrays of ``inp`` under this spec."""
+        arr = network_arrays(inp, decimation=self.decimation, length_scale_m=self.length_scale_m,
+                             anchor_scale_m=self.anchor_scale_m, use_imu=self.use_imu,
+                             age_weighted_direction=self.age_weighted_direction)
+        return route_frame(arr)[0] if self.route_frame else arr
 
     def __post_init__(self) -> None:
         if min(self.length, self.stride, self.decimation) < 1 or self.length_scale_m <= 0:
@@ -151,9 +159,7 @@ class TraceWindows(torch.utils.data.Dataset):
             source = read_dataset(source).traces
         inputs = [s if isinstance(s, TrackInput) else track_input(s, time_offset_s=time_offset_s) for s in source]
         self.spec = spec
-        self.arrays = [network_arrays(i, decimation=spec.decimation, length_scale_m=spec.length_scale_m,
-                                      anchor_scale_m=spec.anchor_scale_m, use_imu=spec.use_imu,
-                                      age_weighted_direction=spec.age_weighted_direction) for i in inputs]
+        self.arrays = [spec.arrays(i) for i in inputs]
         self.index = [(t, int(s)) for t, a in enumerate(self.arrays)
                       for s in window_starts(a.x.shape[0], spec.length, spec.stride)]
 
@@ -202,9 +208,7 @@ class SyntheticWindows(torch.utils.data.Dataset):
             self._cache.move_to_end(i)
             return self._cache[i]
         inp = track_input(self.trace(i), time_offset_s=self.time_offset_s)
-        arr = network_arrays(inp, decimation=self.spec.decimation, length_scale_m=self.spec.length_scale_m,
-                             anchor_scale_m=self.spec.anchor_scale_m, use_imu=self.spec.use_imu,
-                             age_weighted_direction=self.spec.age_weighted_direction)
+        arr = self.spec.arrays(inp)
         self._cache[i] = arr
         while len(self._cache) > self.cache_size:
             self._cache.popitem(last=False)

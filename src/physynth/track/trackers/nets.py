@@ -35,7 +35,7 @@ import numpy as np
 
 from ...errors import PhySynthError
 from .. import require_torch
-from ..inputs import N_ANCHOR_FEATURES, N_GLOBAL_FEATURES, TrackInput, network_arrays, upsample, window_starts
+from ..inputs import N_ANCHOR_FEATURES, N_GLOBAL_FEATURES, TrackInput, network_arrays, route_frame, upsample, window_starts
 from .base import ProgressFn
 
 torch = require_torch()
@@ -56,6 +56,10 @@ class NetConfig:
     works (docs/tracking.md, "Runs in other directions"). Such a network also predicts on
     ``test_isometries`` copies of the test run (1, 2, 4 or 8: the turns by multiples of 90 deg, with their
     mirror images from 2 on) and averages the predictions moved back (test-time augmentation; 1: none).
+    ``route_frame``: every run, for training and for prediction, is turned so that its route heading,
+    estimated from its own ranges, points east (:func:`~physynth.track.inputs.route_frame`): the network
+    learns the shape of the routes relative to their heading, not their compass heading. Excludes
+    ``random_isometry``.
     """
 
     hidden: int = 64
@@ -77,12 +81,16 @@ class NetConfig:
     age_weighted_direction: bool = True
     random_isometry: bool = False
     test_isometries: int = 8
+    route_frame: bool = False
     seed: int = 0
     device: str = "auto"
 
     def __post_init__(self) -> None:
         if self.test_isometries not in (1, 2, 4, 8):
             raise PhySynthError(f"test_isometries must be 1, 2, 4 or 8, got {self.test_isometries}")
+        if self.route_frame and self.random_isometry:
+            raise PhySynthError("route_frame and random_isometry exclude each other (a route frame keeps the "
+                                "routes' heading relative to themselves; random turns remove it)")
         if self.rnn not in ("gru", "lstm"):
             raise PhySynthError(f"unknown recurrent model '{self.rnn}' (gru or lstm)")
         if self.burn_in_steps >= self.window_steps:
@@ -193,7 +201,7 @@ class NetTracker:
         c = self.config
         return WindowSpec(length=c.window_steps, stride=c.stride_steps, decimation=c.decimation,
                           length_scale_m=c.length_scale_m, anchor_scale_m=c.anchor_scale_m, use_imu=c.use_imu,
-                          age_weighted_direction=c.age_weighted_direction)
+                          age_weighted_direction=c.age_weighted_direction, route_frame=c.route_frame)
 
     def device(self) -> Any:
         """``config.device``; ``auto``: the GPU when one is present, else the CPU (deterministic there)."""
@@ -254,7 +262,7 @@ class NetTracker:
                 rmse = math.sqrt(max(losses[-1], 0.0)) * c.length_scale_m
                 progress(f"{self.name} {stage}: epoch {ep + 1}/{epochs}, training RMSE {rmse:.3f} m")
         self.history.append({"stage": stage, "epochs": epochs, "lr": lr, "windows": len(dataset),
-                             "random_isometry": c.random_isometry, "loss": losses})
+                             "random_isometry": c.random_isometry, "route_frame": c.route_frame, "loss": losses})
         self.model.eval()
         return losses
 
@@ -267,6 +275,9 @@ class NetTracker:
         arr = network_arrays(inp, decimation=c.decimation, length_scale_m=c.length_scale_m,
                              anchor_scale_m=c.anchor_scale_m, use_imu=c.use_imu,
                              age_weighted_direction=c.age_weighted_direction)
+        frame = np.eye(3)
+        if c.route_frame:
+            arr, frame = route_frame(arr)
         n, w, burn = arr.x.shape[0], c.window_steps, c.burn_in_steps
         starts = window_starts(n, w, w - burn)
         idx = np.minimum(starts[:, None] + np.arange(w), n - 1)
@@ -282,7 +293,7 @@ class NetTracker:
         for j, s in enumerate(starts):  # each window's warm steps (all of the first window)
             keep = np.arange(w) >= (0 if s == 0 else burn)
             out[idx[j][keep]] = pred[j][keep]
-        out = upsample(inp, arr.step, out * c.length_scale_m)
+        out = upsample(inp, arr.step, (out @ frame) * c.length_scale_m)  # back from the route frame
         out[inp.t_s < inp.first_range_s] = np.nan
         return out
 
