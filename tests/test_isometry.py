@@ -192,3 +192,55 @@ def test_test_time_isometries_make_predictions_exactly_equivariant():
     assert np.nanmax(np.abs(net.predict(moved) - expect)) > 1e-2
     with pytest.raises(PhySynthError, match="test_isometries"):
         make_tracker("aoi-fusion", test_isometries=3)
+
+
+# ---------------------------------------------------------------- the route frame
+def test_route_heading_turns_with_the_run_and_route_frame_undoes_any_turn():
+    from physynth.track.inputs import network_arrays, route_frame, route_heading_rad, track_input, turn_arrays
+    from physynth.transform import isometry_matrix
+
+    tr = generate_trace(site_scenario(noise_m=0.05), 3, 21)
+    arr = network_arrays(track_input(tr))
+    h0 = route_heading_rad(arr)
+    canon, m0 = route_frame(arr)
+    assert abs(route_heading_rad(canon)) < 1e-5  # the frame's route heads east
+    np.testing.assert_allclose(m0, isometry_matrix(-h0), atol=1e-12)
+    for yaw in (0.7, 2.0, -2.9):
+        turned = network_arrays(track_input(turn_trace(tr, yaw)))
+        assert abs(np.angle(np.exp(1j * (route_heading_rad(turned) - h0 - yaw)))) < 1e-4
+        other, _ = route_frame(turned)
+        for key in ("x", "g", "acc", "y"):  # the same inputs whatever the run's compass heading
+            np.testing.assert_allclose(getattr(other, key), getattr(canon, key), atol=3e-4, err_msg=key)
+    # turning arrays is turning the trace (numpy twin of turn_window)
+    moved = turn_arrays(arr, isometry_matrix(0.7))
+    direct = network_arrays(track_input(turn_trace(tr, 0.7)))
+    np.testing.assert_allclose(moved.y, direct.y, atol=2e-4)
+    np.testing.assert_allclose(moved.g, direct.g, atol=2e-4)
+
+
+def test_a_route_frame_network_predicts_any_turned_run_as_the_turned_prediction():
+    """Training and prediction in each run's route frame: the prediction of a turned run is the turned
+    prediction of the run (to float32 precision), with no test-time copies; without the frame it is not."""
+    torch = pytest.importorskip("torch")
+    from physynth.track.inputs import track_input
+    from physynth.track.trackers import make_tracker
+    from physynth.transform import isometry_matrix
+
+    torch.set_num_threads(1)
+    small = {"hidden": 16, "heads": 2, "window_steps": 12, "stride_steps": 4, "burn_in_steps": 2, "batch_size": 8,
+             "decimation": 10, "seed": 0, "epochs": 2, "lr": 3e-3}
+    scn = site_scenario(noise_m=0.05)
+    train = [track_input(generate_trace(scn, i, 21)) for i in range(2)]
+    test = generate_trace(scn, 9, 21)
+    base = track_input(test)
+    centre = base.ref_enu_m
+    nets = {frame: make_tracker("aoi-fusion", route_frame=frame, **small).fit(train) for frame in (True, False)}
+    assert nets[True].history[0]["route_frame"] and not nets[False].history[0]["route_frame"]
+    for yaw in (np.pi / 3, -2.2):
+        moved = track_input(turn_trace(test, yaw))
+        for frame, net in nets.items():
+            expect = (net.predict(base) - centre) @ isometry_matrix(yaw).T + centre
+            gap = np.nanmax(np.abs(net.predict(moved) - expect))
+            assert (gap < 1e-4) if frame else (gap > 1.0), (frame, yaw, gap)
+    with pytest.raises(PhySynthError, match="route_frame"):
+        make_tracker("aoi-fusion", route_frame=True, random_isometry=True)

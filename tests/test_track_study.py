@@ -143,6 +143,8 @@ def test_cli_bad_input_exit_2_one_line(runs, tmp_path, capsys):
         (["--train", train, "--test", train, "--methods", "ls", "--finetune-synth-ratio", "-1"],
          "finetune_synth_ratio must be in [0, 100]"),
         (["--train", train, "--test", train, "--methods", "ls", "--turn-test", "nan"], "--turn-test"),
+        (["--train", train, "--test", train, "--methods", "ls", "--route-frame", "--isometry"],
+         "--route-frame and --isometry"),
     ]
     for args, needle in cases:
         code, out = _cli(capsys, "study", "tracking", *args, "--out", tmp_path / "o", "-q")

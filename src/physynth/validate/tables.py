@@ -109,7 +109,8 @@ def table_validation(report: ValidationReport) -> _Table:
                   ("Metric", "Real", "Synth", "Δ", "Synth 5–95 %", "Real in band"), tuple(rows),
                   "Δ = |Synth − Real| / |Real| × 100 (%), except for the signed residual median: Synth − Real "
                   "in metres; for the mean AoI, against the median synthetic run (one rare long outage "
-                  "multiplies a run's mean AoI by ten, so the pooled value is no typical run). Synth 5–95 %: percentiles of the metric over the synthetic traces taken one by one; "
+                  "multiplies a run's mean AoI by ten, so the pooled value is no typical run). "
+                  "Synth 5–95 %: percentiles of the metric over the synthetic traces taken one by one; "
                   "Real in band: whether the real value lies inside. Metrics as defined in docs/data-and-metrics.md "
                   "(100 Hz grid; residuals pooled over anchors and traces; KS of the signed residuals). "
                   "S = Δavail + Δmed/10 + ΔP95/20 (lower is better).")

@@ -35,7 +35,15 @@ import numpy as np
 
 from ...errors import PhySynthError
 from .. import require_torch
-from ..inputs import N_ANCHOR_FEATURES, N_GLOBAL_FEATURES, TrackInput, network_arrays, route_frame, upsample, window_starts
+from ..inputs import (
+    N_ANCHOR_FEATURES,
+    N_GLOBAL_FEATURES,
+    TrackInput,
+    network_arrays,
+    route_frame,
+    upsample,
+    window_starts,
+)
 from .base import ProgressFn
 
 torch = require_torch()
