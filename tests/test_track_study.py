@@ -143,8 +143,7 @@ def test_cli_bad_input_exit_2_one_line(runs, tmp_path, capsys):
         (["--train", train, "--test", train, "--methods", "ls", "--finetune-synth-ratio", "-1"],
          "finetune_synth_ratio must be in [0, 100]"),
         (["--train", train, "--test", train, "--methods", "ls", "--turn-test", "nan"], "--turn-test"),
-        (["--train", train, "--test", train, "--methods", "ls", "--route-frame", "--isometry"],
-         "--route-frame and --isometry"),
+        (["--train", train, "--test", train, "--methods", "ls", "--frame", "north"], "--frame must be one of"),
     ]
     for args, needle in cases:
         code, out = _cli(capsys, "study", "tracking", *args, "--out", tmp_path / "o", "-q")
@@ -172,6 +171,23 @@ def test_cli_classical_methods_write_results(runs, tmp_path, capsys):
     assert abs(np.linalg.det(m) + 1) < 1e-9 and abs(m[0, 0] - np.cos(np.radians(120))) < 1e-9
     for a, b in zip(rows, res["rows"], strict=True):
         assert abs(a["rmse_m"] - b["rmse_m"]) < 1e-3 * a["rmse_m"], (a, b)
+
+
+def test_cli_default_route_frame_scores_a_turned_run_like_the_run(runs, tmp_path, capsys):
+    """The default ``--frame route``: a network sees a turned test run in the same route frame, so its
+    error is the same (to float32 precision) as on the run itself."""
+    pytest.importorskip("torch")
+    scn, rr = runs
+    train = write_dataset(tmp_path / "train", [r.trace for r in rr[:2]])
+    test = write_dataset(tmp_path / "test", [rr[2].trace])
+    base = ["study", "tracking", "--train", str(train), "--test", str(test), "--methods", "NOAUG", "--epochs", "1",
+            "-q"]
+    main([*base, "--out", str(tmp_path / "plain")])
+    main([*base, "--turn-test", "75", "--out", str(tmp_path / "turned")])
+    a, b = (json.loads((tmp_path / d / "results.json").read_text()) for d in ("plain", "turned"))
+    assert a["config"]["route_frame"] and not a["config"]["random_isometry"]
+    assert abs(a["rows"][0]["rmse_m"] - b["rows"][0]["rmse_m"]) < 1e-3 * a["rows"][0]["rmse_m"]
+    assert "route frame (--frame route)" in (tmp_path / "plain" / "results.md").read_text()
 
 
 def test_without_torch_the_command_names_the_extra(tmp_path):

@@ -11,16 +11,16 @@ also calibrates its training runs with ``physynth calibrate --long-outages`` and
 that scenario (``--scenario``). Prints one table: RMSE (m) per fold and seed, the mean over all, and
 how often each method beats NOAUG of the same fold and seed.
 
-    .venv/bin/python tools/tracking_cv.py [--seeds 0,1] [--jobs 2] [--long-outages] [--no-isometry] [--route-frame]
+    .venv/bin/python tools/tracking_cv.py [--seeds 0,1] [--jobs 2] [--long-outages] [--frame F]
                                           [--turn-test DEG] [--mirror-test] [--methods M,...] [--out DIR]
 
 ``--turn-test DEG`` / ``--mirror-test`` pass the same options to every study: each left-out run is scored
 turned by DEG about the vertical through its anchor centroid (and mirrored): the same ranges in a world
 laid out in another direction (:func:`physynth.transform.turn_trace`), a real run along a direction no
 training run took.
-``--no-isometry`` passes ``--no-isometry`` to every study (networks that learn the heading of the
-training runs instead of training on randomly turned windows); ``--route-frame`` passes ``--route-frame``
-(networks in each run's own route frame, estimated from its ranges).
+``--frame route|turned|compass`` passes ``--frame`` to every study (default route: networks in each
+run's own route frame; turned: randomly turned windows; compass: the recorded world, where networks
+learn the training runs' heading).
 
 Each study takes 2-4 min on one core (quick schedule, one torch thread); ``--jobs`` runs that many
 at once (the default 2 suits a 2-core machine: 4 folds x 2 seeds in about 20 min).
@@ -60,8 +60,8 @@ def main() -> None:
     ap.add_argument("--seeds", default="0,1", help="comma-separated seeds")
     ap.add_argument("--jobs", type=int, default=2, help="studies run at once")
     ap.add_argument("--long-outages", action="store_true", help="also SYNTH_PHY on --long-outages scenarios")
-    ap.add_argument("--no-isometry", action="store_true", help="networks that learn the training runs' heading")
-    ap.add_argument("--route-frame", action="store_true", help="networks in each run's own route frame")
+    ap.add_argument("--frame", choices=("route", "turned", "compass"), default="route",
+                    help="the networks' frame (physynth study tracking --frame)")
     ap.add_argument("--turn-test", type=float, default=0.0, help="turn each test run by this many degrees")
     ap.add_argument("--mirror-test", action="store_true", help="mirror each test run (before the turn)")
     ap.add_argument("--methods", default="NOAUG,AUG_GAN,SYNTH_PHY,ekf")
@@ -76,8 +76,7 @@ def main() -> None:
         if not (ds[run] / "dataset.json").is_file():
             _run(CLI + ["import", "hanyang", str(args.data / env / "Trajectory_A" / case), "--crop-to-uwb",
                         "--out", str(ds[run]), "--quiet"], args.out / f"import-{_name(run)}.log")
-    extra = ["--no-isometry"] if args.no_isometry else []
-    extra += ["--route-frame"] if args.route_frame else []
+    extra = ["--frame", args.frame]
     if args.turn_test:
         extra += ["--turn-test", f"{args.turn_test:g}"]
     if args.mirror_test:

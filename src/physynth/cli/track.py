@@ -16,6 +16,11 @@ import typer
 
 from ..errors import PhySynthError
 
+FRAMES = {"route": {"route_frame": True, "random_isometry": False},
+          "turned": {"route_frame": False, "random_isometry": True},
+          "compass": {"route_frame": False, "random_isometry": False}}
+"""``--frame`` choices and the study settings each one stands for."""
+
 
 def tracking_cmd(
     train: list[Path] = typer.Option(None, "--train", help="Training dataset directory (repeat for several; "
@@ -38,14 +43,12 @@ def tracking_cmd(
                                     "same ranges along another direction."),
     mirror_test: bool = typer.Option(False, "--mirror-test", help="Mirror every test run (y -> -y about its "
                                      "anchor centroid) before the turn."),
-    isometry: bool = typer.Option(None, "--isometry/--no-isometry", help="Train every network on windows "
-                                  "turned by random angles about the vertical and mirrored at random (default); "
-                                  "--no-isometry lets them learn the training runs' heading: better on the same "
-                                  "route, lost on any other."),
-    route_frame: bool = typer.Option(False, "--route-frame", help="Train and run every network in each run's "
-                                     "own route frame (turned so that the route, estimated from its ranges, "
-                                     "heads east) instead of on randomly turned windows: keeps a prior on the "
-                                     "route's shape, on any heading. Implies --no-isometry."),
+    frame: str = typer.Option("route", "--frame", help="How the networks see direction. route (default): "
+                              "every run turned so that its route, estimated from its own ranges, heads east, "
+                              "for training and testing: a prior on the route's shape on any heading. turned: "
+                              "training windows turned and mirrored at random, 8 turned copies at test: no "
+                              "direction prior at all. compass: the world as recorded: learns the training "
+                              "runs' compass heading, lost on a run that heads elsewhere."),
     threads: int = typer.Option(1, "--threads", help="CPU threads for PyTorch (1: small recurrent nets gain nothing "
                                 "from more, and lose a lot on a shared machine)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (results.json, results.md, paths.png)."),
@@ -64,14 +67,12 @@ def tracking_cmd(
     from ..track import require_torch
 
     chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods else METHODS
-    over = {"seed": seed, "methods": chosen, "threads": threads}
-    if route_frame:
-        if isometry:
-            raise PhySynthError("--route-frame and --isometry exclude each other")
-        over.update(route_frame=True, random_isometry=False)
+    if frame not in FRAMES:
+        raise PhySynthError(f"--frame must be one of {', '.join(FRAMES)}, got '{frame}'")
+    over = {"seed": seed, "methods": chosen, "threads": threads, **FRAMES[frame]}
     for key, value in (("epochs", epochs), ("pretrain_epochs", pretrain_epochs),
                        ("finetune_epochs", finetune_epochs), ("n_synth_traces", n_synth),
-                       ("finetune_synth_ratio", finetune_synth_ratio), ("random_isometry", isometry)):
+                       ("finetune_synth_ratio", finetune_synth_ratio)):
         if value is not None:
             over[key] = value
     cfg = quick_config(**over) if quick else StudyConfig(**over)

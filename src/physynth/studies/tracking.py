@@ -78,17 +78,17 @@ class StudyConfig:
     """Overrides of :class:`~physynth.track.trackers.nets.NetConfig` for every network (e.g.
     ``{"age_weighted_direction": False}``)."""
     variation: SynthVariation = SynthVariation()
-    random_isometry: bool = True
+    route_frame: bool = True
+    """Every network trains and predicts in each run's own route frame (``NetConfig.route_frame``: the run
+    turned so that its route heading, estimated from its own ranges, points east): the networks keep a
+    prior on the route's shape relative to its heading, and a run along any other direction gives the
+    same inputs (docs/tracking.md, "Runs in other directions"). Excludes ``random_isometry``."""
+    random_isometry: bool = False
     """Every network (NOAUG, AUG_GAN, SYNTH_PHY, bilstm) trains on windows turned by a random angle
     about the vertical and mirrored at random, and predicts on 8 turned copies of the test run
-    (``NetConfig.random_isometry``): networks that track a run along any direction. False lets them
-    learn the heading of the training runs, better on runs that follow the same route and lost on any
-    other (docs/tracking.md, "Runs in other directions")."""
-    route_frame: bool = False
-    """Every network trains and predicts in each run's own route frame (``NetConfig.route_frame``: the run
-    turned so that its route heading, estimated from its ranges, points east): the networks keep a prior
-    on the route's shape relative to its heading without tying it to the compass. Needs
-    ``random_isometry`` False."""
+    (``NetConfig.random_isometry``): no direction prior at all. With both False the networks learn the
+    compass heading of the training runs, better on runs that follow the same route and lost on any
+    other."""
     training_layouts: bool = True
     threads: int = 1
 
@@ -495,6 +495,9 @@ def results_markdown(result: StudyResult) -> str:
            if c.get("finetune_synth_ratio") else "")
         + (" (--quick)" if c["quick"] else ""),
         "- inputs: far-field direction " + ("weighted by the age of each range" if weighted else "unweighted"),
+        "- networks' frame: " + ("each run's route frame (--frame route)" if c.get("route_frame")
+                                 else "randomly turned windows, 8 turned test copies (--frame turned)"
+                                 if c.get("random_isometry") else "the recorded world (--frame compass)"),
         f"- seed {c['seed']}, {c['threads']} thread(s), wall time {d['wall_time_s']:.0f} s, CPU time "
         f"{d.get('cpu_time_s', float('nan')):.0f} s",
     ]
