@@ -173,21 +173,27 @@ def test_cli_classical_methods_write_results(runs, tmp_path, capsys):
         assert abs(a["rmse_m"] - b["rmse_m"]) < 1e-3 * a["rmse_m"], (a, b)
 
 
-def test_cli_default_route_frame_scores_a_turned_run_like_the_run(runs, tmp_path, capsys):
-    """The default ``--frame route``: a network sees a turned test run in the same route frame, so its
-    error is the same (to float32 precision) as on the run itself."""
+def test_cli_route_frame_scores_a_turned_run_like_the_run(runs, tmp_path, capsys):
+    """``--frame route``: a network sees a turned test run in the same route frame, so its error is the
+    same (to float32 precision) as on the run itself; the default frame is ``turned``."""
     pytest.importorskip("torch")
     scn, rr = runs
     train = write_dataset(tmp_path / "train", [r.trace for r in rr[:2]])
     test = write_dataset(tmp_path / "test", [rr[2].trace])
     base = ["study", "tracking", "--train", str(train), "--test", str(test), "--methods", "NOAUG", "--epochs", "1",
             "-q"]
-    main([*base, "--out", str(tmp_path / "plain")])
-    main([*base, "--turn-test", "75", "--out", str(tmp_path / "turned")])
+    main([*base, "--frame", "route", "--out", str(tmp_path / "plain")])
+    main([*base, "--frame", "route", "--turn-test", "75", "--out", str(tmp_path / "turned")])
     a, b = (json.loads((tmp_path / d / "results.json").read_text()) for d in ("plain", "turned"))
     assert a["config"]["route_frame"] and not a["config"]["random_isometry"]
     assert abs(a["rows"][0]["rmse_m"] - b["rows"][0]["rmse_m"]) < 1e-3 * a["rows"][0]["rmse_m"]
     assert "route frame (--frame route)" in (tmp_path / "plain" / "results.md").read_text()
+    main(["study", "tracking", "--train", str(train), "--test", str(test), "--methods", "ls", "-q",
+          "--out", str(tmp_path / "default")])
+    d = json.loads((tmp_path / "default" / "results.json").read_text())["config"]
+    assert d["random_isometry"] and not d["route_frame"]
+    assert "(--frame turned)" in (tmp_path / "default" / "results.md").read_text()
+    assert (tmp_path / "default" / "paths.png").stat().st_size > 1000  # one classical method alone is plotted
 
 
 def test_without_torch_the_command_names_the_extra(tmp_path):

@@ -43,12 +43,13 @@ def tracking_cmd(
                                     "same ranges along another direction."),
     mirror_test: bool = typer.Option(False, "--mirror-test", help="Mirror every test run (y -> -y about its "
                                      "anchor centroid) before the turn."),
-    frame: str = typer.Option("route", "--frame", help="How the networks see direction. route (default): "
-                              "every run turned so that its route, estimated from its own ranges, heads east, "
-                              "for training and testing: a prior on the route's shape on any heading. turned: "
+    frame: str = typer.Option("turned", "--frame", help="How the networks see direction. turned (default): "
                               "training windows turned and mirrored at random, 8 turned copies at test: no "
-                              "direction prior at all. compass: the world as recorded: learns the training "
-                              "runs' compass heading, lost on a run that heads elsewhere."),
+                              "prior tied to a heading, so runs along other directions and of other shapes "
+                              "are tracked. route: every run turned so that its route, estimated from its "
+                              "own ranges, heads east: a prior on the route's shape, better on runs shaped "
+                              "like the training runs, lost on other shapes. compass: the world as recorded: "
+                              "learns the training runs' compass heading, lost on a run that heads elsewhere."),
     threads: int = typer.Option(1, "--threads", help="CPU threads for PyTorch (1: small recurrent nets gain nothing "
                                 "from more, and lose a lot on a shared machine)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (results.json, results.md, paths.png)."),

@@ -78,17 +78,17 @@ class StudyConfig:
     """Overrides of :class:`~physynth.track.trackers.nets.NetConfig` for every network (e.g.
     ``{"age_weighted_direction": False}``)."""
     variation: SynthVariation = SynthVariation()
-    route_frame: bool = True
-    """Every network trains and predicts in each run's own route frame (``NetConfig.route_frame``: the run
-    turned so that its route heading, estimated from its own ranges, points east): the networks keep a
-    prior on the route's shape relative to its heading, and a run along any other direction gives the
-    same inputs (docs/tracking.md, "Runs in other directions"). Excludes ``random_isometry``."""
-    random_isometry: bool = False
+    random_isometry: bool = True
     """Every network (NOAUG, AUG_GAN, SYNTH_PHY, bilstm) trains on windows turned by a random angle
     about the vertical and mirrored at random, and predicts on 8 turned copies of the test run
-    (``NetConfig.random_isometry``): no direction prior at all. With both False the networks learn the
-    compass heading of the training runs, better on runs that follow the same route and lost on any
-    other."""
+    (``NetConfig.random_isometry``): no direction or shape prior tied to a heading, so a run along
+    another direction or of another shape is tracked (docs/tracking.md, "Runs in other directions")."""
+    route_frame: bool = False
+    """Every network trains and predicts in each run's own route frame (``NetConfig.route_frame``: the run
+    turned so that its route heading, estimated from its own ranges, points east): a prior on the
+    route's shape relative to its heading, better on runs of the training routes' shape along any
+    heading, lost on a route of another shape (a loop: docs/tracking.md). Excludes ``random_isometry``.
+    With both False the networks learn the compass heading of the training runs."""
     training_layouts: bool = True
     threads: int = 1
 
@@ -531,7 +531,10 @@ def plot_paths(result: StudyResult, path: Path) -> Path | None:
         return None
     inp = result.test_input
     m = inp.eval_mask()
-    keys = [k for k in ("NOAUG", "AUG_GAN", "SYNTH_PHY", "ekf", "ref: authors' ESKF") if k in result.estimates]
+    keys = ([k for k in ("NOAUG", "AUG_GAN", "SYNTH_PHY", "ekf", "ref: authors' ESKF") if k in result.estimates]
+            or list(result.estimates)[:5])  # e.g. --methods ls: plot what there is
+    if not keys:
+        return None
     fig, axes = plt.subplots(len(keys), 1, figsize=(9.0, 2.4 * len(keys)), sharex=True, sharey=True,
                              squeeze=False)
     truth = inp.pos_enu_m
