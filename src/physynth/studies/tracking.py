@@ -77,7 +77,9 @@ class StudyConfig:
     net: dict[str, Any] = field(default_factory=dict)
     """Overrides of :class:`~physynth.track.trackers.nets.NetConfig` for every network (e.g.
     ``{"age_weighted_direction": False}``)."""
-    variation: SynthVariation = SynthVariation()
+    variation: SynthVariation = SynthVariation(random_route_prob=0.5)
+    """How the synthetic pre-training traces vary around the calibrated site: anchor layouts of the
+    training runs, path jitter, and half of them on random routes of other shapes (:mod:`physynth.track.synth`)."""
     random_isometry: bool = True
     """Every network (NOAUG, AUG_GAN, SYNTH_PHY, bilstm) trains on windows turned by a random angle
     about the vertical and mirrored at random, and predicts on 8 turned copies of the test run
