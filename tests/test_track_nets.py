@@ -97,6 +97,34 @@ def test_variation_moves_layout_and_path_but_not_the_seeded_rest():
                                   synthetic_trace(scn, 0, 5, SynthVariation()).uwb.range_m)
 
 
+def test_random_routes_stay_on_the_site_and_leave_other_draws_alone():
+    from physynth.track.synth import random_route, varied_scenario
+
+    rng = np.random.default_rng(3)
+    centre = np.array([10.0, -5.0, 1.0])
+    for _ in range(200):
+        w = np.asarray(random_route(centre, 40.0, 1.2, 8, rng))
+        assert w.shape == (8, 3) and np.all(w[:, 2] == 1.2)
+        assert np.linalg.norm(w[0, :2] - centre[:2]) <= 3.0 * np.sqrt(2) + 1e-9
+        # a leg that would leave the disc turns back: at most one leg (<= 0.5 reach) beyond it
+        assert np.max(np.linalg.norm(w[:, :2] - centre[:2], axis=1)) <= 40.0 + 0.5 * 40.0 + 1e-9
+        assert np.all(np.linalg.norm(np.diff(w[:, :2], axis=0), axis=1) >= 0.2 * 40.0 - 1e-9)
+    scn = site_scenario()
+    n = 400
+    routed = [varied_scenario(scn, SynthVariation(random_route_prob=0.5), np.random.default_rng(i)).path
+              != varied_scenario(scn, SynthVariation(), np.random.default_rng(i)).path for i in range(n)]
+    share = np.mean(routed)
+    assert abs(share - 0.5) < 5 * np.sqrt(0.25 / n)  # 5 standard errors of a fair coin
+    # the other draws come first: without random routes the scenario is the same as before
+    a = varied_scenario(scn, SynthVariation(), np.random.default_rng(9))
+    b = varied_scenario(scn, SynthVariation(random_route_prob=1e-12), np.random.default_rng(9))
+    assert a.anchors == b.anchors and a.path == b.path
+    tr = synthetic_trace(scn, 0, 5, SynthVariation(random_route_prob=1.0))
+    assert tr.duration_s > 10 and np.isfinite(tr.uwb.range_m).sum() > 100
+    with pytest.raises(ValueError, match="random_route_prob"):
+        SynthVariation(random_route_prob=1.5)
+
+
 def test_gan_learns_the_residual_scale_and_augments_only_ranges():
     torch.set_num_threads(1)
     scn = site_scenario(noise_m=0.2, **{"channel.los_mean_m": 0.3})

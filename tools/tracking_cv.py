@@ -18,9 +18,9 @@ how often each method beats NOAUG of the same fold and seed.
 turned by DEG about the vertical through its anchor centroid (and mirrored): the same ranges in a world
 laid out in another direction (:func:`physynth.transform.turn_trace`), a real run along a direction no
 training run took.
-``--frame route|turned|compass`` passes ``--frame`` to every study (default route: networks in each
-run's own route frame; turned: randomly turned windows; compass: the recorded world, where networks
-learn the training runs' heading).
+``--frame route|turned|compass`` passes ``--frame`` to every study (default turned, as the study's:
+randomly turned windows; route: networks in each run's own route frame; compass: the recorded world,
+where networks learn the training runs' heading).
 
 Each study takes 2-4 min on one core (quick schedule, one torch thread); ``--jobs`` runs that many
 at once (the default 2 suits a 2-core machine: 4 folds x 2 seeds in about 20 min).
@@ -60,7 +60,7 @@ def main() -> None:
     ap.add_argument("--seeds", default="0,1", help="comma-separated seeds")
     ap.add_argument("--jobs", type=int, default=2, help="studies run at once")
     ap.add_argument("--long-outages", action="store_true", help="also SYNTH_PHY on --long-outages scenarios")
-    ap.add_argument("--frame", choices=("route", "turned", "compass"), default="route",
+    ap.add_argument("--frame", choices=("route", "turned", "compass"), default="turned",
                     help="the networks' frame (physynth study tracking --frame)")
     ap.add_argument("--turn-test", type=float, default=0.0, help="turn each test run by this many degrees")
     ap.add_argument("--mirror-test", action="store_true", help="mirror each test run (before the turn)")
