@@ -31,9 +31,11 @@ def test_validation_table_shows_the_reports_numbers(report):
     rows = {row[0]: row for row in table_validation(report).rows}
     for label, key in (("UWB ≥ 1 (frac.)", "uwb_ge1_frac"), ("Mean AoI (s)", "mean_aoi_s"),
                        ("Duration (s)", "duration_s")):
-        real, synth = (float(v) for v in rows[label][1:3])
+        real, synth = (float(v.split()[0]) for v in rows[label][1:3])  # "0.28 (median run 0.082)"
         assert real == pytest.approx(report.real[key], abs=0.006), key
         assert synth == pytest.approx(report.synthetic[key], abs=0.006), key
+    typical = float(rows["Mean AoI (s)"][2].split("median run ")[1].rstrip(")"))
+    assert typical == pytest.approx(report.comparison["mean_aoi_s"]["typical"], abs=6e-4)
     assert float(rows["Fidelity score S"][2]) == pytest.approx(report.fidelity_score, abs=6e-4)
 
 

@@ -278,7 +278,9 @@ def comparison_table(real: Mapping[str, Any], synth: Mapping[str, Any], per_trac
             out[k] = [_compare_one(_num(x), _num(y), vals[:, i], signed)
                       for i, (x, y) in enumerate(zip(a, b, strict=True))]
         else:
-            typ = typical_value(per_trace, k, n_real) if k in TYPICAL_METRICS and per_trace else None
+            typ = None
+            if k in TYPICAL_METRICS and per_trace:  # one group of every trace: exactly the pooled value
+                typ = _num(b) if len(per_trace) <= n_real else typical_value(per_trace, k, n_real)
             out[k] = _compare_one(_num(a), _num(b), np.array([_num(t[k]) for t in per_trace], dtype=float), signed,
                                   typ)
     return jsonable(out)
