@@ -66,8 +66,8 @@ class NetConfig:
     mirror images from 2 on) and averages the predictions moved back (test-time augmentation; 1: none).
     ``route_frame``: every run, for training and for prediction, is turned so that its route heading,
     estimated from its own ranges, points east (:func:`~physynth.track.inputs.route_frame`): the network
-    learns the shape of the routes relative to their heading, not their compass heading. Excludes
-    ``random_isometry``.
+    learns the shape of the routes relative to their heading, not their compass heading, and is lost on
+    a route of another shape (docs/tracking.md, the synthetic loop). Excludes ``random_isometry``.
     """
 
     hidden: int = 64
