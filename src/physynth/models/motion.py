@@ -161,5 +161,6 @@ def kinematics(geometry: PathGeometry, pert: PathPerturbation, params: MotionPar
         s, ds, dds = along, speed, accel
     p, d1, d2 = perturbed_cf(geometry, pert, s, lateral_dir)  # (3, T): fast broadcasting over time
     vel = d1 * ds
-    acc = d2 * (ds * ds) + d1 * dds
+    acc = np.multiply(d2, ds * ds, out=d2)  # d2 (ds)^2 + d1 dds, in the buffers perturbed_cf made
+    acc += np.multiply(d1, dds, out=d1)
     return Kinematics(t_s=t, s_m=s, pos_enu_m=p.T, vel_enu_mps=vel.T, acc_enu_mps2=acc.T)

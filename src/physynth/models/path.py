@@ -168,8 +168,13 @@ def perturbed_cf(geometry: PathGeometry, pert: PathPerturbation, s_m: np.ndarray
     if pert.lateral_m == 0.0 and pert.sag_m == 0.0:
         return p, d1, d2
     n = geometry.lateral_direction() if lateral_dir is None else lateral_dir
-    offset = (pert.lateral_m * n + pert.sag_m * UP)[:, None]
+    offset = pert.lateral_m * n + pert.sag_m * UP
     k = np.pi / geometry.length_m
-    arg = k * np.asarray(s_m)
+    arg = k * np.asarray(s_m, dtype=np.float64)
     sin, cos = np.sin(arg), np.cos(arg)
-    return p + offset * sin, d1 + (k * offset) * cos, d2 - (k * k * offset) * sin
+    tmp = np.empty(np.shape(arg))  # the products, added in place (evaluate_cf returns new arrays)
+    for c in range(3):  # p + o sin, d1 + (k o) cos, d2 - (k^2 o) sin, row by row, rounded as before
+        p[c] += np.multiply(offset[c], sin, out=tmp)
+        d1[c] += np.multiply(k * offset[c], cos, out=tmp)
+        d2[c] -= np.multiply(k * k * offset[c], sin, out=tmp)
+    return p, d1, d2
