@@ -243,3 +243,16 @@ def test_imu_only_scenario_needs_an_explicit_empty_anchor_list():
     d["anchors"], d["channel_per_anchor"] = [], {}
     tr = generate_trace(compile_scenario(scenario_from_dict(d, "test")), 0, 1)
     assert len(tr.uwb) == 0 and len(tr.anchors) == 0 and tr.imu is not None
+
+
+def test_unwrap_matches_numpy_bit_for_bit():
+    from physynth.models.attitude import _unwrap
+
+    rng = np.random.default_rng(3)
+    cases = [np.arctan2(rng.standard_normal(500), rng.standard_normal(500)),
+             np.cumsum(rng.standard_normal(2000)) % (2 * np.pi) - np.pi, np.linspace(-3.0, 3.0, 1000),
+             np.array([0.0, np.pi, 0.0, -np.pi, 0.0, 2 * np.pi, 1.0, 4.0]), np.array([3.0, -3.0, 3.0]),
+             np.array([-0.0, 0.0]), np.array([1.0]), np.zeros(0)]
+    for c in cases:
+        want, got = np.unwrap(c), _unwrap(c)
+        assert np.array_equal(want, got) and np.array_equal(np.signbit(want), np.signbit(got))

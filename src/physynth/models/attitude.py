@@ -86,7 +86,25 @@ def heading_rad(vel_enu_mps: np.ndarray, min_speed_mps: float) -> np.ndarray:
     idx = np.where(moving, np.arange(v.shape[0]), -1)
     idx = np.maximum.accumulate(idx)  # last moving sample at or before each sample
     idx[idx < 0] = int(np.argmax(moving))
-    return np.unwrap(np.arctan2(v[idx, 1], v[idx, 0]))
+    return _unwrap(np.arctan2(v[idx, 1], v[idx, 0]))
+
+
+def _unwrap(p: np.ndarray) -> np.ndarray:
+    """``numpy.unwrap(p)`` of a 1-D float64 array, bit for bit, with the modular correction computed only
+    at the steps it changes (|step| >= pi or NaN; a heading has a handful, where numpy.unwrap's full-length
+    np.mod pass dominates)."""
+    dd = np.diff(p)
+    jump = np.flatnonzero(~(np.abs(dd) < np.pi))  # numpy.unwrap zeroes the correction where |dd| < pi
+    up = np.array(p, dtype=np.float64)
+    if jump.size == 0:
+        return up
+    d = dd[jump]
+    ddmod = np.mod(d + np.pi, 2.0 * np.pi) - np.pi  # numpy.unwrap's interval [-pi, pi), then pi for steps > 0
+    ddmod[(ddmod == -np.pi) & (d > 0)] = np.pi
+    correction = np.zeros(dd.shape[0])
+    correction[jump] = ddmod - d
+    up[1:] = p[1:] + correction.cumsum()
+    return up
 
 
 @lru_cache(maxsize=64)

@@ -425,7 +425,7 @@ def range_error(true_range_m: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, 
     zone_only = nlos & ~in_episode
     err[in_episode] = sample_nlos_offset(anchor[in_episode], ch, rng=rng, mode=mode[in_episode])
     err[zone_only] = sample_nlos_offset(anchor[zone_only], ch, rng=rng)
-    if episode is not None and in_episode.any():
+    if episode is not None and in_episode.any() and np.isfinite(ch.mode_held_jitter_m).any():  # a held mode
         jit = np.full(err.shape[0], np.nan)
         jit[in_episode] = ch.mode_held_jitter_m[anchor[in_episode], mode[in_episode]]
         held = np.isfinite(jit)
