@@ -22,6 +22,20 @@ def _true_ranges(trace):
     return np.linalg.norm(p - trace.anchors.pos_enu_m[trace.uwb.anchor], axis=1)
 
 
+SMALL_NET = {"hidden": 16, "heads": 2, "window_steps": 12, "stride_steps": 4, "burn_in_steps": 2, "batch_size": 8,
+             "decimation": 10, "seed": 0, "lr": 3e-3}
+
+
+def _site_runs(n_train: int):
+    """Tiny-network set-up of the learned-tracker tests: ``n_train`` training inputs and one test trace."""
+    torch = pytest.importorskip("torch")
+    from physynth.track.inputs import track_input
+
+    torch.set_num_threads(1)
+    scn = site_scenario(noise_m=0.05)
+    return [track_input(generate_trace(scn, i, 21)) for i in range(n_train)], generate_trace(scn, 9, 21)
+
+
 @pytest.mark.parametrize("mirror", [False, True])
 def test_turning_keeps_every_distance_and_moves_positions_and_acceleration(mirror):
     tr = _trace(imu={"rate_hz": 100.0, "white_noise_density_mps2_per_sqrt_hz": [0.0, 0.0, 0.0]})
@@ -138,16 +152,11 @@ def test_isometry_windows_draw_uniform_angles_and_fair_mirrors_deterministically
 def test_a_network_trained_on_turned_windows_tracks_a_run_in_another_direction():
     """The site's walks all head east. Without turned windows a small network learns that heading and is
     lost on the same walk heading north or west; with them it tracks every direction alike."""
-    torch = pytest.importorskip("torch")
+    train, test = _site_runs(4)
     from physynth.track.inputs import track_input
     from physynth.track.trackers import make_tracker
 
-    torch.set_num_threads(1)
-    small = {"hidden": 16, "heads": 2, "window_steps": 12, "stride_steps": 4, "burn_in_steps": 2, "batch_size": 8,
-             "decimation": 10, "seed": 0, "epochs": 12, "lr": 3e-3}
-    scn = site_scenario(noise_m=0.05)
-    train = [track_input(generate_trace(scn, i, 21)) for i in range(4)]
-    test = generate_trace(scn, 9, 21)
+    small = {**SMALL_NET, "epochs": 12}
 
     def rmse(net, yaw):
         inp = track_input(turn_trace(test, yaw))
@@ -221,17 +230,12 @@ def test_route_heading_turns_with_the_run_and_route_frame_undoes_any_turn():
 def test_a_route_frame_network_predicts_any_turned_run_as_the_turned_prediction():
     """Training and prediction in each run's route frame: the prediction of a turned run is the turned
     prediction of the run (to float32 precision), with no test-time copies; without the frame it is not."""
-    torch = pytest.importorskip("torch")
+    train, test = _site_runs(2)
     from physynth.track.inputs import track_input
     from physynth.track.trackers import make_tracker
     from physynth.transform import isometry_matrix
 
-    torch.set_num_threads(1)
-    small = {"hidden": 16, "heads": 2, "window_steps": 12, "stride_steps": 4, "burn_in_steps": 2, "batch_size": 8,
-             "decimation": 10, "seed": 0, "epochs": 2, "lr": 3e-3}
-    scn = site_scenario(noise_m=0.05)
-    train = [track_input(generate_trace(scn, i, 21)) for i in range(2)]
-    test = generate_trace(scn, 9, 21)
+    small = {**SMALL_NET, "epochs": 2}
     base = track_input(test)
     centre = base.ref_enu_m
     nets = {frame: make_tracker("aoi-fusion", route_frame=frame, **small).fit(train) for frame in (True, False)}
