@@ -12,7 +12,8 @@ that scenario (``--scenario``). Prints one table: RMSE (m) per fold and seed, th
 how often each method beats NOAUG of the same fold and seed.
 
     .venv/bin/python tools/tracking_cv.py [--seeds 0,1] [--jobs 2] [--long-outages] [--frame F]
-                                          [--turn-test DEG] [--mirror-test] [--methods M,...] [--out DIR]
+                                          [--turn-test DEG] [--mirror-test] [--methods M,...]
+                                          [--study-args "OPTIONS"] [--out DIR]
 
 ``--turn-test DEG`` / ``--mirror-test`` pass the same options to every study: each left-out run is scored
 turned by DEG about the vertical through its anchor centroid (and mirrored): the same ranges in a world
@@ -30,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -65,6 +67,8 @@ def main() -> None:
     ap.add_argument("--turn-test", type=float, default=0.0, help="turn each test run by this many degrees")
     ap.add_argument("--mirror-test", action="store_true", help="mirror each test run (before the turn)")
     ap.add_argument("--methods", default="NOAUG,AUG_GAN,SYNTH_PHY,ekf")
+    ap.add_argument("--study-args", default="",
+                    help='more options for every study, e.g. "--n-synth 96 --pretrain-epochs 15"')
     ap.add_argument("--out", type=Path, default=Path("runs/tracking-cv"))
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
@@ -81,6 +85,7 @@ def main() -> None:
         extra += ["--turn-test", f"{args.turn_test:g}"]
     if args.mirror_test:
         extra += ["--mirror-test"]
+    extra += shlex.split(args.study_args)
     jobs = []
     for test in RUNS:
         train = [r for r in RUNS if r != test]
@@ -123,7 +128,8 @@ def main() -> None:
     for k in keys:
         v = table[k]
         cells = [" / ".join(f"{v[(r, s)]:.3f}" for s in seeds) for r in RUNS]
-        wins = sum(v[(r, s)] < table["NOAUG"][(r, s)] for r in RUNS for s in seeds)
+        ref = table.get("NOAUG", {})
+        wins = sum((r, s) in ref and v[(r, s)] < ref[(r, s)] for r in RUNS for s in seeds)
         print(f"| {k} | " + " | ".join(cells) + f" | {np.mean([v[(r, s)] for r in RUNS for s in seeds]):.3f} "
               f"| {wins}/{len(RUNS) * len(seeds)} |")
 
