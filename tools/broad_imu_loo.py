@@ -78,7 +78,8 @@ def main() -> None:
         rest = [traces[k] for k in calib if k != left]
         for name, opts, cmp in models:
             params = fit_imu(rest, **opts).params
-            r = compare_imu_along_truth(traces[left], params, REFERENCE_CUTOFF_HZ, rng=np.random.default_rng(args.seed), **cmp)
+            r = compare_imu_along_truth(traces[left], params, REFERENCE_CUTOFF_HZ,
+                                        rng=np.random.default_rng(args.seed), **cmp)
             dev = _dev(r)
             worst[name].append(np.abs(dev).max())
             print(f"{left:34s} {name:9s} {np.array2string(r['std_real'], precision=3):24s} "
