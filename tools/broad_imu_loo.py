@@ -37,10 +37,16 @@ INPUT_CUTOFF_HZ = 14.0
 """Cut-off [Hz] of the truth the wide and lever models are calibrated against and fed with: the widest
 band where the optical acceleration still follows the IMU (correlation 0.37-0.96 per axis at 11-14 Hz
 on the shared trials, at most 0.54 above 15 Hz where the optical noise dominates; docs/imu.md)."""
+REFERENCE_CUTOFF_HZ = 10.0
+"""Cut-off [Hz] of the truth the IMU error is judged against (both sides of the comparison)."""
 WIDE = ({"cutoff_hz": INPUT_CUTOFF_HZ}, {"input_cutoff_hz": INPUT_CUTOFF_HZ})
 MODELS = (("constant", {"motion_dependent": False}, {}), ("motion", {}, {}),
           ("motion+w", {"motion_rate_term": True}, {}), ("wide", *WIDE),
-          ("lever", {**WIDE[0], "lever_arm": True}, WIDE[1]))
+          ("lever", {**WIDE[0], "lever_arm": True}, WIDE[1]),
+          ("lever-ref", {**WIDE[0], "lever_arm": True, "reference_cutoff_hz": REFERENCE_CUTOFF_HZ}, WIDE[1]),
+          ("lever-cw", {**WIDE[0], "lever_arm": True, "calm_white_noise": True}, WIDE[1]),
+          ("lever-rc", {**WIDE[0], "lever_arm": True, "reference_cutoff_hz": REFERENCE_CUTOFF_HZ,
+                        "calm_white_noise": True}, WIDE[1]))
 
 
 def _undisturbed(data: Path) -> set[str]:
@@ -56,7 +62,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DEFAULT)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--models", default=",".join(m for m, _, _ in MODELS),
+                    help="comma-separated subset of the models (default: all)")
     args = ap.parse_args()
+    models = [m for m in MODELS if m[0] in args.models.split(",")]
     files = sorted(args.data.glob("*.mat"))
     und = _undisturbed(args.data)
     traces = {f.stem: import_broad(f)[0] for f in files}
@@ -64,21 +73,22 @@ def main() -> None:
     print(f"undisturbed trials: {', '.join(calib)}")
     print(f"{'left out':34s} {'model':9s} {'real std e/n/u [m/s^2]':24s} {'synthetic std':22s} "
           f"{'rel. dev. [%]':22s} max|dev|")
-    worst: dict[str, list[float]] = {m: [] for m, _, _ in MODELS}
+    worst: dict[str, list[float]] = {m: [] for m, _, _ in models}
     for left in calib:
         rest = [traces[k] for k in calib if k != left]
-        for name, opts, cmp in MODELS:
+        for name, opts, cmp in models:
             params = fit_imu(rest, **opts).params
-            r = compare_imu_along_truth(traces[left], params, 10.0, rng=np.random.default_rng(args.seed), **cmp)
+            r = compare_imu_along_truth(traces[left], params, REFERENCE_CUTOFF_HZ,
+                                        rng=np.random.default_rng(args.seed), **cmp)
             dev = _dev(r)
             worst[name].append(np.abs(dev).max())
             print(f"{left:34s} {name:9s} {np.array2string(r['std_real'], precision=3):24s} "
                   f"{np.array2string(r['std_synth'], precision=3):22s} {np.array2string(dev, precision=1):22s} "
                   f"{np.abs(dev).max():5.1f}")
     for name, w in worst.items():
-        print(f"leave-one-out, {name:8s}: worst axis |deviation| per trial {np.round(w, 1).tolist()} %, "
+        print(f"leave-one-out, {name:9s}: worst axis |deviation| per trial {np.round(w, 1).tolist()} %, "
               f"mean {np.mean(w):.1f} %")
-    for name, opts, cmp in MODELS:
+    for name, opts, cmp in models:
         fit = fit_imu([traces[k] for k in calib], **opts)
         p = fit.params
         line = (f"calibrated on all undisturbed ({name}): time offset {p.time_offset_s * 1e3:.2f} ms, acc variance "
@@ -90,7 +100,7 @@ def main() -> None:
                      f"-{100 * lev['mean_square_reduction_frac']:.0f} %)")
         print(line)
         for k, tr in traces.items():
-            r = compare_imu_along_truth(tr, p, 10.0, rng=np.random.default_rng(args.seed), **cmp)
+            r = compare_imu_along_truth(tr, p, REFERENCE_CUTOFF_HZ, rng=np.random.default_rng(args.seed), **cmp)
             print(f"  applied to {k:34s} rel. dev. {np.array2string(_dev(r), precision=1)} %  "
                   f"(LSD {np.array2string(r['lsd_db'], precision=1)} dB)")
 

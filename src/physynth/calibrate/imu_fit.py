@@ -404,8 +404,33 @@ CALM_RATE_RADPS = 0.1
 """Samples below both (|a|, |w|) are calm: their error variance is the motion-free level c0."""
 
 
+def reference_noise_target(trace: Trace, cutoff_hz: float, offset_s: float, reference_cutoff_hz: float, *,
+                           lever_arm_m: Sequence[float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-sample squared error (N, 3) that noise added to the ``cutoff_hz`` truth must reproduce
+    against the ``reference_cutoff_hz`` truth, and its mask.
+
+    A synthetic IMU fed the truth low-passed at ``cutoff_hz`` (the sensor point's, read at t - offset)
+    plus independent noise nu has, against the reference, the error (input - reference) + nu, of mean
+    square E[(input - reference)^2] + E[nu^2]. The real error against the reference is e_ref = IMU -
+    reference, so nu must carry E[e_ref^2] - E[(input - reference)^2] per axis: the returned
+    e_ref^2 - (input - reference)^2 (its window means are what the motion-noise regression fits). This
+    differs from the squared error against the input band by twice the covariance of (IMU - input) and
+    (input - reference): positive where the IMU reads motion the input attenuates, negative where the
+    input band holds truth noise (optical noise between the two cut-offs) that the IMU does not read.
+    """
+    e_ref, ok_ref, ti = imu_error(trace, reference_cutoff_hz)
+    tg, a_in, v_in = sensor_truth_acceleration(trace, cutoff_hz, lever_arm_m)
+    tr_, a_ref, v_ref = truth_acceleration(trace.truth.t_s, trace.truth.pos_enu_m, cutoff_hz=reference_cutoff_hz)
+    d = (np.stack([np.interp(ti - offset_s, tg, np.where(v_in, a_in[:, k], 0.0)) for k in range(3)], axis=1)
+         - np.stack([np.interp(ti, tr_, np.where(v_ref, a_ref[:, k], 0.0)) for k in range(3)], axis=1))
+    ok = ok_ref & (np.interp(ti - offset_s, tg, v_in.astype(float)) > 0.999)
+    y = np.where(ok[:, None], np.nan_to_num(e_ref) ** 2 - d**2, np.nan)
+    return y, ok
+
+
 def fit_motion_noise(traces: Sequence[Trace], cutoff_hz: float, offset_s: float, *,
-                     use_rate: bool = True, lever_arm_m: Sequence[float] | None = None) -> dict[str, Any]:
+                     use_rate: bool = True, lever_arm_m: Sequence[float] | None = None,
+                     reference_cutoff_hz: float | None = None) -> dict[str, Any]:
     """Joint fit over recordings of the error variance per axis as c0 + ca_k |a_k| + cw_k |w|.
 
     c0 (per axis) is the mean squared error of the calm samples (``CALM_ACC_MPS2``,
@@ -415,15 +440,23 @@ def fit_motion_noise(traces: Sequence[Trace], cutoff_hz: float, offset_s: float,
     non-negative least squares pooled over all recordings, so that recordings of different
     intensity fix them. The slopes are the vibration's variance per unit intensity. ``lever_arm_m``:
     the error is taken with the sensor's lever-arm acceleration removed (:func:`imu_error`).
+    ``reference_cutoff_hz``: the squared error is replaced by what noise on top of the ``cutoff_hz``
+    truth must carry for the error against that reference band to come out right
+    (:func:`reference_noise_target`), c0 included.
     """
     feats, ys, calm_e2, n_calm, n_all = [], [], np.zeros(3), 0, 0
     fs = None
     for tr in traces:  # a handful of recordings
-        e, ok, ti = imu_error(tr, cutoff_hz, offset_s=offset_s, lever_arm_m=lever_arm_m)
+        if reference_cutoff_hz is None:
+            e, ok, ti = imu_error(tr, cutoff_hz, offset_s=offset_s, lever_arm_m=lever_arm_m)
+            e2 = e**2
+        else:
+            e2, ok = reference_noise_target(tr, cutoff_hz, offset_s, reference_cutoff_hz, lever_arm_m=lever_arm_m)
+            ti = tr.imu.t_s
         a_abs, w = _intensity(tr, cutoff_hz, offset_s)
         fs = 1.0 / median_step_s(ti)
         calm = ok & (np.linalg.norm(a_abs, axis=1) < CALM_ACC_MPS2) & (w < CALM_RATE_RADPS)
-        calm_e2 += np.sum(e[calm] ** 2, axis=0)
+        calm_e2 += np.sum(e2[calm], axis=0)
         n_calm += int(calm.sum())
         n_all += int(ok.sum())
         w_n = int(round(MOTION_WINDOW_S * fs))
@@ -439,7 +472,7 @@ def fit_motion_noise(traces: Sequence[Trace], cutoff_hz: float, offset_s: float,
             x = np.where(ok[sl].reshape((-1,) + (1,) * (x.ndim - 1)), np.nan_to_num(x[sl]), 0.0)
             return (x.reshape((n_w, w_n) + x.shape[1:]).sum(axis=1).T / np.maximum(cnt, 1)).T[keep]
 
-        ys.append(wmean(e**2))
+        ys.append(wmean(e2))
         feats.append((wmean(a_abs), wmean(w)))
     if not ys or fs is None:
         raise CalibrationError("no IMU error window long enough for the motion-noise fit")
@@ -453,7 +486,7 @@ def fit_motion_noise(traces: Sequence[Trace], cutoff_hz: float, offset_s: float,
         cols = [a_w[:, axis]] + ([w_w] if use_w else [])
         x = np.stack(cols, axis=1)
         if calm_level:
-            c0 = calm_e2[axis] / n_calm
+            c0 = max(calm_e2[axis] / n_calm, 0.0)
             target = y[:, axis] - c0
         else:
             x = np.concatenate([np.ones((x.shape[0], 1)), x], axis=1)
@@ -467,7 +500,8 @@ def fit_motion_noise(traces: Sequence[Trace], cutoff_hz: float, offset_s: float,
     return {"c0_mps2_sq": coef[:, 0], "acc_var_gain_mps2": coef[:, 1],
             "rate_var_gain_mps4_per_radps": coef[:, 2], "n_windows": int(y.shape[0]),
             "window_s": MOTION_WINDOW_S, "rate_term": use_w,
-            "c0_from": "calm samples" if calm_level else "regression intercept", "calm_frac": n_calm / max(n_all, 1)}
+            "c0_from": "calm samples" if calm_level else "regression intercept", "calm_frac": n_calm / max(n_all, 1),
+            "reference_cutoff_hz": reference_cutoff_hz}
 
 
 def _pooled_error_psd(errs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], fs: float, nper: int
@@ -557,14 +591,18 @@ def _fit_offset_and_lever(trs: list[Trace], fc: float, motion_dependent: bool, l
     return offset, offset_diag, lever, lever_diag
 
 
-def _level_motion_noise(trs: list[Trace], errs: list, fc: float, offset: float, motion: dict[str, Any]
-                        ) -> np.ndarray:
+def _level_motion_noise(trs: list[Trace], errs: list, fc: float, offset: float, motion: dict[str, Any],
+                        targets: list[tuple[np.ndarray, np.ndarray]] | None = None) -> np.ndarray:
     """Scale the motion-noise gains of ``motion`` (in place) so that, pooled over the recordings,
-    zero-motion variance plus motion variance equals the error variance; drop an axis's gains when
-    they carry less than 5 % of its variance. Returns the mean motion variance (3,) [m^2 s^-4]."""
+    zero-motion variance plus motion variance equals the error variance (with ``errs`` items
+    ``targets``, per recording the (squared-error target, mask) of :func:`reference_noise_target`: its
+    mean); drop
+    an axis's gains when they carry less than 5 % of its variance. Returns the mean motion variance (3,)
+    [m^2 s^-4]."""
     # mean motion-noise variance over the samples used (per-sample, at the IMU rate)
     num, cnt = np.zeros(3), 0
-    for tr, (_, ok, _) in zip(trs, errs, strict=True):
+    sq = [(e**2, ok) for e, ok, _ in errs] if targets is None else targets
+    for tr, (_, ok) in zip(trs, sq, strict=True):
         a_abs, w = _intensity(tr, fc, offset)
         num += np.sum(a_abs[ok] * motion["acc_var_gain_mps2"][None, :]
                       + w[ok, None] * motion["rate_var_gain_mps4_per_radps"][None, :], axis=0)
@@ -572,7 +610,7 @@ def _level_motion_noise(trs: list[Trace], errs: list, fc: float, offset: float, 
     motion_var = num / max(cnt, 1)  # (3,) [m^2 s^-4]
     # the regression fixes how the power grows; its level is set so that, pooled over the
     # recordings, zero-motion variance plus motion variance equals the error variance
-    pooled = np.sum([np.sum(e[ok] ** 2, axis=0) for e, ok, _ in errs], axis=0) / max(cnt, 1)
+    pooled = np.sum([np.sum(y[ok], axis=0) for y, ok in sq], axis=0) / max(cnt, 1)
     level = np.where(motion_var > 0,
                      np.maximum(pooled - motion["c0_mps2_sq"], 0.0) / np.maximum(motion_var, 1e-300), 0.0)
     motion["acc_var_gain_mps2"] = motion["acc_var_gain_mps2"] * level
@@ -587,6 +625,33 @@ def _level_motion_noise(trs: list[Trace], errs: list, fc: float, offset: float, 
     motion["mean_motion_variance_mps2_sq"] = motion_var.tolist()
     motion["axes_without_motion_term"] = [a for a, w in zip("enu", weak, strict=True) if w]
     return motion_var
+
+
+def calm_white_density(trs: Sequence[Trace], errs: list, fc: float, offset_s: float, band_hz: tuple[float, float]
+                       ) -> tuple[np.ndarray | None, int]:
+    """White-noise density (3,) [m s^-2 Hz^-1/2] of the IMU error over the calm samples only.
+
+    The error (``errs`` items of :func:`imu_error`) band-passed to ``band_hz`` (4th-order zero-phase
+    Butterworth, masked samples zeroed) has, over the calm samples (``CALM_ACC_MPS2``,
+    ``CALM_RATE_RADPS``), the mean square psd x bandwidth of a white floor of one-sided PSD psd, so
+    density = sqrt(mean square / bandwidth / 2). Returns (None, n) with fewer than 10 s of calm samples.
+    """
+    fs = 1.0 / median_step_s(trs[0].imu.t_s)
+    lo, hi = band_hz
+    sos = butter(4, [lo, min(hi, 0.49 * fs)], btype="band", fs=fs, output="sos")
+    acc, n = np.zeros(3), 0
+    for tr, (e, ok, _) in zip(trs, errs, strict=True):  # a handful of recordings, each vectorised
+        a_abs, w = _intensity(tr, fc, offset_s)
+        calm = ok & (np.linalg.norm(a_abs, axis=1) < CALM_ACC_MPS2) & (w < CALM_RATE_RADPS)
+        # keep away from the zeroed (masked) samples: the band-pass rings over a few of its periods
+        near = np.convolve((~ok).astype(float), np.ones(int(0.2 * fs) | 1), mode="same") > 0
+        calm &= ~near
+        x = sosfiltfilt(sos, np.where(ok[:, None], np.nan_to_num(e), 0.0), axis=0)
+        acc += np.sum(x[calm] ** 2, axis=0)
+        n += int(calm.sum())
+    if n < 10.0 * fs:
+        return None, n
+    return np.sqrt(acc / n / (min(hi, 0.49 * fs) - lo) / 2.0), n
 
 
 def _error_spectrum_white_floor(errs: list, fs: float, fc: float, nperseg_s: float) -> tuple:
@@ -698,7 +763,8 @@ def _imu_fit_diagnostics(trs: list[Trace], errs: list, fc: float, fs: float, spe
 
 def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, nperseg_s: float = 20.0,
             defaults: ImuParams | None = None, motion_dependent: bool = True,
-            motion_rate_term: bool = False, lever_arm: bool = False) -> Fit[ImuParams]:
+            motion_rate_term: bool = False, lever_arm: bool = False,
+            reference_cutoff_hz: float | None = None, calm_white_noise: bool = False) -> Fit[ImuParams]:
     """Fit white noise, bias random walk and vibration to the IMU error of traces with IMU and truth.
 
     Parameters
@@ -723,6 +789,18 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
         offset, before the motion noise; needs the truth attitude), kept when it lowers the mean
         squared error by at least 0.5 %; the noise terms are then fitted to the error with its
         lever-arm acceleration removed.
+    reference_cutoff_hz
+        The cut-off of the reference truth the IMU error is judged against, when it is below
+        ``cutoff_hz`` (e.g. 10 Hz against a 14 Hz input): the motion noise (c0, gains, level) is then
+        fitted to what noise added to the ``cutoff_hz`` truth must carry for the error against the
+        reference to come out right (:func:`reference_noise_target`), rather than to the error
+        against the ``cutoff_hz`` truth itself.
+    calm_white_noise
+        With the motion noise, take the white-noise density from the calm samples only
+        (:func:`calm_white_density`, same band): the sensor's own noise. The high-frequency error of the
+        moving phases (ten times the calm level on a fast rotating trial) then belongs to the
+        motion-scaled term, and at zero motion white noise, bias walk and vibration add up to c0
+        instead of the pooled white level alone exceeding it.
 
     Returns
     -------
@@ -738,12 +816,22 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
     offset, offset_diag, lever, lever_diag = _fit_offset_and_lever(trs, fc, motion_dependent, lever_arm)
     motion, motion_var = None, np.zeros(3)
     if motion_dependent:
-        motion = fit_motion_noise(trs, fc, offset, use_rate=motion_rate_term, lever_arm_m=lever)
+        motion = fit_motion_noise(trs, fc, offset, use_rate=motion_rate_term, lever_arm_m=lever,
+                                  reference_cutoff_hz=reference_cutoff_hz)
     errs = [imu_error(t, fc, offset_s=offset, lever_arm_m=lever) for t in trs]
     if motion is not None:
-        motion_var = _level_motion_noise(trs, errs, fc, offset, motion)
+        targets = None if reference_cutoff_hz is None else [
+            reference_noise_target(t, fc, offset, reference_cutoff_hz, lever_arm_m=lever) for t in trs]
+        motion_var = _level_motion_noise(trs, errs, fc, offset, motion, targets)
     spectrum = _error_spectrum_white_floor(errs, fs, fc, nperseg_s)
     nper, f, psd, n_total, n_avg, lo, hi, _, floor, density = spectrum
+    calm_white = None
+    if calm_white_noise and motion is not None:
+        calm_white, n_calm = calm_white_density(trs, errs, fc, offset, (lo, hi))
+        if calm_white is not None:
+            motion["white_noise_density_pooled_mps2_per_sqrt_hz"] = density.tolist()
+            motion["white_noise_from_calm_samples"] = n_calm
+            density = calm_white
     err_std = np.sqrt(np.nanmean(np.concatenate([e[ok] for e, ok, _ in errs]) ** 2, axis=0))
     if motion is not None:  # the vibration must explain what is left at zero motion
         err_std = np.sqrt(np.maximum(np.minimum(err_std**2 - motion_var, motion["c0_mps2_sq"]), 1e-12))
