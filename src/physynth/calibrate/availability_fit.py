@@ -483,72 +483,144 @@ def _chain_of_fit(fit: dict[str, Any], burst_rate_hz: float) -> tuple[float, flo
     return 0.0, 1.0, pd
 
 
-def _anchor_log_odds(seq: AnchorSequence, s: np.ndarray, e: np.ndarray, masked: np.ndarray,
-                     chain: tuple[float, float, float]) -> np.ndarray:
-    """log P(anchor's attempts | dark run k is a tag outage) - log P(... | it is not), for every run k.
+def _run_neighbours(seq: AnchorSequence, s: np.ndarray, e: np.ndarray, masked: np.ndarray) -> dict[str, np.ndarray]:
+    """Where the anchor's run of misses through each dark run [s, e) begins and ends (attempt indices).
 
-    A tag outage makes the anchor's attempts inside it unobserved: the anchor's run of misses through
-    the dark run splits into a trailing run (censored by the tag outage) and a leading run after it
-    (the chain restarts from its stationary state, as after any unobserved stretch). ``masked`` (bursts)
-    marks the dark runs currently attributed to the tag: they bound the anchor's runs of misses.
-    An anchor out of link range during part of run k says nothing about it (0).
+    ``prev`` / ``nxt``: its last / next attempt with a code other than "missed" before / from the run
+    (-1 / n when none), whether those were heard, and ``use``: the anchor is in link range over the
+    whole run and attempted in it (an anchor out of range during part of run k says nothing about it).
+    ``masked`` (bursts) marks the dark runs currently attributed to the tag: they bound the runs.
     """
     burst, code0 = seq.burst, seq.code
     code = np.where(masked[burst], -1, code0)
     ps, pe = np.searchsorted(burst, s), np.searchsorted(burst, e)  # its attempts inside [s, e)
     oor = np.concatenate([[0], np.cumsum(code0 == -1)])
-    use = (pe > ps) & (oor[pe] == oor[ps])
     nz = np.flatnonzero(code != 0)
     n = code.size
     ip = np.searchsorted(nz, ps) - 1
     has_prev = ip >= 0
     prev = np.where(has_prev, nz[np.maximum(ip, 0)] if nz.size else -1, -1)
-    left_heard = has_prev & (code[np.maximum(prev, 0)] == 1)
-    m1 = ps - prev - 1
     inx = np.searchsorted(nz, pe)
     has_next = inx < nz.size
     nxt = np.where(has_next, nz[np.minimum(inx, nz.size - 1)] if nz.size else n, n)
-    right_heard = has_next & (code[np.minimum(nxt, n - 1)] == 1)
-    m2 = nxt - pe
-    m0 = m1 + (pe - ps) + m2
+    return {"ps": ps, "pe": pe, "prev": prev, "nxt": nxt, "use": (pe > ps) & (oor[pe] == oor[ps]),
+            "left_heard": has_prev & (code[np.maximum(prev, 0)] == 1),
+            "right_heard": has_next & (code[np.minimum(nxt, n - 1)] == 1)}
+
+
+def _split_logp(chain: tuple[float, float, float], heard: np.ndarray, m: np.ndarray, side: str) -> np.ndarray:
+    """Log-probability of the piece of an anchor's run of misses on one side of a tag outage: m misses
+    after a heard attempt (or the block start) up to the outage (``left``), or from the outage's end to
+    a heard attempt (or the block end) (``right``)."""
     al, be, pd = chain
-    out = np.zeros(s.size)
-    for lh in (False, True):  # the four kinds of the run through the dark run, and its two pieces
-        for rh in (False, True):
-            sel = use & (left_heard == lh) & (right_heard == rh)
-            if not sel.any():
-                continue
-            kind0 = {(True, True): "internal", (True, False): "trailing", (False, True): "leading",
-                     (False, False): "full"}[(lh, rh)]
-            ll0 = _run_logp(al, be, pd, kind0, m0[sel])
-            ll1 = (_run_logp(al, be, pd, "trailing" if lh else "full", m1[sel])
-                   + _run_logp(al, be, pd, "leading" if rh else "full", m2[sel]))
-            out[sel] = ll1 - ll0
+    cut = "trailing" if side == "left" else "leading"
+    return np.where(heard, _run_logp(al, be, pd, cut, m), _run_logp(al, be, pd, "full", m))
+
+
+def _whole_logp(chain: tuple[float, float, float], lh: np.ndarray, rh: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """Log-probability of an anchor's whole run of m misses through a dark run (no tag outage)."""
+    al, be, pd = chain
+    out = np.zeros(m.shape)
+    for lft in (False, True):  # the four kinds of run
+        for rgt in (False, True):
+            sel = (lh == lft) & (rh == rgt)
+            if sel.any():
+                kind = {(True, True): "internal", (True, False): "trailing", (False, True): "leading",
+                        (False, False): "full"}[(lft, rgt)]
+                out[sel] = _run_logp(al, be, pd, kind, m[sel])
     return out
+
+
+def _tag_log_odds_parts(p: np.ndarray, q: np.ndarray, n_bursts: int, alpha: float, beta: float
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """The tag chain's log-odds of "off exactly over [p, q), up around it" against "up throughout",
+    split as T_p(p) + T_q(q) (it depends on the outage's length only linearly)."""
+    lo_a, lo_1a = np.log(max(alpha, 1e-300)), np.log1p(-min(alpha, 1 - 1e-12))
+    lo_b, lo_1b = np.log(max(beta, 1e-300)), np.log1p(-min(beta, 1 - 1e-12))
+    pi_off = alpha / (alpha + beta)
+    d = lo_1b - lo_1a
+    at0 = p == 0
+    t_p = (np.where(at0, np.log(max(pi_off, 1e-300)) + lo_1a - np.log1p(-min(pi_off, 1 - 1e-12)), lo_a)
+           - p * d - lo_1b - lo_1a)
+    t_q = np.where(q < n_bursts, lo_b, lo_1a) + q * d
+    return t_p, t_q
 
 
 def _tag_log_odds(s: np.ndarray, e: np.ndarray, n_bursts: int, alpha: float, beta: float) -> np.ndarray:
     """log P(tag off exactly over [s, e), up around it) - log P(tag up throughout), per burst-grid run."""
-    length = e - s
-    lo_a, lo_1a = np.log(max(alpha, 1e-300)), np.log1p(-min(alpha, 1 - 1e-12))
-    lo_b, lo_1b = np.log(max(beta, 1e-300)), np.log1p(-min(beta, 1 - 1e-12))
-    pi_off = alpha / (alpha + beta)
-    left1 = np.where(s > 0, lo_a, np.log(max(pi_off, 1e-300)))
-    right1 = np.where(e < n_bursts, lo_b, 0.0)
-    ll1 = left1 + (length - 1) * lo_1b + right1
-    n_trans = length + 1 - (s == 0) - (e == n_bursts)
-    ll0 = n_trans * lo_1a + np.where(s > 0, 0.0, np.log1p(-min(pi_off, 1 - 1e-12)))
-    return ll1 - ll0
+    t_p, t_q = _tag_log_odds_parts(s, e, n_bursts, alpha, beta)
+    return t_p + t_q
+
+
+def _boundary_positions(s: np.ndarray, e: np.ndarray, min_len: int) -> tuple[np.ndarray, ...]:
+    """Every possible start p in [s_k, e_k - min_len] and end q in [s_k + min_len, e_k] of a tag outage
+    inside each dark run k: (p, run of p, q, run of q), flat over the runs."""
+    n_pos = np.maximum(e - s - min_len + 1, 0)
+    run = np.repeat(np.arange(s.size), n_pos)
+    off = np.arange(run.size) - np.repeat(np.cumsum(n_pos) - n_pos, n_pos)
+    return s[run] + off, run, s[run] + min_len + off, run
+
+
+def _anchor_boundary_terms(seq: AnchorSequence, s: np.ndarray, e: np.ndarray, masked: np.ndarray,
+                           chain: tuple[float, float, float], pos: tuple[np.ndarray, ...]
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One anchor's log-likelihood terms of a tag outage over [p, q) inside each dark run [s, e).
+
+    Its attempts in [p, q) are unobserved; its misses from the dark run's start to p end a trailing
+    piece, those from q to the run's end begin a leading one: f(p) + g(q). Returns (f at every start of
+    ``pos``, g at every end, the log-probability of the whole run without tag outage), zero where the
+    anchor says nothing about the run.
+    """
+    nb = _run_neighbours(seq, s, e, masked)
+    p, rp, q, rq = pos
+    m1 = np.searchsorted(seq.burst, p) - nb["prev"][rp] - 1
+    m2 = nb["nxt"][rq] - np.searchsorted(seq.burst, q)
+    m0 = nb["nxt"] - nb["prev"] - 1
+    use = nb["use"]
+    f = np.where(use[rp], _split_logp(chain, nb["left_heard"][rp], m1, "left"), 0.0)
+    g = np.where(use[rq], _split_logp(chain, nb["right_heard"][rq], m2, "right"), 0.0)
+    whole = np.where(use, _whole_logp(chain, nb["left_heard"], nb["right_heard"], m0), 0.0)
+    return f, g, whole
+
+
+def _tag_posterior(s: np.ndarray, e: np.ndarray, n_bursts: int, f: np.ndarray, g: np.ndarray, whole: np.ndarray,
+                   pos: tuple[np.ndarray, ...], tag_chain: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Log-odds that each dark run holds a tag outage, and the outage's expected length [bursts] if so.
+
+    The outage may begin after the run's start and end before its end (the anchors' own outages and
+    dropouts then fill the edges: the run is longer than the tag outage). Summed over every [p, q)
+    with q - p >= the minimum length: the terms separate as A(p) + B(q), so the sum over p <= q - min
+    is a running log-sum (one pass per run, over its bursts).
+    """
+    p, rp, q, rq = pos
+    t_p, t_q = _tag_log_odds_parts(p, q, n_bursts, *tag_chain)
+    a_all, b_all = f + t_p, g + t_q
+    odds, length = np.full(s.size, -np.inf), (e - s).astype(float)
+    bounds = np.searchsorted(rp, np.arange(s.size + 1))  # rp and rq share the same run blocks
+    for k in np.flatnonzero(np.diff(bounds) > 0):  # one pass per dark run, vectorised over its bursts
+        sl = slice(bounds[k], bounds[k + 1])
+        a, b = a_all[sl], b_all[sl]  # start j pairs with ends j' >= j (q - p >= min_len)
+        pre = np.logaddexp.accumulate(a)  # log sum of exp(a) over starts up to j
+        suf = np.logaddexp.accumulate(b[::-1])[::-1]  # log sum of exp(b) over ends from j
+        z = float(np.logaddexp.reduce(b + pre))
+        e_q = float(np.sum(q[sl] * np.exp(b + pre - z)))
+        e_p = float(np.sum(p[sl] * np.exp(a + suf - z)))
+        odds[k] = z - float(whole[k])
+        length[k] = e_q - e_p
+    return odds, length
 
 
 def _tag_m_step(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarray, ...]], w: list[np.ndarray],
-                period: float) -> dict[str, Any]:
+                period: float, lengths: list[np.ndarray] | None = None) -> dict[str, Any]:
     """Exponential tag outages seen only above TAG_OUTAGE_MIN_S: onset rate and mean of the dark runs.
 
-    ``w`` weights each dark run by the probability that it is a tag outage (0 or 1 for a hard split).
+    ``w`` weights each dark run by the probability that it is a tag outage (0 or 1 for a hard split);
+    ``lengths`` (bursts, per dark run) are the tag outages' expected lengths inside the runs (the E-step's),
+    else the runs' own lengths.
     """
     d_min = TAG_OUTAGE_MIN_S
-    dur = np.concatenate([(e - s) * period for s, e, _ in dark])
+    dur = (np.concatenate(lengths) * period if lengths is not None
+           else np.concatenate([(e - s) * period for s, e, _ in dark]))
     cens = np.concatenate([c for _, _, c in dark])
     wt = np.concatenate(w).astype(float)
     hard = wt > 0.5
@@ -581,6 +653,35 @@ def _masks(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarray, ...]],
     return masks
 
 
+def _tag_e_step(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarray, ...]], cand: list[np.ndarray],
+                pos: list[tuple[np.ndarray, ...]], seqs: Sequence[AnchorSequence], masks: list[np.ndarray],
+                chains: dict[str, tuple[float, float, float]], tag_chain: tuple[float, float]
+                ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Per trace, every dark run's log-odds of holding a tag outage (-inf for runs shorter than the
+    minimum) and the tag outage's expected length in bursts (the run's own length where not a candidate)."""
+    n_pos = [p[0].size for p in pos]
+    f = [np.zeros(n) for n in n_pos]
+    g = [np.zeros(n) for n in n_pos]
+    whole = [np.zeros(int(c.sum())) for c in cand]
+    for sq in seqs:  # one pass per anchor and trace
+        s, e, _ = dark[sq.trace]
+        c = cand[sq.trace]
+        if not c.any():
+            continue
+        fa, ga, wa = _anchor_boundary_terms(sq, s[c], e[c], masks[sq.trace], chains[sq.anchor_id], pos[sq.trace])
+        f[sq.trace] += fa
+        g[sq.trace] += ga
+        whole[sq.trace] += wa
+    odds, lengths = [], []
+    for i, (tab, (s, e, _), c) in enumerate(zip(tabs, dark, cand, strict=True)):
+        o, ln = np.full(s.size, -np.inf), (e - s).astype(float)
+        if c.any():
+            o[c], ln[c] = _tag_posterior(s[c], e[c], tab.t_s.size, f[i], g[i], whole[i], pos[i], tag_chain)
+        odds.append(o)
+        lengths.append(ln)
+    return odds, lengths
+
+
 TAG_EM_MAX_ITER = 30
 """EM iterations of the tag attribution (it stops when no attribution and no tag parameter changes)."""
 TAG_EM_RTOL = 1e-3
@@ -611,6 +712,8 @@ def fit_tag_outages(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarra
     period = 1.0 / burst_rate_hz
     d_min_bursts = TAG_OUTAGE_MIN_S * burst_rate_hz - 1e-9
     cand = [(e - s) >= d_min_bursts for s, e, _ in dark]
+    pos = [_boundary_positions(s[c], e[c], int(np.ceil(d_min_bursts))) for (s, e, _), c in zip(dark, cand, strict=True)]
+    lengths: list[np.ndarray] | None = None
     no_ex = [np.zeros(t.t_s.size, dtype=bool) for t in tabs]
     n_cand = int(sum(c.sum() for c in cand))
     ll_indep = float(sum(f.get("log_likelihood", 0.0) for f in fits.values()))
@@ -633,7 +736,7 @@ def fit_tag_outages(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarra
             else:
                 stats_t, cur_fits = None, fits
             z_fitted = [zz.copy() for zz in z]
-        tag = _tag_m_step(tabs, dark, w, period)
+        tag = _tag_m_step(tabs, dark, w, period, lengths)
         history.append(round(tag["events"], 2))
         if not tag["onset_prob"]:
             break
@@ -642,12 +745,9 @@ def fit_tag_outages(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarra
             break
         prev = par
         al_t, be_t = _from_rates(tag["onset_prob"] * burst_rate_hz, tag["mean_s"], period)
-        # E-step
-        chains = {a: _chain_of_fit(f, burst_rate_hz) for a, f in cur_fits.items()}
-        odds = [_tag_log_odds(s, e, tab.t_s.size, al_t, be_t) for tab, (s, e, _) in zip(tabs, dark, strict=True)]
-        for sq in seqs:  # one pass per anchor and trace
-            s, e, _ = dark[sq.trace]
-            odds[sq.trace] += _anchor_log_odds(sq, s, e, masks[sq.trace], chains[sq.anchor_id])
+        # E-step: over where in each dark run the tag outage begins and ends
+        odds, lengths = _tag_e_step(tabs, dark, cand, pos, seqs, masks,
+                                    {a: _chain_of_fit(f, burst_rate_hz) for a, f in cur_fits.items()}, (al_t, be_t))
         w = [np.where(c, expit(o), 0.0) for o, c in zip(odds, cand, strict=True)]
         z = [ww > 0.5 for ww in w]
     n_tag = int(sum(zz.sum() for zz in z_fitted or z))
