@@ -69,6 +69,28 @@ def test_switch_counts_doubles_until_the_span_is_covered():
     np.testing.assert_array_equal(k, np.floor(t).astype(int))  # one switch per second, at whole seconds
 
 
+
+def test_switch_counts_are_searchsorted_counts():
+    """The counts placed by switch (sorted times) equal numpy.searchsorted(switches, t, "right") exactly,
+    with ties, times outside the switches, unsorted times and NaN (which take the plain search)."""
+    from physynth.models.renewal import _count_at_or_before
+
+    rng = np.random.default_rng(3)
+    for trial in range(300):
+        switches = np.cumsum(rng.exponential(1.0, int(rng.integers(1, 40))))
+        t = np.sort(rng.uniform(-2.0, switches[-1] + 2.0, int(rng.integers(1, 200))))
+        t[rng.integers(0, t.size, 3)] = rng.choice(switches, 3)  # ties with switch times
+        t = np.sort(t)
+        if trial % 5 == 1:
+            rng.shuffle(t)
+        if trial % 7 == 2:
+            t[rng.integers(0, t.size)] = np.nan
+        got = _count_at_or_before(switches, t)
+        want = np.searchsorted(switches, t, side="right")
+        assert got.dtype == want.dtype
+        np.testing.assert_array_equal(got, want)
+
+
 def test_bad_parameters_are_refused():
     with pytest.raises(ValueError):
         AvailabilityParams(dropout_prob=1.5)

@@ -193,7 +193,8 @@ def alternating_renewal(t_s: np.ndarray, mean_on_s: float, mean_off_s: float, *,
         return rng.exponential(1.0, (n, 2)) * means, None
 
     k, _ = switch_counts(t_s, draw, initial_pairs(float(t_s[-1] - t_s[0]), mean_on_s + mean_off_s))
-    return (k % 2 == 0) == on
+    odd = (k & 1).astype(bool)  # k >= 0: k & 1 is k % 2
+    return ~odd if on else odd
 
 
 def outage_mask(t_s: np.ndarray, onset_prob_per_burst: float, burst_rate_hz: float, outage_mean_s: float,

@@ -465,8 +465,9 @@ def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_
         return np.stack([on, off] if start_on else [off, on], axis=1), modes
 
     k, modes = switch_counts(t_s, draw, initial_pairs(float(t_s[-1] - t_s[0]), mean_on + mean_off))
-    nlos = (k % 2 == 0) == start_on
-    pair = np.minimum(k // 2, modes.size - 1)
+    odd = (k & 1).astype(bool)  # k >= 0: k & 1 is k % 2 and k >> 1 is k // 2
+    nlos = ~odd if start_on else odd
+    pair = np.minimum(k >> 1, modes.size - 1)
     return nlos, np.where(nlos, modes[pair], -1), np.where(nlos, pair, -1)
 
 
