@@ -91,6 +91,21 @@ def test_switch_counts_are_searchsorted_counts():
         np.testing.assert_array_equal(got, want)
 
 
+
+def test_rows_by_label_are_flatnonzero_rows():
+    from physynth.models.renewal import rows_by_label
+
+    rng = np.random.default_rng(4)
+    cases = [rng.integers(0, 6, 500), np.zeros(0, np.int64), np.array([3, 3, 1]), rng.integers(-1, 4, 50),
+             rng.integers(0, 300, 2000).astype(np.int16), np.array([0, 7])]
+    for labels in cases:
+        for n in (1, 4, 6, 300):
+            got = rows_by_label(labels, n)
+            assert len(got) == n
+            for i, rows in enumerate(got):
+                np.testing.assert_array_equal(rows, np.flatnonzero(labels == i))
+
+
 def test_bad_parameters_are_refused():
     with pytest.raises(ValueError):
         AvailabilityParams(dropout_prob=1.5)

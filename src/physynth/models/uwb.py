@@ -39,7 +39,7 @@ from ..records import Reason, Uwb
 from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Probability, Vec3
 from .motion import Kinematics
 from .obstacles import Obstacle, TerrainGrid, obstacle_losses
-from .renewal import initial_pairs, switch_counts
+from .renewal import initial_pairs, rows_by_label, switch_counts
 
 
 class NlosMode(ParamsModel):
@@ -484,9 +484,8 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
     mode = np.full(t_s.shape[0], -1, dtype=np.int64)
     episode = np.full(t_s.shape[0], -1, dtype=np.int64)
     base = 0
-    for i in range(ch.nlos_prob.shape[0]):  # one renewal process per anchor
+    for i, rows in enumerate(rows_by_label(anchor, ch.nlos_prob.shape[0])):  # one renewal process per anchor
         p = ch.nlos_prob[i]
-        rows = np.flatnonzero(anchor == i)
         if rows.size == 0 or p <= 0:
             continue
         weights = np.diff(np.concatenate([[0.0], ch.mode_cumw[i]]))
