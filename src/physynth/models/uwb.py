@@ -455,14 +455,19 @@ def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_
     mean_off = mean_on * (1.0 - nlos_prob) / nlos_prob
     start_on = bool(rng.random() < nlos_prob)
     cum_q = np.cumsum(q)
+    fixed = fixed_dwell if fixed_dwell is not None and fixed_dwell.any() else None  # None: no mode is fixed
+    col_on = 0 if start_on else 1
 
     def draw(n: int) -> tuple[np.ndarray, np.ndarray]:
         modes = np.minimum(np.searchsorted(cum_q, rng.random(n), side="right"), q.size - 1)
-        on = rng.exponential(1.0, n) * dwell_s[modes]
-        if fixed_dwell is not None:
-            on = np.where(fixed_dwell[modes], dwell_s[modes], on)
-        off = rng.exponential(mean_off, n)
-        return np.stack([on, off] if start_on else [off, on], axis=1), modes
+        pairs = np.empty((n, 2))  # (on, off) or (off, on): the state the process starts in first
+        on = rng.exponential(1.0, n)
+        on *= dwell_s[modes]
+        if fixed is not None:
+            on = np.where(fixed[modes], dwell_s[modes], on)
+        pairs[:, col_on] = on
+        pairs[:, 1 - col_on] = rng.exponential(mean_off, n)
+        return pairs, modes
 
     k, modes = switch_counts(t_s, draw, initial_pairs(float(t_s[-1] - t_s[0]), mean_on + mean_off))
     odd = (k & 1).astype(bool)  # k >= 0: k & 1 is k % 2 and k >> 1 is k // 2
@@ -484,11 +489,12 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
     mode = np.full(t_s.shape[0], -1, dtype=np.int64)
     episode = np.full(t_s.shape[0], -1, dtype=np.int64)
     base = 0
+    weights_of = np.diff(ch.mode_cumw, axis=1, prepend=0.0)  # mode weights of every anchor
     for i, rows in enumerate(rows_by_label(anchor, ch.nlos_prob.shape[0])):  # one renewal process per anchor
         p = ch.nlos_prob[i]
         if rows.size == 0 or p <= 0:
             continue
-        weights = np.diff(np.concatenate([[0.0], ch.mode_cumw[i]]))
+        weights = weights_of[i]
         if p >= 1:
             nlos[rows] = True
             continue
