@@ -69,6 +69,43 @@ def test_switch_counts_doubles_until_the_span_is_covered():
     np.testing.assert_array_equal(k, np.floor(t).astype(int))  # one switch per second, at whole seconds
 
 
+
+def test_switch_counts_are_searchsorted_counts():
+    """The counts placed by switch (sorted times) equal numpy.searchsorted(switches, t, "right") exactly,
+    with ties, times outside the switches, unsorted times and NaN (which take the plain search)."""
+    from physynth.models.renewal import _count_at_or_before
+
+    rng = np.random.default_rng(3)
+    for trial in range(300):
+        switches = np.cumsum(rng.exponential(1.0, int(rng.integers(1, 40))))
+        t = np.sort(rng.uniform(-2.0, switches[-1] + 2.0, int(rng.integers(1, 200))))
+        t[rng.integers(0, t.size, 3)] = rng.choice(switches, 3)  # ties with switch times
+        t = np.sort(t)
+        if trial % 5 == 1:
+            rng.shuffle(t)
+        if trial % 7 == 2:
+            t[rng.integers(0, t.size)] = np.nan
+        got = _count_at_or_before(switches, t)
+        want = np.searchsorted(switches, t, side="right")
+        assert got.dtype == want.dtype
+        np.testing.assert_array_equal(got, want)
+
+
+
+def test_rows_by_label_are_flatnonzero_rows():
+    from physynth.models.renewal import rows_by_label
+
+    rng = np.random.default_rng(4)
+    cases = [rng.integers(0, 6, 500), np.zeros(0, np.int64), np.array([3, 3, 1]), rng.integers(-1, 4, 50),
+             rng.integers(0, 300, 2000).astype(np.int16), np.array([0, 7])]
+    for labels in cases:
+        for n in (1, 4, 6, 300):
+            got = rows_by_label(labels, n)
+            assert len(got) == n
+            for i, rows in enumerate(got):
+                np.testing.assert_array_equal(rows, np.flatnonzero(labels == i))
+
+
 def test_bad_parameters_are_refused():
     with pytest.raises(ValueError):
         AvailabilityParams(dropout_prob=1.5)

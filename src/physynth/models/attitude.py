@@ -86,7 +86,9 @@ def heading_rad(vel_enu_mps: np.ndarray, min_speed_mps: float) -> np.ndarray:
     idx = np.where(moving, np.arange(v.shape[0]), -1)
     idx = np.maximum.accumulate(idx)  # last moving sample at or before each sample
     idx[idx < 0] = int(np.argmax(moving))
-    return _unwrap(np.arctan2(v[idx, 1], v[idx, 0]))
+    # arctan2 of every sample, then one 1-D gather: the same count of arctan2 as of the gathered samples
+    # (idx has one per sample) and the same values (elementwise), without two strided 2-D gathers
+    return _unwrap(np.arctan2(v[:, 1], v[:, 0])[idx])
 
 
 def _unwrap(p: np.ndarray) -> np.ndarray:

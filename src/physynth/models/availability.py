@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Probability
-from .renewal import initial_pairs, switch_counts
+from .renewal import initial_pairs, rows_by_label, switch_counts
 
 RATE_PRIOR_SHAPE = 0.5
 """Shape of the Gamma prior on an event rate: Jeffreys' prior for a Poisson rate (with no prior
@@ -193,7 +193,8 @@ def alternating_renewal(t_s: np.ndarray, mean_on_s: float, mean_off_s: float, *,
         return rng.exponential(1.0, (n, 2)) * means, None
 
     k, _ = switch_counts(t_s, draw, initial_pairs(float(t_s[-1] - t_s[0]), mean_on_s + mean_off_s))
-    return (k % 2 == 0) == on
+    odd = (k & 1).astype(bool)  # k >= 0: k & 1 is k % 2
+    return ~odd if on else odd
 
 
 def outage_mask(t_s: np.ndarray, onset_prob_per_burst: float, burst_rate_hz: float, outage_mean_s: float,
@@ -250,8 +251,8 @@ def simulate_availability(t_s: np.ndarray, anchor: np.ndarray, burst: np.ndarray
     """
     av = draw_trace_rates(av, rng=rng)
     outage = np.zeros(t_s.shape[0], dtype=bool)
-    for i in range(av.dropout_prob.shape[0]):  # one outage process per anchor
-        rows = np.flatnonzero(anchor == i)
+    rows_of = rows_by_label(anchor, av.dropout_prob.shape[0])
+    for i, rows in enumerate(rows_of):  # one outage process per anchor
         outage[rows] = outage_mask(t_s[rows], av.outage_onset_prob[i], burst_rate_hz, av.outage_mean_s[i],
                                    start_stationary=av.start_stationary, rng=rng)
     if av.tag_outage_onset_prob > 0:  # one process for the tag, applied to every anchor of a burst
@@ -265,8 +266,7 @@ def simulate_availability(t_s: np.ndarray, anchor: np.ndarray, burst: np.ndarray
         n_a, k = av.dropout_prob.shape[0], av.long_outage_frailty_shape
         frailty = rng.gamma(k, 1.0 / k, n_a) if np.isfinite(k) else np.ones(n_a)
         rate, *rest = av.long_outage
-        for i in range(n_a):
-            rows = np.flatnonzero(anchor == i)
+        for i, rows in enumerate(rows_of):
             outage[rows] |= long_outage_mask(t_s[rows], range_m[rows], rate * frailty[i], *rest,
                                              start_stationary=av.start_stationary, rng=rng)
     return outage, dropped

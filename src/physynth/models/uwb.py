@@ -39,7 +39,7 @@ from ..records import Reason, Uwb
 from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Probability, Vec3
 from .motion import Kinematics
 from .obstacles import Obstacle, TerrainGrid, obstacle_losses
-from .renewal import initial_pairs, switch_counts
+from .renewal import initial_pairs, rows_by_label, switch_counts
 
 
 class NlosMode(ParamsModel):
@@ -455,18 +455,24 @@ def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_
     mean_off = mean_on * (1.0 - nlos_prob) / nlos_prob
     start_on = bool(rng.random() < nlos_prob)
     cum_q = np.cumsum(q)
+    fixed = fixed_dwell if fixed_dwell is not None and fixed_dwell.any() else None  # None: no mode is fixed
+    col_on = 0 if start_on else 1
 
     def draw(n: int) -> tuple[np.ndarray, np.ndarray]:
         modes = np.minimum(np.searchsorted(cum_q, rng.random(n), side="right"), q.size - 1)
-        on = rng.exponential(1.0, n) * dwell_s[modes]
-        if fixed_dwell is not None:
-            on = np.where(fixed_dwell[modes], dwell_s[modes], on)
-        off = rng.exponential(mean_off, n)
-        return np.stack([on, off] if start_on else [off, on], axis=1), modes
+        pairs = np.empty((n, 2))  # (on, off) or (off, on): the state the process starts in first
+        on = rng.exponential(1.0, n)
+        on *= dwell_s[modes]
+        if fixed is not None:
+            on = np.where(fixed[modes], dwell_s[modes], on)
+        pairs[:, col_on] = on
+        pairs[:, 1 - col_on] = rng.exponential(mean_off, n)
+        return pairs, modes
 
     k, modes = switch_counts(t_s, draw, initial_pairs(float(t_s[-1] - t_s[0]), mean_on + mean_off))
-    nlos = (k % 2 == 0) == start_on
-    pair = np.minimum(k // 2, modes.size - 1)
+    odd = (k & 1).astype(bool)  # k >= 0: k & 1 is k % 2 and k >> 1 is k // 2
+    nlos = ~odd if start_on else odd
+    pair = np.minimum(k >> 1, modes.size - 1)
     return nlos, np.where(nlos, modes[pair], -1), np.where(nlos, pair, -1)
 
 
@@ -483,12 +489,12 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
     mode = np.full(t_s.shape[0], -1, dtype=np.int64)
     episode = np.full(t_s.shape[0], -1, dtype=np.int64)
     base = 0
-    for i in range(ch.nlos_prob.shape[0]):  # one renewal process per anchor
+    weights_of = np.diff(ch.mode_cumw, axis=1, prepend=0.0)  # mode weights of every anchor
+    for i, rows in enumerate(rows_by_label(anchor, ch.nlos_prob.shape[0])):  # one renewal process per anchor
         p = ch.nlos_prob[i]
-        rows = np.flatnonzero(anchor == i)
         if rows.size == 0 or p <= 0:
             continue
-        weights = np.diff(np.concatenate([[0.0], ch.mode_cumw[i]]))
+        weights = weights_of[i]
         if p >= 1:
             nlos[rows] = True
             continue
@@ -541,7 +547,9 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
     bursts = burst_times(float(kin.t_s[0]), t_end, u.burst_rate_hz, u.burst_jitter_s,
                          n_anchors * u.slot_s + 1e-4, rng=rng, phase_s=phase)
     scheduled = rng.random((bursts.shape[0], n_anchors)) < ch.attempt_prob
-    b_idx, anchor = np.nonzero(scheduled)  # row-major: sorted by burst, then anchor slot
+    # row-major: sorted by burst, then anchor slot (np.nonzero's indices; flat indices and divmod are
+    # ~2.5x faster than its 2-D multi-index iteration)
+    b_idx, anchor = np.divmod(np.flatnonzero(scheduled), n_anchors)
     t_true = bursts[b_idx] + anchor * u.slot_s
     sq = np.zeros(t_true.shape[0])
     for k in range(3):  # |p(t) - a_i|, one ENU component at a time (contiguous, no (N, 3) temporaries)
