@@ -698,11 +698,13 @@ def fit_tag_outages(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarra
     Model: every anchor alternates up/outage on its own (the per-anchor chain of
     :func:`fit_dropout_outage`); a tag process of the same kind, on the burst grid, silences every
     anchor while it lasts. A *dark run* (no anchor heard, >= TAG_OUTAGE_MIN_S) is either a tag outage
-    or an overlap of per-anchor outages. E-step: for each dark run the log-odds of the two, the tag
-    chain's term (off exactly over the run vs up throughout) plus, per anchor in link range over the
-    run, the exact likelihood of its run of misses through the dark run whole (no tag outage) or cut
-    by it (tag outage); its posterior probability of being a tag outage is expit(log-odds). M-step:
-    tag onset and mean from the dark runs weighted by that probability (left-truncated at
+    or holds a tag outage of at least TAG_OUTAGE_MIN_S, over the whole run or part of it (the anchors'
+    own outages filling the edges). E-step: for each dark run the log-odds of the two, summed over every
+    placement [p, q) of the tag outage in the run: the tag chain's term (off exactly over [p, q) vs up
+    throughout) plus, per anchor in link range over the run, the exact likelihood of its run of misses
+    through the dark run whole (no tag outage) or cut by [p, q); its posterior probability of holding a
+    tag outage is expit(log-odds), with the outage's expected length. M-step: tag onset and mean from
+    the dark runs weighted by that probability, of those expected lengths (left-truncated at
     TAG_OUTAGE_MIN_S); per-anchor fits with the runs of probability > 0.5 unobserved (``refit``, only
     when that set changes). Starts from every dark run attributed to the tag. The tag process is kept
     when the classification likelihood (tag chain plus per-anchor fits, runs split at 0.5) beats the
