@@ -622,22 +622,29 @@ def _tag_m_step(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarray, .
     dur = (np.concatenate(lengths) * period if lengths is not None
            else np.concatenate([(e - s) * period for s, e, _ in dark]))
     cens = np.concatenate([c for _, _, c in dark])
+    # an outage under way when the trace begins has no onset in it, but its end is seen (the exponential
+    # forgets: what is left of it is exponential with the same mean); one still under way at the end
+    # has an onset and no end
+    started = np.concatenate([s > 0 for s, _, _ in dark])
+    ended = np.concatenate([e < t.t_s.size for (_, e, _), t in zip(dark, tabs, strict=True)])
     wt = np.concatenate(w).astype(float)
     hard = wt > 0.5
+    onsets = float(np.sum(wt[started]))
     up_bursts = float(sum(t.t_s.size for t in tabs) - np.sum(wt * dur / period))
     out: dict[str, Any] = {"min_duration_s": d_min, "n_outages": int((hard & ~cens).sum()),
-                           "n_censored": int((hard & cens).sum()), "events": float(wt.sum()),
+                           "n_censored": int((hard & cens).sum()), "events": onsets,
                            "up_bursts": up_bursts, "effective_up_bursts": up_bursts,
                            "durations_s": dur[hard & ~cens].tolist(), "censored_s": dur[hard & cens].tolist()}
     if wt.sum() < 0.5:
         out["onset_prob"] = 0.0
         return out
-    # exponential durations seen only above d_min: the excess D - d_min is exponential with the same mean,
-    # and only a share exp(-d_min / mean) of the outages is long enough to be attributed
-    mean_s = max(float(np.sum(wt * (dur - d_min).clip(0))) / max(float(np.sum(wt[~cens])), 0.5), period)
+    # exponential durations seen only above d_min: the excess D - d_min is exponential with the same mean
+    # (every attributed stretch counts as exposure, every seen end as an event), and only a share
+    # exp(-d_min / mean) of the outages is long enough to be attributed
+    mean_s = max(float(np.sum(wt * (dur - d_min).clip(0))) / max(float(np.sum(wt[ended])), 0.5), period)
     seen = float(np.exp(-d_min / mean_s))
     out.update(mean_s=mean_s, effective_up_bursts=up_bursts * seen,
-               onset_prob=float(wt.sum() / max(up_bursts * seen, 1)))
+               onset_prob=float(onsets / max(up_bursts * seen, 1)))
     return out
 
 
