@@ -42,6 +42,8 @@ def main() -> None:
     ap.add_argument("--calib-seeds", type=int, default=0,
                     help="also calibrate on K independent datasets (root seeds 101..) and average their deviations")
     args = ap.parse_args()
+    if args.calib_seeds == 1 or args.calib_seeds < 0:
+        ap.error("--calib-seeds needs 0 (off) or at least 2 calibrations (a standard error needs two)")
     cs = compile_scenario(load_scenario(args.preset))
     t0 = time.perf_counter()
     seeds = range(11, 11 + max(args.spread_seeds, 2, args.bias_seeds + 1))
@@ -53,7 +55,7 @@ def main() -> None:
              for seed in (bias_seeds or [12])}
     print(f"{args.preset}: {args.n} traces; calibrated on seed 11, compared at seed 12; seed spread over "
           f"{args.spread_seeds} root seeds ({time.perf_counter() - t0:.0f} s)")
-    calib_devs = calibration_deviations(cs, args.n, args.calib_seeds) if args.calib_seeds else {}
+    calib_devs = calibration_deviations(cs, args.n, args.calib_seeds, per_seed) if args.calib_seeds else {}
     head = "| metric | preset | recalibrated | dev. % | seed-to-seed rel. std % |"
     if bias_seeds:
         head += f" mean dev. over seeds 12-{bias_seeds[-1]} % | its s.e. % |"
@@ -76,16 +78,17 @@ def main() -> None:
         print(line)
 
 
-def calibration_deviations(cs, n: int, k: int) -> dict[str, list[float]]:
+def calibration_deviations(cs, n: int, k: int, preset_metrics: dict) -> dict[str, list[float]]:
     """Relative deviations [%] of every metric of K recalibrations, each on its own dataset (root seeds
     101 .. 100 + K) and generated at seed 12 + j, against the preset generated at the same seed: their
-    spread holds the calibration data's own sampling noise, which one calibration seed cannot show."""
+    spread holds the calibration data's own sampling noise, which one calibration seed cannot show.
+    ``preset_metrics``: the preset's metrics by root seed already computed (reused, not generated again)."""
     devs: dict[str, list[float]] = {key: [] for key in KEYS}
     for j in range(k):
         rec = calibrate([generate_trace(cs, i, 101 + j) for i in range(n)], name=f"recovered-{101 + j}").scenario
         again = compile_scenario(rec)
         m_rec = compute_metrics([generate_trace(again, i, 12 + j) for i in range(n)])
-        m_pre = compute_metrics([generate_trace(cs, i, 12 + j) for i in range(n)])
+        m_pre = preset_metrics.get(12 + j) or compute_metrics([generate_trace(cs, i, 12 + j) for i in range(n)])
         for key in KEYS:
             a, b = getattr(m_pre, key), getattr(m_rec, key)
             devs[key].append(100.0 * (b - a) / abs(a))
