@@ -36,6 +36,9 @@ def test_calibrate_and_validate_imu_only_datasets(tmp_path, capsys):
     scn = load_scenario(tmp_path / "s.yaml")
     assert scn.anchors == [] and scn.imu_frames == ["enu-gravity-free", "body-flu"]
     assert 0.0015 < scn.imu.time_offset_s < 0.0035  # the IMU lags the optical truth (~2.5 ms)
+    assert 11.0 <= scn.imu.truth_cutoff_hz <= 16.0  # the band where the optical truth follows the IMU
+    assert 5e-3 < scn.imu.lever_arm_m[2] < 16e-3  # the sensor ~1 cm above the optical origin
+    assert scn.body_imu.lever_arm_m == scn.imu.lever_arm_m  # one sensor: the body fit takes the same point
     assert scn.motion.dwell_start_s > 20  # rest phases of the trial, from the truth
     raw = yaml.safe_load((tmp_path / "s.yaml").read_text(encoding="utf-8"))
     assert raw["path"]["kind"] == "waypoints"
@@ -53,6 +56,10 @@ def test_calibrate_and_validate_imu_only_datasets(tmp_path, capsys):
     assert len(rep["extended"]["imu_allan_ratio"]["ratio"]) == 4
     assert (tmp_path / "rep" / "report.md").is_file() and (tmp_path / "rep" / "report.html").is_file()
     assert "imu_error_std_mps2" in out
+    # the report folder is PhySynth's own: --overwrite replaces it (it was refused before it was marked)
+    code, _, err = run(capsys, "validate", "--real", tmp_path / "b21", "--scenario", tmp_path / "s.yaml",
+                       "--transfer", "-n", 2, "--seed", 3, "--out", tmp_path / "rep", "--no-figures", "--overwrite")
+    assert code == 0, err
     # generation from the IMU-only scenario (no anchors): traces without UWB rows
     code, _, err = run(capsys, "generate", "--scenario", tmp_path / "s.yaml", "-n", 1, "--seed", 1,
                        "--out", tmp_path / "g", "--quiet")

@@ -8,13 +8,17 @@ For each undisturbed trial in turn, the IMU model is calibrated on the other und
 low-passed at 10 Hz) compared with the real one. Models:
 
 - ``constant``: white noise, bias walk, vibration;
-- ``motion``: plus the fitted IMU-to-truth time offset and vibration whose power grows with |a_k|;
+- ``motion``: plus the fitted IMU-to-truth time offset and vibration whose power grows with |a_k|
+  (the default before the truth band and the lever arm were fitted: 10 Hz truth, no lever arm);
 - ``motion+w``: its power also grows with the angular rate |w|;
 - ``wide``: ``motion`` calibrated against the truth low-passed at ``INPUT_CUTOFF_HZ`` and fed that
   truth, so that the real motion between 10 Hz and that cut-off is in the synthetic IMU's input
   instead of in its noise;
 - ``lever``: ``wide`` plus the sensor's lever arm in the body frame (fitted jointly over the
   training trials; the IMU reads R (alpha x r + w x (w x r)) along the truth's rotation).
+- ``default``: ``fit_imu`` as ``physynth calibrate`` runs it: the truth band widened to where the
+  truth still follows the IMU (coherence >= 0.5, found on the training trials), the lever arm when the
+  truth has an attitude, the model run along the left-out truth in its recorded band.
 
 Then every model calibrated on all undisturbed trials, applied to every shared trial (including
 the disturbed ones, for information).
@@ -40,8 +44,10 @@ on the shared trials, at most 0.54 above 15 Hz where the optical noise dominates
 REFERENCE_CUTOFF_HZ = 10.0
 """Cut-off [Hz] of the truth the IMU error is judged against (both sides of the comparison)."""
 WIDE = ({"cutoff_hz": INPUT_CUTOFF_HZ}, {"input_cutoff_hz": INPUT_CUTOFF_HZ})
-MODELS = (("constant", {"motion_dependent": False}, {}), ("motion", {}, {}),
-          ("motion+w", {"motion_rate_term": True}, {}), ("wide", *WIDE),
+OLD = {"cutoff_hz": REFERENCE_CUTOFF_HZ, "lever_arm": False}  # the former default: 10 Hz truth, no lever arm
+MODELS = (("constant", {"motion_dependent": False, "lever_arm": False}, {}), ("motion", OLD, {}),
+          ("motion+w", {**OLD, "motion_rate_term": True}, {}), ("wide", {**WIDE[0], "lever_arm": False}, WIDE[1]),
+          ("default", {}, {}),
           ("lever", {**WIDE[0], "lever_arm": True}, WIDE[1]),
           ("lever-ref", {**WIDE[0], "lever_arm": True, "reference_cutoff_hz": REFERENCE_CUTOFF_HZ}, WIDE[1]),
           ("lever-cw", {**WIDE[0], "lever_arm": True, "calm_white_noise": True}, WIDE[1]),

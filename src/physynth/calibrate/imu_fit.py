@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 from scipy.optimize import nnls
-from scipy.signal import butter, sosfiltfilt, welch
+from scipy.signal import butter, coherence, sosfiltfilt, welch
 from scipy.spatial.transform import Rotation, Slerp
 
 from ..evaluate.stats import allan_deviation
@@ -119,6 +119,13 @@ def sensor_truth_acceleration(trace: Trace, cutoff_hz: float, lever_arm_m: Seque
     return tg, acc + lever_arm_acceleration(tg, att[0], w, r), valid & att[1]
 
 
+def has_truth_rotation(trace: Trace) -> bool:
+    """Whether the truth has an attitude and a body rate (at least 10 finite rows of each)."""
+    q, w = trace.truth.quat_wxyz, trace.truth.omega_body_radps
+    return (q is not None and w is not None and int(np.all(np.isfinite(q), axis=1).sum()) >= 10
+            and int(np.all(np.isfinite(w), axis=1).sum()) >= 10)
+
+
 def truth_attitude_at(trace: Trace, t_q: np.ndarray) -> tuple[Rotation, np.ndarray] | None:
     """The truth attitude (body -> ENU) at times ``t_q``, spherically interpolated between the finite
     truth quaternions, and a mask (False outside them or within a masked span); None without attitude."""
@@ -160,6 +167,11 @@ def lever_arm_design(trace: Trace, cutoff_hz: float, offset_s: float = 0.0) -> t
     return np.nan_to_num(np.stack(cols, axis=2)), ok
 
 
+LEVER_ARM_MIN_CONDITION = 1e-6
+"""Smallest eigenvalue ratio of the lever-arm normal matrix: below it (rotation about one axis, as a
+vehicle that only turns) the lever arm is not identifiable and is not fitted."""
+
+
 def fit_lever_arm(traces: Sequence[Trace], cutoff_hz: float, offset_s: float) -> tuple[np.ndarray, dict[str, Any]]:
     """Sensor position r (3,) [m] in the body frame by least squares pooled over the traces.
 
@@ -180,13 +192,17 @@ def fit_lever_arm(traces: Sequence[Trace], cutoff_hz: float, offset_s: float) ->
     a, b, blk = np.concatenate(rows), np.concatenate(rhs), np.concatenate(blocks)
     if a.shape[0] < 30 or not np.any(a):
         raise CalibrationError("no truth attitude: the lever arm cannot be fitted")
-    r, *_ = np.linalg.lstsq(a, b, rcond=None)
+    ata = a.T @ a
+    eig = np.linalg.eigvalsh(ata)
+    if eig[0] <= LEVER_ARM_MIN_CONDITION * eig[-1]:
+        raise CalibrationError("the truth rotates about too few axes for the lever arm to be fitted")
+    r = np.linalg.solve(ata, a.T @ b)
     res = b - a @ r
     # block-bootstrap-free sandwich estimate: sum over blocks of (A_b^T res_b)(A_b^T res_b)^T
     _, inv = np.unique(blk, return_inverse=True)
     score = np.zeros((inv.max() + 1, 3))
     np.add.at(score, inv, a * res[:, None])
-    ata_inv = np.linalg.inv(a.T @ a)
+    ata_inv = np.linalg.inv(ata)
     cov = ata_inv @ (score.T @ score) @ ata_inv
     gain = float(1.0 - np.sum(res**2) / np.sum(b**2))
     return r, {"lever_arm_m": r.tolist(), "std_error_m": np.sqrt(np.diag(cov)).tolist(),
@@ -370,6 +386,51 @@ def fit_time_offset(traces: Sequence[Trace], cutoff_hz: float, *, max_offset_s: 
     rel_gain = float(1.0 - cost.min() / cost[np.argmin(np.abs(grid))])
     return best, {"offset_s": best, "grid_step_s": float(grid[1] - grid[0]),
                   "error_variance_reduction_frac": rel_gain}
+
+
+COHERENCE_MIN = 0.5
+"""Magnitude-squared coherence between IMU and truth acceleration above which the truth still carries
+the motion the IMU reads (:func:`coherent_bandwidth_hz`)."""
+
+
+def coherent_bandwidth_hz(traces: Sequence[Trace], floor_hz: float, cap_hz: float, offset_s: float = 0.0
+                          ) -> tuple[float, dict[str, Any]]:
+    """The widest truth bandwidth [Hz] the IMU confirms, between ``floor_hz`` and ``cap_hz``.
+
+    The magnitude-squared coherence between the IMU (ENU, gravity-free) and the truth-derived
+    acceleration (low-passed well above ``cap_hz``, read at t - ``offset_s``; masked samples zeroed on
+    both sides), Welch segments of 1 s, averaged over the three axes and the recordings: the bandwidth
+    is the highest frequency up to which it stays at least ``COHERENCE_MIN`` (``floor_hz`` when it is
+    already below there). Above it the truth's acceleration is mostly its own noise (optical jitter
+    differentiated twice) and the IMU's motion content is no longer in it. Diagnostics: the coherence
+    curve from ``floor_hz`` to ``cap_hz``.
+    """
+    if cap_hz <= floor_hz:
+        return float(floor_hz), {"bandwidth_hz": float(floor_hz), "reason": "truth rate too low to widen"}
+    curves, f = [], None
+    for tr in traces:  # a handful of recordings, each vectorised
+        ti = tr.imu.t_s
+        fs = 1.0 / median_step_s(ti)
+        tg, a, valid = truth_acceleration(tr.truth.t_s, tr.truth.pos_enu_m, cutoff_hz=min(2.0 * cap_hz, 0.45 * fs))
+        a_i = np.stack([np.interp(ti - offset_s, tg, np.where(valid, a[:, k], 0.0)) for k in range(3)], axis=1)
+        ok = (np.interp(ti - offset_s, tg, valid.astype(float)) > 0.999) & np.all(np.isfinite(tr.imu.acc_mps2), axis=1)
+        nper = int(round(fs))
+        if ok.sum() < 4 * nper:
+            continue
+        f, c = coherence(np.where(ok[:, None], tr.imu.acc_mps2, 0.0), np.where(ok[:, None], a_i, 0.0), fs=fs,
+                         nperseg=nper, axis=0)
+        curves.append(np.nan_to_num(c).mean(axis=1))
+    if not curves or f is None:
+        return float(floor_hz), {"bandwidth_hz": float(floor_hz), "reason": "too little IMU with valid truth"}
+    n = min(c.size for c in curves)
+    mean = np.mean([c[:n] for c in curves], axis=0)
+    f = f[:n]
+    band = (f >= floor_hz - 1e-6) & (f <= cap_hz + 1e-6)  # the grid is fs / round(fs): not exactly whole Hz
+    below = np.flatnonzero(band & (mean < COHERENCE_MIN))
+    top = float(f[below[0] - 1]) if below.size else float(f[band][-1]) if band.any() else float(floor_hz)
+    bw = float(min(max(top, floor_hz), cap_hz))
+    return bw, {"bandwidth_hz": bw, "coherence_min": COHERENCE_MIN, "frequency_hz": f[band].tolist(),
+                "coherence": mean[band].round(3).tolist()}
 
 
 def smoothed_body_rate(trace: Trace, t_q: np.ndarray, cutoff_hz: float) -> np.ndarray | None:
@@ -560,10 +621,12 @@ def _imu_traces(traces: Trace | Sequence[Trace]) -> list[Trace]:
     return trs
 
 
-def _fit_offset_and_lever(trs: list[Trace], fc: float, motion_dependent: bool, lever_arm: bool
+def _fit_offset_and_lever(trs: list[Trace], fc: float, motion_dependent: bool, lever_arm: bool,
+                          auto_lever: bool = False
                           ) -> tuple[float, dict[str, Any] | None, np.ndarray | None, dict[str, Any] | None]:
     """The kept IMU-to-truth time offset and lever arm with their diagnostics: (offset, offset_diag,
-    lever or None, lever_diag).
+    lever or None, lever_diag). ``auto_lever``: a lever arm the truth's rotation cannot identify is left
+    out (noted in the diagnostics) instead of raising.
 
     The offset is kept when it lowers the error variance by at least 0.5 % and exceeds 0.25 ms; the
     lever arm when it lowers the mean squared error by at least 0.5 %, and then the offset is fitted
@@ -577,7 +640,12 @@ def _fit_offset_and_lever(trs: list[Trace], fc: float, motion_dependent: bool, l
             offset = 0.0
     lever, lever_diag = None, None
     if lever_arm:
-        r, lever_diag = fit_lever_arm(trs, fc, offset)
+        try:
+            r, lever_diag = fit_lever_arm(trs, fc, offset)
+        except CalibrationError as exc:
+            if not auto_lever:
+                raise
+            return offset, offset_diag, None, {"kept": False, "reason": str(exc)}
         lever_diag["kept"] = lever_diag["mean_square_reduction_frac"] >= 0.005
         lever = r if lever_diag["kept"] else None
         if lever is not None and motion_dependent:  # the clock offset again, now of the sensor point
@@ -763,7 +831,7 @@ def _imu_fit_diagnostics(trs: list[Trace], errs: list, fc: float, fs: float, spe
 
 def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, nperseg_s: float = 20.0,
             defaults: ImuParams | None = None, motion_dependent: bool = True,
-            motion_rate_term: bool = False, lever_arm: bool = False,
+            motion_rate_term: bool = False, lever_arm: bool | None = None,
             reference_cutoff_hz: float | None = None, calm_white_noise: bool = False) -> Fit[ImuParams]:
     """Fit white noise, bias random walk and vibration to the IMU error of traces with IMU and truth.
 
@@ -772,8 +840,11 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
     traces
         Traces with IMU samples (ENU, gravity-free) and truth positions.
     cutoff_hz
-        Low-pass cut-off of the truth before double differentiation [Hz]; default
-        min(10 Hz, 0.2 x truth rate).
+        Low-pass cut-off of the truth before double differentiation [Hz]: the band of truth the noise
+        terms are fitted against, recorded as ``truth_cutoff_hz``. Default min(10 Hz, 0.2 x truth
+        rate), widened with the motion-dependent model up to the highest frequency where the truth
+        still follows the IMU (:func:`coherent_bandwidth_hz`, at most 0.2 x truth rate): the real motion
+        in that band is then the model's input, not its noise.
     nperseg_s
         Welch segment length [s] (frequency resolution 1 / nperseg_s).
     motion_dependent
@@ -788,7 +859,8 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
         Also fit the sensor's position in the body frame (:func:`fit_lever_arm`, after the time
         offset, before the motion noise; needs the truth attitude), kept when it lowers the mean
         squared error by at least 0.5 %; the noise terms are then fitted to the error with its
-        lever-arm acceleration removed.
+        lever-arm acceleration removed. Default (None): when every recording's truth has an attitude
+        and a body rate.
     reference_cutoff_hz
         The cut-off of the reference truth the IMU error is judged against, when it is below
         ``cutoff_hz`` (e.g. 10 Hz against a 14 Hz input): the motion noise (c0, gains, level) is then
@@ -812,8 +884,16 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
     base = defaults or ImuParams()
     fs = 1.0 / median_step_s(trs[0].imu.t_s)
     truth_rate = 1.0 / median_step_s(trs[0].truth.t_s[np.all(np.isfinite(trs[0].truth.pos_enu_m), axis=1)])
-    fc = float(cutoff_hz) if cutoff_hz is not None else float(min(10.0, 0.2 * truth_rate))
-    offset, offset_diag, lever, lever_diag = _fit_offset_and_lever(trs, fc, motion_dependent, lever_arm)
+    fc, band_diag = float(min(10.0, 0.2 * truth_rate)), None
+    if cutoff_hz is not None:
+        fc = float(cutoff_hz)
+    elif motion_dependent:
+        fc, band_diag = coherent_bandwidth_hz(trs, fc, 0.2 * truth_rate)
+    auto_lever = lever_arm is None
+    if auto_lever:
+        lever_arm = all(has_truth_rotation(t) for t in trs)
+    offset, offset_diag, lever, lever_diag = _fit_offset_and_lever(trs, fc, motion_dependent, bool(lever_arm),
+                                                                   auto_lever)
     motion, motion_var = None, np.zeros(3)
     if motion_dependent:
         motion = fit_motion_noise(trs, fc, offset, use_rate=motion_rate_term, lever_arm_m=lever,
@@ -851,9 +931,12 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
     other_var = density**2 * fs + bias_rw**2 * seg_s / 6.0
     resid_std = np.sqrt(np.maximum(err_std**2 - other_var, 0.0))
     vibration, vib_diag = _vibration_params(vib, density, fs, err_std, resid_std, other_var, motion, notes)
-    params = _imu_params(fs, density, bias_rw, vibration, offset, motion, lever)
+    params = _imu_params(fs, density, bias_rw, vibration, offset, motion, lever).model_copy(
+        update={"truth_cutoff_hz": rounded(fc, 4)})
     diag = _imu_fit_diagnostics(trs, errs, fc, fs, spectrum, offset_diag, lever_diag, motion, vib_diag, bias_diag,
                                 notes)
+    if band_diag is not None:
+        diag["truth_bandwidth"] = band_diag
     return Fit(params=params, n_samples=n_total, diagnostics=diag)
 
 
@@ -872,13 +955,33 @@ def simulate_imu_on(t_s: np.ndarray, acc_enu_mps2: np.ndarray, params: ImuParams
     return simulate_imu(kin, params, rng=rng, omega_body_radps=omega_body_radps, attitude=attitude)
 
 
+def imu_along_truth(real: Trace, params: ImuParams, *, rng: np.random.Generator,
+                    input_cutoff_hz: float | None = None) -> Imu:
+    """The ENU IMU model ``params`` run along a real trace's own truth (sampled from its first truth instant).
+
+    The model reads the truth acceleration low-passed at ``input_cutoff_hz`` (default the model's
+    ``truth_cutoff_hz``, else 10 Hz), masked spans filled linearly; with a lever arm and a truth
+    attitude, the sensor point's rotational acceleration along the truth's rotation (body rate
+    low-passed at the same band).
+    """
+    fc_in = float(input_cutoff_hz if input_cutoff_hz is not None else params.truth_cutoff_hz or 10.0)
+    tg, acc, valid = truth_acceleration(real.truth.t_s, real.truth.pos_enu_m, cutoff_hz=fc_in)
+    if valid.sum() < 10:
+        raise CalibrationError("too little valid truth to run the IMU along")
+    filled = np.stack([np.interp(tg, tg[valid], acc[valid, k]) for k in range(3)], axis=1)
+    att = truth_attitude_at(real, tg) if any(params.lever_arm_m) else None
+    return simulate_imu_on(tg, filled, params, rng=rng, omega_body_radps=smoothed_body_rate(real, tg, fc_in),
+                           attitude=None if att is None else att[0])
+
+
 def compare_imu_along_truth(real: Trace, params: ImuParams, cutoff_hz: float, *,
                             rng: np.random.Generator, input_cutoff_hz: float | None = None) -> dict[str, np.ndarray]:
     """Apply the IMU error model ``params`` along a real trace's own truth and compare the IMU errors.
 
     The error of both sides is IMU minus the truth-derived acceleration low-passed at ``cutoff_hz``
     (:func:`imu_error`). The synthetic IMU reads the truth low-passed at ``input_cutoff_hz`` (default
-    ``cutoff_hz``): above ``cutoff_hz`` the real IMU reads motion that the reference filters out, so a
+    the model's ``truth_cutoff_hz``, else ``cutoff_hz``; :func:`imu_along_truth`): above ``cutoff_hz``
+    the real IMU reads motion that the reference filters out, so a
     model calibrated on the error against a wider-band truth (``fit_imu(..., cutoff_hz=input_cutoff_hz)``)
     is compared with the same band of real motion in its input. With a truth attitude, the model's
     lever arm acts along the truth's rotation (body rate low-passed at ``input_cutoff_hz``). Returns
@@ -886,14 +989,9 @@ def compare_imu_along_truth(real: Trace, params: ImuParams, cutoff_hz: float, *,
     0.2 Hz to 0.95 x Nyquist, masked samples zeroed) the correlation (``log_psd_corr``) and the
     log-spectral distance in dB (``lsd_db``).
     """
-    fc_in = cutoff_hz if input_cutoff_hz is None else float(input_cutoff_hz)
-    tg, acc, valid = truth_acceleration(real.truth.t_s, real.truth.pos_enu_m, cutoff_hz=fc_in)
-    filled = np.stack([np.interp(tg, tg[valid], acc[valid, k]) for k in range(3)], axis=1)
-    att = truth_attitude_at(real, tg) if any(params.lever_arm_m) else None
+    fc_in = input_cutoff_hz if input_cutoff_hz is not None else params.truth_cutoff_hz or cutoff_hz
     synth = Trace(truth=real.truth, uwb=real.uwb, anchors=real.anchors,
-                  imu=simulate_imu_on(tg, filled, params, rng=rng,
-                                      omega_body_radps=smoothed_body_rate(real, tg, fc_in),
-                                      attitude=None if att is None else att[0]))
+                  imu=imu_along_truth(real, params, rng=rng, input_cutoff_hz=fc_in))
     e_r, ok_r, _ = imu_error(real, cutoff_hz)
     e_s, ok_s, _ = imu_error(synth, cutoff_hz)
     fs = params.rate_hz

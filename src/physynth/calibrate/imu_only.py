@@ -321,7 +321,8 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
     body = None
     if any(has_body_imu(t) for t in trs):
         say("fitting the body-frame accelerometer and gyroscope")
-        body = fit_body_imu(trs, cutoff_hz=fc, offset_s=imf.params.time_offset_s)
+        body = fit_body_imu(trs, cutoff_hz=fc, offset_s=imf.params.time_offset_s,
+                            lever_arm_m=imf.params.lever_arm_m if any(imf.params.lever_arm_m) else None)
         frames.append(IMU_BODY_FRAME)
     truth_rate = 1.0 / median_step_s(trs[0].truth.t_s)
     imu = imf.params.model_dump(mode="json")

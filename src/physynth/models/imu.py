@@ -78,7 +78,10 @@ class ImuParams(ParamsModel):
     the vibration's power growing with the motion (:class:`MotionNoiseParams`); ``lever_arm_m``: the
     sensor's position in the body frame relative to the truth's reference point [m], so that it also
     reads the rotational acceleration R (alpha x r + w x (w x r)) (:func:`lever_arm_acceleration`;
-    needs the truth attitude, zero by default).
+    needs the truth attitude, zero by default); ``truth_cutoff_hz``: the bandwidth of the truth
+    acceleration the noise terms were calibrated against [Hz] (:func:`physynth.calibrate.imu_fit.fit_imu`).
+    Run along a recorded truth (``physynth validate --transfer`` on an IMU recording), the model reads
+    that truth low-passed there (10 Hz when unset); generation from a scenario's own kinematics ignores it.
     """
 
     rate_hz: PositiveFloat = 400.0
@@ -89,6 +92,7 @@ class ImuParams(ParamsModel):
     time_offset_s: Annotated[float, Field(ge=-1.0, le=1.0, allow_inf_nan=False)] = 0.0
     motion_noise: MotionNoiseParams = MotionNoiseParams()
     lever_arm_m: Vec3 = [0.0, 0.0, 0.0]
+    truth_cutoff_hz: PositiveFloat | None = None
 
 
 _BIAS_KNOT_S = 0.1  # bias random-walk knot spacing [s]

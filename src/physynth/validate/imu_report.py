@@ -37,8 +37,14 @@ from scipy.spatial.transform import Rotation
 
 from .. import __version__
 from .._json import jsonable
-from ..calibrate._base import CalibrationError, median_step_s, segments
-from ..calibrate.imu_fit import imu_error, simulate_imu_on, smoothed_body_rate, truth_acceleration
+from ..calibrate._base import median_step_s, segments
+from ..calibrate.imu_fit import (
+    has_truth_rotation,
+    imu_along_truth,
+    imu_error,
+    smoothed_body_rate,
+    truth_acceleration,
+)
 from ..calibrate.imu_only import body_truth, has_body_imu
 from ..errors import OutputExistsError, PhySynthError
 from ..evaluate.stats import allan_deviation
@@ -167,15 +173,16 @@ def imu_error_comparison(rs: dict[str, dict[str, Any]], ss: dict[str, dict[str, 
 
 
 def _along_truth(real: Trace, scn: Scenario, root: int, index: int) -> Trace:
-    """The scenario's IMU models run along a real trace's own truth (acceleration, attitude)."""
-    tg, acc, valid = truth_acceleration(real.truth.t_s, real.truth.pos_enu_m, cutoff_hz=CUTOFF_HZ)
-    if valid.sum() < 10:
-        raise CalibrationError("too little valid truth to run the IMU along")
-    filled = np.stack([np.interp(tg, tg[valid], acc[valid, k]) for k in range(3)], axis=1)
-    w = smoothed_body_rate(real, tg, CUTOFF_HZ)
-    enu = simulate_imu_on(tg, filled, scn.imu, rng=component_rng(root, index, "imu"), omega_body_radps=w)
+    """The scenario's IMU models run along a real trace's own truth (acceleration, attitude): the ENU
+    model reads the truth band it was calibrated against (``imu.truth_cutoff_hz``) and its lever arm
+    acts along the truth's rotation; the body-frame model reads the same band."""
+    enu = imu_along_truth(real, scn.imu, rng=component_rng(root, index, "imu"))  # the model's own truth band
     imu = Imu(t_s=enu.t_s, acc_mps2=enu.acc_mps2)
-    if has_body_imu(real) and "body-flu" in scn.imu_frames and w is not None:
+    if has_body_imu(real) and "body-flu" in scn.imu_frames and has_truth_rotation(real):
+        fc = scn.imu.truth_cutoff_hz or CUTOFF_HZ  # both models were fitted against the same truth band
+        tg, acc, valid = truth_acceleration(real.truth.t_s, real.truth.pos_enu_m, cutoff_hz=fc)
+        filled = np.stack([np.interp(tg, tg[valid], acc[valid, k]) for k in range(3)], axis=1)
+        w = smoothed_body_rate(real, tg, fc)
         q = real.truth.quat_wxyz
         ok = np.all(np.isfinite(q), axis=1)
         k = np.clip(np.searchsorted(real.truth.t_s[ok], tg), 0, int(ok.sum()) - 1)
@@ -199,7 +206,8 @@ class ImuValidationReport:
     transfer: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return jsonable({"kind": "imu", "real": self.real, "synthetic": self.synthetic,
+        return jsonable({"kind": "imu", "generator": {"name": "physynth", "version": __version__},  # io.safety marker
+                         "real": self.real, "synthetic": self.synthetic,
                          "relative_deviation_pct": self.relative_deviation_pct, "extended": self.extended,
                          "inputs": self.inputs, "transfer": self.transfer})
 
