@@ -172,41 +172,56 @@ LEVER_ARM_MIN_CONDITION = 1e-6
 vehicle that only turns) the lever arm is not identifiable and is not fitted."""
 
 
+def _lever_rows(tr: Trace, cutoff_hz: float, offset_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One trace's lever-arm regression: design rows (3M, 3), error (3M,) and 2 s block ids (3M,)."""
+    e, ok, ti = imu_error(tr, cutoff_hz, offset_s=offset_s)
+    d, ok_att = lever_arm_design(tr, cutoff_hz, offset_s)
+    ok = ok & ok_att
+    block = np.repeat(np.flatnonzero(ok) // int(round(MOTION_WINDOW_S / median_step_s(ti))), 3)
+    return d[ok].reshape(-1, 3), e[ok].reshape(-1), block
+
+
 def fit_lever_arm(traces: Sequence[Trace], cutoff_hz: float, offset_s: float) -> tuple[np.ndarray, dict[str, Any]]:
     """Sensor position r (3,) [m] in the body frame by least squares pooled over the traces.
 
     The IMU error (:func:`imu_error` at ``offset_s``) regressed on the lever-arm design
     (:func:`lever_arm_design`) of each trace's truth attitude, all three axes at once. The standard
     error is from 2 s blocks of the residual (the error is coloured, so per-sample statistics would
-    overstate the precision).
+    overstate the precision). Two passes over the traces, one at a time (memory does not grow with
+    their number): the normal equations, then the residual's block scores.
+
+    Raises
+    ------
+    CalibrationError
+        No truth attitude, or a rotation about too few axes to identify r (``LEVER_ARM_MIN_CONDITION``).
     """
-    rows, rhs, blocks = [], [], []
+    ata, atb, btb, n = np.zeros((3, 3)), np.zeros(3), 0.0, 0
     for tr in traces:  # a handful of recordings, each vectorised
-        e, ok, ti = imu_error(tr, cutoff_hz, offset_s=offset_s)
-        d, ok_att = lever_arm_design(tr, cutoff_hz, offset_s)
-        ok = ok & ok_att
-        rows.append(d[ok].reshape(-1, 3))
-        rhs.append(e[ok].reshape(-1))
-        fs = 1.0 / median_step_s(ti)
-        blocks.append(np.repeat(np.flatnonzero(ok) // int(round(MOTION_WINDOW_S * fs)), 3) + 10**9 * len(blocks))
-    a, b, blk = np.concatenate(rows), np.concatenate(rhs), np.concatenate(blocks)
-    if a.shape[0] < 30 or not np.any(a):
+        a, b, _ = _lever_rows(tr, cutoff_hz, offset_s)
+        ata += a.T @ a
+        atb += a.T @ b
+        btb += float(b @ b)
+        n += a.shape[0]
+    if n < 30 or not np.any(ata):
         raise CalibrationError("no truth attitude: the lever arm cannot be fitted")
-    ata = a.T @ a
     eig = np.linalg.eigvalsh(ata)
     if eig[0] <= LEVER_ARM_MIN_CONDITION * eig[-1]:
         raise CalibrationError("the truth rotates about too few axes for the lever arm to be fitted")
-    r = np.linalg.solve(ata, a.T @ b)
-    res = b - a @ r
+    r = np.linalg.solve(ata, atb)
     # block-bootstrap-free sandwich estimate: sum over blocks of (A_b^T res_b)(A_b^T res_b)^T
-    _, inv = np.unique(blk, return_inverse=True)
-    score = np.zeros((inv.max() + 1, 3))
-    np.add.at(score, inv, a * res[:, None])
+    meat, rss = np.zeros((3, 3)), 0.0
+    for tr in traces:
+        a, b, block = _lever_rows(tr, cutoff_hz, offset_s)
+        res = b - a @ r
+        rss += float(res @ res)
+        _, inv = np.unique(block, return_inverse=True)
+        score = np.zeros((int(inv.max()) + 1 if inv.size else 0, 3))
+        np.add.at(score, inv, a * res[:, None])
+        meat += score.T @ score
     ata_inv = np.linalg.inv(ata)
-    cov = ata_inv @ (score.T @ score) @ ata_inv
-    gain = float(1.0 - np.sum(res**2) / np.sum(b**2))
+    cov = ata_inv @ meat @ ata_inv
     return r, {"lever_arm_m": r.tolist(), "std_error_m": np.sqrt(np.diag(cov)).tolist(),
-               "mean_square_reduction_frac": gain, "n_samples": int(a.shape[0] // 3)}
+               "mean_square_reduction_frac": float(1.0 - rss / btb), "n_samples": int(n // 3)}
 
 
 def _error_against(trace: Trace, truth_acc: tuple[np.ndarray, np.ndarray, np.ndarray], offset_s: float
