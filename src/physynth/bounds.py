@@ -125,6 +125,7 @@ BOUNDS: dict[str, Bound] = {
     "attitude.fixed_quat_wxyz[]": Bound(-1e3, 1e3, "", "quaternion (normalised)"),
     "imu.time_offset_s": Bound(-1.0, 1.0, "s", "IMU clock offset"),
     "imu.lever_arm_m[]": Bound(-10.0, 10.0, "m", "sensor position in the body frame (a vehicle's size)"),
+    "imu.truth_cutoff_hz": Bound(0.01, 10_000.0, "Hz", "truth band the IMU noise was calibrated against"),
     "imu.motion_noise.acc_var_gain_mps2[]": Bound(0.0, 1000.0, "m^2/s^4 per m/s^2", "motion-dependent vibration"),
     "imu.motion_noise.rate_var_gain_mps4_per_radps[]": Bound(0.0, 1000.0, "m^2/s^4 per rad/s",
                                                            "rate-dependent vibration"),
