@@ -844,6 +844,15 @@ def _imu_fit_diagnostics(trs: list[Trace], errs: list, fc: float, fs: float, spe
     }
 
 
+def _truth_band(trs: list[Trace], cutoff_hz: float | None, motion_dependent: bool, truth_rate: float
+                ) -> tuple[float, dict[str, Any] | None]:
+    """The truth cut-off of :func:`fit_imu` and its diagnostics (None unless widened by coherence)."""
+    if cutoff_hz is not None:
+        return float(cutoff_hz), None
+    floor = float(min(10.0, 0.2 * truth_rate))
+    return coherent_bandwidth_hz(trs, floor, 0.2 * truth_rate) if motion_dependent else (floor, None)
+
+
 def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, nperseg_s: float = 20.0,
             defaults: ImuParams | None = None, motion_dependent: bool = True,
             motion_rate_term: bool = False, lever_arm: bool | None = None,
@@ -899,16 +908,10 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
     base = defaults or ImuParams()
     fs = 1.0 / median_step_s(trs[0].imu.t_s)
     truth_rate = 1.0 / median_step_s(trs[0].truth.t_s[np.all(np.isfinite(trs[0].truth.pos_enu_m), axis=1)])
-    fc, band_diag = float(min(10.0, 0.2 * truth_rate)), None
-    if cutoff_hz is not None:
-        fc = float(cutoff_hz)
-    elif motion_dependent:
-        fc, band_diag = coherent_bandwidth_hz(trs, fc, 0.2 * truth_rate)
-    auto_lever = lever_arm is None
-    if auto_lever:
-        lever_arm = all(has_truth_rotation(t) for t in trs)
-    offset, offset_diag, lever, lever_diag = _fit_offset_and_lever(trs, fc, motion_dependent, bool(lever_arm),
-                                                                   auto_lever)
+    fc, band_diag = _truth_band(trs, cutoff_hz, motion_dependent, truth_rate)
+    offset, offset_diag, lever, lever_diag = _fit_offset_and_lever(
+        trs, fc, motion_dependent, all(has_truth_rotation(t) for t in trs) if lever_arm is None else lever_arm,
+        auto_lever=lever_arm is None)
     motion, motion_var = None, np.zeros(3)
     if motion_dependent:
         motion = fit_motion_noise(trs, fc, offset, use_rate=motion_rate_term, lever_arm_m=lever,
