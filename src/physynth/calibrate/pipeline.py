@@ -1090,7 +1090,9 @@ def assemble_availability(inp: CalibrationInputs, avail: AvailabilityFit, timing
     no prior exposure): Gamma(prior + events, exposure). The scenario gets the posterior mean and,
     when fewer than :data:`THIN_DATA_EVENTS` events back it, the posterior shape, so that each
     synthetic trace draws its own rate (``*_onset_shape``). A process never observed is not generated
-    (its interval is still reported).
+    (its interval is still reported). When the anchors were re-placed between the recordings, the
+    scenario gets no per-anchor overrides: availability is the placement's, and a new run places them
+    anew (leave-one-out on the Hanyang runs: docs/calibration.md).
     """
     ids, av, tag, rep = inp.anchor_ids, avail.per_anchor, avail.tag, report
     burst_rate = timing.burst_rate_hz
@@ -1148,6 +1150,12 @@ def assemble_availability(inp: CalibrationInputs, avail: AvailabilityFit, timing
     if tag.get("mean_s"):
         rep.param("availability.tag_outage_mean_s", pooled.tag_outage_mean_s, n=tag["n_outages"],
                   note="uncensored tag outages")
+    if inp.layout.get("conflicts"):  # anchors re-placed between the runs
+        rep.not_identifiable.append(
+            "availability_per_anchor (the anchors were re-placed between the recordings: an anchor's outages "
+            "and dropouts belong to its placement, not to the device, so the scenario takes the values pooled "
+            "over anchors and placements; the per-anchor fits are in this report)")
+        return AvailabilitySet(pooled=pooled, per_anchor={})
     return AvailabilitySet(pooled=pooled, per_anchor=per_anchor)
 
 
