@@ -57,7 +57,6 @@ round them to 0.2 mm at 2 km, and their second difference, an acceleration, to m
 squared) and range residuals are the metric of the paper. Readers return float64."""
 
 
-
 @functools.cache
 def arrow_schemas() -> tuple[dict[str, pa.Schema], dict[str, pa.Schema]]:
     """``(SCHEMAS, SCHEMAS_COMPACT)``: the Arrow schema of every table, float64 throughout, and with
@@ -134,6 +133,7 @@ def _float_columns(schema: pa.Schema) -> list[str]:
     import pyarrow as pa
 
     return [f.name for f in schema if pa.types.is_floating(f.type)]
+
 
 UNITS = {
     "t_s": "s", "pos_*_m": "m (ENU)", "vel_*_mps": "m/s (ENU)", "acc_[enu]_mps2": "m/s^2 (ENU, gravity removed)",
@@ -343,11 +343,11 @@ class DatasetWriter:
 
     def _open_writers(self) -> dict[str, pq.ParquetWriter]:
         """The Parquet writers of the tables, opened on the first call (the first row group or close)."""
-        if not self._writers:
+        if len(self._writers) < len(TABLES):
             import pyarrow.parquet as pq
 
-            self._schemas = {name: _schema(name, self._compact, self._held[name]) for name in TABLES}
-            for name in TABLES:
+            self._schemas = self._schemas or {name: _schema(name, self._compact, self._held[name]) for name in TABLES}
+            for name in (n for n in TABLES if n not in self._writers):
                 self._writers[name] = pq.ParquetWriter(
                     self.tmp / f"{name}.parquet", self._schemas[name], compression="snappy",
                     use_byte_stream_split=_float_columns(self._schemas[name]),
