@@ -7,6 +7,11 @@ timed inside a ``physynth generate -n 2 --workers 1`` process, from the moment t
 wall clock, passed on the command line; the OS's process creation time counts from a boot time rounded
 to the second in some containers) to the moment the generator reports its first trace; the whole command's wall time
 is printed too. Goals: ``--help`` under 0.3 s, first trace under 0.5 s.
+
+The processes run the ``physynth`` that this interpreter imports (``PYTHONPATH`` first): its folder
+is printed. Compare trees with the same bytecode state: with ``PYTHONDONTWRITEBYTECODE=1`` a tree
+without ``__pycache__`` is compiled at every start (``PYTHONPYCACHEPREFIX=/tmp/pyc`` caches the
+bytecode of every tree outside the source folders).
 """
 
 from __future__ import annotations
@@ -40,6 +45,8 @@ try:
     main(["generate", "-n", "2", "-w", "1", "--seed", "1", "--out", sys.argv[1], "--overwrite"])
 except SystemExit:
     pass
+import physynth
+print(physynth.__path__[0])
 print(first[0])
 """
 
@@ -57,7 +64,7 @@ def main() -> None:
     exe = [sys.executable, "-m", "physynth.cli"]
     helps = [_wall([*exe, "--help"]) for _ in range(args.repeat)]
     versions = [_wall([*exe, "--version"]) for _ in range(args.repeat)]
-    firsts, totals = [], []
+    firsts, totals, trees = [], [], set()
     with tempfile.TemporaryDirectory() as tmp:
         for _ in range(args.repeat):
             t0 = time.perf_counter()
@@ -65,11 +72,15 @@ def main() -> None:
                                  check=True, capture_output=True, text=True).stdout
             totals.append(time.perf_counter() - t0)
             firsts.append(float(out.strip().splitlines()[-1]))
+            trees.add(out.strip().splitlines()[-2])
     print(f"physynth --help     : best {min(helps):.3f} s, median {sorted(helps)[len(helps) // 2]:.3f} s")
     print(f"physynth --version  : best {min(versions):.3f} s")
     print(f"first trace         : best {min(firsts):.3f} s after process start, median "
           f"{sorted(firsts)[len(firsts) // 2]:.3f} s (whole generate -n 2: best {min(totals):.2f} s)")
     print(f"machine: {os.cpu_count()} core(s), load average {os.getloadavg()[0]:.2f}")
+    print(f"physynth: {', '.join(sorted(trees))}")
+    if sys.flags.dont_write_bytecode and not sys.pycache_prefix:
+        print("note: PYTHONDONTWRITEBYTECODE is set: modules without a cached .pyc are compiled at every start")
 
 
 if __name__ == "__main__":
