@@ -290,9 +290,10 @@ class DatasetWriter:
     Naming them saves writing (and reading) columns of nulls; a trace that has a group the dataset does
     not hold raises :class:`DatasetError` (in :meth:`add`) rather than lose it.
 
-    :meth:`add` keeps the traces of a row group as they are; they are converted to Arrow tables and
-    written when the row group is full or the writer closes, and the Parquet files are opened (and
-    pyarrow imported) with the first row group.
+    :meth:`add` keeps the trace it is given as it is and converts the one before to Arrow tables (so
+    at most one trace waits unconverted); a row group is written when it holds ``row_group_traces``
+    traces or the writer closes. The Parquet files are opened, and pyarrow imported, by the first
+    conversion: the first trace is added (and a caller can report it) before pyarrow is imported.
     """
 
     def __init__(self, path: str | os.PathLike, *, meta: dict[str, Any] | None = None,
@@ -319,7 +320,9 @@ class DatasetWriter:
         self._compact = compact
         self._schemas: dict[str, pa.Schema] = {}
         self._writers: dict[str, pq.ParquetWriter] = {}  # opened by _open_writers
-        self._pending: list[tuple[Trace, int]] = []
+        self._unconverted: tuple[Trace, int] | None = None  # the last trace added, converted by the next add
+        self._tables: dict[str, list[pa.Table]] = {name: [] for name in TABLES}  # the row group being filled
+        self._pending = 0  # traces of the row group being filled
         self._row_group_traces = row_group_traces
         self._trace_meta: list[dict[str, Any]] = []
         self._frames: set[str] = set()
@@ -333,16 +336,18 @@ class DatasetWriter:
         safety.check_interrupted()  # a signal whose exception was swallowed (physynth.io.safety)
         index = len(self._trace_meta) if index is None else int(index)
         _check_declared(trace, self._held)
-        self._pending.append((trace, index))
+        self._convert()  # the previous trace
+        self._unconverted = (trace, index)
+        self._pending += 1
         self._trace_meta.append({"trace": index, **jsonable(trace.meta)})
         if trace.imu is not None:
             self._frames.update(trace.imu.frames)
         self._attitude = self._attitude or trace.truth.has_attitude
-        if len(self._pending) >= self._row_group_traces:
+        if self._pending >= self._row_group_traces:
             self._flush()
 
     def _open_writers(self) -> dict[str, pq.ParquetWriter]:
-        """The Parquet writers of the tables, opened on the first call (the first row group or close)."""
+        """The Parquet writers of the tables, opened on the first call (the first conversion, or close)."""
         if len(self._writers) < len(TABLES):
             import pyarrow.parquet as pq
 
@@ -354,21 +359,27 @@ class DatasetWriter:
                     use_dictionary=["anchor_id", "name"], write_statistics=["trace"])
         return self._writers
 
+    def _convert(self) -> None:
+        """Convert the trace waiting unconverted, if any, to Arrow tables of the row group being filled."""
+        if self._unconverted is not None:
+            self._open_writers()
+            (trace, index), self._unconverted = self._unconverted, None
+            for name, table in _tables_of(trace, index, self._schemas).items():
+                self._tables[name].append(table)
+
     def _flush(self) -> None:
-        """Write the pending traces as one row group of every table."""
+        """Write the traces added since the last row group as one row group of every table."""
         import pyarrow as pa
 
         writers = self._open_writers()
-        parts: dict[str, list[pa.Table]] = {name: [] for name in TABLES}
-        while self._pending:  # one trace at a time, each record released once converted
-            trace, index = self._pending.pop(0)
-            for name, table in _tables_of(trace, index, self._schemas).items():
-                parts[name].append(table)
-        for name, tables in parts.items():
+        self._convert()
+        for name, tables in self._tables.items():
             if tables:
                 table = pa.concat_tables(tables)
                 writers[name].write_table(table)
                 self._rows[name] += table.num_rows
+            self._tables[name] = []
+        self._pending = 0
 
     def close(self) -> Path:
         """Finish every table, write ``dataset.json`` and swap the dataset into place.
