@@ -25,7 +25,7 @@ import tempfile
 import time
 
 FIRST_TRACE = r"""
-import os, sys, time
+import sys, time
 start = float(sys.argv[2])  # the parent's clock just before it started this process
 from physynth.cli import _common, main
 real_bar = _common.progress_bar
@@ -37,8 +37,7 @@ def bar(enabled=True):
         def progress(message, done=None, total=None):
             if done and not first:
                 first.append(time.time() - start)
-                cpu = os.times()
-                first.append(cpu.user + cpu.system)
+                first.append(time.process_time())  # user + system since the process started
         yield progress
     return cm()
 _common.progress_bar = bar
