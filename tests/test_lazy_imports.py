@@ -55,5 +55,5 @@ print(json.dumps({"seen": seen, "read": len(read_dataset(out))}))
 
 def test_first_trace_is_reported_before_pyarrow_is_imported(tmp_path):
     got = _child(GENERATE_DATASET.replace("sys.argv[1]", repr(str(tmp_path / "d"))))
-    assert len(got["seen"]) == 2 and got["seen"][0] is False  # pyarrow comes with the first row group
+    assert len(got["seen"]) == 2 and got["seen"][0] is False  # pyarrow comes with the first conversion
     assert got["read"] == 2
