@@ -15,7 +15,6 @@ from __future__ import annotations
 import contextlib
 import functools
 import json
-import logging
 import os
 import signal
 import threading
@@ -145,6 +144,8 @@ def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, to
             raise PhySynthError(f"cannot connect to the Dask scheduler {scheduler}: {exc}") from None
         cluster = None
     else:
+        import logging
+
         with _children_ignore_terminal_signals(), _quiet_workers():
             cluster = distributed.LocalCluster(n_workers=min(workers, len(todo)), threads_per_worker=1,
                                                processes=True, dashboard_address=":0", silence_logs=logging.ERROR)

@@ -4,22 +4,25 @@
 Writes are atomic: everything goes to a hidden sibling directory that is renamed into place only
 when every table is complete, so an interrupted job never leaves a dataset that looks finished.
 :class:`DatasetWriter` streams traces in row groups, so a dataset larger than memory can be written.
+
+pyarrow is imported when a table is first written or read, not with this module: ``physynth generate``
+has its first trace before it pays for pyarrow. :data:`SCHEMAS` and :data:`SCHEMAS_COMPACT` are built
+on first use (:func:`arrow_schemas`).
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import functools
 import json
 import os
 import shutil
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pyarrow as pa
-import pyarrow.parquet as pq
 
 from .. import __version__
 from .._json import jsonable
@@ -29,6 +32,10 @@ from ..records import Anchors, Imu, Trace, Truth, Uwb
 from . import integrity, safety
 from .atomic import temp_sibling
 
+if TYPE_CHECKING:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
 TABLES = ("truth", "imu", "uwb", "anchors")
 
 OPTIONAL_COLUMNS = {
@@ -37,20 +44,6 @@ OPTIONAL_COLUMNS = {
             "gyro_body_radps": [f"gyro_{c}_radps" for c in "xyz"]},
 }
 """Column groups that a trace may lack: written as nulls, read back as None (and absent in old datasets)."""
-
-SCHEMAS = {
-    "truth": pa.schema([("trace", pa.int32()), ("t_s", pa.float64())]
-                       + [(f"pos_{c}_m", pa.float64()) for c in "enu"]
-                       + [(f"vel_{c}_mps", pa.float64()) for c in "enu"]
-                       + [(c, pa.float64()) for cols in OPTIONAL_COLUMNS["truth"].values() for c in cols]),
-    "imu": pa.schema([("trace", pa.int32()), ("t_s", pa.float64())]
-                     + [(c, pa.float64()) for cols in OPTIONAL_COLUMNS["imu"].values() for c in cols]),
-    "uwb": pa.schema([("trace", pa.int32()), ("t_s", pa.float64()), ("anchor_id", pa.string()),
-                      ("range_m", pa.float64()), ("true_range_m", pa.float64()), ("nlos", pa.bool_()),
-                      ("burst", pa.int64()), ("reason", pa.int8())]),
-    "anchors": pa.schema([("trace", pa.int32()), ("anchor_id", pa.string()), ("name", pa.string())]
-                         + [(f"pos_{c}_m", pa.float64()) for c in "enu"]),
-}
 
 FLOAT32_COLUMNS = ("acc_e_mps2", "acc_n_mps2", "acc_u_mps2", "acc_x_mps2", "acc_y_mps2", "acc_z_mps2",
                    "gyro_x_radps", "gyro_y_radps", "gyro_z_radps", "vel_e_mps", "vel_n_mps", "vel_u_mps",
@@ -63,28 +56,66 @@ anchor positions stay float64: times may be epoch seconds, positions are trainin
 round them to 0.2 mm at 2 km, and their second difference, an acceleration, to metres per second
 squared) and range residuals are the metric of the paper. Readers return float64."""
 
-SCHEMAS_COMPACT = {
-    name: pa.schema([pa.field(f.name, pa.float32()) if f.name in FLOAT32_COLUMNS else f for f in schema])
-    for name, schema in SCHEMAS.items()
-}
+
+@functools.cache
+def arrow_schemas() -> tuple[dict[str, pa.Schema], dict[str, pa.Schema]]:
+    """``(SCHEMAS, SCHEMAS_COMPACT)``: the Arrow schema of every table, float64 throughout, and with
+    :data:`FLOAT32_COLUMNS` as float32. Built (and pyarrow imported) on the first call."""
+    import pyarrow as pa
+
+    schemas = {
+        "truth": pa.schema([("trace", pa.int32()), ("t_s", pa.float64())]
+                           + [(f"pos_{c}_m", pa.float64()) for c in "enu"]
+                           + [(f"vel_{c}_mps", pa.float64()) for c in "enu"]
+                           + [(c, pa.float64()) for cols in OPTIONAL_COLUMNS["truth"].values() for c in cols]),
+        "imu": pa.schema([("trace", pa.int32()), ("t_s", pa.float64())]
+                         + [(c, pa.float64()) for cols in OPTIONAL_COLUMNS["imu"].values() for c in cols]),
+        "uwb": pa.schema([("trace", pa.int32()), ("t_s", pa.float64()), ("anchor_id", pa.string()),
+                          ("range_m", pa.float64()), ("true_range_m", pa.float64()), ("nlos", pa.bool_()),
+                          ("burst", pa.int64()), ("reason", pa.int8())]),
+        "anchors": pa.schema([("trace", pa.int32()), ("anchor_id", pa.string()), ("name", pa.string())]
+                             + [(f"pos_{c}_m", pa.float64()) for c in "enu"]),
+    }
+    compact = {
+        name: pa.schema([pa.field(f.name, pa.float32()) if f.name in FLOAT32_COLUMNS else f for f in schema])
+        for name, schema in schemas.items()
+    }
+    return schemas, compact
+
+
+def __getattr__(name: str) -> Any:
+    """``SCHEMAS`` and ``SCHEMAS_COMPACT``, built on first use (:func:`arrow_schemas`)."""
+    if name == "SCHEMAS":
+        return arrow_schemas()[0]
+    if name == "SCHEMAS_COMPACT":
+        return arrow_schemas()[1]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 REQUIRED_COLUMNS = frozenset({"trace", "t_s"})
 """Columns never null in any table: written as Parquet REQUIRED (no definition levels to encode)."""
 
 
-def _schema(name: str, compact: bool, groups: Mapping[str, Iterable[str]] | None) -> pa.Schema:
-    """The table's schema, restricted to the optional groups ``groups[name]`` (all when None)."""
-    schema = (SCHEMAS_COMPACT if compact else SCHEMAS)[name]
-    if groups is None or name not in OPTIONAL_COLUMNS:
-        keep = schema
-    else:
-        wanted = set(groups.get(name, ()))
-        unknown = wanted - set(OPTIONAL_COLUMNS[name])
-        if unknown:
-            raise ValueError(f"unknown optional column groups of table {name}: {sorted(unknown)}")
-        drop = {c for attr, cols in OPTIONAL_COLUMNS[name].items() if attr not in wanted for c in cols}
-        keep = pa.schema([f for f in schema if f.name not in drop])
+def _schema(name: str, compact: bool, held: set[str]) -> pa.Schema:
+    """The table's schema, restricted to the optional groups ``held`` (:func:`_held_groups`)."""
+    import pyarrow as pa
+
+    schema = arrow_schemas()[1 if compact else 0][name]
+    drop = {c for attr, cols in OPTIONAL_COLUMNS.get(name, {}).items() if attr not in held for c in cols}
+    keep = [f for f in schema if f.name not in drop]
     return pa.schema([f.with_nullable(False) if f.name in REQUIRED_COLUMNS else f for f in keep])
+
+
+def _held_groups(name: str, groups: Mapping[str, Iterable[str]] | None) -> set[str]:
+    """The optional column groups of table ``name`` that a dataset declared with ``groups`` holds (all
+    when None); ValueError on a group the table does not have."""
+    if groups is None or name not in OPTIONAL_COLUMNS:
+        return set(OPTIONAL_COLUMNS.get(name, {}))
+    wanted = set(groups.get(name, ()))
+    unknown = wanted - set(OPTIONAL_COLUMNS[name])
+    if unknown:
+        raise ValueError(f"unknown optional column groups of table {name}: {sorted(unknown)}")
+    return wanted
 
 
 def generated_column_groups(imu_frames: Iterable[str]) -> dict[str, list[str]]:
@@ -96,9 +127,13 @@ def generated_column_groups(imu_frames: Iterable[str]) -> dict[str, list[str]]:
     return {"truth": list(OPTIONAL_COLUMNS["truth"]), "imu": imu}
 
 
-_FLOAT_COLUMNS = {name: [f.name for f in schema if pa.types.is_floating(f.type)] for name, schema in SCHEMAS.items()}
-"""Float columns are written with Parquet's BYTE_STREAM_SPLIT encoding: noisy floats then compress
-(snappy) to about 20 % fewer bytes than plain encoding, at the same CPU time."""
+def _float_columns(schema: pa.Schema) -> list[str]:
+    """The float columns of ``schema``, written with Parquet's BYTE_STREAM_SPLIT encoding: noisy floats
+    then compress (snappy) to about 20 % fewer bytes than plain encoding, at the same CPU time."""
+    import pyarrow as pa
+
+    return [f.name for f in schema if pa.types.is_floating(f.type)]
+
 
 UNITS = {
     "t_s": "s", "pos_*_m": "m (ENU)", "vel_*_mps": "m/s (ENU)", "acc_[enu]_mps2": "m/s^2 (ENU, gravity removed)",
@@ -117,8 +152,13 @@ FRAMES = {
 REASONS = {"0": "ok", "1": "dropout", "2": "outage", "3": "no link (range/visibility)", "4": "invalid"}
 
 
-_NUMPY_OF = {pa.float64(): np.float64, pa.float32(): np.float32, pa.int64(): np.int64, pa.int32(): np.int32,
-             pa.int16(): np.int16, pa.int8(): np.int8}
+@functools.cache
+def _numpy_of() -> dict[pa.DataType, type]:
+    """NumPy scalar type of each fixed-width Arrow type that :func:`_arrow` wraps without a copy."""
+    import pyarrow as pa
+
+    return {pa.float64(): np.float64, pa.float32(): np.float32, pa.int64(): np.int64, pa.int32(): np.int32,
+            pa.int16(): np.int16, pa.int8(): np.int8}
 
 
 def _arrow(values: Any, typ: pa.DataType) -> pa.Array:
@@ -126,10 +166,13 @@ def _arrow(values: Any, typ: pa.DataType) -> pa.Array:
 
     (``pa.array`` on NumPy input imports pandas, 0.5 s that the writer does not need.)
     """
+    import pyarrow as pa
+
     if isinstance(values, pa.Array):
         return values
-    if typ in _NUMPY_OF:
-        arr = np.ascontiguousarray(values, dtype=_NUMPY_OF[typ])
+    numpy_of = _numpy_of()
+    if typ in numpy_of:
+        arr = np.ascontiguousarray(values, dtype=numpy_of[typ])
         return pa.Array.from_buffers(typ, arr.shape[0], [None, pa.py_buffer(arr)])
     if typ == pa.bool_():
         arr = np.asarray(values, dtype=bool)
@@ -143,6 +186,8 @@ def _arrow(values: Any, typ: pa.DataType) -> pa.Array:
 
 def _strings_at(values: Sequence[str], index: np.ndarray) -> pa.Array:
     """Arrow strings ``values[index]`` gathered with NumPy (``cast``/``take`` would import pyarrow.compute)."""
+    import pyarrow as pa
+
     enc = [str(v).encode("utf-8") for v in values]
     index = np.asarray(index, dtype=np.intp)
     width = len(enc[0]) if enc else 0
@@ -163,6 +208,8 @@ def _strings_at(values: Sequence[str], index: np.ndarray) -> pa.Array:
 
 def _table(name: str, cols: list[Any], schema: pa.Schema) -> pa.Table:
     """A table of ``schema`` (one of ``SCHEMAS``, compact or restricted by :func:`_schema`) from NumPy columns."""
+    import pyarrow as pa
+
     n = len(cols[0])
     return pa.Table.from_arrays([pa.nulls(n, f.type) if c is None else _arrow(c, f.type)
                                  for c, f in zip(cols, schema, strict=True)], schema=schema)
@@ -185,6 +232,18 @@ def _optional(record: Any, table: str, schema: pa.Schema) -> list[np.ndarray | N
     return out
 
 
+def _check_declared(trace: Trace, held: Mapping[str, set[str]]) -> None:
+    """DatasetError when ``trace`` has an optional column group that the dataset does not hold
+    (``held``: :func:`_held_groups` of each table), as :func:`_optional` would raise when writing it."""
+    for table, record in (("truth", trace.truth), ("imu", trace.imu)):
+        if record is None:
+            continue
+        for attr, cols in OPTIONAL_COLUMNS[table].items():
+            if attr not in held[table] and getattr(record, attr) is not None:
+                raise DatasetError(f"a trace has {table} columns {', '.join(cols)} that this dataset was not "
+                                   "declared to hold")
+
+
 def _optional_group(cols: dict[str, np.ndarray], table: str, attr: str) -> np.ndarray | None:
     """A group of optional columns read back as (N, k), or None when absent or null throughout."""
     names = OPTIONAL_COLUMNS[table][attr]
@@ -197,6 +256,8 @@ def _optional_group(cols: dict[str, np.ndarray], table: str, attr: str) -> np.nd
 
 
 def _tables_of(trace: Trace, index: int, schemas: Mapping[str, pa.Schema]) -> dict[str, pa.Table]:
+    import pyarrow as pa
+
     tr = trace.truth
     n = tr.t_s.shape[0]
     out = {"truth": _table("truth", [np.full(n, index, np.int32), tr.t_s, *tr.pos_enu_m.T, *tr.vel_enu_mps.T,
@@ -227,7 +288,12 @@ class DatasetWriter:
     optional column groups (:data:`OPTIONAL_COLUMNS`, by record attribute) the dataset holds, per table,
     e.g. :func:`generated_column_groups`; None holds them all, with nulls where a trace lacks a group.
     Naming them saves writing (and reading) columns of nulls; a trace that has a group the dataset does
-    not hold raises :class:`DatasetError` rather than lose it.
+    not hold raises :class:`DatasetError` (in :meth:`add`) rather than lose it.
+
+    :meth:`add` keeps the trace it is given as it is and converts the one before to Arrow tables (so
+    at most one trace waits unconverted); a row group is written when it holds ``row_group_traces``
+    traces or the writer closes. The Parquet files are opened, and pyarrow imported, by the first
+    conversion: the first trace is added (and a caller can report it) before pyarrow is imported.
     """
 
     def __init__(self, path: str | os.PathLike, *, meta: dict[str, Any] | None = None,
@@ -250,16 +316,13 @@ class DatasetWriter:
             self._lock.release()
             raise
         self._rows = {name: 0 for name in TABLES}
-        self._schemas = {name: _schema(name, compact, column_groups) for name in TABLES}
-        self._writers = {
-            name: pq.ParquetWriter(self.tmp / f"{name}.parquet", self._schemas[name],
-                                   compression="snappy",
-                                   use_byte_stream_split=[c for c in _FLOAT_COLUMNS[name]
-                                                          if c in self._schemas[name].names],
-                                   use_dictionary=["anchor_id", "name"], write_statistics=["trace"])
-            for name in TABLES
-        }
-        self._pending: dict[str, list[pa.Table]] = {name: [] for name in TABLES}
+        self._held = {name: _held_groups(name, column_groups) for name in TABLES}
+        self._compact = compact
+        self._schemas: dict[str, pa.Schema] = {}
+        self._writers: dict[str, pq.ParquetWriter] = {}  # opened by _open_writers
+        self._unconverted: tuple[Trace, int] | None = None  # the last trace added, converted by the next add
+        self._tables: dict[str, list[pa.Table]] = {name: [] for name in TABLES}  # the row group being filled
+        self._pending = 0  # traces of the row group being filled
         self._row_group_traces = row_group_traces
         self._trace_meta: list[dict[str, Any]] = []
         self._frames: set[str] = set()
@@ -272,22 +335,51 @@ class DatasetWriter:
     def add(self, trace: Trace, index: int | None = None) -> None:
         safety.check_interrupted()  # a signal whose exception was swallowed (physynth.io.safety)
         index = len(self._trace_meta) if index is None else int(index)
-        for name, table in _tables_of(trace, index, self._schemas).items():
-            self._pending[name].append(table)
+        _check_declared(trace, self._held)
+        self._convert()  # the previous trace
+        self._unconverted = (trace, index)
+        self._pending += 1
         self._trace_meta.append({"trace": index, **jsonable(trace.meta)})
         if trace.imu is not None:
             self._frames.update(trace.imu.frames)
         self._attitude = self._attitude or trace.truth.has_attitude
-        if len(self._pending["truth"]) >= self._row_group_traces:
+        if self._pending >= self._row_group_traces:
             self._flush()
 
+    def _open_writers(self) -> dict[str, pq.ParquetWriter]:
+        """The Parquet writers of the tables, opened on the first call (the first conversion, or close)."""
+        if len(self._writers) < len(TABLES):
+            import pyarrow.parquet as pq
+
+            self._schemas = self._schemas or {name: _schema(name, self._compact, self._held[name]) for name in TABLES}
+            for name in (n for n in TABLES if n not in self._writers):
+                self._writers[name] = pq.ParquetWriter(
+                    self.tmp / f"{name}.parquet", self._schemas[name], compression="snappy",
+                    use_byte_stream_split=_float_columns(self._schemas[name]),
+                    use_dictionary=["anchor_id", "name"], write_statistics=["trace"])
+        return self._writers
+
+    def _convert(self) -> None:
+        """Convert the trace waiting unconverted, if any, to Arrow tables of the row group being filled."""
+        if self._unconverted is not None:
+            self._open_writers()
+            (trace, index), self._unconverted = self._unconverted, None
+            for name, table in _tables_of(trace, index, self._schemas).items():
+                self._tables[name].append(table)
+
     def _flush(self) -> None:
-        for name, parts in self._pending.items():
-            if parts:
-                table = pa.concat_tables(parts)
-                self._writers[name].write_table(table)
+        """Write the traces added since the last row group as one row group of every table."""
+        import pyarrow as pa
+
+        writers = self._open_writers()
+        self._convert()
+        for name, tables in self._tables.items():
+            if tables:
+                table = pa.concat_tables(tables)
+                writers[name].write_table(table)
                 self._rows[name] += table.num_rows
-            self._pending[name] = []
+            self._tables[name] = []
+        self._pending = 0
 
     def close(self) -> Path:
         """Finish every table, write ``dataset.json`` and swap the dataset into place.
@@ -412,14 +504,17 @@ def table_files(path: Path, name: str) -> list[Path]:
 
 
 def _columns(table: pa.Table, name: str, f: Path) -> dict[str, np.ndarray]:
+    import pyarrow as pa
+
+    names = arrow_schemas()[0][name].names
     optional = {c for group in OPTIONAL_COLUMNS.get(name, {}).values() for c in group}
     if name == "imu" and not any(c in table.column_names for c in optional):
         raise DatasetError(f"{f}: no acceleration or angular-rate column")
-    missing = [c for c in SCHEMAS[name].names if c not in table.column_names and c not in optional]
+    missing = [c for c in names if c not in table.column_names and c not in optional]
     if missing:
         raise DatasetError(f"{f}: missing column(s) {', '.join(missing)}")
     cols = {}
-    for c in SCHEMAS[name].names:
+    for c in names:
         if c not in table.column_names:
             continue
         col = table.column(c)
@@ -439,6 +534,9 @@ def _columns(table: pa.Table, name: str, f: Path) -> dict[str, np.ndarray]:
 
 
 def _read_table(path: Path, name: str) -> dict[str, np.ndarray]:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
     parts = []
     for f in table_files(path, name):
         try:
@@ -479,6 +577,9 @@ def _row_groups_sorted(files: list[Path]) -> bool:
 
 
 def _parquet_file(f: Path) -> pq.ParquetFile:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
     try:
         return pq.ParquetFile(f)
     except (OSError, pa.ArrowException) as exc:
@@ -486,6 +587,8 @@ def _parquet_file(f: Path) -> pq.ParquetFile:
 
 
 def _row_group(pf: pq.ParquetFile, g: int, name: str, f: Path) -> dict[str, np.ndarray]:
+    import pyarrow as pa
+
     try:
         return _columns(pf.read_row_group(g), name, f)
     except (OSError, pa.ArrowException) as exc:

@@ -9,6 +9,8 @@ dataset; the records go under ``dataset.json`` ``"files"``::
 ``physynth verify`` calls it explicitly) and raises :class:`~physynth.errors.IntegrityError` naming
 the first file that disagrees. Datasets written before the records existed have no ``"files"``;
 readers accept them, ``verify`` says they cannot be verified.
+
+pyarrow is imported by the functions that read Parquet footers or tables, not with this module.
 """
 
 from __future__ import annotations
@@ -22,8 +24,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pyarrow as pa
-import pyarrow.parquet as pq
 
 from ..errors import IntegrityError
 
@@ -59,6 +59,8 @@ def shard_file_records(shards: Sequence[Path], tables: Iterable[str], *, single:
         for name in tables:
             rec = own.get(f"{name}.parquet")
             if rec is None:  # a shard written without records: hash it now
+                import pyarrow.parquet as pq
+
                 rows = pq.ParquetFile(shard / f"{name}.parquet").metadata.num_rows
                 rec = file_records(shard, {f"{name}.parquet": rows})[f"{name}.parquet"]
             out[f"{name}.parquet" if single else f"{name}/part-{k:05d}.parquet"] = rec
@@ -85,6 +87,9 @@ def check_dataset(path: Path, meta: Mapping[str, Any], *, hashes: bool = True) -
     IntegrityError
         Naming the dataset and the first file that disagrees, and how.
     """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
     files = meta.get("files")
     if files is None:
         return VerifyResult(files=0, rows=0, bytes=0, recorded=False)
@@ -136,6 +141,9 @@ def check_trace_ids(path: Path, meta: Mapping[str, Any], tables: Iterable[str] =
     tables = [t for t in tables if (path / t).is_file()]
     if not tables:
         return
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
     cols = []
     for name in tables:
         try:
