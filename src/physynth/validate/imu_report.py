@@ -253,7 +253,8 @@ def validate_imu(real: Sequence[Trace], *, scenario: Scenario | None = None, syn
     inputs["synthetic"] = {"scenario_name": scenario.name, "n_traces": int(n), "root_seed": root,
                            "transfer": bool(transfer), "scenario_config": scenario_to_dict(scenario)}
     tr_info = ({"what": "each synthetic trace runs the scenario's IMU models along a real trace's truth "
-                        "(acceleration, attitude); trace i along real trace i mod R"} if transfer else None)
+                        "(acceleration, attitude); trace i along real trace i mod R",
+                "model_truth_cutoff_hz": float(scenario.imu.truth_cutoff_hz or CUTOFF_HZ)} if transfer else None)
     return compare_imu(real, synth, inputs=inputs, transfer=tr_info)
 
 
