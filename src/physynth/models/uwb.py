@@ -36,6 +36,7 @@ import numpy as np
 from pydantic import Field
 
 from ..records import Reason, Uwb
+from ._interp import interp_many
 from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Probability, Vec3
 from .motion import Kinematics
 from .obstacles import Obstacle, TerrainGrid, obstacle_losses
@@ -551,17 +552,19 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
     # ~2.5x faster than its 2-D multi-index iteration)
     b_idx, anchor = np.divmod(np.flatnonzero(scheduled), n_anchors)
     t_true = bursts[b_idx] + anchor * u.slot_s
-    sq = np.zeros(t_true.shape[0])
+    # the tag's E, N, U and path coordinate at the attempts: numpy.interp's values, one search for all four
+    *tag_enu, s_m = interp_many(t_true, kin.t_s, [*kin.pos_enu_m.T, kin.s_m])
+    sq = None
     for k in range(3):  # |p(t) - a_i|, one ENU component at a time (contiguous, no (N, 3) temporaries)
-        d = np.interp(t_true, kin.t_s, kin.pos_enu_m[:, k]) - ch.anchor_pos_enu_m[:, k][anchor]
-        sq += d * d
+        d = tag_enu[k] - ch.anchor_pos_enu_m[:, k][anchor]
+        d *= d
+        sq = d if sq is None else np.add(sq, d, out=sq)  # as 0 + d_E^2 + d_N^2 + d_U^2 (0 + x is x)
     true_range = np.sqrt(sq)
-    s_m = np.interp(t_true, kin.t_s, kin.s_m)
 
     p_link = link_probability(true_range, ch.max_range_m[anchor], ch.edge_width_m[anchor])
     blocked = None
     if ch.obstacles or ch.terrain is not None or ch.link is not None:  # geometry-aware parts (optional)
-        tag = np.stack([np.interp(t_true, kin.t_s, kin.pos_enu_m[:, k]) for k in range(3)], axis=1)
+        tag = np.stack(tag_enu, axis=1)
         loss: np.ndarray | float = 0.0
         if ch.obstacles or ch.terrain is not None:
             blocked, loss = obstacle_losses(tag, ch.anchor_pos_enu_m[anchor], ch.obstacles, ch.terrain)
