@@ -40,7 +40,7 @@ from ._interp import interp_many
 from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Probability, Vec3
 from .motion import Kinematics
 from .obstacles import Obstacle, TerrainGrid, obstacle_losses
-from .renewal import initial_pairs, rows_by_label, switch_counts
+from .renewal import initial_pairs, is_ascending, rows_by_label, switch_counts
 
 
 class NlosMode(ParamsModel):
@@ -439,8 +439,8 @@ def range_error(true_range_m: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, 
 
 
 def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_s: np.ndarray, *,
-                  rng: np.random.Generator, fixed_dwell: np.ndarray | None = None
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  rng: np.random.Generator, fixed_dwell: np.ndarray | None = None, first_episode: int = 0,
+                  ascending: bool | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """NLOS state and mode at sorted times of one anchor: an alternating renewal process in which each
     NLOS episode keeps one mode m for an exponential time of mean ``dwell_s[m]``.
 
@@ -448,14 +448,15 @@ def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_
     the share of NLOS *time* in each mode; LOS gaps are exponential with the mean that makes the
     long-run NLOS fraction ``nlos_prob``. A mode with ``fixed_dwell`` lasts exactly ``dwell_s`` (the
     exponential draw is still made, so the stream does not depend on the flag). Returns (nlos (N,)
-    bool, mode (N,) int, -1 where LOS, episode (N,) int: index of the episode, -1 where LOS).
+    bool, mode (N,) int, -1 where LOS, episode (N,) int: ``first_episode`` + index of the episode, -1
+    where LOS). ``ascending``: as in :func:`~physynth.models.renewal.switch_counts`.
     """
     q = weights / dwell_s
     q = q / q.sum()
-    mean_on = float(np.sum(q * dwell_s))
+    mean_on = float((q * dwell_s).sum())
     mean_off = mean_on * (1.0 - nlos_prob) / nlos_prob
     start_on = bool(rng.random() < nlos_prob)
-    cum_q = np.cumsum(q)
+    cum_q = q.cumsum()
     fixed = fixed_dwell if fixed_dwell is not None and fixed_dwell.any() else None  # None: no mode is fixed
     col_on = 0 if start_on else 1
 
@@ -470,11 +471,15 @@ def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_
         pairs[:, 1 - col_on] = rng.exponential(mean_off, n)
         return pairs, modes
 
-    k, modes = switch_counts(t_s, draw, initial_pairs(float(t_s[-1] - t_s[0]), mean_on + mean_off))
-    odd = (k & 1).astype(bool)  # k >= 0: k & 1 is k % 2 and k >> 1 is k // 2
-    nlos = ~odd if start_on else odd
-    pair = np.minimum(k >> 1, modes.size - 1)
-    return nlos, np.where(nlos, modes[pair], -1), np.where(nlos, pair, -1)
+    k, modes = switch_counts(t_s, draw, initial_pairs(float(t_s[-1] - t_s[0]), mean_on + mean_off),
+                             ascending=ascending)
+    nlos = (k & 1) == (0 if start_on else 1)  # k >= 0: k & 1 is k % 2 and k >> 1 is k // 2
+    pair = np.right_shift(k, 1, out=k)
+    np.minimum(pair, modes.size - 1, out=pair)
+    mode = np.where(nlos, modes.take(pair), -1)
+    if first_episode:
+        pair += first_episode
+    return nlos, mode, np.where(nlos, pair, -1)
 
 
 def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: ChannelArrays, *,
@@ -491,6 +496,7 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
     episode = np.full(t_s.shape[0], -1, dtype=np.int64)
     base = 0
     weights_of = np.diff(ch.mode_cumw, axis=1, prepend=0.0)  # mode weights of every anchor
+    ascending = is_ascending(t_s)  # checked once for every anchor's rows
     for i, rows in enumerate(rows_by_label(anchor, ch.nlos_prob.shape[0])):  # one renewal process per anchor
         p = ch.nlos_prob[i]
         if rows.size == 0 or p <= 0:
@@ -500,9 +506,10 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
             nlos[rows] = True
             continue
         nlos[rows], mode[rows], ep = nlos_episodes(t_s[rows], p, weights, ch.mode_dwell_s[i], rng=rng,
-                                                   fixed_dwell=ch.mode_fixed_dwell[i])
-        episode[rows] = np.where(ep >= 0, ep + base, -1)
-        base += int(ep.max()) + 1 if ep.size else 0
+                                                   fixed_dwell=ch.mode_fixed_dwell[i], first_episode=base,
+                                                   ascending=ascending)
+        episode[rows] = ep
+        base = max(base, int(ep.max()) + 1) if ep.size else base
     if ch.zone_s_m.size:
         dist = np.abs(s_m[:, None] - ch.zone_s_m[None, :])
         p_zone = np.where(dist <= ch.zone_half_width_m, ch.zone_nlos_prob, 0.0).max(axis=1)
