@@ -111,6 +111,16 @@ def _white_noise_cf(n: int, density: np.ndarray, rate_hz: float, *, rng: np.rand
     return out
 
 
+def _sample_times(t0_s: float, n: int, rate_hz: float) -> np.ndarray:
+    """``t0_s + numpy.arange(n) / rate_hz``, bit for bit: the integers made as floats (no int64 pass) and
+    t0 added only when non-zero (0 + x is x for the x >= +0 of ``arange(n) / rate_hz``, rate > 0)."""
+    t = np.arange(n, dtype=np.float64)
+    t /= rate_hz
+    if t0_s != 0.0:
+        t += t0_s
+    return t
+
+
 def _knots(t_s: np.ndarray, spacing_s: float) -> np.ndarray:
     """Uniform knots covering ``t_s``, spaced by a whole number of samples close to ``spacing_s``."""
     dt = t_s[1] - t_s[0] if t_s.shape[0] > 1 else spacing_s
@@ -247,7 +257,7 @@ def simulate_imu(kin: Kinematics, params: ImuParams, *, rng: np.random.Generator
     slow += _bias_cf(kin.t_s, params.bias_rw_mps2_per_sqrt_s, params.bias_initial_std_mps2, rng=rng)
     # IMU samples cover [t0, t_end) of the truth; the last truth instant itself has no IMU sample
     n_imu = int(np.ceil((kin.t_s[-1] - kin.t_s[0]) * params.rate_hz - 1e-9))
-    t_imu = kin.t_s[0] + np.arange(n_imu) / params.rate_hz
+    t_imu = _sample_times(kin.t_s[0], n_imu, params.rate_hz)
     acc = _white_noise_cf(t_imu.shape[0], np.asarray(params.white_noise_density_mps2_per_sqrt_hz),
                           params.rate_hz, rng=rng)
     ratio = (kin.t_s[1] - kin.t_s[0]) * params.rate_hz if kin.t_s.shape[0] > 1 else 0.0
@@ -481,6 +491,18 @@ between truth samples (chord error at most |f| angle^2 / 8, about 1e-8 m s^-2); 
 within the step is applied exactly."""
 
 
+def _max_turn_rad(omega_radps: np.ndarray, dt_s: np.ndarray) -> float:
+    """max over steps k and axes c of |omega_kc| dt_k (omega (K, 3), dt (K,)), or, when that is cheaper to
+    know, a bound of it that is itself at most :data:`ROTATION_EXACT_ABOVE_RAD`: then ``<=`` and ``>``
+    against that threshold decide as on the maximum (rounding is monotonic). NaN as the maximum gives."""
+    if dt_s.shape[0] == 0:
+        return float(np.max(np.abs(omega_radps) * dt_s[:, None]))  # raises on empty input, as before
+    bound = float(np.abs(omega_radps).max()) * float(dt_s.max())
+    if bound <= ROTATION_EXACT_ABOVE_RAD:
+        return bound
+    return float(np.max(np.abs(omega_radps) * dt_s[:, None]))
+
+
 def _ideal_at(t_q: np.ndarray, t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, omega_body_radps: np.ndarray
               ) -> tuple[np.ndarray, np.ndarray]:
     """Ideal specific force and body rate (3, N) at times ``t_q`` (any, e.g. shifted by a clock offset).
@@ -499,7 +521,7 @@ def _ideal_at(t_q: np.ndarray, t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: R
         return np.repeat(u.T, t_q.shape[0], axis=1), np.repeat(np.asarray(omega_body_radps, float).T, t_q.shape[0], 1)
     d = inv[:-1].apply(np.diff(f_w, axis=0))  # R_k^T (a_{k+1} - a_k)
     dt = np.diff(t_s)
-    turn = float(np.max(np.abs(omega_body_radps[:-1]) * dt[:, None]))
+    turn = _max_turn_rad(np.asarray(omega_body_radps)[:-1], dt)
     n_q = t_q.shape[0]
     ratio = dt[0] / (t_q[1] - t_q[0]) if n_q > 1 else 0.0
     factor = int(round(ratio))
@@ -533,11 +555,23 @@ def _add_upsampled(out_cf: np.ndarray, slow_cf: np.ndarray, factor: int) -> None
     out_cf += upsample_linear(slow_cf, factor)
 
 
-def _apply_device(matrix: np.ndarray, bias: np.ndarray, x_cf: np.ndarray) -> np.ndarray:
-    """matrix @ x + bias for (3, N) samples, skipping an identity matrix and a zero bias (a new array)."""
-    out = matrix @ x_cf if np.any(matrix != np.eye(3)) else np.array(x_cf, dtype=float, order="C")
-    if np.any(bias != 0.0):
-        out += bias[:, None]
+def _apply_device(matrix: np.ndarray, bias: np.ndarray, x_cf: np.ndarray, plus: np.ndarray | None = None, *,
+                  copy: bool = True) -> np.ndarray:
+    """(matrix @ x + bias) + plus for (3, N) samples, skipping an identity matrix, a zero bias and a None
+    ``plus``: a new array, or ``x_cf`` itself when there is nothing to apply and ``copy`` is False."""
+    has_bias = bool(np.any(bias != 0.0))
+    if np.any(matrix != np.eye(3)):
+        out = matrix @ x_cf
+        if has_bias:
+            out += bias[:, None]
+    elif has_bias:
+        out = x_cf + bias[:, None]
+    elif plus is not None:
+        return x_cf + plus
+    else:
+        return np.array(x_cf, dtype=float, order="C") if copy else x_cf
+    if plus is not None:
+        out += plus
     return out
 
 
@@ -579,7 +613,7 @@ def simulate_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, 
     a, g = params.accelerometer, params.gyroscope
     dev = draw_imu_device(params, rng=rng)
     n_imu = int(np.ceil((t[-1] - t[0]) * params.rate_hz - 1e-9))
-    t_imu = t[0] + np.arange(n_imu) / params.rate_hz
+    t_imu = _sample_times(t[0], n_imu, params.rate_hz)
     vib_var = None
     if a.vibration_acc_var_gain_mps2 > 0 or a.vibration_rate_var_gain_mps4_per_radps > 0:
         vib_var = (a.vibration_amplitude_mps2**2
@@ -594,20 +628,20 @@ def simulate_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, 
     acc = _white_noise_cf(n_imu, np.full(3, a.noise_density_mps2_per_sqrt_hz), params.rate_hz, rng=rng)
     gyro = _white_noise_cf(n_imu, np.full(3, g.noise_density_radps_per_sqrt_hz), params.rate_hz, rng=rng)
     factor = _upsampling_factor(t, t_imu)
-    turn = float(np.max(np.abs(omega_body_radps[:-1]) * np.diff(t)[:, None])) if t.size > 1 else 0.0
+    turn = _max_turn_rad(np.asarray(omega_body_radps)[:-1], np.diff(t)) if t.size > 1 else 0.0
     if params.time_offset_s == 0.0 and factor and turn <= ROTATION_EXACT_ABOVE_RAD and n_imu == (t.size - 1) * factor:
         # the usual case: every term at the truth rate (linear maps commute with linear upsampling),
         # added into the noise
         f_b, w_b = ideal_body_imu(t, acc_enu_mps2, rot, omega_body_radps)
-        acc_slow = _apply_device(dev.acc_matrix, dev.acc_turn_on_bias_mps2, f_b.T)
-        gyro_const = _apply_device(dev.gyro_matrix, dev.gyro_turn_on_bias_radps, w_b.T)
+        acc_slow = _apply_device(dev.acc_matrix, dev.acc_turn_on_bias_mps2, f_b.T, acc_err)
+        gyro_const = _apply_device(dev.gyro_matrix, dev.gyro_turn_on_bias_radps, w_b.T, copy=False)[:, :-1]
         gyro_lin = g.g_sensitivity_radps_per_mps2 * f_b.T if g.g_sensitivity_radps_per_mps2 > 0 else None
-        if acc_err is not None:
-            acc_slow += acc_err
         if gyro_err is not None:
             gyro_lin = gyro_err if gyro_lin is None else gyro_lin + gyro_err
         _add_upsampled(acc, acc_slow, factor)
-        gyro.reshape(3, -1, factor)[...] += gyro_const[:, :-1, None]
+        per_step = gyro.reshape(3, -1, factor)
+        for j in range(factor):  # one strided add per phase: 2x faster than a broadcast of length-factor rows
+            per_step[:, :, j] += gyro_const
         if gyro_lin is not None:
             _add_upsampled(gyro, gyro_lin, factor)
     else:
