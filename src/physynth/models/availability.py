@@ -243,16 +243,20 @@ def long_outage_mask(t_s: np.ndarray, range_m: np.ndarray, rate_per_s: float, me
 
 def simulate_availability(t_s: np.ndarray, anchor: np.ndarray, burst: np.ndarray, bursts_s: np.ndarray,
                           av: AvailabilityArrays, burst_rate_hz: float, *, range_m: np.ndarray | None = None,
-                          rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+                          rng: np.random.Generator, rows_of: Sequence[np.ndarray] | None = None
+                          ) -> tuple[np.ndarray, np.ndarray]:
     """Outage and dropout flags of ranging attempts (true times ``t_s``, anchor and burst indices).
 
     ``bursts_s`` holds the start time of every tag burst (the tag-level process runs on the bursts);
     ``range_m`` (N,), the true range of every attempt, is needed only by long outages.
     Returns (outage, dropped), both (N,) bool. Rates with a Gamma shape are drawn for the trace first.
+    ``rows_of``: the rows of each anchor (``rows_by_label(anchor, A)``, e.g. ``UwbAttempts.anchor_rows``)
+    when the caller has them already.
     """
     av = draw_trace_rates(av, rng=rng)
     outage = np.zeros(t_s.shape[0], dtype=bool)
-    rows_of = rows_by_label(anchor, av.dropout_prob.shape[0])
+    if rows_of is None:
+        rows_of = rows_by_label(anchor, av.dropout_prob.shape[0])
     ascending = is_ascending(t_s)  # checked once for every anchor's rows
     for i, rows in enumerate(rows_of):  # one outage process per anchor
         outage[rows] = outage_mask(t_s[rows], av.outage_onset_prob[i], burst_rate_hz, av.outage_mean_s[i],

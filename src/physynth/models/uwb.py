@@ -483,13 +483,14 @@ def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_
 
 
 def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: ChannelArrays, *,
-                rng: np.random.Generator, blocked: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                rng: np.random.Generator, blocked: np.ndarray | None = None,
+                rows_of: Sequence[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """NLOS indicator, mode and episode id of each row: per-anchor episodes, raised inside NLOS zones and
     where ``blocked`` (the line of sight meets an obstacle).
 
     Rows made NLOS by a zone or an obstacle (and not by an episode) draw their mode by weight (mode -1
-    marks them). Episode ids are unique over anchors (-1 outside an episode).
+    marks them). Episode ids are unique over anchors (-1 outside an episode). ``rows_of``: the rows of
+    each anchor, ``rows_by_label(anchor, A)``, when the caller has them already.
     """
     nlos = np.zeros(t_s.shape[0], dtype=bool)
     mode = np.full(t_s.shape[0], -1, dtype=np.int64)
@@ -497,7 +498,9 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
     base = 0
     weights_of = np.diff(ch.mode_cumw, axis=1, prepend=0.0)  # mode weights of every anchor
     ascending = is_ascending(t_s)  # checked once for every anchor's rows
-    for i, rows in enumerate(rows_by_label(anchor, ch.nlos_prob.shape[0])):  # one renewal process per anchor
+    if rows_of is None:
+        rows_of = rows_by_label(anchor, ch.nlos_prob.shape[0])
+    for i, rows in enumerate(rows_of):  # one renewal process per anchor
         p = ch.nlos_prob[i]
         if rows.size == 0 or p <= 0:
             continue
@@ -544,6 +547,7 @@ class UwbAttempts:
     measured_m: np.ndarray  # range the radio would report (never negative)
     nlos: np.ndarray
     linked: np.ndarray  # inside the radio horizon
+    anchor_rows: tuple[np.ndarray, ...] | None = None  # rows of each anchor (rows_by_label), for the availability
 
 
 def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: np.random.Generator) -> UwbAttempts:
@@ -577,12 +581,13 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
             blocked, loss = obstacle_losses(tag, ch.anchor_pos_enu_m[anchor], ch.obstacles, ch.terrain)
         p_link = p_link * link_detection_probability(tag, anchor, ch, loss)
     linked = rng.random(t_true.shape[0]) < p_link
-    nlos, mode, episode = nlos_states(t_true, anchor, s_m, ch, rng=rng, blocked=blocked)
+    rows_of = tuple(rows_by_label(anchor, n_anchors))
+    nlos, mode, episode = nlos_states(t_true, anchor, s_m, ch, rng=rng, blocked=blocked, rows_of=rows_of)
     err = range_error(true_range, anchor, nlos, mode, ch, rng=rng, episode=episode)
     err += run_offsets(n_anchors, u, rng=rng)[anchor]
     measured = np.maximum(true_range + err, 0.0)  # a range is never negative
     return UwbAttempts(bursts_s=bursts, burst=b_idx, anchor=anchor, t_true_s=t_true, true_range_m=true_range,
-                       measured_m=measured, nlos=nlos, linked=linked)
+                       measured_m=measured, nlos=nlos, linked=linked, anchor_rows=rows_of)
 
 
 def uwb_record(att: UwbAttempts, params: UwbParams, *, outage: np.ndarray, dropped: np.ndarray) -> Uwb:
