@@ -592,10 +592,17 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
 
 def uwb_record(att: UwbAttempts, params: UwbParams, *, outage: np.ndarray, dropped: np.ndarray) -> Uwb:
     """The ``uwb`` record of a run: attempts with the availability applied and stamps on the tag clock."""
-    reason = np.full(att.t_true_s.shape[0], Reason.OK, dtype=np.int8)
-    reason[dropped] = Reason.DROPOUT
-    reason[outage] = Reason.OUTAGE
-    reason[~att.linked] = Reason.NO_LINK
+    n = att.t_true_s.shape[0]
+    masks = (att.linked, outage, dropped)
+    if all(isinstance(m, np.ndarray) and m.dtype == np.bool_ and m.shape == (n,) for m in masks):
+        # boolean masks (as simulate_availability returns): the precedence below in two selections
+        reason = np.where(att.linked, np.where(outage, np.int8(Reason.OUTAGE), dropped.view(np.int8)),
+                          np.int8(Reason.NO_LINK))  # a dropped row is 1 = Reason.DROPOUT, a kept one 0 = OK
+    else:
+        reason = np.full(n, Reason.OK, dtype=np.int8)
+        reason[dropped] = Reason.DROPOUT
+        reason[outage] = Reason.OUTAGE
+        reason[~att.linked] = Reason.NO_LINK
     range_m = np.where(reason == Reason.OK, att.measured_m, np.nan)
     return Uwb(t_s=att.t_true_s + params.time_offset_s, anchor=att.anchor, range_m=range_m,
                true_range_m=att.true_range_m, nlos=att.nlos, burst=att.burst, reason=reason, nlos_known=True)
