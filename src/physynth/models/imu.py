@@ -18,6 +18,7 @@ IMU rate; only the white noise is drawn per IMU sample.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import TYPE_CHECKING, Annotated, Any
 
 import numpy as np
@@ -167,6 +168,18 @@ def _bias_cf(t_s, sigma, initial_std, *, rng):
     return resample_cf(t_s, knots_t, np.cumsum(steps, axis=1))
 
 
+@lru_cache(maxsize=32)
+def _comb_phases(freq_h: tuple[float, ...], dt: float, r: int) -> np.ndarray:
+    """The (4H, r) right-hand side of :func:`_comb`'s product: [Re R, Im R, Re R j/r, Im R j/r] with
+    R_hj = exp(i 2 pi freq_h j dt), built once per (lines, step, knot spacing) and read-only."""
+    freq = np.asarray(freq_h, dtype=float)
+    rot = np.exp(1j * 2.0 * np.pi * freq[:, None] * (np.arange(r) * dt)[None, :])  # (H, r)
+    frac = np.arange(r) / r
+    rhs = np.concatenate([rot.real, rot.imag, rot.real * frac, rot.imag * frac], axis=0)
+    rhs.setflags(write=False)
+    return rhs
+
+
 def _comb(t_s: np.ndarray, knots_t: np.ndarray, z_hak: np.ndarray, amp_h: np.ndarray, freq_h: np.ndarray,
           phase_h: np.ndarray) -> np.ndarray:
     """(A, N) sum over lines h of amp_h Re(z_h,a(t) exp(i (2 pi freq_h (t - t_0) + phase_h))), with the
@@ -187,9 +200,7 @@ def _comb(t_s: np.ndarray, knots_t: np.ndarray, z_hak: np.ndarray, amp_h: np.nda
         p = z_hak[:, :, :-1] * c_k[:, None, :]
         q = np.diff(z_hak, axis=2) * c_k[:, None, :]
         lhs = np.concatenate([p.real, -p.imag, q.real, -q.imag], axis=0)  # (4H, A, K-1)
-        rot = np.exp(1j * 2.0 * np.pi * freq_h[:, None] * (np.arange(r) * dt)[None, :])  # (H, r)
-        frac = np.arange(r) / r
-        rhs = np.concatenate([rot.real, rot.imag, rot.real * frac, rot.imag * frac], axis=0)  # (4H, r)
+        rhs = _comb_phases(tuple(freq_h.tolist()), float(dt), r)  # (4H, r), the same for every trace
         out = lhs.transpose(1, 2, 0).reshape(a * (k - 1), 4 * h) @ rhs
         return np.ascontiguousarray(out.reshape(a, -1)[:, :n])
     z = resample_cf(t_s, knots_t, z_hak.real.reshape(h * a, k)) + 1j * resample_cf(
@@ -246,14 +257,15 @@ def simulate_imu(kin: Kinematics, params: ImuParams, *, rng: np.random.Generator
     as the plain one, so the other terms' samples do not change when it is switched on.
     """
     acc_in = _with_lever_arm(kin, params, omega_body_radps, attitude)
+    if params.motion_noise.active:  # a new (3, T) array either way
+        vib = _modulated_vibration_cf(kin.t_s, kin.acc_enu_mps2, omega_body_radps, params, rng=rng)
+    else:
+        vib = _vibration_cf(kin.t_s, params.vibration, rng=rng)
     if params.time_offset_s != 0.0:  # the sensor reads the motion at t - offset
         slow = np.stack([np.interp(kin.t_s - params.time_offset_s, kin.t_s, acc_in[:, k]) for k in range(3)])
-    else:
-        slow = np.array(acc_in.T, order="C")  # a copy: the model never writes into its inputs
-    if params.motion_noise.active:
-        slow += _modulated_vibration_cf(kin.t_s, kin.acc_enu_mps2, omega_body_radps, params, rng=rng)
-    else:
-        slow += _vibration_cf(kin.t_s, params.vibration, rng=rng)
+        slow += vib
+    else:  # acceleration + vibration, into the vibration's array (the model never writes into its inputs)
+        slow = np.add(acc_in.T, vib, out=vib)
     slow += _bias_cf(kin.t_s, params.bias_rw_mps2_per_sqrt_s, params.bias_initial_std_mps2, rng=rng)
     # IMU samples cover [t0, t_end) of the truth; the last truth instant itself has no IMU sample
     n_imu = int(np.ceil((kin.t_s[-1] - kin.t_s[0]) * params.rate_hz - 1e-9))

@@ -461,7 +461,7 @@ def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_
     col_on = 0 if start_on else 1
 
     def draw(n: int) -> tuple[np.ndarray, np.ndarray]:
-        modes = np.minimum(np.searchsorted(cum_q, rng.random(n), side="right"), q.size - 1)
+        modes = np.minimum(cum_q.searchsorted(rng.random(n), side="right"), q.size - 1)
         pairs = np.empty((n, 2))  # (on, off) or (off, on): the state the process starts in first
         on = rng.exponential(1.0, n)
         on *= dwell_s[modes]
