@@ -452,11 +452,14 @@ class ImuDevice:
     gyro_turn_on_bias_radps: np.ndarray
 
 
+_OFF_DIAGONAL = np.array([1, 2, 3, 5, 6, 7])  # flat indices of a 3 x 3 matrix's off-diagonal, row by row
+
+
 def _error_matrix(scale_std: float, misalign_std: float, rng: np.random.Generator) -> np.ndarray:
     m = np.eye(3)
-    m[np.diag_indices(3)] += rng.standard_normal(3) * scale_std
-    off = ~np.eye(3, dtype=bool)
-    m[off] += rng.standard_normal(6) * misalign_std  # small-angle non-orthogonal axes
+    flat = m.reshape(-1)  # a view: the diagonal is every 4th element
+    flat[::4] += rng.standard_normal(3) * scale_std
+    flat[_OFF_DIAGONAL] += rng.standard_normal(6) * misalign_std  # small-angle non-orthogonal axes
     return m
 
 
@@ -486,15 +489,17 @@ def _gauss_markov_cf(t_s, std, tau_s, *, rng):
     return resample_cf(t_s, knots_t, _ar1(e, rho))
 
 
-def ideal_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, omega_body_radps: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def ideal_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, omega_body_radps: np.ndarray,
+                   *, copy_rates: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Noiseless specific force and angular rate (T, 3) in the body frame at the truth times.
 
-    f_b = R_wb^T (a_w - g_w), g_w = (0, 0, -G0): a level unit at rest reads (0, 0, +G0).
+    f_b = R_wb^T (a_w - g_w), g_w = (0, 0, -G0): a level unit at rest reads (0, 0, +G0). The rate is a
+    copy of ``omega_body_radps`` unless ``copy_rates`` is False (then the input itself when float64).
     """
     f_w = np.array(acc_enu_mps2, dtype=float)
     f_w[:, 2] += G0_MPS2
-    return rot.apply(f_w, inverse=True), np.array(omega_body_radps, dtype=float)
+    w = np.array(omega_body_radps, dtype=float) if copy_rates else np.asarray(omega_body_radps, dtype=float)
+    return rot.apply(f_w, inverse=True), w
 
 
 ROTATION_EXACT_ABOVE_RAD = 1e-4
@@ -644,7 +649,7 @@ def simulate_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, 
     if params.time_offset_s == 0.0 and factor and turn <= ROTATION_EXACT_ABOVE_RAD and n_imu == (t.size - 1) * factor:
         # the usual case: every term at the truth rate (linear maps commute with linear upsampling),
         # added into the noise
-        f_b, w_b = ideal_body_imu(t, acc_enu_mps2, rot, omega_body_radps)
+        f_b, w_b = ideal_body_imu(t, acc_enu_mps2, rot, omega_body_radps, copy_rates=False)  # w_b: read only
         acc_slow = _apply_device(dev.acc_matrix, dev.acc_turn_on_bias_mps2, f_b.T, acc_err)
         gyro_const = _apply_device(dev.gyro_matrix, dev.gyro_turn_on_bias_radps, w_b.T, copy=False)[:, :-1]
         gyro_lin = g.g_sensitivity_radps_per_mps2 * f_b.T if g.g_sensitivity_radps_per_mps2 > 0 else None
