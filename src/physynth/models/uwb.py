@@ -584,8 +584,11 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
     rows_of = tuple(rows_by_label(anchor, n_anchors))
     nlos, mode, episode = nlos_states(t_true, anchor, s_m, ch, rng=rng, blocked=blocked, rows_of=rows_of)
     err = range_error(true_range, anchor, nlos, mode, ch, rng=rng, episode=episode)
-    err += run_offsets(n_anchors, u, rng=rng)[anchor]
-    measured = np.maximum(true_range + err, 0.0)  # a range is never negative
+    offsets = run_offsets(n_anchors, u, rng=rng)
+    if offsets.any():  # adding zeros would change only a -0.0 error, and true_range + (-0.0) is true_range
+        err += offsets[anchor]
+    err += true_range  # true_range + err
+    measured = np.maximum(err, 0.0, out=err)  # a range is never negative
     return UwbAttempts(bursts_s=bursts, burst=b_idx, anchor=anchor, t_true_s=t_true, true_range_m=true_range,
                        measured_m=measured, nlos=nlos, linked=linked, anchor_rows=rows_of)
 
