@@ -500,6 +500,7 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
     ascending = is_ascending(t_s)  # checked once for every anchor's rows
     if rows_of is None:
         rows_of = rows_by_label(anchor, ch.nlos_prob.shape[0])
+    parts = []  # (rows, nlos, mode, episode) of each anchor with episodes, written in one scatter each
     for i, rows in enumerate(rows_of):  # one renewal process per anchor
         p = ch.nlos_prob[i]
         if rows.size == 0 or p <= 0:
@@ -508,11 +509,14 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
         if p >= 1:
             nlos[rows] = True
             continue
-        nlos[rows], mode[rows], ep = nlos_episodes(t_s[rows], p, weights, ch.mode_dwell_s[i], rng=rng,
-                                                   fixed_dwell=ch.mode_fixed_dwell[i], first_episode=base,
-                                                   ascending=ascending)
-        episode[rows] = ep
-        base = max(base, int(ep.max()) + 1) if ep.size else base
+        got = nlos_episodes(t_s[rows], p, weights, ch.mode_dwell_s[i], rng=rng, fixed_dwell=ch.mode_fixed_dwell[i],
+                            first_episode=base, ascending=ascending)
+        parts.append((rows, *got))
+        base = max(base, int(got[2].max()) + 1)
+    if parts:  # the anchors' rows are disjoint: one scatter per column instead of one per anchor
+        rows = np.concatenate([q[0] for q in parts])
+        for column, k in ((nlos, 1), (mode, 2), (episode, 3)):
+            column[rows] = np.concatenate([q[k] for q in parts])
     if ch.zone_s_m.size:
         dist = np.abs(s_m[:, None] - ch.zone_s_m[None, :])
         p_zone = np.where(dist <= ch.zone_half_width_m, ch.zone_nlos_prob, 0.0).max(axis=1)
