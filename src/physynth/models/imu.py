@@ -163,9 +163,10 @@ def bias_random_walk(t_s: np.ndarray, sigma_mps2_per_sqrt_s: float, initial_std_
 
 def _bias_cf(t_s, sigma, initial_std, *, rng):
     knots_t = _knots(t_s, _BIAS_KNOT_S)
-    steps = rng.standard_normal((3, knots_t.shape[0])) * (sigma * np.sqrt(knots_t[1] - knots_t[0]))
+    steps = rng.standard_normal((3, knots_t.shape[0]))
+    steps *= sigma * np.sqrt(knots_t[1] - knots_t[0])  # in place: the same products
     steps[:, 0] = rng.standard_normal(3) * initial_std
-    return resample_cf(t_s, knots_t, np.cumsum(steps, axis=1))
+    return resample_cf(t_s, knots_t, steps.cumsum(axis=1))
 
 
 @lru_cache(maxsize=32)
