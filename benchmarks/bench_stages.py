@@ -59,7 +59,7 @@ def _one_pass(cs, n: int) -> dict[str, float]:
         t0 = lap("UWB attempts", t0)
         outage, dropped = simulate_availability(tries.t_true_s, tries.anchor, tries.burst, tries.bursts_s,
                                                 cs.availability, s.uwb.burst_rate_hz, range_m=tries.true_range_m,
-                                                rng=component_rng(1, i, "availability"))
+                                                rng=component_rng(1, i, "availability"), rows_of=tries.anchor_rows)
         t0 = lap("availability", t0)
         uwb_record(tries, s.uwb, outage=outage, dropped=dropped)
         lap("UWB record", t0)

@@ -83,7 +83,8 @@ def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int)
         tries = simulate_uwb(kin, s.uwb, cs.channel, rng=component_rng(root_seed, index, "uwb"))
         outage, dropped = simulate_availability(tries.t_true_s, tries.anchor, tries.burst, tries.bursts_s,
                                                 cs.availability, s.uwb.burst_rate_hz, range_m=tries.true_range_m,
-                                                rng=component_rng(root_seed, index, "availability"))
+                                                rng=component_rng(root_seed, index, "availability"),
+                                                rows_of=tries.anchor_rows)
         uwb = uwb_record(tries, s.uwb, outage=outage, dropped=dropped)
     meta = {
         "source": "physynth",

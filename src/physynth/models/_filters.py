@@ -2,7 +2,21 @@
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
+
+_CACHED_BLOCK = 4096  # longest block whose powers are cached (rho up to ~0.95)
+
+
+@lru_cache(maxsize=32)
+def _powers(rho: float, block: int) -> tuple[np.ndarray, np.ndarray]:
+    """(rho^-j, rho^j) for j = 0 .. block - 1, built once per (rho, block) and read-only."""
+    j = np.arange(block)
+    up, down = rho ** -j, rho ** j
+    up.setflags(write=False)
+    down.setflags(write=False)
+    return up, down
 
 
 def ar1(x_ck: np.ndarray, rho: float) -> np.ndarray:
@@ -19,9 +33,14 @@ def ar1(x_ck: np.ndarray, rho: float) -> np.ndarray:
     if rho <= 0.0:
         y[...] = x_ck
         return y
-    block = n if rho >= 1.0 else int(max(1, min(n, np.floor(200.0 / -np.log(rho)))))
-    j = np.arange(block)
-    up, down = rho ** -j, rho ** j  # rho^-j stays below e^200
+    longest = n if rho >= 1.0 else int(max(1, np.floor(200.0 / -np.log(rho))))  # rho^-j stays below e^200
+    block = min(n, longest)
+    if rho < 1.0 and longest <= _CACHED_BLOCK:  # the same powers every trace: cached, the first `block` used
+        up, down = _powers(float(rho), longest)
+        up, down = up[:block], down[:block]
+    else:
+        j = np.arange(block)
+        up, down = rho ** -j, rho ** j
     prev = np.zeros(x_ck.shape[:-1])
     for b in range(0, n, block):  # a handful of blocks, each vectorised over knots and components
         m = min(block, n - b)

@@ -83,12 +83,15 @@ def heading_rad(vel_enu_mps: np.ndarray, min_speed_mps: float) -> np.ndarray:
     moving = np.hypot(v[:, 0], v[:, 1]) >= min_speed_mps
     if not moving.any():
         return np.zeros(v.shape[0])
-    idx = np.where(moving, np.arange(v.shape[0]), -1)
-    idx = np.maximum.accumulate(idx)  # last moving sample at or before each sample
-    idx[idx < 0] = int(np.argmax(moving))
-    # arctan2 of every sample, then one 1-D gather: the same count of arctan2 as of the gathered samples
-    # (idx has one per sample) and the same values (elementwise), without two strided 2-D gathers
-    return _unwrap(np.arctan2(v[:, 1], v[:, 0])[idx])
+    # arctan2 of every sample (elementwise: the same values as of the samples it is read from), then
+    # only the slow samples take the heading of the last moving one before them (of the first moving
+    # one when none is before): usually a handful at the stations, not a gather of every sample
+    heading = np.arctan2(v[:, 1], v[:, 0])
+    if not moving.all():
+        still, moved = np.flatnonzero(~moving), np.flatnonzero(moving)
+        last = np.searchsorted(moved, still) - 1  # moving samples before each slow one, minus one
+        heading[still] = heading[moved[np.maximum(last, 0)]]
+    return _unwrap(heading)
 
 
 def _unwrap(p: np.ndarray) -> np.ndarray:
@@ -217,7 +220,7 @@ def simulate_attitude(t_s: np.ndarray, vel_enu_mps: np.ndarray, acc_enu_mps2: np
         q[:, 0], q[:, 3] = np.cos(half), np.sin(half)
         omega = np.zeros((n, 3))
         if n > 1:
-            omega[:-1, 2] = np.diff(yaw) / np.diff(t)
+            omega[:-1, 2] = (yaw[1:] - yaw[:-1]) / (t[1:] - t[:-1])  # numpy.diff's values, without its overhead
             omega[-1, 2] = omega[-2, 2]
         return Attitude(quat_wxyz=q, omega_body_radps=omega)
     else:  # pendulum

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Probability
-from .renewal import initial_pairs, rows_by_label, switch_counts
+from .renewal import initial_pairs, is_ascending, rows_by_label, switch_counts
 
 RATE_PRIOR_SHAPE = 0.5
 """Shape of the Gamma prior on an event rate: Jeffreys' prior for a Poisson rate (with no prior
@@ -175,11 +175,12 @@ def draw_trace_rates(av: AvailabilityArrays, *, rng: np.random.Generator) -> Ava
 
 
 def alternating_renewal(t_s: np.ndarray, mean_on_s: float, mean_off_s: float, *, start_on_prob: float,
-                        rng: np.random.Generator) -> np.ndarray:
+                        rng: np.random.Generator, ascending: bool | None = None) -> np.ndarray:
     """State of a two-state process with exponential holding times at sorted times ``t_s``.
 
     Returns a bool array, True where the process is *on*. The process starts *on* with probability
-    ``start_on_prob``; both mean holding times must be positive and finite.
+    ``start_on_prob``; both mean holding times must be positive and finite. ``ascending``: as in
+    :func:`~physynth.models.renewal.switch_counts`.
     """
     t_s = np.asarray(t_s, dtype=float)
     if not (0 < mean_on_s < np.inf and 0 < mean_off_s < np.inf):
@@ -192,19 +193,19 @@ def alternating_renewal(t_s: np.ndarray, mean_on_s: float, mean_off_s: float, *,
     def draw(n: int) -> tuple[np.ndarray, None]:
         return rng.exponential(1.0, (n, 2)) * means, None
 
-    k, _ = switch_counts(t_s, draw, initial_pairs(float(t_s[-1] - t_s[0]), mean_on_s + mean_off_s))
-    odd = (k & 1).astype(bool)  # k >= 0: k & 1 is k % 2
-    return ~odd if on else odd
+    k, _ = switch_counts(t_s, draw, initial_pairs(float(t_s[-1] - t_s[0]), mean_on_s + mean_off_s),
+                         ascending=ascending)
+    return (k & 1) == (0 if on else 1)  # k >= 0: k & 1 is k % 2; an even count is the starting state
 
 
 def outage_mask(t_s: np.ndarray, onset_prob_per_burst: float, burst_rate_hz: float, outage_mean_s: float,
-                *, start_stationary: bool, rng: np.random.Generator) -> np.ndarray:
-    """True where the anchor is in an outage at times ``t_s``."""
+                *, start_stationary: bool, rng: np.random.Generator, ascending: bool | None = None) -> np.ndarray:
+    """True where the anchor is in an outage at times ``t_s`` (``ascending``: as in :func:`alternating_renewal`)."""
     if onset_prob_per_burst <= 0:
         return np.zeros(np.shape(t_s), dtype=bool)
     mean_up_s = 1.0 / (onset_prob_per_burst * burst_rate_hz)
     p_up = mean_up_s / (mean_up_s + outage_mean_s) if start_stationary else 1.0
-    return ~alternating_renewal(t_s, mean_up_s, outage_mean_s, start_on_prob=p_up, rng=rng)
+    return ~alternating_renewal(t_s, mean_up_s, outage_mean_s, start_on_prob=p_up, rng=rng, ascending=ascending)
 
 
 def stationary_availability(onset_prob_per_burst: float, burst_rate_hz: float, outage_mean_s: float) -> float:
@@ -242,19 +243,24 @@ def long_outage_mask(t_s: np.ndarray, range_m: np.ndarray, rate_per_s: float, me
 
 def simulate_availability(t_s: np.ndarray, anchor: np.ndarray, burst: np.ndarray, bursts_s: np.ndarray,
                           av: AvailabilityArrays, burst_rate_hz: float, *, range_m: np.ndarray | None = None,
-                          rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+                          rng: np.random.Generator, rows_of: Sequence[np.ndarray] | None = None
+                          ) -> tuple[np.ndarray, np.ndarray]:
     """Outage and dropout flags of ranging attempts (true times ``t_s``, anchor and burst indices).
 
     ``bursts_s`` holds the start time of every tag burst (the tag-level process runs on the bursts);
     ``range_m`` (N,), the true range of every attempt, is needed only by long outages.
     Returns (outage, dropped), both (N,) bool. Rates with a Gamma shape are drawn for the trace first.
+    ``rows_of``: the rows of each anchor (``rows_by_label(anchor, A)``, e.g. ``UwbAttempts.anchor_rows``)
+    when the caller has them already.
     """
     av = draw_trace_rates(av, rng=rng)
     outage = np.zeros(t_s.shape[0], dtype=bool)
-    rows_of = rows_by_label(anchor, av.dropout_prob.shape[0])
+    if rows_of is None:
+        rows_of = rows_by_label(anchor, av.dropout_prob.shape[0])
+    ascending = is_ascending(t_s)  # checked once for every anchor's rows
     for i, rows in enumerate(rows_of):  # one outage process per anchor
         outage[rows] = outage_mask(t_s[rows], av.outage_onset_prob[i], burst_rate_hz, av.outage_mean_s[i],
-                                   start_stationary=av.start_stationary, rng=rng)
+                                   start_stationary=av.start_stationary, rng=rng, ascending=ascending)
     if av.tag_outage_onset_prob > 0:  # one process for the tag, applied to every anchor of a burst
         tag_out = outage_mask(bursts_s, av.tag_outage_onset_prob, burst_rate_hz, av.tag_outage_mean_s,
                               start_stationary=av.start_stationary, rng=rng)

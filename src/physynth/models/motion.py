@@ -148,8 +148,12 @@ def kinematics(geometry: PathGeometry, pert: PathPerturbation, params: MotionPar
     """Sample the run at ``rate_hz`` (dwell at the start station, trip, dwell at the end station)."""
     trip = trip_duration_s(geometry.length_m, params, shape, run)
     total = params.dwell_start_s + trip + params.dwell_end_s
-    t = np.arange(int(np.floor(total * rate_hz)) + 1) / rate_hz
-    u = np.clip((t - params.dwell_start_s) / trip, 0.0, 1.0)
+    t = np.arange(int(np.floor(total * rate_hz)) + 1, dtype=np.float64)  # integers as floats: the same values
+    t /= rate_hz
+    u = t - params.dwell_start_s
+    u /= trip
+    np.maximum(u, 0.0, out=u)  # numpy.clip's values (a zero's sign aside, which numpy.interp does not see)
+    np.minimum(u, 1.0, out=u)
     moving = (t > params.dwell_start_s) & (t < params.dwell_start_s + trip)
     scale = geometry.length_m / shape.mean
     along = scale * np.interp(u, shape.u, shape.cum)  # distance travelled [m]

@@ -19,31 +19,41 @@ the state the process starts in, then the other one), plus anything drawn with t
 pair). It is called again with twice as many pairs until the switches cover the time span."""
 
 
-def switch_counts(t_s: np.ndarray, draw: PairDraw, n_pairs: int) -> tuple[np.ndarray, Any]:
+def switch_counts(t_s: np.ndarray, draw: PairDraw, n_pairs: int, *,
+                  ascending: bool | None = None) -> tuple[np.ndarray, Any]:
     """Number of state switches at or before each of the sorted times ``t_s`` (and the payload).
 
     The first holding time is drawn like every other: with exponential times, memorylessness makes the
-    start stationary. Even counts mean the process is in its starting state.
+    start stationary. Even counts mean the process is in its starting state. ``ascending``: whether
+    ``t_s`` is known to be non-decreasing (:func:`is_ascending`), e.g. rows of an array checked once;
+    None checks it here.
     """
     t0 = float(t_s[0])
     while True:
         durations, payload = draw(n_pairs)
-        switches = t0 + np.cumsum(durations.ravel())
+        switches = durations.ravel().cumsum()  # methods: no numpy function-wrapper overhead per call
+        switches += t0
         if switches[-1] > t_s[-1]:
             break
         n_pairs *= 2
-    return _count_at_or_before(switches, t_s), payload
+    return _count_at_or_before(switches, t_s, ascending), payload
 
 
-def _count_at_or_before(switches: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+def is_ascending(t_s: np.ndarray) -> bool:
+    """True when the 1-D ``t_s`` is non-decreasing and holds no NaN (so is every subsequence of it)."""
+    return t_s.shape[0] < 2 or bool((t_s[1:] >= t_s[:-1]).all())
+
+
+def _count_at_or_before(switches: np.ndarray, t_s: np.ndarray, ascending: bool | None = None) -> np.ndarray:
     """``numpy.searchsorted(switches, t_s, side="right")`` for sorted ``switches``: with ``t_s`` sorted
     (the usual case), each switch is placed among the times instead (a few hundred searches instead of
-    thousands) and the counts are a cumulative sum; the same integers."""
+    thousands) and the counts are a cumulative sum; the same integers. ``ascending``: as in
+    :func:`switch_counts` (None: checked here)."""
     n = t_s.shape[0]
-    if 2 * switches.shape[0] > n or (n > 1 and not (t_s[1:] >= t_s[:-1]).all()):
+    if 2 * switches.shape[0] > n or not (is_ascending(t_s) if ascending is None else ascending):
         return np.searchsorted(switches, t_s, side="right")  # as many switches as times, or unsorted (NaN) times
-    first = np.searchsorted(t_s, switches, side="left")  # switch s counts at times i >= first (t_i >= s)
-    return np.cumsum(np.bincount(first, minlength=n + 1)[:n])
+    first = t_s.searchsorted(switches, side="left")  # switch s counts at times i >= first (t_i >= s)
+    return np.bincount(first, minlength=n + 1)[:n].cumsum()
 
 
 def initial_pairs(span_s: float, mean_cycle_s: float) -> int:

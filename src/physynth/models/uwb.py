@@ -36,10 +36,11 @@ import numpy as np
 from pydantic import Field
 
 from ..records import Reason, Uwb
+from ._interp import interp_many
 from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Probability, Vec3
 from .motion import Kinematics
 from .obstacles import Obstacle, TerrainGrid, obstacle_losses
-from .renewal import initial_pairs, rows_by_label, switch_counts
+from .renewal import initial_pairs, is_ascending, rows_by_label, switch_counts
 
 
 class NlosMode(ParamsModel):
@@ -438,8 +439,8 @@ def range_error(true_range_m: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, 
 
 
 def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_s: np.ndarray, *,
-                  rng: np.random.Generator, fixed_dwell: np.ndarray | None = None
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  rng: np.random.Generator, fixed_dwell: np.ndarray | None = None, first_episode: int = 0,
+                  ascending: bool | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """NLOS state and mode at sorted times of one anchor: an alternating renewal process in which each
     NLOS episode keeps one mode m for an exponential time of mean ``dwell_s[m]``.
 
@@ -447,19 +448,20 @@ def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_
     the share of NLOS *time* in each mode; LOS gaps are exponential with the mean that makes the
     long-run NLOS fraction ``nlos_prob``. A mode with ``fixed_dwell`` lasts exactly ``dwell_s`` (the
     exponential draw is still made, so the stream does not depend on the flag). Returns (nlos (N,)
-    bool, mode (N,) int, -1 where LOS, episode (N,) int: index of the episode, -1 where LOS).
+    bool, mode (N,) int, -1 where LOS, episode (N,) int: ``first_episode`` + index of the episode, -1
+    where LOS). ``ascending``: as in :func:`~physynth.models.renewal.switch_counts`.
     """
     q = weights / dwell_s
     q = q / q.sum()
-    mean_on = float(np.sum(q * dwell_s))
+    mean_on = float((q * dwell_s).sum())
     mean_off = mean_on * (1.0 - nlos_prob) / nlos_prob
     start_on = bool(rng.random() < nlos_prob)
-    cum_q = np.cumsum(q)
+    cum_q = q.cumsum()
     fixed = fixed_dwell if fixed_dwell is not None and fixed_dwell.any() else None  # None: no mode is fixed
     col_on = 0 if start_on else 1
 
     def draw(n: int) -> tuple[np.ndarray, np.ndarray]:
-        modes = np.minimum(np.searchsorted(cum_q, rng.random(n), side="right"), q.size - 1)
+        modes = np.minimum(cum_q.searchsorted(rng.random(n), side="right"), q.size - 1)
         pairs = np.empty((n, 2))  # (on, off) or (off, on): the state the process starts in first
         on = rng.exponential(1.0, n)
         on *= dwell_s[modes]
@@ -469,28 +471,37 @@ def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_
         pairs[:, 1 - col_on] = rng.exponential(mean_off, n)
         return pairs, modes
 
-    k, modes = switch_counts(t_s, draw, initial_pairs(float(t_s[-1] - t_s[0]), mean_on + mean_off))
-    odd = (k & 1).astype(bool)  # k >= 0: k & 1 is k % 2 and k >> 1 is k // 2
-    nlos = ~odd if start_on else odd
-    pair = np.minimum(k >> 1, modes.size - 1)
-    return nlos, np.where(nlos, modes[pair], -1), np.where(nlos, pair, -1)
+    k, modes = switch_counts(t_s, draw, initial_pairs(float(t_s[-1] - t_s[0]), mean_on + mean_off),
+                             ascending=ascending)
+    nlos = (k & 1) == (0 if start_on else 1)  # k >= 0: k & 1 is k % 2 and k >> 1 is k // 2
+    pair = np.right_shift(k, 1, out=k)
+    np.minimum(pair, modes.size - 1, out=pair)
+    mode = np.where(nlos, modes.take(pair), -1)
+    if first_episode:
+        pair += first_episode
+    return nlos, mode, np.where(nlos, pair, -1)
 
 
 def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: ChannelArrays, *,
-                rng: np.random.Generator, blocked: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                rng: np.random.Generator, blocked: np.ndarray | None = None,
+                rows_of: Sequence[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """NLOS indicator, mode and episode id of each row: per-anchor episodes, raised inside NLOS zones and
     where ``blocked`` (the line of sight meets an obstacle).
 
     Rows made NLOS by a zone or an obstacle (and not by an episode) draw their mode by weight (mode -1
-    marks them). Episode ids are unique over anchors (-1 outside an episode).
+    marks them). Episode ids are unique over anchors (-1 outside an episode). ``rows_of``: the rows of
+    each anchor, ``rows_by_label(anchor, A)``, when the caller has them already.
     """
     nlos = np.zeros(t_s.shape[0], dtype=bool)
     mode = np.full(t_s.shape[0], -1, dtype=np.int64)
     episode = np.full(t_s.shape[0], -1, dtype=np.int64)
     base = 0
     weights_of = np.diff(ch.mode_cumw, axis=1, prepend=0.0)  # mode weights of every anchor
-    for i, rows in enumerate(rows_by_label(anchor, ch.nlos_prob.shape[0])):  # one renewal process per anchor
+    ascending = is_ascending(t_s)  # checked once for every anchor's rows
+    if rows_of is None:
+        rows_of = rows_by_label(anchor, ch.nlos_prob.shape[0])
+    parts = []  # (rows, nlos, mode, episode) of each anchor with episodes, written in one scatter each
+    for i, rows in enumerate(rows_of):  # one renewal process per anchor
         p = ch.nlos_prob[i]
         if rows.size == 0 or p <= 0:
             continue
@@ -498,10 +509,14 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
         if p >= 1:
             nlos[rows] = True
             continue
-        nlos[rows], mode[rows], ep = nlos_episodes(t_s[rows], p, weights, ch.mode_dwell_s[i], rng=rng,
-                                                   fixed_dwell=ch.mode_fixed_dwell[i])
-        episode[rows] = np.where(ep >= 0, ep + base, -1)
-        base += int(ep.max()) + 1 if ep.size else 0
+        got = nlos_episodes(t_s[rows], p, weights, ch.mode_dwell_s[i], rng=rng, fixed_dwell=ch.mode_fixed_dwell[i],
+                            first_episode=base, ascending=ascending)
+        parts.append((rows, *got))
+        base = max(base, int(got[2].max()) + 1)
+    if parts:  # the anchors' rows are disjoint: one scatter per column instead of one per anchor
+        rows = np.concatenate([q[0] for q in parts])
+        for column, k in ((nlos, 1), (mode, 2), (episode, 3)):
+            column[rows] = np.concatenate([q[k] for q in parts])
     if ch.zone_s_m.size:
         dist = np.abs(s_m[:, None] - ch.zone_s_m[None, :])
         p_zone = np.where(dist <= ch.zone_half_width_m, ch.zone_nlos_prob, 0.0).max(axis=1)
@@ -536,6 +551,7 @@ class UwbAttempts:
     measured_m: np.ndarray  # range the radio would report (never negative)
     nlos: np.ndarray
     linked: np.ndarray  # inside the radio horizon
+    anchor_rows: tuple[np.ndarray, ...] | None = None  # rows of each anchor (rows_by_label), for the availability
 
 
 def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: np.random.Generator) -> UwbAttempts:
@@ -551,36 +567,49 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
     # ~2.5x faster than its 2-D multi-index iteration)
     b_idx, anchor = np.divmod(np.flatnonzero(scheduled), n_anchors)
     t_true = bursts[b_idx] + anchor * u.slot_s
-    sq = np.zeros(t_true.shape[0])
+    # the tag's E, N, U and path coordinate at the attempts: numpy.interp's values, one search for all four
+    *tag_enu, s_m = interp_many(t_true, kin.t_s, [*kin.pos_enu_m.T, kin.s_m])
+    sq = None
     for k in range(3):  # |p(t) - a_i|, one ENU component at a time (contiguous, no (N, 3) temporaries)
-        d = np.interp(t_true, kin.t_s, kin.pos_enu_m[:, k]) - ch.anchor_pos_enu_m[:, k][anchor]
-        sq += d * d
+        d = tag_enu[k] - ch.anchor_pos_enu_m[:, k][anchor]
+        d *= d
+        sq = d if sq is None else np.add(sq, d, out=sq)  # as 0 + d_E^2 + d_N^2 + d_U^2 (0 + x is x)
     true_range = np.sqrt(sq)
-    s_m = np.interp(t_true, kin.t_s, kin.s_m)
 
     p_link = link_probability(true_range, ch.max_range_m[anchor], ch.edge_width_m[anchor])
     blocked = None
     if ch.obstacles or ch.terrain is not None or ch.link is not None:  # geometry-aware parts (optional)
-        tag = np.stack([np.interp(t_true, kin.t_s, kin.pos_enu_m[:, k]) for k in range(3)], axis=1)
+        tag = np.stack(tag_enu, axis=1)
         loss: np.ndarray | float = 0.0
         if ch.obstacles or ch.terrain is not None:
             blocked, loss = obstacle_losses(tag, ch.anchor_pos_enu_m[anchor], ch.obstacles, ch.terrain)
         p_link = p_link * link_detection_probability(tag, anchor, ch, loss)
     linked = rng.random(t_true.shape[0]) < p_link
-    nlos, mode, episode = nlos_states(t_true, anchor, s_m, ch, rng=rng, blocked=blocked)
+    rows_of = tuple(rows_by_label(anchor, n_anchors))
+    nlos, mode, episode = nlos_states(t_true, anchor, s_m, ch, rng=rng, blocked=blocked, rows_of=rows_of)
     err = range_error(true_range, anchor, nlos, mode, ch, rng=rng, episode=episode)
-    err += run_offsets(n_anchors, u, rng=rng)[anchor]
-    measured = np.maximum(true_range + err, 0.0)  # a range is never negative
+    offsets = run_offsets(n_anchors, u, rng=rng)
+    if offsets.any():  # adding zeros would change only a -0.0 error, and true_range + (-0.0) is true_range
+        err += offsets[anchor]
+    err += true_range  # true_range + err
+    measured = np.maximum(err, 0.0, out=err)  # a range is never negative
     return UwbAttempts(bursts_s=bursts, burst=b_idx, anchor=anchor, t_true_s=t_true, true_range_m=true_range,
-                       measured_m=measured, nlos=nlos, linked=linked)
+                       measured_m=measured, nlos=nlos, linked=linked, anchor_rows=rows_of)
 
 
 def uwb_record(att: UwbAttempts, params: UwbParams, *, outage: np.ndarray, dropped: np.ndarray) -> Uwb:
     """The ``uwb`` record of a run: attempts with the availability applied and stamps on the tag clock."""
-    reason = np.full(att.t_true_s.shape[0], Reason.OK, dtype=np.int8)
-    reason[dropped] = Reason.DROPOUT
-    reason[outage] = Reason.OUTAGE
-    reason[~att.linked] = Reason.NO_LINK
+    n = att.t_true_s.shape[0]
+    masks = (att.linked, outage, dropped)
+    if all(isinstance(m, np.ndarray) and m.dtype == np.bool_ and m.shape == (n,) for m in masks):
+        # boolean masks (as simulate_availability returns): the precedence below in two selections
+        reason = np.where(att.linked, np.where(outage, np.int8(Reason.OUTAGE), dropped.view(np.int8)),
+                          np.int8(Reason.NO_LINK))  # a dropped row is 1 = Reason.DROPOUT, a kept one 0 = OK
+    else:
+        reason = np.full(n, Reason.OK, dtype=np.int8)
+        reason[dropped] = Reason.DROPOUT
+        reason[outage] = Reason.OUTAGE
+        reason[~att.linked] = Reason.NO_LINK
     range_m = np.where(reason == Reason.OK, att.measured_m, np.nan)
     return Uwb(t_s=att.t_true_s + params.time_offset_s, anchor=att.anchor, range_m=range_m,
                true_range_m=att.true_range_m, nlos=att.nlos, burst=att.burst, reason=reason, nlos_known=True)
