@@ -803,7 +803,7 @@ def _vibration_params(vib: dict[str, Any] | None, density: np.ndarray, fs: float
 
 
 def _imu_params(fs: float, density: np.ndarray, bias_rw: float, vibration: VibrationParams, offset: float,
-                motion: dict[str, Any] | None, lever: np.ndarray | None) -> ImuParams:
+                motion: dict[str, Any] | None, lever: np.ndarray | None, truth_cutoff_hz: float) -> ImuParams:
     """The fitted values, rounded, as the scenario's IMU section."""
     motion_params = MotionNoiseParams()
     if motion is not None:
@@ -813,7 +813,8 @@ def _imu_params(fs: float, density: np.ndarray, bias_rw: float, vibration: Vibra
     return ImuParams(rate_hz=rounded(fs, 7), white_noise_density_mps2_per_sqrt_hz=[rounded(x, 5) for x in density],
                      bias_rw_mps2_per_sqrt_s=rounded(bias_rw, 4), bias_initial_std_mps2=0.0, vibration=vibration,
                      time_offset_s=rounded(offset, 4), motion_noise=motion_params,
-                     lever_arm_m=[0.0, 0.0, 0.0] if lever is None else [rounded(float(x), 4) for x in lever])
+                     lever_arm_m=[0.0, 0.0, 0.0] if lever is None else [rounded(float(x), 4) for x in lever],
+                     truth_cutoff_hz=rounded(truth_cutoff_hz, 4))
 
 
 def _imu_fit_diagnostics(trs: list[Trace], errs: list, fc: float, fs: float, spectrum: tuple,
@@ -933,12 +934,9 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
     err_std = np.sqrt(np.nanmean(np.concatenate([e[ok] for e, ok, _ in errs]) ** 2, axis=0))
     if motion is not None:  # the vibration must explain what is left at zero motion
         err_std = np.sqrt(np.maximum(np.minimum(err_std**2 - motion_var, motion["c0_mps2_sq"]), 1e-12))
-    # vibration on the excess of the pooled (mean over axes) spectrum
-    pooled = psd.mean(axis=1)
-    pooled_floor = float(floor.mean())
-    nyq = fs / 2.0
+    pooled, pooled_floor = psd.mean(axis=1), float(floor.mean())  # vibration on the pooled spectrum's excess
     vib = _fit_vibration(f, pooled - pooled_floor, pooled, pooled_floor, 3 * n_avg, f_lo=max(0.3, 3.0 / (nper / fs)),
-                         f_hi=min(0.45 * nyq, lo))
+                         f_hi=min(0.45 * (fs / 2.0), lo))
     notes: list[str] = []
     bias_rw, bias_diag = _fit_bias_walk(errs, fs, density, base.bias_rw_mps2_per_sqrt_s)
     if bias_diag["note"] is not None:
@@ -949,8 +947,7 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
     other_var = density**2 * fs + bias_rw**2 * seg_s / 6.0
     resid_std = np.sqrt(np.maximum(err_std**2 - other_var, 0.0))
     vibration, vib_diag = _vibration_params(vib, density, fs, err_std, resid_std, other_var, motion, notes)
-    params = _imu_params(fs, density, bias_rw, vibration, offset, motion, lever).model_copy(
-        update={"truth_cutoff_hz": rounded(fc, 4)})
+    params = _imu_params(fs, density, bias_rw, vibration, offset, motion, lever, fc)
     diag = _imu_fit_diagnostics(trs, errs, fc, fs, spectrum, offset_diag, lever_diag, motion, vib_diag, bias_diag,
                                 notes)
     if band_diag is not None:
