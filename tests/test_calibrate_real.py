@@ -58,6 +58,8 @@ def test_hanyang_calibration_values(hanyang_los1):
         assert c.max_range_m > 50.0  # heard at every range of the walk: horizon not identifiable
     assert s.path.kind == "waypoints" and res.report["path"]["rmse_m"] < 0.1
     assert s.motion.profile.kind == "empirical"  # a walk with stops at every corner
+    # one run, one layout: availability per anchor as fitted (re-placed anchors are pooled: test_multirun_real)
+    assert set(s.availability_per_anchor) == set(s.anchor_ids)
     assert res.report["motion"]["speed_poly_r2"] < 0.5
     assert any("max_range_m" in n for n in res.report["not_identifiable"])
 

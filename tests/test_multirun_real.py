@@ -118,9 +118,9 @@ def test_rare_events_have_intervals(three):
         assert item["interval_90"][0] < item["value"] < item["interval_90"][1]
 
 
-def test_availability_of_re_placed_anchors_is_pooled(runs, three):
-    """Re-placed anchors: outages belong to the placement, so no per-anchor availability in the scenario;
-    one run (one layout): per-anchor availability as fitted."""
+def test_availability_of_re_placed_anchors_is_pooled(three):
+    """Re-placed anchors: outages belong to the placement, so no per-anchor availability in the scenario
+    (one run, one layout, keeps it: test_calibrate_real)."""
     assert three.scenario.availability_per_anchor == {}
     assert any(n.startswith("availability_per_anchor (the anchors were re-placed")
                for n in three.report["not_identifiable"])
@@ -129,8 +129,6 @@ def test_availability_of_re_placed_anchors_is_pooled(runs, three):
     assert max(fitted) > 2 * min(fitted)  # the per-anchor fits differ and stay in the report
     pooled = three.scenario.availability.dropout_prob
     assert min(fitted) < pooled < max(fitted)
-    one = calibrate([runs["LOS-1"]], name="one-run")
-    assert set(one.scenario.availability_per_anchor) == set(one.scenario.anchor_ids)
 
 
 def test_gross_outliers_are_short_fixed_episodes_with_a_held_range(three):
