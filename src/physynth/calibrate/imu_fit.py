@@ -970,20 +970,28 @@ def simulate_imu_on(t_s: np.ndarray, acc_enu_mps2: np.ndarray, params: ImuParams
     return simulate_imu(kin, params, rng=rng, omega_body_radps=omega_body_radps, attitude=attitude)
 
 
+def filled_truth_acceleration(real: Trace, cutoff_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """(truth grid, acceleration (K, 3)) of a real trace's truth low-passed at ``cutoff_hz``, masked
+    spans filled linearly: what an IMU model is run along."""
+    tg, acc, valid = truth_acceleration(real.truth.t_s, real.truth.pos_enu_m, cutoff_hz=cutoff_hz)
+    if valid.sum() < 10:
+        raise CalibrationError("too little valid truth to run the IMU along")
+    return tg, np.stack([np.interp(tg, tg[valid], acc[valid, k]) for k in range(3)], axis=1)
+
+
 def imu_along_truth(real: Trace, params: ImuParams, *, rng: np.random.Generator,
-                    input_cutoff_hz: float | None = None) -> Imu:
+                    input_cutoff_hz: float | None = None,
+                    truth_input: tuple[np.ndarray, np.ndarray] | None = None) -> Imu:
     """The ENU IMU model ``params`` run along a real trace's own truth (sampled from its first truth instant).
 
     The model reads the truth acceleration low-passed at ``input_cutoff_hz`` (default the model's
     ``truth_cutoff_hz``, else 10 Hz), masked spans filled linearly; with a lever arm and a truth
     attitude, the sensor point's rotational acceleration along the truth's rotation (body rate
-    low-passed at the same band).
+    low-passed at the same band). ``truth_input``: that band's :func:`filled_truth_acceleration`, when
+    the caller has it already.
     """
     fc_in = float(input_cutoff_hz if input_cutoff_hz is not None else params.truth_cutoff_hz or 10.0)
-    tg, acc, valid = truth_acceleration(real.truth.t_s, real.truth.pos_enu_m, cutoff_hz=fc_in)
-    if valid.sum() < 10:
-        raise CalibrationError("too little valid truth to run the IMU along")
-    filled = np.stack([np.interp(tg, tg[valid], acc[valid, k]) for k in range(3)], axis=1)
+    tg, filled = truth_input if truth_input is not None else filled_truth_acceleration(real, fc_in)
     att = truth_attitude_at(real, tg) if any(params.lever_arm_m) else None
     return simulate_imu_on(tg, filled, params, rng=rng, omega_body_radps=smoothed_body_rate(real, tg, fc_in),
                            attitude=None if att is None else att[0])

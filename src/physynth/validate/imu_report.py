@@ -39,11 +39,11 @@ from .. import __version__
 from .._json import jsonable
 from ..calibrate._base import median_step_s, segments
 from ..calibrate.imu_fit import (
+    filled_truth_acceleration,
     has_truth_rotation,
     imu_along_truth,
     imu_error,
     smoothed_body_rate,
-    truth_acceleration,
 )
 from ..calibrate.imu_only import body_truth, has_body_imu
 from ..errors import OutputExistsError, PhySynthError
@@ -176,12 +176,12 @@ def _along_truth(real: Trace, scn: Scenario, root: int, index: int) -> Trace:
     """The scenario's IMU models run along a real trace's own truth (acceleration, attitude): the ENU
     model reads the truth band it was calibrated against (``imu.truth_cutoff_hz``) and its lever arm
     acts along the truth's rotation; the body-frame model reads the same band."""
-    enu = imu_along_truth(real, scn.imu, rng=component_rng(root, index, "imu"))  # the model's own truth band
+    fc = scn.imu.truth_cutoff_hz or CUTOFF_HZ  # the band both models were fitted against
+    tg, filled = filled_truth_acceleration(real, fc)
+    enu = imu_along_truth(real, scn.imu, rng=component_rng(root, index, "imu"), input_cutoff_hz=fc,
+                          truth_input=(tg, filled))
     imu = Imu(t_s=enu.t_s, acc_mps2=enu.acc_mps2)
     if has_body_imu(real) and "body-flu" in scn.imu_frames and has_truth_rotation(real):
-        fc = scn.imu.truth_cutoff_hz or CUTOFF_HZ  # both models were fitted against the same truth band
-        tg, acc, valid = truth_acceleration(real.truth.t_s, real.truth.pos_enu_m, cutoff_hz=fc)
-        filled = np.stack([np.interp(tg, tg[valid], acc[valid, k]) for k in range(3)], axis=1)
         w = smoothed_body_rate(real, tg, fc)
         q = real.truth.quat_wxyz
         ok = np.all(np.isfinite(q), axis=1)
