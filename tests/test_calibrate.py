@@ -19,6 +19,7 @@ from physynth.errors import PhySynthError
 from physynth.generate import compile_scenario, generate_trace
 from physynth.io import write_dataset
 from physynth.io.scenario_file import load_scenario, save_scenario
+from physynth.models.uwb import los_error_mean, range_decades
 from physynth.records import Anchors, Trace, Truth, Uwb
 from physynth.scenario import scenario_from_dict
 
@@ -67,7 +68,7 @@ def roundtrip():
     scn = scenario_from_dict(roundtrip_dict(), "roundtrip")
     cs = compile_scenario(scn)
     traces = [generate_trace(cs, i, 20240611) for i in range(N_TRACES)]
-    return scn, traces, calibrate(traces, name="rt")
+    return scn, traces, calibrate(traces, name="rt", range_bias_law="linear")  # the data's bias is linear in r
 
 
 def _per_anchor(result, field: str) -> np.ndarray:
@@ -385,8 +386,54 @@ def test_runs_with_moved_anchors_and_the_progress_protocol():
     for aid in s.anchor_ids:
         c = s.channel_for(aid)
         # mean error at a mid range: intercept and slope of a line through n rows, about 2 sigma / sqrt(n)
-        assert c.los_mean_m + 50.0 * c.range_bias_per_m == pytest.approx(0.1, abs=5 * 2 * 0.05 / np.sqrt(n))
+        mid = float(los_error_mean(np.array(50.0), c.los_mean_m, c.range_bias_per_m, c.range_bias_per_decade_m))
+        assert mid == pytest.approx(0.1, abs=5 * 2 * 0.05 / np.sqrt(n))
         assert c.los_std_m == pytest.approx(0.05, rel=5 / np.sqrt(2 * n))
     # progress(message, done, total): every step announced, counts never run backwards
     assert len(calls) >= 6 and all(isinstance(m, str) and 0 <= d < t for m, d, t in calls)
     assert [d for _, d, _ in calls] == sorted(d for _, d, _ in calls)
+
+
+@pytest.mark.parametrize("law", ["log", "linear"])
+def test_range_bias_law_recovered(law):
+    """Data whose LOS bias grows with log10 of the range (the received-power bias) or linearly (a clock-scale
+    error): the calibration with the matching law recovers the slope within its regression standard error,
+    and the other term stays 0."""
+    from helpers import simple_scenario
+
+    truth = {"log": ("range_bias_per_decade_m", 0.25), "linear": ("range_bias_per_m", 0.004)}[law]
+    scn = simple_scenario(**{"channel.los_mean_m": -0.1, "channel.los_std_m": 0.05, f"channel.{truth[0]}": truth[1]})
+    traces = [generate_trace(scn, i, 9) for i in range(2)]
+    traces = [Trace(truth=t.truth, uwb=t.uwb, anchors=t.anchors, meta=t.meta) for t in traces]  # UWB only
+    res = calibrate(traces, range_bias_law=law)
+    other = "range_bias_per_m" if law == "log" else "range_bias_per_decade_m"
+    for aid in res.scenario.anchor_ids:
+        c = res.scenario.channel_for(aid)
+        se = res.report["parameters"][f"channel_per_anchor.{aid}.{truth[0]}"]["std_error"]
+        assert getattr(c, truth[0]) == pytest.approx(truth[1], abs=5 * se)
+        assert getattr(c, other) == 0.0
+
+
+def test_log_law_on_linear_data_is_worse_than_linear_law():
+    """The law is a model choice the data can refute: on data whose bias is linear in r over 10-300 m,
+    the log law leaves a range-dependent mean error that the linear law does not."""
+    from helpers import simple_scenario
+
+    scn = simple_scenario(**{"channel.los_std_m": 0.02, "channel.range_bias_per_m": 0.004})
+    t = generate_trace(scn, 0, 3)
+    t = Trace(truth=t.truth, uwb=t.uwb, anchors=t.anchors, meta=t.meta)
+    ok = t.uwb.valid
+    r, anchor = t.uwb.true_range_m[ok], t.uwb.anchor[ok]
+    err = t.uwb.range_m[ok] - r
+    misfit = {}
+    for law in ("log", "linear"):
+        s = calibrate(t, range_bias_law=law).scenario
+        pred = np.empty_like(r)
+        for k, aid in enumerate(t.anchors.ids):
+            c = s.channel_for(aid)
+            pred[anchor == k] = los_error_mean(r[anchor == k], c.los_mean_m, c.range_bias_per_m,
+                                               c.range_bias_per_decade_m)
+        misfit[law] = float(np.sqrt(np.mean((err - pred) ** 2)))
+    assert misfit["linear"] < 0.025  # the LOS noise (0.02 m) and little else
+    assert misfit["log"] > 1.5 * misfit["linear"], misfit  # measured: 0.086 against 0.020 m
+    assert np.all(np.isfinite(range_decades(np.array([0.0, 1.0]))))  # a zero range does not make -inf

@@ -13,7 +13,7 @@ difference, whether the real P95 lies in the synthetic 5-95 % band, and the larg
 difference over lags 1..10. Targets (issue 12): KS <= 0.10, UWB >= 1 and mean AoI within 15 %,
 median within 3 cm, real P95 inside the band.
 
-    .venv/bin/python tools/loo_hanyang.py [--n 50] [--seed 1] [--long-outages] [--out DIR]
+    .venv/bin/python tools/loo_hanyang.py [--n 50] [--seed 1] [--long-outages] [--range-bias-law L] [--out DIR]
                                           [--data ../shared/data/hanyang-uwb]
 """
 
@@ -42,6 +42,8 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=50, help="synthetic traces per validation")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--long-outages", action="store_true", help="calibrate with long_outages=True")
+    ap.add_argument("--range-bias-law", choices=("log", "linear"), default="log",
+                    help="calibrate with this range-bias law (default log)")
     ap.add_argument("--out", type=Path, default=None, help="write the four reports (and scenarios) here")
     args = ap.parse_args()
 
@@ -58,7 +60,8 @@ def main() -> None:
         for left in traces:
             t0 = time.perf_counter()
             others = [traces[k] for k in traces if k != left]
-            res = calibrate(others, name=f"loo-without-{left.replace(' ', '-')}", long_outages=args.long_outages)
+            res = calibrate(others, name=f"loo-without-{left.replace(' ', '-')}", long_outages=args.long_outages,
+                            range_bias_law=args.range_bias_law)
             rep = validate_datasets(dirs[left], scenario=res.scenario, n=args.n, seed=args.seed, transfer=True)
             if args.out is not None:
                 out = args.out / left.replace(" ", "-")

@@ -77,6 +77,7 @@ BOUNDS: dict[str, Bound] = {
     "channel.los_mean_m": Bound(-10.0, 10.0, "m", "LOS range bias"),
     "channel.los_std_m": Bound(0.0, 100.0, "m", "LOS range noise"),
     "channel.range_bias_per_m": Bound(-0.5, 0.5, "m/m", "range scale error"),
+    "channel.range_bias_per_decade_m": Bound(-1.0, 1.0, "m/decade", "received-power ranging bias"),
     "channel.nlos_prob": _PROB,
     "channel.nlos_modes[].weight": Bound(0.0, 1e6, "", "relative mode weight"),
     "channel.nlos_modes[].mean_m": Bound(-100.0, 1000.0, "m", "NLOS excess range"),

@@ -34,6 +34,7 @@ from scipy.optimize import minimize
 
 from .. import __version__
 from ..models.availability import AvailabilityOverride, RatePosterior, gamma_rate_posterior
+from ..models.uwb import range_decades
 from ..progress import ProgressCallback, no_progress
 from ..records import Trace
 from ..scenario import (
@@ -64,6 +65,7 @@ from .geometry import (
 )
 from .uwb_fit import (
     MIN_ANCHOR_ROWS,
+    RANGE_BIAS_LAWS,
     MixtureFit,
     ModeFit,
     Residuals,
@@ -369,7 +371,7 @@ RunOffsets = dict[tuple[str, str], float]
 
 
 def _fit_channels(trs: Sequence[Trace], offset: float, ids: Sequence[str], fixed_slope: float | None,
-                  labels: Sequence[str], run_offsets: RunOffsets | None = None) -> _Channels:
+                  labels: Sequence[str], run_offsets: RunOffsets | None = None, law: str = "log") -> _Channels:
     """Per-anchor LOS/NLOS mixtures (and the pooled one) at a given time offset.
 
     Each run's residuals are taken against its own anchor positions; ``run_offsets`` (when given) are
@@ -390,7 +392,7 @@ def _fit_channels(trs: Sequence[Trace], offset: float, ids: Sequence[str], fixed
     if pooled_r.size < MIN_ANCHOR_ROWS:
         raise CalibrationError(f"only {pooled_r.size} UWB ranges fall inside the ground-truth time span; "
                                f"at least {MIN_ANCHOR_ROWS} are needed")
-    pooled_fit, pooled_sel = select_mixture(pooled_r, pooled_g, fixed_slope=fixed_slope)
+    pooled_fit, pooled_sel = select_mixture(pooled_r, pooled_g, fixed_slope=fixed_slope, law=law)
     mix: dict[str, MixtureFit] = {}
     mix_diag: dict[str, Any] = {}
     flags: dict[str, list[np.ndarray]] = {}
@@ -410,7 +412,7 @@ def _fit_channels(trs: Sequence[Trace], offset: float, ids: Sequence[str], fixed
             notes.append(f"channel of {aid} (too few ranges; pooled values used)")
             flags[aid] = []
             continue
-        f, sel = select_mixture(ra, ga, fixed_slope=fixed_slope)
+        f, sel = select_mixture(ra, ga, fixed_slope=fixed_slope, law=law)
         mix[aid] = f
         per_run = {}
         for t, r, lab in zip(trs, res, labels, strict=True):  # per-run robust summary (spread over runs)
@@ -463,7 +465,10 @@ def refine_time_offset(rows: dict[str, AnchorRows], los: dict[str, np.ndarray]) 
     for a in keys:
         r, g, gd = (v[los[a]] for v in rows[a])
         b, m = np.polyfit(g, gd, 1) if np.ptp(g) > 0 else (0.0, float(np.mean(gd)))
-        sens[a] = {"d_los_mean_per_s": float(m), "d_range_bias_per_s": float(b)}
+        h = range_decades(g)
+        bd = np.polyfit(h, gd, 1)[0] if np.ptp(h) > 0 else 0.0
+        sens[a] = {"d_los_mean_per_s": float(m), "d_range_bias_per_s": float(b),
+                   "d_range_bias_per_decade_per_s": float(bd)}
     return {"correction_s": float(coef[-1]), "std_error_s": float(np.sqrt(cov[-1, -1])), "n_los_rows": int(y.size),
             "sensitivity": sens}
 
@@ -549,7 +554,7 @@ def run_offset_table(trs: Sequence[Trace], labels: Sequence[str], chan: _Channel
         runs_of = [lab for t, lab in zip(trs, labels, strict=True) if aid in t.anchors.ids]
         start = 0
         for lab, nlos in zip(runs_of, chan.flags[aid], strict=True):  # the anchor's rows, run by run
-            x = ra[start:start + nlos.size] - f.range_bias_per_m * ga[start:start + nlos.size] - f.los_mean_m
+            x = ra[start:start + nlos.size] - f.los_centre(ga[start:start + nlos.size])
             start += nlos.size
             xl = x[~nlos]
             if xl.size >= MIN_ANCHOR_ROWS:
@@ -646,6 +651,12 @@ class RangingFit:
     fixed_slope: float | None
     run_offset_std_m: float
     run_anchor_offset_std_m: float
+    range_bias_law: str = "log"
+
+    @property
+    def slope_key(self) -> str:
+        """The channel field the range term is fitted to."""
+        return "range_bias_per_decade_m" if self.range_bias_law == "log" else "range_bias_per_m"
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -808,15 +819,20 @@ def fit_timing(inp: CalibrationInputs, report: ReportBuilder, progress: Progress
 
 
 def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, Any] | None,
-                range_bias: Literal["dynamic", "static"], report: ReportBuilder) -> RangingFit:
-    """Per-anchor LOS/NLOS mixtures pooled over runs, the refined time offset and run-to-run offsets."""
+                range_bias: Literal["dynamic", "static"], report: ReportBuilder,
+                law: str = "log") -> RangingFit:
+    """Per-anchor LOS/NLOS mixtures pooled over runs, the refined time offset and run-to-run offsets.
+
+    ``law``: how the LOS mean grows with the range (:data:`~physynth.calibrate.uwb_fit.RANGE_BIAS_LAWS`).
+    """
     trs, labels, ids = inp.traces, inp.labels, inp.anchor_ids
     if range_bias == "static" and static is None:
         raise CalibrationError("range_bias='static' needs static_sweeps (the Static_measurements folder)")
-    fixed_slope = static["range_bias_per_m"] if (static is not None and range_bias == "static") else None
+    key = "range_bias_per_decade_m" if law == "log" else "range_bias_per_m"
+    fixed_slope = static[key] if (static is not None and range_bias == "static") else None
     of = timing.offset_fit
     offset = timing.offset_s
-    chan = _fit_channels(trs, offset, ids, fixed_slope, labels)
+    chan = _fit_channels(trs, offset, ids, fixed_slope, labels, law=law)
     ref = refine_time_offset(chan.per_anchor_rows, chan.los_masks())
     tsec = report.sections["time_offset"]
     tsec["grid_offset_s"] = offset
@@ -834,7 +850,7 @@ def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, 
     run_offsets, off_diag = run_offset_table(trs, labels, chan)
     report.sections["run_offsets"] = off_diag
     if refined or run_offsets:
-        chan = _fit_channels(trs, offset, ids, fixed_slope, labels, run_offsets=run_offsets)
+        chan = _fit_channels(trs, offset, ids, fixed_slope, labels, run_offsets=run_offsets, law=law)
     if off_diag["identifiable"]:
         s_run, s_anchor = off_diag["run_offset_std_m"], off_diag["run_anchor_offset_std_m"]
         note = "run-to-run spread of the per-run mean LOS residual (two-way random effects)"
@@ -846,7 +862,7 @@ def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, 
         report.not_identifiable.append("uwb.run_offset_std_m, uwb.run_anchor_offset_std_m (one run; 0 kept)")
     report.not_identifiable.extend(chan.notes)
     return RangingFit(offset_s=offset, offset_se_s=se_off, channels=chan, refinement=ref, fixed_slope=fixed_slope,
-                      run_offset_std_m=s_run, run_anchor_offset_std_m=s_anchor)
+                      run_offset_std_m=s_run, run_anchor_offset_std_m=s_anchor, range_bias_law=law)
 
 
 def fit_link_availability(inp: CalibrationInputs, ranging: RangingFit, timing: TimingFit,
@@ -935,7 +951,8 @@ def _anchor_std_errors(aid: str, f: MixtureFit, ranging: RangingFit, n_rows: int
     se_off = ranging.offset_se_s
     if sens:  # the LOS mean and slope move with the time offset: add its uncertainty
         se["los_mean_m"] = float(np.hypot(se["los_mean_m"], sens["d_los_mean_per_s"] * se_off))
-        se["range_bias_per_m"] = float(np.hypot(se["range_bias_per_m"], sens["d_range_bias_per_s"] * se_off))
+        d_slope = sens["d_range_bias_per_decade_per_s" if ranging.range_bias_law == "log" else "d_range_bias_per_s"]
+        se[ranging.slope_key] = float(np.hypot(se[ranging.slope_key], d_slope * se_off))
         se["includes_time_offset_uncertainty"] = True
     if f.nlos_prob > 0:
         # NLOS comes in episodes: Var(p) ~ 2 p (1 - p) tau_c / T_obs with tau_c = dwell (1 - p)
@@ -948,14 +965,14 @@ def _anchor_std_errors(aid: str, f: MixtureFit, ranging: RangingFit, n_rows: int
 
 
 def _report_anchor_channel(aid: str, f: MixtureFit, se: dict[str, Any], n_a: int, a_av: dict[str, Any],
-                           rate: float, max_range: float, chan: _Channels, fixed_slope: float | None,
+                           rate: float, max_range: float, chan: _Channels, ranging: RangingFit,
                            rep: ReportBuilder) -> None:
     """An anchor's channel in the report: what was not identifiable, modes below the LOS mean, parameters."""
     link = a_av["link"]
     if not f.modes:
         rep.not_identifiable.append(f"channel_per_anchor.{aid}.nlos_modes (no NLOS rows; nlos_prob = 0, "
                                     "default mode kept)")
-    centre = f.los_mean_m + f.range_bias_per_m * float(np.median(chan.per_anchor_rows.get(aid, ([0.0],) * 3)[1]))
+    centre = float(f.los_centre(float(np.median(chan.per_anchor_rows.get(aid, ([1.0],) * 3)[1]))))
     negative = [m.mean_m for m in f.modes if m.mean_m < centre]
     if negative:
         rep.warnings.append(
@@ -965,8 +982,9 @@ def _report_anchor_channel(aid: str, f: MixtureFit, se: dict[str, Any], n_a: int
     pre = f"channel_per_anchor.{aid}"
     rep.param(f"{pre}.los_mean_m", f.los_mean_m, se=se["los_mean_m"], n=n_a, summary=True)
     rep.param(f"{pre}.los_std_m", f.los_std_m, se=se["los_std_m"], n=n_a, summary=True)
-    rep.param(f"{pre}.range_bias_per_m", f.range_bias_per_m, se=se["range_bias_per_m"], n=n_a,
-              note="fixed to the static-sweep slope" if fixed_slope is not None else None)
+    key = ranging.slope_key
+    rep.param(f"{pre}.{key}", getattr(f, key), se=se[key], n=n_a,
+              note="fixed to the static-sweep slope" if ranging.fixed_slope is not None else None)
     rep.param(f"{pre}.nlos_prob", f.nlos_prob, se=se["nlos_prob"], n=n_a, summary=True)
     rep.param(f"{pre}.nlos_modes", [[m.weight, m.mean_m, m.std_m] for m in f.modes], se=f.se.get("mode_mean_m"),
               n=n_a, note="(weight, mean_m, std_m); std error of the means")
@@ -986,6 +1004,7 @@ def _pooled_channel(pooled_fit: MixtureFit, per_channel: dict[str, ChannelParams
                          los_mean_m=rounded(pooled_fit.los_mean_m, 5),
                          los_std_m=rounded(pooled_fit.los_std_m, 5),
                          range_bias_per_m=rounded(pooled_fit.range_bias_per_m, 5),
+                         range_bias_per_decade_m=rounded(pooled_fit.range_bias_per_decade_m, 5),
                          nlos_prob=rounded(pooled_fit.nlos_prob, 5), nlos_modes=pooled_modes,
                          max_range_m=rounded(max(c.max_range_m for c in per_channel.values()), 5),
                          edge_width_m=rounded(float(np.median([c.edge_width_m for c in per_channel.values()])), 4))
@@ -1014,7 +1033,9 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
         per_channel[aid] = ChannelParams(
             rate_hz=min(rounded(rate, 6), burst_rate), los_mean_m=rounded(f.los_mean_m, 5),
             los_std_m=rounded(f.los_std_m, 5),
-            range_bias_per_m=rounded(f.range_bias_per_m, 5), nlos_prob=rounded(f.nlos_prob, 5), nlos_modes=modes,
+            range_bias_per_m=rounded(f.range_bias_per_m, 5),
+            range_bias_per_decade_m=rounded(f.range_bias_per_decade_m, 5), nlos_prob=rounded(f.nlos_prob, 5),
+            nlos_modes=modes,
             max_range_m=rounded(max_range, 5), edge_width_m=rounded(edge, 4))
         se = _anchor_std_errors(aid, f, ranging, mix_diag[aid]["n"], periods[aid], per_anchor_dwell[aid], nlos_dwell)
         channel_diag[aid] = {**mix_diag[aid], "std_errors": se,
@@ -1023,7 +1044,7 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
                              "nlos_mode_dwell_s": [sh["dwell_s"] for sh in shapes],
                              "nlos_mode_episode_shape": shapes,
                              "n_nlos_episodes": int(_nlos_runs(flags[aid]).size)}
-        _report_anchor_channel(aid, f, se, mix_diag[aid]["n"], a_av, rate, max_range, chan, ranging.fixed_slope, rep)
+        _report_anchor_channel(aid, f, se, mix_diag[aid]["n"], a_av, rate, max_range, chan, ranging, rep)
     pooled_fit = chan.pooled_fit
     pooled = _pooled_channel(pooled_fit, per_channel, ids, burst_rate)
     rep.sections["channel"] = {"pooled": {"n": int(chan.pooled_r.size), **chan.pooled_sel,
@@ -1230,6 +1251,7 @@ N_STEPS = 8
 def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path_kind: PathKind = "auto",
               anchor_policy: AnchorPolicy = "per-run", layout_from: int | str | None = None,
               static_sweeps: str | os.PathLike | None = None, range_bias: Literal["dynamic", "static"] = "dynamic",
+              range_bias_law: Literal["log", "linear"] = "log",
               sources: Sequence[str] | None = None, long_outages: bool = False,
               progress: ProgressCallback | None = None) -> CalibrationResult:
     """Calibrate a scenario on one or several recordings (real or synthetic Traces).
@@ -1252,6 +1274,10 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
     static_sweeps
         Optional Hanyang ``Static_measurements`` folder: the range-proportional bias is also fitted on
         the static sweeps (reported), and used for every anchor when ``range_bias="static"``.
+    range_bias_law
+        How the LOS mean error grows with the true range r: ``log`` (default), gamma log10(r / 1 m),
+        the received-power bias (``channel.range_bias_per_decade_m``); ``linear``, beta r, a clock-scale
+        error (``channel.range_bias_per_m``, the former model).
     sources
         Names of the datasets the traces came from (provenance).
     long_outages
@@ -1286,14 +1312,18 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
 
         static = fit_static_range_bias(static_sweeps)
         rep.sections["static_range_bias"] = static
-    ranging = fit_ranging(inp, timing, static=static, range_bias=range_bias, report=rep)
+    if range_bias_law not in RANGE_BIAS_LAWS:
+        raise CalibrationError(f"unknown range-bias law {range_bias_law!r} (choose from {', '.join(RANGE_BIAS_LAWS)})")
+    ranging = fit_ranging(inp, timing, static=static, range_bias=range_bias, report=rep, law=range_bias_law)
     tick("fitting availability (link range, dropouts, outages)")
     avail = fit_link_availability(inp, ranging, timing, rep)
     channels = assemble_channels(inp, ranging, avail, timing, rep)
     if static is not None:
-        rep.param("static.range_bias_per_m", static["range_bias_per_m"], se=static["std_error"],
-                  n=static["n_rows"], note=f"static sweeps ({static['environment']}), {static['n_files']} files",
-                  summary=True)
+        for key in ("range_bias_per_m", "range_bias_per_decade_m"):
+            rep.param(f"static.{key}", static[key], se=static["std_errors"][key], n=static["n_rows"],
+                      note=f"static sweeps ({static['environment']}), {static['n_files']} files, rms "
+                           f"{static['residual_std_per_law_m'][key]:.4f} m about the per-file medians",
+                      summary=key == ranging.slope_key)
     availability = assemble_availability(inp, avail, timing, rep, long_outages=long_outages)
     imu = fit_imu_step(inp, rep, lambda msg, *_: tick(msg))
     scn = build_scenario(name, inp, geometry, timing, ranging, channels, availability, imu,

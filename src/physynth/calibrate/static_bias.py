@@ -1,9 +1,11 @@
-"""Range-proportional bias from static range sweeps (the Hanyang ``Static_measurements``).
+"""Range bias from static range sweeps (the Hanyang ``Static_measurements``).
 
 Each sweep file holds ~13 s of ranging at one known distance; the signed error of a file is the
-median of ``range_m - true_distance_m`` (robust to its few outliers). The bias slope is the
-least-squares line through the per-file medians against the true distance, with one intercept per
-antenna height (the antenna pattern shifts the offset, not the clock-scale slope).
+median of ``range_m - true_distance_m`` (robust to its few outliers). Two slopes are fitted by least
+squares through the per-file medians, with one intercept per antenna height (the antenna pattern
+shifts the offset, not the slope): against the true distance (``range_bias_per_m``, a clock-scale
+error) and against its log10 (``range_bias_per_decade_m``, the received-power bias); the residual rms
+of each says which law the sweeps follow.
 """
 
 from __future__ import annotations
@@ -14,11 +16,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ..models.uwb import range_decades
 from ._base import CalibrationError
 
 
 def fit_static_range_bias(sweeps: str | os.PathLike | pd.DataFrame, *, environment: str = "LOS") -> dict[str, Any]:
-    """Slope [m per m] of the static range error against distance, with its standard error.
+    """Slopes of the static range error against distance [m per m] and log10 distance [m per decade].
 
     Parameters
     ----------
@@ -45,21 +48,30 @@ def fit_static_range_bias(sweeps: str | os.PathLike | pd.DataFrame, *, environme
     hidx = np.searchsorted(heights, g["h"].to_numpy())
     x = np.zeros((len(g), heights.size + 1))
     x[np.arange(len(g)), hidx] = 1.0
-    x[:, -1] = g["d"].to_numpy()
     y = g["err"].to_numpy()
-    coef, *_ = np.linalg.lstsq(x, y, rcond=None)
-    res = y - x @ coef
-    dof = max(len(g) - x.shape[1], 1)
-    s2 = float(res @ res / dof)
-    cov = np.linalg.inv(x.T @ x) * s2
+    slopes, ses, rms, intercepts = {}, {}, {}, {}
+    for key, regressor in (("range_bias_per_m", g["d"].to_numpy()),
+                           ("range_bias_per_decade_m", range_decades(g["d"].to_numpy()))):
+        x[:, -1] = regressor
+        coef, *_ = np.linalg.lstsq(x, y, rcond=None)
+        res = y - x @ coef
+        s2 = float(res @ res / max(len(g) - x.shape[1], 1))
+        slopes[key] = float(coef[-1])
+        ses[key] = float(np.sqrt((np.linalg.inv(x.T @ x) * s2)[-1, -1]))
+        rms[key] = float(np.sqrt(s2))
+        intercepts[key] = {f"{h:.3f}": float(c) for h, c in zip(heights, coef[:-1], strict=True)}
     return {
-        "range_bias_per_m": float(coef[-1]),
-        "std_error": float(np.sqrt(cov[-1, -1])),
+        **slopes,
+        "std_error": ses["range_bias_per_m"],
+        "std_errors": ses,
         "environment": environment,
         "n_files": int(len(g)),
         "n_rows": int(g["n"].sum()),
         "distance_range_m": [float(g["d"].min()), float(g["d"].max())],
-        "residual_std_m": float(np.sqrt(s2)),
-        "intercept_per_height_m": {f"{h:.3f}": float(c) for h, c in zip(heights, coef[:-1], strict=True)},
-        "method": "LS through per-file median errors vs true distance, one intercept per antenna height",
+        "residual_std_m": rms["range_bias_per_m"],
+        "residual_std_per_law_m": rms,
+        "intercept_per_height_m": intercepts["range_bias_per_m"],
+        "intercept_per_height_per_law_m": intercepts,
+        "method": "LS through per-file median errors vs true distance (range_bias_per_m) and vs log10 of it "
+                  "(range_bias_per_decade_m), one intercept per antenna height",
     }

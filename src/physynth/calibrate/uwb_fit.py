@@ -4,7 +4,9 @@ Conventions are the generator's (:mod:`physynth.uwb`):
 
 - stamps lag true time: ``stamp = true time + uwb.time_offset_s``, so the residual of a row is
   ``range - |p(stamp - offset) - a_i|``;
-- LOS error ``N(los_mean_m + range_bias_per_m * r, los_std_m^2)`` with r the true range; NLOS rows
+- LOS error ``N(los_mean_m + range_bias_per_m * r + range_bias_per_decade_m * log10(r), los_std_m^2)``
+  with r the true range in metres; the calibration fits one of the two range terms (``law``: ``"log"``,
+  the received-power bias, by default; ``"linear"``, a clock-scale error); NLOS rows
   *replace* it by a Gaussian-mixture offset (no range bias), with long-run probability ``nlos_prob``
   and episodes of mean ``nlos_dwell_s``;
 - the tag ranges in bursts at ``burst_rate_hz``; anchor j is ranged ``j * slot_s`` after the burst
@@ -21,7 +23,7 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import logsumexp
 
-from ..models.uwb import range_error_log_components
+from ..models.uwb import los_error_mean, range_decades, range_error_log_components
 from ..records import Trace
 from ._base import CalibrationError, Fit, trace_label
 
@@ -38,6 +40,11 @@ with such a mode is not accepted, whatever its width."""
 MIN_ANCHOR_ROWS = 30
 """Fewer valid rows than this and an anchor keeps the pooled (default) channel."""
 GRID_BIN_S = 0.01
+RANGE_BIAS_LAWS = ("log", "linear")
+"""How the LOS mean error grows with the true range r: ``log``, gamma log10(r / 1 m) (received-power
+bias: the path loss grows 20 dB per decade of range; on the Hanyang static sweeps, 2-60 m, it leaves
+2.7 cm rms about the per-file medians against 4.7 cm for a straight line in r, docs/calibration.md);
+``linear``, beta r (a clock-scale error)."""
 """Bin width of the evaluation grid the grid-equivalent slot is matched to [s] (docs/data-and-metrics.md, section 3)."""
 
 
@@ -216,7 +223,8 @@ class ModeFit:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class MixtureFit:
-    """LOS regression N(mu + beta r, sigma^2) plus K Gaussian NLOS modes with total weight p."""
+    """LOS regression N(mu + beta r + gamma log10 r, sigma^2) plus K Gaussian NLOS modes with total weight p
+    (one of beta and gamma is fitted, the other is 0)."""
 
     los_mean_m: float
     range_bias_per_m: float
@@ -229,6 +237,12 @@ class MixtureFit:
     nlos_resp: np.ndarray  # posterior NLOS probability per row
     se: dict[str, float]
     converged: bool
+    range_bias_per_decade_m: float = 0.0
+
+    def los_centre(self, range_m: np.ndarray | float) -> np.ndarray:
+        """Mean LOS error [m] at true ranges ``range_m``."""
+        return los_error_mean(np.asarray(range_m, dtype=float), self.los_mean_m, self.range_bias_per_m,
+                              self.range_bias_per_decade_m)
 
 
 def _robust_line(r: np.ndarray, g: np.ndarray, fit_slope: bool) -> tuple[float, float, float, np.ndarray]:
@@ -251,13 +265,18 @@ def _robust_line(r: np.ndarray, g: np.ndarray, fit_slope: bool) -> tuple[float, 
 
 
 def fit_mixture(r: np.ndarray, g: np.ndarray, k: int, *, fit_slope: bool = True, fixed_slope: float | None = None,
-                max_iter: int = 300, tol: float = 1e-7) -> MixtureFit | None:
+                max_iter: int = 300, tol: float = 1e-7, law: str = "log") -> MixtureFit | None:
     """EM fit of the LOS regression plus ``k`` NLOS Gaussian modes to residuals ``r`` at ranges ``g``.
 
-    Returns None when ``k`` modes cannot be initialised (too few rows outside the LOS core).
+    The LOS mean is regressed on log10(g) (``law="log"``) or on g (``"linear"``); ``fixed_slope`` is in
+    the law's unit (m per decade or m per m). Returns None when ``k`` modes cannot be initialised (too
+    few rows outside the LOS core).
     """
+    if law not in RANGE_BIAS_LAWS:
+        raise CalibrationError(f"unknown range-bias law {law!r} (choose from {', '.join(RANGE_BIAS_LAWS)})")
     n = r.size
     slope_free = fit_slope and fixed_slope is None and np.ptp(g) > 1.0
+    g = range_decades(g) if law == "log" else g  # the regressor; the EM below is the same for both laws
     mu, beta, sig, inl = _robust_line(r - (fixed_slope or 0.0) * g, g, slope_free)
     if fixed_slope is not None:
         beta = fixed_slope
@@ -308,27 +327,30 @@ def fit_mixture(r: np.ndarray, g: np.ndarray, k: int, *, fit_slope: bool = True,
     nlos_resp = 1.0 - g0
     n_los = max(s0, 1.0)
     xw = x * g0[:, None]
-    se = {"los_std_m": sig / np.sqrt(2.0 * n_los), "nlos_prob": float(np.sqrt(max(p * (1 - p), 0.0) / n))}
+    se = {"los_std_m": sig / np.sqrt(2.0 * n_los), "nlos_prob": float(np.sqrt(max(p * (1 - p), 0.0) / n)),
+          "range_bias_per_m": 0.0, "range_bias_per_decade_m": 0.0}
+    slope_key = "range_bias_per_decade_m" if law == "log" else "range_bias_per_m"
     if slope_free:
         cov = np.linalg.inv(x.T @ xw + 1e-12 * np.eye(2)) * sig**2
-        se["los_mean_m"], se["range_bias_per_m"] = float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1]))
+        se["los_mean_m"], se[slope_key] = float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1]))
     else:
-        se["los_mean_m"], se["range_bias_per_m"] = sig / np.sqrt(n_los), 0.0
+        se["los_mean_m"] = sig / np.sqrt(n_los)
     modes = tuple(ModeFit(weight=float(w[j]), mean_m=float(means[j]), std_m=float(stds[j])) for j in range(k))
     if k > 0:
         se["mode_mean_m"] = [float(stds[j] / np.sqrt(max(p * w[j] * n, 1.0))) for j in range(k)]
-    return MixtureFit(los_mean_m=mu, range_bias_per_m=beta, los_std_m=sig, nlos_prob=p if k > 0 else 0.0,
-                      modes=modes, log_likelihood=ll, bic=-2.0 * ll + n_par * np.log(n), n=n,
-                      nlos_resp=nlos_resp if k > 0 else np.zeros(n), se=se, converged=converged)
+    return MixtureFit(los_mean_m=mu, range_bias_per_m=beta if law == "linear" else 0.0, los_std_m=sig,
+                      nlos_prob=p if k > 0 else 0.0, modes=modes, log_likelihood=ll, bic=-2.0 * ll + n_par * np.log(n),
+                      n=n, nlos_resp=nlos_resp if k > 0 else np.zeros(n), se=se, converged=converged,
+                      range_bias_per_decade_m=beta if law == "log" else 0.0)
 
 
 def _los_like(fit: MixtureFit, g: np.ndarray) -> bool:
-    centre = fit.los_mean_m + fit.range_bias_per_m * float(np.median(g))
+    centre = float(fit.los_centre(float(np.median(g))))
     return any(abs(m - centre) < LOS_LIKE_SIGMAS * fit.los_std_m for m in (x.mean_m for x in fit.modes))
 
 
 def select_mixture(r: np.ndarray, g: np.ndarray, *, max_modes: int = MAX_NLOS_MODES, fit_slope: bool = True,
-                   fixed_slope: float | None = None) -> tuple[MixtureFit, dict[str, Any]]:
+                   fixed_slope: float | None = None, law: str = "log") -> tuple[MixtureFit, dict[str, Any]]:
     """Fit K = 0 .. max_modes NLOS modes and keep the lowest BIC among the admissible fits.
 
     A fit is not admissible when one of its NLOS modes is LOS-like (see ``LOS_LIKE_SIGMAS``) or when
@@ -337,7 +359,7 @@ def select_mixture(r: np.ndarray, g: np.ndarray, *, max_modes: int = MAX_NLOS_MO
     fits: dict[int, MixtureFit] = {}
     table: dict[str, Any] = {}
     for k in range(max_modes + 1):
-        f = fit_mixture(r, g, k, fit_slope=fit_slope, fixed_slope=fixed_slope)
+        f = fit_mixture(r, g, k, fit_slope=fit_slope, fixed_slope=fixed_slope, law=law)
         if f is None:
             table[str(k)] = {"bic": None, "admissible": False, "why": "too few rows outside the LOS core"}
             continue
@@ -582,8 +604,7 @@ def fit_mode_dwell(residual_m: np.ndarray, range_m: np.ndarray, t_s: np.ndarray,
     """
     modes = fit.modes
     w = np.array([md.weight for md in modes])
-    log_emis = np.column_stack([_log_norm_pdf(residual_m, fit.los_mean_m + fit.range_bias_per_m * range_m,
-                                              fit.los_std_m)]
+    log_emis = np.column_stack([_log_norm_pdf(residual_m, fit.los_centre(range_m), fit.los_std_m)]
                                + [_log_norm_pdf(residual_m, md.mean_m, md.std_m) for md in modes])
     dt = np.diff(t_s, prepend=t_s[0])
     dt = np.where(new_run, 1e9, np.maximum(dt, 1e-6))

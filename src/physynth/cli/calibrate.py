@@ -50,6 +50,10 @@ def calibrate_cmd(
     range_bias: Literal["dynamic", "static"] = typer.Option("dynamic", "--range-bias",
                                    help="dynamic: range bias per anchor from the recordings; static: the "
                                         "static-sweep slope for every anchor (needs --static-sweeps)."),
+    range_bias_law: Literal["log", "linear"] = typer.Option(
+        "log", "--range-bias-law",
+        help="How the LOS range error grows with distance: log (received-power bias, per decade of range; "
+             "the default) or linear (per metre, a clock-scale error). See docs/calibration.md."),
     long_outages: bool = typer.Option(False, "--long-outages",
                                       help="Also generate the long outages the fit finds (multi-second fades "
                                            "whose rate may grow with range; always reported). See "
@@ -73,15 +77,13 @@ def calibrate_cmd(
         check_output(target, kind=kind, overwrite=overwrite, inputs=inputs)
         if not target.parent.exists():
             raise PhySynthError(f"output folder {target.parent} does not exist")
-    if layout_from is not None and anchor_layout != "per-run":
-        raise PhySynthError("--layout-from needs --anchor-layout per-run")
-    chosen: int | str | None = int(layout_from) if layout_from is not None and layout_from.isdigit() else layout_from
     with guarded_outputs([out] + ([report] if report else [])) as real:  # locks; orphaned temp files removed
         for target, kind in [(out, "scenario")] + ([(report, "json")] if report else []):
             check_output(target, kind=kind, overwrite=overwrite, inputs=inputs)  # again, under the lock
         _calibrate(datasets, out, report, quiet, real[0], real[1] if report else None, name=name or out.stem,
                    path_kind=path_kind, anchor_policy=anchor_layout, layout_from=chosen,
-                   static_sweeps=static_sweeps, range_bias=range_bias, allow_mixed=allow_mixed,
+                   static_sweeps=static_sweeps, range_bias=range_bias, range_bias_law=range_bias_law,
+                   allow_mixed=allow_mixed,
                    long_outages=long_outages)
 
 

@@ -107,6 +107,9 @@ class LinkBudgetParams(ParamsModel):
 class ChannelParams(ParamsModel):
     """Ranging channel of one anchor: LOS Gaussian, NLOS mixture, effective rate and link range.
 
+    The LOS error has mean ``los_mean_m + range_bias_per_m * r + range_bias_per_decade_m * log10(r / 1 m)``
+    (r the true range; :func:`los_error_mean`): a clock-scale term and a received-power term.
+
     ``link_budget`` (optional, off by default) makes detection fall with distance, antenna gain and
     obstacle loss (:class:`LinkBudgetParams`).
     """
@@ -115,6 +118,7 @@ class ChannelParams(ParamsModel):
     los_mean_m: FiniteFloat = 0.0
     los_std_m: PositiveFloat = 0.1
     range_bias_per_m: FiniteFloat = 0.0
+    range_bias_per_decade_m: FiniteFloat = 0.0
     nlos_prob: Probability = 0.0
     nlos_modes: list[NlosMode] = Field(default=[NlosMode(weight=1.0, mean_m=1.0, std_m=0.5)], min_length=1)
     max_range_m: PositiveFloat = 300.0
@@ -129,6 +133,7 @@ class ChannelOverride(ParamsModel):
     los_mean_m: FiniteFloat | None = None
     los_std_m: PositiveFloat | None = None
     range_bias_per_m: FiniteFloat | None = None
+    range_bias_per_decade_m: FiniteFloat | None = None
     nlos_prob: Probability | None = None
     nlos_modes: list[NlosMode] | None = None
     max_range_m: PositiveFloat | None = None
@@ -195,6 +200,7 @@ class ChannelArrays:
     los_mean_m: np.ndarray
     los_std_m: np.ndarray
     range_bias_per_m: np.ndarray
+    range_bias_per_decade_m: np.ndarray
     nlos_prob: np.ndarray
     mode_cumw: np.ndarray  # (A, M) cumulative weights, last column 1
     mode_mean_m: np.ndarray  # (A, M)
@@ -276,6 +282,7 @@ def channel_arrays(params: UwbParams, anchors: Sequence[AnchorSpec],
         los_mean_m=np.array([c.los_mean_m for c in chans]),
         los_std_m=np.array([c.los_std_m for c in chans]),
         range_bias_per_m=np.array([c.range_bias_per_m for c in chans]),
+        range_bias_per_decade_m=np.array([c.range_bias_per_decade_m for c in chans]),
         nlos_prob=np.array([c.nlos_prob for c in chans]),
         mode_cumw=cumw, mode_mean_m=mean, mode_std_m=std, mode_dwell_s=dwell, mode_fixed_dwell=fixed,
         mode_held_jitter_m=jitter,
@@ -384,10 +391,30 @@ def sample_nlos_offset(anchor: np.ndarray, ch: ChannelArrays, *, rng: np.random.
     return ch.mode_mean_m[anchor, mode] + ch.mode_std_m[anchor, mode] * rng.standard_normal(anchor.shape[0])
 
 
+BIAS_RANGE_FLOOR_M = 0.1
+"""Ranges below this [m] enter the received-power bias at this value (log10 of 0 is -inf)."""
+
+
+def range_decades(true_range_m: np.ndarray | float) -> np.ndarray:
+    """log10 of the true range in metres (floored at :data:`BIAS_RANGE_FLOOR_M`): the regressor of the
+    received-power ranging bias (free-space path loss falls 20 dB per decade of range)."""
+    return np.log10(np.maximum(true_range_m, BIAS_RANGE_FLOOR_M))
+
+
 def los_error_mean(true_range_m: np.ndarray, los_mean_m: np.ndarray | float,
-                   range_bias_per_m: np.ndarray | float) -> np.ndarray:
-    """Mean LOS range error mu_i + beta_i r [m]."""
-    return los_mean_m + range_bias_per_m * true_range_m
+                   range_bias_per_m: np.ndarray | float,
+                   range_bias_per_decade_m: np.ndarray | float = 0.0) -> np.ndarray:
+    """Mean LOS range error mu_i + beta_i r + gamma_i log10(r / 1 m) [m].
+
+    beta (``range_bias_per_m``) is a clock-scale error; gamma (``range_bias_per_decade_m``) the
+    received-power bias of leading-edge detection, which grows with the path loss, i.e. linearly in
+    log range. The gamma term is evaluated only where it is not zero, so scenarios without it draw
+    exactly what they drew before it existed.
+    """
+    out = los_mean_m + range_bias_per_m * true_range_m
+    if np.any(np.asarray(range_bias_per_decade_m) != 0.0):
+        out = out + range_bias_per_decade_m * range_decades(true_range_m)
+    return out
 
 
 def _norm_logpdf(x: np.ndarray, mean: np.ndarray | float, std: np.ndarray | float) -> np.ndarray:
@@ -397,7 +424,7 @@ def _norm_logpdf(x: np.ndarray, mean: np.ndarray | float, std: np.ndarray | floa
 def range_error_log_components(err_m: np.ndarray, true_range_m: np.ndarray, *, los_mean_m: float,
                                range_bias_per_m: float, los_std_m: float, nlos_prob: float,
                                mode_weights: np.ndarray, mode_mean_m: np.ndarray,
-                               mode_std_m: np.ndarray) -> np.ndarray:
+                               mode_std_m: np.ndarray, range_bias_per_decade_m: float = 0.0) -> np.ndarray:
     """Log joint density of each error component, shape (1 + K, N): row 0 LOS, rows 1.. the NLOS modes.
 
     This is the distribution :func:`range_error` samples from (eq. 3: NLOS replaces the LOS error),
@@ -405,7 +432,8 @@ def range_error_log_components(err_m: np.ndarray, true_range_m: np.ndarray, *, l
     maximises its log-sum-exp.
     """
     comp = [np.log(max(1.0 - nlos_prob, 1e-300))
-            + _norm_logpdf(err_m, los_error_mean(true_range_m, los_mean_m, range_bias_per_m), los_std_m)]
+            + _norm_logpdf(err_m, los_error_mean(true_range_m, los_mean_m, range_bias_per_m, range_bias_per_decade_m),
+                           los_std_m)]
     for w, m, sd in zip(mode_weights, mode_mean_m, mode_std_m, strict=True):
         comp.append(np.log(max(nlos_prob * w, 1e-300)) + _norm_logpdf(err_m, m, sd))
     return np.stack(comp)
@@ -413,14 +441,15 @@ def range_error_log_components(err_m: np.ndarray, true_range_m: np.ndarray, *, l
 
 def range_error(true_range_m: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, mode: np.ndarray,
                 ch: ChannelArrays, *, rng: np.random.Generator, episode: np.ndarray | None = None) -> np.ndarray:
-    """Range errors [m] of rows: LOS Gaussian N(mu_i + beta_i r, sigma_i^2), replaced where NLOS by the
+    """Range errors [m] of rows: LOS Gaussian N(mu_i + beta_i r + gamma_i log10 r, sigma_i^2), replaced where NLOS by the
     offset of the episode's mixture mode (rows made NLOS by a zone alone draw a mode by weight).
 
     Rows of an episode (``episode``: one id per episode, -1 outside) of a mode with a held offset
     share one draw of the offset plus their own jitter; these draws come after all others, so a
     scenario without held modes draws exactly as before.
     """
-    err = (los_error_mean(true_range_m, ch.los_mean_m[anchor], ch.range_bias_per_m[anchor])
+    err = (los_error_mean(true_range_m, ch.los_mean_m[anchor], ch.range_bias_per_m[anchor],
+                          ch.range_bias_per_decade_m[anchor])
            + ch.los_std_m[anchor] * rng.standard_normal(true_range_m.shape[0]))
     in_episode = mode >= 0
     zone_only = nlos & ~in_episode
