@@ -59,7 +59,7 @@ def anchors_cmd(
     real: Path | None = typer.Option(None, "--real", help="Real dataset: reference of every cell and source of the "
                                                           "availability order (default: a reference run)."),
     n: int = typer.Option(50, "-n", "--n-traces", min=1, help="Traces per cell."),
-    seed: int | None = typer.Option(None, "--seed", help="Root seed (random when omitted; recorded)."),
+    seed: int | None = typer.Option(None, "--seed", min=0, help="Root seed (random when omitted; recorded)."),
     counts: str | None = typer.Option(None, "--counts", help="Anchor counts, e.g. 1..6 or 2,3,4,6 "
                                                              "(default: 1..number of anchors)."),
     regimes: str = typer.Option("dense,sparse,degraded", "--regimes",
@@ -76,13 +76,12 @@ def anchors_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Anchor count x channel regime study (paper section IV.B: Table III, Figure 6)."""
-    from ..errors import OutputExistsError
+    from ..io.safety import check_study_output
     from ..studies.anchors import write_anchor_study
     from ..validate.render import require_matplotlib
     from ..workflows import anchor_study
 
-    if (out / "table.json").exists() and not overwrite:  # fail before the work
-        raise OutputExistsError(out, "holds an anchor study")
+    check_study_output(out, marker="table.json", what="an anchor study", overwrite=overwrite)  # before the work
     if figures:
         require_matplotlib()
     with progress_bar(not quiet) as progress:
@@ -115,7 +114,7 @@ def placement_cmd(
                                                              "capped fresh GDOP, minimised) or hdop (the same with "
                                                              "the tag height known)."),
     n: int = typer.Option(20, "-n", "--n-traces", min=1, help="Traces the objective is averaged over."),
-    seed: int | None = typer.Option(None, "--seed", help="Root seed (random when omitted; recorded)."),
+    seed: int | None = typer.Option(None, "--seed", min=0, help="Root seed (random when omitted; recorded)."),
     regime: str = typer.Option("nominal", "--regime", help="Channel regime applied to the scenario."),
     workers: int | None = typer.Option(None, "--workers", min=1, help="Processes (default: all cores)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (placement.json, placement.md, "
@@ -125,13 +124,12 @@ def placement_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Greedy anchor placement: pick K of the candidate positions to maximise availability or minimise GDOP."""
-    from ..errors import OutputExistsError
+    from ..io.safety import check_study_output
     from ..studies.placement import write_placement
     from ..validate.render import require_matplotlib
     from ..workflows import placement_study
 
-    if (out / "placement.json").exists() and not overwrite:
-        raise OutputExistsError(out, "holds a placement study")
+    check_study_output(out, marker="placement.json", what="a placement study", overwrite=overwrite)
     if figures:
         require_matplotlib()
     with progress_bar(not quiet) as progress:

@@ -29,7 +29,7 @@ def tracking_cmd(
     scenario: str = typer.Option(None, "--scenario", "-s", help="Scenario (preset or YAML) for SYNTH_PHY "
                                  "pre-training instead of calibrating one on the training runs."),
     quick: bool = typer.Option(False, "--quick", help="Short schedule (< 10 min on 2 CPU cores)."),
-    seed: int = typer.Option(0, "--seed", help="Seed of every random choice (deterministic on CPU)."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Seed of every random choice (deterministic on CPU)."),
     methods: str = typer.Option(None, "--methods", help="Comma-separated subset of NOAUG,AUG_GAN,SYNTH_PHY,"
                                 "bilstm,ls,ekf (default: all)."),
     epochs: int = typer.Option(None, "--epochs", help="Epochs of NOAUG, AUG_GAN and bilstm (paper: 200)."),
@@ -53,6 +53,7 @@ def tracking_cmd(
     threads: int = typer.Option(1, "--threads", help="CPU threads for PyTorch (1: small recurrent nets gain nothing "
                                 "from more, and lose a lot on a shared machine)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (results.json, results.md, paths.png)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a tracking study already in --out."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress and no table."),
 ) -> None:
     """Train NOAUG, AUG_GAN, SYNTH_PHY, bilstm, ls and ekf on real runs; score them on a held-out run."""
@@ -67,6 +68,9 @@ def tracking_cmd(
     )
     from ..track import require_torch
 
+    from ..io.safety import check_study_output
+
+    check_study_output(out, marker="results.json", what="a tracking study", overwrite=overwrite)  # before the work
     chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods else METHODS
     if frame not in FRAMES:
         raise PhySynthError(f"--frame must be one of {', '.join(FRAMES)}, got '{frame}'")

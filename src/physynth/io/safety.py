@@ -81,9 +81,47 @@ def _foreign_entries(folder: Path, allowed: Iterable[str], pattern: re.Pattern |
                   if p.name not in allowed and not (pattern is not None and pattern.match(p.name) and p.is_file()))
 
 
+EXPORT_CSV_FILE = re.compile(r"^[a-z_]+\.csv$")
+EXPORT_BAG_FOLDER = re.compile(r"^trace_\d{8}$")
+FOLDER_KINDS = ("dataset", "report", "export-hdf5", "export-csv", "export-rosbag2")
+"""Output kinds that may never be the current folder or one of its parents (folders, and files whose
+parent would be replaced)."""
+
+
+def _why_not_export(path: Path, kind: str) -> str | None:
+    """:func:`why_not_replaceable` for ``physynth export`` outputs (``export-hdf5|csv|rosbag2``)."""
+    if kind == "export-hdf5":
+        if not path.is_file():
+            return "it is not a file"
+        try:
+            import h5py
+
+            with h5py.File(path, "r") as f:
+                fmt = f.attrs.get("format", "")
+        except (ImportError, OSError):
+            fmt = ""
+        fmt = fmt.decode() if isinstance(fmt, bytes) else str(fmt)
+        return None if fmt.startswith("physynth-hdf5") else "it is not an HDF5 file written by physynth export"
+    if not path.is_dir():
+        return "it is not a folder"
+    if kind == "export-csv":
+        if not _marked(_physynth_json(path / "dataset.json")):
+            return "it is not a CSV export of physynth (no dataset.json written by physynth)"
+        foreign = _foreign_entries(path, ("dataset.json", "traces.jsonl"), EXPORT_CSV_FILE)
+    else:
+        foreign = sorted(p.name for p in path.iterdir()
+                         if not (EXPORT_BAG_FOLDER.match(p.name) and (p / "metadata.yaml").is_file()))
+        if not foreign and not any(path.iterdir()):
+            return None
+    return f"it holds {foreign[0]!r}, which PhySynth did not write" if foreign else None
+
+
 def why_not_replaceable(path: Path, kind: str) -> str | None:
-    """None when ``path`` is PhySynth output of ``kind`` ("dataset", "report", "scenario", "json");
-    otherwise a short reason (naming the first file PhySynth did not write)."""
+    """None when ``path`` is PhySynth output of ``kind`` ("dataset", "report", "scenario", "json",
+    "export-hdf5", "export-csv", "export-rosbag2"); otherwise a short reason (naming the first file
+    PhySynth did not write)."""
+    if kind.startswith("export-"):
+        return _why_not_export(path, kind)
     if kind in ("dataset", "report"):
         if not path.is_dir():
             return "it is not a folder"
@@ -134,7 +172,7 @@ def check_output(out: str | os.PathLike, *, kind: str, overwrite: bool,
             what = "is" if r_in == real else "holds"
             raise UnsafeOutputError(f"output {out} {what} the input {inp} of the same command; "
                                     "choose another output")
-    if kind in ("dataset", "report") and _is_within(Path.cwd().resolve(), real):
+    if kind in FOLDER_KINDS and _is_within(Path.cwd().resolve(), real):
         raise UnsafeOutputError(f"output {out} is the current folder or holds it; choose another output")
     if not os.path.lexists(real):
         return real
@@ -149,6 +187,26 @@ def check_output(out: str | os.PathLike, *, kind: str, overwrite: bool,
     if reason:
         raise UnsafeOutputError(f"refusing to overwrite {out}: {reason}; remove it yourself or choose "
                                 "another output")
+    return real
+
+
+def check_study_output(out: str | os.PathLike, *, marker: str, what: str, overwrite: bool) -> Path:
+    """Check that a study may write its files into the folder ``out`` (``physynth study ...``).
+
+    A study writes a fixed set of files, ``marker`` (its JSON) among them. Refused: the current folder or
+    one of its parents; a folder that already holds files but no ``marker`` (the user's folder: a study
+    would overwrite its files of the same names); a folder with ``marker`` without ``overwrite``.
+    """
+    real = resolve_output(out)
+    if _is_within(Path.cwd().resolve(), real):
+        raise UnsafeOutputError(f"output {out} is the current folder or holds it; choose another output")
+    if real.exists() and not real.is_dir():
+        raise UnsafeOutputError(f"output {out} is a file, not a folder; choose another output")
+    if real.is_dir() and any(real.iterdir()) and not (real / marker).is_file():
+        raise UnsafeOutputError(f"refusing to write {what} into {out}: it holds files and no {marker}; "
+                                "choose a new or empty folder")
+    if (real / marker).is_file() and not overwrite:
+        raise OutputExistsError(out, f"holds {what}")
     return real
 
 

@@ -9,14 +9,15 @@ export leaves nothing that looks finished. HDF5 needs ``h5py`` and ROS 2 bags ne
 from __future__ import annotations
 
 import os
-import shutil
 from collections.abc import Callable
 from pathlib import Path
 
-from ...errors import OutputExistsError, PhySynthError
+from ...errors import PhySynthError
 from ...progress import ProgressCallback, no_progress
+from .. import integrity
 from ..atomic import temp_sibling
 from ..dataset import iter_indexed_traces, n_traces, read_meta
+from ..safety import prepare_output, register_temporary, remove_tree, unregister_temporary
 
 FORMATS = ("hdf5", "rosbag2", "csv")
 
@@ -42,14 +43,21 @@ def export_dataset(dataset: str | os.PathLike, out: str | os.PathLike, fmt: str,
         _require("h5py")
     elif fmt == "rosbag2":
         _require("rosbags")
-    out = Path(out)
-    if out.exists() and not overwrite:
-        raise OutputExistsError(out)
     meta = read_meta(dataset)
+    # the same rules as every writer (docs/reliability.md): never the input, the current folder or a
+    # parent of it; replaced only when it is an export PhySynth wrote (--overwrite); locked; temporary
+    # files of an interrupted export removed with a warning
+    out, lock = prepare_output(out, kind=f"export-{fmt}", overwrite=overwrite, inputs=[dataset])
+    try:
+        return _export(Path(dataset), meta, out, fmt, progress)
+    finally:
+        lock.release()
+
+
+def _export(dataset: Path, meta: dict, out: Path, fmt: str, progress: ProgressCallback) -> Path:
     total = n_traces(meta)
     tmp = temp_sibling(out)
-    if tmp.exists():
-        shutil.rmtree(tmp) if tmp.is_dir() else tmp.unlink()
+    remove_tree(tmp)
     writer: Callable
     if fmt == "hdf5":
         from .hdf5 import write_hdf5 as writer
@@ -65,16 +73,23 @@ def export_dataset(dataset: str | os.PathLike, out: str | os.PathLike, fmt: str,
             counter["done"] += 1
             progress(f"exporting to {fmt}", counter["done"], total)
 
+    register_temporary(tmp)
     try:
-        if fmt == "csv":  # table by table, row group by row group: no records needed
-            writer(Path(dataset), meta, tmp, progress)
+        if fmt == "csv":  # table by table, row group by row group: no records needed, so check the files here
+            integrity.check_dataset(dataset, meta, hashes=not integrity.environ_skip_hashes())
+            writer(dataset, meta, tmp, progress)
         else:
             writer(traces(), meta, tmp)
-        if out.exists():
-            shutil.rmtree(out) if out.is_dir() else out.unlink()
-        os.replace(tmp, out)
+        if os.path.lexists(out):
+            old = out.with_name(f".{out.name}.old-{os.getpid()}")
+            os.replace(out, old)
+            os.replace(tmp, out)
+            remove_tree(old)
+        else:
+            os.replace(tmp, out)
     except BaseException:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True) if tmp.is_dir() else tmp.unlink()
+        remove_tree(tmp)
         raise
+    finally:
+        unregister_temporary(tmp)
     return out

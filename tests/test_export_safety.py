@@ -1,0 +1,105 @@
+"""``physynth export`` and ``physynth study`` never lose data they did not write (docs/reliability.md).
+
+Every case runs the real command line on a real dataset and checks both the exit code (2, one line)
+and that the user's files are still there, byte for byte.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import warnings
+
+import pytest
+
+from physynth.cli import main
+from physynth.errors import PhySynthWarning
+from physynth.io.export import export_dataset
+from physynth.io.scenario_file import load_scenario
+from physynth.workflows import generate_dataset
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    path, _ = generate_dataset(load_scenario("cablecar-descending"), 2, tmp_path_factory.mktemp("exs") / "ds", seed=3)
+    return path
+
+
+def _refused(argv: list[str], capsys, needle: str) -> None:
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and needle in err and err.count("\n") == 1, err
+
+
+def test_overwrite_replaces_only_exports(dataset, tmp_path, capsys):
+    precious = tmp_path / "precious.h5"
+    precious.write_bytes(b"not physynth")
+    _refused(["export", str(dataset), "--format", "hdf5", "--out", str(precious), "--overwrite", "-q"], capsys,
+             "not an HDF5 file written by physynth export")
+    assert precious.read_bytes() == b"not physynth"
+    folder = tmp_path / "csv"
+    main(["export", str(dataset), "--format", "csv", "--out", str(folder), "-q"])
+    main(["export", str(dataset), "--format", "csv", "--out", str(folder), "--overwrite", "-q"])  # its own: replaced
+    (folder / "notes.txt").write_text("mine")
+    _refused(["export", str(dataset), "--format", "csv", "--out", str(folder), "--overwrite", "-q"], capsys,
+             "'notes.txt', which PhySynth did not write")
+    assert (folder / "notes.txt").read_text() == "mine"
+
+
+def test_never_the_input_or_the_current_folder(dataset, tmp_path, capsys, monkeypatch):
+    copy = tmp_path / "copy"
+    shutil.copytree(dataset, copy)
+    before = sorted(p.name for p in copy.iterdir())
+    _refused(["export", str(copy), "--format", "csv", "--out", str(copy), "--overwrite", "-q"], capsys,
+             "is the input")
+    assert sorted(p.name for p in copy.iterdir()) == before
+    child = tmp_path / "parent" / "child"
+    child.mkdir(parents=True)
+    (child / "mine.txt").write_text("mine")
+    monkeypatch.chdir(child)
+    for out in ("..", "."):
+        _refused(["export", str(copy), "--format", "hdf5", "--out", out, "--overwrite", "-q"], capsys,
+                 "current folder")
+    assert (child / "mine.txt").read_text() == "mine"
+
+
+def test_csv_export_checks_the_dataset(dataset, tmp_path, capsys):
+    copy = tmp_path / "copy"
+    shutil.copytree(dataset, copy)
+    meta = json.loads((copy / "dataset.json").read_text())
+    meta["files"]["uwb.parquet"]["bytes"] += 1
+    (copy / "dataset.json").write_text(json.dumps(meta))
+    _refused(["export", str(copy), "--format", "csv", "--out", str(tmp_path / "c"), "-q"], capsys,
+             "uwb.parquet")
+    assert not (tmp_path / "c").exists()
+
+
+def test_killed_export_leftovers_are_removed_with_a_warning(dataset, tmp_path):
+    out = tmp_path / "c"
+    dead = tmp_path / f".c.tmp-{2**22 + 12345}"  # a pid no process has here
+    dead.mkdir()
+    (dead / "uwb.csv").write_text("half")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        export_dataset(dataset, out, "csv")
+    assert not dead.exists() and (out / "uwb.csv").is_file()
+    assert any(issubclass(w.category, PhySynthWarning) and "interrupted run" in str(w.message) for w in caught)
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".c.") and "lock" not in p.name]
+
+
+def test_studies_refuse_a_users_folder_and_negative_seeds(tmp_path, capsys):
+    users = tmp_path / "users"
+    users.mkdir()
+    (users / "scenario.yaml").write_text("mine")
+    _refused(["study", "anchors", "-n", "2", "--seed", "1", "--no-figures", "--out", str(users), "-q"], capsys,
+             "holds files and no table.json")
+    _refused(["study", "tracking", "--methods", "ls", "--out", str(users), "-q"], capsys,
+             "holds files and no results.json")
+    assert (users / "scenario.yaml").read_text() == "mine"
+    for argv in (["study", "anchors", "--seed", "-5", "--out", str(tmp_path / "a")],
+                 ["study", "placement", "--seed", "-3", "--candidates", "x", "-k", "2", "--out", str(tmp_path / "p")],
+                 ["study", "tracking", "--seed", "-1", "--out", str(tmp_path / "t")]):
+        _refused(argv + ["-q"], capsys, "--seed")
+    assert not os.path.exists(tmp_path / "a") and not os.path.exists(tmp_path / "t")
