@@ -1,4 +1,5 @@
-"""``physynth export`` and ``physynth study`` never lose data they did not write (docs/reliability.md).
+"""``physynth export``, ``study`` and ``generate`` never lose data they did not write nor leave a run behind
+(docs/reliability.md).
 
 Every case runs the real command line on a real dataset and checks both the exit code (2, one line)
 and that the user's files are still there, byte for byte.
@@ -103,3 +104,13 @@ def test_studies_refuse_a_users_folder_and_negative_seeds(tmp_path, capsys):
                  ["study", "tracking", "--seed", "-1", "--out", str(tmp_path / "t")]):
         _refused(argv + ["-q"], capsys, "--seed")
     assert not os.path.exists(tmp_path / "a") and not os.path.exists(tmp_path / "t")
+
+
+def test_unreachable_scheduler_leaves_nothing_to_resume(tmp_path, capsys):
+    pytest.importorskip("distributed")
+    out = tmp_path / "d"
+    _refused(["generate", "-n", "2", "--seed", "1", "--scheduler", "tcp://127.0.0.1:1", "--out", str(out), "-q"],
+             capsys, "cannot connect to the Dask scheduler")
+    assert not out.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".d.partial")]
+    main(["generate", "-n", "2", "--seed", "1", "--out", str(out), "-q"])  # no "unfinished run" in the way
+    assert (out / "dataset.json").is_file()

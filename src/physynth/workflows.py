@@ -92,8 +92,13 @@ def generate_dataset(scn: Scenario, n: int, out: str | Path, *, seed: int | None
                 progress(f"resuming: {len(complete)} of {plan.n_shards} shard(s) already complete")
             progress(message, already, n)
         meta = dataset_meta(scn, root)
-        run_shards(scn, root, partial, plan, todo, meta, workers=workers, scheduler=scheduler,
-                   progress=None if progress is None else (lambda done: progress(message, already + done, n)))
+        try:
+            run_shards(scn, root, partial, plan, todo, meta, workers=workers, scheduler=scheduler,
+                       progress=None if progress is None else (lambda done: progress(message, already + done, n)))
+        except PhySynthError:
+            if not complete and not any(partial.glob("shard-*")):  # nothing generated (e.g. no scheduler):
+                safety.remove_tree(partial)  # leave nothing behind that a later run would have to resume
+            raise
         return shards.finalize(out, partial, plan, meta), root
     finally:
         lock.release()
