@@ -41,6 +41,9 @@ def test_per_anchor_overrides_merge_with_the_default():
     (lambda d: d["anchors"].append({"id": "A1", "pos_enu_m": [0, 0, 0]}), r"duplicate anchor id"),
     (lambda d: d["channel"].__setitem__("nlos_prob", 1.5), r"channel\.nlos_prob: .*less than or equal to 1"),
     (lambda d: d.__setitem__("colour", "red"), r"field colour: Extra inputs are not permitted"),
+    (lambda d: d["motion"].__setitem__("cruise_sped_mps", d["motion"].pop("cruise_speed_mps")),
+     r"field motion\.cruise_speed_mps is required and motion\.cruise_sped_mps is not a known field \(misspelled\?\)"),
+    (lambda d: d.__setitem__("motoin", d.pop("motion")), r"field motion is required and motoin is not a known field"),
     (lambda d: d["channel"].__setitem__("rate_hz", 50.0), r"rate_hz exceeds uwb\.burst_rate_hz"),
 ])
 def test_bad_scenario_files_give_one_clear_line(tmp_path, mutate, expected):

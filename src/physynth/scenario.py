@@ -100,9 +100,20 @@ class Scenario(ParamsModel):
         return tuple(a.id for a in self.anchors)
 
 
+def _dotted(loc: tuple) -> str:
+    return ".".join(str(p) if not isinstance(p, int) else f"[{p}]" for p in loc).replace(".[", "[")
+
+
 def _format_validation_error(err: ValidationError, source: str) -> str:
-    e = err.errors()[0]
-    loc = ".".join(str(p) if not isinstance(p, int) else f"[{p}]" for p in e["loc"]).replace(".[", "[")
+    errors = err.errors()
+    e = errors[0]
+    if e["type"] == "missing":  # a misspelled required key: name the unknown key beside the missing one
+        typo = next((x for x in errors if x["type"] == "extra_forbidden" and x["loc"][:-1] == e["loc"][:-1]), None)
+        if typo is not None:
+            more = f" [+{len(errors) - 2} more]" if len(errors) > 2 else ""
+            return (f"scenario {source}: field {_dotted(e['loc'])} is required and {_dotted(typo['loc'])} is not a "
+                    f"known field (misspelled?){more}")
+    loc = _dotted(e["loc"])
     msg = e["msg"]
     if msg.startswith("Value error, "):
         msg = msg[len("Value error, "):]
