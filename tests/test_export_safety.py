@@ -114,3 +114,10 @@ def test_unreachable_scheduler_leaves_nothing_to_resume(tmp_path, capsys):
     assert not out.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".d.partial")]
     main(["generate", "-n", "2", "--seed", "1", "--out", str(out), "-q"])  # no "unfinished run" in the way
     assert (out / "dataset.json").is_file()
+
+
+def test_errors_name_the_options_not_the_parameters(dataset, tmp_path, capsys):
+    _refused(["calibrate", str(dataset), "--layout-from", "7", "--out", str(tmp_path / "s.yaml"), "-q"], capsys,
+             "--layout-from=7: there are 2 recordings")
+    _refused(["calibrate", str(dataset), "--range-bias", "static", "--out", str(tmp_path / "s.yaml"), "-q"], capsys,
+             "--range-bias static needs --static-sweeps")

@@ -48,7 +48,8 @@ def main() -> None:
     rms = st["residual_std_per_law_m"]
     print(f"static sweeps ({st['n_files']} files, {st['distance_range_m'][0]:.0f}-{st['distance_range_m'][1]:.0f} m): "
           f"{100 * st['range_bias_per_m']:.3f} cm/m leaves {100 * rms['range_bias_per_m']:.1f} cm rms; "
-          f"{100 * st['range_bias_per_decade_m']:.1f} cm per decade leaves {100 * rms['range_bias_per_decade_m']:.1f} cm rms")
+          f"{100 * st['range_bias_per_decade_m']:.1f} cm per decade leaves "
+          f"{100 * rms['range_bias_per_decade_m']:.1f} cm rms")
     runs = {f"{e} {c}": import_hanyang(args.data / "Dynamic_measurements" / e / "Trajectory_A" / c, crop_to_uwb=True)[0]
             for e, c in RUNS}
     print(f"leave-one-out bias shape (synthetic minus real median residual per range bin, run offset removed), "

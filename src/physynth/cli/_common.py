@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import sys
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -71,8 +72,29 @@ def format_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     return "\n".join([line(cells[0]), rule, *(line(r) for r in cells[1:])])
 
 
+PARAMETER_FLAGS = (
+    (re.compile(r"\brange_bias='static'"), "--range-bias static"),
+    (re.compile(r"\blayout_from\b"), "--layout-from"),
+    (re.compile(r"\bstatic_sweeps\b"), "--static-sweeps"),
+    (re.compile(r"\brange_bias_law\b"), "--range-bias-law"),
+    (re.compile(r"\bcrop_to_uwb\b"), "--crop-to-uwb"),
+    (re.compile(r"\bn_synth_traces\b"), "--n-synth"),
+    (re.compile(r"\bpretrain_epochs\b"), "--pretrain-epochs"),
+    (re.compile(r"\bfinetune_epochs\b"), "--finetune-epochs"),
+    (re.compile(r"\bfinetune_synth_ratio\b"), "--finetune-synth-ratio"),
+)
+"""Library parameter names (which the library's errors and notes name) and the options that set them."""
+
+
+def cli_words(message: str) -> str:
+    """``message`` with the library's parameter names replaced by the command-line options that set them."""
+    for pattern, flag in PARAMETER_FLAGS:
+        message = pattern.sub(flag, message)
+    return message
+
+
 def fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
     """Print the first line of ``message`` as ``physynth: error: ...`` on stderr and exit."""
     first = message.strip().splitlines()[0] if message.strip() else "invalid input"
-    print(f"physynth: error: {first}", file=sys.stderr)
+    print(f"physynth: error: {cli_words(first)}", file=sys.stderr)
     sys.exit(code)

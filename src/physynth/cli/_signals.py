@@ -48,7 +48,9 @@ def handling_signals() -> Iterator[None]:
 
     def showwarning(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001
         if issubclass(category, PhySynthWarning):
-            print(f"physynth: warning: {str(message).splitlines()[0]}", file=sys.stderr)
+            from ._common import cli_words
+
+            print(f"physynth: warning: {cli_words(str(message).splitlines()[0])}", file=sys.stderr)
         else:
             show(message, category, filename, lineno, file, line)
 

@@ -21,6 +21,8 @@ from typing import Literal
 
 import typer
 
+from ._common import cli_words
+
 
 def register(app: typer.Typer) -> None:
     """Add the ``calibrate`` command to the main app."""
@@ -147,5 +149,5 @@ def _print_summary(result, out: Path, report: Path | None) -> None:
     if missing:
         console.print(f"not identifiable ({len(missing)}): " + "; ".join(missing))
     for w in result.report.get("warnings", []):
-        console.print(f"warning: {w}")
+        console.print(f"warning: {cli_words(w)}")
     console.print(f"wrote {out}" + (f" and {report}" if report else ""))

@@ -57,6 +57,7 @@ def tracking_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress and no table."),
 ) -> None:
     """Train NOAUG, AUG_GAN, SYNTH_PHY, bilstm, ls and ekf on real runs; score them on a held-out run."""
+    from ..io.safety import check_study_output
     from ..studies.tracking import (
         METHODS,
         StudyConfig,
@@ -67,8 +68,6 @@ def tracking_cmd(
         write_results,
     )
     from ..track import require_torch
-
-    from ..io.safety import check_study_output
 
     check_study_output(out, marker="results.json", what="a tracking study", overwrite=overwrite)  # before the work
     chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods else METHODS

@@ -441,8 +441,8 @@ def range_error_log_components(err_m: np.ndarray, true_range_m: np.ndarray, *, l
 
 def range_error(true_range_m: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, mode: np.ndarray,
                 ch: ChannelArrays, *, rng: np.random.Generator, episode: np.ndarray | None = None) -> np.ndarray:
-    """Range errors [m] of rows: LOS Gaussian N(mu_i + beta_i r + gamma_i log10 r, sigma_i^2), replaced where NLOS by the
-    offset of the episode's mixture mode (rows made NLOS by a zone alone draw a mode by weight).
+    """Range errors [m] of rows: LOS Gaussian N(mu_i + beta_i r + gamma_i log10 r, sigma_i^2), replaced where
+    NLOS by the offset of the episode's mixture mode (rows made NLOS by a zone alone draw a mode by weight).
 
     Rows of an episode (``episode``: one id per episode, -1 outside) of a mode with a held offset
     share one draw of the offset plus their own jitter; these draws come after all others, so a
