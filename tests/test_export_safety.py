@@ -121,3 +121,22 @@ def test_errors_name_the_options_not_the_parameters(dataset, tmp_path, capsys):
              "--layout-from=7: there are 2 recordings")
     _refused(["calibrate", str(dataset), "--range-bias", "static", "--out", str(tmp_path / "s.yaml"), "-q"], capsys,
              "--range-bias static needs --static-sweeps")
+
+
+def test_verify_checks_every_dataset(dataset, tmp_path, capsys):
+    bad = tmp_path / "bad"
+    shutil.copytree(dataset, bad)
+    data = bytearray((bad / "uwb.parquet").read_bytes())
+    data[len(data) // 2] ^= 0x01
+    (bad / "uwb.parquet").write_bytes(bytes(data))
+    with pytest.raises(SystemExit) as e:
+        main(["verify", str(bad), str(dataset)])
+    out, err = capsys.readouterr()
+    assert e.value.code == 2
+    assert f"{dataset}: ok" in out  # the intact one after the damaged one is still checked
+    assert "uwb.parquet" in err and "1 of 2 datasets failed verification" in err
+
+
+def test_broad_import_of_a_folder_says_so(tmp_path, capsys):
+    _refused(["import", "broad", str(tmp_path), "--out", str(tmp_path / "o")], capsys,
+             "is a folder; give a BROAD trial file")

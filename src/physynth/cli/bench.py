@@ -45,7 +45,8 @@ def bench_cmd(
         ("in memory, 1 core", f"{res['traces_per_s_memory']:.1f} traces/s"),
         ("to Parquet, 1 core", f"{res['traces_per_s_parquet']:.1f} traces/s"),
         ("on disk", f"{res['mb_per_trace_on_disk']:.2f} MB/trace"),
-        (f"scaling, {m['workers']} workers", "-" if eff is None else f"{100 * eff:.0f} %"),
+        (f"scaling, {m['workers']} worker{'s' if m['workers'] != 1 else ''}",
+         "-" if eff is None else f"{100 * eff:.0f} %"),
         ("peak memory", f"{res['peak_rss_mb']:.0f} MB"),
     ]
     typer.echo(format_table(("measure", "value"), rows))

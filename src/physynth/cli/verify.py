@@ -19,15 +19,25 @@ def verify_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing when every dataset is intact."),
 ) -> None:
     """Check datasets against the row counts and checksums recorded in their dataset.json."""
-    from ..errors import IntegrityError
+    from ..errors import IntegrityError, PhySynthError
     from ..io.dataset import read_meta
     from ..io.integrity import check_dataset, describe
 
-    for ds in datasets:
-        meta = read_meta(ds)
-        result = check_dataset(ds, meta, hashes=True)
-        if not result.recorded:
-            raise IntegrityError(f"dataset {ds} has no integrity record (written by an older PhySynth): "
-                                 "it cannot be verified")
+    bad: list[str] = []
+    for ds in datasets:  # every dataset is checked; each damaged one is named on its own line
+        try:
+            meta = read_meta(ds)
+            result = check_dataset(ds, meta, hashes=True)
+            if not result.recorded:
+                raise IntegrityError(f"dataset {ds} has no integrity record (written by an older PhySynth): "
+                                     "it cannot be verified")
+        except PhySynthError as exc:
+            if len(datasets) == 1:
+                raise
+            typer.echo(f"{ds}: {str(exc).splitlines()[0]}", err=True)
+            bad.append(str(ds))
+            continue
         if not quiet:
             typer.echo(f"{ds}: ok, {describe(result)}")
+    if bad:
+        raise IntegrityError(f"{len(bad)} of {len(datasets)} datasets failed verification: {', '.join(bad)}")

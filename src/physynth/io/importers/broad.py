@@ -89,6 +89,9 @@ def import_broad(mat_file: str | os.PathLike, *, velocity_window_s: float = 0.1
 
 def _load_trial(path: Path) -> dict[str, Any]:
     """The variables of a BROAD ``.mat`` file, with the required ones present."""
+    if path.is_dir():
+        raise RecordingError(f"{path} is a folder; give a BROAD trial file "
+                             "(e.g. data_mat/10_undisturbed_slow_translation_A.mat)")
     if not path.is_file():
         raise RecordingError(f"BROAD trial file {path} does not exist")
     try:
