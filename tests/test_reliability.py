@@ -437,6 +437,18 @@ def test_truth_in_milliseconds_is_detected(tmp_path, capsys):
     assert code == 2 and one_line(err) and "milliseconds" in err and "truth.csv" in err
 
 
+def test_a_stream_covering_a_small_part_is_named_with_the_truth(tmp_path, capsys):
+    import pandas as pd
+
+    rec = write_recording(tmp_path / "rec")
+    uwb = pd.read_csv(rec / "uwb.csv")
+    uwb = uwb[uwb["t_s"] < uwb["t_s"].min() + 0.06]  # 0.06 s of ranges against 20 s of truth
+    uwb.to_csv(rec / "uwb.csv", index=False)
+    code, _, err = run(capsys, "import", "csv", rec, "--out", tmp_path / "ds", "-q")
+    # which file is wrong cannot be told from the spans: both readings are named
+    assert code == 2 and one_line(err) and "uwb.csv covers only a small part" in err and "truth.csv is in" in err
+
+
 def test_coerced_burst_cells_are_counted(tmp_path):
     import pandas as pd
 

@@ -340,10 +340,12 @@ def check_time_spans(path: Path, t: np.ndarray, truth_path: Path, t_truth: np.nd
         return
     ratio = span_truth / span
     if ratio >= MAX_SPAN_RATIO or ratio <= 1 / MAX_SPAN_RATIO:
-        longer, factor = (truth_path.name, ratio) if ratio > 1 else (path.name, 1 / ratio)
+        longer, shorter, factor = ((truth_path.name, path.name, ratio) if ratio > 1
+                                   else (path.name, truth_path.name, 1 / ratio))
         raise RecordingError(
             f"{path}: spans {span:.4g} s but {truth_path.name} spans {span_truth:.4g} s ({factor:.3g} times "
-            f"apart); {longer} looks like it is in {_unit_guess(factor)}: convert its times to seconds")
+            f"apart): either {longer} is in {_unit_guess(factor)} (convert its times to seconds) or {shorter} "
+            "covers only a small part of the recording")
 
 
 #: Median ratio of measured range to the anchor-to-truth distance outside which a unit is wrong.
