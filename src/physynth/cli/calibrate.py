@@ -137,10 +137,11 @@ def _print_summary(result, out: Path, report: Path | None) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    table = Table(title=f"calibrated scenario '{result.scenario.name}'")
-    table.add_column("parameter")
-    table.add_column("value", justify="right")
-    table.add_column("uncertainty / samples", justify="right")
+    table = Table(title=f"calibrated scenario '{result.scenario.name}'", expand=True)
+    # in 80 columns long keys wrap (never cut: two cut keys would look alike); the key gets half the width
+    table.add_column("parameter", overflow="fold", ratio=2)
+    table.add_column("value", justify="right", overflow="fold", ratio=1)
+    table.add_column("uncertainty / samples", justify="right", overflow="fold", ratio=1)
     for key, value, unc in result.summary_rows():
         table.add_row(key, value, unc)
     console = Console()

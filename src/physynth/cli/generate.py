@@ -94,10 +94,13 @@ def scenarios_cmd() -> None:
     """List the built-in scenario presets."""
     from ..io.scenario_file import list_presets, load_scenario
 
+    import shutil
+
+    width = max(shutil.get_terminal_size((80, 24)).columns, 40)  # the terminal's, or $COLUMNS, else 80
     for name in list_presets():
         s = load_scenario(name)
         line = f"{name:24s} {s.description.splitlines()[0] if s.description else ''}"
-        typer.echo(line if len(line) <= 80 else line[:77].rstrip() + "...")  # 80 columns; full text: scenario show
+        typer.echo(line if len(line) <= width else line[:width - 3].rstrip() + "...")  # full text: scenario show
 
 
 def scenario_show_cmd(name: str = typer.Argument(..., help="Preset name or scenario file.")) -> None:
