@@ -92,9 +92,9 @@ def generate_cmd(
 
 def scenarios_cmd() -> None:
     """List the built-in scenario presets."""
-    from ..io.scenario_file import list_presets, load_scenario
-
     import shutil
+
+    from ..io.scenario_file import list_presets, load_scenario
 
     width = max(shutil.get_terminal_size((80, 24)).columns, 40)  # the terminal's, or $COLUMNS, else 80
     for name in list_presets():
