@@ -53,6 +53,13 @@ def test_order_from_a_real_dataset_and_explicit_order():
     assert s.reference["ge1"] == pytest.approx(m.uwb_ge1_frac)
     s2 = run_anchor_study(scn, n=2, seed=1, counts=[1], regimes=("nominal",), order=["A1", "A3", "A2"], workers=1)
     assert s2.order == ["A1", "A3", "A2"]
+    # a real run of other anchors is no reference for this deployment, whatever the order given
+    renamed = [a.model_copy(update={"id": f"B{i}"}) for i, a in enumerate(scn.anchors)]
+    other = scn.model_copy(update={"anchors": renamed})
+    foreign = [generate_trace(compile_scenario(other), 0, 99)]
+    with pytest.raises(PhySynthError, match="anchor ids differ between the real dataset and scenario"):
+        run_anchor_study(scn, real=foreign, n=2, seed=1, counts=[1], regimes=("nominal",), order=["A1", "A3", "A2"],
+                         workers=1)
 
 
 def test_more_anchors_never_lower_ge1_for_the_same_seed(study):

@@ -347,6 +347,14 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
         raise PhySynthError("no regime given")
     if len(set(regimes)) != len(regimes):
         raise PhySynthError(f"a regime is given twice: {', '.join(regimes)}")
+    if real:  # the real run is the reference of every cell: it must have been measured with these anchors
+        from ..validate.compare import describe_anchor_mismatch
+
+        for tr in real:
+            why = describe_anchor_mismatch(list(tr.anchors.ids), ids, f"scenario '{scn.name}'")
+            if why:
+                raise PhySynthError(f"{why}: the study needs a real run of the scenario's anchors (calibrate "
+                                    "the scenario on it, or choose the scenario of that site)")
     if order is not None:  # checked before any work
         order = check_subset(order, ids, "the anchor order")
         if len(order) < max(counts):
