@@ -126,3 +126,58 @@ def test_missing_extra_is_named_in_one_line(dataset, tmp_path, capsys, monkeypat
     err = capsys.readouterr().err
     assert e.value.code == 2 and "physynth[export]" in err and err.count("\n") == 1
     assert not (tmp_path / "x.h5").exists()
+
+
+@pytest.fixture(scope="module")
+def body_dataset(tmp_path_factory):
+    """ENU and body-frame IMU (accelerometer and gyroscope) and a truth attitude; and a body-only one."""
+    scn = load_scenario("cablecar-descending")
+    both = scn.model_copy(update={"imu_frames": ["enu-gravity-free", "body-flu"]})
+    body = scn.model_copy(update={"imu_frames": ["body-flu"]})
+    root = tmp_path_factory.mktemp("exb")
+    p_both, _ = generate_dataset(both, 2, root / "both", seed=6)
+    p_body, _ = generate_dataset(body, 1, root / "body", seed=6)
+    return p_both, read_dataset(p_both), p_body, read_dataset(p_body)
+
+
+def test_hdf5_keeps_the_body_imu_and_the_attitude(body_dataset, tmp_path):
+    h5py = pytest.importorskip("h5py")
+    p_both, ds, p_body, ds_body = body_dataset
+    with h5py.File(export_dataset(p_both, tmp_path / "b.h5", "hdf5"), "r") as f:
+        g, tr = f["traces/00000001"], ds.traces[1]
+        for name in ("acc_mps2", "acc_body_mps2", "gyro_body_radps"):
+            np.testing.assert_array_equal(g[f"imu/{name}"][()], getattr(tr.imu, name))
+        np.testing.assert_array_equal(g["truth/quat_wxyz"][()], tr.truth.quat_wxyz)
+        np.testing.assert_array_equal(g["truth/omega_body_radps"][()], tr.truth.omega_body_radps)
+        assert json.loads(g["imu"].attrs["frames"]) == ["enu-gravity-free", "body-flu"]
+    with h5py.File(export_dataset(p_body, tmp_path / "o.h5", "hdf5"), "r") as f:
+        assert "acc_mps2" not in f["traces/00000000/imu"] and "gyro_body_radps" in f["traces/00000000/imu"]
+
+
+def test_rosbag2_body_imu_topic(body_dataset, tmp_path):
+    pytest.importorskip("rosbags")
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    p_both, ds, p_body, ds_body = body_dataset
+    for path, data, enu in ((p_both, ds, True), (p_body, ds_body, False)):
+        out = export_dataset(path, tmp_path / path.name, "rosbag2")
+        tr = data.traces[0]
+        acc, gyro, quat = [], [], []
+        with Reader(out / "trace_00000000") as r:
+            topics = {c.topic for c in r.connections}
+            assert ("/imu" in topics) == enu and {"/imu/body", "/truth/orientation"} <= topics
+            for conn, _, raw in r.messages():
+                if conn.topic == "/imu/body":
+                    m = ts.deserialize_cdr(raw, conn.msgtype)
+                    assert m.header.frame_id == "body" and m.orientation_covariance[0] == -1.0
+                    acc.append((m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z))
+                    gyro.append((m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z))
+                elif conn.topic == "/truth/orientation":
+                    q = ts.deserialize_cdr(raw, conn.msgtype).quaternion
+                    quat.append((q.w, q.x, q.y, q.z))
+        np.testing.assert_array_equal(np.array(acc), tr.imu.acc_body_mps2)
+        np.testing.assert_array_equal(np.array(gyro), tr.imu.gyro_body_radps)
+        np.testing.assert_array_equal(np.array(quat), tr.truth.quat_wxyz)
+        assert np.median(np.linalg.norm(np.array(acc), axis=1)) == pytest.approx(9.81, abs=0.3)  # gravity included

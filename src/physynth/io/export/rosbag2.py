@@ -7,12 +7,18 @@ receive timestamp of the bag record equal to the header stamp:
 
 - ``/imu`` (``sensor_msgs/msg/Imu``), frame ``enu``: ``linear_acceleration`` in the dataset's IMU
   frame (ENU, gravity removed); no orientation or angular velocity (their covariance[0] is -1, the
-  ROS convention for "not provided");
+  ROS convention for "not provided"); only when the dataset holds the ENU channel;
+- ``/imu/body`` (``sensor_msgs/msg/Imu``), frame ``body``: the body-frame sensor as a strapdown IMU
+  driver publishes it: ``linear_acceleration`` the specific force (gravity included, FLU axes),
+  ``angular_velocity`` the gyroscope, no orientation (covariance[0] -1; either measurement too when
+  the dataset lacks it); only when the dataset holds the body-frame IMU;
 - ``/uwb/<anchor id>`` (``sensor_msgs/msg/Range``), frame ``<anchor id>``: one message per delivered
   UWB range (attempts without a range are not measurements and are left out); ``radiation_type`` 2
   stands for radio (the message defines 0 ultrasound and 1 infrared only), ``min_range`` 0,
   ``max_range`` the largest range of the trace, field of view 2 pi;
-- ``/truth`` (``geometry_msgs/msg/PointStamped``), frame ``enu``: the ground-truth position.
+- ``/truth`` (``geometry_msgs/msg/PointStamped``), frame ``enu``: the ground-truth position;
+- ``/truth/orientation`` (``geometry_msgs/msg/QuaternionStamped``), frame ``enu``: the ground-truth
+  attitude (body to ENU), when the truth has one.
 """
 
 from __future__ import annotations
@@ -47,6 +53,7 @@ def write_rosbag2(traces: Iterable[tuple[int, Trace]], meta: dict[str, Any], pat
     Vector3 = ts.types["geometry_msgs/msg/Vector3"]
     PointMsg = ts.types["geometry_msgs/msg/Point"]
     Quaternion = ts.types["geometry_msgs/msg/Quaternion"]
+    QuatStamped = ts.types["geometry_msgs/msg/QuaternionStamped"]
     no_cov = np.array([-1.0] + [0.0] * 8)
     zero_cov = np.zeros(9)
     identity = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
@@ -58,14 +65,23 @@ def write_rosbag2(traces: Iterable[tuple[int, Trace]], meta: dict[str, Any], pat
     for index, trace in traces:
         with Writer(path / f"trace_{index:08d}", version=8) as w:
             messages: list[tuple[int, Any, bytes]] = []
-            if trace.imu is not None:
-                c_imu = w.add_connection("/imu", Imu.__msgtype__, typestore=ts)
-                for ns, acc in zip(_stamps_ns(trace.imu.t_s), trace.imu.acc_mps2.tolist(), strict=True):
-                    msg = Imu(header=header(int(ns), "enu"), orientation=identity, orientation_covariance=no_cov,
-                              angular_velocity=Vector3(x=0.0, y=0.0, z=0.0), angular_velocity_covariance=no_cov,
-                              linear_acceleration=Vector3(x=acc[0], y=acc[1], z=acc[2]),
-                              linear_acceleration_covariance=zero_cov)
-                    messages.append((int(ns), c_imu, ts.serialize_cdr(msg, Imu.__msgtype__)))
+            imu = trace.imu
+            channels = [] if imu is None else [
+                (topic, frame, acc, gyro) for topic, frame, acc, gyro in (
+                    ("/imu", "enu", imu.acc_mps2, None), ("/imu/body", "body", imu.acc_body_mps2, imu.gyro_body_radps))
+                if acc is not None or gyro is not None]
+            for topic, frame, acc, gyro in channels:
+                conn = w.add_connection(topic, Imu.__msgtype__, typestore=ts)
+                n = imu.t_s.shape[0]
+                acc_l = np.zeros((n, 3)).tolist() if acc is None else acc.tolist()
+                gyro_l = np.zeros((n, 3)).tolist() if gyro is None else gyro.tolist()
+                for ns, a, g in zip(_stamps_ns(imu.t_s), acc_l, gyro_l, strict=True):
+                    msg = Imu(header=header(int(ns), frame), orientation=identity, orientation_covariance=no_cov,
+                              angular_velocity=Vector3(x=g[0], y=g[1], z=g[2]),
+                              angular_velocity_covariance=no_cov if gyro is None else zero_cov,
+                              linear_acceleration=Vector3(x=a[0], y=a[1], z=a[2]),
+                              linear_acceleration_covariance=no_cov if acc is None else zero_cov)
+                    messages.append((int(ns), conn, ts.serialize_cdr(msg, Imu.__msgtype__)))
             u = trace.uwb
             ok = np.isfinite(u.range_m)
             max_range = float(np.max(u.range_m[ok])) if ok.any() else 0.0
@@ -83,6 +99,12 @@ def write_rosbag2(traces: Iterable[tuple[int, Trace]], meta: dict[str, Any], pat
             for ns, p in zip(_stamps_ns(trace.truth.t_s), trace.truth.pos_enu_m.tolist(), strict=True):
                 msg = Point(header=header(int(ns), "enu"), point=PointMsg(x=p[0], y=p[1], z=p[2]))
                 messages.append((int(ns), c_truth, ts.serialize_cdr(msg, Point.__msgtype__)))
+            if trace.truth.quat_wxyz is not None:
+                c_att = w.add_connection("/truth/orientation", QuatStamped.__msgtype__, typestore=ts)
+                for ns, q in zip(_stamps_ns(trace.truth.t_s), trace.truth.quat_wxyz.tolist(), strict=True):
+                    quat = Quaternion(x=q[1], y=q[2], z=q[3], w=q[0])  # stored scalar-first (w, x, y, z)
+                    msg = QuatStamped(header=header(int(ns), "enu"), quaternion=quat)
+                    messages.append((int(ns), c_att, ts.serialize_cdr(msg, QuatStamped.__msgtype__)))
             messages.sort(key=lambda m: m[0])  # a bag is written in time order
             for ns, conn, data in messages:
                 w.write(conn, ns, data)
