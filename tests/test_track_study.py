@@ -141,7 +141,7 @@ def test_cli_bad_input_exit_2_one_line(runs, tmp_path, capsys):
         (["--train", train, "--methods", "ls"], "both --train and --test"),
         (["--train", tmp_path / "missing", "--test", train, "--methods", "ls"], "does not exist"),
         (["--train", train, "--test", train, "--methods", "ls", "--finetune-synth-ratio", "-1"],
-         "finetune_synth_ratio must be in [0, 100]"),
+         "--finetune-synth-ratio must be in [0, 100]"),  # the option, not the parameter
         (["--train", train, "--test", train, "--methods", "ls", "--turn-test", "nan"], "--turn-test"),
         (["--train", train, "--test", train, "--methods", "ls", "--frame", "north"], "--frame must be one of"),
     ]
