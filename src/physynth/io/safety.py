@@ -111,8 +111,6 @@ def _why_not_export(path: Path, kind: str) -> str | None:
     else:
         foreign = sorted(p.name for p in path.iterdir()
                          if not (EXPORT_BAG_FOLDER.match(p.name) and (p / "metadata.yaml").is_file()))
-        if not foreign and not any(path.iterdir()):
-            return None
     return f"it holds {foreign[0]!r}, which PhySynth did not write" if foreign else None
 
 
