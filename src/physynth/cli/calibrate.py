@@ -30,7 +30,8 @@ def register(app: typer.Typer) -> None:
 
 
 def calibrate_cmd(
-    datasets: list[Path] = typer.Argument(..., help="Dataset directories (real or synthetic), pooled."),
+    datasets: list[Path] = typer.Argument(..., metavar="DATASET",
+                                          help="Dataset directories (real or synthetic), pooled."),
     out: Path = typer.Option(..., "--out", "-o", help="Scenario YAML file to write."),
     report: Path | None = typer.Option(None, "--report", help="JSON fit report to write (default: none)."),
     path_kind: Literal["auto", "polynomial", "waypoints"] = typer.Option("auto", "--path-kind",

@@ -15,7 +15,7 @@ def register(app: typer.Typer) -> None:
 
 
 def export_cmd(
-    dataset: Path = typer.Argument(..., help="Dataset directory."),
+    dataset: Path = typer.Argument(..., metavar="DATASET", help="Dataset directory."),
     fmt: str = typer.Option(..., "--format", "-f", help="hdf5 (one file, a group per trace), rosbag2 (a folder, "
                                                         "a bag per trace) or csv (a folder, a file per table)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output file (hdf5) or folder (rosbag2, csv)."),

@@ -103,7 +103,8 @@ def scenarios_cmd() -> None:
         typer.echo(line if len(line) <= width else line[:width - 3].rstrip() + "...")  # full text: scenario show
 
 
-def scenario_show_cmd(name: str = typer.Argument(..., help="Preset name or scenario file.")) -> None:
+def scenario_show_cmd(name: str = typer.Argument(..., metavar="SCENARIO",
+                                                 help="Preset name or scenario file.")) -> None:
     """Print a scenario as YAML."""
     from ..io.scenario_file import load_scenario, scenario_to_yaml
 
@@ -111,7 +112,7 @@ def scenario_show_cmd(name: str = typer.Argument(..., help="Preset name or scena
 
 
 def inspect_cmd(
-    dataset: Path = typer.Argument(..., help="Dataset directory."),
+    dataset: Path = typer.Argument(..., metavar="DATASET", help="Dataset directory."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:

@@ -54,7 +54,7 @@ def _run(importer: Callable[[Path], tuple[Any, Any]], inputs: Sequence[Path], ou
 @app.command("csv")
 def import_csv_cmd(
     rec_dirs: list[Path] = typer.Argument(..., help="Recording folder(s) in the PhySynth format.",
-                                          metavar="REC_DIR..."),
+                                          metavar="REC_DIR"),
     out: Path = _OUT,
     overwrite: bool = _OVERWRITE,
     quiet: bool = _QUIET,
@@ -68,7 +68,7 @@ def import_csv_cmd(
 @app.command("hanyang")
 def import_hanyang_cmd(
     run_dirs: list[Path] = typer.Argument(..., help="Hanyang run folder(s) .../Trajectory_X/Case_N.",
-                                          metavar="RUN_DIR..."),
+                                          metavar="RUN_DIR"),
     out: Path = _OUT,
     overwrite: bool = _OVERWRITE,
     crop_to_uwb: bool = typer.Option(False, "--crop-to-uwb",
@@ -85,7 +85,7 @@ def import_hanyang_cmd(
 @app.command("broad")
 def import_broad_cmd(
     trials: list[Path] = typer.Argument(..., help="BROAD trial file(s) data_mat/<trial>.mat.",
-                                        metavar="TRIAL.mat..."),
+                                        metavar="TRIAL.mat"),
     out: Path = _OUT,
     overwrite: bool = _OVERWRITE,
     quiet: bool = _QUIET,

@@ -23,9 +23,10 @@ FRAMES = {"route": {"route_frame": True, "random_isometry": False},
 
 
 def tracking_cmd(
-    train: list[Path] = typer.Option(None, "--train", help="Training dataset directory (repeat for several; "
-                                     "every trace is one training run). Default: Hanyang Trajectory_A runs."),
-    test: list[Path] = typer.Option(None, "--test", help="Test dataset directory (repeatable)."),
+    train: list[Path] = typer.Option(None, "--train", metavar="DATASET",
+                                     help="Training dataset directory (repeat for several; every trace is one "
+                                          "training run). Default: Hanyang Trajectory_A runs."),
+    test: list[Path] = typer.Option(None, "--test", metavar="DATASET", help="Test dataset directory (repeatable)."),
     scenario: str = typer.Option(None, "--scenario", "-s", help="Scenario (preset or YAML) for SYNTH_PHY "
                                  "pre-training instead of calibrating one on the training runs."),
     quick: bool = typer.Option(False, "--quick", help="Short schedule (< 10 min on 2 CPU cores)."),

@@ -15,7 +15,7 @@ def register(app: typer.Typer) -> None:
 
 
 def verify_cmd(
-    datasets: list[Path] = typer.Argument(..., help="Dataset directories to check."),
+    datasets: list[Path] = typer.Argument(..., metavar="DATASET", help="Dataset directories to check."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing when every dataset is intact."),
 ) -> None:
     """Check datasets against the row counts and checksums recorded in their dataset.json."""
