@@ -414,13 +414,9 @@ class DatasetWriter:
             "files": integrity.file_records(self.tmp, {f"{name}.parquet": n for name, n in self._rows.items()}),
         }
         (self.tmp / "dataset.json").write_text(json.dumps(meta, indent=1), encoding="utf-8")
-        old = self.path.with_name(f".{self.path.name}.old-{os.getpid()}")
-        if os.path.lexists(self.path):
-            os.replace(self.path, old)
-        os.replace(self.tmp, self.path)
+        safety.swap_in(self.tmp, self.path)
         safety.unregister_temporary(self.tmp)
         self._closed = True
-        safety.remove_tree(old)
         self._lock.release()
         return self.path
 

@@ -458,6 +458,17 @@ def prepare_output(out: str | os.PathLike, *, kind: str, overwrite: bool,
     return real, lock
 
 
+def swap_in(tmp: Path, out: Path) -> None:
+    """Put the finished ``tmp`` (file or folder) in place of ``out``: a former ``out`` is first renamed to
+    a hidden ``.<out>.old-<pid>`` sibling, removed once ``tmp`` is in place (a crash in between leaves
+    that sibling, which :func:`remove_orphans` finds)."""
+    old = out.with_name(f".{out.name}.old-{os.getpid()}")
+    if os.path.lexists(out):
+        os.replace(out, old)
+    os.replace(tmp, out)
+    remove_tree(old)
+
+
 @contextmanager
 def atomic_folder(out: Path) -> Iterator[Path]:
     """Write a folder atomically: yield a hidden temporary sibling, swap it in for ``out`` on success,
@@ -471,11 +482,7 @@ def atomic_folder(out: Path) -> Iterator[Path]:
     register_temporary(tmp)
     try:
         yield tmp
-        old = out.with_name(f".{out.name}.old-{os.getpid()}")
-        if os.path.lexists(out):
-            os.replace(out, old)
-        os.replace(tmp, out)
-        remove_tree(old)
+        swap_in(tmp, out)
     except BaseException:
         remove_tree(tmp)
         raise

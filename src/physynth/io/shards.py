@@ -35,6 +35,7 @@ from .._json import jsonable
 from ..errors import DatasetError, OutputExistsError, PhySynthError
 from .atomic import atomic_write_text, temp_sibling
 from .dataset import TABLES, DatasetWriter, generated_column_groups
+from .safety import swap_in
 
 DEFAULT_SHARD_TRACES = 128
 """Traces per shard: small enough that a killed run loses little, large enough to keep files few."""
@@ -187,12 +188,7 @@ def finalize(out: Path, partial: Path, plan: ShardPlan, meta: dict[str, Any]) ->
         else:
             record["traces_meta"] = "traces/part-<shard>.jsonl: one JSON object per trace, in trace order"
         (stage / "dataset.json").write_text(json.dumps(record, indent=1), encoding="utf-8")
-        old = out.with_name(f".{out.name}.old-{os.getpid()}")
-        if out.exists():
-            os.replace(out, old)
-        os.replace(stage, out)
-        if old.exists():
-            shutil.rmtree(old)
+        swap_in(stage, out)
     except BaseException:
         shutil.rmtree(stage, ignore_errors=True)
         raise

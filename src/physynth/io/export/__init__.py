@@ -17,7 +17,7 @@ from ...progress import ProgressCallback, no_progress
 from .. import integrity
 from ..atomic import temp_sibling
 from ..dataset import iter_indexed_traces, n_traces, read_meta
-from ..safety import prepare_output, register_temporary, remove_tree, unregister_temporary
+from ..safety import prepare_output, register_temporary, remove_tree, swap_in, unregister_temporary
 
 FORMATS = ("hdf5", "rosbag2", "csv")
 
@@ -80,13 +80,7 @@ def _export(dataset: Path, meta: dict, out: Path, fmt: str, progress: ProgressCa
             writer(dataset, meta, tmp, progress)
         else:
             writer(traces(), meta, tmp)
-        if os.path.lexists(out):
-            old = out.with_name(f".{out.name}.old-{os.getpid()}")
-            os.replace(out, old)
-            os.replace(tmp, out)
-            remove_tree(old)
-        else:
-            os.replace(tmp, out)
+        swap_in(tmp, out)
     except BaseException:
         remove_tree(tmp)
         raise
