@@ -344,12 +344,21 @@ def fit_dropout_outage(stats: RunStats, period_s: float, burst_rate_hz: float,
     lam, mean_s = _to_rates(alpha, beta, period_s)
     out.update(log_likelihood=float(-best.fun), log_likelihood_dropout_only=float(ll0), lr_outage=float(lr),
                missed_frac=miss_frac)
-    if lr < 10.0 or not np.isfinite(mean_s):
+    if lr < 10.0:
         out.update(identifiable=False, dropout_prob=pd0, outage_onset_prob=0.0, outage_mean_s=None,
                    why=f"no evidence of outages beyond independent dropouts (LR {lr:.1f} < 10)")
         out["dropout_prob_se"] = float(np.sqrt(pd0 * (1 - pd0) / n_att))
         return out
     onset = lam / burst_rate_hz
+    span_s = n_att * period_s  # the time this anchor was observed, over all runs
+    if not mean_s <= span_s:  # longer, or infinite (the outage state never left)
+        # the outages outlast the recording (one covers a whole run, none ends): the likelihood keeps
+        # growing with the mean, which the data bounds only from below; keep the recorded span
+        out.update(identifiable=True, dropout_prob=pd, outage_onset_prob=onset, outage_mean_s=span_s,
+                   outage_mean_censored=True, outage_mean_ml_s=float(min(mean_s, 1e300)),
+                   why=(f"the outages outlast the recording: mean outage length set to the {span_s:.0f} s "
+                        "observed (a lower bound)"))
+        return out
     out.update(identifiable=True, dropout_prob=pd, outage_onset_prob=onset, outage_mean_s=mean_s)
     out.update(_hmm_standard_errors(pd, onset, mean_s, period_s, burst_rate_hz, runs))
     return out

@@ -1,0 +1,57 @@
+"""Calibration on thin data: an anchor heard over too narrow a span of ranges, and outages that outlast
+the recording, give parameters inside their physical bounds (and say so in the report) instead of a
+scenario that fails validation."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from physynth.bounds import BOUNDS
+from physynth.calibrate.availability_fit import RunStats, add_runs, fit_dropout_outage
+from physynth.calibrate.pipeline import _fit_channels
+from physynth.generate import generate_traces
+from physynth.io.scenario_file import load_scenario
+
+PERIOD_S = 0.1
+
+
+def test_an_outage_that_outlasts_the_recording_gets_the_recorded_span():
+    stats = RunStats()
+    rng = np.random.default_rng(0)  # with this seed the likelihood's outage mean is infinite
+    # run 0 dark from start to end (90 s), run 1 heard throughout (5 % dropouts, 30 s): no outage ever ends
+    for code in (np.zeros(900, int), (rng.random(300) > 0.05).astype(int)):
+        add_runs(stats, np.arange(code.size) * PERIOD_S, code)
+    fit = fit_dropout_outage(stats, PERIOD_S, 1.0 / PERIOD_S)
+    span = stats.n_attempts * PERIOD_S
+    assert fit["identifiable"] and fit["outage_mean_censored"]
+    assert fit["outage_mean_ml_s"] > 1e6  # what the likelihood alone gives (out of bounds, here infinite)
+    assert fit["outage_mean_s"] == span and "outlast" in fit["why"]
+    b = BOUNDS["availability.outage_mean_s"]
+    assert b.lo <= fit["outage_mean_s"] <= b.hi
+
+
+def test_an_outage_that_ends_keeps_its_maximum_likelihood_length():
+    stats = RunStats()
+    rng = np.random.default_rng(1)
+    for _ in range(4):  # 10 s outages that end, inside 90 s runs
+        code = (rng.random(900) > 0.05).astype(int)
+        code[300:400] = 0
+        add_runs(stats, np.arange(code.size) * PERIOD_S, code)
+    fit = fit_dropout_outage(stats, PERIOD_S, 1.0 / PERIOD_S)
+    assert fit["identifiable"] and not fit.get("outage_mean_censored")
+    assert 5.0 < fit["outage_mean_s"] < 20.0
+
+
+def test_an_anchor_seen_over_a_narrow_span_gets_the_pooled_slope():
+    scn = load_scenario("cablecar-descending")
+    traces = list(generate_traces(scn, 2, seed=5))  # A108: dark for all of run 0, heard near one range in run 1
+    ids = list(scn.anchor_ids)
+    chan = _fit_channels(traces, scn.uwb.time_offset_s, ids, None, ["r0", "r1"])
+    b = BOUNDS["channel.range_bias_per_decade_m"]
+    for aid in ids:
+        assert b.lo <= chan.mix[aid].range_bias_per_decade_m <= b.hi, aid
+    fallback = [a for a in ids if "slope_out_of_bounds" in chan.mix_diag[a]]
+    assert fallback, "the test data no longer has an anchor with an out-of-bounds slope"
+    for aid in fallback:
+        assert chan.mix[aid].range_bias_per_decade_m == chan.pooled_fit.range_bias_per_decade_m
+        assert any(f"channel_per_anchor.{aid} range-bias slope" in n for n in chan.notes)
