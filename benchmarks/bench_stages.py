@@ -61,7 +61,7 @@ def _one_pass(cs, n: int) -> dict[str, float]:
                                                 cs.availability, s.uwb.burst_rate_hz, range_m=tries.true_range_m,
                                                 rng=component_rng(1, i, "availability"), rows_of=tries.anchor_rows)
         t0 = lap("availability", t0)
-        uwb_record(tries, s.uwb, outage=outage, dropped=dropped)
+        uwb_record(tries, outage=outage, dropped=dropped)
         lap("UWB record", t0)
     return {k: 1e3 * v / n for k, v in spent.items()}
 

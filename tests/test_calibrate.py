@@ -104,6 +104,8 @@ def test_roundtrip_uwb_timing(roundtrip):
     s = res.scenario
     se = _se(res, "uwb.time_offset_s")
     assert s.uwb.time_offset_s == pytest.approx(TRUE["time_offset_s"], abs=K * se + 0.001)
+    # every run has the same lag: Cochran's Q does not see a spread, and none is written
+    assert not res.report["time_offset"]["run_spread"]["significant"] and s.uwb.time_offset_std_s == 0.0
     # burst period: median of ~17,000 jittered periods (jitter 2 ms): SE ~ 2e-5 s; 0.1 % is > 10 SE
     assert s.uwb.burst_rate_hz == pytest.approx(TRUE["burst_rate_hz"], rel=1e-3)
     # jitter: robust (MAD) spread of ~17,000 periods; relative SE of a MAD ~ 1.17 / sqrt(2 n) < 1 %

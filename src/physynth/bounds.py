@@ -68,6 +68,7 @@ BOUNDS: dict[str, Bound] = {
     "uwb.burst_phase_s": Bound(0.0, 100.0, "s", "first burst offset"),
     "uwb.slot_s": Bound(0.0, 1.0, "s", "anchor slot spacing in a burst"),
     "uwb.time_offset_s": Bound(-10.0, 10.0, "s", "UWB clock offset"),
+    "uwb.time_offset_std_s": Bound(0.0, 1.0, "s", "run-to-run spread of the UWB clock offset"),
     "uwb.nlos_dwell_s": Bound(1e-3, 3600.0, "s", "mean NLOS episode length"),
     "uwb.zones[].s_m": Bound(0.0, 100_000.0, "m", "position along the path"),
     "uwb.zones[].half_width_m": Bound(1e-3, 100_000.0, "m", "zone half width"),

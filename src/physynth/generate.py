@@ -85,7 +85,7 @@ def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int)
                                                 cs.availability, s.uwb.burst_rate_hz, range_m=tries.true_range_m,
                                                 rng=component_rng(root_seed, index, "availability"),
                                                 rows_of=tries.anchor_rows)
-        uwb = uwb_record(tries, s.uwb, outage=outage, dropped=dropped)
+        uwb = uwb_record(tries, outage=outage, dropped=dropped)
     meta = {
         "source": "physynth",
         "root_seed": int(root_seed),
@@ -95,6 +95,8 @@ def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int)
         "lateral_offset_m": pert.lateral_m,
         "sag_offset_m": pert.sag_m,
     }
+    if s.uwb.time_offset_std_s > 0 and cs.channel is not None:
+        meta["uwb_time_offset_s"] = tries.time_offset_s  # the trace's own lag (a label)
     truth = Truth(t_s=kin.t_s, pos_enu_m=kin.pos_enu_m, vel_enu_mps=kin.vel_enu_mps, quat_wxyz=att.quat_wxyz,
                   omega_body_radps=att.omega_body_radps)
     return Trace(truth=truth, imu=imu, uwb=uwb, anchors=cs.anchors, meta=meta)

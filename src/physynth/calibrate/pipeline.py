@@ -33,6 +33,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from .. import __version__
+from ..bounds import BOUNDS
 from ..models.availability import AvailabilityOverride, RatePosterior, gamma_rate_posterior
 from ..models.uwb import range_decades
 from ..progress import ProgressCallback, no_progress
@@ -63,6 +64,7 @@ from .geometry import (
     spread_clip_warnings,
     summarize_track,
 )
+from .run_lag import fit_run_lags
 from .uwb_fit import (
     MIN_ANCHOR_ROWS,
     RANGE_BIAS_LAWS,
@@ -361,6 +363,7 @@ class _Channels:
     per_anchor_rows: dict[str, AnchorRows]
     notes: list[str]
     per_anchor_t: dict[str, list[np.ndarray]] = field(default_factory=dict)  # row times per run
+    per_anchor_run: dict[str, np.ndarray] = field(default_factory=dict)  # run index (into the traces) of each row
 
     def los_masks(self) -> dict[str, np.ndarray]:
         return {a: self.mix[a].nlos_resp < 0.5 for a in self.per_anchor_rows}
@@ -370,17 +373,28 @@ RunOffsets = dict[tuple[str, str], float]
 """(run label, anchor id) -> the run's LOS ranging offset [m] relative to the anchor's mean over runs."""
 
 
-def _fit_channels(trs: Sequence[Trace], offset: float, ids: Sequence[str], fixed_slope: float | None,
+_SLOPE_FIELD = {"log": "range_bias_per_decade_m", "linear": "range_bias_per_m"}
+
+
+def _slope_in_bounds(f: MixtureFit, law: str) -> bool:
+    """Whether the fitted range-bias slope lies inside its physical bounds (``physynth.bounds``)."""
+    b = BOUNDS[f"channel.{_SLOPE_FIELD[law]}"]
+    return b.lo <= float(getattr(f, _SLOPE_FIELD[law])) <= b.hi
+
+
+def _fit_channels(trs: Sequence[Trace], offset: float | Sequence[float], ids: Sequence[str], fixed_slope: float | None,
                   labels: Sequence[str], run_offsets: RunOffsets | None = None, law: str = "log") -> _Channels:
-    """Per-anchor LOS/NLOS mixtures (and the pooled one) at a given time offset.
+    """Per-anchor LOS/NLOS mixtures (and the pooled one) at a given time offset (one for all runs, or
+    one per run).
 
     Each run's residuals are taken against its own anchor positions; ``run_offsets`` (when given) are
     subtracted from the run's rows of that anchor first, so that the mixture describes the errors
     within a run and the run-to-run part is left to ``uwb.run_*offset_std_m``.
     """
     res: list[Residuals] = []
-    for t, lab in zip(trs, labels, strict=True):
-        r = corrected_residuals(t, offset)
+    lags = [float(offset)] * len(trs) if np.ndim(offset) == 0 else [float(o) for o in offset]
+    for t, lab, lag in zip(trs, labels, lags, strict=True):
+        r = corrected_residuals(t, lag)
         if run_offsets:
             shift = np.array([run_offsets.get((lab, a), 0.0) for a in t.anchors.ids])
             if shift.size:
@@ -398,10 +412,11 @@ def _fit_channels(trs: Sequence[Trace], offset: float, ids: Sequence[str], fixed
     flags: dict[str, list[np.ndarray]] = {}
     rows: dict[str, AnchorRows] = {}
     times: dict[str, list[np.ndarray]] = {}
+    run_of: dict[str, np.ndarray] = {}
     notes: list[str] = []
     for aid in ids:  # one mixture per anchor (one physical device), pooled over the runs
-        parts = [(r.residual_m[m], r.range_m[m], r.range_rate_mps[m], r.t_s[m])
-                 for t, r in zip(trs, res, strict=True) if aid in t.anchors.ids
+        parts = [(r.residual_m[m], r.range_m[m], r.range_rate_mps[m], r.t_s[m], np.full(int(m.sum()), i))
+                 for i, (t, r) in enumerate(zip(trs, res, strict=True)) if aid in t.anchors.ids
                  for m in [r.anchor == t.anchors.index(aid)]]
         sizes = [p[0].size for p in parts]
         ra = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0)
@@ -413,6 +428,12 @@ def _fit_channels(trs: Sequence[Trace], offset: float, ids: Sequence[str], fixed
             flags[aid] = []
             continue
         f, sel = select_mixture(ra, ga, fixed_slope=fixed_slope, law=law)
+        if fixed_slope is None and not _slope_in_bounds(f, law):  # too few rows, or too narrow a span of ranges
+            sel["slope_out_of_bounds"] = float(getattr(f, _SLOPE_FIELD[law]))
+            f, sel2 = select_mixture(ra, ga, fixed_slope=float(getattr(pooled_fit, _SLOPE_FIELD[law])), law=law)
+            sel = {**sel2, "slope_out_of_bounds": sel["slope_out_of_bounds"], "slope": "pooled over the anchors"}
+            notes.append(f"channel_per_anchor.{aid} range-bias slope ({sel['slope_out_of_bounds']:.3g}, outside the "
+                         "physical range: too few ranges or too narrow a span of them; the pooled slope is used)")
         mix[aid] = f
         per_run = {}
         for t, r, lab in zip(trs, res, labels, strict=True):  # per-run robust summary (spread over runs)
@@ -428,8 +449,9 @@ def _fit_channels(trs: Sequence[Trace], offset: float, ids: Sequence[str], fixed
         flags[aid] = [f.nlos_resp[a:b] > 0.5 for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
         rows[aid] = (ra, ga, np.concatenate([p[2] for p in parts]))
         times[aid] = [p[3] for p in parts]
+        run_of[aid] = np.concatenate([p[4] for p in parts])
     return _Channels(pooled_r=pooled_r, pooled_fit=pooled_fit, pooled_sel=pooled_sel, mix=mix, mix_diag=mix_diag,
-                     flags=flags, per_anchor_rows=rows, notes=notes, per_anchor_t=times)
+                     flags=flags, per_anchor_rows=rows, notes=notes, per_anchor_t=times, per_anchor_run=run_of)
 
 
 def refine_time_offset(rows: dict[str, AnchorRows], los: dict[str, np.ndarray]) -> dict[str, Any] | None:
@@ -652,6 +674,7 @@ class RangingFit:
     run_offset_std_m: float
     run_anchor_offset_std_m: float
     range_bias_law: str = "log"
+    offset_std_s: float = 0.0  # run-to-run spread of the lag [s]
 
     @property
     def slope_key(self) -> str:
@@ -847,10 +870,27 @@ def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, 
                      note="grid search on the robust spread, refined by least squares on the LOS rows")
     else:
         se_off = float(of.diagnostics["std_error_s"])
+    lags: float | list[float] = offset
+    lag_std = 0.0
+    spread = fit_run_lags(chan.per_anchor_rows, chan.los_masks(), chan.per_anchor_run, len(trs))
+    tsec["run_spread"] = _lag_spread_section(spread, labels, timing.offset_s)
+    if spread is not None and spread["significant"] and of.diagnostics["identifiable"]:
+        # the centre stays the pooled estimate above; each run is taken at it plus its own deviation
+        dev = spread["correction_s"] - spread["mean_correction_s"]
+        lags = [offset if np.isnan(d) else offset + float(d) for d in dev]
+        lag_std = spread["spread_s"]
+        tsec["run_spread"]["lags_used_s"] = dict(zip(labels, lags, strict=True))
+        report.param("uwb.time_offset_std_s", lag_std, n=len(trs), summary=True,
+                     note="run-to-run spread of the lag (DerSimonian-Laird over the runs' own lags)")
+        chan = _fit_channels(trs, lags, ids, fixed_slope, labels, law=law)  # each run at its own lag
+    elif len(trs) >= 2:
+        report.param("uwb.time_offset_std_s", 0.0, n=len(trs),
+                     note="the runs' lags do not differ beyond their errors (Cochran's Q)")
     run_offsets, off_diag = run_offset_table(trs, labels, chan)
     report.sections["run_offsets"] = off_diag
     if refined or run_offsets:
-        chan = _fit_channels(trs, offset, ids, fixed_slope, labels, run_offsets=run_offsets, law=law)
+        chan = _fit_channels(trs, lags if lag_std > 0 else offset, ids, fixed_slope, labels,
+                             run_offsets=run_offsets, law=law)
     if off_diag["identifiable"]:
         s_run, s_anchor = off_diag["run_offset_std_m"], off_diag["run_anchor_offset_std_m"]
         note = "run-to-run spread of the per-run mean LOS residual (two-way random effects)"
@@ -862,7 +902,29 @@ def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, 
         report.not_identifiable.append("uwb.run_offset_std_m, uwb.run_anchor_offset_std_m (one run; 0 kept)")
     report.not_identifiable.extend(chan.notes)
     return RangingFit(offset_s=offset, offset_se_s=se_off, channels=chan, refinement=ref, fixed_slope=fixed_slope,
-                      run_offset_std_m=s_run, run_anchor_offset_std_m=s_anchor, range_bias_law=law)
+                      run_offset_std_m=s_run, run_anchor_offset_std_m=s_anchor, range_bias_law=law,
+                      offset_std_s=lag_std)
+
+
+def _lag_spread_section(spread: dict[str, Any] | None, labels: Sequence[str], grid_offset_s: float
+                        ) -> dict[str, Any]:
+    """The report's ``time_offset.run_spread``: each run's own lag with its standard error, the spread."""
+    if spread is None:
+        return {"identifiable": False, "why": "fewer than two runs with LOS rows whose range rate changes"}
+    w = 1.0 / (spread["std_error_s"] ** 2 + spread["spread_s"] ** 2)
+    ok = np.isfinite(w)
+    return {"identifiable": True,
+            "per_run_s": {lab: (None if np.isnan(d) else grid_offset_s + float(d))
+                          for lab, d in zip(labels, spread["correction_s"], strict=True)},
+            "per_run_std_error_s": {lab: (None if np.isnan(e) else float(e))
+                                    for lab, e in zip(labels, spread["std_error_s"], strict=True)},
+            "spread_s": spread["spread_s"], "mean_s": grid_offset_s + spread["mean_correction_s"],
+            "mean_std_error_s": float(1.0 / np.sqrt(np.sum(w[ok]))),
+            "cochran_q": spread["q"], "dof": spread["dof"], "p_value": spread["p_value"],
+            "significant": spread["significant"], "lag1_autocorrelation": spread["lag1_autocorrelation"],
+            "method": ("per-run lag corrections regressed on -range rate over the LOS rows ((run, anchor) means "
+                       "and per-anchor range terms removed), errors inflated for lag-1 autocorrelation; "
+                       "DerSimonian-Laird spread, Cochran's Q test at 1 %")}
 
 
 def fit_link_availability(inp: CalibrationInputs, ranging: RangingFit, timing: TimingFit,
@@ -1133,7 +1195,9 @@ def assemble_availability(inp: CalibrationInputs, avail: AvailabilityFit, timing
             _rate_report(rep, f"{pre}.outage_onset_prob", post, burst_rate, "HMM events (rate x up time)",
                          se=do.get("outage_onset_prob_se"))
             rep.param(f"{pre}.outage_mean_s", p.outage_mean_s, se=do.get("outage_mean_s_se"),
-                      n=do["n_attempts"], summary=True)
+                      n=do["n_attempts"], summary=True, note=do.get("why") if do.get("outage_mean_censored") else None)
+            if do.get("outage_mean_censored"):
+                rep.not_identifiable.append(f"{pre}.outage_mean_s ({do['why']})")
         else:
             p = AvailabilityOverride(dropout_prob=rounded(min(do.get("dropout_prob", 0.0), 1.0), 5),
                                      outage_onset_prob=0.0, outage_mean_s=AvailabilityParams().outage_mean_s)
@@ -1211,6 +1275,7 @@ def build_scenario(name: str, inp: CalibrationInputs, geometry: GeometryFit, tim
     uwb = UwbParams(burst_rate_hz=timing.burst_rate_hz, burst_jitter_s=rounded(bf["burst_jitter_s"], 4),
                     burst_phase_s=None if phase is None else rounded(phase, 5),
                     slot_s=rounded(bf["slot_s"], 5), time_offset_s=rounded(ranging.offset_s, 5),
+                    time_offset_std_s=rounded(ranging.offset_std_s, 5),
                     nlos_dwell_s=rounded(channels.nlos_dwell_s, 4), zones=[],
                     run_offset_std_m=rounded(ranging.run_offset_std_m, 4),
                     run_anchor_offset_std_m=rounded(ranging.run_anchor_offset_std_m, 4))

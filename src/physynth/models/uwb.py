@@ -146,7 +146,10 @@ class UwbParams(ParamsModel):
 
     The tag ranges in bursts near ``burst_rate_hz`` (period jitter ``burst_jitter_s``); within a burst
     anchor j is ranged ``j * slot_s`` after the burst start, and only with probability
-    rate_hz / burst_rate_hz (effective per-anchor rate). Stamps lag true time by ``time_offset_s``.
+    rate_hz / burst_rate_hz (effective per-anchor rate). Stamps lag true time by ``time_offset_s``;
+    with ``time_offset_std_s`` > 0 each trace draws its own lag ~ N(``time_offset_s``,
+    ``time_offset_std_s``^2) once (the clocks of the ranging and the truth system are aligned anew for
+    every run), kept in the trace's ``meta["uwb_time_offset_s"]``.
     The bursts are locked to the tag clock; ``burst_phase_s`` is the stamp time of the first burst
     after the trace start, modulo the period (``None``: drawn uniformly per trace, the usual choice for
     training data; a number: a recording's own alignment, which decides how often a burst straddles
@@ -156,8 +159,8 @@ class UwbParams(ParamsModel):
     Run-to-run ranging offsets: each trace adds one offset ~ N(0, ``run_offset_std_m``^2) to every
     range of every anchor (a truth-system or tag-antenna offset that changes from run to run) and one
     offset ~ N(0, ``run_anchor_offset_std_m``^2) per anchor (an anchor re-placed and re-surveyed for
-    each run). Both are 0 by default; they are drawn after every other draw of the trace's UWB
-    stream, so a scenario without them generates exactly what it did before they existed.
+    each run). Both are 0 by default; they, and the per-trace lag, are drawn after every other draw of
+    the trace's UWB stream, so a scenario without them generates exactly what it did before they existed.
     ``obstacles`` and ``terrain`` (optional) block the line of sight: an attempt whose tag-anchor
     segment meets one is NLOS (:mod:`physynth.models.obstacles`), in addition to the ``zones``.
     """
@@ -167,6 +170,7 @@ class UwbParams(ParamsModel):
     burst_phase_s: NonNegFloat | None = None
     slot_s: NonNegFloat = 0.0015
     time_offset_s: FiniteFloat = 0.0
+    time_offset_std_s: NonNegFloat = 0.0
     nlos_dwell_s: PositiveFloat = 0.5
     zones: list[NlosZone] = []
     run_offset_std_m: NonNegFloat = 0.0
@@ -568,6 +572,18 @@ def run_offsets(n_anchors: int, params: UwbParams, *, rng: np.random.Generator) 
     return out
 
 
+LAG_MARGIN_STDS = 4.0
+"""Bursts end this many ``time_offset_std_s`` (plus the mean lag) before the truth: stamps stay inside it."""
+
+
+def trace_time_offset(params: UwbParams, *, rng: np.random.Generator) -> float:
+    """The trace's UWB lag [s]: ``time_offset_s``, plus N(0, ``time_offset_std_s``^2) when that is > 0
+    (nothing drawn otherwise, so that the stream is unchanged)."""
+    if params.time_offset_std_s > 0:
+        return params.time_offset_s + params.time_offset_std_s * float(rng.standard_normal())
+    return params.time_offset_s
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class UwbAttempts:
     """Every scheduled ranging attempt of one run before availability: rows sorted by true time."""
@@ -581,13 +597,14 @@ class UwbAttempts:
     nlos: np.ndarray
     linked: np.ndarray  # inside the radio horizon
     anchor_rows: tuple[np.ndarray, ...] | None = None  # rows of each anchor (rows_by_label), for the availability
+    time_offset_s: float = 0.0  # the trace's lag: stamp = t_true_s + time_offset_s
 
 
 def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: np.random.Generator) -> UwbAttempts:
     """All ranging attempts of one run with their true and measured ranges and NLOS state."""
     u = params
     n_anchors = ch.anchor_pos_enu_m.shape[0]
-    t_end = float(kin.t_s[-1]) - n_anchors * u.slot_s - abs(u.time_offset_s)
+    t_end = float(kin.t_s[-1]) - n_anchors * u.slot_s - abs(u.time_offset_s) - LAG_MARGIN_STDS * u.time_offset_std_s
     phase = None if u.burst_phase_s is None else u.burst_phase_s - u.time_offset_s  # stamp -> true time
     bursts = burst_times(float(kin.t_s[0]), t_end, u.burst_rate_hz, u.burst_jitter_s,
                          n_anchors * u.slot_s + 1e-4, rng=rng, phase_s=phase)
@@ -623,11 +640,13 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
     err += true_range  # true_range + err
     measured = np.maximum(err, 0.0, out=err)  # a range is never negative
     return UwbAttempts(bursts_s=bursts, burst=b_idx, anchor=anchor, t_true_s=t_true, true_range_m=true_range,
-                       measured_m=measured, nlos=nlos, linked=linked, anchor_rows=rows_of)
+                       measured_m=measured, nlos=nlos, linked=linked, anchor_rows=rows_of,
+                       time_offset_s=trace_time_offset(u, rng=rng))
 
 
-def uwb_record(att: UwbAttempts, params: UwbParams, *, outage: np.ndarray, dropped: np.ndarray) -> Uwb:
-    """The ``uwb`` record of a run: attempts with the availability applied and stamps on the tag clock."""
+def uwb_record(att: UwbAttempts, *, outage: np.ndarray, dropped: np.ndarray) -> Uwb:
+    """The ``uwb`` record of a run: attempts with the availability applied and stamps on the tag clock
+    (``att.time_offset_s`` after the true times)."""
     n = att.t_true_s.shape[0]
     masks = (att.linked, outage, dropped)
     if all(isinstance(m, np.ndarray) and m.dtype == np.bool_ and m.shape == (n,) for m in masks):
@@ -640,5 +659,5 @@ def uwb_record(att: UwbAttempts, params: UwbParams, *, outage: np.ndarray, dropp
         reason[outage] = Reason.OUTAGE
         reason[~att.linked] = Reason.NO_LINK
     range_m = np.where(reason == Reason.OK, att.measured_m, np.nan)
-    return Uwb(t_s=att.t_true_s + params.time_offset_s, anchor=att.anchor, range_m=range_m,
+    return Uwb(t_s=att.t_true_s + att.time_offset_s, anchor=att.anchor, range_m=range_m,
                true_range_m=att.true_range_m, nlos=att.nlos, burst=att.burst, reason=reason, nlos_known=True)

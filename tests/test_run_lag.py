@@ -1,0 +1,92 @@
+"""A UWB lag per run: drawn per trace by the generator (``uwb.time_offset_std_s``) and recovered, run
+by run, with its run-to-run spread, by the calibration (``physynth.calibrate.run_lag``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from physynth.calibrate.run_lag import fit_run_lags
+from physynth.calibrate.uwb_fit import corrected_residuals
+from physynth.generate import generate_traces
+from physynth.io.scenario_file import load_scenario
+from physynth.scenario import scenario_from_dict, scenario_to_dict
+
+MEAN_S, STD_S = 0.10, 0.03
+
+
+def _scenario(std_s: float):
+    d = scenario_to_dict(load_scenario("cablecar-descending"))
+    d["uwb"].update(time_offset_s=MEAN_S, time_offset_std_s=std_s)
+    return scenario_from_dict(d, "lag")
+
+
+def _rows(traces, offset_s: float):
+    """fit_run_lags inputs from the traces' residuals at one common offset, LOS from the true labels."""
+    rows, los, run_of = {}, {}, {}
+    res = [corrected_residuals(t, offset_s) for t in traces]
+    for aid_i, aid in enumerate(traces[0].anchors.ids):
+        parts = []
+        for i, (t, r) in enumerate(zip(traces, res, strict=True)):
+            u = t.uwb
+            kept = np.isin(u.t_s[u.valid], r.t_s)  # the valid rows the residuals kept (stamps are distinct)
+            nlos = u.nlos[u.valid][kept]
+            assert nlos.size == r.residual_m.size
+            m = r.anchor == aid_i
+            parts.append((r.residual_m[m], r.range_m[m], r.range_rate_mps[m], ~nlos[m], np.full(m.sum(), i)))
+        rows[aid] = tuple(np.concatenate([p[k] for p in parts]) for k in range(3))
+        los[aid] = np.concatenate([p[3] for p in parts])
+        run_of[aid] = np.concatenate([p[4] for p in parts])
+    return rows, los, run_of
+
+
+def test_each_trace_draws_its_own_lag():
+    n = 200
+    lags = np.array([t.meta["uwb_time_offset_s"] for t in generate_traces(_scenario(STD_S), n, seed=3)])
+    # sample mean and standard deviation within 4 standard errors of the configured ones
+    assert abs(lags.mean() - MEAN_S) < 4 * STD_S / np.sqrt(n)
+    assert abs(lags.std(ddof=1) - STD_S) < 4 * STD_S / np.sqrt(2 * (n - 1))
+    trace = next(generate_traces(_scenario(STD_S), 1, seed=3))
+    assert trace.uwb.t_s.max() <= trace.truth.t_s[-1] + MEAN_S + 4 * STD_S  # stamps stay near the truth
+    # no spread: one lag, nothing drawn and no label
+    assert "uwb_time_offset_s" not in next(generate_traces(_scenario(0.0), 1, seed=3)).meta
+
+
+def test_each_runs_lag_and_the_spread_are_recovered():
+    traces = list(generate_traces(_scenario(STD_S), 10, seed=5))
+    truth = np.array([t.meta["uwb_time_offset_s"] for t in traces])
+    fit = fit_run_lags(*_rows(traces, MEAN_S), len(traces))
+    est = MEAN_S + fit["correction_s"]
+    z = (est - truth) / fit["std_error_s"]
+    assert np.all(np.abs(z) < 4), z
+    assert fit["significant"] and fit["p_value"] < 1e-6
+    # the spread of the drawn lags, within 3 standard errors (sampling of n lags plus the estimates' errors)
+    s = truth.std(ddof=1)
+    tol = 3 * np.sqrt(s**2 / (2 * (truth.size - 1)) + np.mean(fit["std_error_s"] ** 2))
+    assert abs(fit["spread_s"] - s) < tol, (fit["spread_s"], s, tol)
+
+
+def test_equal_lags_give_no_spread():
+    traces = list(generate_traces(_scenario(0.0), 6, seed=5))
+    fit = fit_run_lags(*_rows(traces, MEAN_S + 0.01), len(traces))  # 10 ms off: every run says so
+    assert not fit["significant"] and fit["spread_s"] == 0.0
+    assert np.all(np.abs(fit["correction_s"] + 0.01) < 4 * fit["std_error_s"])
+
+
+def test_one_run_or_too_few_rows_has_no_spread():
+    traces = list(generate_traces(_scenario(0.0), 2, seed=1))
+    rows, los, run_of = _rows(traces[:1], MEAN_S)
+    assert fit_run_lags(rows, los, run_of, 1) is None
+    rows, los, run_of = _rows(traces, MEAN_S)
+    few = {a: m & ((run_of[a] == 0) | (np.cumsum(run_of[a] == 1) <= 5)) for a, m in los.items()}
+    assert fit_run_lags(rows, few, run_of, 2) is None  # run 1 keeps 5 LOS rows per anchor
+
+
+def test_calibration_writes_the_spread():
+    from physynth.calibrate import calibrate
+
+    traces = list(generate_traces(_scenario(0.05), 2, seed=5))  # lags 0.121 and 0.102 s
+    res = calibrate(traces, name="lags")
+    sec = res.report["time_offset"]["run_spread"]
+    assert sec["significant"] and res.scenario.uwb.time_offset_std_s == pytest.approx(sec["spread_s"], abs=1e-5)
+    assert res.scenario.uwb.time_offset_std_s > 0.005
