@@ -55,3 +55,16 @@ def test_an_anchor_seen_over_a_narrow_span_gets_the_pooled_slope():
     for aid in fallback:
         assert chan.mix[aid].range_bias_per_decade_m == chan.pooled_fit.range_bias_per_decade_m
         assert any(f"channel_per_anchor.{aid} range-bias slope" in n for n in chan.notes)
+
+
+def test_a_link_heard_less_at_every_range_keeps_a_positive_horizon():
+    from physynth.calibrate.availability_fit import fit_link
+    from physynth.scenario import ChannelParams
+
+    rng = np.random.default_rng(2)
+    r = rng.uniform(50.0, 600.0, 6000)
+    # P(heard) falls over every range seen: the unconstrained fit puts the horizon at R < 0
+    heard = rng.random(r.size) < 0.9 / (1.0 + np.exp((r + 200.0) / 100.0))  # unconstrained: R = -257 m
+    fit = fit_link(r, heard)
+    assert fit["identifiable"] and fit["max_range_m"] > 0
+    ChannelParams(max_range_m=fit["max_range_m"], edge_width_m=fit["edge_width_m"])  # validates

@@ -128,6 +128,12 @@ def attempt_table(trace: Trace, burst_rate_hz: float) -> AttemptTable:
 # --------------------------------------------------------------------------------------------------
 
 
+LINK_MIN_RANGE_M = 1e-3
+"""Lower bound of the fitted horizon R: a detection probability that falls over every range seen has
+its best fit at R <= 0, which no radio has; with R held >= 0 the loss floor takes the difference."""
+LINK_BOUNDS = [(LINK_MIN_RANGE_M, None), (None, None), (None, None)]
+
+
 def _link_nll(theta: np.ndarray, r: np.ndarray, h: np.ndarray) -> float:
     big_r, log_w, lg_e = theta
     w = np.exp(log_w)
@@ -157,7 +163,7 @@ def fit_link(range_m: np.ndarray, heard: np.ndarray) -> dict[str, Any]:
     for q in (0.9, 0.99, 1.0):  # a few starts, each a small vectorised optimisation
         x0 = np.array([np.quantile(heard_r, q), np.log(max(np.ptp(r) / 50.0, 0.5)),
                        logit(np.clip(e0 / 2, 1e-4, 0.5))])
-        res = minimize(_link_nll, x0, args=(r, h), method="Nelder-Mead",
+        res = minimize(_link_nll, x0, args=(r, h), method="Nelder-Mead", bounds=LINK_BOUNDS,
                        options={"xatol": 1e-4, "fatol": 1e-6, "maxiter": 2000})
         if best is None or res.fun < best.fun:
             best = res
