@@ -54,6 +54,7 @@ BOUNDS: dict[str, Bound] = {
     "motion.length_spread_frac": Bound(0.0, 0.9, "", "per-run length spread"),
     "motion.dwell_start_s": Bound(0.0, 86_400.0, "s", "a rest of at most a day"),
     "motion.dwell_end_s": Bound(0.0, 86_400.0, "s", "a rest of at most a day"),
+    "motion.max_acc_mps2": Bound(1e-3, 1000.0, "m/s^2", "acceleration limit of the mover (100 g)"),
     "imu.rate_hz": Bound(1.0, 10_000.0, "Hz", "MEMS accelerometer output rates"),
     "imu.white_noise_density_mps2_per_sqrt_hz[]": Bound(0.0, 10.0, "m/s^2/sqrt(Hz)", "accelerometer noise density"),
     "imu.bias_rw_mps2_per_sqrt_s": Bound(0.0, 10.0, "m/s^2/sqrt(s)", "bias random walk"),

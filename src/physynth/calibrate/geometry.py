@@ -377,13 +377,35 @@ def fit_motion(traces: Trace | Sequence[Trace], *, profile: Literal["auto", "pol
     speed_spread, length_spread = _run_to_run_spreads(tracks, v_runs, lengths, base, diag)
     dwell_start = float(np.mean([tr.dwell_start_s for tr in tracks]))
     dwell_end = float(np.mean([tr.dwell_end_s for tr in tracks]))
+    max_acc = trip_acceleration_quantile(tracks, MAX_ACC_QUANTILE)
+    diag["max_acc"] = {"value_mps2": max_acc, "quantile": MAX_ACC_QUANTILE,
+                       "method": "quantile of |d2p/dt2| of the smoothed tracks over their trips, runs pooled"}
     params = MotionParams(cruise_speed_mps=rounded(cruise, 6), profile=prof,
                           cruise_speed_spread_frac=rounded(speed_spread, 4),
                           length_spread_frac=rounded(length_spread, 4),
-                          dwell_start_s=round(dwell_start, 3), dwell_end_s=round(dwell_end, 3))
+                          dwell_start_s=round(dwell_start, 3), dwell_end_s=round(dwell_end, 3),
+                          max_acc_mps2=None if max_acc is None else rounded(max_acc, 4))
     diag["cruise_speed_mps"] = params.cruise_speed_mps
     n = int(sum(tr.i_end - tr.i_start + 1 for tr in tracks))
     return Fit(params=params, n_samples=n, diagnostics=diag)
+
+
+MAX_ACC_QUANTILE = 0.999
+"""``motion.max_acc_mps2`` is this quantile of the real acceleration magnitude over the trips."""
+
+
+def trip_acceleration_quantile(tracks: Sequence[TrackSummary], q: float) -> float | None:
+    """Quantile ``q`` of |a| [m s^-2] over the trips of the smoothed tracks (the path is fitted to the
+    same smoothing, so its curvature and this limit see the same detail); None without 10 trip samples."""
+    parts = []
+    for tr in tracks:  # a handful of runs, each vectorised
+        if tr.t_s.size < 3:
+            continue
+        acc = np.gradient(np.gradient(tr.pos_m, tr.t_s, axis=0), tr.t_s, axis=0)[tr.i_start:tr.i_end + 1]
+        parts.append(np.linalg.norm(acc, axis=1))
+    a = np.concatenate(parts) if parts else np.zeros(0)
+    a = a[np.isfinite(a)]
+    return float(np.quantile(a, q)) if a.size >= 10 and np.quantile(a, q) > 0 else None
 
 
 def _fit_speed_poly(tracks: Sequence[TrackSummary]

@@ -54,7 +54,14 @@ class SpeedProfileParams(ParamsModel):
 
 
 class MotionParams(ParamsModel):
-    """Trip kinematics: cruise speed, per-run spread (uniform +-frac), rests at the stations."""
+    """Trip kinematics: cruise speed, per-run spread (uniform +-frac), rests at the stations.
+
+    ``max_acc_mps2``: the mover's acceleration limit [m s^-2]. Where the path bends so tightly that
+    the profile's speed v would need more than it sideways (curvature kappa, v^2 kappa > limit), the
+    mover slows to sqrt(limit / kappa), braking before and speeding up after at no more than the limit
+    along the path (a walker at a turn or a reversal, a vehicle at a corner); the trip takes longer by
+    the time lost. ``None`` (the default): the speed profile alone, whatever the path's curvature.
+    """
 
     cruise_speed_mps: PositiveFloat
     profile: SpeedProfileParams = SpeedProfileParams()
@@ -62,9 +69,12 @@ class MotionParams(ParamsModel):
     length_spread_frac: Annotated[float, Field(ge=0, lt=1)] = 0.05
     dwell_start_s: NonNegFloat = 0.0
     dwell_end_s: NonNegFloat = 0.0
+    max_acc_mps2: PositiveFloat | None = None
 
 
 _TABLE_N = 4001
+SPEED_LIMIT_PASSES = 4
+"""Passes of :func:`limit_speed` at most (each on the previous pass's grid)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -159,12 +169,59 @@ def kinematics(geometry: PathGeometry, pert: PathPerturbation, params: MotionPar
     along = scale * np.interp(u, shape.u, shape.cum)  # distance travelled [m]
     speed = np.where(moving, scale / trip * np.interp(u, shape.u, shape.g), 0.0)
     accel = np.where(moving, scale / trip**2 * np.interp(u, shape.u, shape.dg), 0.0)
-    if reverse:
-        s, ds, dds = geometry.length_m - along, -speed, -accel
-    else:
-        s, ds, dds = along, speed, accel
+    s, ds, dds = _signed(geometry.length_m, along, speed, accel, reverse)
     p, d1, d2 = perturbed_cf(geometry, pert, s, lateral_dir)  # (3, T): fast broadcasting over time
+    for _ in range(SPEED_LIMIT_PASSES if params.max_acc_mps2 is not None else 0):
+        v_lim = np.sqrt(params.max_acc_mps2 / np.maximum(curvature(d1, d2), 1e-300))
+        if not np.any(speed > v_lim * (1.0 + 1e-6)):  # nothing (more) to change: bit for bit as before
+            break
+        # the samples of the slowed run sit closer together where it is slow: the next pass sees the
+        # sharpest bends that the previous grid stepped over
+        t, along, speed, accel = limit_speed(t, along, speed, v_lim, params.max_acc_mps2, rate_hz)
+        s, ds, dds = _signed(geometry.length_m, along, speed, accel, reverse)
+        p, d1, d2 = perturbed_cf(geometry, pert, s, lateral_dir)
     vel = d1 * ds
     acc = np.multiply(d2, ds * ds, out=d2)  # d2 (ds)^2 + d1 dds, in the buffers perturbed_cf made
     acc += np.multiply(d1, dds, out=d1)
     return Kinematics(t_s=t, s_m=s, pos_enu_m=p.T, vel_enu_mps=vel.T, acc_enu_mps2=acc.T)
+
+
+def _signed(length_m: float, along: np.ndarray, speed: np.ndarray, accel: np.ndarray, reverse: bool
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Path coordinate s and its first two time derivatives from the distance travelled."""
+    if reverse:
+        return length_m - along, -speed, -accel
+    return along, speed, accel
+
+
+def curvature(d1: np.ndarray, d2: np.ndarray) -> np.ndarray:
+    """Curvature |p' x p''| / |p'|^3 [1/m] of a path from its derivatives (3, T) in any parameter."""
+    cx = d1[1] * d2[2] - d1[2] * d2[1]
+    cy = d1[2] * d2[0] - d1[0] * d2[2]
+    cz = d1[0] * d2[1] - d1[1] * d2[0]
+    n1 = np.sqrt(d1[0] ** 2 + d1[1] ** 2 + d1[2] ** 2)
+    return np.sqrt(cx**2 + cy**2 + cz**2) / np.maximum(n1**3, 1e-300)
+
+
+def limit_speed(t_s: np.ndarray, along_m: np.ndarray, speed_mps: np.ndarray, v_lim_mps: np.ndarray,
+                max_acc_mps2: float, rate_hz: float) -> tuple[np.ndarray, ...]:
+    """The run slowed where ``speed`` exceeds ``v_lim`` (:class:`MotionParams`, ``max_acc_mps2``).
+
+    The new speed w over the distance travelled x is min(speed, v_lim), then limited so that
+    w^2 changes by at most 2 a dx on the way in and out of each slow stretch (w^2(x_i) <= w_j^2 +
+    2 a |x_i - x_j| for every j: a running minimum forwards and backwards). Each step's time grows by
+    the ratio of the old to the new mean speed over it; the run is resampled on a uniform grid at
+    ``rate_hz`` from its start. Returns (t, x, w, dw/dt) on that grid.
+    """
+    a2 = 2.0 * max_acc_mps2
+    w2 = np.minimum(speed_mps, v_lim_mps) ** 2
+    w2 = np.minimum(w2, a2 * along_m + np.minimum.accumulate(w2 - a2 * along_m))  # speeding up after
+    w2 = np.minimum(w2, np.minimum.accumulate((w2 + a2 * along_m)[::-1])[::-1] - a2 * along_m)  # braking before
+    w = np.sqrt(np.maximum(w2, 0.0))
+    old, new = speed_mps[1:] + speed_mps[:-1], w[1:] + w[:-1]
+    ratio = np.where(new > 0, old / np.where(new > 0, new, 1.0), 1.0)  # 1 at rest (both 0)
+    t_new_of_old = t_s[0] + np.concatenate([[0.0], np.cumsum(np.diff(t_s) * ratio)])
+    t = np.arange(int(np.floor((t_new_of_old[-1] - t_s[0]) * rate_hz)) + 1, dtype=np.float64) / rate_hz + t_s[0]
+    x = np.interp(t, t_new_of_old, along_m)
+    v = np.interp(t, t_new_of_old, w)
+    return t, x, v, np.gradient(v, t) if t.size > 1 else np.zeros_like(v)
