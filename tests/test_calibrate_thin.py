@@ -68,3 +68,14 @@ def test_a_link_heard_less_at_every_range_keeps_a_positive_horizon():
     fit = fit_link(r, heard)
     assert fit["identifiable"] and fit["max_range_m"] > 0
     ChannelParams(max_range_m=fit["max_range_m"], edge_width_m=fit["edge_width_m"])  # validates
+
+
+def test_the_same_recording_twice_is_refused():
+    import pytest
+
+    from physynth.calibrate import calibrate
+    from physynth.calibrate._base import CalibrationError
+
+    trace = next(generate_traces(load_scenario("cablecar-descending"), 1, seed=1))
+    with pytest.raises(CalibrationError, match="hold the same recording"):
+        calibrate([trace, trace])

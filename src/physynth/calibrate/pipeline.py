@@ -24,6 +24,7 @@ not be identified. The scenario is in the generator's own format, so it feeds ``
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -708,6 +709,29 @@ def _imu_only(t: Trace) -> bool:
     return not (len(t.uwb) > 0 and bool(t.uwb.valid.any())) and t.imu is not None and t.imu.t_s.size > 100
 
 
+def _fingerprint(trace: Trace) -> str:
+    """SHA-1 of a recording's truth, UWB and IMU samples (not its metadata)."""
+    h = hashlib.sha1()
+    arrays = [trace.truth.t_s, trace.truth.pos_enu_m, trace.uwb.t_s, trace.uwb.range_m, trace.uwb.anchor]
+    if trace.imu is not None:
+        arrays += [trace.imu.t_s]
+    for a in arrays:
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+def _refuse_duplicates(trs: Sequence[Trace], labels: Sequence[str]) -> None:
+    """One recording given twice would count as two runs that agree exactly: every run-to-run spread
+    (speed, length, path, ranging offsets, lags) would come out 0."""
+    seen: dict[str, str] = {}
+    for t, lab in zip(trs, labels, strict=True):
+        key = _fingerprint(t)
+        if key in seen:
+            raise CalibrationError(f"{lab} and {seen[key]} hold the same recording (the same run given twice?); "
+                                   "each run may be given once")
+        seen[key] = lab
+
+
 def prepare_inputs(traces: Trace | Sequence[Trace], *, anchor_policy: AnchorPolicy = "per-run",
                    layout_from: int | str | None = None, report: ReportBuilder) -> CalibrationInputs:
     """Check the recordings, label them, set the IMU-only ones aside and read the anchor layouts."""
@@ -717,6 +741,7 @@ def prepare_inputs(traces: Trace | Sequence[Trace], *, anchor_policy: AnchorPoli
         labels = [f"{lab} [{i}]" for i, lab in enumerate(labels)]
         trs = [Trace(truth=t.truth, uwb=t.uwb, anchors=t.anchors, imu=t.imu, meta={**t.meta, "label": lab})
                for t, lab in zip(trs, labels, strict=True)]
+    _refuse_duplicates(trs, labels)
     keep: list[int] = []
     imu_only: list[int] = []  # IMU recordings without UWB (e.g. a lab trial): they inform the IMU fit only
     for i, (t, lab) in enumerate(zip(trs, labels, strict=True)):
