@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import yaml
@@ -91,3 +92,14 @@ def test_console_script_entry_point(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "physynth.cli", "inspect", str(tmp_path / "missing")],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0 and "Traceback" not in proc.stderr
+
+
+def test_make_run_installs_matplotlib_for_the_readme_figures():
+    """The README's worked example draws figures after ``make run``: its install has the extra report."""
+    root = Path(__file__).resolve().parents[1]
+    make = (root / "Makefile").read_text(encoding="utf-8")
+    run_recipe = make.split("\nrun:", 1)[1].split("\n\n", 1)[0]
+    assert "pip install --quiet -e '.[report]'" in run_recipe
+    readme = (root / "README.md").read_text(encoding="utf-8")
+    assert ".venv/bin/pip install -e '.[report]'" in readme
+    assert "pip install 'physynth[" not in readme
