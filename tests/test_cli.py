@@ -103,3 +103,11 @@ def test_make_run_installs_matplotlib_for_the_readme_figures():
     readme = (root / "README.md").read_text(encoding="utf-8")
     assert ".venv/bin/pip install -e '.[report]'" in readme
     assert "pip install 'physynth[" not in readme
+
+
+@pytest.mark.parametrize("option", ["--epochs", "--pretrain-epochs", "--finetune-epochs", "--n-synth", "--threads"])
+@pytest.mark.parametrize("value", ["0", "-1"])
+def test_study_tracking_refuses_counts_below_one(tmp_path, capsys, option, value):
+    code, _, err = run(capsys, "study", "tracking", option, value, "--methods", "ls", "--out", tmp_path / "o")
+    assert code == 2 and err.count("\n") == 1 and option in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()

@@ -213,3 +213,11 @@ def test_without_torch_the_command_names_the_extra(tmp_path):
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr.strip() == ("physynth: error: this needs PyTorch: install the extra physynth[ml] "
                                    "(pip install -e '.[ml]' in the PhySynth clone)")
+
+
+@pytest.mark.parametrize("name", ["epochs", "pretrain_epochs", "finetune_epochs", "n_synth_traces", "threads"])
+@pytest.mark.parametrize("value", [0, -1])
+def test_study_config_refuses_counts_below_one_naming_them(name, value):
+    """0 epochs would train nothing and report an untrained network: refused like -1."""
+    with pytest.raises(PhySynthError, match=rf"^{name} must be at least 1, got {value}$"):
+        StudyConfig(**{name: value})
