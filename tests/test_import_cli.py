@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from physynth.cli import main
@@ -111,3 +112,15 @@ def test_broad_bad_file_exit_2(tmp_path, capsys):
     bad.write_text("nope")
     code, _, err = run_main(["import", "broad", str(bad), "--out", str(tmp_path / "ds")], capsys)
     assert code == 2 and err.count("\n") == 1 and "trial.mat: cannot read MATLAB file" in err
+
+
+def test_broad_text_sampling_rate_exit_2(tmp_path, capsys):
+    from scipy.io import savemat
+
+    bad = tmp_path / "trial.mat"
+    savemat(bad, {"imu_acc": np.zeros((20, 3)), "opt_quat": np.tile([1.0, 0, 0, 0], (20, 1)),
+                  "opt_pos": np.zeros((20, 3)), "movement": np.zeros(20, np.uint8), "sampling_rate": "abc"})
+    code, _, err = run_main(["import", "broad", str(bad), "--out", str(tmp_path / "ds")], capsys)
+    assert code == 2 and err.count("\n") == 1, err
+    assert err.startswith("physynth: error: ") and "sampling_rate is not a number" in err
+    assert not (tmp_path / "ds").exists()
