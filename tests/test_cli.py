@@ -111,3 +111,11 @@ def test_study_tracking_refuses_counts_below_one(tmp_path, capsys, option, value
     code, _, err = run(capsys, "study", "tracking", option, value, "--methods", "ls", "--out", tmp_path / "o")
     assert code == 2 and err.count("\n") == 1 and option in err and "Traceback" not in err
     assert not (tmp_path / "o").exists()
+
+
+def test_scenario_file_with_a_repeated_key_is_one_line(tmp_path, capsys):
+    f = tmp_path / "dup.yaml"
+    f.write_text("name: a\nname: b\n", encoding="utf-8")
+    code, _, err = run(capsys, "generate", "--scenario", f, "--out", tmp_path / "x", "-q")
+    assert code == 2 and err.count("\n") == 1 and "duplicate key 'name' at line 2 (first at line 1)" in err
+    assert not (tmp_path / "x").exists()
