@@ -119,3 +119,11 @@ def test_scenario_file_with_a_repeated_key_is_one_line(tmp_path, capsys):
     code, _, err = run(capsys, "generate", "--scenario", f, "--out", tmp_path / "x", "-q")
     assert code == 2 and err.count("\n") == 1 and "duplicate key 'name' at line 2 (first at line 1)" in err
     assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize("args", [[], ["generate"], ["study"], ["study", "tracking"], ["import", "csv"],
+                                  ["scenario", "show"], ["calibrate"], ["export"]])
+def test_dash_h_is_help_everywhere(capsys, args):
+    code, out, err = run(capsys, *args, "-h")
+    assert code == 0 and out.startswith("Usage:") and err == ""
+    assert out == run(capsys, *args, "--help")[1]
