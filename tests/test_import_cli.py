@@ -93,7 +93,8 @@ def test_hanyang_two_runs(tmp_path, capsys):
 
 @pytest.mark.skipif(not HANYANG.is_dir(), reason=f"real Hanyang data not found at {HANYANG}")
 def test_hanyang_bad_run_folder(tmp_path, capsys):
-    code, _, err = run_main(["import", "hanyang", str(tmp_path), "--out", str(tmp_path / "ds")], capsys)
+    (tmp_path / "run").mkdir()
+    code, _, err = run_main(["import", "hanyang", str(tmp_path / "run"), "--out", str(tmp_path / "ds")], capsys)
     assert code == 2 and err.count("\n") == 1 and "no A<id>.csv anchor files" in err
 
 

@@ -70,7 +70,8 @@ def tracking_cmd(
     )
     from ..track import require_torch
 
-    check_study_output(out, marker="results.json", what="a tracking study", overwrite=overwrite)  # before the work
+    check_study_output(out, marker="results.json", what="a tracking study", overwrite=overwrite,  # before the work
+                       inputs=[*(train or []), *(test or [])])
     chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods else METHODS
     if frame not in FRAMES:
         raise PhySynthError(f"--frame must be one of {', '.join(FRAMES)}, got '{frame}'")
