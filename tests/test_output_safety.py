@@ -174,3 +174,19 @@ def test_never_an_output_inside_an_input(dataset, tmp_path, capsys):
         _refused([*argv, "-q"], capsys, "lies inside the input")
     assert sorted(p.name for p in copy.iterdir()) == before
     assert sorted(p.name for p in rec.iterdir()) == rec_before and not (tmp_path / "ok.yaml").exists()
+
+
+def test_a_file_where_a_folder_goes_and_back_is_said_at_once(dataset, tmp_path, capsys):
+    """Not "already exists (use --overwrite)", which --overwrite would then refuse anyway."""
+    afile, folder = tmp_path / "afile", tmp_path / "folder"
+    afile.write_text("mine")
+    folder.mkdir()
+    for argv in (["generate", "-n", "1", "--out", str(afile)],
+                 ["export", str(dataset), "-f", "csv", "--out", str(afile)],
+                 ["validate", "--real", str(dataset), "--synthetic", str(dataset), "--out", str(afile)]):
+        _refused([*argv, "-q"], capsys, f"output {afile} is a file, not a folder")
+    for argv in (["calibrate", str(dataset), "--out", str(folder)],
+                 ["calibrate", str(dataset), "--out", str(tmp_path / "s.yaml"), "--report", str(folder)],
+                 ["export", str(dataset), "-f", "hdf5", "--out", str(folder)]):
+        _refused([*argv, "-q"], capsys, f"output {folder} is a folder, not a file")
+    assert afile.read_text() == "mine" and not any(folder.iterdir())

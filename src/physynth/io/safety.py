@@ -86,6 +86,8 @@ EXPORT_BAG_FOLDER = re.compile(r"^trace_\d{8}$")
 FOLDER_KINDS = ("dataset", "report", "export-hdf5", "export-csv", "export-rosbag2")
 """Output kinds that may never be the current folder or one of its parents (folders, and files whose
 parent would be replaced)."""
+FILE_KINDS = ("scenario", "json", "export-hdf5")
+"""Output kinds that are one file; the others are folders."""
 
 
 def _why_not_export(path: Path, kind: str) -> str | None:
@@ -183,6 +185,10 @@ def check_output(out: str | os.PathLike, *, kind: str, overwrite: bool,
         raise UnsafeOutputError(f"output {out} is the current folder or holds it; choose another output")
     if not os.path.lexists(real):
         return real
+    if kind not in FILE_KINDS and real.exists() and not real.is_dir():  # --overwrite would not help: say so at once
+        raise UnsafeOutputError(f"output {out} is a file, not a folder; choose another output")
+    if kind in FILE_KINDS and real.is_dir():
+        raise UnsafeOutputError(f"output {out} is a folder, not a file; give a file name")
     if kind == "report" and real.is_dir() and not any(real.iterdir()):
         return real  # an empty folder: nothing to lose
     if kind == "report" and real.is_dir() and not (real / "report.json").exists() and not overwrite:
