@@ -92,6 +92,14 @@ def test_hanyang_two_runs(tmp_path, capsys):
 
 
 @pytest.mark.skipif(not HANYANG.is_dir(), reason=f"real Hanyang data not found at {HANYANG}")
+@pytest.mark.skipif(not (HANYANG / "LOS" / "Trajectory_A" / "Case_1").is_dir(), reason="Hanyang data not found")
+def test_hanyang_note_names_the_option_not_the_parameter(tmp_path, capsys):
+    run = HANYANG / "LOS" / "Trajectory_A" / "Case_1"  # its truth continues 2.4 s after the last range
+    code, out, err = run_main(["import", "hanyang", str(run), "--out", str(tmp_path / "ds")], capsys)
+    assert code == 0, err
+    assert "use --crop-to-uwb to drop it" in out and "crop_to_uwb" not in out
+
+
 def test_hanyang_bad_run_folder(tmp_path, capsys):
     (tmp_path / "run").mkdir()
     code, _, err = run_main(["import", "hanyang", str(tmp_path / "run"), "--out", str(tmp_path / "ds")], capsys)
