@@ -127,3 +127,16 @@ def test_dash_h_is_help_everywhere(capsys, args):
     code, out, err = run(capsys, *args, "-h")
     assert code == 0 and out.startswith("Usage:") and err == ""
     assert out == run(capsys, *args, "--help")[1]
+
+
+def test_generate_refuses_resume_with_overwrite(tmp_path, capsys):
+    assert run(capsys, "generate", "-n", 1, "--seed", 1, "--out", tmp_path / "ds", "-q")[0] == 0
+    before = (tmp_path / "ds" / "dataset.json").read_bytes()
+    code, _, err = run(capsys, "generate", "-n", 1, "--out", tmp_path / "ds", "-q", "--resume", "--overwrite")
+    assert code == 2 and err.count("\n") == 1 and "--resume and --overwrite exclude each other" in err
+    assert (tmp_path / "ds" / "dataset.json").read_bytes() == before
+    from physynth.errors import PhySynthError
+    from physynth.workflows import generate_dataset
+
+    with pytest.raises(PhySynthError, match="^resume and overwrite exclude each other"):
+        generate_dataset(load_scenario("cablecar-descending"), 1, tmp_path / "ds", resume=True, overwrite=True)

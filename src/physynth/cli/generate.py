@@ -55,6 +55,9 @@ def generate_cmd(
     from ..parallel import available_cores
     from ..workflows import generate_dataset
 
+    if resume and overwrite:
+        raise PhySynthError("--resume and --overwrite exclude each other: --resume completes an unfinished run "
+                            "of --out, --overwrite discards it; give one")
     scn = load_scenario(scenario)
     if regime is not None:
         from ..studies.regimes import apply_regime
