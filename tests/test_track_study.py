@@ -221,3 +221,12 @@ def test_study_config_refuses_counts_below_one_naming_them(name, value):
     """0 epochs would train nothing and report an untrained network: refused like -1."""
     with pytest.raises(PhySynthError, match=rf"^{name} must be at least 1, got {value}$"):
         StudyConfig(**{name: value})
+
+
+def test_default_runs_follow_physynth_shared_data(tmp_path, monkeypatch):
+    from physynth.studies.tracking import default_data_root, hanyang_default_runs
+
+    monkeypatch.setenv("PHYSYNTH_SHARED_DATA", str(tmp_path))
+    assert default_data_root() == tmp_path
+    with pytest.raises(PhySynthError, match=r"not found under .*hanyang-uwb.*set PHYSYNTH_SHARED_DATA"):
+        hanyang_default_runs()

@@ -175,7 +175,8 @@ def hanyang_default_runs(data_root: Path | None = None) -> tuple[list[StudyRun],
 
     root = (data_root or default_data_root()) / "hanyang-uwb" / "Dynamic_measurements"
     if not root.is_dir():
-        raise PhySynthError(f"default Hanyang runs not found under {root}; give training and test datasets")
+        raise PhySynthError(f"default Hanyang runs not found under {root}; give training and test datasets, or "
+                            "set PHYSYNTH_SHARED_DATA to the folder that holds hanyang-uwb")
     runs = []
     for rel in HANYANG_RUNS:
         trace, _ = import_hanyang(root / rel, crop_to_uwb=True)
