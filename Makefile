@@ -1,5 +1,5 @@
 # Two commands do all the set-up on a fresh machine (Python >= 3.10 with venv):
-#   make run    create .venv, install PhySynth, generate 20 traces of the default preset, print their metrics
+#   make run    create .venv, install PhySynth (with matplotlib for figures), generate 20 traces of the default preset, print their metrics
 #   make test   create .venv, install PhySynth with its test extras, run the test suite
 PYTHON ?= python3
 VENV   ?= .venv
@@ -14,7 +14,7 @@ $(BIN)/python:
 # An editable install leaves src/ uncompiled; where PYTHONDONTWRITEBYTECODE is set, every command would
 # then recompile PhySynth's modules (about 65 ms of start-up), so compile them once here.
 run: $(BIN)/python
-	$(BIN)/pip install --quiet -e .
+	$(BIN)/pip install --quiet -e '.[report]'
 	$(BIN)/python -m compileall -q src
 	$(BIN)/physynth generate --scenario cablecar-descending -n 20 --seed 2026 --out runs/default --overwrite
 	$(BIN)/physynth inspect runs/default

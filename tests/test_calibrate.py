@@ -334,8 +334,9 @@ def test_cli_bad_input_exit_code_2(tmp_path, capsys):
 def test_cli_calibrate_end_to_end(roundtrip, tmp_path, capsys):
     _, traces, _ = roundtrip
     write_dataset(tmp_path / "ds", traces[:3])
-    out, rep = tmp_path / "cal.yaml", tmp_path / "fit.json"
+    out, rep = tmp_path / "new" / "sub" / "cal.yaml", tmp_path / "other" / "fit.json"  # parents made, as generate's
     cli_main(["calibrate", str(tmp_path / "ds"), "--out", str(out), "--report", str(rep), "--name", "mine", "-q"])
+    assert sorted(p.name for p in out.parent.iterdir()) == ["cal.yaml"]  # written atomically: no temp file left
     scn = load_scenario(out)
     assert scn.name == "mine" and str(tmp_path / "ds") in scn.provenance["datasets"]
     report = json.loads(rep.read_text())

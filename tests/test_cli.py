@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import yaml
@@ -91,3 +92,51 @@ def test_console_script_entry_point(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "physynth.cli", "inspect", str(tmp_path / "missing")],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0 and "Traceback" not in proc.stderr
+
+
+def test_make_run_installs_matplotlib_for_the_readme_figures():
+    """The README's worked example draws figures after ``make run``: its install has the extra report."""
+    root = Path(__file__).resolve().parents[1]
+    make = (root / "Makefile").read_text(encoding="utf-8")
+    run_recipe = make.split("\nrun:", 1)[1].split("\n\n", 1)[0]
+    assert "pip install --quiet -e '.[report]'" in run_recipe
+    readme = (root / "README.md").read_text(encoding="utf-8")
+    assert ".venv/bin/pip install -e '.[report]'" in readme
+    assert "pip install 'physynth[" not in readme
+
+
+@pytest.mark.parametrize("option", ["--epochs", "--pretrain-epochs", "--finetune-epochs", "--n-synth", "--threads"])
+@pytest.mark.parametrize("value", ["0", "-1"])
+def test_study_tracking_refuses_counts_below_one(tmp_path, capsys, option, value):
+    code, _, err = run(capsys, "study", "tracking", option, value, "--methods", "ls", "--out", tmp_path / "o")
+    assert code == 2 and err.count("\n") == 1 and option in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_scenario_file_with_a_repeated_key_is_one_line(tmp_path, capsys):
+    f = tmp_path / "dup.yaml"
+    f.write_text("name: a\nname: b\n", encoding="utf-8")
+    code, _, err = run(capsys, "generate", "--scenario", f, "--out", tmp_path / "x", "-q")
+    assert code == 2 and err.count("\n") == 1 and "duplicate key 'name' at line 2 (first at line 1)" in err
+    assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize("args", [[], ["generate"], ["study"], ["study", "tracking"], ["import", "csv"],
+                                  ["scenario", "show"], ["calibrate"], ["export"]])
+def test_dash_h_is_help_everywhere(capsys, args):
+    code, out, err = run(capsys, *args, "-h")
+    assert code == 0 and out.startswith("Usage:") and err == ""
+    assert out == run(capsys, *args, "--help")[1]
+
+
+def test_generate_refuses_resume_with_overwrite(tmp_path, capsys):
+    assert run(capsys, "generate", "-n", 1, "--seed", 1, "--out", tmp_path / "ds", "-q")[0] == 0
+    before = (tmp_path / "ds" / "dataset.json").read_bytes()
+    code, _, err = run(capsys, "generate", "-n", 1, "--out", tmp_path / "ds", "-q", "--resume", "--overwrite")
+    assert code == 2 and err.count("\n") == 1 and "--resume and --overwrite exclude each other" in err
+    assert (tmp_path / "ds" / "dataset.json").read_bytes() == before
+    from physynth.errors import PhySynthError
+    from physynth.workflows import generate_dataset
+
+    with pytest.raises(PhySynthError, match="^resume and overwrite exclude each other"):
+        generate_dataset(load_scenario("cablecar-descending"), 1, tmp_path / "ds", resume=True, overwrite=True)

@@ -181,3 +181,15 @@ def test_rosbag2_body_imu_topic(body_dataset, tmp_path):
         np.testing.assert_array_equal(np.array(gyro), tr.imu.gyro_body_radps)
         np.testing.assert_array_equal(np.array(quat), tr.truth.quat_wxyz)
         assert np.median(np.linalg.norm(np.array(acc), axis=1)) == pytest.approx(9.81, abs=0.3)  # gravity included
+
+
+def test_a_csv_export_is_not_taken_for_a_damaged_dataset(dataset, tmp_path, capsys):
+    """``inspect`` (and every reader) on a CSV export says what it is, not "truth.parquet is missing"."""
+    out = export_dataset(dataset[0], tmp_path / "csv", "csv")
+    for argv in (["inspect", str(out)], ["verify", str(out)]):
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and err.count("\n") == 1, err
+        assert "is a CSV export of a PhySynth dataset, not a dataset" in err and "missing" not in err
+    assert len(read_dataset(dataset[0]).traces) == 3  # the dataset itself still reads

@@ -170,3 +170,12 @@ def test_bursts_are_clock_locked_with_independent_jitter():
     # no drift: the deviation from the locked grid stays at the jitter level over 40,000 bursts
     assert np.abs(resid - resid.mean()).max() < 6 * 0.002
     assert np.std(np.diff(t)) == pytest.approx(0.002 * np.sqrt(2), rel=0.05)
+
+
+def test_negative_counts_are_refused_at_the_call(preset):
+    with pytest.raises(ValueError, match=r"^n must be >= 0 \(the number of traces\), got -1$"):
+        generate_traces(preset, n=-1)  # not a silent empty iterator
+    with pytest.raises(ValueError, match=r"^start must be >= 0"):
+        generate_traces(preset, n=1, start=-2)
+    assert list(generate_traces(preset, n=0, seed=1)) == []
+    assert len(list(generate_traces(preset, n=2, seed=1))) == 2

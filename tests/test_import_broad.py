@@ -150,3 +150,27 @@ def test_raw_body_frame_imu_and_optical_attitude_are_kept(trial15, tmp_path):
     assert back.meta["imu_frames"] == ["enu-gravity-free", "body-flu"] and back.meta["truth_attitude"] is True
     np.testing.assert_array_equal(back.traces[0].imu.gyro_body_radps, trace.imu.gyro_body_radps)
     np.testing.assert_array_equal(back.traces[0].truth.quat_wxyz, trace.truth.quat_wxyz)
+
+
+def _trial(path: Path, **override) -> Path:
+    """A minimal BROAD-like trial (60 samples at rest) with some variables replaced."""
+    d = {"imu_acc": np.tile([0.0, 0.0, 9.81], (60, 1)), "opt_quat": np.tile([1.0, 0, 0, 0], (60, 1)),
+         "opt_pos": np.zeros((60, 3)), "movement": np.zeros(60, np.uint8), "sampling_rate": 100.0}
+    savemat(path, {**d, **override})
+    return path
+
+
+@pytest.mark.parametrize(("name", "value", "needle"), [
+    ("sampling_rate", "abc", "sampling_rate is not a number (text)"),
+    ("sampling_rate", np.array([100.0, 200.0]), "sampling_rate has 2 values, expected one number"),
+    ("sampling_rate", np.zeros(0), "sampling_rate has 0 values"),
+    ("movement", np.array(["yes"] * 60), "movement does not hold numbers (text)"),
+    ("imu_acc", np.array([["a", "b", "c"]] * 60), "imu_acc does not hold numbers (text)"),
+    ("opt_pos", "here", "opt_pos is not a number (text)"),
+])
+def test_non_numeric_variables_are_one_clear_error(tmp_path, name, value, needle):
+    """A variable written as text (e.g. scipy.io.savemat of a str) is a RecordingError, not a ValueError."""
+    with pytest.raises(RecordingError) as exc:
+        import_broad(_trial(tmp_path / "t.mat", **{name: value}))
+    assert needle in str(exc.value) and "t.mat" in str(exc.value)
+    assert import_broad(_trial(tmp_path / "ok.mat"))[0].meta["sampling_rate_hz"] == 100.0

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from physynth.cli import main
@@ -91,8 +92,17 @@ def test_hanyang_two_runs(tmp_path, capsys):
 
 
 @pytest.mark.skipif(not HANYANG.is_dir(), reason=f"real Hanyang data not found at {HANYANG}")
+@pytest.mark.skipif(not (HANYANG / "LOS" / "Trajectory_A" / "Case_1").is_dir(), reason="Hanyang data not found")
+def test_hanyang_note_names_the_option_not_the_parameter(tmp_path, capsys):
+    run = HANYANG / "LOS" / "Trajectory_A" / "Case_1"  # its truth continues 2.4 s after the last range
+    code, out, err = run_main(["import", "hanyang", str(run), "--out", str(tmp_path / "ds")], capsys)
+    assert code == 0, err
+    assert "use --crop-to-uwb to drop it" in out and "crop_to_uwb" not in out
+
+
 def test_hanyang_bad_run_folder(tmp_path, capsys):
-    code, _, err = run_main(["import", "hanyang", str(tmp_path), "--out", str(tmp_path / "ds")], capsys)
+    (tmp_path / "run").mkdir()
+    code, _, err = run_main(["import", "hanyang", str(tmp_path / "run"), "--out", str(tmp_path / "ds")], capsys)
     assert code == 2 and err.count("\n") == 1 and "no A<id>.csv anchor files" in err
 
 
@@ -111,3 +121,15 @@ def test_broad_bad_file_exit_2(tmp_path, capsys):
     bad.write_text("nope")
     code, _, err = run_main(["import", "broad", str(bad), "--out", str(tmp_path / "ds")], capsys)
     assert code == 2 and err.count("\n") == 1 and "trial.mat: cannot read MATLAB file" in err
+
+
+def test_broad_text_sampling_rate_exit_2(tmp_path, capsys):
+    from scipy.io import savemat
+
+    bad = tmp_path / "trial.mat"
+    savemat(bad, {"imu_acc": np.zeros((20, 3)), "opt_quat": np.tile([1.0, 0, 0, 0], (20, 1)),
+                  "opt_pos": np.zeros((20, 3)), "movement": np.zeros(20, np.uint8), "sampling_rate": "abc"})
+    code, _, err = run_main(["import", "broad", str(bad), "--out", str(tmp_path / "ds")], capsys)
+    assert code == 2 and err.count("\n") == 1, err
+    assert err.startswith("physynth: error: ") and "sampling_rate is not a number" in err
+    assert not (tmp_path / "ds").exists()

@@ -138,5 +138,55 @@ def test_verify_checks_every_dataset(dataset, tmp_path, capsys):
 
 
 def test_broad_import_of_a_folder_says_so(tmp_path, capsys):
-    _refused(["import", "broad", str(tmp_path), "--out", str(tmp_path / "o")], capsys,
+    (tmp_path / "data_mat").mkdir()
+    _refused(["import", "broad", str(tmp_path / "data_mat"), "--out", str(tmp_path / "o")], capsys,
              "is a folder; give a BROAD trial file")
+
+
+def _write_recording(folder):
+    """A tiny CSV recording (3 anchors, a tag walking east) for ``physynth import csv``."""
+    folder.mkdir(parents=True)
+    (folder / "anchors.csv").write_text("anchor_id,e_m,n_m,u_m\nA1,0,0,2\nA2,10,0,2\nA3,0,10,2\n")
+    t = [round(0.1 * k, 1) for k in range(51)]
+    (folder / "truth.csv").write_text("t_s,e_m,n_m,u_m\n" + "".join(f"{x},{x},5.0,1.0\n" for x in t))
+    (folder / "uwb.csv").write_text("t_s,anchor_id,range_m\n" + "".join(
+        f"{x},{a},{((x - e) ** 2 + (5 - n) ** 2 + 1) ** 0.5:.4f}\n"
+        for x in t[1:-1] for a, e, n in (("A1", 0, 0), ("A2", 10, 0), ("A3", 0, 10))))
+    return folder
+
+
+def test_never_an_output_inside_an_input(dataset, tmp_path, capsys):
+    """An output written inside an input dataset would make that dataset hold a file PhySynth did not
+    write there, and refuse its later --overwrite: refused before any work."""
+    copy = tmp_path / "copy"
+    shutil.copytree(dataset, copy)
+    before = sorted(p.name for p in copy.iterdir())
+    rec = _write_recording(tmp_path / "rec")
+    rec_before = sorted(p.name for p in rec.iterdir())
+    for argv in (["export", str(copy), "-f", "hdf5", "--out", str(copy / "x.h5")],
+                 ["export", str(copy), "-f", "csv", "--out", str(copy / "sub" / "csv")],
+                 ["calibrate", str(copy), "--out", str(copy / "x.yaml")],
+                 ["calibrate", str(copy), "--out", str(tmp_path / "ok.yaml"), "--report", str(copy / "fit.json")],
+                 ["validate", "--real", str(copy), "--synthetic", str(dataset), "--out", str(copy / "rep")],
+                 ["study", "tracking", "--train", str(copy), "--test", str(dataset), "--methods", "ls",
+                  "--out", str(copy / "st")],
+                 ["import", "csv", str(rec), "--out", str(rec / "out")]):
+        _refused([*argv, "-q"], capsys, "lies inside the input")
+    assert sorted(p.name for p in copy.iterdir()) == before
+    assert sorted(p.name for p in rec.iterdir()) == rec_before and not (tmp_path / "ok.yaml").exists()
+
+
+def test_a_file_where_a_folder_goes_and_back_is_said_at_once(dataset, tmp_path, capsys):
+    """Not "already exists (use --overwrite)", which --overwrite would then refuse anyway."""
+    afile, folder = tmp_path / "afile", tmp_path / "folder"
+    afile.write_text("mine")
+    folder.mkdir()
+    for argv in (["generate", "-n", "1", "--out", str(afile)],
+                 ["export", str(dataset), "-f", "csv", "--out", str(afile)],
+                 ["validate", "--real", str(dataset), "--synthetic", str(dataset), "--out", str(afile)]):
+        _refused([*argv, "-q"], capsys, f"output {afile} is a file, not a folder")
+    for argv in (["calibrate", str(dataset), "--out", str(folder)],
+                 ["calibrate", str(dataset), "--out", str(tmp_path / "s.yaml"), "--report", str(folder)],
+                 ["export", str(dataset), "-f", "hdf5", "--out", str(folder)]):
+        _refused([*argv, "-q"], capsys, f"output {folder} is a folder, not a file")
+    assert afile.read_text() == "mine" and not any(folder.iterdir())

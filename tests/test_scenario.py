@@ -7,7 +7,7 @@ import yaml
 from helpers import simple_scenario_dict
 
 from physynth.errors import ScenarioError
-from physynth.io.scenario_file import load_scenario, save_scenario, scenario_to_yaml
+from physynth.io.scenario_file import load_scenario, safe_load_bounded, save_scenario, scenario_to_yaml
 
 
 def _write(tmp_path, data, name="s.yaml"):
@@ -70,3 +70,17 @@ def test_unreadable_and_unknown_scenarios(tmp_path):
 def test_a_directory_is_not_a_scenario(tmp_path):
     with pytest.raises(ScenarioError, match="is a directory"):
         load_scenario(tmp_path)
+
+
+def test_a_repeated_key_is_refused_naming_it_and_its_line(tmp_path):
+    """Plain YAML keeps the last of two equal keys silently; a scenario file refuses them."""
+    text = scenario_to_yaml(load_scenario("cablecar-descending"))
+    lines = text.splitlines()
+    at = next(i for i, line in enumerate(lines) if line.startswith("  los_std_m:"))
+    lines.insert(at + 1, "  los_std_m: 0.5")
+    f = tmp_path / "dup.yaml"
+    f.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    with pytest.raises(ScenarioError, match=rf"duplicate key 'los_std_m' at line {at + 2} \(first at line {at + 1}\)"):
+        load_scenario(f)
+    merged = safe_load_bounded("base: &b {x: 1, y: 2}\nother:\n  <<: *b\n  x: 3\n", "merge")
+    assert merged["other"] == {"x": 3, "y": 2}  # a key next to a YAML merge (<<) overrides it: no repeat

@@ -211,4 +211,22 @@ def test_without_torch_the_command_names_the_extra(tmp_path):
             f"main(['study', 'tracking', '--methods', 'NOAUG', '--out', {str(tmp_path / 'o')!r}])\n")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2, proc.stderr
-    assert proc.stderr.strip() == "physynth: error: this needs PyTorch: pip install 'physynth[ml]'"
+    assert proc.stderr.strip() == ("physynth: error: this needs PyTorch: install the extra physynth[ml] "
+                                   "(pip install -e '.[ml]' in the PhySynth clone)")
+
+
+@pytest.mark.parametrize("name", ["epochs", "pretrain_epochs", "finetune_epochs", "n_synth_traces", "threads"])
+@pytest.mark.parametrize("value", [0, -1])
+def test_study_config_refuses_counts_below_one_naming_them(name, value):
+    """0 epochs would train nothing and report an untrained network: refused like -1."""
+    with pytest.raises(PhySynthError, match=rf"^{name} must be at least 1, got {value}$"):
+        StudyConfig(**{name: value})
+
+
+def test_default_runs_follow_physynth_shared_data(tmp_path, monkeypatch):
+    from physynth.studies.tracking import default_data_root, hanyang_default_runs
+
+    monkeypatch.setenv("PHYSYNTH_SHARED_DATA", str(tmp_path))
+    assert default_data_root() == tmp_path
+    with pytest.raises(PhySynthError, match=r"not found under .*hanyang-uwb.*set PHYSYNTH_SHARED_DATA"):
+        hanyang_default_runs()

@@ -350,7 +350,7 @@ def test_missing_matplotlib_is_one_clear_line(data, tmp_path, capsys, monkeypatc
         monkeypatch.setitem(sys.modules, name, None)
     monkeypatch.setitem(sys.modules, "matplotlib", None)
     _bad(["validate", "--real", str(data / "real"), "--synthetic", str(data / "synth"), "--out",
-          str(tmp_path / "r"), "-q"], capsys, "physynth[report]")
+          str(tmp_path / "r"), "-q"], capsys, "physynth[report]", "pip install -e '.[report]'", "(--no-figures)")
     assert not (tmp_path / "r").exists()
     assert _run(["validate", "--real", str(data / "real"), "--synthetic", str(data / "synth"), "--out",
                  str(tmp_path / "r"), "-q", "--no-figures"]) == 0

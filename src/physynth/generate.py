@@ -118,11 +118,20 @@ def _imu(kin, att, s: Scenario, root_seed: int, index: int) -> Imu:
 
 def generate_traces(scn: Scenario | CompiledScenario, n: int, seed: int | None = None,
                     start: int = 0) -> Iterator[Trace]:
-    """Traces ``start .. start + n - 1`` (lazily). ``seed=None`` draws a fresh root seed."""
+    """Traces ``start .. start + n - 1`` (lazily; ``n=0`` yields none). ``seed=None`` draws a fresh root seed.
+
+    Raises
+    ------
+    ValueError
+        ``n`` or ``start`` is negative (at the call, not at the first trace).
+    """
+    if n < 0:
+        raise ValueError(f"n must be >= 0 (the number of traces), got {n}")
+    if start < 0:
+        raise ValueError(f"start must be >= 0 (the index of the first trace), got {start}")
     cs = _compiled(scn)
     root = new_root_seed() if seed is None else int(seed)
-    for i in range(start, start + n):
-        yield generate_trace(cs, i, root)
+    return (generate_trace(cs, i, root) for i in range(start, start + n))
 
 
 def dataset_meta(scn: Scenario, root_seed: int) -> dict:

@@ -6,7 +6,7 @@ the same dataset: in this process, on an embedded :class:`distributed.LocalClust
 processes, or on an existing Dask distributed cluster (whose workers must have PhySynth installed
 and see the output directory at the same path, e.g. a shared file system).
 
-Dask is an optional dependency (``pip install 'physynth[scale]'``); it is imported only here, and only
+Dask is an optional dependency (the extra ``physynth[scale]``); it is imported only here, and only
 when more than one worker or a scheduler address is asked for.
 """
 
@@ -102,7 +102,8 @@ def require_dask() -> Any:
     try:
         import distributed
     except ImportError:
-        raise PhySynthError("several workers or a scheduler need Dask: pip install 'physynth[scale]'") from None
+        raise PhySynthError("several workers or a scheduler need Dask: install the extra physynth[scale] "
+                            "(pip install -e '.[scale]' in the PhySynth clone)") from None
     return distributed
 
 

@@ -71,6 +71,9 @@ def generate_dataset(scn: Scenario, n: int, out: str | Path, *, seed: int | None
         raise PhySynthError(f"traces per shard must be at least 1, got {shard_traces}")
     if workers < 1:
         raise PhySynthError(f"the number of workers must be at least 1, got {workers}")
+    if resume and overwrite:
+        raise PhySynthError("resume and overwrite exclude each other: resume completes an unfinished run, "
+                            "overwrite discards it; ask for one")
     check_budget(scn, n, force=force)
     # safety hook (physynth.io.safety): what may be replaced, inputs, the output's lock, orphaned temp folders
     out, lock = safety.prepare_output(out, kind="dataset", overwrite=overwrite, inputs=inputs)

@@ -78,8 +78,11 @@ def calibrate_cmd(
     check_distinct([("--out", out), ("--report", report)])
     for target, kind in [(out, "scenario")] + ([(report, "json")] if report else []):
         check_output(target, kind=kind, overwrite=overwrite, inputs=inputs)
-        if not target.parent.exists():
-            raise PhySynthError(f"output folder {target.parent} does not exist")
+    for target in [out] + ([report] if report else []):  # `--out runs/site.yaml` in a fresh checkout
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise PhySynthError(f"cannot create the output folder {target.parent}: {exc.strerror}") from None
     with guarded_outputs([out] + ([report] if report else [])) as real:  # locks; orphaned temp files removed
         for target, kind in [(out, "scenario")] + ([(report, "json")] if report else []):
             check_output(target, kind=kind, overwrite=overwrite, inputs=inputs)  # again, under the lock

@@ -55,6 +55,9 @@ def generate_cmd(
     from ..parallel import available_cores
     from ..workflows import generate_dataset
 
+    if resume and overwrite:
+        raise PhySynthError("--resume and --overwrite exclude each other: --resume completes an unfinished run "
+                            "of --out, --overwrite discards it; give one")
     scn = load_scenario(scenario)
     if regime is not None:
         from ..studies.regimes import apply_regime
@@ -66,7 +69,7 @@ def generate_cmd(
         n_workers = 1  # the default (all cores) without the optional Dask: one core, said once
         if not quiet and n > shard_traces:
             typer.echo("physynth: Dask is not installed, generating on one core "
-                       "(pip install 'physynth[scale]' for all cores)", err=True)
+                       "(pip install -e '.[scale]' in the PhySynth clone for all cores)", err=True)
     resume_hint = f"complete shards are kept: run the same command with --resume to finish {out}"
     try:
         with progress_bar(not quiet) as progress:

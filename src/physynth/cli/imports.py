@@ -14,6 +14,8 @@ from typing import Any
 
 import typer
 
+from ._common import cli_words
+
 app = typer.Typer(help="Import real recordings as PhySynth datasets.", no_args_is_help=True)
 
 
@@ -43,7 +45,7 @@ def _run(importer: Callable[[Path], tuple[Any, Any]], inputs: Sequence[Path], ou
         return
     for trace, report in zip(traces, reports, strict=True):
         for line in report.summary_lines():
-            typer.echo(line)
+            typer.echo(cli_words(line))  # a note may name an importer parameter: show its option
         typer.echo(f"  -> {len(trace.uwb)} UWB rows ({int(trace.uwb.valid.sum())} valid), "
                    f"{trace.truth.t_s.size} truth samples, "
                    f"{0 if trace.imu is None else trace.imu.t_s.size} IMU samples, "

@@ -81,7 +81,8 @@ def anchors_cmd(
     from ..validate.render import require_matplotlib
     from ..workflows import anchor_study
 
-    check_study_output(out, marker="table.json", what="an anchor study", overwrite=overwrite)  # before the work
+    check_study_output(out, marker="table.json", what="an anchor study", overwrite=overwrite,  # before the work
+                       inputs=[real] if real is not None else [])
     if figures:
         require_matplotlib()
     with progress_bar(not quiet) as progress:
@@ -129,7 +130,8 @@ def placement_cmd(
     from ..validate.render import require_matplotlib
     from ..workflows import placement_study
 
-    check_study_output(out, marker="placement.json", what="a placement study", overwrite=overwrite)
+    check_study_output(out, marker="placement.json", what="a placement study", overwrite=overwrite,
+                       inputs=[candidates])
     if figures:
         require_matplotlib()
     with progress_bar(not quiet) as progress:

@@ -33,10 +33,10 @@ def tracking_cmd(
     seed: int = typer.Option(0, "--seed", min=0, help="Seed of every random choice (deterministic on CPU)."),
     methods: str = typer.Option(None, "--methods", help="Comma-separated subset of NOAUG,AUG_GAN,SYNTH_PHY,"
                                 "bilstm,ls,ekf (default: all)."),
-    epochs: int = typer.Option(None, "--epochs", help="Epochs of NOAUG, AUG_GAN and bilstm (paper: 200)."),
-    pretrain_epochs: int = typer.Option(None, "--pretrain-epochs", help="SYNTH_PHY pre-training epochs (300)."),
-    finetune_epochs: int = typer.Option(None, "--finetune-epochs", help="SYNTH_PHY fine-tuning epochs (200)."),
-    n_synth: int = typer.Option(None, "--n-synth", help="Number of synthetic pre-training traces."),
+    epochs: int = typer.Option(None, "--epochs", min=1, help="Epochs of NOAUG, AUG_GAN and bilstm (paper: 200)."),
+    pretrain_epochs: int = typer.Option(None, "--pretrain-epochs", min=1, help="SYNTH_PHY pre-training epochs (300)."),
+    finetune_epochs: int = typer.Option(None, "--finetune-epochs", min=1, help="SYNTH_PHY fine-tuning epochs (200)."),
+    n_synth: int = typer.Option(None, "--n-synth", min=1, help="Number of synthetic pre-training traces."),
     finetune_synth_ratio: float = typer.Option(None, "--finetune-synth-ratio", help="Synthetic windows kept per "
                                                "real window while SYNTH_PHY fine-tunes (0: real only)."),
     turn_test: float = typer.Option(0.0, "--turn-test", help="Turn every test run by this many degrees "
@@ -51,8 +51,8 @@ def tracking_cmd(
                               "own ranges, heads east: a prior on the route's shape, better on runs shaped "
                               "like the training runs, lost on other shapes. compass: the world as recorded: "
                               "learns the training runs' compass heading, lost on a run that heads elsewhere."),
-    threads: int = typer.Option(1, "--threads", help="CPU threads for PyTorch (1: small recurrent nets gain nothing "
-                                "from more, and lose a lot on a shared machine)."),
+    threads: int = typer.Option(1, "--threads", min=1, help="CPU threads for PyTorch (1: small recurrent nets gain "
+                                "nothing from more, and lose a lot on a shared machine)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (results.json, results.md, paths.png)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a tracking study already in --out."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress and no table."),
@@ -70,7 +70,8 @@ def tracking_cmd(
     )
     from ..track import require_torch
 
-    check_study_output(out, marker="results.json", what="a tracking study", overwrite=overwrite)  # before the work
+    check_study_output(out, marker="results.json", what="a tracking study", overwrite=overwrite,  # before the work
+                       inputs=[*(train or []), *(test or [])])
     chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods else METHODS
     if frame not in FRAMES:
         raise PhySynthError(f"--frame must be one of {', '.join(FRAMES)}, got '{frame}'")

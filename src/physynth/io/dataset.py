@@ -484,7 +484,17 @@ def read_meta(path: str | os.PathLike) -> dict[str, Any]:
     if not isinstance(meta, dict) or meta.get("schema_version") != SCHEMA_VERSION:
         raise DatasetError(f"{meta_file}: unsupported schema_version {meta.get('schema_version')!r}"
                            if isinstance(meta, dict) else f"{meta_file}: not a JSON object")
+    if is_csv_export(path):
+        raise DatasetError(f"{path} is a CSV export of a PhySynth dataset, not a dataset: its tables are CSV "
+                           "files for other tools; use the dataset it was exported from")
     return meta
+
+
+def is_csv_export(path: Path) -> bool:
+    """True for a folder written by the CSV export (:mod:`physynth.io.export.csv`): ``truth.csv`` beside
+    ``dataset.json`` (copied from the dataset) and no Parquet truth table."""
+    return ((path / "truth.csv").is_file() and not (path / "truth.parquet").exists()
+            and not (path / "truth").is_dir())
 
 
 def table_files(path: Path, name: str) -> list[Path]:

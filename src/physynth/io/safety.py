@@ -86,6 +86,8 @@ EXPORT_BAG_FOLDER = re.compile(r"^trace_\d{8}$")
 FOLDER_KINDS = ("dataset", "report", "export-hdf5", "export-csv", "export-rosbag2")
 """Output kinds that may never be the current folder or one of its parents (folders, and files whose
 parent would be replaced)."""
+FILE_KINDS = ("scenario", "json", "export-hdf5")
+"""Output kinds that are one file; the others are folders."""
 
 
 def _why_not_export(path: Path, kind: str) -> str | None:
@@ -151,6 +153,20 @@ def why_not_replaceable(path: Path, kind: str) -> str | None:
     return None if _marked(_physynth_json(path)) else "it is not a report written by physynth"
 
 
+def _check_apart(out: str | os.PathLike, real: Path, inputs: Sequence[str | os.PathLike]) -> None:
+    """Refuse an output that is, holds or lies inside one of the command's input files or folders (an
+    output inside an input dataset would make that dataset hold a file PhySynth did not write there)."""
+    for inp in inputs:
+        r_in = resolve_output(inp)
+        if _is_within(r_in, real):
+            what = "is" if r_in == real else "holds"
+            raise UnsafeOutputError(f"output {out} {what} the input {inp} of the same command; "
+                                    "choose another output")
+        if _is_within(real, r_in):
+            raise UnsafeOutputError(f"output {out} lies inside the input {inp} of the same command; "
+                                    "choose an output outside it")
+
+
 def check_output(out: str | os.PathLike, *, kind: str, overwrite: bool,
                  inputs: Sequence[str | os.PathLike] = ()) -> Path:
     """Check that ``out`` may be written; return its resolved path.
@@ -158,22 +174,21 @@ def check_output(out: str | os.PathLike, *, kind: str, overwrite: bool,
     Raises
     ------
     UnsafeOutputError
-        ``out`` is the current folder or one of its parents, is or holds one of ``inputs``, or
+        ``out`` is the current folder or one of its parents, is, holds or lies inside one of ``inputs``, or
         exists and (with ``overwrite``) is not PhySynth output of ``kind``.
     OutputExistsError
         ``out`` exists (or, for a report folder, holds a report) and ``overwrite`` is False.
     """
     real = resolve_output(out)
-    for inp in inputs:
-        r_in = resolve_output(inp)
-        if _is_within(r_in, real):
-            what = "is" if r_in == real else "holds"
-            raise UnsafeOutputError(f"output {out} {what} the input {inp} of the same command; "
-                                    "choose another output")
+    _check_apart(out, real, inputs)
     if kind in FOLDER_KINDS and _is_within(Path.cwd().resolve(), real):
         raise UnsafeOutputError(f"output {out} is the current folder or holds it; choose another output")
     if not os.path.lexists(real):
         return real
+    if kind not in FILE_KINDS and real.exists() and not real.is_dir():  # --overwrite would not help: say so at once
+        raise UnsafeOutputError(f"output {out} is a file, not a folder; choose another output")
+    if kind in FILE_KINDS and real.is_dir():
+        raise UnsafeOutputError(f"output {out} is a folder, not a file; give a file name")
     if kind == "report" and real.is_dir() and not any(real.iterdir()):
         return real  # an empty folder: nothing to lose
     if kind == "report" and real.is_dir() and not (real / "report.json").exists() and not overwrite:
@@ -188,14 +203,17 @@ def check_output(out: str | os.PathLike, *, kind: str, overwrite: bool,
     return real
 
 
-def check_study_output(out: str | os.PathLike, *, marker: str, what: str, overwrite: bool) -> Path:
+def check_study_output(out: str | os.PathLike, *, marker: str, what: str, overwrite: bool,
+                       inputs: Sequence[str | os.PathLike] = ()) -> Path:
     """Check that a study may write its files into the folder ``out`` (``physynth study ...``).
 
     A study writes a fixed set of files, ``marker`` (its JSON) among them. Refused: the current folder or
     one of its parents; a folder that already holds files but no ``marker`` (the user's folder: a study
-    would overwrite its files of the same names); a folder with ``marker`` without ``overwrite``.
+    would overwrite its files of the same names); a folder with ``marker`` without ``overwrite``; an
+    output that is, holds or lies inside one of ``inputs``.
     """
     real = resolve_output(out)
+    _check_apart(out, real, inputs)
     if _is_within(Path.cwd().resolve(), real):
         raise UnsafeOutputError(f"output {out} is the current folder or holds it; choose another output")
     if real.exists() and not real.is_dir():

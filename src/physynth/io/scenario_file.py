@@ -58,11 +58,36 @@ def _expanded_size(node: yaml.Node, source: str) -> int:
     return size(node)
 
 
+class _UniqueKeyLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # libyaml when PyYAML has it: ~10x faster
+    """The safe loader, refusing a mapping that repeats a key (plain YAML keeps the last one silently)."""
+
+    source = "<text>"
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        if isinstance(node, yaml.MappingNode):
+            first_line: dict[Any, int] = {}
+            for key_node, _ in node.value:  # before merge keys (<<) are flattened: a key may override them
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                line = key_node.start_mark.line + 1
+                try:
+                    if key in first_line:
+                        raise ScenarioError(f"scenario {self.source}: duplicate key '{key}' at line {line} "
+                                            f"(first at line {first_line[key]}); give each key once")
+                    first_line[key] = line
+                except TypeError:  # an unhashable key: the constructor below says so
+                    pass
+        return super().construct_mapping(node, deep=deep)
+
+
 def safe_load_bounded(text: str, source: str) -> Any:
-    """``yaml.safe_load`` that refuses recursive aliases and documents expanding past MAX_YAML_NODES."""
+    """``yaml.safe_load`` that refuses recursive aliases, repeated keys and documents expanding past
+    MAX_YAML_NODES."""
     if len(text) > MAX_YAML_BYTES:
         raise ScenarioError(f"scenario {source}: the file is larger than {MAX_YAML_BYTES / 1e6:g} MB")
-    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)(text)  # libyaml when PyYAML has it: ~10x faster
+    loader = _UniqueKeyLoader(text)
+    loader.source = source
     try:
         node = loader.get_single_node()
         if node is None:

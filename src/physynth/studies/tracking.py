@@ -105,8 +105,8 @@ class StudyConfig:
                                 "heading the frame keeps)")
         for name in ("epochs", "pretrain_epochs", "finetune_epochs", "n_synth_traces", "synth_windows_per_trace",
                      "gan_steps", "threads"):
-            if getattr(self, name) < (0 if name.endswith("epochs") else 1):
-                raise PhySynthError(f"{name} must be positive, got {getattr(self, name)}")
+            if getattr(self, name) < 1:  # 0 epochs would report an untrained network
+                raise PhySynthError(f"{name} must be at least 1, got {getattr(self, name)}")
         if not 0.0 <= self.finetune_synth_ratio <= 100.0:
             raise PhySynthError(f"finetune_synth_ratio must be in [0, 100], got {self.finetune_synth_ratio}")
 
@@ -175,7 +175,8 @@ def hanyang_default_runs(data_root: Path | None = None) -> tuple[list[StudyRun],
 
     root = (data_root or default_data_root()) / "hanyang-uwb" / "Dynamic_measurements"
     if not root.is_dir():
-        raise PhySynthError(f"default Hanyang runs not found under {root}; give training and test datasets")
+        raise PhySynthError(f"default Hanyang runs not found under {root}; give training and test datasets, or "
+                            "set PHYSYNTH_SHARED_DATA to the folder that holds hanyang-uwb")
     runs = []
     for rel in HANYANG_RUNS:
         trace, _ = import_hanyang(root / rel, crop_to_uwb=True)
@@ -397,12 +398,11 @@ def _synth_phy(train: Sequence[StudyRun], train_traces: list[Trace], train_input
         synth.arrays(i)  # fill the cache once; every epoch then reads the same traces
     net.train(synth, epochs=cfg.pretrain_epochs, lr=cfg.pretrain_lr, stage="pre-train (synthetic)", progress=say)
     score_pretrained("SYNTH_PHY (synthetic only)", net)
-    if cfg.finetune_epochs > 0:
-        real = TraceWindows(train_inputs, net.window_spec())
-        data, n_synth = finetune_windows(real, synth, cfg.finetune_synth_ratio, cfg.seed)
-        notes["finetune_windows"] = {"real": len(real), "synthetic": n_synth}
-        net.train(data, epochs=cfg.finetune_epochs, lr=cfg.finetune_lr,
-                  stage="fine-tune (real)" if n_synth == 0 else "fine-tune (real + synthetic)", progress=say)
+    real = TraceWindows(train_inputs, net.window_spec())
+    data, n_synth = finetune_windows(real, synth, cfg.finetune_synth_ratio, cfg.seed)
+    notes["finetune_windows"] = {"real": len(real), "synthetic": n_synth}
+    net.train(data, epochs=cfg.finetune_epochs, lr=cfg.finetune_lr,
+              stage="fine-tune (real)" if n_synth == 0 else "fine-tune (real + synthetic)", progress=say)
     return net
 
 

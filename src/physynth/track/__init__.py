@@ -15,7 +15,7 @@ Importing this package does not import torch; the modules that need it say which
 
 from typing import Any
 
-TORCH_HINT = "this needs PyTorch: pip install 'physynth[ml]'"
+TORCH_HINT = "this needs PyTorch: install the extra physynth[ml] (pip install -e '.[ml]' in the PhySynth clone)"
 """The one line shown when torch is missing."""
 
 

@@ -58,8 +58,9 @@ def require_matplotlib() -> tuple[Any, Any]:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.figure import Figure
     except ImportError:
-        raise PhySynthError("figures need matplotlib, which is not installed: install physynth[report] "
-                            "(pip install 'physynth[report]') or ask for no figures") from None
+        raise PhySynthError("figures need matplotlib, which is not installed: install the extra physynth[report] "
+                            "(pip install -e '.[report]' in the PhySynth clone) or ask for no figures "
+                            "(figures=False)") from None
     return Figure, FigureCanvasAgg
 
 

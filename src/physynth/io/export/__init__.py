@@ -3,7 +3,7 @@
 Each exporter streams the dataset trace by trace (:func:`physynth.io.dataset.iter_traces`), writes to
 a hidden temporary sibling of the output and renames it into place when complete, so an interrupted
 export leaves nothing that looks finished. HDF5 needs ``h5py`` and ROS 2 bags need ``rosbags``
-(``pip install 'physynth[export]'``); CSV needs nothing beyond PhySynth.
+(the extra ``physynth[export]``); CSV needs nothing beyond PhySynth.
 """
 
 from __future__ import annotations
@@ -26,7 +26,8 @@ def _require(module: str) -> None:
     try:
         __import__(module)
     except ImportError:
-        raise PhySynthError(f"exporting needs {module}: pip install 'physynth[export]'") from None
+        raise PhySynthError(f"exporting needs {module}: install the extra physynth[export] "
+                           "(pip install -e '.[export]' in the PhySynth clone)") from None
 
 
 def export_dataset(dataset: str | os.PathLike, out: str | os.PathLike, fmt: str, *, overwrite: bool = False,

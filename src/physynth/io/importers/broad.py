@@ -108,12 +108,15 @@ def _load_trial(path: Path) -> dict[str, Any]:
 def _trial_arrays(path: Path, mat: dict[str, Any]
                   ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray, np.ndarray, float]:
     """``(imu_acc, imu_gyr or None, opt_quat, opt_pos, movement, sampling_rate)`` with checked shapes."""
-    acc_b = np.asarray(mat["imu_acc"], dtype=np.float64)
-    gyr_b = np.asarray(mat[_GYRO_KEY], dtype=np.float64) if _GYRO_KEY in mat else None
-    quat = np.asarray(mat["opt_quat"], dtype=np.float64)
-    pos = np.asarray(mat["opt_pos"], dtype=np.float64)
-    moving = np.asarray(mat["movement"]).reshape(-1).astype(bool)
-    rate_hz = float(np.asarray(mat["sampling_rate"], dtype=np.float64).reshape(-1)[0])
+    acc_b = _numbers(path, mat, "imu_acc")
+    gyr_b = _numbers(path, mat, _GYRO_KEY) if _GYRO_KEY in mat else None
+    quat = _numbers(path, mat, "opt_quat")
+    pos = _numbers(path, mat, "opt_pos")
+    moving = _numbers(path, mat, "movement").reshape(-1).astype(bool)
+    rate = _numbers(path, mat, "sampling_rate").reshape(-1)
+    if rate.size != 1:
+        raise RecordingError(f"{path}: sampling_rate has {rate.size} values, expected one number [Hz]")
+    rate_hz = float(rate[0])
     n = acc_b.shape[0]
     for name, arr, width in (("imu_acc", acc_b, 3), ("opt_quat", quat, 4), ("opt_pos", pos, 3),
                              (_GYRO_KEY, acc_b if gyr_b is None else gyr_b, 3)):
@@ -124,6 +127,17 @@ def _trial_arrays(path: Path, mat: dict[str, Any]
     if not (np.isfinite(rate_hz) and rate_hz > 0):
         raise RecordingError(f"{path}: sampling_rate {rate_hz} is not a positive number")
     return acc_b, gyr_b, quat, pos, moving, rate_hz
+
+
+def _numbers(path: Path, mat: dict[str, Any], name: str) -> np.ndarray:
+    """Variable ``name`` as float64; a RecordingError when it holds text, cells or structs, not numbers."""
+    arr = np.asarray(mat[name])
+    if arr.dtype.kind not in "biuf":  # text ('U'), a cell or struct array ('O', 'V'), complex ('c')
+        kind = {"U": "text", "S": "text", "O": "a cell array", "V": "a struct", "c": "complex"}.get(arr.dtype.kind,
+                                                                                               str(arr.dtype))
+        what = "is not a number" if arr.size <= 1 else "does not hold numbers"
+        raise RecordingError(f"{path}: {name} {what} ({kind})")
+    return arr.astype(np.float64)
 
 
 def _report_dropouts(rep: ReportBuilder, name: str, acc_b: np.ndarray, quat: np.ndarray, pos: np.ndarray,
