@@ -100,6 +100,14 @@ def test_hanyang_note_names_the_option_not_the_parameter(tmp_path, capsys):
     assert "use --crop-to-uwb to drop it" in out and "crop_to_uwb" not in out
 
 
+def test_the_same_recording_twice_is_refused(tmp_path, capsys):
+    rec = write_rec(tmp_path / "rec")
+    for twice in ([str(rec), str(rec)], [str(rec), str(tmp_path / "." / "rec") + "/"]):
+        code, _, err = run_main(["import", "csv", *twice, "--out", str(tmp_path / "ds")], capsys)
+        assert code == 2 and err.count("\n") == 1 and "each recording may be imported once" in err
+    assert not (tmp_path / "ds").exists()
+
+
 def test_hanyang_bad_run_folder(tmp_path, capsys):
     (tmp_path / "run").mkdir()
     code, _, err = run_main(["import", "hanyang", str(tmp_path / "run"), "--out", str(tmp_path / "ds")], capsys)

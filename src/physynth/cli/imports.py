@@ -14,7 +14,7 @@ from typing import Any
 
 import typer
 
-from ._common import cli_words
+from ._common import cli_words, fail
 
 app = typer.Typer(help="Import real recordings as PhySynth datasets.", no_args_is_help=True)
 
@@ -34,6 +34,13 @@ def _run(importer: Callable[[Path], tuple[Any, Any]], inputs: Sequence[Path], ou
     from ..io.safety import check_output
 
     check_output(out, kind="dataset", overwrite=overwrite, inputs=inputs)  # before the (long) import
+    seen: dict[Path, Path] = {}
+    for path in inputs:
+        real = path.resolve()
+        if real in seen:
+            same = f"{path} is given twice" if path == seen[real] else f"{seen[real]} and {path} are one folder"
+            fail(f"{same}: each recording may be imported once")
+        seen[real] = path
     traces, reports = [], []
     for path in inputs:
         trace, report = importer(path)
