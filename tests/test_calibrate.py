@@ -440,3 +440,17 @@ def test_log_law_on_linear_data_is_worse_than_linear_law():
     assert misfit["linear"] < 0.025  # the LOS noise (0.02 m) and little else
     assert misfit["log"] > 1.5 * misfit["linear"], misfit  # measured: 0.086 against 0.020 m
     assert np.all(np.isfinite(range_decades(np.array([0.0, 1.0]))))  # a zero range does not make -inf
+
+
+def test_the_summary_keeps_parameter_names_whole_in_80_columns(roundtrip, tmp_path, capsys, monkeypatch):
+    from physynth.cli.calibrate import _print_summary
+
+    _, _, res = roundtrip
+    monkeypatch.setenv("COLUMNS", "80")
+    _print_summary(res, tmp_path / "cal.yaml", None)
+    lines = capsys.readouterr().out.splitlines()
+    assert max(len(line) for line in lines) <= 80
+    keys = [k for k, _, _ in res.summary_rows()]
+    assert any(len(k) > 30 for k in keys)  # long keys exist, and each stays on one line
+    for k in keys:
+        assert any(k in line for line in lines), k

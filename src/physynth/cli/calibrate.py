@@ -141,12 +141,15 @@ def _print_summary(result, out: Path, report: Path | None) -> None:
     from rich.console import Console
     from rich.table import Table
 
+    rows = result.summary_rows()
     table = Table(title=f"calibrated scenario '{result.scenario.name}'", expand=True)
-    # in 80 columns long keys wrap (never cut: two cut keys would look alike); the key gets half the width
-    table.add_column("parameter", overflow="fold", ratio=2)
+    # keys are kept whole where the terminal allows (a key broken mid-word reads badly) and fold only in a
+    # terminal too narrow for the longest; the value and uncertainty wrap at spaces
+    key_width = max((len(k) for k, _, _ in rows), default=9)
+    table.add_column("parameter", overflow="fold", min_width=min(key_width, 48))
     table.add_column("value", justify="right", overflow="fold", ratio=1)
     table.add_column("uncertainty / samples", justify="right", overflow="fold", ratio=1)
-    for key, value, unc in result.summary_rows():
+    for key, value, unc in rows:
         table.add_row(key, value, unc)
     console = Console()
     console.print(table)
