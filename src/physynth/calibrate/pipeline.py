@@ -710,9 +710,10 @@ def _imu_only(t: Trace) -> bool:
 
 
 def _fingerprint(trace: Trace) -> str:
-    """SHA-1 of a recording's truth, UWB and IMU samples (not its metadata)."""
-    h = hashlib.sha1()
-    arrays = [trace.truth.t_s, trace.truth.pos_enu_m, trace.uwb.t_s, trace.uwb.range_m, trace.uwb.anchor]
+    """SHA-1 of a recording's truth, UWB and IMU samples and its anchors (not its metadata)."""
+    h = hashlib.sha1("|".join(trace.anchors.ids).encode())
+    arrays = [trace.truth.t_s, trace.truth.pos_enu_m, trace.uwb.t_s, trace.uwb.range_m, trace.uwb.anchor,
+              trace.anchors.pos_enu_m]
     if trace.imu is not None:
         arrays += [trace.imu.t_s]
     for a in arrays:
