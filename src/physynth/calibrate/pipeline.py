@@ -834,7 +834,8 @@ def fit_geometry(inp: CalibrationInputs, path_kind: PathKind, report: ReportBuil
               note=mf.diagnostics["profile_choice_reason"], summary=True)
     rep.param("motion.speed_poly_r2", mf.diagnostics["speed_poly_r2"], n=mf.n_samples)
     rep.param("motion.max_acc_mps2", mp.max_acc_mps2, n=mf.n_samples, summary=True,
-              note=f"{mf.diagnostics['max_acc']['quantile']:.1%} quantile of the trips' acceleration")
+              note=(f"{mf.diagnostics['max_acc']['factor']:g} x the {mf.diagnostics['max_acc']['quantile']:.1%} "
+                    "quantile of the trips' acceleration"))
     for key in ("cruise_speed_spread_frac", "length_spread_frac"):
         rep.param(f"motion.{key}", getattr(mp, key), n=len(trs), note=mf.diagnostics["spread_method"])
     rep.warnings.extend(spread_clip_warnings(mf.diagnostics))
