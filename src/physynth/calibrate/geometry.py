@@ -399,8 +399,8 @@ magnitude over the trips. The limit is there to remove what no mover does (the 3
 fitted path's hooks and reversals), not to reshape the turns the recording shows: a fitted spline bends
 more sharply than the smoothed track it follows (curvature 99 % quantile 3.1 against 2.8 1/m on Hanyang
 LOS Case_1), and at the quantile itself (factor 1) the limit slowed the walker at ordinary turns and moved
-the left-out NLOS Case_2 fidelity (KS 0.060 / 0.093 without a limit, 0.088 / 0.099 at factor 1, 0.066 /
-0.086 at factor 2; 50 traces, seeds 1 / 2)."""
+the left-out NLOS Case_2 fidelity (``tools/loo_hanyang.py --n 50 --seed 1``: KS 0.060 without a limit,
+0.088 at factor 1, 0.066 at factor 2)."""
 
 
 def trip_acceleration_quantile(tracks: Sequence[TrackSummary], q: float) -> float | None:
