@@ -6,7 +6,8 @@ calibrated acceleration limit (``motion.max_acc_mps2``).
 Calibrates (1) Hanyang LOS Trajectory_A Case_1 and (2) BROAD trials 10 and 15 together, generates
 ``--n`` traces of each scenario as calibrated and with the limit removed, and prints quantiles of the
 truth acceleration magnitude |dv/dt| (numerical derivative of the truth velocity) per trace, next to
-those of the real recordings.
+those of the real recordings; and the curvature of each fitted path against that of the smoothed real
+track it was fitted to.
 """
 
 from __future__ import annotations
@@ -17,8 +18,11 @@ from pathlib import Path
 import numpy as np
 
 from physynth.calibrate import calibrate
+from physynth.calibrate.geometry import summarize_track
 from physynth.generate import generate_traces
 from physynth.io.importers import import_broad, import_hanyang
+from physynth.models.motion import curvature
+from physynth.models.path import compile_path
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 Q = (0.5, 0.99, 0.999, 1.0)
@@ -32,6 +36,21 @@ def _acc(trace) -> np.ndarray:
 
 def _row(label: str, a: np.ndarray, extra: str = "") -> str:
     return f"  {label:34s} " + " ".join(f"{x:7.2f}" for x in np.quantile(a, Q)) + extra
+
+
+def _curvatures(scn, real) -> None:
+    """Curvature [1/m] of the fitted path against that of the smoothed real track (moving samples)."""
+    geo = compile_path(scn.path)
+    _, d1, d2 = geo.evaluate_cf(np.linspace(0.0, geo.length_m, 200_001))
+    track = summarize_track(real, "real")
+    v = np.gradient(track.pos_m, track.t_s, axis=0)
+    a = np.gradient(v, track.t_s, axis=0)
+    moving = np.linalg.norm(v, axis=1) > 0.5 * track.peak_speed_mps
+    k_real = curvature(v[moving].T, a[moving].T)
+    print("  curvature [1/m] 0.99 / 0.999 quantile / max: fitted path "
+          + " / ".join(f"{x:.2f}" for x in np.quantile(curvature(d1, d2), (0.99, 0.999, 1.0)))
+          + "; smoothed real track, moving at over half its peak speed "
+          + " / ".join(f"{x:.2f}" for x in np.quantile(k_real, (0.99, 0.999, 1.0))))
 
 
 def main() -> None:
@@ -48,6 +67,7 @@ def main() -> None:
     for name, real in sites.items():
         scn = calibrate(real, name="acc").scenario
         print(f"{name}: motion.max_acc_mps2 = {scn.motion.max_acc_mps2}")
+        _curvatures(scn, real[0])
         for i, tr in enumerate(real):
             print(_row(f"real {i}", _acc(tr)))
         free = scn.model_copy(update={"motion": scn.motion.model_copy(update={"max_acc_mps2": None})})

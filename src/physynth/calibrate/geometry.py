@@ -397,7 +397,7 @@ MAX_ACC_FACTOR = 2.0
 """``motion.max_acc_mps2`` is MAX_ACC_FACTOR x the MAX_ACC_QUANTILE quantile of the real acceleration
 magnitude over the trips. The limit is there to remove what no mover does (the 30-170 m/s^2 of a
 fitted path's hooks and reversals), not to reshape the turns the recording shows: a fitted spline bends
-more sharply than the smoothed track it follows (curvature 99 % quantile 3.1 against 2.8 1/m on Hanyang
+more sharply than the smoothed track it follows (curvature 99 % quantile 3.05 against 2.52 1/m on Hanyang
 LOS Case_1), and at the quantile itself (factor 1) the limit slowed the walker at ordinary turns and moved
 the left-out NLOS Case_2 fidelity (``tools/loo_hanyang.py --n 50 --seed 1``: KS 0.060 without a limit,
 0.088 at factor 1, 0.066 at factor 2)."""
