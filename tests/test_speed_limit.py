@@ -72,14 +72,15 @@ def test_a_limit_that_never_binds_changes_nothing():
         assert np.array_equal(getattr(free, name), getattr(loose, name)), name
 
 
+HANYANG_RUN = (Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hanyang-uwb" / "Dynamic_measurements"
+               / "LOS" / "Trajectory_A" / "Case_1")
+
+
+@pytest.mark.skipif(not HANYANG_RUN.is_dir(), reason="shared Hanyang run not found")
 def test_the_limit_is_fitted_as_a_high_quantile_of_the_real_acceleration():
-    run = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hanyang-uwb" / "Dynamic_measurements" \
-        / "LOS" / "Trajectory_A" / "Case_1"
-    if not run.is_dir():
-        pytest.skip("shared Hanyang run not found")
     from physynth.io.importers import import_hanyang
 
-    trace, _ = import_hanyang(run, crop_to_uwb=True)
+    trace, _ = import_hanyang(HANYANG_RUN, crop_to_uwb=True)
     fit = fit_motion(trace)
     track = summarize_track(trace, "los1")
     a = np.linalg.norm(np.gradient(np.gradient(track.pos_m, track.t_s, axis=0), track.t_s, axis=0), axis=1)
