@@ -1,11 +1,11 @@
 """Run-to-run spread of the UWB time offset (the lag of the ranging stamps behind the truth).
 
 The ranging radio and the truth system (RTK, motion capture) are synchronised anew for every run, so
-the lag differs from run to run: on the four shared Hanyang Trajectory_A runs it is 0.159 to 0.219 s.
-A residual taken at a lag that is off by ``d`` seconds is off by ``-g' d`` (``g'`` the range rate):
-spread out along the run, positive on the way out and negative on the way back. One lag for every run
-leaves that in the channel's LOS spread; a lag per run, drawn from the fitted spread, puts it where it
-belongs (``uwb.time_offset_std_s``).
+the lag may differ from run to run (on the four shared Hanyang Trajectory_A runs this estimator finds
+0.167 to 0.187 s, each +- 0.005 s: no spread at 1 %). A residual taken at a lag that is off by ``d``
+seconds is off by ``-g' d`` (``g'`` the range rate): spread out along the run, positive on the way out
+and negative on the way back. One lag for every run leaves that in the channel's LOS spread; a lag per
+run, drawn from the fitted spread, puts it where it belongs (``uwb.time_offset_std_s``).
 
 Estimator. On the LOS rows of every anchor (pooled over runs), after removing each (run, anchor)
 mean (the run's ranging offset) and a per-anchor line in range and in log10 range (the range bias,
@@ -15,7 +15,8 @@ the run's correction ``d_r`` to the pooled lag. Its standard error is the least-
 approximation; the range rate is smooth, so the effective number of independent rows is that of the
 residual). The spread is the DerSimonian-Laird random-effects estimate ``tau`` over runs; when
 Cochran's Q test of "one lag for all runs" is not rejected at :data:`LAG_SPREAD_ALPHA`, ``tau`` is 0.
-The centre of the lags is the random-effects mean (weights ``1 / (se_r^2 + tau^2)``).
+``mean_correction_s`` is the random-effects mean (weights ``1 / (se_r^2 + tau^2)``); the calibration
+keeps its pooled lag as the centre and uses each run's deviation from that mean.
 """
 
 from __future__ import annotations

@@ -196,11 +196,7 @@ def _signed(length_m: float, along: np.ndarray, speed: np.ndarray, accel: np.nda
 
 def curvature(d1: np.ndarray, d2: np.ndarray) -> np.ndarray:
     """Curvature |p' x p''| / |p'|^3 [1/m] of a path from its derivatives (3, T) in any parameter."""
-    cx = d1[1] * d2[2] - d1[2] * d2[1]
-    cy = d1[2] * d2[0] - d1[0] * d2[2]
-    cz = d1[0] * d2[1] - d1[1] * d2[0]
-    n1 = np.sqrt(d1[0] ** 2 + d1[1] ** 2 + d1[2] ** 2)
-    return np.sqrt(cx**2 + cy**2 + cz**2) / np.maximum(n1**3, 1e-300)
+    return np.linalg.norm(np.cross(d1, d2, axis=0), axis=0) / np.maximum(np.linalg.norm(d1, axis=0) ** 3, 1e-300)
 
 
 def limit_speed(t_s: np.ndarray, along_m: np.ndarray, speed_mps: np.ndarray, v_lim_mps: np.ndarray,
