@@ -138,6 +138,8 @@ BOUNDS: dict[str, Bound] = {
                                                                          "rate-dependent vibration"),
     "body_imu.gyroscope.vibration_rate_var_gain_radps": Bound(0.0, 100.0, "rad^2/s^2 per rad/s",
                                                             "rate-dependent vibration"),
+    "body_imu.gyroscope.vibration_acc_var_gain_rad2_per_m[]": Bound(0.0, 100.0, "rad^2/s^2 per m/s^2",
+                                                                   "motion-dependent vibration"),
     "body_imu.rate_hz": Bound(1.0, 10_000.0, "Hz", "MEMS IMU output rates"),
     "body_imu.time_offset_s": Bound(-1.0, 1.0, "s", "IMU clock offset"),
     "body_imu.lever_arm_m[]": Bound(-10.0, 10.0, "m", "sensor position in the body frame (a vehicle's size)"),

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import datetime as _dt
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -53,6 +54,12 @@ def body_truth(trace: Trace, cutoff_hz: float, offset_s: float = 0.0, *,
     attitude (nearest sample), g_w = (0, 0, -G0). The body rate is the truth's, low-passed. With
     ``lever_arm_m`` a_w is the sensor point's (:func:`~physynth.calibrate.imu_fit.sensor_truth_acceleration`).
     """
+    return _body_truth_parts(trace, cutoff_hz, offset_s, lever_arm_m)[1:]
+
+
+def _body_truth_parts(trace: Trace, cutoff_hz: float, offset_s: float, lever_arm_m: Sequence[float] | None
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`body_truth` preceded by the truth acceleration a_w (N, 3) [m/s^2] it is built from."""
     ti = trace.imu.t_s - offset_s
     tg, a, valid = sensor_truth_acceleration(trace, cutoff_hz, lever_arm_m)
     a_i = np.stack([np.interp(ti, tg, np.where(valid, a[:, k], 0.0)) for k in range(3)], axis=1)
@@ -71,7 +78,7 @@ def body_truth(trace: Trace, cutoff_hz: float, offset_s: float = 0.0, *,
         raise CalibrationError("the truth has no attitude rates: the gyroscope cannot be calibrated")
     ok &= np.all(np.isfinite(w), axis=1)
     calm = ok & (np.linalg.norm(a_i, axis=1) < CALM_ACC_MPS2) & (np.linalg.norm(w, axis=1) < CALM_RATE_RADPS)
-    return f_b, w, ok, calm
+    return a_i, f_b, w, ok, calm
 
 
 MATRIX_PRIOR_STD = 0.01
@@ -135,11 +142,11 @@ def _noise_from_allan(resid: np.ndarray, t_s: np.ndarray, calm: np.ndarray, fs: 
 def _pooled_body_regressions(trs: list[Trace], fs: float, cutoff_hz: float, offset_s: float,
                              lever_arm_m: Sequence[float] | None) -> tuple:
     """Accelerometer and gyroscope matrix and bias fitted on the valid samples of all recordings pooled:
-    (m_a, b_a, m_g, b_g, per-recording (trace, f_b, w, valid, calm), number of samples)."""
+    (m_a, b_a, m_g, b_g, per-recording (trace, f_b, w, valid, calm, |a_w|), number of samples)."""
     xs_f, ys_f, xs_w, ys_w = [], [], [], []
     per = []
     for tr in trs:  # a handful of recordings, each vectorised
-        f_b, w, ok, calm = body_truth(tr, cutoff_hz, offset_s, lever_arm_m=lever_arm_m)
+        a_w, f_b, w, ok, calm = _body_truth_parts(tr, cutoff_hz, offset_s, lever_arm_m)
         acc, gyr = tr.imu.acc_body_mps2, tr.imu.gyro_body_radps
         ok &= np.all(np.isfinite(acc), axis=1) & np.all(np.isfinite(gyr), axis=1)
         # the measurement low-passed like the truth: the matrix compares the same frequency band (a
@@ -148,7 +155,7 @@ def _pooled_body_regressions(trs: list[Trace], fs: float, cutoff_hz: float, offs
         ys_f.append(_lowpass(acc, fs, cutoff_hz)[ok])
         xs_w.append(w[ok])
         ys_w.append(_lowpass(gyr, fs, cutoff_hz)[ok])
-        per.append((tr, f_b, w, ok, calm & ok))
+        per.append((tr, f_b, w, ok, calm & ok, np.linalg.norm(a_w, axis=1)))
     m_a, b_a = _affine_fit(np.concatenate(xs_f), np.concatenate(ys_f))
     m_g, b_g = _affine_fit(np.concatenate(xs_w), np.concatenate(ys_w))
     return m_a, b_a, m_g, b_g, per, int(sum(x.shape[0] for x in xs_f))
@@ -158,15 +165,14 @@ def _body_noise_per_recording(per: list[tuple], m_a: np.ndarray, b_a: np.ndarray
                               b_g: np.ndarray, fs: float, notes: list[str]) -> tuple:
     """White noise and bias random walk of each recording's residual (Allan deviation over its calm
     span, or over the whole recording without one): (noise_a, noise_g, rw_a, rw_g, per-recording
-    diagnostics, gyro residual sums for the rate-scaled power). Appends to ``notes``."""
+    diagnostics, gyro residual sums for the motion-scaled power: :class:`_GyroMotionSums`). Appends to
+    ``notes``."""
     noise_a, noise_g, rw_a, rw_g, diag_rec = [], [], [], [], []
-    gyro_motion: list[tuple[float, float, int, float, int]] = []
-    for tr, f_b, w, ok, calm in per:
+    gyro_motion = _GyroMotionSums()
+    for tr, f_b, w, ok, calm, a_abs in per:
         ra = np.where(ok[:, None], tr.imu.acc_body_mps2 - (f_b @ m_a.T + b_a), np.nan)
         rg = np.where(ok[:, None], tr.imu.gyro_body_radps - (w @ m_g.T + b_g), np.nan)
-        w_abs = np.linalg.norm(w, axis=1)
-        gyro_motion.append((np.nansum(rg[ok] ** 2) / 3.0, float(np.sum(w_abs[ok])), int(ok.sum()),
-                            np.nansum(rg[calm] ** 2) / 3.0, int(calm.sum())))
+        gyro_motion.add(rg, np.linalg.norm(w, axis=1), a_abs, ok, calm)
         span = calm if calm.sum() >= 2.0 * fs else ok  # no rest: the residual of the whole recording
         if span is ok:
             notes.append(f"{trace_label(tr, len(diag_rec))}: no calm span of 2 s; body-frame IMU noise read "
@@ -197,15 +203,36 @@ def _median_bias_walk(vals: list[float | None], default: float, name: str, notes
     return default
 
 
-def _gyro_rate_gain(gyro_motion: list[tuple[float, float, int, float, int]]) -> tuple[float, float]:
-    """(calm variance c0, gain) of the gyro residual variance c0 + gain |w|, pooled over recordings."""
-    # the gyro residual's power that grows with the rate (rotation above the truth's cut-off, truth
-    # noise): variance = c0 + gain |w|, c0 from the calm samples, gain by pooled ratio of means;
-    # reported only (see the note below)
-    e2, w_sum, n_ok, e2_calm, n_calm = (np.sum([g[i] for g in gyro_motion]) for i in range(5))
-    c0_g = e2_calm / n_calm if n_calm > 0 else 0.0
-    gyro_gain = max((e2 - c0_g * n_ok) / w_sum, 0.0) if w_sum > 0 else 0.0
-    return c0_g, gyro_gain
+@dataclass
+class _GyroMotionSums:
+    """Sums over recordings of the gyro residual e (per body axis) for the laws var_k = c0_k + gain_k x,
+    x = |a| (truth acceleration) or |w| (body rate): c0 from the calm samples, the gain by the pooled
+    ratio of means (the residual power above c0 over the mean of x)."""
+
+    e2: np.ndarray = field(default_factory=lambda: np.zeros(3))  # sum of e_k^2 over the valid samples
+    e2_calm: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    w_sum: float = 0.0
+    a_sum: float = 0.0
+    n: int = 0
+    n_calm: int = 0
+
+    def add(self, resid: np.ndarray, w_abs: np.ndarray, a_abs: np.ndarray, ok: np.ndarray, calm: np.ndarray) -> None:
+        self.e2 += np.sum(resid[ok] ** 2, axis=0)
+        self.e2_calm += np.sum(resid[calm] ** 2, axis=0)
+        self.w_sum += float(np.sum(w_abs[ok]))
+        self.a_sum += float(np.sum(a_abs[ok]))
+        self.n += int(ok.sum())
+        self.n_calm += int(calm.sum())
+
+    @property
+    def calm_variance(self) -> np.ndarray:
+        return self.e2_calm / self.n_calm if self.n_calm > 0 else np.zeros(3)
+
+    def gain(self, x_sum: float) -> np.ndarray:
+        """Per-axis gain of the law in x (``x_sum``: ``a_sum`` or ``w_sum``), >= 0."""
+        if x_sum <= 0:
+            return np.zeros(3)
+        return np.maximum((self.e2 - self.calm_variance * self.n) / x_sum, 0.0)
 
 
 def _body_imu_params(fs: float, offset_s: float, base: BodyImuParams, lever_arm_m: Sequence[float] | None,
@@ -259,15 +286,20 @@ def fit_body_imu(traces: Sequence[Trace], *, cutoff_hz: float = 10.0, offset_s: 
                            "body_imu.accelerometer.bias_rw_mps2_per_sqrt_s", notes)
     kg = _median_bias_walk(rw_g, base.gyroscope.bias_rw_radps_per_sqrt_s,
                            "body_imu.gyroscope.bias_rw_radps_per_sqrt_s", notes)
-    c0_g, gyro_gain = _gyro_rate_gain(gyro_motion)
+    c0_g = gyro_motion.calm_variance
+    gyro_gain = float(np.mean(gyro_motion.gain(gyro_motion.w_sum)))
+    acc_gain = gyro_motion.gain(gyro_motion.a_sum)
     params = _body_imu_params(fs, offset_s, base, lever_arm_m, na, ng, ka, kg, m_a, b_a, m_g, b_g)
+    params = params.model_copy(update={"gyroscope": params.gyroscope.model_copy(update={
+        "vibration_acc_var_gain_rad2_per_m": [rounded(float(x), 6) for x in acc_gain]})})
     notes.append(f"body_imu.gyroscope.vibration_rate_var_gain_radps (measured {gyro_gain:.3g} rad^2/s^2 per rad/s on "
-                 "these recordings but not used: fitted on BROAD translation trials it overshoots a fast-rotating "
-                 "trial by 35-160 %; the gyro residual mixes optical-truth noise with sensor error)")
+                 "these recordings but not used: the gyro residual grows with the acceleration |a|, not with the "
+                 "rate; fitted on BROAD translation trials a rate law overshoots a fast-rotating trial by 35-160 %)")
     diag = {"accelerometer_matrix": m_a.tolist(), "accelerometer_bias_mps2": b_a.tolist(),
             "gyroscope_matrix": m_g.tolist(), "gyroscope_bias_radps": b_g.tolist(),
             "accelerometer_white_per_axis": na.tolist(), "gyroscope_white_per_axis": ng.tolist(),
-            "gyroscope_calm_variance_radps_sq": c0_g, "gyroscope_rate_var_gain_radps": gyro_gain,
+            "gyroscope_calm_variance_radps_sq": c0_g.tolist(), "gyroscope_rate_var_gain_radps": gyro_gain,
+            "gyroscope_acc_var_gain_rad2_per_m": acc_gain.tolist(),
             "recordings": diag_rec, "truth_cutoff_hz": cutoff_hz, "time_offset_s": offset_s,
             "not_identifiable": notes,
             "note": "one device: per-device spreads are the RMS of this device's fitted errors"}

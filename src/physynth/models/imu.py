@@ -359,8 +359,12 @@ class AccelerometerParams(ParamsModel):
 class GyroscopeParams(ParamsModel):
     """Gyroscope triad errors (body frame, angular rate) [rad s^-1 based units].
 
-    The vibration comb's variance per axis is ``vibration_amplitude_radps^2 +
-    vibration_rate_var_gain_radps * |w(t)|`` [rad^2 s^-2] (|w| the body rate magnitude [rad/s]).
+    The vibration comb's variance on body axis k is ``vibration_amplitude_radps^2 +
+    vibration_rate_var_gain_radps * |w(t)| + vibration_acc_var_gain_rad2_per_m[k] * |a(t)|``
+    [rad^2 s^-2] (|w| the body rate magnitude [rad/s], |a| the truth acceleration magnitude [m/s^2]).
+    The acceleration term is the rotation a shaken sensor makes faster than the truth resolves (a
+    hand-held device, a vehicle on rough ground): on the shared BROAD trials the gyroscope's error grows
+    with |a|, not with |w| (docs/imu.md).
     """
 
     noise_density_radps_per_sqrt_hz: NonNegFloat = 1.87e-4
@@ -373,6 +377,7 @@ class GyroscopeParams(ParamsModel):
     quantisation_radps: NonNegFloat = 0.0
     vibration_amplitude_radps: NonNegFloat = 0.0
     vibration_rate_var_gain_radps: NonNegFloat = 0.0
+    vibration_acc_var_gain_rad2_per_m: Annotated[list[NonNegFloat], Field(min_length=3, max_length=3)] = [0.0, 0.0, 0.0]
     g_sensitivity_radps_per_mps2: NonNegFloat = 0.0
 
 
@@ -593,17 +598,31 @@ def _apply_device(matrix: np.ndarray, bias: np.ndarray, x_cf: np.ndarray, plus: 
     return out
 
 
+def _gyro_vibration_variance(g: GyroscopeParams, omega_body_radps: np.ndarray, acc_norm: np.ndarray | None
+                             ) -> np.ndarray | None:
+    """The gyroscope comb's variance over time, (T,) or per body axis (T, 3) with the acceleration
+    term; None when it does not follow the motion (then the constant amplitude applies)."""
+    acc_gain = np.asarray(g.vibration_acc_var_gain_rad2_per_m, dtype=float)
+    if g.vibration_rate_var_gain_radps <= 0 and not acc_gain.any():
+        return None
+    var = g.vibration_amplitude_radps**2 + g.vibration_rate_var_gain_radps * np.linalg.norm(omega_body_radps, axis=1)
+    if acc_gain.any() and acc_norm is not None:
+        var = var[:, None] + acc_norm[:, None] * acc_gain[None, :]
+    return var
+
+
 def _triad_errors(t_s: np.ndarray, vib: VibrationParams, vib_amp: float, rw: float, bi: float, bi_tau: float,
                   *, rng: np.random.Generator, vib_var: np.ndarray | None = None) -> np.ndarray | None:
     """Slow errors (vibration, bias walk, bias instability) of one triad at the truth times, (3, T).
 
-    ``vib_var`` (T,): the vibration's variance over time, when it follows the motion (then
-    ``vib_amp`` is unused). None when all are zero. Each term draws only when it is on.
+    ``vib_var`` (T,) or per axis (T, 3): the vibration's variance over time, when it follows the
+    motion (then ``vib_amp`` is unused). None when all are zero. Each term draws only when it is on.
     """
     parts = []
     if vib_var is not None and np.any(vib_var > 0):
         unit = vib.model_copy(update={"amplitude_mps2": 1.0})
-        parts.append(_vibration_cf(t_s, unit, rng=rng) * np.sqrt(vib_var)[None, :])
+        scale = np.sqrt(vib_var).T if vib_var.ndim == 2 else np.sqrt(vib_var)[None, :]
+        parts.append(_vibration_cf(t_s, unit, rng=rng) * scale)
     elif vib_amp > 0:
         parts.append(_vibration_cf(t_s, vib.model_copy(update={"amplitude_mps2": vib_amp}), rng=rng))
     if rw > 0:
@@ -633,14 +652,16 @@ def simulate_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, 
     n_imu = int(np.ceil((t[-1] - t[0]) * params.rate_hz - 1e-9))
     t_imu = _sample_times(t[0], n_imu, params.rate_hz)
     vib_var = None
+    acc_norm = None  # |a| at the truth times, when a vibration follows it
+    if a.vibration_acc_var_gain_mps2 > 0 or any(g.vibration_acc_var_gain_rad2_per_m):
+        acc_norm = np.linalg.norm(np.asarray(acc_enu_mps2, dtype=float), axis=1)
     if a.vibration_acc_var_gain_mps2 > 0 or a.vibration_rate_var_gain_mps4_per_radps > 0:
         vib_var = (a.vibration_amplitude_mps2**2
-                   + a.vibration_acc_var_gain_mps2 * np.linalg.norm(np.asarray(acc_enu_mps2, dtype=float), axis=1)
+                   + a.vibration_acc_var_gain_mps2 * (0.0 if acc_norm is None else acc_norm)
                    + a.vibration_rate_var_gain_mps4_per_radps * np.linalg.norm(omega_body_radps, axis=1))
     acc_err = _triad_errors(t, params.vibration, a.vibration_amplitude_mps2, a.bias_rw_mps2_per_sqrt_s,
                             a.bias_instability_mps2, a.bias_instability_tau_s, rng=rng, vib_var=vib_var)
-    gyro_var = (g.vibration_amplitude_radps**2 + g.vibration_rate_var_gain_radps
-                * np.linalg.norm(omega_body_radps, axis=1)) if g.vibration_rate_var_gain_radps > 0 else None
+    gyro_var = _gyro_vibration_variance(g, omega_body_radps, acc_norm)
     gyro_err = _triad_errors(t, params.vibration, g.vibration_amplitude_radps, g.bias_rw_radps_per_sqrt_s,
                              g.bias_instability_radps, g.bias_instability_tau_s, rng=rng, vib_var=gyro_var)
     acc = _white_noise_cf(n_imu, np.full(3, a.noise_density_mps2_per_sqrt_hz), params.rate_hz, rng=rng)
