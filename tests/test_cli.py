@@ -84,6 +84,31 @@ def test_no_arguments_prints_help(capsys):
     assert code == 0 and "generate" in out and "inspect" in out
 
 
+def _groups() -> list[list[str]]:
+    """The argument paths of physynth and of every command group under it, found in the command tree."""
+    import typer
+
+    from physynth.cli import _register_commands, app
+
+    _register_commands()
+    found, todo = [], [([], typer.main.get_command(app))]
+    while todo:
+        path, cmd = todo.pop()
+        if hasattr(cmd, "commands"):
+            found.append(path)
+            todo += [([*path, name], sub) for name, sub in cmd.commands.items()]
+    return found
+
+
+def test_every_group_without_arguments_prints_its_help_and_exits_0(capsys):
+    groups = _groups()
+    assert [] in groups and ["import"] in groups and ["study"] in groups and ["scenario"] in groups
+    for path in groups:
+        code, out, err = run(capsys, *path)
+        assert (code, err) == (0, ""), path
+        assert out == run(capsys, *path, "--help")[1], path  # the same help, on stdout
+
+
 def test_console_script_entry_point(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "physynth.cli", "generate", "-n", "1", "--seed", "1", "--out",
                            str(tmp_path / "ds")], capture_output=True, text=True, timeout=120)
