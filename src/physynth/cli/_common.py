@@ -96,6 +96,12 @@ def cli_words(message: str) -> str:
 
 def fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
     """Print the first line of ``message`` as ``physynth: error: ...`` on stderr and exit."""
-    first = message.strip().splitlines()[0] if message.strip() else "invalid input"
-    print(f"physynth: error: {cli_words(first)}", file=sys.stderr)
+    fail_each([message], code)
+
+
+def fail_each(messages: Sequence[str], code: int = EXIT_BAD_INPUT) -> None:
+    """Print the first line of each message as its own ``physynth: error: ...`` line on stderr and exit."""
+    for message in messages or ["invalid input"]:
+        first = message.strip().splitlines()[0] if message.strip() else "invalid input"
+        print(f"physynth: error: {cli_words(first)}", file=sys.stderr)
     sys.exit(code)
