@@ -165,3 +165,25 @@ def test_generate_refuses_resume_with_overwrite(tmp_path, capsys):
 
     with pytest.raises(PhySynthError, match="^resume and overwrite exclude each other"):
         generate_dataset(load_scenario("cablecar-descending"), 1, tmp_path / "ds", resume=True, overwrite=True)
+
+
+def test_generate_workers_help_is_plain_words(capsys):
+    code, out, _ = run(capsys, "generate", "--help")
+    text = " ".join(out.split())  # as read, whatever the wrapping
+    assert code == 0 and "one below" not in text and "costs seconds" not in text
+    assert ("Worker processes. 0 (the default) picks for you: all cores for 1000 traces or more, one process "
+            "below that, since starting workers takes seconds.") in text
+
+
+def test_generate_summary_counts_workers_and_traces_grammatically(tmp_path, capsys, monkeypatch):
+    code, out, _ = run(capsys, "generate", "-n", 1, "--seed", 1, "--out", tmp_path / "one")
+    assert code == 0 and "wrote 1 trace of " in out and "(root seed 1, 1 worker)" in out and "(s)" not in out
+    import physynth.workflows
+
+    def fake(scn, n, out, **kwargs):  # the summary of a run on two workers, without starting a cluster
+        assert kwargs["workers"] == 2
+        return out, 1
+
+    monkeypatch.setattr(physynth.workflows, "generate_dataset", fake)
+    code, out, _ = run(capsys, "generate", "-n", 4, "--shard-traces", 2, "-w", 2, "--seed", 1, "--out", tmp_path / "d")
+    assert code == 0 and "wrote 4 traces of " in out and "(root seed 1, 2 workers)" in out

@@ -72,6 +72,11 @@ def format_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     return "\n".join([line(cells[0]), rule, *(line(r) for r in cells[1:])])
 
 
+def counted(n: int, word: str) -> str:
+    """``1 worker``, ``2 workers``: a count and a noun that takes an s in the plural."""
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
+
+
 PARAMETER_FLAGS = (
     (re.compile(r"\brange_bias='static'"), "--range-bias static"),
     (re.compile(r"\blayout_from\b"), "--layout-from"),

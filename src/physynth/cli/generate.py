@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from ._common import format_table, progress_bar
+from ._common import counted, format_table, progress_bar
 
 AUTO_CLUSTER_MIN_TRACES = 1000
 """With the default ``--workers 0``, runs of fewer traces stay in this process (no cluster to start)."""
@@ -34,9 +34,10 @@ def generate_cmd(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset (only a dataset "
                                                               "PhySynth wrote) or discard an unfinished run of it."),
     workers: int = typer.Option(0, "--workers", "-w", min=0,
-                                help="Worker processes (0 = all cores from 1000 traces on, one below: starting "
-                                     "workers costs seconds). More than one runs an embedded Dask cluster "
-                                     "(physynth[scale]); the output is the same for any number."),
+                                help=f"Worker processes. 0 (the default) picks for you: all cores for "
+                                     f"{AUTO_CLUSTER_MIN_TRACES} traces or more, one process below that, since "
+                                     "starting workers takes seconds. More than one runs an embedded Dask cluster "
+                                     "(needs physynth[scale]); the output is the same for any number of workers."),
     scheduler: str | None = typer.Option(None, "--scheduler", metavar="ADDRESS",
                                          help="Run on an existing Dask cluster (e.g. tcp://host:8786) whose "
                                               "workers see --out at the same path."),
@@ -89,8 +90,8 @@ def generate_cmd(
         typer.echo(f"physynth: interrupted; {resume_hint}", err=True)
         raise typer.Exit(130) from None
     if not quiet:
-        where = f"on {scheduler}" if scheduler else f"{min(n_workers, -(-n // shard_traces))} worker(s)"
-        typer.echo(f"wrote {n} trace(s) of '{scn.name}' to {path} (root seed {root}, {where})")
+        where = f"on {scheduler}" if scheduler else counted(min(n_workers, -(-n // shard_traces)), "worker")
+        typer.echo(f"wrote {counted(n, 'trace')} of '{scn.name}' to {path} (root seed {root}, {where})")
 
 
 def scenarios_cmd() -> None:
