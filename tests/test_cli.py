@@ -84,8 +84,9 @@ def test_no_arguments_prints_help(capsys):
     assert code == 0 and "generate" in out and "inspect" in out
 
 
-def _groups() -> list[list[str]]:
-    """The argument paths of physynth and of every command group under it, found in the command tree."""
+def _command_paths(groups: bool) -> list[list[str]]:
+    """The argument paths of physynth and every command group under it (``groups``), or of every command,
+    found in the command tree."""
     import typer
 
     from physynth.cli import _register_commands, app
@@ -94,10 +95,16 @@ def _groups() -> list[list[str]]:
     found, todo = [], [([], typer.main.get_command(app))]
     while todo:
         path, cmd = todo.pop()
-        if hasattr(cmd, "commands"):
+        is_group = hasattr(cmd, "commands")
+        if is_group == groups:
             found.append(path)
+        if is_group:
             todo += [([*path, name], sub) for name, sub in cmd.commands.items()]
     return found
+
+
+def _groups() -> list[list[str]]:
+    return _command_paths(groups=True)
 
 
 def test_every_group_without_arguments_prints_its_help_and_exits_0(capsys):
@@ -187,3 +194,23 @@ def test_generate_summary_counts_workers_and_traces_grammatically(tmp_path, caps
     monkeypatch.setattr(physynth.workflows, "generate_dataset", fake)
     code, out, _ = run(capsys, "generate", "-n", 4, "--shard-traces", 2, "-w", 2, "--seed", 1, "--out", tmp_path / "d")
     assert code == 0 and "wrote 4 traces of " in out and "(root seed 1, 2 workers)" in out
+
+
+def test_help_shows_meaningful_metavars_everywhere(capsys):
+    import re
+
+    commands = _command_paths(groups=False)
+    assert ["verify"] in commands and ["study", "placement"] in commands and len(commands) >= 15
+    placeholder = re.compile(r"<[A-Za-z][\w\[\]. ]*>")  # typer's <int range>, <str>, <path>, <list[Path]>
+    for path in commands:
+        code, out, _ = run(capsys, *path, "--help")
+        listed = out[min(i for i in (out.find("\nArguments:\n"), out.find("\nOptions:\n")) if i >= 0):]
+        names = [line.strip().split("  ")[0] for line in listed.splitlines() if re.match(r"  [-A-Z]", line)]
+        assert code == 0 and names and not [n for n in names if placeholder.search(n)], (path, names)
+    code, out, _ = run(capsys, "generate", "--help")
+    text = " ".join(out.split())
+    for shown in ("-n, --n-traces N ", "--seed SEED ", "-o, --out DIR ", "-w, --workers N ", "-s, --scenario SCENARIO ",
+                  "[default: 20; x>=1]", "[x>=0]"):  # ranges stay visible
+        assert shown in text, shown
+    code, out, _ = run(capsys, "calibrate", "--help")
+    assert "  DATASET...  " in out and "-o, --out FILE " in out and "--path-kind <auto|polynomial|waypoints>" in out

@@ -23,7 +23,7 @@ import sys
 import typer
 
 from ..errors import BudgetError, Interrupted, MixedSitesError, OutputExistsError, PhySynthError
-from ._common import EXIT_BUG, EXIT_INTERRUPTED, EXIT_SYSTEM, fail
+from ._common import EXIT_BUG, EXIT_INTERRUPTED, EXIT_SYSTEM, fail, use_command_class
 from ._signals import handling_signals, signal_name
 
 app = typer.Typer(
@@ -65,6 +65,7 @@ def _register_commands() -> None:
 
     for module in (generate, imports, calibrate, validate, study, export, bench, verify):
         module.register(app)
+    use_command_class(app)
     _registered = True
 
 

@@ -26,14 +26,15 @@ def register(app: typer.Typer) -> None:
 
 
 def generate_cmd(
-    scenario: str = typer.Option("cablecar-descending", "--scenario", "-s",
+    scenario: str = typer.Option("cablecar-descending", "--scenario", "-s", metavar="SCENARIO",
                                  help="Preset name or path to a scenario YAML file."),
-    n: int = typer.Option(20, "-n", "--n-traces", min=1, help="Number of traces to generate."),
-    seed: int | None = typer.Option(None, "--seed", min=0, help="Root seed >= 0 (random when omitted; stored)."),
-    out: Path = typer.Option(Path("runs/default"), "--out", "-o", help="Output dataset directory."),
+    n: int = typer.Option(20, "-n", "--n-traces", metavar="N", min=1, help="Number of traces to generate."),
+    seed: int | None = typer.Option(None, "--seed", metavar="SEED", min=0,
+                                    help="Root seed >= 0 (random when omitted; stored)."),
+    out: Path = typer.Option(Path("runs/default"), "--out", "-o", metavar="DIR", help="Output dataset directory."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset (only a dataset "
                                                               "PhySynth wrote) or discard an unfinished run of it."),
-    workers: int = typer.Option(0, "--workers", "-w", min=0,
+    workers: int = typer.Option(0, "--workers", "-w", metavar="N", min=0,
                                 help=f"Worker processes. 0 (the default) picks for you: all cores for "
                                      f"{AUTO_CLUSTER_MIN_TRACES} traces or more, one process below that, since "
                                      "starting workers takes seconds. More than one runs an embedded Dask cluster "
@@ -43,10 +44,11 @@ def generate_cmd(
                                               "workers see --out at the same path."),
     resume: bool = typer.Option(False, "--resume", help="Complete a killed run of --out: keep its complete "
                                                         "shards, write the others (same seed unless --seed)."),
-    shard_traces: int = typer.Option(128, "--shard-traces", min=1,
+    shard_traces: int = typer.Option(128, "--shard-traces", metavar="N", min=1,
                                      help="Traces per shard (the unit of work, of atomic writes and of --resume)."),
-    regime: str | None = typer.Option(None, "--regime", help="Channel regime applied to the scenario: nominal, "
-                                                             "dense, sparse or degraded (docs/anchors.md)."),
+    regime: str | None = typer.Option(None, "--regime", metavar="REGIME",
+                                      help="Channel regime applied to the scenario: nominal, dense, sparse or degraded "
+                                           "(docs/anchors.md)."),
     force: bool = typer.Option(False, "--force", help="Go ahead even when the size estimate exceeds the budget."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
