@@ -214,3 +214,16 @@ def test_help_shows_meaningful_metavars_everywhere(capsys):
         assert shown in text, shown
     code, out, _ = run(capsys, "calibrate", "--help")
     assert "  DATASET...  " in out and "-o, --out FILE " in out and "--path-kind <auto|polynomial|waypoints>" in out
+
+
+def test_scenarios_wraps_whole_descriptions_in_80_columns(capsys, monkeypatch):
+    from physynth.io.scenario_file import list_presets
+
+    monkeypatch.setenv("COLUMNS", "80")
+    code, out, _ = run(capsys, "scenarios")
+    assert code == 0 and max(len(line) for line in out.splitlines()) <= 80, out
+    text = " ".join(out.split())
+    descriptions = {name: " ".join(load_scenario(name).description.split()) for name in list_presets()}
+    assert max(map(len, descriptions.values())) > 80 - 25  # one at least needs more than a line
+    for name, description in descriptions.items():
+        assert f"{name} {description}" in text, name

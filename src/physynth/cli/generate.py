@@ -99,14 +99,15 @@ def generate_cmd(
 def scenarios_cmd() -> None:
     """List the built-in scenario presets."""
     import shutil
+    import textwrap
 
     from ..io.scenario_file import list_presets, load_scenario
 
     width = max(shutil.get_terminal_size((80, 24)).columns, 40)  # the terminal's, or $COLUMNS, else 80
     for name in list_presets():
-        s = load_scenario(name)
-        line = f"{name:24s} {s.description.splitlines()[0] if s.description else ''}"
-        typer.echo(line if len(line) <= width else line[:width - 3].rstrip() + "...")  # full text: scenario show
+        words = " ".join(load_scenario(name).description.split())  # the whole description, wrapped under itself
+        typer.echo(textwrap.fill(words, width, initial_indent=f"{name:24s} ", subsequent_indent=" " * 25,
+                                 break_on_hyphens=False) if words else name)
 
 
 def scenario_show_cmd(name: str = typer.Argument(..., metavar="SCENARIO",
