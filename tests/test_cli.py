@@ -84,6 +84,38 @@ def test_no_arguments_prints_help(capsys):
     assert code == 0 and "generate" in out and "inspect" in out
 
 
+def _command_paths(groups: bool) -> list[list[str]]:
+    """The argument paths of physynth and every command group under it (``groups``), or of every command,
+    found in the command tree."""
+    import typer
+
+    from physynth.cli import _register_commands, app
+
+    _register_commands()
+    found, todo = [], [([], typer.main.get_command(app))]
+    while todo:
+        path, cmd = todo.pop()
+        is_group = hasattr(cmd, "commands")
+        if is_group == groups:
+            found.append(path)
+        if is_group:
+            todo += [([*path, name], sub) for name, sub in cmd.commands.items()]
+    return found
+
+
+def _groups() -> list[list[str]]:
+    return _command_paths(groups=True)
+
+
+def test_every_group_without_arguments_prints_its_help_and_exits_0(capsys):
+    groups = _groups()
+    assert [] in groups and ["import"] in groups and ["study"] in groups and ["scenario"] in groups
+    for path in groups:
+        code, out, err = run(capsys, *path)
+        assert (code, err) == (0, ""), path
+        assert out == run(capsys, *path, "--help")[1], path  # the same help, on stdout
+
+
 def test_console_script_entry_point(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "physynth.cli", "generate", "-n", "1", "--seed", "1", "--out",
                            str(tmp_path / "ds")], capture_output=True, text=True, timeout=120)
@@ -140,3 +172,58 @@ def test_generate_refuses_resume_with_overwrite(tmp_path, capsys):
 
     with pytest.raises(PhySynthError, match="^resume and overwrite exclude each other"):
         generate_dataset(load_scenario("cablecar-descending"), 1, tmp_path / "ds", resume=True, overwrite=True)
+
+
+def test_generate_workers_help_is_plain_words(capsys):
+    code, out, _ = run(capsys, "generate", "--help")
+    text = " ".join(out.split())  # as read, whatever the wrapping
+    assert code == 0 and "one below" not in text and "costs seconds" not in text
+    assert ("Worker processes. 0 (the default) picks for you: all cores for 1000 traces or more, one process "
+            "below that, since starting workers takes seconds.") in text
+
+
+def test_generate_summary_counts_workers_and_traces_grammatically(tmp_path, capsys, monkeypatch):
+    code, out, _ = run(capsys, "generate", "-n", 1, "--seed", 1, "--out", tmp_path / "one")
+    assert code == 0 and "wrote 1 trace of " in out and "(root seed 1, 1 worker)" in out and "(s)" not in out
+    import physynth.workflows
+
+    def fake(scn, n, out, **kwargs):  # the summary of a run on two workers, without starting a cluster
+        assert kwargs["workers"] == 2
+        return out, 1
+
+    monkeypatch.setattr(physynth.workflows, "generate_dataset", fake)
+    code, out, _ = run(capsys, "generate", "-n", 4, "--shard-traces", 2, "-w", 2, "--seed", 1, "--out", tmp_path / "d")
+    assert code == 0 and "wrote 4 traces of " in out and "(root seed 1, 2 workers)" in out
+
+
+def test_help_shows_meaningful_metavars_everywhere(capsys):
+    import re
+
+    commands = _command_paths(groups=False)
+    assert ["verify"] in commands and ["study", "placement"] in commands and len(commands) >= 15
+    placeholder = re.compile(r"<[A-Za-z][\w\[\]. ]*>")  # typer's <int range>, <str>, <path>, <list[Path]>
+    for path in commands:
+        code, out, _ = run(capsys, *path, "--help")
+        listed = out[min(i for i in (out.find("\nArguments:\n"), out.find("\nOptions:\n")) if i >= 0):]
+        names = [line.strip().split("  ")[0] for line in listed.splitlines() if re.match(r"  [-A-Z]", line)]
+        assert code == 0 and names and not [n for n in names if placeholder.search(n)], (path, names)
+    code, out, _ = run(capsys, "generate", "--help")
+    text = " ".join(out.split())
+    for shown in ("-n, --n-traces N ", "--seed SEED ", "-o, --out DIR ", "-w, --workers N ", "-s, --scenario SCENARIO ",
+                  "[default: 20; x>=1]", "[x>=0]"):  # ranges stay visible
+        assert shown in text, shown
+    code, out, _ = run(capsys, "calibrate", "--help")
+    assert "  DATASET...  " in out and "-o, --out FILE " in out and "--path-kind <auto|polynomial|waypoints>" in out
+
+
+def test_scenarios_wraps_whole_descriptions_in_80_columns(capsys, monkeypatch):
+    from physynth.io.scenario_file import list_presets
+
+    monkeypatch.setenv("COLUMNS", "80")
+    code, out, _ = run(capsys, "scenarios")
+    assert code == 0 and max(len(line) for line in out.splitlines()) <= 80, out
+    text = " ".join(out.split())
+    descriptions = {name: " ".join(load_scenario(name).description.split()) for name in list_presets()}
+    assert max(map(len, descriptions.values())) > 80 - 25  # one at least needs more than a line
+    for name, description in descriptions.items():
+        assert f"{name} {description}" in text, name

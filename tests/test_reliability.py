@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -387,6 +388,25 @@ def test_flipped_byte_is_named_by_reader_and_verify(dataset, capsys):
     assert code == 2 and one_line(err) and "truth.parquet" in err
     code, _, err = run(capsys, "inspect", dataset)
     assert code == 2 and one_line(err) and "truth.parquet" in err
+
+
+def test_verify_names_every_damaged_file(dataset, tmp_path, capsys):
+    intact = tmp_path / "intact"
+    shutil.copytree(dataset, intact)
+    _flip_byte(dataset / "imu.parquet")
+    f = dataset / "uwb.parquet"
+    f.write_bytes(f.read_bytes()[: f.stat().st_size // 2])
+    code, out, err = run(capsys, "verify", dataset)
+    assert code == 2 and out == "" and "Traceback" not in err
+    lines = err.splitlines()
+    assert len(lines) == 2 and all(line.startswith("physynth: error: ") for line in lines), err
+    assert "imu.parquet does not match its sha256" in lines[0] and "uwb.parquet has" in lines[1]
+    with pytest.raises(IntegrityError, match="imu.parquet"):  # a reader still stops at the first
+        read_dataset(dataset)
+    code, out, err = run(capsys, "verify", dataset, intact)
+    assert code == 2 and f"{intact}: ok" in out
+    assert [line.split(": ", 1)[0] for line in err.splitlines()[:2]] == [str(dataset)] * 2
+    assert "imu.parquet" in err and "uwb.parquet" in err and "1 of 2 datasets failed verification" in err
 
 
 def test_missing_trace_rows_and_wrong_n_traces_are_noticed(dataset):

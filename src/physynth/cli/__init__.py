@@ -4,7 +4,7 @@ Every command module has a ``register(app)`` function; :func:`main` registers th
 raises errors that speak of parameters and reports progress through a callback; only this package
 draws progress bars, names options and chooses exit codes:
 
-- 0: success;
+- 0: success (also the help that ``physynth`` and every command group print when given no arguments);
 - 1: the machine failed (disk full, permission denied): one line on stderr;
 - 2: a user mistake (``PhySynthError``, a bad option or argument), an output that may not be
   replaced, an output locked by another run, a size over budget: one line on stderr;
@@ -23,7 +23,7 @@ import sys
 import typer
 
 from ..errors import BudgetError, Interrupted, MixedSitesError, OutputExistsError, PhySynthError
-from ._common import EXIT_BAD_INPUT, EXIT_BUG, EXIT_INTERRUPTED, EXIT_SYSTEM, fail
+from ._common import EXIT_BUG, EXIT_INTERRUPTED, EXIT_SYSTEM, fail, use_command_class
 from ._signals import handling_signals, signal_name
 
 app = typer.Typer(
@@ -65,6 +65,7 @@ def _register_commands() -> None:
 
     for module in (generate, imports, calibrate, validate, study, export, bench, verify):
         module.register(app)
+    use_command_class(app)
     _registered = True
 
 
@@ -72,8 +73,6 @@ def main(argv: list[str] | None = None) -> None:
     """Entry point: run the app, turning user mistakes into one line on stderr and exit code 2."""
     _register_commands()
     argv = sys.argv[1:] if argv is None else argv
-    if not argv:
-        argv = ["--help"]
     try:
         with handling_signals():
             rc = app(args=argv, standalone_mode=False)
@@ -96,9 +95,9 @@ def main(argv: list[str] | None = None) -> None:
         print("physynth: aborted", file=sys.stderr)
         sys.exit(EXIT_INTERRUPTED)
     except typer.TyperException as exc:  # usage errors: unknown option, bad value, missing argument
-        if type(exc).__name__ == "NoArgsIsHelpError":  # a command group without its sub-command
-            print(exc.format_message(), file=sys.stderr)
-            sys.exit(EXIT_BAD_INPUT)
+        if type(exc).__name__ == "NoArgsIsHelpError":  # physynth, or a group, without a command: asking for help
+            print(exc.format_message())
+            sys.exit(0)
         fail(exc.format_message())
     except typer.Exit as exc:
         sys.exit(exc.exit_code)

@@ -7,6 +7,9 @@ import sys
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 
+import typer
+from typer.core import TyperCommand
+
 from ..progress import ProgressCallback, no_progress
 
 EXIT_BAD_INPUT = 2
@@ -57,6 +60,40 @@ def progress_bar(enabled: bool = True) -> Iterator[ProgressCallback]:
             bar.stop()
 
 
+class Command(TyperCommand):
+    """Every physynth command (set by :func:`use_command_class`): its help lists an argument under its
+    name alone (``DATASET...``), as the usage line does, without typer's ``<list[Path]>`` after it.
+
+    Options show their own ``metavar`` (``--out DIR``, ``--seed SEED``): every valued option declares one,
+    since what a value means (a folder, a file, a count) is not in its type."""
+
+    def format_options(self, ctx, formatter) -> None:
+        args, opts = [], []
+        for param in self.get_params(ctx):
+            record = param.get_help_record(ctx)
+            if record is None:
+                continue
+            if param.param_type_name == "argument":
+                name = param.metavar or (param.name or "").upper()
+                args.append((name + ("..." if param.nargs != 1 else ""), record[1]))
+            elif param.param_type_name == "option":
+                opts.append(record)
+        for title, rows in (("Arguments", args), ("Options", opts)):
+            if rows:
+                with formatter.section(title):
+                    formatter.write_dl(rows)
+
+
+def use_command_class(app: typer.Typer) -> None:
+    """Make :class:`Command` the class of every command of ``app`` and of its groups, at any depth."""
+    for info in app.registered_commands:
+        if info.cls in (None, TyperCommand):  # typer's default; a command with a class of its own keeps it
+            info.cls = Command
+    for group in app.registered_groups:
+        if group.typer_instance is not None:
+            use_command_class(group.typer_instance)
+
+
 def format_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     """A plain-text table: first column left-aligned, the others right-aligned, two spaces apart.
 
@@ -70,6 +107,11 @@ def format_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
 
     rule = "  ".join("-" * w for w in widths)
     return "\n".join([line(cells[0]), rule, *(line(r) for r in cells[1:])])
+
+
+def counted(n: int, word: str) -> str:
+    """``1 worker``, ``2 workers``: a count and a noun that takes an s in the plural."""
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
 
 
 PARAMETER_FLAGS = (
@@ -96,6 +138,12 @@ def cli_words(message: str) -> str:
 
 def fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
     """Print the first line of ``message`` as ``physynth: error: ...`` on stderr and exit."""
-    first = message.strip().splitlines()[0] if message.strip() else "invalid input"
-    print(f"physynth: error: {cli_words(first)}", file=sys.stderr)
+    fail_each([message], code)
+
+
+def fail_each(messages: Sequence[str], code: int = EXIT_BAD_INPUT) -> None:
+    """Print the first line of each message as its own ``physynth: error: ...`` line on stderr and exit."""
+    for message in messages or ["invalid input"]:
+        first = message.strip().splitlines()[0] if message.strip() else "invalid input"
+        print(f"physynth: error: {cli_words(first)}", file=sys.stderr)
     sys.exit(code)

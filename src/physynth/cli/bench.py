@@ -15,13 +15,15 @@ def register(app: typer.Typer) -> None:
 
 
 def bench_cmd(
-    scenario: str = typer.Option("cablecar-descending", "--scenario", "-s", help="Preset name or scenario file."),
-    n: int = typer.Option(200, "-n", "--n-traces", min=1, help="Traces per one-core measurement."),
-    workers: int = typer.Option(0, "--workers", "-w", min=0,
+    scenario: str = typer.Option("cablecar-descending", "--scenario", "-s", metavar="SCENARIO",
+                                 help="Preset name or scenario file."),
+    n: int = typer.Option(200, "-n", "--n-traces", metavar="N", min=1, help="Traces per one-core measurement."),
+    workers: int = typer.Option(0, "--workers", "-w", metavar="N", min=0,
                                 help="Workers of the scaling measurement (0 = all cores, 1 = skip it)."),
-    n_scaling: int = typer.Option(0, "--n-scaling", min=0,
+    n_scaling: int = typer.Option(0, "--n-scaling", metavar="N", min=0,
                                   help="Traces of the scaling measurement (0 = ten times -n)."),
-    repeat: int = typer.Option(1, "--repeat", min=1, help="Repetitions of the one-core measurements (best kept)."),
+    repeat: int = typer.Option(1, "--repeat", metavar="N", min=1,
+                               help="Repetitions of the one-core measurements (best kept)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object (keys traces_per_s_memory, "
                                                        "traces_per_s_parquet, scaling_efficiency, peak_rss_mb)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),

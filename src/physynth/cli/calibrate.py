@@ -32,22 +32,24 @@ def register(app: typer.Typer) -> None:
 def calibrate_cmd(
     datasets: list[Path] = typer.Argument(..., metavar="DATASET",
                                           help="Dataset directories (real or synthetic), pooled."),
-    out: Path = typer.Option(..., "--out", "-o", help="Scenario YAML file to write."),
-    report: Path | None = typer.Option(None, "--report", help="JSON fit report to write (default: none)."),
+    out: Path = typer.Option(..., "--out", "-o", metavar="FILE", help="Scenario YAML file to write."),
+    report: Path | None = typer.Option(None, "--report", metavar="FILE",
+                                       help="JSON fit report to write (default: none)."),
     path_kind: Literal["auto", "polynomial", "waypoints"] = typer.Option("auto", "--path-kind",
                                   help="Path geometry: auto, polynomial (degree 10, cable) or waypoints (walk)."),
-    name: str | None = typer.Option(None, "--name", help="Scenario name (default: the output file's stem)."),
+    name: str | None = typer.Option(None, "--name", metavar="NAME",
+                                    help="Scenario name (default: the output file's stem)."),
     anchor_layout: Literal["per-run", "strict", "first"] = typer.Option(
         "per-run", "--anchor-layout",
         help="per-run: datasets may place the anchors differently (each run against its own layout, "
              "channels per anchor id pooled, run-to-run offsets fitted; the scenario generates with the "
              "--layout-from run's layout and records the others); strict: an anchor placed differently "
              "by two datasets is an error; first: write the first dataset's layout (former behaviour)."),
-    layout_from: str | None = typer.Option(None, "--layout-from",
+    layout_from: str | None = typer.Option(None, "--layout-from", metavar="RUN",
                                            help="With --anchor-layout per-run: the recording (label or "
                                                 "0-based index) whose anchor layout the scenario uses "
                                                 "(default: the first)."),
-    static_sweeps: Path | None = typer.Option(None, "--static-sweeps",
+    static_sweeps: Path | None = typer.Option(None, "--static-sweeps", metavar="DIR",
                                               help="Hanyang Static_measurements folder: also fit the range "
                                                    "bias on the static sweeps."),
     range_bias: Literal["dynamic", "static"] = typer.Option("dynamic", "--range-bias",

@@ -16,9 +16,10 @@ def register(app: typer.Typer) -> None:
 
 def export_cmd(
     dataset: Path = typer.Argument(..., metavar="DATASET", help="Dataset directory."),
-    fmt: str = typer.Option(..., "--format", "-f", help="hdf5 (one file, a group per trace), rosbag2 (a folder, "
-                                                        "a bag per trace) or csv (a folder, a file per table)."),
-    out: Path = typer.Option(..., "--out", "-o", help="Output file (hdf5) or folder (rosbag2, csv)."),
+    fmt: str = typer.Option(..., "--format", "-f", metavar="FORMAT",
+                            help="hdf5 (one file, a group per trace), rosbag2 (a folder, a bag per trace) or csv (a "
+                                 "folder, a file per table)."),
+    out: Path = typer.Option(..., "--out", "-o", metavar="PATH", help="Output file (hdf5) or folder (rosbag2, csv)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from ._common import format_table, progress_bar
+from ._common import counted, format_table, progress_bar
 
 AUTO_CLUSTER_MIN_TRACES = 1000
 """With the default ``--workers 0``, runs of fewer traces stay in this process (no cluster to start)."""
@@ -26,26 +26,29 @@ def register(app: typer.Typer) -> None:
 
 
 def generate_cmd(
-    scenario: str = typer.Option("cablecar-descending", "--scenario", "-s",
+    scenario: str = typer.Option("cablecar-descending", "--scenario", "-s", metavar="SCENARIO",
                                  help="Preset name or path to a scenario YAML file."),
-    n: int = typer.Option(20, "-n", "--n-traces", min=1, help="Number of traces to generate."),
-    seed: int | None = typer.Option(None, "--seed", min=0, help="Root seed >= 0 (random when omitted; stored)."),
-    out: Path = typer.Option(Path("runs/default"), "--out", "-o", help="Output dataset directory."),
+    n: int = typer.Option(20, "-n", "--n-traces", metavar="N", min=1, help="Number of traces to generate."),
+    seed: int | None = typer.Option(None, "--seed", metavar="SEED", min=0,
+                                    help="Root seed >= 0 (random when omitted; stored)."),
+    out: Path = typer.Option(Path("runs/default"), "--out", "-o", metavar="DIR", help="Output dataset directory."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset (only a dataset "
                                                               "PhySynth wrote) or discard an unfinished run of it."),
-    workers: int = typer.Option(0, "--workers", "-w", min=0,
-                                help="Worker processes (0 = all cores from 1000 traces on, one below: starting "
-                                     "workers costs seconds). More than one runs an embedded Dask cluster "
-                                     "(physynth[scale]); the output is the same for any number."),
+    workers: int = typer.Option(0, "--workers", "-w", metavar="N", min=0,
+                                help=f"Worker processes. 0 (the default) picks for you: all cores for "
+                                     f"{AUTO_CLUSTER_MIN_TRACES} traces or more, one process below that, since "
+                                     "starting workers takes seconds. More than one runs an embedded Dask cluster "
+                                     "(needs physynth[scale]); the output is the same for any number of workers."),
     scheduler: str | None = typer.Option(None, "--scheduler", metavar="ADDRESS",
                                          help="Run on an existing Dask cluster (e.g. tcp://host:8786) whose "
                                               "workers see --out at the same path."),
     resume: bool = typer.Option(False, "--resume", help="Complete a killed run of --out: keep its complete "
                                                         "shards, write the others (same seed unless --seed)."),
-    shard_traces: int = typer.Option(128, "--shard-traces", min=1,
+    shard_traces: int = typer.Option(128, "--shard-traces", metavar="N", min=1,
                                      help="Traces per shard (the unit of work, of atomic writes and of --resume)."),
-    regime: str | None = typer.Option(None, "--regime", help="Channel regime applied to the scenario: nominal, "
-                                                             "dense, sparse or degraded (docs/anchors.md)."),
+    regime: str | None = typer.Option(None, "--regime", metavar="REGIME",
+                                      help="Channel regime applied to the scenario: nominal, dense, sparse or degraded "
+                                           "(docs/anchors.md)."),
     force: bool = typer.Option(False, "--force", help="Go ahead even when the size estimate exceeds the budget."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
@@ -89,21 +92,22 @@ def generate_cmd(
         typer.echo(f"physynth: interrupted; {resume_hint}", err=True)
         raise typer.Exit(130) from None
     if not quiet:
-        where = f"on {scheduler}" if scheduler else f"{min(n_workers, -(-n // shard_traces))} worker(s)"
-        typer.echo(f"wrote {n} trace(s) of '{scn.name}' to {path} (root seed {root}, {where})")
+        where = f"on {scheduler}" if scheduler else counted(min(n_workers, -(-n // shard_traces)), "worker")
+        typer.echo(f"wrote {counted(n, 'trace')} of '{scn.name}' to {path} (root seed {root}, {where})")
 
 
 def scenarios_cmd() -> None:
     """List the built-in scenario presets."""
     import shutil
+    import textwrap
 
     from ..io.scenario_file import list_presets, load_scenario
 
     width = max(shutil.get_terminal_size((80, 24)).columns, 40)  # the terminal's, or $COLUMNS, else 80
     for name in list_presets():
-        s = load_scenario(name)
-        line = f"{name:24s} {s.description.splitlines()[0] if s.description else ''}"
-        typer.echo(line if len(line) <= width else line[:width - 3].rstrip() + "...")  # full text: scenario show
+        words = " ".join(load_scenario(name).description.split())  # the whole description, wrapped under itself
+        typer.echo(textwrap.fill(words, width, initial_indent=f"{name:24s} ", subsequent_indent=" " * 25,
+                                 break_on_hyphens=False) if words else name)
 
 
 def scenario_show_cmd(name: str = typer.Argument(..., metavar="SCENARIO",

@@ -23,7 +23,7 @@ def register(main_app: typer.Typer) -> None:
     """Add the ``import`` command group to the main app."""
     main_app.add_typer(app, name="import")
 
-_OUT = typer.Option(..., "--out", "-o", help="Output dataset directory.")
+_OUT = typer.Option(..., "--out", "-o", metavar="DIR", help="Output dataset directory.")
 _OVERWRITE = typer.Option(False, "--overwrite", help="Replace an existing dataset (only a dataset PhySynth wrote).")
 _QUIET = typer.Option(False, "--quiet", "-q", help="No summary.")
 

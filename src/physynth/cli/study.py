@@ -54,23 +54,26 @@ def _ids(text: str | None) -> list[str] | None:
 
 
 def anchors_cmd(
-    scenario: str = typer.Option("cablecar-descending", "--scenario", "-s",
+    scenario: str = typer.Option("cablecar-descending", "--scenario", "-s", metavar="SCENARIO",
                                  help="Preset name or scenario YAML with every anchor of the deployment."),
-    real: Path | None = typer.Option(None, "--real", help="Real dataset: reference of every cell and source of the "
-                                                          "availability order (default: a reference run)."),
-    n: int = typer.Option(50, "-n", "--n-traces", min=1, help="Traces per cell."),
-    seed: int | None = typer.Option(None, "--seed", min=0, help="Root seed (random when omitted; recorded)."),
-    counts: str | None = typer.Option(None, "--counts", help="Anchor counts, e.g. 1..6 or 2,3,4,6 "
-                                                             "(default: 1..number of anchors)."),
-    regimes: str = typer.Option("dense,sparse,degraded", "--regimes",
+    real: Path | None = typer.Option(None, "--real", metavar="DATASET",
+                                     help="Real dataset: reference of every cell and source of the availability order "
+                                          "(default: a reference run)."),
+    n: int = typer.Option(50, "-n", "--n-traces", metavar="N", min=1, help="Traces per cell."),
+    seed: int | None = typer.Option(None, "--seed", metavar="SEED", min=0,
+                                    help="Root seed (random when omitted; recorded)."),
+    counts: str | None = typer.Option(None, "--counts", metavar="COUNTS",
+                                      help="Anchor counts, e.g. 1..6 or 2,3,4,6 (default: 1..number of anchors)."),
+    regimes: str = typer.Option("dense,sparse,degraded", "--regimes", metavar="REGIMES",
                                 help="Comma-separated channel regimes (nominal, dense, sparse, degraded)."),
-    order: str | None = typer.Option(None, "--order", help="Anchor ids in the order they are added "
-                                                           "(default: decreasing availability)."),
-    workers: int | None = typer.Option(None, "--workers", min=1, help="Processes (default: all cores)."),
-    tracker_traces: int = typer.Option(50, "--tracker-traces", min=0,  # studies.anchors.TRACKER_TRACES
+    order: str | None = typer.Option(None, "--order", metavar="IDS",
+                                     help="Anchor ids in the order they are added (default: decreasing availability)."),
+    workers: int | None = typer.Option(None, "--workers", metavar="N", min=1, help="Processes (default: all cores)."),
+    tracker_traces: int = typer.Option(50, "--tracker-traces", metavar="N", min=0,  # studies.anchors.TRACKER_TRACES
                                        help="Traces per cell the ls and ekf trackers run on (traces 0..N-1 of "
                                             "every cell; 0: no tracker column)."),
-    out: Path = typer.Option(..., "--out", "-o", help="Output folder (table.json, table.md, anchors.png)."),
+    out: Path = typer.Option(..., "--out", "-o", metavar="DIR",
+                             help="Output folder (table.json, table.md, anchors.png)."),
     figures: bool = typer.Option(True, "--figures/--no-figures", help="Draw the figure (needs matplotlib)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a study already in --out."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
@@ -104,22 +107,24 @@ def anchors_cmd(
 
 
 def placement_cmd(
-    scenario: str = typer.Option("cablecar-descending", "--scenario", "-s",
+    scenario: str = typer.Option("cablecar-descending", "--scenario", "-s", metavar="SCENARIO",
                                  help="Preset name or scenario YAML (path, motion, channel; its anchors are "
                                       "replaced by the chosen candidates)."),
-    candidates: Path = typer.Option(..., "--candidates", help="Candidate anchor positions: YAML/JSON list of "
-                                                              "{id, pos_enu_m} or CSV with columns id,e,n,u."),
-    k: int = typer.Option(..., "-k", min=1, help="Number of anchors to place."),
-    objective: str = typer.Option("ge1", "--objective", help="ge1, ge2 or ge3 (availability: fraction of 10 ms bins "
-                                                             "with >= 1/2/3 fresh anchors, maximised), gdop (mean "
-                                                             "capped fresh GDOP, minimised) or hdop (the same with "
-                                                             "the tag height known)."),
-    n: int = typer.Option(20, "-n", "--n-traces", min=1, help="Traces the objective is averaged over."),
-    seed: int | None = typer.Option(None, "--seed", min=0, help="Root seed (random when omitted; recorded)."),
-    regime: str = typer.Option("nominal", "--regime", help="Channel regime applied to the scenario."),
-    workers: int | None = typer.Option(None, "--workers", min=1, help="Processes (default: all cores)."),
-    out: Path = typer.Option(..., "--out", "-o", help="Output folder (placement.json, placement.md, "
-                                                      "placement.png, scenario.yaml)."),
+    candidates: Path = typer.Option(..., "--candidates", metavar="FILE",
+                                    help="Candidate anchor positions: YAML/JSON list of {id, pos_enu_m} or CSV with "
+                                         "columns id,e,n,u."),
+    k: int = typer.Option(..., "-k", metavar="K", min=1, help="Number of anchors to place."),
+    objective: str = typer.Option("ge1", "--objective", metavar="OBJECTIVE",
+                                  help="ge1, ge2 or ge3 (availability: fraction of 10 ms bins with >= 1/2/3 fresh "
+                                       "anchors, maximised), gdop (mean capped fresh GDOP, minimised) or hdop (the "
+                                       "same with the tag height known)."),
+    n: int = typer.Option(20, "-n", "--n-traces", metavar="N", min=1, help="Traces the objective is averaged over."),
+    seed: int | None = typer.Option(None, "--seed", metavar="SEED", min=0,
+                                    help="Root seed (random when omitted; recorded)."),
+    regime: str = typer.Option("nominal", "--regime", metavar="REGIME", help="Channel regime applied to the scenario."),
+    workers: int | None = typer.Option(None, "--workers", metavar="N", min=1, help="Processes (default: all cores)."),
+    out: Path = typer.Option(..., "--out", "-o", metavar="DIR",
+                             help="Output folder (placement.json, placement.md, placement.png, scenario.yaml)."),
     figures: bool = typer.Option(True, "--figures/--no-figures", help="Draw the figure (needs matplotlib)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a placement already in --out."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),

@@ -27,33 +27,43 @@ def tracking_cmd(
                                      help="Training dataset directory (repeat for several; every trace is one "
                                           "training run). Default: Hanyang Trajectory_A runs."),
     test: list[Path] = typer.Option(None, "--test", metavar="DATASET", help="Test dataset directory (repeatable)."),
-    scenario: str = typer.Option(None, "--scenario", "-s", help="Scenario (preset or YAML) for SYNTH_PHY "
-                                 "pre-training instead of calibrating one on the training runs."),
+    scenario: str = typer.Option(None, "--scenario", "-s", metavar="SCENARIO",
+                                 help="Scenario (preset or YAML) for SYNTH_PHY pre-training instead of calibrating one "
+                                      "on the training runs."),
     quick: bool = typer.Option(False, "--quick", help="Short schedule (< 10 min on 2 CPU cores)."),
-    seed: int = typer.Option(0, "--seed", min=0, help="Seed of every random choice (deterministic on CPU)."),
-    methods: str = typer.Option(None, "--methods", help="Comma-separated subset of NOAUG,AUG_GAN,SYNTH_PHY,"
-                                "bilstm,ls,ekf (default: all)."),
-    epochs: int = typer.Option(None, "--epochs", min=1, help="Epochs of NOAUG, AUG_GAN and bilstm (paper: 200)."),
-    pretrain_epochs: int = typer.Option(None, "--pretrain-epochs", min=1, help="SYNTH_PHY pre-training epochs (300)."),
-    finetune_epochs: int = typer.Option(None, "--finetune-epochs", min=1, help="SYNTH_PHY fine-tuning epochs (200)."),
-    n_synth: int = typer.Option(None, "--n-synth", min=1, help="Number of synthetic pre-training traces."),
-    finetune_synth_ratio: float = typer.Option(None, "--finetune-synth-ratio", help="Synthetic windows kept per "
-                                               "real window while SYNTH_PHY fine-tunes (0: real only)."),
-    turn_test: float = typer.Option(0.0, "--turn-test", help="Turn every test run by this many degrees "
-                                    "(counter-clockwise) about the vertical through its anchor centroid: the "
-                                    "same ranges along another direction."),
+    seed: int = typer.Option(0, "--seed", metavar="SEED", min=0,
+                             help="Seed of every random choice (deterministic on CPU)."),
+    methods: str = typer.Option(None, "--methods", metavar="METHODS",
+                                help="Comma-separated subset of NOAUG,AUG_GAN,SYNTH_PHY,bilstm,ls,ekf (default: all)."),
+    epochs: int = typer.Option(None, "--epochs", metavar="N", min=1,
+                               help="Epochs of NOAUG, AUG_GAN and bilstm (paper: 200)."),
+    pretrain_epochs: int = typer.Option(None, "--pretrain-epochs", metavar="N", min=1,
+                                        help="SYNTH_PHY pre-training epochs (300)."),
+    finetune_epochs: int = typer.Option(None, "--finetune-epochs", metavar="N", min=1,
+                                        help="SYNTH_PHY fine-tuning epochs (200)."),
+    n_synth: int = typer.Option(None, "--n-synth", metavar="N", min=1, help="Number of synthetic pre-training traces."),
+    finetune_synth_ratio: float = typer.Option(None, "--finetune-synth-ratio", metavar="RATIO",
+                                               help="Synthetic windows kept per real window while SYNTH_PHY fine-tunes "
+                                                    "(0: real only)."),
+    turn_test: float = typer.Option(0.0, "--turn-test", metavar="DEGREES",
+                                    help="Turn every test run by this many degrees (counter-clockwise) about the "
+                                         "vertical through its anchor centroid: the same ranges along another "
+                                         "direction."),
     mirror_test: bool = typer.Option(False, "--mirror-test", help="Mirror every test run (y -> -y about its "
                                      "anchor centroid) before the turn."),
-    frame: str = typer.Option("turned", "--frame", help="How the networks see direction. turned (default): "
-                              "training windows turned and mirrored at random, 8 turned copies at test: no "
-                              "prior tied to a heading, so runs along other directions and of other shapes "
-                              "are tracked. route: every run turned so that its route, estimated from its "
-                              "own ranges, heads east: a prior on the route's shape, better on runs shaped "
-                              "like the training runs, lost on other shapes. compass: the world as recorded: "
-                              "learns the training runs' compass heading, lost on a run that heads elsewhere."),
-    threads: int = typer.Option(1, "--threads", min=1, help="CPU threads for PyTorch (1: small recurrent nets gain "
-                                "nothing from more, and lose a lot on a shared machine)."),
-    out: Path = typer.Option(..., "--out", "-o", help="Output folder (results.json, results.md, paths.png)."),
+    frame: str = typer.Option("turned", "--frame", metavar="FRAME",
+                              help="How the networks see direction. turned (default): training windows turned and "
+                                   "mirrored at random, 8 turned copies at test: no prior tied to a heading, so runs "
+                                   "along other directions and of other shapes are tracked. route: every run turned so "
+                                   "that its route, estimated from its own ranges, heads east: a prior on the route's "
+                                   "shape, better on runs shaped like the training runs, lost on other shapes. "
+                                   "compass: the world as recorded: learns the training runs' compass heading, lost on "
+                                   "a run that heads elsewhere."),
+    threads: int = typer.Option(1, "--threads", metavar="N", min=1,
+                                help="CPU threads for PyTorch (1: small recurrent nets gain nothing from more, and "
+                                     "lose a lot on a shared machine)."),
+    out: Path = typer.Option(..., "--out", "-o", metavar="DIR",
+                             help="Output folder (results.json, results.md, paths.png)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a tracking study already in --out."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress and no table."),
 ) -> None:

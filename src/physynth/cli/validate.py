@@ -23,24 +23,25 @@ def register(app: typer.Typer) -> None:
 
 
 def validate_cmd(
-    real: Path = typer.Option(..., "--real", help="Dataset directory of real traces (with ground truth)."),
-    synthetic: Path | None = typer.Option(None, "--synthetic",
+    real: Path = typer.Option(..., "--real", metavar="DATASET",
+                              help="Dataset directory of real traces (with ground truth)."),
+    synthetic: Path | None = typer.Option(None, "--synthetic", metavar="DATASET",
                                              help="Dataset directory of synthetic traces to compare."),
-    scenario: str | None = typer.Option(None, "--scenario", "-s",
+    scenario: str | None = typer.Option(None, "--scenario", "-s", metavar="SCENARIO",
                                            help="Preset name or scenario YAML: generate the synthetic traces."),
-    n: int = typer.Option(50, "-n", "--n-traces", min=1, help="Traces to generate with --scenario."),
-    seed: int | None = typer.Option(None, "--seed", min=0, help="Root seed for --scenario (random when omitted; "
-                                                             "recorded in the report)."),
+    n: int = typer.Option(50, "-n", "--n-traces", metavar="N", min=1, help="Traces to generate with --scenario."),
+    seed: int | None = typer.Option(None, "--seed", metavar="SEED", min=0,
+                                    help="Root seed for --scenario (random when omitted; recorded in the report)."),
     transfer: bool = typer.Option(False, "--transfer",
                                   help="Take path geometry, motion and anchor layout from the real dataset; keep "
                                        "every sensor, channel and availability parameter of the scenario "
                                        "(paper IV.C)."),
-    anchors: str | None = typer.Option(None, "--anchors",
+    anchors: str | None = typer.Option(None, "--anchors", metavar="IDS",
                                        help="Comma-separated anchor ids: the synthetic side uses only these "
                                             "anchors and the real dataset is compared on its full set (the "
                                             "anchor study's relaxed comparison)."),
-    out: Path = typer.Option(..., "--out", "-o", help="Report directory (report.json, report.md, report.html, "
-                                                      "figures)."),
+    out: Path = typer.Option(..., "--out", "-o", metavar="DIR",
+                             help="Report directory (report.json, report.md, report.html, figures)."),
     figures: bool = typer.Option(True, "--figures/--no-figures",
                                  help="Draw the figures (needs matplotlib: physynth[report])."),
     overwrite: bool = typer.Option(False, "--overwrite",

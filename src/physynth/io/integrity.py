@@ -5,10 +5,11 @@ dataset; the records go under ``dataset.json`` ``"files"``::
 
     "files": {"truth.parquet": {"rows": 123, "bytes": 4567, "sha256": "..."}, ...}
 
-:func:`check_dataset` compares a dataset folder with its records (readers call it before reading;
-``physynth verify`` calls it explicitly) and raises :class:`~physynth.errors.IntegrityError` naming
-the first file that disagrees. Datasets written before the records existed have no ``"files"``;
-readers accept them, ``verify`` says they cannot be verified.
+:func:`check_dataset` compares a dataset folder with its records (readers call it before reading) and
+raises :class:`~physynth.errors.IntegrityError` naming the first file that disagrees;
+:func:`verify_dataset` (``physynth verify``) makes the same checks and returns every problem.
+Datasets written before the records existed have no ``"files"``; readers accept them, ``verify`` says
+they cannot be verified.
 
 pyarrow is imported by the functions that read Parquet footers or tables, not with this module.
 """
@@ -18,7 +19,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -69,12 +70,14 @@ def shard_file_records(shards: Sequence[Path], tables: Iterable[str], *, single:
 
 @dataclass(frozen=True, slots=True)
 class VerifyResult:
-    """What :func:`check_dataset` checked: files, total rows and bytes, and whether records existed."""
+    """What :func:`check_dataset` or :func:`verify_dataset` checked: files, total rows and bytes (of the
+    files that match their records), whether records existed, and the problems found (one line each)."""
 
     files: int
     rows: int
     bytes: int
     recorded: bool
+    problems: tuple[str, ...] = ()
 
 
 def check_dataset(path: Path, meta: Mapping[str, Any], *, hashes: bool = True) -> VerifyResult:
@@ -82,46 +85,85 @@ def check_dataset(path: Path, meta: Mapping[str, Any], *, hashes: bool = True) -
     Parquet footer), same SHA-256 (when ``hashes``); and that the traces named in ``dataset.json``
     are the traces in the truth table (``truth.parquet`` or its parts ``truth/part-*.parquet``).
 
+    Stops at the first problem (what a reader needs); :func:`verify_dataset` finds them all.
+
     Raises
     ------
     IntegrityError
         Naming the dataset and the first file that disagrees, and how.
     """
+    totals = [0, 0]
+    for problem in _problems(path, meta, hashes=hashes, totals=totals):
+        raise IntegrityError(problem)
+    return _result(meta, totals, ())
+
+
+def verify_dataset(path: Path, meta: Mapping[str, Any], *, hashes: bool = True) -> VerifyResult:
+    """The checks of :func:`check_dataset`, every one of them: each file that disagrees with its record
+    is one entry of ``problems`` (a file's first disagreement only: a file of the wrong size has the
+    wrong hash too), and the trace ids are checked when the truth tables themselves are intact."""
+    totals = [0, 0]
+    problems = tuple(_problems(path, meta, hashes=hashes, totals=totals))
+    return _result(meta, totals, problems)
+
+
+def _result(meta: Mapping[str, Any], totals: list[int], problems: tuple[str, ...]) -> VerifyResult:
+    files = meta.get("files")
+    return VerifyResult(files=len(files) if isinstance(files, dict) else 0, rows=totals[0], bytes=totals[1],
+                        recorded=files is not None, problems=problems)
+
+
+def _problems(path: Path, meta: Mapping[str, Any], *, hashes: bool, totals: list[int]) -> Iterator[str]:
+    """The problems of a dataset, one line each, lazily (the first comes before later files are read);
+    ``totals`` gathers the rows and bytes of the files that match their records."""
+    files = meta.get("files")
+    if files is None:
+        return
+    if not isinstance(files, dict):
+        yield f"dataset {path}: dataset.json 'files' is not a mapping"
+        return
+    truth = [n for n in files if n == "truth.parquet" or n.startswith("truth/")]
+    truth_intact = True
+    for name, rec in files.items():
+        problem = _file_problem(path, name, rec, hashes=hashes)
+        if problem is None:
+            totals[0] += int(rec["rows"])
+            totals[1] += int(rec["bytes"])
+            continue
+        truth_intact = truth_intact and name not in truth
+        yield problem
+    try:  # the trace ids of a damaged truth table would only repeat its damage: dataset.json alone then
+        check_trace_ids(path, meta, truth if truth_intact else [])
+    except IntegrityError as exc:
+        yield str(exc)
+
+
+def _file_problem(path: Path, name: str, rec: Any, *, hashes: bool) -> str | None:
+    """How the file ``name`` disagrees with its record ``rec`` (its first disagreement), or None."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    files = meta.get("files")
-    if files is None:
-        return VerifyResult(files=0, rows=0, bytes=0, recorded=False)
-    if not isinstance(files, dict):
-        raise IntegrityError(f"dataset {path}: dataset.json 'files' is not a mapping")
-    total_rows = total_bytes = 0
-    for name, rec in files.items():
-        f = path / name
-        if not isinstance(rec, dict) or not {"rows", "bytes", HASH} <= set(rec):
-            raise IntegrityError(f"dataset {path}: dataset.json has no valid record of {name}")
-        if not f.is_file():
-            raise IntegrityError(f"dataset {path} is damaged: {name} is missing")
-        size = f.stat().st_size
-        if size != rec["bytes"]:
-            raise IntegrityError(f"dataset {path} is damaged: {name} has {size} bytes, dataset.json "
-                                 f"records {rec['bytes']} (truncated or changed after it was written)")
-        if hashes and file_sha256(f) != rec[HASH]:
-            raise IntegrityError(f"dataset {path} is damaged: {name} does not match its {HASH} in dataset.json "
-                                 "(changed after it was written)")
-        if name.endswith(".parquet"):
-            try:
-                n = pq.ParquetFile(f).metadata.num_rows
-            except (OSError, pa.ArrowException) as exc:
-                raise IntegrityError(f"dataset {path} is damaged: {name} is not readable Parquet "
-                                     f"({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
-            if n != rec["rows"]:
-                raise IntegrityError(f"dataset {path} is damaged: {name} has {n} rows, dataset.json records "
-                                     f"{rec['rows']}")
-        total_rows += int(rec["rows"])
-        total_bytes += size
-    check_trace_ids(path, meta, [n for n in files if n == "truth.parquet" or n.startswith("truth/")])
-    return VerifyResult(files=len(files), rows=total_rows, bytes=total_bytes, recorded=True)
+    f = path / name
+    if not isinstance(rec, dict) or not {"rows", "bytes", HASH} <= set(rec):
+        return f"dataset {path}: dataset.json has no valid record of {name}"
+    if not f.is_file():
+        return f"dataset {path} is damaged: {name} is missing"
+    size = f.stat().st_size
+    if size != rec["bytes"]:
+        return (f"dataset {path} is damaged: {name} has {size} bytes, dataset.json records {rec['bytes']} "
+                "(truncated or changed after it was written)")
+    if hashes and file_sha256(f) != rec[HASH]:
+        return (f"dataset {path} is damaged: {name} does not match its {HASH} in dataset.json "
+                "(changed after it was written)")
+    if name.endswith(".parquet"):
+        try:
+            n = pq.ParquetFile(f).metadata.num_rows
+        except (OSError, pa.ArrowException) as exc:
+            return (f"dataset {path} is damaged: {name} is not readable Parquet "
+                    f"({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})")
+        if n != rec["rows"]:
+            return f"dataset {path} is damaged: {name} has {n} rows, dataset.json records {rec['rows']}"
+    return None
 
 
 def check_trace_ids(path: Path, meta: Mapping[str, Any], tables: Iterable[str] = ("truth.parquet",)) -> None:
