@@ -87,12 +87,25 @@ def test_imu_only_validation_against_a_dataset_without_imu_is_one_clear_error(tm
     assert err.strip().count("\n") == 0
 
 
-def test_calibrating_every_trial_together_clips_the_run_spreads_and_says_so(tmp_path, capsys):
-    """Slow and fast lab trials differ in speed by more than a scenario can draw (uniform half-width of
-    the cruise speed 1.10 over the four shared trials): the spread is clipped to 0.9 with a warning,
-    not refused by the scenario's bounds."""
-    from physynth.calibrate.geometry import MAX_RUN_SPREAD_FRAC
+def test_run_spreads_of_very_different_runs_are_clipped_and_said():
+    """Slow and fast lab trials driven along one fitted path differ in speed by more than a scenario can
+    draw (uniform half-width of the cruise speed 1.10 over the four shared trials): the spread is
+    clipped to 0.9 with a warning, not refused by the scenario's bounds."""
+    from physynth.calibrate import fit_motion
+    from physynth.calibrate.geometry import MAX_RUN_SPREAD_FRAC, spread_clip_warnings
+    from physynth.io.importers import import_broad
 
+    fit = fit_motion([import_broad(f)[0] for f in sorted(DATA.glob("*.mat"))])
+    assert fit.params.cruise_speed_spread_frac == MAX_RUN_SPREAD_FRAC
+    clip = fit.diagnostics["spread_clipped"]
+    assert "cruise_speed_spread_frac" in clip["fields"] and clip["raw"][0] > MAX_RUN_SPREAD_FRAC
+    assert any("cruise_speed_spread_frac" in w and "clipped" in w for w in spread_clip_warnings(fit.diagnostics))
+
+
+def test_calibrating_every_trial_together_moves_in_place_with_their_spread_of_intensity(tmp_path, capsys):
+    """The four shared trials (slow, fast, disturbed) calibrate together from the command line: a motion
+    in place whose jitter spreads in intensity as the trials do, with no folded path's speed spread to
+    clip (the previous test)."""
     dirs = []
     for i, f in enumerate(sorted(DATA.glob("*.mat"))):
         code, _, err = run(capsys, "import", "broad", f, "--out", tmp_path / f"b{i}", "--quiet")
@@ -102,8 +115,8 @@ def test_calibrating_every_trial_together_clips_the_run_spreads_and_says_so(tmp_
                        "--quiet")
     assert code == 0, err
     scn = load_scenario(tmp_path / "s.yaml")
-    assert scn.motion.cruise_speed_spread_frac == MAX_RUN_SPREAD_FRAC
     rep = json.loads((tmp_path / "r.json").read_text(encoding="utf-8"))
-    clip = rep["motion"]["spread_clipped"]
-    assert "cruise_speed_spread_frac" in clip["fields"] and clip["raw"][0] > MAX_RUN_SPREAD_FRAC
-    assert any("cruise_speed_spread_frac" in w and "clipped" in w for w in rep["warnings"])
+    assert rep["parameters"]["motion.in_place"]["value"] is True
+    assert scn.motion.jitter.active and scn.motion.jitter.intensity_log_std > 0.3
+    assert scn.motion.cruise_speed_spread_frac < 0.5  # the trials' durations (184-194 s) barely differ
+    assert not any("clipped" in w for w in rep.get("warnings", []))

@@ -15,6 +15,12 @@ and print the per-axis error-std deviation (synthetic / real - 1, %) of the ENU 
 body accelerometer and the gyroscope. Each fold is run twice: as calibrated, and with the gyroscope's
 acceleration-scaled vibration (``body_imu.gyroscope.vibration_acc_var_gain_rad2_per_m``) set to 0,
 the constant gyro model calibration wrote before it existed, so the two are compared side by side.
+
+Then each fold is validated without ``--transfer`` (synthetic traces move as the scenario says), as
+calibrated (a motion in place: jitter around a point, ``motion.jitter``) and with the path and motion
+calibration wrote before (a path fitted through the folded strokes, driven by a speed profile, no
+jitter), and the median truth acceleration |a| of the synthetic traces is printed next to the real
+trial's.
 """
 
 from __future__ import annotations
@@ -25,14 +31,28 @@ from pathlib import Path
 
 import numpy as np
 
-from physynth.calibrate import calibrate
+from physynth.calibrate import calibrate, fit_motion, fit_path
+from physynth.generate import generate_traces
 from physynth.io import write_dataset
 from physynth.io.importers import import_broad
-from physynth.scenario import Scenario
+from physynth.scenario import PerturbationParams, Scenario
 from physynth.workflows import validate_datasets
 
 DEFAULT = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "broad-imu" / "data_mat"
 KEYS = (("imu_error_std_mps2", "ENU acc"), ("acc_body_error_std_mps2", "body acc"), ("gyro_error_std_radps", "gyro"))
+
+
+def _folded_path(scn: Scenario, train: list) -> Scenario:
+    """The scenario with the path and motion of a path fitted through the strokes (no jitter)."""
+    path = fit_path(train)
+    motion = fit_motion(train, path_length_m=path.diagnostics["length_m"]).params
+    return scn.model_copy(update={"path": path.params.model_copy(update={"perturbation": PerturbationParams(
+        lateral_std_m=0.0, sag_std_m=0.0)}), "motion": motion})
+
+
+def _median_acc(traces) -> float:
+    a = [np.linalg.norm(np.gradient(t.truth.vel_enu_mps, t.truth.t_s, axis=0), axis=1) for t in traces]
+    return float(np.nanmedian(np.concatenate(a)))
 
 
 def _without_gyro_acc_gain(scn: Scenario) -> Scenario:
@@ -71,6 +91,26 @@ def main() -> None:
                 print(f"| {f.stem} | {label} | {', '.join(f'{g:.2e}' for g in gain)} | " + " | ".join(cells) + " |")
     print("largest gyro deviation over folds and axes: "
           + ", ".join(f"{k} {v:.0f} %" for k, v in worst.items()))
+    _free_motion(files, traces, args)
+
+
+def _free_motion(files, traces, args) -> None:
+    print("\nwithout --transfer (each synthetic trace moves as the scenario says): ENU accelerometer error-std "
+          "deviation per axis E / N / U, %, and the median |a| of the truth [m/s^2]")
+    print("| left-out trial | motion | ENU acc | median abs(a), synthetic (real) |")
+    print("|---|---|---|---|")
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, (f, left) in enumerate(zip(files, traces, strict=True)):
+            real = Path(tmp) / f.stem
+            write_dataset(real, [left], meta={"kind": "real", "source": "broad-imu"})
+            train = [t for j, t in enumerate(traces) if j != i]
+            scn = calibrate(train, name=f"loo-without-{f.stem[:2]}").scenario
+            for label, s in (("in place + jitter", scn), ("folded path", _folded_path(scn, train))):
+                rep = validate_datasets(real, scenario=s, n=args.n, seed=args.seed)
+                dev = rep.to_dict()["relative_deviation_pct"]["imu_error_std_mps2"]
+                med = _median_acc(generate_traces(s, args.n, seed=args.seed))
+                print(f"| {f.stem} | {label} | {' / '.join(f'{x:+.0f}' for x in dev)} | {med:.2f} "
+                      f"({_median_acc([left]):.2f}) |")
 
 
 if __name__ == "__main__":

@@ -20,6 +20,7 @@ from .constants import IMU_BODY_FRAME, IMU_FRAME
 from .models.attitude import simulate_attitude
 from .models.availability import AvailabilityArrays, availability_arrays, simulate_availability
 from .models.imu import simulate_body_imu, simulate_imu
+from .models.jitter import add_jitter
 from .models.motion import SpeedShape, compile_speed_shape, draw_run, kinematics
 from .models.path import PathGeometry, compile_path, draw_perturbation
 from .models.uwb import ChannelArrays, channel_arrays, simulate_uwb, uwb_record
@@ -76,6 +77,8 @@ def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int)
                      reverse=s.path.reverse, lateral_dir=cs.lateral_dir)
     att = simulate_attitude(kin.t_s, kin.vel_enu_mps, kin.acc_enu_mps2, s.attitude,
                             rng=component_rng(root_seed, index, "attitude") if s.attitude.kind == "tumble" else None)
+    if s.motion.jitter.active:  # the position shakes; the attitude follows the path
+        kin = add_jitter(kin, s.motion.jitter, rng=component_rng(root_seed, index, "jitter"))
     imu = _imu(kin, att, s, root_seed, index)
     if cs.channel is None or cs.availability is None:  # no anchors: no ranging attempts
         uwb = Uwb(t_s=np.zeros(0), anchor=np.zeros(0, np.int16), range_m=np.zeros(0))
@@ -141,7 +144,7 @@ def dataset_meta(scn: Scenario, root_seed: int) -> dict:
         "scenario_name": scn.name,
         "root_seed": int(root_seed),
         "seeding": "trace i uses numpy SeedSequence(root_seed, spawn_key=(i, component)), "
-                   "components path=0 motion=1 imu=2 uwb=3 availability=4 attitude=5 imu_body=6",
+                   "components path=0 motion=1 imu=2 uwb=3 availability=4 attitude=5 imu_body=6 jitter=7",
         "imu_frame": IMU_FRAME,
         "imu_frames": list(scn.imu_frames),
         "provenance": {"generator": f"physynth {__version__}", "pid": os.getpid()},

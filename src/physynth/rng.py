@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-COMPONENT_ID = {"path": 0, "motion": 1, "imu": 2, "uwb": 3, "availability": 4, "attitude": 5, "imu_body": 6}
+COMPONENT_ID = {"path": 0, "motion": 1, "imu": 2, "uwb": 3, "availability": 4, "attitude": 5, "imu_body": 6,
+                "jitter": 7}
 
 
 def new_root_seed() -> int:

@@ -639,9 +639,13 @@ def transfer_scenario(scn: Scenario, real_traces: Trace | Sequence[Trace], *, pa
     with its own time base) is taken from the real run too. Anchors of the real data without a channel or availability
     override in ``scn`` use its defaults; overrides for anchors the real data lacks are dropped.
     """
+    from .jitter_fit import fit_jitter  # imports this module
+
     trs = as_trace_list(real_traces)
-    path_fit = fit_path(trs, path_kind)
-    motion_fit = fit_motion(trs, path_length_m=path_fit.diagnostics["length_m"], defaults=scn.motion)
+    tracks = [summarize_track(t, trace_label(t, i)) for i, t in enumerate(trs)]
+    path_fit = fit_path(trs, path_kind, tracks=tracks)
+    motion_fit = fit_motion(trs, path_length_m=path_fit.diagnostics["length_m"], defaults=scn.motion, tracks=tracks)
+    jitter, _ = fit_jitter(trs, tracks, path_fit.params, motion_fit.params, scn.truth_rate_hz)
     anchors, layout = anchor_layout(trs, policy=anchor_policy)
     ids = [a.id for a in anchors]
     data = scn.model_dump(mode="json")
@@ -651,6 +655,7 @@ def transfer_scenario(scn: Scenario, real_traces: Trace | Sequence[Trace], *, pa
     motion = motion_fit.params.model_dump(mode="json")
     motion["cruise_speed_spread_frac"] = scn.motion.cruise_speed_spread_frac
     motion["length_spread_frac"] = scn.motion.length_spread_frac
+    motion["jitter"] = jitter.model_dump(mode="json")  # the real run's shaking, like its path
     data["motion"] = motion
     data["anchors"] = [a.model_dump(mode="json", exclude_none=True) for a in anchors]
     # the burst clock's alignment with the recording is a property of the run, like its geometry (it

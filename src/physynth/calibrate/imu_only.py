@@ -335,7 +335,8 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
 
     Returns a :class:`physynth.calibrate.CalibrationResult`.
     """
-    from .geometry import fit_motion, fit_path, spread_clip_warnings
+    from .geometry import fit_motion, fit_path, spread_clip_warnings, summarize_track
+    from .jitter_fit import IN_PLACE_BANDS_HZ, fit_jitter, in_place_motion
     from .pipeline import CalibrationResult
 
     say = progress or (lambda _msg: None)
@@ -344,8 +345,18 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
         raise CalibrationError("no IMU recording to calibrate on")
     labels = [trace_label(t, i) for i, t in enumerate(trs)]
     say("fitting the path and motion of the truth")
-    path_fit = fit_path(trs, path_kind)  # type: ignore[arg-type]
-    motion_fit = fit_motion(trs, path_length_m=path_fit.diagnostics["length_m"])
+    tracks = [summarize_track(t, lab) for t, lab in zip(trs, labels, strict=True)]
+    path_fit = fit_path(trs, path_kind, tracks=tracks)  # type: ignore[arg-type]
+    motion_fit = fit_motion(trs, path_length_m=path_fit.diagnostics["length_m"], tracks=tracks)
+    truth_rate = 1.0 / median_step_s(trs[0].truth.t_s)
+    path_p, motion_p, bands = path_fit.params, motion_fit.params, None
+    place = in_place_motion(tracks, motion_p)
+    if place is not None:  # a device shaken on a bench: a point and its jitter, not a folded path
+        path_p, motion_p, place_diag = place
+        bands = IN_PLACE_BANDS_HZ
+    jitter, jitter_diag = fit_jitter(trs, tracks, path_p, motion_p, truth_rate, bands_hz=bands)
+    if place is not None:
+        jitter_diag["in_place"] = place_diag
     say("fitting the IMU (ENU, gravity-free)")
     imf = fit_imu(trs)
     fc = float(imf.diagnostics["truth_cutoff_hz"])
@@ -356,13 +367,12 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
         body = fit_body_imu(trs, cutoff_hz=fc, offset_s=imf.params.time_offset_s,
                             lever_arm_m=imf.params.lever_arm_m if any(imf.params.lever_arm_m) else None)
         frames.append(IMU_BODY_FRAME)
-    truth_rate = 1.0 / median_step_s(trs[0].truth.t_s)
     imu = imf.params.model_dump(mode="json")
     data: dict[str, Any] = {
         "name": name,
         "description": f"calibrated by physynth {__version__} on IMU-only recordings {', '.join(labels)}",
-        "path": {**path_fit.params.model_dump(mode="json"), "reverse": False},
-        "motion": motion_fit.params.model_dump(mode="json"),
+        "path": {**path_p.model_dump(mode="json"), "reverse": False},
+        "motion": motion_p.model_copy(update={"jitter": jitter}).model_dump(mode="json"),
         "attitude": _attitude_section(trs, fc),
         "imu": imu,
         "imu_frames": frames,
@@ -392,6 +402,10 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
     def put(key: str, value: Any, n: int, summary: bool = True) -> None:
         params[key] = {"value": value, "n_samples": int(n), **({"summary": True} if summary else {})}
 
+    n_truth = int(sum(tr.i_end - tr.i_start + 1 for tr in tracks))
+    put("motion.in_place", place is not None, n_truth)
+    put("motion.jitter.acc_rms_mps2", jitter.acc_rms_mps2, n_truth)
+    put("motion.jitter.intensity_log_std", jitter.intensity_log_std, len(tracks))
     p = imf.params
     put("imu.white_noise_density_mps2_per_sqrt_hz", list(p.white_noise_density_mps2_per_sqrt_hz), imf.n_samples)
     put("imu.time_offset_s", p.time_offset_s, imf.n_samples)
@@ -414,6 +428,7 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
         "parameters": params,
         "path": path_fit.diagnostics,
         "motion": motion_fit.diagnostics,
+        "motion_jitter": jitter_diag,
         "imu": imf.diagnostics,
         "body_imu": None if body is None else body.diagnostics,
         "not_identifiable": ["uwb, channel, availability, anchors (IMU-only recordings: the scenario has no anchors)"]
@@ -421,7 +436,7 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
         + ([] if body is None else body.diagnostics["not_identifiable"]),
         "scenario": scn.model_dump(mode="json"),
     }
-    warnings = spread_clip_warnings(motion_fit.diagnostics)
+    warnings = spread_clip_warnings(motion_fit.diagnostics) if place is None else []  # a folded path's spreads
     if warnings:
         report["warnings"] = warnings
     return CalibrationResult(scenario=scn, report=report)

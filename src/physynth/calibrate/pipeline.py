@@ -65,6 +65,7 @@ from .geometry import (
     spread_clip_warnings,
     summarize_track,
 )
+from .jitter_fit import fit_jitter
 from .run_lag import fit_run_lags
 from .uwb_fit import (
     MIN_ANCHOR_ROWS,
@@ -838,6 +839,10 @@ def fit_geometry(inp: CalibrationInputs, path_kind: PathKind, report: ReportBuil
                     "quantile of the trips' acceleration"))
     for key in ("cruise_speed_spread_frac", "length_spread_frac"):
         rep.param(f"motion.{key}", getattr(mp, key), n=len(trs), note=mf.diagnostics["spread_method"])
+    jitter, jdiag = fit_jitter(trs, inp.tracks, path, mp, Scenario.model_fields["truth_rate_hz"].default)
+    rep.sections["motion_jitter"] = jdiag
+    rep.param("motion.jitter.acc_rms_mps2", jitter.acc_rms_mps2, n=mf.n_samples, note=jdiag["method"])
+    mp = mp.model_copy(update={"jitter": jitter})
     rep.warnings.extend(spread_clip_warnings(mf.diagnostics))
     for key in ("dwell_start_s", "dwell_end_s"):
         vals = [r[key] for r in mf.diagnostics["per_run"].values()]

@@ -16,6 +16,7 @@ from numpy.polynomial import polynomial as P
 from pydantic import Field, model_validator
 
 from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Probability
+from .jitter import JitterParams
 from .path import PathGeometry, PathPerturbation, perturbed_cf
 
 
@@ -61,6 +62,9 @@ class MotionParams(ParamsModel):
     mover slows to sqrt(limit / kappa), braking before and speeding up after at no more than the limit
     along the path (a walker at a turn or a reversal, a vehicle at a corner); the trip takes longer by
     the time lost. ``None`` (the default): the speed profile alone, whatever the path's curvature.
+
+    ``jitter``: a random band-limited displacement added while the mover moves (the shaking of a
+    hand-held sensor, a walker's sway; :mod:`physynth.models.jitter`); off by default.
     """
 
     cruise_speed_mps: PositiveFloat
@@ -70,6 +74,7 @@ class MotionParams(ParamsModel):
     dwell_start_s: NonNegFloat = 0.0
     dwell_end_s: NonNegFloat = 0.0
     max_acc_mps2: PositiveFloat | None = None
+    jitter: JitterParams = JitterParams()
 
 
 _TABLE_N = 4001
