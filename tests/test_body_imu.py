@@ -91,8 +91,10 @@ def test_gyroscope_integrates_the_truth_attitude_exactly_for_every_kind():
     t = np.arange(0, 20.0, 0.01)
     vel = np.stack([np.cos(0.3 * t), np.sin(0.3 * t), 0.1 * np.ones_like(t)], axis=1)
     acc = np.stack([-0.3 * np.sin(0.3 * t), 0.3 * np.cos(0.3 * t), np.zeros_like(t)], axis=1)
-    for kind in ("tangent", "pendulum", "tumble", "fixed"):
-        att = simulate_attitude(t, vel, acc, AttitudeParams(kind=kind), rng=np.random.default_rng(1))
+    for kind, spectrum in (("tangent", "ou"), ("pendulum", "ou"), ("tumble", "ou"), ("tumble", "smooth"),
+                           ("fixed", "ou")):
+        att = simulate_attitude(t, vel, acc, AttitudeParams(kind=kind, tumble_spectrum=spectrum),
+                                rng=np.random.default_rng(1))
         step = Rotation.from_rotvec(att.omega_body_radps[:-1] * 0.01)
         pred = att.rot[:-1] * step
         assert np.max((pred.inv() * att.rot[1:]).magnitude()) < 1e-12, kind
@@ -102,6 +104,26 @@ def test_gyroscope_integrates_the_truth_attitude_exactly_for_every_kind():
     np.testing.assert_allclose(x_b[:, :2], vel[:, :2] / np.linalg.norm(vel[:, :2], axis=1, keepdims=True), atol=1e-12)
     np.testing.assert_allclose(x_b[:, 2], 0.0, atol=1e-12)
     np.testing.assert_allclose(att.omega_body_radps[:-1, 2], 0.3, rtol=1e-9)
+
+
+def test_smooth_tumble_has_its_spread_correlation_and_no_jumps():
+    t = np.arange(0, 4000.0, 0.01)
+    z = np.zeros((t.size, 3))
+    tau, std = 0.5, 1.5
+    params = AttitudeParams(kind="tumble", tumble_spectrum="smooth", tumble_rate_std_radps=std,
+                            tumble_correlation_s=tau)
+    smooth = simulate_attitude(t, z, z, params, rng=np.random.default_rng(4))
+    w = smooth.omega_body_radps[:-1]
+    # 4000 s hold ~4000 / (4 tau) = 2000 independent stretches: the variance within ~3 % (1 sigma)
+    np.testing.assert_allclose(np.std(w, axis=0), std, rtol=0.1)
+    k = int(round(tau / 0.01))
+    acf = np.mean(w[:-k] * w[k:], axis=0) / np.var(w, axis=0)
+    np.testing.assert_allclose(acf, 2.0 / np.e, atol=0.05)  # (1 + 1) exp(-1) at one tau
+    # an Ornstein-Uhlenbeck rate steps by std sqrt(2 dt / tau) per sample (0.3 rad/s here); the smooth
+    # one by about std dt / tau (0.03 rad/s): a rotation the 10 Hz truth band can follow
+    ou = simulate_attitude(t, z, z, AttitudeParams(kind="tumble", tumble_rate_std_radps=std, tumble_correlation_s=tau),
+                           rng=np.random.default_rng(4)).omega_body_radps[:-1]
+    assert np.std(np.diff(w, axis=0)) < 0.05 and np.std(np.diff(ou, axis=0)) > 0.25
 
 
 def test_pendulum_settles_at_the_tilt_of_a_steady_acceleration():

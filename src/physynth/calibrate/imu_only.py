@@ -307,7 +307,7 @@ def fit_body_imu(traces: Sequence[Trace], *, cutoff_hz: float = 10.0, offset_s: 
 
 
 def _attitude_section(traces: Sequence[Trace], cutoff_hz: float) -> dict[str, Any]:
-    """A tumbling attitude with the truth's body-rate spread and correlation time (or tangent)."""
+    """A smoothly tumbling attitude with the truth's body-rate spread and 1/e correlation lag (or tangent)."""
     rates = []
     for tr in traces:
         if tr.truth.quat_wxyz is None:
@@ -324,8 +324,13 @@ def _attitude_section(traces: Sequence[Trace], cutoff_hz: float) -> dict[str, An
     n = min(x.shape[0] // 2, int(10.0 / dt))
     acf = np.array([np.mean(np.sum(x[: x.shape[0] - k] * x[k:], axis=1)) for k in range(0, n, max(1, n // 200))])
     lag = int(np.argmax(acf < acf[0] / np.e)) * max(1, n // 200) if np.any(acf < acf[0] / np.e) else n
-    return {"kind": "tumble", "tumble_rate_std_radps": rounded(std, 4),
-            "tumble_correlation_s": rounded(max(lag * dt, dt), 4)}
+    # the smooth spectrum's autocorrelation (1 + t / tau) exp(-t / tau) falls to 1/e at t = 2.146 tau
+    return {"kind": "tumble", "tumble_spectrum": "smooth", "tumble_rate_std_radps": rounded(std, 4),
+            "tumble_correlation_s": rounded(max(lag * dt / SMOOTH_ACF_1_OVER_E, dt), 4)}
+
+
+SMOOTH_ACF_1_OVER_E = 2.1462
+"""(1 + x) exp(-x) = 1/e at x = 2.1462: the 1/e lag of a smooth tumble's rate in units of its tau."""
 
 
 def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", path_kind: str = "auto",

@@ -13,7 +13,13 @@ The body frame is FLU (x forward, y left, z up); the world frame ENU. The attitu
   rest. Discretised exactly for a piecewise-constant input (zero-order hold).
 - ``tumble``: a free particle: body angular velocity an Ornstein-Uhlenbeck process per axis with
   standard deviation ``tumble_rate_std_radps`` and correlation time ``tumble_correlation_s``, from a
-  uniformly random initial attitude. Draws from the ``attitude`` random stream.
+  uniformly random initial attitude. Draws from the ``attitude`` random stream. With
+  ``tumble_spectrum: smooth`` the rate is instead a second-order Gauss-Markov process (power spectral
+  density proportional to 1 / (1 + (2 pi f tau)^2)^2, autocorrelation (1 + |t| / tau) exp(-|t| / tau),
+  tau = ``tumble_correlation_s``): its angular acceleration is continuous, as a hand's or a tumbling
+  body's is, where the Ornstein-Uhlenbeck rate jumps from sample to sample and so turns the body
+  faster than any truth system resolves (calibration writes ``smooth``). Synthesised per trace from
+  its spectrum over the trace (circular), stationary from the first sample.
 - ``fixed``: ``fixed_quat_wxyz`` throughout.
 
 Angular velocity convention (what makes integration exact): between two truth samples the body turns
@@ -49,6 +55,7 @@ class AttitudeParams(ParamsModel):
     pendulum_damping_ratio: Annotated[float, Field(ge=0, lt=1)] = 0.05
     tumble_rate_std_radps: NonNegFloat = 1.0
     tumble_correlation_s: PositiveFloat = 0.5
+    tumble_spectrum: Literal["ou", "smooth"] = "ou"
     fixed_quat_wxyz: Annotated[list[FiniteFloat], Field(min_length=4, max_length=4)] = [1.0, 0.0, 0.0, 0.0]
 
 
@@ -137,6 +144,23 @@ def _ou(n: int, dt: float, std: float, tau_s: float, *, rng: np.random.Generator
     return ar1(e, rho).T
 
 
+def _smooth_rates(n: int, dt: float, std: float, tau_s: float, *, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3) samples of the second-order Gauss-Markov process of ``tumble_spectrum: smooth``: complex
+    Gaussian coefficients shaped by the spectrum, inverse real FFT, scaled to the variance ``std^2``
+    the coefficients give on average (not each trace's own: a trace's sample variance scatters)."""
+    f = np.fft.rfftfreq(n, dt)
+    amp = 1.0 / (1.0 + (2.0 * np.pi * f * tau_s) ** 2)  # sqrt of the spectrum's shape
+    coef = amp[:, None] * (rng.standard_normal((f.size, 3)) + 1j * rng.standard_normal((f.size, 3)))
+    # irfft's variance per unit of amp^2: the DC (and, n even, the Nyquist) bin enter through their real
+    # part once, every other bin twice with both parts
+    weight = np.full(f.size, 4.0)
+    weight[0] = 1.0
+    if n % 2 == 0 and f.size > 1:
+        weight[-1] = 1.0
+    var = float(np.sum(weight * amp**2)) / n**2
+    return np.fft.irfft(coef, n, axis=0) * (std / np.sqrt(var)) if var > 0 else np.zeros((n, 3))
+
+
 def _cumulative_compose(first: Rotation, steps: Rotation) -> Rotation:
     """R_0 = first, R_{k+1} = R_k * steps[k]: a prefix product in log2(K) vectorised compositions."""
     from scipy.spatial.transform import Rotation
@@ -206,7 +230,8 @@ def simulate_attitude(t_s: np.ndarray, vel_enu_mps: np.ndarray, acc_enu_mps2: np
             raise ValueError("a tumbling attitude needs a random generator")
         from scipy.spatial.transform import Rotation
 
-        omega = _ou(n, dt, params.tumble_rate_std_radps, params.tumble_correlation_s, rng=rng)
+        rates = _ou if params.tumble_spectrum == "ou" else _smooth_rates
+        omega = rates(n, dt, params.tumble_rate_std_radps, params.tumble_correlation_s, rng=rng)
         first = Rotation.random(random_state=rng)
         if n == 1:
             return Attitude.from_rotation(Rotation.concatenate([first]), omega)
