@@ -29,7 +29,7 @@ same numbers as before they existed):
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Annotated
 
 import numpy as np
@@ -220,6 +220,41 @@ class ChannelArrays:
     link: LinkBudgetArrays | None = None  # None: no anchor has a link budget
     obstacles: tuple = ()
     terrain: TerrainGrid | None = None
+    # derived from the fields above on construction: each anchor's NLOS episode law (None where
+    # nlos_prob is 0 or 1: no episodes), the per-scenario constants of nlos_episodes
+    episode_laws: tuple[EpisodeLaw | None, ...] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        weights_of = np.diff(self.mode_cumw, axis=1, prepend=0.0)  # mode weights of every anchor
+        laws = tuple(episode_law(float(p), weights_of[i], self.mode_dwell_s[i], self.mode_fixed_dwell[i])
+                     if 0 < p < 1 else None for i, p in enumerate(self.nlos_prob.tolist()))
+        object.__setattr__(self, "episode_laws", laws)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class EpisodeLaw:
+    """The constants of one anchor's NLOS episodes (:func:`nlos_episodes`): cumulative episode-mode
+    probabilities, mean episode length per mode, the modes of fixed length (None: none), the mean LOS
+    gap and the mean cycle (episode + gap) [s]."""
+
+    nlos_prob: float
+    cum_q: np.ndarray
+    dwell_s: np.ndarray
+    fixed: np.ndarray | None
+    mean_off_s: float
+    mean_cycle_s: float
+
+
+def episode_law(nlos_prob: float, weights: np.ndarray, dwell_s: np.ndarray,
+                fixed_dwell: np.ndarray | None = None) -> EpisodeLaw:
+    """The :class:`EpisodeLaw` of :func:`nlos_episodes`'s parameters (0 < ``nlos_prob`` < 1)."""
+    q = weights / dwell_s
+    q = q / q.sum()
+    mean_on = float((q * dwell_s).sum())
+    mean_off = mean_on * (1.0 - nlos_prob) / nlos_prob
+    fixed = fixed_dwell if fixed_dwell is not None and fixed_dwell.any() else None  # None: no mode is fixed
+    return EpisodeLaw(nlos_prob=nlos_prob, cum_q=q.cumsum(), dwell_s=dwell_s, fixed=fixed, mean_off_s=mean_off,
+                      mean_cycle_s=mean_on + mean_off)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -321,9 +356,16 @@ def burst_times(t_start_s: float, t_end_s: float, burst_rate_hz: float, jitter_s
 
 
 def link_probability(range_m: np.ndarray, max_range_m: np.ndarray, edge_width_m: np.ndarray) -> np.ndarray:
-    """Soft radio horizon: 1 / (1 + exp((r - max_range) / edge_width))."""
-    x = np.clip((range_m - max_range_m) / edge_width_m, -50.0, 50.0)
-    return 1.0 / (1.0 + np.exp(x))
+    """Soft radio horizon: 1 / (1 + exp((r - max_range) / edge_width)), the exponent clipped to [-50, 50]."""
+    x = np.subtract(range_m, max_range_m)
+    if not isinstance(x, np.ndarray) or x.dtype != np.float64:  # scalars: no buffer to work in
+        return 1.0 / (1.0 + np.exp(np.clip(x / edge_width_m, -50.0, 50.0)))
+    x /= edge_width_m  # the steps of the line above, in one buffer (numpy.clip's values: max, then min)
+    np.maximum(x, -50.0, out=x)
+    np.minimum(x, 50.0, out=x)
+    np.exp(x, out=x)
+    x += 1.0
+    return np.divide(1.0, x, out=x)
 
 
 def ground_gain_db(horiz_m: np.ndarray, h_anchor_m: np.ndarray, h_tag_m: np.ndarray, reflection: np.ndarray,
@@ -392,7 +434,9 @@ def sample_nlos_offset(anchor: np.ndarray, ch: ChannelArrays, *, rng: np.random.
     if mode is None:
         u = rng.random(anchor.shape[0])
         mode = np.minimum((u[:, None] > ch.mode_cumw[anchor]).sum(axis=1), ch.mode_cumw.shape[1] - 1)
-    return ch.mode_mean_m[anchor, mode] + ch.mode_std_m[anchor, mode] * rng.standard_normal(anchor.shape[0])
+    flat = np.multiply(anchor, ch.mode_mean_m.shape[1], dtype=np.intp)  # [anchor, mode] as flat indices
+    flat += mode
+    return ch.mode_mean_m.ravel().take(flat) + ch.mode_std_m.ravel().take(flat) * rng.standard_normal(anchor.shape[0])
 
 
 BIAS_RANGE_FLOOR_M = 0.1
@@ -452,8 +496,8 @@ def range_error(true_range_m: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, 
     share one draw of the offset plus their own jitter; these draws come after all others, so a
     scenario without held modes draws exactly as before.
     """
-    err = (los_error_mean(true_range_m, ch.los_mean_m[anchor], ch.range_bias_per_m[anchor],
-                          ch.range_bias_per_decade_m[anchor])
+    decade = ch.range_bias_per_decade_m[anchor] if ch.range_bias_per_decade_m.any() else 0.0  # 0: term left out
+    err = (los_error_mean(true_range_m, ch.los_mean_m[anchor], ch.range_bias_per_m[anchor], decade)
            + ch.los_std_m[anchor] * rng.standard_normal(true_range_m.shape[0]))
     in_episode = mode >= 0
     zone_only = nlos & ~in_episode
@@ -484,28 +528,8 @@ def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_
     bool, mode (N,) int, -1 where LOS, episode (N,) int: ``first_episode`` + index of the episode, -1
     where LOS). ``ascending``: as in :func:`~physynth.models.renewal.switch_counts`.
     """
-    q = weights / dwell_s
-    q = q / q.sum()
-    mean_on = float((q * dwell_s).sum())
-    mean_off = mean_on * (1.0 - nlos_prob) / nlos_prob
-    start_on = bool(rng.random() < nlos_prob)
-    cum_q = q.cumsum()
-    fixed = fixed_dwell if fixed_dwell is not None and fixed_dwell.any() else None  # None: no mode is fixed
-    col_on = 0 if start_on else 1
-
-    def draw(n: int) -> tuple[np.ndarray, np.ndarray]:
-        modes = np.minimum(cum_q.searchsorted(rng.random(n), side="right"), q.size - 1)
-        pairs = np.empty((n, 2))  # (on, off) or (off, on): the state the process starts in first
-        on = rng.exponential(1.0, n)
-        on *= dwell_s[modes]
-        if fixed is not None:
-            on = np.where(fixed[modes], dwell_s[modes], on)
-        pairs[:, col_on] = on
-        pairs[:, 1 - col_on] = rng.exponential(mean_off, n)
-        return pairs, modes
-
-    k, modes = switch_counts(t_s, draw, initial_pairs(float(t_s[-1] - t_s[0]), mean_on + mean_off),
-                             ascending=ascending)
+    k, modes, start_on = episode_switches(t_s, episode_law(nlos_prob, weights, dwell_s, fixed_dwell), rng=rng,
+                                          ascending=ascending)
     nlos = (k & 1) == (0 if start_on else 1)  # k >= 0: k & 1 is k % 2 and k >> 1 is k // 2
     pair = np.right_shift(k, 1, out=k)
     np.minimum(pair, modes.size - 1, out=pair)
@@ -513,6 +537,31 @@ def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_
     if first_episode:
         pair += first_episode
     return nlos, mode, np.where(nlos, pair, -1)
+
+
+def episode_switches(t_s: np.ndarray, law: EpisodeLaw, *, rng: np.random.Generator,
+                     ascending: bool | None = None) -> tuple[np.ndarray, np.ndarray, bool]:
+    """The draws of :func:`nlos_episodes`: (switch counts (N,) at the sorted times ``t_s``, the mode of
+    each episode, whether the process starts in an episode). Even counts: the starting state; count k
+    is in pair k // 2 (episode and gap)."""
+    start_on = bool(rng.random() < law.nlos_prob)
+    col_on = 0 if start_on else 1
+    cum_q, dwell_s, fixed = law.cum_q, law.dwell_s, law.fixed
+
+    def draw(n: int) -> tuple[np.ndarray, np.ndarray]:
+        modes = np.minimum(cum_q.searchsorted(rng.random(n), side="right"), cum_q.size - 1)
+        pairs = np.empty((n, 2))  # (on, off) or (off, on): the state the process starts in first
+        on = rng.exponential(1.0, n)
+        on *= dwell_s[modes]
+        if fixed is not None:
+            on = np.where(fixed[modes], dwell_s[modes], on)
+        pairs[:, col_on] = on
+        pairs[:, 1 - col_on] = rng.exponential(law.mean_off_s, n)
+        return pairs, modes
+
+    k, modes = switch_counts(t_s, draw, initial_pairs(float(t_s[-1] - t_s[0]), law.mean_cycle_s),
+                             ascending=ascending)
+    return k, modes, start_on
 
 
 def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: ChannelArrays, *,
@@ -528,35 +577,59 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
     nlos = np.zeros(t_s.shape[0], dtype=bool)
     mode = np.full(t_s.shape[0], -1, dtype=np.int64)
     episode = np.full(t_s.shape[0], -1, dtype=np.int64)
-    base = 0
-    weights_of = np.diff(ch.mode_cumw, axis=1, prepend=0.0)  # mode weights of every anchor
     ascending = is_ascending(t_s)  # checked once for every anchor's rows
     if rows_of is None:
         rows_of = rows_by_label(anchor, ch.nlos_prob.shape[0])
-    parts = []  # (rows, nlos, mode, episode) of each anchor with episodes, written in one scatter each
-    for i, rows in enumerate(rows_of):  # one renewal process per anchor
-        p = ch.nlos_prob[i]
-        if rows.size == 0 or p <= 0:
+    parts = []  # (rows, switch counts, episode modes, start_on) of each anchor with episodes
+    for i, rows in enumerate(rows_of):  # one renewal process per anchor (the draws anchor by anchor)
+        if rows.size == 0 or ch.nlos_prob[i] <= 0:
             continue
-        weights = weights_of[i]
-        if p >= 1:
+        if ch.nlos_prob[i] >= 1:
             nlos[rows] = True
             continue
-        got = nlos_episodes(t_s[rows], p, weights, ch.mode_dwell_s[i], rng=rng, fixed_dwell=ch.mode_fixed_dwell[i],
-                            first_episode=base, ascending=ascending)
-        parts.append((rows, *got))
-        base = max(base, int(got[2].max()) + 1)
-    if parts:  # the anchors' rows are disjoint: one scatter per column instead of one per anchor
+        parts.append((rows, *episode_switches(t_s[rows], ch.episode_laws[i], rng=rng, ascending=ascending)))
+    if parts:  # the anchors' rows are disjoint: their states in one pass over all of them, one scatter
         rows = np.concatenate([q[0] for q in parts])
-        for column, k in ((nlos, 1), (mode, 2), (episode, 3)):
-            column[rows] = np.concatenate([q[k] for q in parts])
+        for column, values in zip((nlos, mode, episode), _episode_columns(parts), strict=True):
+            column[rows] = values
     if ch.zone_s_m.size:
-        dist = np.abs(s_m[:, None] - ch.zone_s_m[None, :])
-        p_zone = np.where(dist <= ch.zone_half_width_m, ch.zone_nlos_prob, 0.0).max(axis=1)
+        p_zone = _zone_nlos_prob(s_m, ch)
         nlos |= rng.random(t_s.shape[0]) < p_zone
     if blocked is not None:
         nlos |= blocked
     return nlos, mode, episode
+
+
+def _episode_columns(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, bool]]
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(nlos, mode, episode) of the anchors' rows in ``parts`` (rows, switch counts, episode modes,
+    start_on), concatenated: :func:`nlos_episodes`'s values with ``first_episode`` running over the
+    anchors (each anchor's episodes numbered after the last one of the anchors before it)."""
+    sizes = [q[0].size for q in parts]
+    k = np.concatenate([q[1] for q in parts])
+    nlos = (k & 1) == np.repeat([0 if q[3] else 1 for q in parts], sizes)  # k >= 0: k & 1 is k % 2
+    pair = np.right_shift(k, 1, out=k)
+    np.minimum(pair, np.repeat([q[2].size - 1 for q in parts], sizes), out=pair)
+    first_mode = np.cumsum([0] + [q[2].size for q in parts[:-1]])  # of each anchor in the concatenation
+    mode = np.where(nlos, np.concatenate([q[2] for q in parts]).take(pair + np.repeat(first_mode, sizes)), -1)
+    in_pair = np.where(nlos, pair, -1)
+    last = np.maximum.reduceat(in_pair, np.cumsum([0] + sizes[:-1]))  # each anchor's last episode, -1: none
+    first_episode = np.cumsum(np.concatenate([[0], last[:-1] + 1]))
+    pair += np.repeat(first_episode, sizes)
+    return nlos, mode, np.where(nlos, pair, -1)
+
+
+def _zone_nlos_prob(s_m: np.ndarray, ch: ChannelArrays) -> np.ndarray:
+    """(N,) NLOS probability of the zones at path coordinates ``s_m``: the largest of the zones that
+    contain each point, 0 outside every zone. One zone at a time (no (N, Z) temporaries)."""
+    p = None
+    for z_s, half, prob in zip(ch.zone_s_m.tolist(), ch.zone_half_width_m.tolist(), ch.zone_nlos_prob.tolist(),
+                               strict=True):
+        dist = np.subtract(s_m, z_s)
+        np.abs(dist, out=dist)
+        here = np.where(dist <= half, prob, 0.0)
+        p = here if p is None else np.maximum(p, here, out=p)
+    return p
 
 
 def run_offsets(n_anchors: int, params: UwbParams, *, rng: np.random.Generator) -> np.ndarray:
