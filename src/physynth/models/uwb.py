@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from itertools import accumulate
 from typing import Annotated
 
 import numpy as np
@@ -500,10 +501,12 @@ def range_error(true_range_m: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, 
     err = (los_error_mean(true_range_m, ch.los_mean_m[anchor], ch.range_bias_per_m[anchor], decade)
            + ch.los_std_m[anchor] * rng.standard_normal(true_range_m.shape[0]))
     in_episode = mode >= 0
-    zone_only = nlos & ~in_episode
-    err[in_episode] = sample_nlos_offset(anchor[in_episode], ch, rng=rng, mode=mode[in_episode])
-    err[zone_only] = sample_nlos_offset(anchor[zone_only], ch, rng=rng)
-    if episode is not None and in_episode.any() and np.isfinite(ch.mode_held_jitter_m).any():  # a held mode
+    ep = np.flatnonzero(in_episode)  # row indices: the NLOS rows are few, each gather then a short one
+    nl = np.flatnonzero(nlos)
+    zone_only = nl[mode.take(nl) < 0]  # NLOS outside an episode
+    err[ep] = sample_nlos_offset(anchor.take(ep), ch, rng=rng, mode=mode.take(ep))
+    err[zone_only] = sample_nlos_offset(anchor.take(zone_only), ch, rng=rng)
+    if episode is not None and ep.size and np.isfinite(ch.mode_held_jitter_m).any():  # a held mode
         jit = np.full(err.shape[0], np.nan)
         jit[in_episode] = ch.mode_held_jitter_m[anchor[in_episode], mode[in_episode]]
         held = np.isfinite(jit)
@@ -588,10 +591,8 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
             nlos[rows] = True
             continue
         parts.append((rows, *episode_switches(t_s[rows], ch.episode_laws[i], rng=rng, ascending=ascending)))
-    if parts:  # the anchors' rows are disjoint: their states in one pass over all of them, one scatter
-        rows = np.concatenate([q[0] for q in parts])
-        for column, values in zip((nlos, mode, episode), _episode_columns(parts), strict=True):
-            column[rows] = values
+    if parts:  # the anchors' rows are disjoint: their states in one pass over all of them
+        _write_episodes(parts, nlos, mode, episode)
     if ch.zone_s_m.size:
         p_zone = _zone_nlos_prob(s_m, ch)
         nlos |= rng.random(t_s.shape[0]) < p_zone
@@ -600,23 +601,33 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
     return nlos, mode, episode
 
 
-def _episode_columns(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, bool]]
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(nlos, mode, episode) of the anchors' rows in ``parts`` (rows, switch counts, episode modes,
-    start_on), concatenated: :func:`nlos_episodes`'s values with ``first_episode`` running over the
-    anchors (each anchor's episodes numbered after the last one of the anchors before it)."""
-    sizes = [q[0].size for q in parts]
+def _write_episodes(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, bool]], nlos: np.ndarray,
+                    mode: np.ndarray, episode: np.ndarray) -> None:
+    """Write the anchors' episode states into the columns at their rows: ``parts`` holds (rows, switch
+    counts, episode modes, start_on) of each anchor (:func:`episode_switches`), in anchor order. The
+    values of :func:`nlos_episodes` anchor by anchor, with ``first_episode`` running over the anchors
+    (each anchor's episodes numbered after the last one of the anchors before it); LOS rows keep their
+    mode and episode (-1)."""
+    for _, k, _, start_on in parts:
+        if not start_on:
+            k += 1  # in an episode exactly where the count (shifted by one here) is even
     k = np.concatenate([q[1] for q in parts])
-    nlos = (k & 1) == np.repeat([0 if q[3] else 1 for q in parts], sizes)  # k >= 0: k & 1 is k % 2
-    pair = np.right_shift(k, 1, out=k)
-    np.minimum(pair, np.repeat([q[2].size - 1 for q in parts], sizes), out=pair)
-    first_mode = np.cumsum([0] + [q[2].size for q in parts[:-1]])  # of each anchor in the concatenation
-    mode = np.where(nlos, np.concatenate([q[2] for q in parts]).take(pair + np.repeat(first_mode, sizes)), -1)
-    in_pair = np.where(nlos, pair, -1)
-    last = np.maximum.reduceat(in_pair, np.cumsum([0] + sizes[:-1]))  # each anchor's last episode, -1: none
-    first_episode = np.cumsum(np.concatenate([[0], last[:-1] + 1]))
-    pair += np.repeat(first_episode, sizes)
-    return nlos, mode, np.where(nlos, pair, -1)
+    rows = np.concatenate([q[0] for q in parts])
+    in_episode = (k & 1) == 0
+    nlos[rows] = in_episode
+    at = np.flatnonzero(in_episode)  # the few rows in an episode: pair, mode and id computed there only
+    part = np.searchsorted(list(accumulate(q[0].size for q in parts)), at, side="right")
+    shift = np.array([0 if q[3] else 1 for q in parts]).take(part)
+    pair = np.right_shift(k.take(at), 1)  # the (episode, gap) pair: k // 2 of the unshifted count
+    pair -= shift
+    np.minimum(pair, np.array([q[2].size - 1 for q in parts]).take(part), out=pair)
+    first_mode = np.array(list(accumulate((q[2].size for q in parts[:-1]), initial=0))).take(part)
+    first_mode += pair
+    mode[rows.take(at)] = np.concatenate([q[2] for q in parts]).take(first_mode)
+    last = np.full(len(parts), -1, dtype=pair.dtype)  # each anchor's last episode, -1: none
+    np.maximum.at(last, part, pair)
+    pair += np.array(list(accumulate((last[:-1] + 1).tolist(), initial=0)), dtype=pair.dtype).take(part)
+    episode[rows.take(at)] = pair
 
 
 def _zone_nlos_prob(s_m: np.ndarray, ch: ChannelArrays) -> np.ndarray:
