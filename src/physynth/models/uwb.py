@@ -350,7 +350,11 @@ def burst_times(t_start_s: float, t_end_s: float, burst_rate_hz: float, jitter_s
     first = rng.uniform(0.0, period) if phase_s is None else float(phase_s) % period
     t = t_start_s + first + period * np.arange(n)
     if jitter_s > 0:
-        t = t + np.clip(jitter_s * rng.standard_normal(n), -0.45 * period, 0.45 * period)
+        jitter = rng.standard_normal(n)
+        jitter *= jitter_s
+        np.maximum(jitter, -0.45 * period, out=jitter)  # numpy.clip's values
+        np.minimum(jitter, 0.45 * period, out=jitter)
+        t = t + jitter
         gap = np.maximum(np.diff(t), min_period_s)
         t = np.concatenate([t[:1], t[0] + np.cumsum(gap)])
     return t[(t >= t_start_s) & (t < t_end_s)]
@@ -488,6 +492,14 @@ def range_error_log_components(err_m: np.ndarray, true_range_m: np.ndarray, *, l
     return np.stack(comp)
 
 
+def _by_anchor(values: np.ndarray, anchor: np.ndarray) -> np.ndarray | np.float64:
+    """``values[anchor]`` (a per-anchor parameter at every row), or the one value itself when every anchor
+    has the same, bit for bit: the same number at each row of the arithmetic it enters, without the gather."""
+    if values.dtype == np.float64 and values.size and (values.view(np.uint64) == values.view(np.uint64)[0]).all():
+        return values[0]
+    return values[anchor]
+
+
 def range_error(true_range_m: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, mode: np.ndarray,
                 ch: ChannelArrays, *, rng: np.random.Generator, episode: np.ndarray | None = None) -> np.ndarray:
     """Range errors [m] of rows: LOS Gaussian N(mu_i + beta_i r + gamma_i log10 r, sigma_i^2), replaced where
@@ -497,9 +509,10 @@ def range_error(true_range_m: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, 
     share one draw of the offset plus their own jitter; these draws come after all others, so a
     scenario without held modes draws exactly as before.
     """
-    decade = ch.range_bias_per_decade_m[anchor] if ch.range_bias_per_decade_m.any() else 0.0  # 0: term left out
-    err = (los_error_mean(true_range_m, ch.los_mean_m[anchor], ch.range_bias_per_m[anchor], decade)
-           + ch.los_std_m[anchor] * rng.standard_normal(true_range_m.shape[0]))
+    decade = _by_anchor(ch.range_bias_per_decade_m, anchor) if ch.range_bias_per_decade_m.any() else 0.0  # 0: off
+    err = (los_error_mean(true_range_m, _by_anchor(ch.los_mean_m, anchor), _by_anchor(ch.range_bias_per_m, anchor),
+                          decade)
+           + _by_anchor(ch.los_std_m, anchor) * rng.standard_normal(true_range_m.shape[0]))
     in_episode = mode >= 0
     ep = np.flatnonzero(in_episode)  # row indices: the NLOS rows are few, each gather then a short one
     nl = np.flatnonzero(nlos)
@@ -706,7 +719,7 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
         sq = d if sq is None else np.add(sq, d, out=sq)  # as 0 + d_E^2 + d_N^2 + d_U^2 (0 + x is x)
     true_range = np.sqrt(sq)
 
-    p_link = link_probability(true_range, ch.max_range_m[anchor], ch.edge_width_m[anchor])
+    p_link = link_probability(true_range, _by_anchor(ch.max_range_m, anchor), _by_anchor(ch.edge_width_m, anchor))
     blocked = None
     if ch.obstacles or ch.terrain is not None or ch.link is not None:  # geometry-aware parts (optional)
         tag = np.stack(tag_enu, axis=1)
