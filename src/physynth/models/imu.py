@@ -535,7 +535,9 @@ def _specific_force_body_cf(acc_enu_mps2: np.ndarray, rot: Rotation | np.ndarray
     """
     f_w = np.array(np.asarray(acc_enu_mps2, dtype=float).T, order="C")  # (3, T): a_w - g_w
     f_w[2] += G0_MPS2
-    if isinstance(rot, np.ndarray) and rot.shape == (f_w.shape[1], 4) and rot.shape[0] > 1 and not rot[:, 1:3].any():
+    heading_only = (isinstance(rot, np.ndarray) and rot.shape == (f_w.shape[1], 4) and rot.shape[0] > 1
+                    and not (rot[:, 1].any() or rot[:, 2].any()))  # quaternions (w, 0, 0, z)
+    if heading_only:
         out = _heading_force_cf(rot, f_w)
         if out is not None:
             return out

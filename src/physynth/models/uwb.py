@@ -41,7 +41,7 @@ from ._interp import interp_many
 from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Probability, Vec3
 from .motion import Kinematics
 from .obstacles import Obstacle, TerrainGrid, obstacle_losses
-from .renewal import initial_pairs, is_ascending, rows_by_label, switch_counts
+from .renewal import by_label, initial_pairs, is_ascending, rows_by_label, switch_counts
 
 
 class NlosMode(ParamsModel):
@@ -492,14 +492,6 @@ def range_error_log_components(err_m: np.ndarray, true_range_m: np.ndarray, *, l
     return np.stack(comp)
 
 
-def _by_anchor(values: np.ndarray, anchor: np.ndarray) -> np.ndarray | np.float64:
-    """``values[anchor]`` (a per-anchor parameter at every row), or the one value itself when every anchor
-    has the same, bit for bit: the same number at each row of the arithmetic it enters, without the gather."""
-    if values.dtype == np.float64 and values.size and (values.view(np.uint64) == values.view(np.uint64)[0]).all():
-        return values[0]
-    return values[anchor]
-
-
 def range_error(true_range_m: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, mode: np.ndarray,
                 ch: ChannelArrays, *, rng: np.random.Generator, episode: np.ndarray | None = None) -> np.ndarray:
     """Range errors [m] of rows: LOS Gaussian N(mu_i + beta_i r + gamma_i log10 r, sigma_i^2), replaced where
@@ -509,10 +501,10 @@ def range_error(true_range_m: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, 
     share one draw of the offset plus their own jitter; these draws come after all others, so a
     scenario without held modes draws exactly as before.
     """
-    decade = _by_anchor(ch.range_bias_per_decade_m, anchor) if ch.range_bias_per_decade_m.any() else 0.0  # 0: off
-    err = (los_error_mean(true_range_m, _by_anchor(ch.los_mean_m, anchor), _by_anchor(ch.range_bias_per_m, anchor),
+    decade = by_label(ch.range_bias_per_decade_m, anchor) if ch.range_bias_per_decade_m.any() else 0.0  # 0: off
+    err = (los_error_mean(true_range_m, by_label(ch.los_mean_m, anchor), by_label(ch.range_bias_per_m, anchor),
                           decade)
-           + _by_anchor(ch.los_std_m, anchor) * rng.standard_normal(true_range_m.shape[0]))
+           + by_label(ch.los_std_m, anchor) * rng.standard_normal(true_range_m.shape[0]))
     in_episode = mode >= 0
     ep = np.flatnonzero(in_episode)  # row indices: the NLOS rows are few, each gather then a short one
     nl = np.flatnonzero(nlos)
@@ -719,7 +711,7 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
         sq = d if sq is None else np.add(sq, d, out=sq)  # as 0 + d_E^2 + d_N^2 + d_U^2 (0 + x is x)
     true_range = np.sqrt(sq)
 
-    p_link = link_probability(true_range, _by_anchor(ch.max_range_m, anchor), _by_anchor(ch.edge_width_m, anchor))
+    p_link = link_probability(true_range, by_label(ch.max_range_m, anchor), by_label(ch.edge_width_m, anchor))
     blocked = None
     if ch.obstacles or ch.terrain is not None or ch.link is not None:  # geometry-aware parts (optional)
         tag = np.stack(tag_enu, axis=1)
@@ -728,7 +720,7 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
             blocked, loss = obstacle_losses(tag, ch.anchor_pos_enu_m[anchor], ch.obstacles, ch.terrain)
         p_link = p_link * link_detection_probability(tag, anchor, ch, loss)
     linked = rng.random(t_true.shape[0]) < p_link
-    rows_of = tuple(rows_by_label(anchor, n_anchors))
+    rows_of = _rows_per_anchor(scheduled)
     nlos, mode, episode = nlos_states(t_true, anchor, s_m, ch, rng=rng, blocked=blocked, rows_of=rows_of)
     err = range_error(true_range, anchor, nlos, mode, ch, rng=rng, episode=episode)
     offsets = run_offsets(n_anchors, u, rng=rng)
@@ -739,6 +731,14 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
     return UwbAttempts(bursts_s=bursts, burst=b_idx, anchor=anchor, t_true_s=t_true, true_range_m=true_range,
                        measured_m=measured, nlos=nlos, linked=linked, anchor_rows=rows_of,
                        time_offset_s=trace_time_offset(u, rng=rng))
+
+
+def _rows_per_anchor(scheduled: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The attempt rows of each anchor (``rows_by_label(anchor, A)``) from the (bursts, anchors) schedule
+    whose row-major nonzeros are the attempts: each scheduled entry's rank among them, anchor by anchor."""
+    rank = np.cumsum(scheduled.ravel()).reshape(scheduled.shape)
+    rank -= 1
+    return tuple(rank[:, i][scheduled[:, i]] for i in range(scheduled.shape[1]))
 
 
 def uwb_record(att: UwbAttempts, *, outage: np.ndarray, dropped: np.ndarray) -> Uwb:
