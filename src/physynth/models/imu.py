@@ -191,7 +191,7 @@ def _comb_phases(freq_h: tuple[float, ...], dt: float, r: int) -> np.ndarray:
 def _comb(t_s: np.ndarray, knots_t: np.ndarray, z_hak: np.ndarray, amp_h: np.ndarray, freq_h: np.ndarray,
           phase_h: np.ndarray) -> np.ndarray:
     """(A, N) sum over lines h of amp_h Re(z_h,a(t) exp(i (2 pi freq_h (t - t_0) + phase_h))), with the
-    complex envelopes z (H, A, K) linearly interpolated from uniform knots.
+    complex envelopes z (H, A, K) linearly interpolated from uniform knots (rows possibly strided: a view).
 
     On the usual aligned grid (knots every r samples from t_0, t = t_k + j dt) the carrier factorises
     as C_k R_j, so z(t) c(t) = (z_k C_k) R_j + (dz_k C_k) (j / r) R_j: one (A K, 4H) @ (4H, r) matrix
@@ -210,7 +210,7 @@ def _comb(t_s: np.ndarray, knots_t: np.ndarray, z_hak: np.ndarray, amp_h: np.nda
         lhs = np.concatenate([p.real, -p.imag, q.real, -q.imag], axis=0)  # (4H, A, K-1)
         rhs = _comb_phases(tuple(freq_h.tolist()), float(dt), r)  # (4H, r), the same for every trace
         out = lhs.transpose(1, 2, 0).reshape(a * (k - 1), 4 * h) @ rhs
-        return np.ascontiguousarray(out.reshape(a, -1)[:, :n])
+        return out.reshape(a, -1)[:, :n]  # rows of the product (no copy: the callers' next step makes one)
     z = resample_cf(t_s, knots_t, z_hak.real.reshape(h * a, k)) + 1j * resample_cf(
         t_s, knots_t, z_hak.imag.reshape(h * a, k))
     carrier = amp_h[:, None] * np.exp(1j * (2.0 * np.pi * freq_h[:, None] * (t_s - t_s[0]) + phase_h[:, None]))

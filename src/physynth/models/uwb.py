@@ -465,7 +465,7 @@ def los_error_mean(true_range_m: np.ndarray, los_mean_m: np.ndarray | float,
     exactly what they drew before it existed.
     """
     out = los_mean_m + range_bias_per_m * true_range_m
-    if np.any(np.asarray(range_bias_per_decade_m) != 0.0):
+    if np.asarray(range_bias_per_decade_m).any():  # (a method: no function-wrapper overhead)
         out = out + range_bias_per_decade_m * range_decades(true_range_m)
     return out
 
