@@ -276,3 +276,33 @@ def test_tag_outage_rate_drawn_per_trace_from_its_gamma_law():
     assert nd.mean() == pytest.approx(m, abs=5 * np.sqrt((m + m * m / 1.5) / nd.size))
     # without a shape nothing is drawn: the trace equals the one of a scenario that never had the field
     np.testing.assert_array_equal(fixed[0].uwb.reason, _traces(simple_scenario(**kw), 1, seed=4)[0].uwb.reason)
+
+
+def test_nlos_states_equal_the_anchors_episodes_one_after_another():
+    """nlos_states (all anchors' episode states at once) is nlos_episodes anchor by anchor, with the
+    episode ids numbered on over the anchors, the same draws in the same order; zones off."""
+    from dataclasses import replace
+
+    from physynth.models.renewal import rows_by_label
+    from physynth.models.uwb import nlos_episodes, nlos_states
+
+    cs = compile_scenario(simple_scenario())
+    a = cs.channel.nlos_prob.shape[0]
+    ch = replace(cs.channel, zone_s_m=np.zeros(0), zone_half_width_m=np.zeros(0), zone_nlos_prob=np.zeros(0),
+                 nlos_prob=np.linspace(0.05, 0.6, a), mode_fixed_dwell=np.ones_like(cs.channel.mode_fixed_dwell))
+    rng = np.random.default_rng(3)
+    t = np.sort(rng.uniform(0.0, 300.0, 4000))
+    anchor = rng.integers(0, a, t.size)
+    got = nlos_states(t, anchor, np.zeros(t.size), ch, rng=np.random.default_rng(5))
+    ref = [np.zeros(t.size, bool), np.full(t.size, -1), np.full(t.size, -1)]
+    base, ref_rng = 0, np.random.default_rng(5)
+    weights = np.diff(ch.mode_cumw, axis=1, prepend=0.0)
+    for i, rows in enumerate(rows_by_label(anchor, a)):
+        one = nlos_episodes(t[rows], ch.nlos_prob[i], weights[i], ch.mode_dwell_s[i], rng=ref_rng,
+                            fixed_dwell=ch.mode_fixed_dwell[i], first_episode=base)
+        for column, values in zip(ref, one, strict=True):
+            column[rows] = values
+        base = max(base, int(one[2].max()) + 1)
+    for g, r in zip(got, ref, strict=True):
+        np.testing.assert_array_equal(g, r)
+    assert got[0].any() and got[2].max() > 10  # several anchors with episodes

@@ -112,8 +112,8 @@ def _imu(kin, att, s: Scenario, root_seed: int, index: int) -> Imu:
            if IMU_FRAME in s.imu_frames else None)
     if IMU_BODY_FRAME not in s.imu_frames:
         return enu
-    t_b, acc_b, gyro_b = simulate_body_imu(kin.t_s, kin.acc_enu_mps2, att.rot, att.omega_body_radps, s.body_imu,
-                                           rng=component_rng(root_seed, index, "imu_body"))
+    t_b, acc_b, gyro_b = simulate_body_imu(kin.t_s, kin.acc_enu_mps2, att.quat_wxyz, att.omega_body_radps,
+                                           s.body_imu, rng=component_rng(root_seed, index, "imu_body"))
     if enu is not None and enu.t_s.shape != t_b.shape:
         raise ValueError("ENU and body IMU time bases differ")  # prevented by the scenario validator
     return Imu(t_s=t_b, acc_mps2=None if enu is None else enu.acc_mps2, acc_body_mps2=acc_b, gyro_body_radps=gyro_b)

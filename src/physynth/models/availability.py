@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Probability
-from .renewal import initial_pairs, is_ascending, rows_by_label, switch_counts
+from .renewal import by_label, initial_pairs, is_ascending, rows_by_label, switch_counts
 
 RATE_PRIOR_SHAPE = 0.5
 """Shape of the Gamma prior on an event rate: Jeffreys' prior for a Poisson rate (with no prior
@@ -265,7 +265,7 @@ def simulate_availability(t_s: np.ndarray, anchor: np.ndarray, burst: np.ndarray
         tag_out = outage_mask(bursts_s, av.tag_outage_onset_prob, burst_rate_hz, av.tag_outage_mean_s,
                               start_stationary=av.start_stationary, rng=rng)
         outage |= tag_out[burst]
-    dropped = rng.random(t_s.shape[0]) < av.dropout_prob[anchor]
+    dropped = rng.random(t_s.shape[0]) < by_label(av.dropout_prob, anchor)
     if av.long_outage[0] > 0:  # drawn last: scenarios without long outages draw what they always did
         if range_m is None:
             raise ValueError("long outages need the range of every attempt (range_m)")

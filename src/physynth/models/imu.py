@@ -140,8 +140,15 @@ def upsample_linear(values_cf: np.ndarray, factor: int) -> np.ndarray:
     lhs = np.empty((c, k - 1, 2), dtype=np.result_type(values_cf.dtype, float))
     lhs[:, :, 0] = values_cf[:, :-1]
     np.subtract(values_cf[:, 1:], values_cf[:, :-1], out=lhs[:, :, 1])
+    return (lhs.reshape(-1, 2) @ _upsample_rhs(factor)).reshape(c, -1)
+
+
+@lru_cache(maxsize=16)
+def _upsample_rhs(factor: int) -> np.ndarray:
+    """The (2, factor) right-hand side of :func:`upsample_linear`: [1, r / factor] per phase r (read-only)."""
     rhs = np.vstack([np.ones(factor), np.arange(factor) / factor])
-    return (lhs.reshape(-1, 2) @ rhs).reshape(c, -1)
+    rhs.setflags(write=False)
+    return rhs
 
 
 def resample_cf(t_s: np.ndarray, knots_t: np.ndarray, values_cf: np.ndarray) -> np.ndarray:
@@ -184,7 +191,7 @@ def _comb_phases(freq_h: tuple[float, ...], dt: float, r: int) -> np.ndarray:
 def _comb(t_s: np.ndarray, knots_t: np.ndarray, z_hak: np.ndarray, amp_h: np.ndarray, freq_h: np.ndarray,
           phase_h: np.ndarray) -> np.ndarray:
     """(A, N) sum over lines h of amp_h Re(z_h,a(t) exp(i (2 pi freq_h (t - t_0) + phase_h))), with the
-    complex envelopes z (H, A, K) linearly interpolated from uniform knots.
+    complex envelopes z (H, A, K) linearly interpolated from uniform knots (rows possibly strided: a view).
 
     On the usual aligned grid (knots every r samples from t_0, t = t_k + j dt) the carrier factorises
     as C_k R_j, so z(t) c(t) = (z_k C_k) R_j + (dz_k C_k) (j / r) R_j: one (A K, 4H) @ (4H, r) matrix
@@ -203,7 +210,7 @@ def _comb(t_s: np.ndarray, knots_t: np.ndarray, z_hak: np.ndarray, amp_h: np.nda
         lhs = np.concatenate([p.real, -p.imag, q.real, -q.imag], axis=0)  # (4H, A, K-1)
         rhs = _comb_phases(tuple(freq_h.tolist()), float(dt), r)  # (4H, r), the same for every trace
         out = lhs.transpose(1, 2, 0).reshape(a * (k - 1), 4 * h) @ rhs
-        return np.ascontiguousarray(out.reshape(a, -1)[:, :n])
+        return out.reshape(a, -1)[:, :n]  # rows of the product (no copy: the callers' next step makes one)
     z = resample_cf(t_s, knots_t, z_hak.real.reshape(h * a, k)) + 1j * resample_cf(
         t_s, knots_t, z_hak.imag.reshape(h * a, k))
     carrier = amp_h[:, None] * np.exp(1j * (2.0 * np.pi * freq_h[:, None] * (t_s - t_s[0]) + phase_h[:, None]))
@@ -495,17 +502,90 @@ def _gauss_markov_cf(t_s, std, tau_s, *, rng):
     return resample_cf(t_s, knots_t, _ar1(e, rho))
 
 
-def ideal_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, omega_body_radps: np.ndarray,
-                   *, copy_rates: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def ideal_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation | np.ndarray,
+                   omega_body_radps: np.ndarray, *, copy_rates: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Noiseless specific force and angular rate (T, 3) in the body frame at the truth times.
 
-    f_b = R_wb^T (a_w - g_w), g_w = (0, 0, -G0): a level unit at rest reads (0, 0, +G0). The rate is a
-    copy of ``omega_body_radps`` unless ``copy_rates`` is False (then the input itself when float64).
+    f_b = R_wb^T (a_w - g_w), g_w = (0, 0, -G0): a level unit at rest reads (0, 0, +G0). ``rot``: the
+    attitude body -> ENU, scipy rotations or (T, 4) quaternions (w, x, y, z). The rate is a copy of
+    ``omega_body_radps`` unless ``copy_rates`` is False (then the input itself when float64).
     """
-    f_w = np.array(acc_enu_mps2, dtype=float)
-    f_w[:, 2] += G0_MPS2
     w = np.array(omega_body_radps, dtype=float) if copy_rates else np.asarray(omega_body_radps, dtype=float)
-    return rot.apply(f_w, inverse=True), w
+    return _specific_force_body_cf(acc_enu_mps2, rot).T, w
+
+
+def _rotation(rot: Rotation | np.ndarray) -> Rotation:
+    """``rot`` as scipy rotations; (T, 4) quaternions (w, x, y, z) as :attr:`~physynth.models.attitude.Attitude.rot`
+    makes them."""
+    if isinstance(rot, np.ndarray):
+        from scipy.spatial.transform import Rotation
+
+        return Rotation.from_quat(rot, scalar_first=True)
+    return rot
+
+
+def _specific_force_body_cf(acc_enu_mps2: np.ndarray, rot: Rotation | np.ndarray) -> np.ndarray:
+    """(3, T) specific force R_wb^T (a_w - g_w) in the body frame: ``rot.apply(f_w, inverse=True).T``
+    (``rot`` scipy rotations or (T, 4) quaternions w, x, y, z as :func:`_rotation` reads them), bit for bit.
+
+    scipy's ``apply`` sums ``R[:, k, j] * f[:, k]`` over k = 0, 1, 2 in order, from zero (numpy.einsum on
+    the transposed matrices); here the same products and sums, one body axis at a time on contiguous
+    rows, and + 0.0 for einsum's zero start (which turns a -0.0 sum into +0.0): a third of its time.
+    Turns about the vertical only (:func:`_heading_force_cf`) skip the rotation objects altogether.
+    """
+    f_w = np.array(np.asarray(acc_enu_mps2, dtype=float).T, order="C")  # (3, T): a_w - g_w
+    f_w[2] += G0_MPS2
+    heading_only = (isinstance(rot, np.ndarray) and rot.shape == (f_w.shape[1], 4) and rot.shape[0] > 1
+                    and not (rot[:, 1].any() or rot[:, 2].any()))  # quaternions (w, 0, 0, z)
+    if heading_only:
+        out = _heading_force_cf(rot, f_w)
+        if out is not None:
+            return out
+    rot = _rotation(rot)
+    m = rot.as_matrix()  # (T, 3, 3) body -> ENU; m[:, k, j] is (R^T)[j, k]
+    if m.ndim != 3 or m.shape[0] != f_w.shape[1] or m.shape[0] < 2:  # one rotation: scipy uses matmul
+        return rot.apply(f_w.T, inverse=True).T
+    out = np.empty_like(f_w)
+    tmp = np.empty(f_w.shape[1])
+    for j in range(3):
+        np.multiply(m[:, 0, j], f_w[0], out=out[j])
+        out[j] += np.multiply(m[:, 1, j], f_w[1], out=tmp)
+        out[j] += np.multiply(m[:, 2, j], f_w[2], out=tmp)
+    out += 0.0
+    return out
+
+
+def _heading_force_cf(q_wxyz: np.ndarray, f_w: np.ndarray) -> np.ndarray | None:
+    """R^T f (3, T) for turns about the vertical only, quaternions (w, 0, 0, z) (the tangent attitude),
+    as :func:`_specific_force_body_cf` computes it from scipy's matrices, bit for bit; None when a
+    quaternion is zero or not finite or ``f_w`` not finite (then scipy's path decides).
+
+    scipy normalises by sqrt(z^2 + w^2) (the zero terms add nothing) and builds R00 = R11 = w^2 - z^2,
+    R10 = -R01 = 2 z w, R22 = z^2 + w^2 the same way; its other entries are zeros of either sign, whose
+    products with finite forces change a sum only where it is zero, and + 0.0 makes every zero sum +0.0.
+    """
+    if not np.isfinite(f_w.sum()):
+        return None
+    w, z = q_wxyz[:, 0], q_wxyz[:, 3]
+    norm = np.sqrt(z * z + w * w)
+    if not (norm > 0).all():  # scipy refuses zero (or NaN) quaternions
+        return None
+    z = z / norm
+    w = w / norm
+    z2, w2 = z * z, w * w
+    diag = w2 - z2  # R00 = R11
+    off = z * w
+    off *= 2.0  # R10; R01 = -R10
+    out = np.empty_like(f_w)
+    np.multiply(diag, f_w[0], out=out[0])
+    out[0] += off * f_w[1]  # R00 f0 + R10 f1
+    np.multiply(off, f_w[0], out=out[1])
+    np.negative(out[1], out=out[1])  # R01 f0 = -(R10 f0)
+    out[1] += diag * f_w[1]
+    z2 += w2  # R22
+    np.multiply(z2, f_w[2], out=out[2])
+    out += 0.0
+    return out
 
 
 ROTATION_EXACT_ABOVE_RAD = 1e-4
@@ -632,10 +712,13 @@ def _triad_errors(t_s: np.ndarray, vib: VibrationParams, vib_amp: float, rw: flo
     return sum(parts[1:], parts[0]) if parts else None
 
 
-def simulate_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, omega_body_radps: np.ndarray,
-                      params: BodyImuParams, *, rng: np.random.Generator
+def simulate_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation | np.ndarray,
+                      omega_body_radps: np.ndarray, params: BodyImuParams, *, rng: np.random.Generator
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Body-frame accelerometer and gyroscope over the truth span: (t_imu (N,), acc (N, 3), gyro (N, 3)).
+
+    ``rot``: the attitude body -> ENU at the truth times, scipy rotations or (T, 4) quaternions
+    (w, x, y, z) as the truth stores them (read as ``Rotation.from_quat(q, scalar_first=True)``).
 
     Physics, then deterministic errors, then noise: ideal f_b and omega_b (:func:`ideal_body_imu`) at
     the truth times ``t_s``, read at t - ``time_offset_s`` (:func:`_ideal_at`); gyro g-sensitivity
@@ -646,6 +729,8 @@ def simulate_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, 
     Inputs are not modified. A non-zero ``lever_arm_m`` moves the acceleration to the sensor's point first.
     """
     t = np.asarray(t_s, dtype=float)
+    if any(params.lever_arm_m) or params.time_offset_s != 0.0:  # rotation objects needed
+        rot = _rotation(rot)
     acc_enu_mps2 = _sensor_point_acc(t, acc_enu_mps2, rot, omega_body_radps, params.lever_arm_m)
     a, g = params.accelerometer, params.gyroscope
     dev = draw_imu_device(params, rng=rng)
@@ -671,10 +756,11 @@ def simulate_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, 
     if params.time_offset_s == 0.0 and factor and turn <= ROTATION_EXACT_ABOVE_RAD and n_imu == (t.size - 1) * factor:
         # the usual case: every term at the truth rate (linear maps commute with linear upsampling),
         # added into the noise
-        f_b, w_b = ideal_body_imu(t, acc_enu_mps2, rot, omega_body_radps, copy_rates=False)  # w_b: read only
-        acc_slow = _apply_device(dev.acc_matrix, dev.acc_turn_on_bias_mps2, f_b.T, acc_err)
+        f_b = _specific_force_body_cf(acc_enu_mps2, rot)  # (3, T), as ideal_body_imu
+        w_b = np.asarray(omega_body_radps, dtype=float)  # read only
+        acc_slow = _apply_device(dev.acc_matrix, dev.acc_turn_on_bias_mps2, f_b, acc_err)
         gyro_const = _apply_device(dev.gyro_matrix, dev.gyro_turn_on_bias_radps, w_b.T, copy=False)[:, :-1]
-        gyro_lin = g.g_sensitivity_radps_per_mps2 * f_b.T if g.g_sensitivity_radps_per_mps2 > 0 else None
+        gyro_lin = g.g_sensitivity_radps_per_mps2 * f_b if g.g_sensitivity_radps_per_mps2 > 0 else None
         if gyro_err is not None:
             gyro_lin = gyro_err if gyro_lin is None else gyro_lin + gyro_err
         _add_upsampled(acc, acc_slow, factor)
@@ -684,7 +770,7 @@ def simulate_body_imu(t_s: np.ndarray, acc_enu_mps2: np.ndarray, rot: Rotation, 
         if gyro_lin is not None:
             _add_upsampled(gyro, gyro_lin, factor)
     else:
-        f, w = _ideal_at(t_imu - params.time_offset_s, t, acc_enu_mps2, rot, omega_body_radps)  # (3, N)
+        f, w = _ideal_at(t_imu - params.time_offset_s, t, acc_enu_mps2, _rotation(rot), omega_body_radps)  # (3, N)
         acc += _apply_device(dev.acc_matrix, dev.acc_turn_on_bias_mps2, f)
         gyro += _apply_device(dev.gyro_matrix, dev.gyro_turn_on_bias_radps, w)
         if g.g_sensitivity_radps_per_mps2 > 0:

@@ -72,3 +72,12 @@ def rows_by_label(labels: np.ndarray, n_labels: int) -> list[np.ndarray]:
             empty = np.zeros(0, dtype=np.intp)
             return [np.flatnonzero(small == i) if lo <= i <= hi else empty for i in range(n_labels)]
     return [np.flatnonzero(labels == i) for i in range(n_labels)]
+
+
+def by_label(values: np.ndarray, labels: np.ndarray) -> np.ndarray | np.float64:
+    """``values[labels]`` (a per-anchor parameter at every row), or the one value itself when every entry
+    of ``values`` is the same, bit for bit: the same number at each row of the arithmetic it enters,
+    without the gather."""
+    if values.dtype == np.float64 and values.size and (values.view(np.uint64) == values.view(np.uint64)[0]).all():
+        return values[0]
+    return values[labels]

@@ -29,7 +29,8 @@ same numbers as before they existed):
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from itertools import accumulate
 from typing import Annotated
 
 import numpy as np
@@ -40,7 +41,7 @@ from ._interp import interp_many
 from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Probability, Vec3
 from .motion import Kinematics
 from .obstacles import Obstacle, TerrainGrid, obstacle_losses
-from .renewal import initial_pairs, is_ascending, rows_by_label, switch_counts
+from .renewal import by_label, initial_pairs, is_ascending, rows_by_label, switch_counts
 
 
 class NlosMode(ParamsModel):
@@ -220,6 +221,41 @@ class ChannelArrays:
     link: LinkBudgetArrays | None = None  # None: no anchor has a link budget
     obstacles: tuple = ()
     terrain: TerrainGrid | None = None
+    # derived from the fields above on construction: each anchor's NLOS episode law (None where
+    # nlos_prob is 0 or 1: no episodes), the per-scenario constants of nlos_episodes
+    episode_laws: tuple[EpisodeLaw | None, ...] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        weights_of = np.diff(self.mode_cumw, axis=1, prepend=0.0)  # mode weights of every anchor
+        laws = tuple(episode_law(float(p), weights_of[i], self.mode_dwell_s[i], self.mode_fixed_dwell[i])
+                     if 0 < p < 1 else None for i, p in enumerate(self.nlos_prob.tolist()))
+        object.__setattr__(self, "episode_laws", laws)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class EpisodeLaw:
+    """The constants of one anchor's NLOS episodes (:func:`nlos_episodes`): cumulative episode-mode
+    probabilities, mean episode length per mode, the modes of fixed length (None: none), the mean LOS
+    gap and the mean cycle (episode + gap) [s]."""
+
+    nlos_prob: float
+    cum_q: np.ndarray
+    dwell_s: np.ndarray
+    fixed: np.ndarray | None
+    mean_off_s: float
+    mean_cycle_s: float
+
+
+def episode_law(nlos_prob: float, weights: np.ndarray, dwell_s: np.ndarray,
+                fixed_dwell: np.ndarray | None = None) -> EpisodeLaw:
+    """The :class:`EpisodeLaw` of :func:`nlos_episodes`'s parameters (0 < ``nlos_prob`` < 1)."""
+    q = weights / dwell_s
+    q = q / q.sum()
+    mean_on = float((q * dwell_s).sum())
+    mean_off = mean_on * (1.0 - nlos_prob) / nlos_prob
+    fixed = fixed_dwell if fixed_dwell is not None and fixed_dwell.any() else None  # None: no mode is fixed
+    return EpisodeLaw(nlos_prob=nlos_prob, cum_q=q.cumsum(), dwell_s=dwell_s, fixed=fixed, mean_off_s=mean_off,
+                      mean_cycle_s=mean_on + mean_off)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -314,16 +350,27 @@ def burst_times(t_start_s: float, t_end_s: float, burst_rate_hz: float, jitter_s
     first = rng.uniform(0.0, period) if phase_s is None else float(phase_s) % period
     t = t_start_s + first + period * np.arange(n)
     if jitter_s > 0:
-        t = t + np.clip(jitter_s * rng.standard_normal(n), -0.45 * period, 0.45 * period)
+        jitter = rng.standard_normal(n)
+        jitter *= jitter_s
+        np.maximum(jitter, -0.45 * period, out=jitter)  # numpy.clip's values
+        np.minimum(jitter, 0.45 * period, out=jitter)
+        t = t + jitter
         gap = np.maximum(np.diff(t), min_period_s)
         t = np.concatenate([t[:1], t[0] + np.cumsum(gap)])
     return t[(t >= t_start_s) & (t < t_end_s)]
 
 
 def link_probability(range_m: np.ndarray, max_range_m: np.ndarray, edge_width_m: np.ndarray) -> np.ndarray:
-    """Soft radio horizon: 1 / (1 + exp((r - max_range) / edge_width))."""
-    x = np.clip((range_m - max_range_m) / edge_width_m, -50.0, 50.0)
-    return 1.0 / (1.0 + np.exp(x))
+    """Soft radio horizon: 1 / (1 + exp((r - max_range) / edge_width)), the exponent clipped to [-50, 50]."""
+    x = np.subtract(range_m, max_range_m)
+    if not isinstance(x, np.ndarray) or x.dtype != np.float64:  # scalars: no buffer to work in
+        return 1.0 / (1.0 + np.exp(np.clip(x / edge_width_m, -50.0, 50.0)))
+    x /= edge_width_m  # the steps of the line above, in one buffer (numpy.clip's values: max, then min)
+    np.maximum(x, -50.0, out=x)
+    np.minimum(x, 50.0, out=x)
+    np.exp(x, out=x)
+    x += 1.0
+    return np.divide(1.0, x, out=x)
 
 
 def ground_gain_db(horiz_m: np.ndarray, h_anchor_m: np.ndarray, h_tag_m: np.ndarray, reflection: np.ndarray,
@@ -392,7 +439,9 @@ def sample_nlos_offset(anchor: np.ndarray, ch: ChannelArrays, *, rng: np.random.
     if mode is None:
         u = rng.random(anchor.shape[0])
         mode = np.minimum((u[:, None] > ch.mode_cumw[anchor]).sum(axis=1), ch.mode_cumw.shape[1] - 1)
-    return ch.mode_mean_m[anchor, mode] + ch.mode_std_m[anchor, mode] * rng.standard_normal(anchor.shape[0])
+    flat = np.multiply(anchor, ch.mode_mean_m.shape[1], dtype=np.intp)  # [anchor, mode] as flat indices
+    flat += mode
+    return ch.mode_mean_m.ravel().take(flat) + ch.mode_std_m.ravel().take(flat) * rng.standard_normal(anchor.shape[0])
 
 
 BIAS_RANGE_FLOOR_M = 0.1
@@ -416,7 +465,7 @@ def los_error_mean(true_range_m: np.ndarray, los_mean_m: np.ndarray | float,
     exactly what they drew before it existed.
     """
     out = los_mean_m + range_bias_per_m * true_range_m
-    if np.any(np.asarray(range_bias_per_decade_m) != 0.0):
+    if np.asarray(range_bias_per_decade_m).any():  # (a method: no function-wrapper overhead)
         out = out + range_bias_per_decade_m * range_decades(true_range_m)
     return out
 
@@ -452,14 +501,17 @@ def range_error(true_range_m: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, 
     share one draw of the offset plus their own jitter; these draws come after all others, so a
     scenario without held modes draws exactly as before.
     """
-    err = (los_error_mean(true_range_m, ch.los_mean_m[anchor], ch.range_bias_per_m[anchor],
-                          ch.range_bias_per_decade_m[anchor])
-           + ch.los_std_m[anchor] * rng.standard_normal(true_range_m.shape[0]))
+    decade = by_label(ch.range_bias_per_decade_m, anchor) if ch.range_bias_per_decade_m.any() else 0.0  # 0: off
+    err = (los_error_mean(true_range_m, by_label(ch.los_mean_m, anchor), by_label(ch.range_bias_per_m, anchor),
+                          decade)
+           + by_label(ch.los_std_m, anchor) * rng.standard_normal(true_range_m.shape[0]))
     in_episode = mode >= 0
-    zone_only = nlos & ~in_episode
-    err[in_episode] = sample_nlos_offset(anchor[in_episode], ch, rng=rng, mode=mode[in_episode])
-    err[zone_only] = sample_nlos_offset(anchor[zone_only], ch, rng=rng)
-    if episode is not None and in_episode.any() and np.isfinite(ch.mode_held_jitter_m).any():  # a held mode
+    ep = np.flatnonzero(in_episode)  # row indices: the NLOS rows are few, each gather then a short one
+    nl = np.flatnonzero(nlos)
+    zone_only = nl[mode.take(nl) < 0]  # NLOS outside an episode
+    err[ep] = sample_nlos_offset(anchor.take(ep), ch, rng=rng, mode=mode.take(ep))
+    err[zone_only] = sample_nlos_offset(anchor.take(zone_only), ch, rng=rng)
+    if episode is not None and ep.size and np.isfinite(ch.mode_held_jitter_m).any():  # a held mode
         jit = np.full(err.shape[0], np.nan)
         jit[in_episode] = ch.mode_held_jitter_m[anchor[in_episode], mode[in_episode]]
         held = np.isfinite(jit)
@@ -484,28 +536,8 @@ def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_
     bool, mode (N,) int, -1 where LOS, episode (N,) int: ``first_episode`` + index of the episode, -1
     where LOS). ``ascending``: as in :func:`~physynth.models.renewal.switch_counts`.
     """
-    q = weights / dwell_s
-    q = q / q.sum()
-    mean_on = float((q * dwell_s).sum())
-    mean_off = mean_on * (1.0 - nlos_prob) / nlos_prob
-    start_on = bool(rng.random() < nlos_prob)
-    cum_q = q.cumsum()
-    fixed = fixed_dwell if fixed_dwell is not None and fixed_dwell.any() else None  # None: no mode is fixed
-    col_on = 0 if start_on else 1
-
-    def draw(n: int) -> tuple[np.ndarray, np.ndarray]:
-        modes = np.minimum(cum_q.searchsorted(rng.random(n), side="right"), q.size - 1)
-        pairs = np.empty((n, 2))  # (on, off) or (off, on): the state the process starts in first
-        on = rng.exponential(1.0, n)
-        on *= dwell_s[modes]
-        if fixed is not None:
-            on = np.where(fixed[modes], dwell_s[modes], on)
-        pairs[:, col_on] = on
-        pairs[:, 1 - col_on] = rng.exponential(mean_off, n)
-        return pairs, modes
-
-    k, modes = switch_counts(t_s, draw, initial_pairs(float(t_s[-1] - t_s[0]), mean_on + mean_off),
-                             ascending=ascending)
+    k, modes, start_on = episode_switches(t_s, episode_law(nlos_prob, weights, dwell_s, fixed_dwell), rng=rng,
+                                          ascending=ascending)
     nlos = (k & 1) == (0 if start_on else 1)  # k >= 0: k & 1 is k % 2 and k >> 1 is k // 2
     pair = np.right_shift(k, 1, out=k)
     np.minimum(pair, modes.size - 1, out=pair)
@@ -513,6 +545,31 @@ def nlos_episodes(t_s: np.ndarray, nlos_prob: float, weights: np.ndarray, dwell_
     if first_episode:
         pair += first_episode
     return nlos, mode, np.where(nlos, pair, -1)
+
+
+def episode_switches(t_s: np.ndarray, law: EpisodeLaw, *, rng: np.random.Generator,
+                     ascending: bool | None = None) -> tuple[np.ndarray, np.ndarray, bool]:
+    """The draws of :func:`nlos_episodes`: (switch counts (N,) at the sorted times ``t_s``, the mode of
+    each episode, whether the process starts in an episode). Even counts: the starting state; count k
+    is in pair k // 2 (episode and gap)."""
+    start_on = bool(rng.random() < law.nlos_prob)
+    col_on = 0 if start_on else 1
+    cum_q, dwell_s, fixed = law.cum_q, law.dwell_s, law.fixed
+
+    def draw(n: int) -> tuple[np.ndarray, np.ndarray]:
+        modes = np.minimum(cum_q.searchsorted(rng.random(n), side="right"), cum_q.size - 1)
+        pairs = np.empty((n, 2))  # (on, off) or (off, on): the state the process starts in first
+        on = rng.exponential(1.0, n)
+        on *= dwell_s[modes]
+        if fixed is not None:
+            on = np.where(fixed[modes], dwell_s[modes], on)
+        pairs[:, col_on] = on
+        pairs[:, 1 - col_on] = rng.exponential(law.mean_off_s, n)
+        return pairs, modes
+
+    k, modes = switch_counts(t_s, draw, initial_pairs(float(t_s[-1] - t_s[0]), law.mean_cycle_s),
+                             ascending=ascending)
+    return k, modes, start_on
 
 
 def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: ChannelArrays, *,
@@ -528,35 +585,67 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
     nlos = np.zeros(t_s.shape[0], dtype=bool)
     mode = np.full(t_s.shape[0], -1, dtype=np.int64)
     episode = np.full(t_s.shape[0], -1, dtype=np.int64)
-    base = 0
-    weights_of = np.diff(ch.mode_cumw, axis=1, prepend=0.0)  # mode weights of every anchor
     ascending = is_ascending(t_s)  # checked once for every anchor's rows
     if rows_of is None:
         rows_of = rows_by_label(anchor, ch.nlos_prob.shape[0])
-    parts = []  # (rows, nlos, mode, episode) of each anchor with episodes, written in one scatter each
-    for i, rows in enumerate(rows_of):  # one renewal process per anchor
-        p = ch.nlos_prob[i]
-        if rows.size == 0 or p <= 0:
+    parts = []  # (rows, switch counts, episode modes, start_on) of each anchor with episodes
+    for i, rows in enumerate(rows_of):  # one renewal process per anchor (the draws anchor by anchor)
+        if rows.size == 0 or ch.nlos_prob[i] <= 0:
             continue
-        weights = weights_of[i]
-        if p >= 1:
+        if ch.nlos_prob[i] >= 1:
             nlos[rows] = True
             continue
-        got = nlos_episodes(t_s[rows], p, weights, ch.mode_dwell_s[i], rng=rng, fixed_dwell=ch.mode_fixed_dwell[i],
-                            first_episode=base, ascending=ascending)
-        parts.append((rows, *got))
-        base = max(base, int(got[2].max()) + 1)
-    if parts:  # the anchors' rows are disjoint: one scatter per column instead of one per anchor
-        rows = np.concatenate([q[0] for q in parts])
-        for column, k in ((nlos, 1), (mode, 2), (episode, 3)):
-            column[rows] = np.concatenate([q[k] for q in parts])
+        parts.append((rows, *episode_switches(t_s[rows], ch.episode_laws[i], rng=rng, ascending=ascending)))
+    if parts:  # the anchors' rows are disjoint: their states in one pass over all of them
+        _write_episodes(parts, nlos, mode, episode)
     if ch.zone_s_m.size:
-        dist = np.abs(s_m[:, None] - ch.zone_s_m[None, :])
-        p_zone = np.where(dist <= ch.zone_half_width_m, ch.zone_nlos_prob, 0.0).max(axis=1)
+        p_zone = _zone_nlos_prob(s_m, ch)
         nlos |= rng.random(t_s.shape[0]) < p_zone
     if blocked is not None:
         nlos |= blocked
     return nlos, mode, episode
+
+
+def _write_episodes(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, bool]], nlos: np.ndarray,
+                    mode: np.ndarray, episode: np.ndarray) -> None:
+    """Write the anchors' episode states into the columns at their rows: ``parts`` holds (rows, switch
+    counts, episode modes, start_on) of each anchor (:func:`episode_switches`), in anchor order. The
+    values of :func:`nlos_episodes` anchor by anchor, with ``first_episode`` running over the anchors
+    (each anchor's episodes numbered after the last one of the anchors before it); LOS rows keep their
+    mode and episode (-1)."""
+    for _, k, _, start_on in parts:
+        if not start_on:
+            k += 1  # in an episode exactly where the count (shifted by one here) is even
+    k = np.concatenate([q[1] for q in parts])
+    rows = np.concatenate([q[0] for q in parts])
+    in_episode = (k & 1) == 0
+    nlos[rows] = in_episode
+    at = np.flatnonzero(in_episode)  # the few rows in an episode: pair, mode and id computed there only
+    part = np.searchsorted(list(accumulate(q[0].size for q in parts)), at, side="right")
+    shift = np.array([0 if q[3] else 1 for q in parts]).take(part)
+    pair = np.right_shift(k.take(at), 1)  # the (episode, gap) pair: k // 2 of the unshifted count
+    pair -= shift
+    np.minimum(pair, np.array([q[2].size - 1 for q in parts]).take(part), out=pair)
+    first_mode = np.array(list(accumulate((q[2].size for q in parts[:-1]), initial=0))).take(part)
+    first_mode += pair
+    mode[rows.take(at)] = np.concatenate([q[2] for q in parts]).take(first_mode)
+    last = np.full(len(parts), -1, dtype=pair.dtype)  # each anchor's last episode, -1: none
+    np.maximum.at(last, part, pair)
+    pair += np.array(list(accumulate((last[:-1] + 1).tolist(), initial=0)), dtype=pair.dtype).take(part)
+    episode[rows.take(at)] = pair
+
+
+def _zone_nlos_prob(s_m: np.ndarray, ch: ChannelArrays) -> np.ndarray:
+    """(N,) NLOS probability of the zones at path coordinates ``s_m``: the largest of the zones that
+    contain each point, 0 outside every zone. One zone at a time (no (N, Z) temporaries)."""
+    p = None
+    for z_s, half, prob in zip(ch.zone_s_m.tolist(), ch.zone_half_width_m.tolist(), ch.zone_nlos_prob.tolist(),
+                               strict=True):
+        dist = np.subtract(s_m, z_s)
+        np.abs(dist, out=dist)
+        here = np.where(dist <= half, prob, 0.0)
+        p = here if p is None else np.maximum(p, here, out=p)
+    return p
 
 
 def run_offsets(n_anchors: int, params: UwbParams, *, rng: np.random.Generator) -> np.ndarray:
@@ -622,7 +711,7 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
         sq = d if sq is None else np.add(sq, d, out=sq)  # as 0 + d_E^2 + d_N^2 + d_U^2 (0 + x is x)
     true_range = np.sqrt(sq)
 
-    p_link = link_probability(true_range, ch.max_range_m[anchor], ch.edge_width_m[anchor])
+    p_link = link_probability(true_range, by_label(ch.max_range_m, anchor), by_label(ch.edge_width_m, anchor))
     blocked = None
     if ch.obstacles or ch.terrain is not None or ch.link is not None:  # geometry-aware parts (optional)
         tag = np.stack(tag_enu, axis=1)
@@ -631,7 +720,7 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
             blocked, loss = obstacle_losses(tag, ch.anchor_pos_enu_m[anchor], ch.obstacles, ch.terrain)
         p_link = p_link * link_detection_probability(tag, anchor, ch, loss)
     linked = rng.random(t_true.shape[0]) < p_link
-    rows_of = tuple(rows_by_label(anchor, n_anchors))
+    rows_of = _rows_per_anchor(scheduled)
     nlos, mode, episode = nlos_states(t_true, anchor, s_m, ch, rng=rng, blocked=blocked, rows_of=rows_of)
     err = range_error(true_range, anchor, nlos, mode, ch, rng=rng, episode=episode)
     offsets = run_offsets(n_anchors, u, rng=rng)
@@ -642,6 +731,14 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
     return UwbAttempts(bursts_s=bursts, burst=b_idx, anchor=anchor, t_true_s=t_true, true_range_m=true_range,
                        measured_m=measured, nlos=nlos, linked=linked, anchor_rows=rows_of,
                        time_offset_s=trace_time_offset(u, rng=rng))
+
+
+def _rows_per_anchor(scheduled: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The attempt rows of each anchor (``rows_by_label(anchor, A)``) from the (bursts, anchors) schedule
+    whose row-major nonzeros are the attempts: each scheduled entry's rank among them, anchor by anchor."""
+    rank = np.cumsum(scheduled.ravel()).reshape(scheduled.shape)
+    rank -= 1
+    return tuple(rank[:, i][scheduled[:, i]] for i in range(scheduled.shape[1]))
 
 
 def uwb_record(att: UwbAttempts, *, outage: np.ndarray, dropped: np.ndarray) -> Uwb:
