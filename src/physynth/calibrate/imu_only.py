@@ -333,6 +333,43 @@ SMOOTH_ACF_1_OVER_E = 2.1462
 """(1 + x) exp(-x) = 1/e at x = 2.1462: the 1/e lag of a smooth tumble's rate in units of its tau."""
 
 
+@dataclass(frozen=True)
+class _TruthMotion:
+    """The path and motion an IMU-only calibration writes, with the fits they come from."""
+
+    path_fit: Fit
+    motion_fit: Fit
+    tracks: list
+    in_place: tuple | None  # in_place_motion's result, None for a mover along a path
+    path: Any
+    motion: Any
+    jitter: Any
+    jitter_diag: dict[str, Any]
+    rate_hz: float
+
+
+def _truth_motion(trs: list[Trace], labels: list[str], path_kind: str) -> _TruthMotion:
+    """Path, motion and jitter of the truth: a fitted path and speed profile, or, for a motion in place
+    (:func:`~physynth.calibrate.jitter_fit.in_place_motion`), a point; the jitter fitted on top."""
+    from .geometry import fit_motion, fit_path, summarize_track
+    from .jitter_fit import IN_PLACE_BANDS_HZ, fit_jitter, in_place_motion
+
+    tracks = [summarize_track(t, lab) for t, lab in zip(trs, labels, strict=True)]
+    path_fit = fit_path(trs, path_kind, tracks=tracks)  # type: ignore[arg-type]
+    motion_fit = fit_motion(trs, path_length_m=path_fit.diagnostics["length_m"], tracks=tracks)
+    rate = 1.0 / median_step_s(trs[0].truth.t_s)
+    path_p, motion_p, bands = path_fit.params, motion_fit.params, None
+    place = in_place_motion(tracks, motion_p)
+    if place is not None:  # a device shaken on a bench: a point and its jitter, not a folded path
+        path_p, motion_p, _ = place
+        bands = IN_PLACE_BANDS_HZ
+    jitter, jitter_diag = fit_jitter(trs, tracks, path_p, motion_p, rate, bands_hz=bands)
+    if place is not None:
+        jitter_diag["in_place"] = place[2]
+    return _TruthMotion(path_fit=path_fit, motion_fit=motion_fit, tracks=tracks, in_place=place, path=path_p,
+                        motion=motion_p, jitter=jitter, jitter_diag=jitter_diag, rate_hz=rate)
+
+
 def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", path_kind: str = "auto",
                        sources: Sequence[str] | None = None,
                        progress: Callable[[str], None] | None = None) -> Any:
@@ -340,8 +377,7 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
 
     Returns a :class:`physynth.calibrate.CalibrationResult`.
     """
-    from .geometry import fit_motion, fit_path, spread_clip_warnings, summarize_track
-    from .jitter_fit import IN_PLACE_BANDS_HZ, fit_jitter, in_place_motion
+    from .geometry import spread_clip_warnings
     from .pipeline import CalibrationResult
 
     say = progress or (lambda _msg: None)
@@ -350,18 +386,7 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
         raise CalibrationError("no IMU recording to calibrate on")
     labels = [trace_label(t, i) for i, t in enumerate(trs)]
     say("fitting the path and motion of the truth")
-    tracks = [summarize_track(t, lab) for t, lab in zip(trs, labels, strict=True)]
-    path_fit = fit_path(trs, path_kind, tracks=tracks)  # type: ignore[arg-type]
-    motion_fit = fit_motion(trs, path_length_m=path_fit.diagnostics["length_m"], tracks=tracks)
-    truth_rate = 1.0 / median_step_s(trs[0].truth.t_s)
-    path_p, motion_p, bands = path_fit.params, motion_fit.params, None
-    place = in_place_motion(tracks, motion_p)
-    if place is not None:  # a device shaken on a bench: a point and its jitter, not a folded path
-        path_p, motion_p, place_diag = place
-        bands = IN_PLACE_BANDS_HZ
-    jitter, jitter_diag = fit_jitter(trs, tracks, path_p, motion_p, truth_rate, bands_hz=bands)
-    if place is not None:
-        jitter_diag["in_place"] = place_diag
+    tm = _truth_motion(trs, labels, path_kind)
     say("fitting the IMU (ENU, gravity-free)")
     imf = fit_imu(trs)
     fc = float(imf.diagnostics["truth_cutoff_hz"])
@@ -376,13 +401,13 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
     data: dict[str, Any] = {
         "name": name,
         "description": f"calibrated by physynth {__version__} on IMU-only recordings {', '.join(labels)}",
-        "path": {**path_p.model_dump(mode="json"), "reverse": False},
-        "motion": motion_p.model_copy(update={"jitter": jitter}).model_dump(mode="json"),
+        "path": {**tm.path.model_dump(mode="json"), "reverse": False},
+        "motion": tm.motion.model_copy(update={"jitter": tm.jitter}).model_dump(mode="json"),
         "attitude": _attitude_section(trs, fc),
         "imu": imu,
         "imu_frames": frames,
         "anchors": [],
-        "truth_rate_hz": rounded(truth_rate, 7),
+        "truth_rate_hz": rounded(tm.rate_hz, 7),
         "provenance": {"calibrated_on": labels, "sources": list(sources or []), "imu_only": True},
     }
     if body is not None:
@@ -407,10 +432,10 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
     def put(key: str, value: Any, n: int, summary: bool = True) -> None:
         params[key] = {"value": value, "n_samples": int(n), **({"summary": True} if summary else {})}
 
-    n_truth = int(sum(tr.i_end - tr.i_start + 1 for tr in tracks))
-    put("motion.in_place", place is not None, n_truth)
-    put("motion.jitter.acc_rms_mps2", jitter.acc_rms_mps2, n_truth)
-    put("motion.jitter.intensity_log_std", jitter.intensity_log_std, len(tracks))
+    n_truth = int(sum(tr.i_end - tr.i_start + 1 for tr in tm.tracks))
+    put("motion.in_place", tm.in_place is not None, n_truth)
+    put("motion.jitter.acc_rms_mps2", tm.jitter.acc_rms_mps2, n_truth)
+    put("motion.jitter.intensity_log_std", tm.jitter.intensity_log_std, len(tm.tracks))
     p = imf.params
     put("imu.white_noise_density_mps2_per_sqrt_hz", list(p.white_noise_density_mps2_per_sqrt_hz), imf.n_samples)
     put("imu.time_offset_s", p.time_offset_s, imf.n_samples)
@@ -431,9 +456,7 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
         "imu_only_recordings": labels,
         "sources": list(sources or []),
         "parameters": params,
-        "path": path_fit.diagnostics,
-        "motion": motion_fit.diagnostics,
-        "motion_jitter": jitter_diag,
+        "path": tm.path_fit.diagnostics, "motion": tm.motion_fit.diagnostics, "motion_jitter": tm.jitter_diag,
         "imu": imf.diagnostics,
         "body_imu": None if body is None else body.diagnostics,
         "not_identifiable": ["uwb, channel, availability, anchors (IMU-only recordings: the scenario has no anchors)"]
@@ -441,7 +464,7 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
         + ([] if body is None else body.diagnostics["not_identifiable"]),
         "scenario": scn.model_dump(mode="json"),
     }
-    warnings = spread_clip_warnings(motion_fit.diagnostics) if place is None else []  # a folded path's spreads
+    warnings = spread_clip_warnings(tm.motion_fit.diagnostics) if tm.in_place is None else []  # a folded path's spreads
     if warnings:
         report["warnings"] = warnings
     return CalibrationResult(scenario=scn, report=report)

@@ -22,6 +22,15 @@ FRAMES = {"route": {"route_frame": True, "random_isometry": False},
 """``--frame`` choices and the study settings each one stands for."""
 
 
+_FRAME_HELP = ("How the networks see direction. turned (default): training windows turned and "
+               "mirrored at random, 8 turned copies at test: no prior tied to a heading, so runs "
+               "along other directions and of other shapes are tracked. route: every run turned so "
+               "that its route, estimated from its own ranges, heads east: a prior on the route's "
+               "shape, better on runs shaped like the training runs, lost on other shapes. "
+               "compass: the world as recorded: learns the training runs' compass heading, lost on "
+               "a run that heads elsewhere.")
+
+
 def tracking_cmd(
     train: list[Path] = typer.Option(None, "--train", metavar="DATASET",
                                      help="Training dataset directory (repeat for several; every trace is one "
@@ -51,14 +60,7 @@ def tracking_cmd(
                                          "direction."),
     mirror_test: bool = typer.Option(False, "--mirror-test", help="Mirror every test run (y -> -y about its "
                                      "anchor centroid) before the turn."),
-    frame: str = typer.Option("turned", "--frame", metavar="FRAME",
-                              help="How the networks see direction. turned (default): training windows turned and "
-                                   "mirrored at random, 8 turned copies at test: no prior tied to a heading, so runs "
-                                   "along other directions and of other shapes are tracked. route: every run turned so "
-                                   "that its route, estimated from its own ranges, heads east: a prior on the route's "
-                                   "shape, better on runs shaped like the training runs, lost on other shapes. "
-                                   "compass: the world as recorded: learns the training runs' compass heading, lost on "
-                                   "a run that heads elsewhere."),
+    frame: str = typer.Option("turned", "--frame", metavar="FRAME", help=_FRAME_HELP),
     threads: int = typer.Option(1, "--threads", metavar="N", min=1,
                                 help="CPU threads for PyTorch (1: small recurrent nets gain nothing from more, and "
                                      "lose a lot on a shared machine)."),
