@@ -19,8 +19,8 @@ the constant gyro model calibration wrote before it existed, so the two are comp
 Then each fold is validated without ``--transfer`` (synthetic traces move as the scenario says), as
 calibrated (a motion in place: jitter around a point, ``motion.jitter``) and with the path and motion
 calibration wrote before (a path fitted through the folded strokes, driven by a speed profile, no
-jitter), and the median truth acceleration |a| of the synthetic traces is printed next to the real
-trial's.
+jitter), and with the Ornstein-Uhlenbeck tumble that calibration wrote before the smooth one; the
+median truth acceleration |a| of the synthetic traces is printed next to the real trial's.
 """
 
 from __future__ import annotations
@@ -105,7 +105,9 @@ def _free_motion(files, traces, args) -> None:
             write_dataset(real, [left], meta={"kind": "real", "source": "broad-imu"})
             train = [t for j, t in enumerate(traces) if j != i]
             scn = calibrate(train, name=f"loo-without-{f.stem[:2]}").scenario
-            for label, s in (("in place + jitter", scn), ("folded path", _folded_path(scn, train))):
+            ou = scn.model_copy(update={"attitude": scn.attitude.model_copy(update={"tumble_spectrum": "ou"})})
+            for label, s in (("in place + jitter", scn), ("folded path", _folded_path(scn, train)),
+                             ("in place, OU tumble", ou)):
                 rep = validate_datasets(real, scenario=s, n=args.n, seed=args.seed)
                 dev = rep.to_dict()["relative_deviation_pct"]
                 med = _median_acc(generate_traces(s, args.n, seed=args.seed))
