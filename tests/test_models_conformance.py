@@ -60,6 +60,18 @@ def test_kinematics(compiled):
                                   "vel_enu_mps": (-20.0, 20.0), "acc_enu_mps2": (-10.0, 10.0)}))
 
 
+def test_jitter(kin):
+    from physynth.models.jitter import JitterParams, add_jitter
+
+    p = JitterParams(acc_rms_mps2=[[0.1, 0.2, 0.1], [0.3, 0.3, 0.2], [0.5, 0.4, 0.3], [0.2, 0.2, 0.2], [0.1, 0.1, 0.1]],
+                     intensity_log_std=0.3)
+    n = kin.t_s.shape[0]
+    check_model(ModelCase(name="jitter.add_jitter", run=lambda rng: add_jitter(kin, p, rng=rng), inputs=[kin, p],
+                          shapes={"t_s": (n,), "s_m": (n,), "pos_enu_m": (n, 3), "vel_enu_mps": (n, 3),
+                                  "acc_enu_mps2": (n, 3)},
+                          bounds={"vel_enu_mps": (-20.0, 20.0), "acc_enu_mps2": (-20.0, 20.0)}))
+
+
 def test_imu(compiled, kin):
     p = compiled.scenario.imu
     check_model(ModelCase(name="imu.simulate_imu", run=lambda rng: simulate_imu(kin, p, rng=rng), inputs=[kin, p],
