@@ -434,7 +434,7 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
 
     n_truth = int(sum(tr.i_end - tr.i_start + 1 for tr in tm.tracks))
     put("motion.in_place", tm.in_place is not None, n_truth)
-    put("motion.jitter.acc_rms_mps2", tm.jitter.acc_rms_mps2, n_truth)
+    put("motion.jitter.acc_rms_mps2", tm.jitter.acc_rms_mps2, n_truth, summary=False)  # a table: in the report
     put("motion.jitter.intensity_log_std", tm.jitter.intensity_log_std, len(tm.tracks))
     p = imf.params
     put("imu.white_noise_density_mps2_per_sqrt_hz", list(p.white_noise_density_mps2_per_sqrt_hz), imf.n_samples)
