@@ -1,7 +1,7 @@
 """Leave-one-out check of the body-frame IMU (accelerometer and gyroscope) on the shared BROAD trials of
 undisturbed motion, through calibration and ``validate --transfer`` as the command line runs them.
 
-    .venv/bin/python tools/broad_body_loo.py [--data ../shared/data/broad-imu/data_mat] [--n 4] [--seed 1]
+    .venv/bin/python tools/broad_body_loo.py [--data ../shared/data/broad-imu/data_mat] [--n 4] [--seed 1] [--bins]
 
 For each undisturbed trial in turn: calibrate on the other undisturbed trials (``physynth calibrate``
 on IMU-only recordings), then validate with ``--transfer`` on the left-out trial (the scenario's IMU
@@ -21,6 +21,10 @@ calibrated (a motion in place: jitter around a point, ``motion.jitter``) and wit
 calibration wrote before (a path fitted through the folded strokes, driven by a speed profile, no
 jitter), and with the Ornstein-Uhlenbeck tumble that calibration wrote before the smooth one; the
 median truth acceleration |a| of the synthetic traces is printed next to the real trial's.
+
+``--bins`` first prints, per trial, the gyro residual (gyro minus the fitted matrix times the truth body
+rate, low-passed at 10 Hz, on all undisturbed trials) binned by the body rate |w|, with the mean truth
+acceleration |a| of each bin: what the acceleration-scaled law rests on.
 """
 
 from __future__ import annotations
@@ -55,6 +59,25 @@ def _median_acc(traces) -> float:
     return float(np.nanmedian(np.concatenate(a)))
 
 
+def _gyro_bins(files, traces) -> None:
+    from physynth.calibrate.imu_only import _body_truth_parts, fit_body_imu
+
+    fit = fit_body_imu(traces, cutoff_hz=10.0).diagnostics
+    m, b = np.asarray(fit["gyroscope_matrix"]), np.asarray(fit["gyroscope_bias_radps"])
+    print("gyro residual RMS [rad/s] binned by |w| [rad/s] (mean |a| [m/s^2] of the bin), and at rest")
+    for f, tr in zip(files, traces, strict=True):
+        a_w, _, w, ok, calm = _body_truth_parts(tr, 10.0, 0.0, None)
+        ok &= np.all(np.isfinite(tr.imu.gyro_body_radps), axis=1)
+        r2 = np.sum((tr.imu.gyro_body_radps - (w @ m.T + b)) ** 2, axis=1) / 3.0
+        w_abs, a_abs = np.linalg.norm(w, axis=1), np.linalg.norm(a_w, axis=1)
+        cells = [f"rest {np.sqrt(np.mean(r2[calm & ok])):.3f}"]
+        for lo, hi in ((0.2, 0.5), (0.5, 1.0), (1.0, 2.0), (2.0, 5.0)):
+            sel = ok & (w_abs >= lo) & (w_abs < hi)
+            if sel.sum() > 100:
+                cells.append(f"|w| {lo:g}-{hi:g}: {np.sqrt(np.mean(r2[sel])):.3f} ({np.mean(a_abs[sel]):.1f})")
+        print(f"  {f.stem}: " + ", ".join(cells))
+
+
 def _without_gyro_acc_gain(scn: Scenario) -> Scenario:
     body = scn.body_imu
     gyro = body.gyroscope.model_copy(update={"vibration_acc_var_gain_rad2_per_m": [0.0, 0.0, 0.0]})
@@ -66,11 +89,14 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=DEFAULT, help="BROAD data_mat folder")
     ap.add_argument("--n", type=int, default=4, help="synthetic traces per validation")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--bins", action="store_true", help="first print the gyro residual binned by the motion")
     args = ap.parse_args()
     files = sorted(args.data.glob("*_undisturbed_*.mat"))
     if len(files) < 2:
         raise SystemExit(f"{args.data}: fewer than two undisturbed BROAD trials")
     traces = [import_broad(f)[0] for f in files]
+    if args.bins:
+        _gyro_bins(files, traces)
     print(f"leave-one-out over {len(files)} undisturbed trials, {args.n} synthetic traces, seed {args.seed}; "
           "error-std deviation per axis (x/y/z or E/N/U), %")
     print("| left-out trial | model | gyro acc gain [rad^2/s^2 per m/s^2] | " + " | ".join(k[1] for k in KEYS) + " |")
