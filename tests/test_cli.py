@@ -191,6 +191,9 @@ def test_generate_summary_counts_workers_and_traces_grammatically(tmp_path, caps
     assert code == 0 and "wrote 3 traces of " in out
     # the summary's counts (a run on two workers starts a Dask cluster: tests/test_scale.py runs one)
     assert (counted(2, "worker"), counted(1, "worker"), counted(0, "trace")) == ("2 workers", "1 worker", "0 traces")
+    assert (counted(1, "process", "processes"), counted(3, "process", "processes")) == ("1 process", "3 processes")
+    code, out, _ = run(capsys, "inspect", tmp_path / "three")
+    assert code == 0 and "- 3 traces, " in out and "(s)" not in out
 
 
 def test_help_shows_meaningful_metavars_everywhere(capsys):

@@ -47,7 +47,7 @@ def test_csv_good_recording(tmp_path, capsys):
     out_dir = tmp_path / "ds"
     code, out, err = run_main(["import", "csv", str(rec), "--out", str(out_dir)], capsys)
     assert code == 0, err
-    assert "wrote 1 real trace(s) from csv" in out and "uwb.csv: read" in out
+    assert "wrote 1 real trace from csv" in out and "uwb.csv: read" in out
     meta = json.loads((out_dir / "dataset.json").read_text())
     assert meta["kind"] == "real" and meta["source"] == "csv"
     assert meta["import_report"][0]["rows_read"]["uwb.csv"] > 0
@@ -84,7 +84,7 @@ def test_hanyang_two_runs(tmp_path, capsys):
     out_dir = tmp_path / "ds"
     code, out, err = run_main(["import", "hanyang", *map(str, runs), "--out", str(out_dir)], capsys)
     assert code == 0, err
-    assert "wrote 2 real trace(s) from hanyang-uwb" in out and "not corrected" in out
+    assert "wrote 2 real traces from hanyang-uwb" in out and "not corrected" in out
     meta = json.loads((out_dir / "dataset.json").read_text())
     assert meta["source"] == "hanyang-uwb" and len(meta["import_report"]) == 2
     assert [t["run"] for t in meta["traces"]] == ["LOS/Trajectory_A/Case_1", "NLOS/Trajectory_A/Case_2"]

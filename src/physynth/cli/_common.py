@@ -109,9 +109,10 @@ def format_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     return "\n".join([line(cells[0]), rule, *(line(r) for r in cells[1:])])
 
 
-def counted(n: int, word: str) -> str:
-    """``1 worker``, ``2 workers``: a count and a noun that takes an s in the plural."""
-    return f"{n} {word}" if n == 1 else f"{n} {word}s"
+def counted(n: int, word: str, plural: str | None = None) -> str:
+    """``1 worker``, ``2 workers``: a count and its noun, in the plural (``plural``, else ``word`` + s)
+    unless the count is 1."""
+    return f"{n} {word}" if n == 1 else f"{n} {plural or word + 's'}"
 
 
 PARAMETER_FLAGS = (

@@ -132,7 +132,7 @@ def inspect_cmd(
     if as_json:
         typer.echo(json.dumps(jsonable(m.to_dict()), indent=1))
         return
-    typer.echo(f"{dataset} - {m.n_traces} trace(s), {m.n_residuals} range residual(s)")
+    typer.echo(f"{dataset} - {counted(m.n_traces, 'trace')}, {counted(m.n_residuals, 'range residual')}")
     rows = []
     for key, value in m.to_dict().items():
         if key == "per_anchor":

@@ -14,7 +14,7 @@ from typing import Any
 
 import typer
 
-from ._common import cli_words, fail
+from ._common import cli_words, counted, fail
 
 app = typer.Typer(help="Import real recordings as PhySynth datasets.", no_args_is_help=True)
 
@@ -57,7 +57,7 @@ def _run(importer: Callable[[Path], tuple[Any, Any]], inputs: Sequence[Path], ou
                    f"{trace.truth.t_s.size} truth samples, "
                    f"{0 if trace.imu is None else trace.imu.t_s.size} IMU samples, "
                    f"{trace.duration_s:.1f} s")
-    typer.echo(f"wrote {len(traces)} real trace(s) from {source} to {written}")
+    typer.echo(f"wrote {counted(len(traces), 'real trace')} from {source} to {written}")
 
 
 @app.command("csv")

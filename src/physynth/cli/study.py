@@ -13,7 +13,7 @@ from pathlib import Path
 
 import typer
 
-from ._common import progress_bar
+from ._common import counted, progress_bar
 
 study_app = typer.Typer(help="Studies: anchor count x channel regime, anchor placement, tracking (Table IV).",
                         no_args_is_help=True)
@@ -98,7 +98,7 @@ def anchors_cmd(
     if quiet:
         return
     typer.echo(f"order: {', '.join(study.order)} (reference: {study.reference['kind']}); "
-               f"{study.timing_s['total']:.1f} s on {study.inputs['workers']} process(es)")
+               f"{study.timing_s['total']:.1f} s on {counted(study.inputs['workers'], 'process', 'processes')}")
     counts_ = sorted(study.counts, reverse=True)
     typer.echo("anchors " + " ".join(f"{r:>9s}" for r in study.scores))
     for k in counts_:

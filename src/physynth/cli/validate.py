@@ -14,7 +14,7 @@ from pathlib import Path
 
 import typer
 
-from ._common import progress_bar
+from ._common import counted, progress_bar
 
 
 def register(app: typer.Typer) -> None:
@@ -97,8 +97,8 @@ def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, 
         return
     dev = report.relative_deviation_pct
     syn = report.inputs.get("synthetic", {})
-    typer.echo(f"real {report.inputs['n_traces']['real']} trace(s) vs synthetic "
-               f"{report.inputs['n_traces']['synthetic']} trace(s)"
+    typer.echo(f"real {counted(report.inputs['n_traces']['real'], 'trace')} vs synthetic "
+               f"{counted(report.inputs['n_traces']['synthetic'], 'trace')}"
                + (f" (scenario '{syn.get('scenario_name')}', seed {syn.get('root_seed')}"
                   + (", transfer" if syn.get("transfer") else "") + ")" if "scenario" in syn else ""))
     typer.echo(f"KS {_f(report.ks_statistic)}  fidelity S {_f(report.fidelity_score)}  "
@@ -114,7 +114,7 @@ def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, 
     for key, d in (report.imu_errors or {}).get("relative_deviation_pct", {}).items():
         if d is not None:  # body-frame IMU errors, when both sides have them
             typer.echo(f"  {key:24s} deviation {' / '.join(f'{x:+.1f}' for x in d)} % (x / y / z)")
-    typer.echo(f"wrote {len(written)} file(s) to {out} (open {out / 'report.html'})")
+    typer.echo(f"wrote {counted(len(written), 'file')} to {out} (open {out / 'report.html'})")
 
 
 def _f(x: object, digits: int = 3) -> str:
@@ -128,4 +128,4 @@ def _print_imu_summary(report, out: Path, n_files: int) -> None:
             continue
         typer.echo(f"  {key:26s} real {' / '.join(_f(x) for x in real)}  synth {' / '.join(_f(x) for x in synth)}  "
                    f"({' / '.join(_f(x, 1) for x in dev)} %)")
-    typer.echo(f"wrote {n_files} file(s) to {out} (open {out / 'report.html'})")
+    typer.echo(f"wrote {counted(n_files, 'file')} to {out} (open {out / 'report.html'})")
