@@ -28,13 +28,13 @@ def _chromium() -> str | None:
     return None
 
 
+@pytest.mark.skipif(_chromium() is None,
+                    reason="no chromium executable on PATH (Debian: apt-get install chromium; .ci/run does it)")
 def test_html_report_loads_without_errors_and_shows_everything(tmp_path):
     pytest.importorskip("matplotlib")
     sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install "
                                                                  "playwright; it is in the test extra)")
     exe = _chromium()
-    if exe is None:
-        pytest.skip("no chromium executable on PATH (Debian: apt-get install chromium; .ci/run does it)")
     scn = scenario_from_dict(simple_scenario_dict(**{"motion.cruise_speed_mps": 10.0}))
     write_dataset(tmp_path / "real", generate_traces(scn, 2, seed=1), meta={"kind": "real", "source": "test"})
     report = validate_datasets(tmp_path / "real", scenario=scn, n=3, seed=2)
