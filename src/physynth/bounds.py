@@ -60,6 +60,15 @@ BOUNDS: dict[str, Bound] = {
     "motion.jitter.acc_rms_mps2[][]": Bound(0.0, 1000.0, "m/s^2", "jitter acceleration per band and axis (100 g)"),
     "motion.jitter.ramp_s": Bound(0.0, 3600.0, "s", "jitter fade-in and fade-out"),
     "motion.jitter.intensity_log_std": Bound(0.0, 3.0, "", "per-trace log-normal spread of the jitter"),
+    "variation.layouts[][][]": _COORD,
+    "variation.layout_jitter_m": Bound(0.0, 1000.0, "m", "per-trace horizontal anchor displacement"),
+    "variation.layout_jitter_up_m": Bound(0.0, 1000.0, "m", "per-trace vertical anchor displacement"),
+    "variation.path_yaw_std_rad": Bound(0.0, 3.1416, "rad", "per-trace turn of the path (at most half a turn)"),
+    "variation.path_shift_std_m": Bound(0.0, 10_000.0, "m", "per-trace horizontal shift of the path"),
+    "variation.path_lateral_std_m": Bound(0.0, 100.0, "m", "run-to-run route deviation of the varied path"),
+    "variation.path_sag_std_m": Bound(0.0, 100.0, "m", "run-to-run sag of the varied path"),
+    "variation.random_route_prob": _PROB,
+    "variation.random_route_points": Bound(2.0, 1000.0, "", "waypoints of a random route"),
     "imu.rate_hz": Bound(1.0, 10_000.0, "Hz", "MEMS accelerometer output rates"),
     "imu.white_noise_density_mps2_per_sqrt_hz[]": Bound(0.0, 10.0, "m/s^2/sqrt(Hz)", "accelerometer noise density"),
     "imu.bias_rw_mps2_per_sqrt_s": Bound(0.0, 10.0, "m/s^2/sqrt(s)", "bias random walk"),
@@ -261,6 +270,8 @@ def estimate_size(scn: Scenario, n_traces: int) -> SizeEstimate:
     try:
         length = float(scn.path.length_m) if scn.path.kind == "polynomial" else compile_path(scn.path).length_m
         shape_mean = compile_speed_shape(scn.motion.profile).mean
+        if scn.variation is not None and scn.variation.random_route_prob > 0:
+            length = max(length, _random_route_bound_m(scn))
     except (ValueError, ArithmeticError) as exc:
         raise ScenarioError(f"scenario '{scn.name}': {exc}") from None
     m = scn.motion
@@ -279,6 +290,20 @@ def estimate_size(scn: Scenario, n_traces: int) -> SizeEstimate:
                         imu_samples=imu, uwb_rows=uwb,
                         peak_memory_bytes=work + min(n_traces, ROW_GROUP_TRACES) * table,
                         output_bytes=n_traces * table)
+
+
+def _random_route_bound_m(scn: Scenario) -> float:
+    """Upper bound of the length of the scenario's random routes [m] (``variation``), with 20 % for the
+    smooth path through the waypoints being longer than their polyline."""
+    import numpy as np
+
+    from .models.path import compile_path
+    from .models.variation import max_route_length_m
+
+    geo = compile_path(scn.path)
+    pts = np.asarray(geo.evaluate(np.linspace(0.0, geo.length_m, 200))[0], dtype=float)
+    centre = np.mean([a.pos_enu_m for a in scn.anchors], axis=0) if scn.anchors else pts.mean(axis=0)
+    return 1.2 * max_route_length_m(scn.variation, pts, np.asarray(centre, dtype=float))
 
 
 def check_budget(scn: Scenario, n_traces: int, *, force: bool = False) -> SizeEstimate:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -22,8 +22,9 @@ from .models.availability import AvailabilityArrays, availability_arrays, simula
 from .models.imu import simulate_body_imu, simulate_imu
 from .models.jitter import add_jitter
 from .models.motion import SpeedShape, compile_speed_shape, draw_run, kinematics
-from .models.path import PathGeometry, compile_path, draw_perturbation
+from .models.path import PathGeometry, PathParams, compile_path, draw_perturbation
 from .models.uwb import ChannelArrays, channel_arrays, simulate_uwb, uwb_record
+from .models.variation import draw_site
 from .records import Anchors, Imu, Trace, Truth, Uwb
 from .rng import component_rng, new_root_seed
 from .scenario import Scenario, scenario_to_dict
@@ -67,9 +68,37 @@ def _compiled(scn: Scenario | CompiledScenario) -> CompiledScenario:
     return scn if isinstance(scn, CompiledScenario) else compile_scenario(scn)
 
 
+def _vary_site(cs: CompiledScenario, index: int, root_seed: int) -> tuple[CompiledScenario, dict]:
+    """The compiled scenario of trace ``index`` with its own anchor layout and path (the scenario's
+    ``variation``, :func:`physynth.models.variation.draw_site`), and the record of the draw.
+
+    Only what the site changes is rebuilt: the path's geometry and the anchor positions (the channel's
+    tables do not depend on them); the scenario is updated without a second validation (the draws are
+    positions and spreads of the validated section).
+    """
+    s = cs.scenario
+    geo = cs.geometry
+
+    def path_points() -> np.ndarray:
+        return np.asarray(geo.evaluate(np.linspace(0.0, geo.length_m, 200))[0], dtype=float)
+
+    pos, path, record = draw_site(s.variation, cs.anchors.pos_enu_m, s.path.model_dump(mode="python"), path_points,
+                                  component_rng(root_seed, index, "site"))
+    path_p = PathParams.model_validate(path)
+    geometry = compile_path(path_p)
+    anchors = [a.model_copy(update={"pos_enu_m": [float(x) for x in p]}) for a, p in zip(s.anchors, pos, strict=True)]
+    varied = s.model_copy(update={"path": path_p, "anchors": anchors, "variation": None})
+    return replace(cs, scenario=varied, geometry=geometry, lateral_dir=geometry.lateral_direction(),
+                   channel=None if cs.channel is None else replace(cs.channel, anchor_pos_enu_m=pos),
+                   anchors=Anchors(ids=cs.anchors.ids, names=cs.anchors.names, pos_enu_m=pos)), record
+
+
 def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int) -> Trace:
     """Trace ``index`` of the dataset with root seed ``root_seed``."""
     cs = _compiled(scn)
+    site = None
+    if cs.scenario.variation is not None:  # this trace's own anchor layout and path
+        cs, site = _vary_site(cs, index, root_seed)
     s = cs.scenario
     pert = draw_perturbation(s.path.perturbation, rng=component_rng(root_seed, index, "path"))
     run = draw_run(s.motion, rng=component_rng(root_seed, index, "motion"))
@@ -98,6 +127,8 @@ def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int)
         "lateral_offset_m": pert.lateral_m,
         "sag_offset_m": pert.sag_m,
     }
+    if site is not None:
+        meta["site_variation"] = site  # which layout, the path's turn and shift, a random route or not
     if s.uwb.time_offset_std_s > 0 and cs.channel is not None:
         meta["uwb_time_offset_s"] = tries.time_offset_s  # the trace's own lag (a label)
     truth = Truth(t_s=kin.t_s, pos_enu_m=kin.pos_enu_m, vel_enu_mps=kin.vel_enu_mps, quat_wxyz=att.quat_wxyz,
@@ -144,7 +175,7 @@ def dataset_meta(scn: Scenario, root_seed: int) -> dict:
         "scenario_name": scn.name,
         "root_seed": int(root_seed),
         "seeding": "trace i uses numpy SeedSequence(root_seed, spawn_key=(i, component)), "
-                   "components path=0 motion=1 imu=2 uwb=3 availability=4 attitude=5 imu_body=6 jitter=7",
+                   "components path=0 motion=1 imu=2 uwb=3 availability=4 attitude=5 imu_body=6 jitter=7 site=100",
         "imu_frame": IMU_FRAME,
         "imu_frames": list(scn.imu_frames),
         "provenance": {"generator": f"physynth {__version__}", "pid": os.getpid()},

@@ -23,12 +23,13 @@ from .models.motion import MotionParams, SpeedProfileParams
 from .models.obstacles import BoxObstacle, PrismObstacle, TerrainGrid, WallObstacle
 from .models.path import PathParams, PerturbationParams
 from .models.uwb import AnchorSpec, ChannelOverride, ChannelParams, LinkBudgetParams, NlosMode, NlosZone, UwbParams
+from .models.variation import SiteVariationParams
 
 __all__ = ["AccelerometerParams", "AnchorSpec", "AttitudeParams", "AvailabilityOverride", "AvailabilityParams",
            "BodyImuParams", "BoxObstacle", "ChannelOverride", "ChannelParams", "GyroscopeParams", "ImuParams",
            "LinkBudgetParams", "MotionParams", "NlosMode", "NlosZone", "PathParams", "PerturbationParams",
-           "PrismObstacle", "Scenario", "SpeedProfileParams", "TerrainGrid", "UwbParams", "VibrationParams",
-           "WallObstacle", "scenario_from_dict", "scenario_to_dict"]
+           "PrismObstacle", "Scenario", "SiteVariationParams", "SpeedProfileParams", "TerrainGrid", "UwbParams",
+           "VibrationParams", "WallObstacle", "scenario_from_dict", "scenario_to_dict"]
 
 
 class Scenario(ParamsModel):
@@ -50,6 +51,7 @@ class Scenario(ParamsModel):
     availability_per_anchor: dict[str, AvailabilityOverride] = {}
     truth_rate_hz: PositiveFloat = 100.0
     grid_rate_hz: PositiveFloat = 100.0
+    variation: SiteVariationParams | None = None  # per-trace anchor layout and path; None: one site
     provenance: dict[str, Any] = {}
 
     @field_validator("anchors")
@@ -75,6 +77,11 @@ class Scenario(ParamsModel):
                 and abs(self.imu.rate_hz - self.body_imu.rate_hz) > 1e-9 * self.imu.rate_hz):
             raise ValueError(f"both IMU frames share one time base: imu.rate_hz ({self.imu.rate_hz}) and "
                              f"body_imu.rate_hz ({self.body_imu.rate_hz}) must be equal")
+        if self.variation is not None:
+            for k, lay in enumerate(self.variation.layouts):
+                if len(lay) != len(self.anchors):
+                    raise ValueError(f"variation.layouts[{k}] holds {len(lay)} position(s) for "
+                                     f"{len(self.anchors)} anchor(s): one [E, N, U] per anchor, in anchor order")
         for a in self.anchors:
             if self.channel_for(a.id).rate_hz > self.uwb.burst_rate_hz * (1 + 1e-9):
                 raise ValueError(f"anchor {a.id}: rate_hz exceeds uwb.burst_rate_hz")

@@ -633,7 +633,8 @@ def transfer_scenario(scn: Scenario, real_traces: Trace | Sequence[Trace], *, pa
 
     Path geometry (:func:`fit_path`), speed profile, cruise speed and dwells (:func:`fit_motion`) and
     the anchors (ids and positions, :func:`anchor_layout`) come from ``real_traces``; every sensor,
-    UWB acquisition, channel and availability parameter stays as in ``scn``, and so do the run-to-run
+    UWB acquisition, channel and availability parameter stays as in ``scn`` (but a ``variation`` section,
+    dropped: the result is the real run's one site), and so do the run-to-run
     variability of the installation (``path.perturbation``, ``motion.cruise_speed_spread_frac`` and
     ``motion.length_spread_frac``). The burst clock's phase (``uwb.burst_phase_s``, the run's alignment
     with its own time base) is taken from the real run too. Anchors of the real data without a channel or availability
@@ -666,6 +667,7 @@ def transfer_scenario(scn: Scenario, real_traces: Trace | Sequence[Trace], *, pa
     data["uwb"]["burst_phase_s"] = None if phase is None else round(float(phase), 5)
     data["channel_per_anchor"] = {a: v for a, v in data["channel_per_anchor"].items() if a in ids}
     data["availability_per_anchor"] = {a: v for a, v in data["availability_per_anchor"].items() if a in ids}
+    data["variation"] = None  # the real run's one site, not a varied one
     data["provenance"] = {
         **scn.provenance,
         "transfer": {

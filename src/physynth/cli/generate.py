@@ -49,6 +49,11 @@ def generate_cmd(
     regime: str | None = typer.Option(None, "--regime", metavar="REGIME",
                                       help="Channel regime applied to the scenario: nominal, dense, sparse or degraded "
                                            "(docs/anchors.md)."),
+    vary_site: bool = typer.Option(False, "--vary-site",
+                                   help="Give every trace its own anchor layout (jittered) and path (turned and "
+                                        "shifted), as the scenario's variation section says, or with that "
+                                        "section's defaults when it has none (docs/scale.md): training data "
+                                        "for trackers that must work beyond one site."),
     force: bool = typer.Option(False, "--force", help="Go ahead even when the size estimate exceeds the budget."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
@@ -66,6 +71,12 @@ def generate_cmd(
         from ..studies.regimes import apply_regime
 
         scn = apply_regime(scn, regime)
+    if vary_site and scn.variation is None:  # the section's defaults, with the layouts a calibration recorded
+        from ..models.variation import recorded_layouts
+        from ..scenario import SiteVariationParams
+
+        scn = scn.model_copy(update={"variation": SiteVariationParams(
+            layouts=recorded_layouts(scn.provenance, scn.anchor_ids))})
     inputs = [Path(scenario)] if Path(scenario).is_file() else []
     n_workers = workers or (available_cores() if n >= AUTO_CLUSTER_MIN_TRACES else 1)
     if not workers and scheduler is None and n_workers > 1 and importlib.util.find_spec("distributed") is None:
@@ -94,6 +105,9 @@ def generate_cmd(
     if not quiet:
         where = f"on {scheduler}" if scheduler else counted(min(n_workers, -(-n // shard_traces)), "worker")
         typer.echo(f"wrote {counted(n, 'trace')} of '{scn.name}' to {path} (root seed {root}, {where})")
+        if scn.variation is not None:
+            lays = counted(len(scn.variation.layouts), "anchor layout") if scn.variation.layouts else "its own layout"
+            typer.echo(f"  site varied per trace around {lays} (variation section)")
 
 
 def scenarios_cmd() -> None:

@@ -101,15 +101,17 @@ def read_candidates(path: str | os.PathLike) -> list[AnchorSpec]:
 def candidate_scenario(scn: Scenario, candidates: Sequence[AnchorSpec], *, same_slot: bool = False) -> Scenario:
     """The scenario with the candidates as its anchors (overrides kept for candidates of the same id).
 
-    ``same_slot`` ranges every anchor at the burst start (``uwb.slot_s`` = 0): with many candidates the
-    slot offsets j * slot_s would otherwise spread a burst over several 10 ms bins and make the >= 2
-    objectives depend on the candidates' order in the file.
+    A ``variation`` section is dropped: the candidates' positions are what the study weighs, on the
+    scenario's own path. ``same_slot`` ranges every anchor at the burst start (``uwb.slot_s`` = 0):
+    with many candidates the slot offsets j * slot_s would otherwise spread a burst over several 10 ms
+    bins and make the >= 2 objectives depend on the candidates' order in the file.
     """
     d = scenario_to_dict(scn)
     if same_slot:
         d["uwb"]["slot_s"] = 0.0
     ids = {a.id for a in candidates}
     d["anchors"] = [a.model_dump(mode="json") for a in candidates]
+    d.pop("variation", None)
     for key in ("channel_per_anchor", "availability_per_anchor"):
         d[key] = {k: v for k, v in d[key].items() if k in ids}
     d["name"] = f"{scn.name}+candidates"

@@ -30,7 +30,10 @@ def subset_scenario(scn: Scenario, ids: Sequence[str]) -> Scenario:
     """The scenario with only the anchors ``ids`` (in the scenario's order) and their overrides."""
     keep = set(check_subset(ids, scn.anchor_ids, f"scenario '{scn.name}'"))
     d = scenario_to_dict(scn)
-    d["anchors"] = [a for a in d["anchors"] if a["id"] in keep]
+    idx = [i for i, a in enumerate(d["anchors"]) if a["id"] in keep]
+    d["anchors"] = [d["anchors"][i] for i in idx]
+    if d.get("variation"):  # the alternative layouts of the same anchors
+        d["variation"]["layouts"] = [[lay[i] for i in idx] for lay in d["variation"]["layouts"]]
     for key in ("channel_per_anchor", "availability_per_anchor"):
         d[key] = {k: v for k, v in d[key].items() if k in keep}
     return scenario_from_dict(d, f"{scn.name} restricted to {len(keep)} anchor(s)")

@@ -1,5 +1,9 @@
 """Synthetic training traces that vary the path and the anchor layout around a calibrated site.
 
+The tracking study's form of a scenario's ``variation`` section (:mod:`physynth.models.variation`,
+whose draws it shares, in the same order and from the same stream: a study trace and a trace of the
+scenario with the same section are the same).
+
 A calibrated scenario reproduces one site; a network pre-trained only on it learns that one layout.
 :class:`SynthVariation` draws, per trace and from the trace's own stream
 (``SeedSequence(root_seed, spawn_key=(i, VARIATION_COMPONENT))``):
@@ -27,11 +31,15 @@ from typing import Any
 import numpy as np
 
 from ..generate import CompiledScenario, generate_trace
+from ..models.variation import draw_site, random_route
 from ..records import Trace
+from ..rng import COMPONENT_ID
 from ..scenario import Scenario
 
-VARIATION_COMPONENT = 100
-"""spawn_key component of the variation draws (the generator uses 0-4)."""
+__all__ = ["VARIATION_COMPONENT", "SynthVariation", "random_route", "synthetic_trace", "varied_scenario"]
+
+VARIATION_COMPONENT = COMPONENT_ID["site"]
+"""spawn_key component of the variation draws (100: that of a scenario's ``variation`` section)."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -65,24 +73,6 @@ class SynthVariation:
                 "random_route_prob": self.random_route_prob, "random_route_points": self.random_route_points}
 
 
-def _rotated_path(path: dict[str, Any], yaw_rad: float, shift_m: np.ndarray, centre: np.ndarray) -> dict[str, Any]:
-    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
-    rot = np.array([[c, -s], [s, c]])
-    if path["kind"] == "waypoints":
-        w = np.asarray(path["waypoints_enu_m"], dtype=float)
-        w[:, :2] = (w[:, :2] - centre[:2]) @ rot.T + centre[:2] + shift_m
-        return {**path, "waypoints_enu_m": w.tolist()}
-    coeffs = [list(map(float, c_)) for c_ in path["coeffs_enu_m"]]
-    n = max(len(coeffs[0]), len(coeffs[1]))
-    en = np.zeros((2, n))
-    for k in range(2):
-        en[k, :len(coeffs[k])] = coeffs[k]
-    en[:, 0] -= centre[:2]
-    en = rot @ en
-    en[:, 0] += centre[:2] + shift_m
-    return {**path, "coeffs_enu_m": [en[0].tolist(), en[1].tolist(), coeffs[2]]}
-
-
 def _path_points(scn: Scenario, n: int = 200) -> np.ndarray:
     """(n, 3) points along the scenario's path [m]."""
     from ..models.path import compile_path
@@ -91,55 +81,13 @@ def _path_points(scn: Scenario, n: int = 200) -> np.ndarray:
     return np.asarray(geo.evaluate(np.linspace(0.0, geo.length_m, n))[0], dtype=float)
 
 
-def random_route(centre_enu_m: np.ndarray, reach_m: float, height_m: float, n_points: int,
-                 rng: np.random.Generator) -> list[list[float]]:
-    """Waypoints [m] of a random route around ``centre_enu_m``: a random walk of ``n_points`` points.
-
-    It starts within 3 m of the centre; every leg is 0.2-0.5 x ``reach_m`` long and turns by
-    N(0, 70 deg) from the last one (its first heading uniform); a leg that would leave the disc of
-    radius ``reach_m`` is turned back towards the centre. All points at ``height_m``.
-    """
-    pts = [centre_enu_m[:2] + rng.uniform(-3.0, 3.0, 2)]
-    heading = rng.uniform(0.0, 2.0 * np.pi)
-    for _ in range(n_points - 1):
-        heading += rng.normal(0.0, np.radians(70.0))
-        step = rng.uniform(0.2, 0.5) * reach_m
-        nxt = pts[-1] + step * np.array([np.cos(heading), np.sin(heading)])
-        if np.linalg.norm(nxt - centre_enu_m[:2]) > reach_m:  # turn back towards the centre
-            back = centre_enu_m[:2] - pts[-1]
-            heading = float(np.arctan2(back[1], back[0]) + rng.normal(0.0, np.radians(30.0)))
-            nxt = pts[-1] + step * np.array([np.cos(heading), np.sin(heading)])
-        pts.append(nxt)
-    return [[float(p[0]), float(p[1]), float(height_m)] for p in pts]
-
-
 def varied_scenario(scn: Scenario, variation: SynthVariation, rng: np.random.Generator) -> Scenario:
-    """``scn`` with one draw of anchor layout and path (see :class:`SynthVariation`)."""
-    ids = [a.id for a in scn.anchors]
+    """``scn`` with one draw of anchor layout and path (:func:`physynth.models.variation.draw_site`)."""
     base = np.array([a.pos_enu_m for a in scn.anchors], dtype=float)
-    pool = [np.asarray(lay, dtype=float) for lay in variation.layouts if len(lay) == len(ids)] or [base]
-    pos = pool[int(rng.integers(len(pool)))].copy()
-    if variation.shuffle_anchors:
-        pos = pos[rng.permutation(len(ids))]
-    pos[:, :2] += rng.normal(0.0, variation.layout_jitter_m, (len(ids), 2))
-    pos[:, 2] += rng.normal(0.0, variation.layout_jitter_up_m, len(ids))
     data = scn.model_dump(mode="python")
+    pos, path, _ = draw_site(variation, base, data["path"], lambda: _path_points(scn), rng)
     data["anchors"] = [{**a, "pos_enu_m": [float(v) for v in p]} for a, p in zip(data["anchors"], pos, strict=True)]
-    yaw = float(rng.normal(0.0, variation.path_yaw_std_rad))
-    shift = rng.normal(0.0, variation.path_shift_std_m, 2)
-    path = _rotated_path(data["path"], yaw, shift, base.mean(axis=0))
-    pert = dict(path["perturbation"])
-    if variation.path_lateral_std_m is not None:
-        pert["lateral_std_m"] = variation.path_lateral_std_m
-    if variation.path_sag_std_m is not None:
-        pert["sag_std_m"] = variation.path_sag_std_m
-    data["path"] = {**path, "perturbation": pert}
-    if variation.random_route_prob > 0 and rng.random() < variation.random_route_prob:  # drawn last
-        pts = _path_points(scn)
-        centre = base.mean(axis=0)
-        reach = max(float(np.max(np.linalg.norm(pts[:, :2] - centre[:2], axis=1))), 5.0)
-        route = random_route(centre, reach, float(pts[:, 2].mean()), variation.random_route_points, rng)
-        data["path"] = {"kind": "waypoints", "waypoints_enu_m": route, "perturbation": pert}
+    data["path"] = path
     return Scenario.model_validate(data)
 
 
