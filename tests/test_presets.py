@@ -6,6 +6,8 @@ within 15 %. Seed 2026 is fixed; the expected values were checked on 150 traces 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from physynth.evaluate.metrics import compute_metrics
@@ -56,3 +58,68 @@ def test_descending_preset_matches_the_paper_layout():
         0.04, 0.003, 16.0)
     for a in s.anchor_ids:
         assert 17.0 <= s.channel_for(a).rate_hz <= 20.0
+
+
+# ------------------------------------------------------------------ presets calibrated on real recordings
+SHARED = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+HANYANG_A = SHARED / "hanyang-uwb" / "Dynamic_measurements"
+BROAD = SHARED / "broad-imu" / "data_mat"
+needs_hanyang = pytest.mark.skipif(not HANYANG_A.is_dir(), reason=f"real Hanyang data not found at {HANYANG_A}")
+needs_broad = pytest.mark.skipif(not BROAD.is_dir(), reason=f"real BROAD data not found at {BROAD}")
+
+
+def test_real_presets_generate_what_they_describe():
+    import numpy as np
+
+    walk = generate_trace(load_scenario("walk-hanyang"), 0, 2026)
+    assert walk.anchors.ids == ("A3", "A5", "A9", "A12") and np.isfinite(walk.uwb.range_m).mean() > 0.5
+    assert walk.imu.acc_mps2 is not None and walk.imu.gyro_body_radps is not None
+    speed = np.linalg.norm(walk.truth.vel_enu_mps[:, :2], axis=1)
+    assert 0.8 < np.median(speed[speed > 0.3]) < 2.0  # a walk (m/s)
+    hand = generate_trace(load_scenario("handheld-broad"), 0, 2026)
+    assert len(hand.anchors) == 0 and len(hand.uwb) == 0 and hand.imu.gyro_body_radps is not None
+    travel = np.ptp(hand.truth.pos_enu_m, axis=0)
+    assert np.all(travel < 5.0) and np.std(hand.imu.acc_body_mps2[:, 2]) > 0.3  # shaken in place (m, m/s^2)
+
+
+@needs_hanyang
+def test_walk_preset_records_the_layouts_of_its_runs():
+    import numpy as np
+
+    from physynth.io.importers import import_hanyang
+    from physynth.models.variation import recorded_layouts
+
+    scn = load_scenario("walk-hanyang")
+    lays = recorded_layouts(scn.provenance, scn.anchor_ids)
+    real = [import_hanyang(HANYANG_A / env / "Trajectory_A" / case, crop_to_uwb=True)[0].anchors.pos_enu_m
+            for env in ("LOS", "NLOS") for case in ("Case_1", "Case_2")]
+    assert len(lays) == 4 and all(np.allclose(a, b, atol=1e-3) for a, b in zip(lays, real, strict=True))
+
+
+@needs_hanyang
+def test_walk_preset_reproduces_a_run_it_was_calibrated_on(tmp_path):
+    from physynth.io import write_dataset
+    from physynth.io.importers import import_hanyang
+    from physynth.workflows import validate_datasets
+
+    trace, _ = import_hanyang(HANYANG_A / "NLOS" / "Trajectory_A" / "Case_2", crop_to_uwb=True)
+    write_dataset(tmp_path / "real", [trace], meta={"kind": "real", "source": "hanyang-uwb"})
+    rep = validate_datasets(tmp_path / "real", scenario="walk-hanyang", n=4, seed=1, transfer=True)
+    assert rep.ks_statistic <= 0.10  # issue 12's target for a run, met on the runs without an offset
+    assert abs(rep.comparison["uwb_ge1_frac"]["deviation"]) <= 15.0  # per cent
+
+
+@needs_broad
+def test_handheld_preset_reproduces_a_trial_it_was_calibrated_on(tmp_path):
+    import numpy as np
+
+    from physynth.io import write_dataset
+    from physynth.io.importers import import_broad
+    from physynth.workflows import validate_datasets
+
+    trace, _ = import_broad(BROAD / "15_undisturbed_fast_translation_A.mat")
+    write_dataset(tmp_path / "real", [trace], meta={"kind": "real", "source": "broad-imu"})
+    rep = validate_datasets(tmp_path / "real", scenario="handheld-broad", n=2, seed=1, transfer=True).to_dict()
+    dev = rep["relative_deviation_pct"]
+    assert np.all(np.abs(dev["imu_error_std_mps2"]) <= 20.0) and np.all(np.abs(dev["acc_body_error_std_mps2"]) <= 20.0)
+    assert np.all(np.abs(dev["gyro_error_std_radps"]) <= 30.0)
