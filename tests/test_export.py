@@ -61,6 +61,8 @@ def test_rosbag2_messages_and_stamps(dataset, tmp_path):
             assert stamp >= last  # time order
             last = stamp
             msg = ts.deserialize_cdr(raw, conn.msgtype)
+            if conn.topic == "/tf_static":  # a TFMessage: its transforms carry the headers (tested below)
+                continue
             hdr = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             assert hdr == stamp
             if conn.topic == "/imu":
@@ -193,3 +195,35 @@ def test_a_csv_export_is_not_taken_for_a_damaged_dataset(dataset, tmp_path, caps
         assert e.value.code == 2 and err.count("\n") == 1, err
         assert "is a CSV export of a PhySynth dataset, not a dataset" in err and "missing" not in err
     assert len(read_dataset(dataset[0]).traces) == 3  # the dataset itself still reads
+
+
+def test_rosbag2_states_each_trace_anchor_layout_on_tf_static(tmp_path):
+    pytest.importorskip("rosbags")
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    from physynth.io.scenario_file import load_scenario
+    from physynth.scenario import scenario_from_dict, scenario_to_dict
+    from physynth.workflows import generate_dataset
+
+    d = scenario_to_dict(load_scenario("cablecar-descending"))
+    d["variation"] = {"layout_jitter_m": 2.0}  # every trace its own layout
+    path, _ = generate_dataset(scenario_from_dict(d, "t"), 2, tmp_path / "ds", seed=4)
+    out = export_dataset(path, tmp_path / "bags", "rosbag2")
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    got = []
+    for i, tr in enumerate(read_dataset(path).traces):
+        with Reader(out / f"trace_{i:08d}") as r:
+            conn = [c for c in r.connections if c.topic == "/tf_static"]
+            assert len(conn) == 1 and conn[0].msgtype == "tf2_msgs/msg/TFMessage"
+            assert conn[0].ext.offered_qos_profiles[0].durability.name == "TRANSIENT_LOCAL"
+            (c, stamp, raw), = list(r.messages(connections=conn))
+            msg = ts.deserialize_cdr(raw, c.msgtype)
+        assert stamp == round(tr.truth.t_s[0] * 1e9)
+        assert [t.child_frame_id for t in msg.transforms] == list(tr.anchors.ids)
+        assert all(t.header.frame_id == "enu" for t in msg.transforms)
+        pos = np.array([[t.transform.translation.x, t.transform.translation.y, t.transform.translation.z]
+                        for t in msg.transforms])
+        np.testing.assert_array_equal(pos, tr.anchors.pos_enu_m)
+        got.append(pos)
+    assert not np.array_equal(got[0], got[1])

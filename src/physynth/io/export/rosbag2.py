@@ -18,7 +18,11 @@ receive timestamp of the bag record equal to the header stamp:
   ``max_range`` the largest range of the trace, field of view 2 pi;
 - ``/truth`` (``geometry_msgs/msg/PointStamped``), frame ``enu``: the ground-truth position;
 - ``/truth/orientation`` (``geometry_msgs/msg/QuaternionStamped``), frame ``enu``: the ground-truth
-  attitude (body to ENU), when the truth has one.
+  attitude (body to ENU), when the truth has one;
+- ``/tf_static`` (``tf2_msgs/msg/TFMessage``, offered with transient-local durability as ROS 2 latches
+  it): one message at the trace's first truth stamp with a transform ``enu`` -> ``<anchor id>`` per
+  anchor (translation its position, no rotation): where the frames of the ``/uwb`` ranges are. Each
+  bag holds its own trace's layout (traces of a ``variation`` section each have their own).
 """
 
 from __future__ import annotations
@@ -37,6 +41,31 @@ RADIO = 2
 
 def _stamps_ns(t_s: np.ndarray) -> np.ndarray:
     return np.round(np.asarray(t_s, dtype=np.float64) * 1e9).astype(np.int64)
+
+
+def _latched_qos() -> Any:
+    """The QoS ROS 2 offers ``/tf_static`` with: reliable, transient local, keep last 1."""
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+
+    never = QosTime(sec=0, nsec=0)
+    return Qos(history=QosHistory.KEEP_LAST, depth=1, reliability=QosReliability.RELIABLE,
+               durability=QosDurability.TRANSIENT_LOCAL, deadline=never, lifespan=never,
+               liveliness=QosLiveliness.AUTOMATIC, liveliness_lease_duration=never,
+               avoid_ros_namespace_conventions=False)
+
+
+def _anchor_frames(w: Any, ts: Any, trace: Trace, hdr: Any) -> tuple[int, Any, bytes]:
+    """The ``/tf_static`` record of a trace's anchor layout: (stamp, connection, CDR bytes)."""
+    tf_type = "tf2_msgs/msg/TFMessage"
+    TFMessage, TransformStamped = ts.types[tf_type], ts.types["geometry_msgs/msg/TransformStamped"]
+    Transform, Vector3 = ts.types["geometry_msgs/msg/Transform"], ts.types["geometry_msgs/msg/Vector3"]
+    Quaternion = ts.types["geometry_msgs/msg/Quaternion"]
+    conn = w.add_connection("/tf_static", tf_type, typestore=ts, offered_qos_profiles=[_latched_qos()])
+    transforms = [TransformStamped(header=hdr, child_frame_id=a_id, transform=Transform(
+        translation=Vector3(x=p[0], y=p[1], z=p[2]), rotation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)))
+        for a_id, p in zip(trace.anchors.ids, trace.anchors.pos_enu_m.tolist(), strict=True)]
+    ns = hdr.stamp.sec * 1_000_000_000 + hdr.stamp.nanosec
+    return int(ns), conn, ts.serialize_cdr(TFMessage(transforms=transforms), tf_type)
 
 
 def write_rosbag2(traces: Iterable[tuple[int, Trace]], meta: dict[str, Any], path: Path) -> None:
@@ -99,6 +128,8 @@ def write_rosbag2(traces: Iterable[tuple[int, Trace]], meta: dict[str, Any], pat
             for ns, p in zip(_stamps_ns(trace.truth.t_s), trace.truth.pos_enu_m.tolist(), strict=True):
                 msg = Point(header=header(int(ns), "enu"), point=PointMsg(x=p[0], y=p[1], z=p[2]))
                 messages.append((int(ns), c_truth, ts.serialize_cdr(msg, Point.__msgtype__)))
+            if len(trace.anchors):
+                messages.append(_anchor_frames(w, ts, trace, header(int(_stamps_ns(trace.truth.t_s[:1])[0]), "enu")))
             if trace.truth.quat_wxyz is not None:
                 c_att = w.add_connection("/truth/orientation", QuatStamped.__msgtype__, typestore=ts)
                 for ns, q in zip(_stamps_ns(trace.truth.t_s), trace.truth.quat_wxyz.tolist(), strict=True):
