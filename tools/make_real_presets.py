@@ -41,8 +41,8 @@ WALK_DESCRIPTION = (
     "A person walking an outdoor route with a UWB tag 1 m above the ground and four anchors, "
     "calibrated on four real runs (LOS and NLOS) of the Hanyang outdoor UWB dataset (ADIP laboratory, "
     "Hanyang University, Apache-2.0, doi:10.5281/zenodo.15226105); the four runs' anchor layouts are "
-    "recorded for generate --vary-site. IMU: the MEMS device of the BROAD trials (handheld-broad) on a "
-    "body facing its direction of travel.")
+    "recorded for a per-trace variation of the site. IMU: the MEMS device of the BROAD trials "
+    "(handheld-broad) on a body facing its direction of travel.")
 HANDHELD_DESCRIPTION = (
     "A MEMS IMU moved by hand on a lab bench (in place, turning smoothly), ENU and body-frame outputs, "
     "no anchors; calibrated on three undisturbed trials of the BROAD inertial dataset (Laidig et al., "
