@@ -105,7 +105,9 @@ def generate_cmd(
     if not quiet:
         where = f"on {scheduler}" if scheduler else counted(min(n_workers, -(-n // shard_traces)), "worker")
         typer.echo(f"wrote {counted(n, 'trace')} of '{scn.name}' to {path} (root seed {root}, {where})")
-        if scn.variation is not None:
+        if scn.variation is not None and not scn.anchors:
+            typer.echo("  path varied per trace (variation section; no anchors)")
+        elif scn.variation is not None:
             lays = counted(len(scn.variation.layouts), "anchor layout") if scn.variation.layouts else "its own layout"
             typer.echo(f"  site varied per trace around {lays} (variation section)")
 
