@@ -177,3 +177,11 @@ def test_workers_on_a_local_cluster_give_the_same_varied_files(base, tmp_path):
     files = sorted(p.relative_to(one) for p in one.rglob("*.parquet"))
     assert files and all((one / f).read_bytes() == (two / f).read_bytes() for f in files)
     assert len({tuple(t.anchors.pos_enu_m.ravel()) for t in read_dataset(two).traces}) == 5
+
+
+def test_the_study_variation_replaces_a_section_of_the_scenario(base):
+    study = SynthVariation(layout_jitter_m=0.5)
+    with_section = with_variation(base, layout_jitter_m=5.0, path_shift_std_m=20.0)
+    a, b = synthetic_trace(with_section, 1, SEED, study), synthetic_trace(base, 1, SEED, study)
+    assert np.array_equal(a.anchors.pos_enu_m, b.anchors.pos_enu_m)  # drawn once, by the study's variation
+    assert np.array_equal(a.truth.pos_enu_m, b.truth.pos_enu_m)

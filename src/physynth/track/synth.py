@@ -82,12 +82,14 @@ def _path_points(scn: Scenario, n: int = 200) -> np.ndarray:
 
 
 def varied_scenario(scn: Scenario, variation: SynthVariation, rng: np.random.Generator) -> Scenario:
-    """``scn`` with one draw of anchor layout and path (:func:`physynth.models.variation.draw_site`)."""
+    """``scn`` with one draw of anchor layout and path (:func:`physynth.models.variation.draw_site`), and
+    without a ``variation`` section of its own: ``variation`` takes its place."""
     base = np.array([a.pos_enu_m for a in scn.anchors], dtype=float)
     data = scn.model_dump(mode="python")
     pos, path, _ = draw_site(variation, base, data["path"], lambda: _path_points(scn), rng)
     data["anchors"] = [{**a, "pos_enu_m": [float(v) for v in p]} for a, p in zip(data["anchors"], pos, strict=True)]
     data["path"] = path
+    data["variation"] = None  # this draw replaces a section of the scenario's own (drawn from the same stream)
     return Scenario.model_validate(data)
 
 
