@@ -54,11 +54,15 @@ def test_hanyang_calibration_values(hanyang_los1):
         assert 8.0 <= c.rate_hz * (1 - av.dropout_prob) * up <= 9.6  # effective rate 8-9.5 Hz (SOURCE.md)
         # received-power bias, log10 of the range (the default law): 0.25 m per decade on the static sweeps
         assert 0.12 <= c.range_bias_per_decade_m <= 0.35 and c.range_bias_per_m == 0.0
-        assert 0.04 <= c.los_std_m <= 0.12  # robust sigma ~0.1 m before removing the range bias
+        # robust sigma ~0.1 m before removing the range bias; most of the LOS spread is the slow antenna sway
+        # (docs/calibration.md), the rest white
+        total = np.hypot(c.los_std_m, s.uwb.antenna_sway_std_m)
+        assert 0.04 <= total <= 0.12 and c.los_std_m < 0.5 * total
         # LOS run: what is not LOS-Gaussian is a few % at most (up to 6.5 % on one anchor since the LOS core,
         # with the log-range bias removed, is narrower: 5-6 cm)
         assert c.nlos_prob < 0.08
         assert c.max_range_m > 50.0  # heard at every range of the walk: horizon not identifiable
+    assert 1.0 <= s.uwb.antenna_sway_tau_s <= 5.0  # the LOS residual's correlation time on the walks: 2-3 s
     assert s.path.kind == "waypoints" and res.report["path"]["rmse_m"] < 0.1
     assert s.motion.profile.kind == "empirical"  # a walk with stops at every corner
     # one run, one layout: availability per anchor as fitted (re-placed anchors are pooled: test_multirun_real)
@@ -71,14 +75,19 @@ def test_hanyang_calibration_values(hanyang_los1):
 def test_hanyang_synthetic_metrics_match_real(hanyang_los1):
     real, res = hanyang_los1
     cs = compile_scenario(res.scenario)
-    synth = [generate_trace(cs, i, 20240611) for i in range(10)]
+    synth = [generate_trace(cs, i, 20240611) for i in range(20)]
     mr, ms = compute_metrics([real]), compute_metrics(synth)
+    # the ranging error of a walk is slow (the antenna sway, tau ~2 s): a run's median residual moves by about
+    # a centimetre from run to run, so its tolerance is 3 standard errors of the synthetic mean of runs when
+    # that exceeds 10 % (a near-zero quantity: compared in metres, issue 12)
+    per_run = [compute_metrics([t]).scalar("residual_median_m") for t in synth]
+    median_tol_m = max(0.10 * abs(mr.scalar("residual_median_m")), 3.0 * np.std(per_run) / np.sqrt(len(synth)))
     dev = {k: relative_deviation_pct(mr.scalar(k), ms.scalar(k))
            for k in ("uwb_ge1_frac", "uwb_ge2_frac", "residual_median_m", "abs_residual_p95_m", "mean_aoi_s")}
     msg = {k: (round(mr.scalar(k), 4), round(ms.scalar(k), 4), round(d, 1)) for k, d in dev.items()}
     assert dev["uwb_ge1_frac"] <= 5.0, msg
     assert dev["uwb_ge2_frac"] <= 5.0, msg
-    assert dev["residual_median_m"] <= 10.0, msg
+    assert abs(ms.scalar("residual_median_m") - mr.scalar("residual_median_m")) <= median_tol_m, (msg, median_tol_m)
     assert dev["abs_residual_p95_m"] <= 10.0, msg
     assert dev["mean_aoi_s"] <= 10.0, msg
 

@@ -69,6 +69,8 @@ BOUNDS: dict[str, Bound] = {
     "variation.path_sag_std_m": Bound(0.0, 100.0, "m", "run-to-run sag of the varied path"),
     "variation.random_route_prob": _PROB,
     "variation.random_route_points": Bound(2.0, 1000.0, "", "waypoints of a random route"),
+    "uwb.antenna_sway_std_m": Bound(0.0, 10.0, "m", "UWB antenna offset from the truth point, per axis"),
+    "uwb.antenna_sway_tau_s": Bound(0.01, 3600.0, "s", "correlation time of the antenna sway"),
     "imu.rate_hz": Bound(1.0, 10_000.0, "Hz", "MEMS accelerometer output rates"),
     "imu.white_noise_density_mps2_per_sqrt_hz[]": Bound(0.0, 10.0, "m/s^2/sqrt(Hz)", "accelerometer noise density"),
     "imu.bias_rw_mps2_per_sqrt_s": Bound(0.0, 10.0, "m/s^2/sqrt(s)", "bias random walk"),

@@ -696,6 +696,7 @@ class ChannelSet:
     pooled: ChannelParams
     per_anchor: dict[str, ChannelParams]
     nlos_dwell_s: float
+    sway: dict[str, Any] = field(default_factory=lambda: {"identifiable": False})
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -1090,15 +1091,43 @@ def _report_anchor_channel(aid: str, f: MixtureFit, se: dict[str, Any], n_a: int
               note=None if link.get("identifiable") else "not identifiable")
 
 
+def _antenna_sway(chan: _Channels, rep: ReportBuilder) -> dict[str, Any]:
+    """The antenna sway from the LOS rows of every (run, anchor) sequence, their range law removed
+    (:func:`physynth.calibrate.antenna_sway.fit_antenna_sway`), reported."""
+    from .antenna_sway import fit_antenna_sway
+
+    def sequences():
+        for aid, (ra, ga, _) in chan.per_anchor_rows.items():
+            f, start = chan.mix[aid], 0
+            for nlos, t in zip(chan.flags[aid], chan.per_anchor_t.get(aid, []), strict=False):
+                x = ra[start:start + nlos.size] - f.los_centre(ga[start:start + nlos.size])
+                start += nlos.size
+                keep = ~nlos & np.isfinite(x)
+                yield x[keep], t[keep]
+
+    fit = fit_antenna_sway(sequences())
+    rep.sections["antenna_sway"] = fit
+    if fit["identifiable"]:
+        note = (f"slow share {fit['slow_share']:.2f} of the LOS variance; each anchor's los_std_m keeps the white "
+                f"rest (x {np.sqrt(1.0 - fit['slow_share']):.3f})")
+        rep.param("uwb.antenna_sway_std_m", fit["std_m"], n=fit["n_rows"], summary=True, note=note)
+        rep.param("uwb.antenna_sway_tau_s", fit["tau_s"], n=fit["n_rows"], summary=True,
+                  note="exponential fit to the LOS residual autocovariance over 0.1-2 s")
+    else:
+        rep.not_identifiable.append(f"uwb.antenna_sway_* ({fit['why']})")
+    return fit
+
+
 def _pooled_channel(pooled_fit: MixtureFit, per_channel: dict[str, ChannelParams], ids: Sequence[str],
-                    burst_rate: float) -> ChannelParams:
-    """The channel pooled over anchors (the mean rate, the largest link range, the median edge)."""
+                    burst_rate: float, white: float = 1.0) -> ChannelParams:
+    """The channel pooled over anchors (the mean rate, the largest link range, the median edge);
+    ``white``: the share of the LOS std left white by the antenna sway."""
     pooled_rate = float(np.mean([per_channel[a].rate_hz for a in ids]))
     pooled_modes = ([NlosMode(weight=rounded(m.weight, 4), mean_m=rounded(m.mean_m, 5), std_m=rounded(m.std_m, 4))
                      for m in pooled_fit.modes] or ChannelParams().nlos_modes)
     return ChannelParams(rate_hz=min(rounded(pooled_rate, 6), burst_rate),
                          los_mean_m=rounded(pooled_fit.los_mean_m, 5),
-                         los_std_m=rounded(pooled_fit.los_std_m, 5),
+                         los_std_m=rounded(pooled_fit.los_std_m * white, 5),
                          range_bias_per_m=rounded(pooled_fit.range_bias_per_m, 5),
                          range_bias_per_decade_m=rounded(pooled_fit.range_bias_per_decade_m, 5),
                          nlos_prob=rounded(pooled_fit.nlos_prob, 5), nlos_modes=pooled_modes,
@@ -1116,6 +1145,8 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
     periods = {a: av[a]["dropout_outage"]["attempt_period_s"] for a in ids}
     per_anchor_dwell, all_runs, dwell, nlos_dwell = _pooled_nlos_dwell(ids, flags, periods)
     episodes_of, short_pool = _episodes_and_short_pool(ids, chan, rep)
+    sway = _antenna_sway(chan, rep)
+    white = float(np.sqrt(1.0 - sway["slow_share"])) if sway["identifiable"] else 1.0
     channel_diag: dict[str, Any] = {}
     per_channel: dict[str, ChannelParams] = {}
     for aid in ids:
@@ -1128,7 +1159,7 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
                                                       nlos_dwell)
         per_channel[aid] = ChannelParams(
             rate_hz=min(rounded(rate, 6), burst_rate), los_mean_m=rounded(f.los_mean_m, 5),
-            los_std_m=rounded(f.los_std_m, 5),
+            los_std_m=rounded(f.los_std_m * white, 5),
             range_bias_per_m=rounded(f.range_bias_per_m, 5),
             range_bias_per_decade_m=rounded(f.range_bias_per_decade_m, 5), nlos_prob=rounded(f.nlos_prob, 5),
             nlos_modes=modes,
@@ -1142,14 +1173,14 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
                              "n_nlos_episodes": int(_nlos_runs(flags[aid]).size)}
         _report_anchor_channel(aid, f, se, mix_diag[aid]["n"], a_av, rate, max_range, chan, ranging, rep)
     pooled_fit = chan.pooled_fit
-    pooled = _pooled_channel(pooled_fit, per_channel, ids, burst_rate)
+    pooled = _pooled_channel(pooled_fit, per_channel, ids, burst_rate, white)
     rep.sections["channel"] = {"pooled": {"n": int(chan.pooled_r.size), **chan.pooled_sel,
                                           "std_errors": pooled_fit.se},
                                "per_anchor": channel_diag}
     if dwell is None:
         rep.not_identifiable.append("uwb.nlos_dwell_s (no NLOS episodes; default kept)")
     rep.param("uwb.nlos_dwell_s", nlos_dwell, n=int(all_runs.size), note="number of NLOS episodes")
-    return ChannelSet(pooled=pooled, per_anchor=per_channel, nlos_dwell_s=nlos_dwell)
+    return ChannelSet(pooled=pooled, per_anchor=per_channel, nlos_dwell_s=nlos_dwell, sway=sway)
 
 
 THIN_DATA_EVENTS = 10
@@ -1300,6 +1331,13 @@ def fit_imu_step(inp: CalibrationInputs, report: ReportBuilder, progress: Progre
     return p
 
 
+def _sway_params(sway: dict[str, Any]) -> dict[str, float]:
+    """``uwb.antenna_sway_*`` of an identified sway fit (none otherwise: the defaults, no sway)."""
+    if not sway.get("identifiable"):
+        return {}
+    return {"antenna_sway_std_m": rounded(sway["std_m"], 4), "antenna_sway_tau_s": rounded(sway["tau_s"], 3)}
+
+
 def build_scenario(name: str, inp: CalibrationInputs, geometry: GeometryFit, timing: TimingFit,
                    ranging: RangingFit, channels: ChannelSet, availability: AvailabilitySet, imu: ImuParams,
                    *, sources: Sequence[str], created_utc: str, report: ReportBuilder) -> Scenario:
@@ -1312,7 +1350,8 @@ def build_scenario(name: str, inp: CalibrationInputs, geometry: GeometryFit, tim
                     time_offset_std_s=rounded(ranging.offset_std_s, 5),
                     nlos_dwell_s=rounded(channels.nlos_dwell_s, 4), zones=[],
                     run_offset_std_m=rounded(ranging.run_offset_std_m, 4),
-                    run_anchor_offset_std_m=rounded(ranging.run_anchor_offset_std_m, 4))
+                    run_anchor_offset_std_m=rounded(ranging.run_anchor_offset_std_m, 4),
+                    **_sway_params(channels.sway))
     report.not_identifiable.append("uwb.zones (NLOS zones along the path are not fitted)")
     provenance = {
         "calibrated_by": f"physynth {__version__}",

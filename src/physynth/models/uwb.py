@@ -164,6 +164,15 @@ class UwbParams(ParamsModel):
     the trace's UWB stream, so a scenario without them generates exactly what it did before they existed.
     ``obstacles`` and ``terrain`` (optional) block the line of sight: an attempt whose tag-anchor
     segment meets one is NLOS (:mod:`physynth.models.obstacles`), in addition to the ``zones``.
+
+    Antenna sway: the UWB antenna is not exactly at the truth point (a tag worn on a walking body, a
+    truth system's reference elsewhere on the carrier). With ``antenna_sway_std_m`` > 0 its offset
+    from the truth is a 3-D Ornstein-Uhlenbeck process, std ``antenna_sway_std_m`` per ENU axis and
+    correlation time ``antenna_sway_tau_s`` (stationary from the trace start), and every range is
+    measured from the antenna: its error gains u . offset, with u the unit vector from the anchor to
+    the tag. A slow error shared by the anchors the tag sees in one direction, as the real ranges of a
+    walk have (docs/calibration.md). It draws from its own stream (``uwb_sway``); 0 (the default) draws
+    nothing.
     """
 
     burst_rate_hz: PositiveFloat = 23.0
@@ -178,6 +187,8 @@ class UwbParams(ParamsModel):
     run_anchor_offset_std_m: NonNegFloat = 0.0
     obstacles: list[Obstacle] = []
     terrain: TerrainGrid | None = None
+    antenna_sway_std_m: NonNegFloat = 0.0
+    antenna_sway_tau_s: PositiveFloat = 2.0
 
 
 class AnchorSpec(ParamsModel):
@@ -648,6 +659,29 @@ def _zone_nlos_prob(s_m: np.ndarray, ch: ChannelArrays) -> np.ndarray:
     return p
 
 
+SWAY_STEPS_PER_TAU = 20
+"""Grid steps per correlation time on which the antenna sway is drawn (then read linearly at the
+attempts): 5 % of tau apart, where the process moves by sqrt(2 x 0.05) = 0.32 of its std."""
+
+
+def antenna_sway(t_s: np.ndarray, t0_s: float, t1_s: float, std_m: float, tau_s: float, *,
+                 rng: np.random.Generator) -> np.ndarray:
+    """(N, 3) offset [m] of the UWB antenna from the truth point at the times ``t_s`` in [t0, t1]: three
+    independent Ornstein-Uhlenbeck processes (std ``std_m``, correlation time ``tau_s``), stationary
+    at ``t0_s``, drawn exactly on a grid of tau / :data:`SWAY_STEPS_PER_TAU` and read linearly."""
+    from ._filters import ar1
+
+    dt = tau_s / SWAY_STEPS_PER_TAU
+    n = int(np.ceil(max(t1_s - t0_s, 0.0) / dt)) + 2
+    rho = float(np.exp(-dt / tau_s))
+    x = rng.standard_normal((3, n))
+    x[:, 1:] *= std_m * np.sqrt(1.0 - rho * rho)  # innovations of the exact discretisation
+    x[:, 0] *= std_m  # the stationary start
+    path = ar1(x, rho)
+    grid = t0_s + dt * np.arange(n)
+    return np.stack([np.interp(t_s, grid, path[k]) for k in range(3)], axis=1)
+
+
 def run_offsets(n_anchors: int, params: UwbParams, *, rng: np.random.Generator) -> np.ndarray:
     """Per-trace ranging offsets [m] of the anchors, (A,): a common one plus one per anchor.
 
@@ -689,8 +723,12 @@ class UwbAttempts:
     time_offset_s: float = 0.0  # the trace's lag: stamp = t_true_s + time_offset_s
 
 
-def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: np.random.Generator) -> UwbAttempts:
-    """All ranging attempts of one run with their true and measured ranges and NLOS state."""
+def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: np.random.Generator,
+                 sway_rng: np.random.Generator | None = None) -> UwbAttempts:
+    """All ranging attempts of one run with their true and measured ranges and NLOS state.
+
+    ``sway_rng``: the stream of the antenna sway, needed when ``params.antenna_sway_std_m`` > 0.
+    """
     u = params
     n_anchors = ch.anchor_pos_enu_m.shape[0]
     t_end = float(kin.t_s[-1]) - n_anchors * u.slot_s - abs(u.time_offset_s) - LAG_MARGIN_STDS * u.time_offset_std_s
@@ -726,6 +764,13 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
     offsets = run_offsets(n_anchors, u, rng=rng)
     if offsets.any():  # adding zeros would change only a -0.0 error, and true_range + (-0.0) is true_range
         err += offsets[anchor]
+    if u.antenna_sway_std_m > 0:  # the range from the swaying antenna: + u . offset
+        if sway_rng is None:
+            raise ValueError("antenna sway needs its random stream (sway_rng)")
+        sway = antenna_sway(t_true, float(kin.t_s[0]), float(kin.t_s[-1]), u.antenna_sway_std_m,
+                            u.antenna_sway_tau_s, rng=sway_rng)
+        for k in range(3):
+            err += (tag_enu[k] - ch.anchor_pos_enu_m[:, k][anchor]) / np.maximum(true_range, 1e-9) * sway[:, k]
     err += true_range  # true_range + err
     measured = np.maximum(err, 0.0, out=err)  # a range is never negative
     return UwbAttempts(bursts_s=bursts, burst=b_idx, anchor=anchor, t_true_s=t_true, true_range_m=true_range,
