@@ -9,9 +9,10 @@ channel and availability parameter from the three others), exactly as
     physynth validate --real DIR_a --scenario loo.yaml --transfer -n 50 --seed 1 --out report_a
 
 and prints one row per left-out run: KS, UWB >= 1 and mean AoI relative deviations, the signed-median
-difference, whether the real P95 lies in the synthetic 5-95 % band, and the largest residual-ACF
-difference over lags 1..10. Targets (issue 12): KS <= 0.10, UWB >= 1 and mean AoI within 15 %,
-median within 3 cm, real P95 inside the band.
+difference, whether the real P95 lies in the synthetic 5-95 % band, the largest residual-ACF
+difference over lags 1..10 and the autocorrelation of the residuals within 0.5 m of their anchor's
+median (``residual_acf_inliers``) at lags 1, 5 and 10. Targets (issue 12): KS <= 0.10, UWB >= 1 and
+mean AoI within 15 %, median within 3 cm, real P95 inside the band.
 
     .venv/bin/python tools/loo_hanyang.py [--n 50] [--seed 1] [--long-outages] [--range-bias-law L] [--out DIR]
                                           [--data ../shared/data/hanyang-uwb]
@@ -77,16 +78,19 @@ def main() -> None:
                          c["mean_aoi_s"]["real_in_band"], 100.0 * c["residual_median_m"]["deviation"],
                          c["abs_residual_p95_m"]["real_in_band"], c["abs_residual_p95_m"]["band_5_95"],
                          rep.real["abs_residual_p95_m"], rep.extended["residual_acf_max_abs_diff"],
-                         acf["real"][:3], acf["synthetic"][:3], time.perf_counter() - t0))
+                         acf["real"][:3], acf["synthetic"][:3], rep.extended["residual_acf_inliers"],
+                         time.perf_counter() - t0))
     print(f"leave-one-out, {args.n} synthetic traces per run, seed {args.seed}")
     print("| left-out run | KS | UWB>=1 dev. % | mean AoI dev. % | AoI dev. of the per-trace median % "
           "| AoI real in band | median diff. cm | P95 real (band) | P95 in band | ACF max diff (lags 1-10) "
-          "| ACF lag 1/2/3 real | synth |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for (name, ks, ge1, aoi, aoi_med, aoi_in, med, p95_in, band, p95, acf_d, acf_r, acf_s, _) in rows:
+          "| ACF lag 1/2/3 real | synth | inlier ACF lag 1/5/10 real | synth |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for (name, ks, ge1, aoi, aoi_med, aoi_in, med, p95_in, band, p95, acf_d, acf_r, acf_s, acf_in, _) in rows:
+        inl = [" / ".join(f"{acf_in[side][k]:.2f}" for k in (0, 4, 9)) for side in ("real", "synthetic")]
         print(f"| {name} | {ks:.3f} | {ge1:.1f} | {aoi:.1f} | {aoi_med:.1f} | {'yes' if aoi_in else 'no'} | {med:+.1f} "
               f"| {p95:.3f} ({band[0]:.3f}-{band[1]:.3f}) | {'yes' if p95_in else 'no'} | {acf_d:.2f} "
-              f"| {'/'.join(f'{x:.2f}' for x in acf_r)} | {'/'.join(f'{x:.2f}' for x in acf_s)} |")
+              f"| {'/'.join(f'{x:.2f}' for x in acf_r)} | {'/'.join(f'{x:.2f}' for x in acf_s)} "
+              f"| {inl[0]} | {inl[1]} |")
     print(f"wall time per run: {', '.join(f'{r[-1]:.0f} s' for r in rows)}")
 
 

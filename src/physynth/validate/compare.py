@@ -95,6 +95,12 @@ EXTENDED_STATISTICS: dict[str, tuple[str, str]] = {
              "sequence (mean removed per trace and anchor, pooled), real and synthetic."),
     "residual_acf_max_abs_diff": (
         "-", "Largest |ACF_synthetic - ACF_real| over lags 1..10: is the error correlated alike?"),
+    "residual_acf_inliers": (
+        "-", "The same autocorrelation of the residuals within 0.5 m of their anchor's median in the trace "
+             "(the gross outliers left out, whose held values dominate residual_acf): the time structure "
+             "of the ranging error a tracker filters."),
+    "residual_acf_inliers_max_abs_diff": (
+        "-", "Largest |ACF_synthetic - ACF_real| of residual_acf_inliers over lags 1..10."),
     "imu_allan_ratio": (
         "-", "Allan deviation of the acceleration, synthetic / real, per axis (E, N, U) at tau = 0.1, "
              "1 and 10 s (overlapping estimator on the 100 Hz grid); 1 = equal."),
@@ -305,6 +311,9 @@ def _extended(real: SideEvidence, synth: SideEvidence) -> dict[str, Any]:
         "residual_acf": {"lags": list(range(1, ACF_MAX_LAG + 1)), "real": real.acf.tolist(),
                          "synthetic": synth.acf.tolist()},
         "residual_acf_max_abs_diff": float(np.max(np.abs(synth.acf - real.acf))),
+        "residual_acf_inliers": {"lags": list(range(1, ACF_MAX_LAG + 1)), "real": real.acf_inliers.tolist(),
+                                 "synthetic": synth.acf_inliers.tolist()},
+        "residual_acf_inliers_max_abs_diff": float(np.max(np.abs(synth.acf_inliers - real.acf_inliers))),
     }
     both_imu = real.allan_dev_mps2 is not None and synth.allan_dev_mps2 is not None
     if both_imu:

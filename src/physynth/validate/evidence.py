@@ -23,6 +23,9 @@ from ..records import Anchors, Trace
 
 ACF_MAX_LAG = 10
 """Residual autocorrelation is reported at lags 1..ACF_MAX_LAG measurements of one anchor."""
+INLIER_HALF_WIDTH_M = 0.5
+"""The inlier autocorrelation keeps the residuals within this of their anchor's median in the trace:
+without the gross outliers, whose held values dominate every sum of products."""
 
 ALLAN_TAUS_S = (0.1, 1.0, 10.0)
 """Averaging times [s] at which the IMU Allan-deviation ratio synthetic / real is reported."""
@@ -86,6 +89,7 @@ class SideEvidence:
     n_fresh_series: tuple[np.ndarray, ...]  # per grid step, number of fresh anchors
     sample: Trace  # the first trace, for the range-versus-time figure
     acf: np.ndarray  # (ACF_MAX_LAG,)
+    acf_inliers: np.ndarray  # (ACF_MAX_LAG,), residuals within INLIER_HALF_WIDTH_M of their anchor's median
     psd_f_hz: np.ndarray | None
     psd_mps2_sq_per_hz: np.ndarray | None  # (3, F)
     allan_tau_s: np.ndarray | None
@@ -122,6 +126,8 @@ class _SideAccumulator:
         self.anchors: Anchors | None = None
         self.acf_num = np.zeros(ACF_MAX_LAG)
         self.acf_den = 0.0
+        self.acf_in_num = np.zeros(ACF_MAX_LAG)
+        self.acf_in_den = 0.0
         self.allan_m = _allan_m_grid(rate_hz)
         self.allan_sums = np.zeros((3, self.allan_m.size))
         self.allan_counts = np.zeros(self.allan_m.size, dtype=np.int64)
@@ -180,6 +186,7 @@ class _SideAccumulator:
                 if x.size > k:
                     same_k = a[k:] == a[:-k]
                     self.acf_num[k - 1] += float(np.dot(x[k:][same_k], x[:-k][same_k]))
+            self._add_inlier_acf(s.residual_m[order], a)
 
         # IMU: Allan variance and Welch spectrum of the 100 Hz-grid acceleration
         y = _fill_gaps(s.imu_grid_mps2) if trace.imu is not None else None
@@ -205,6 +212,23 @@ class _SideAccumulator:
             self.mean_aoi_series.append(aoi.mean(axis=1).astype(np.float32))
             self.n_fresh_series.append(n_fresh.astype(np.int8))
 
+    def _add_inlier_acf(self, r: np.ndarray, a: np.ndarray) -> None:
+        """Lag sums of the residuals within INLIER_HALF_WIDTH_M of their anchor's median (anchor-sorted
+        ``a``, time order within an anchor), each anchor's inlier mean removed, consecutive inliers."""
+        starts = np.flatnonzero(np.r_[True, a[1:] != a[:-1]])
+        med = np.repeat(np.array([np.median(r[i:j]) for i, j in zip(starts, np.r_[starts[1:], a.size], strict=True)]),
+                        np.diff(np.r_[starts, a.size]))  # one median per anchor: a loop over anchors
+        keep = np.abs(r - med) < INLIER_HALF_WIDTH_M
+        x, b = r[keep], a[keep]
+        if x.size < 2:
+            return
+        x = x - (np.bincount(b, weights=x) / np.maximum(np.bincount(b), 1))[b]
+        self.acf_in_den += float(x @ x)
+        for k in range(1, ACF_MAX_LAG + 1):
+            if x.size > k:
+                same_k = b[k:] == b[:-k]
+                self.acf_in_num[k - 1] += float(np.dot(x[k:][same_k], x[:-k][same_k]))
+
     def finish(self) -> tuple[SideEvidence, np.ndarray]:
         metrics = self.metrics.result()  # exactly what metrics.compute_metrics returns
         assert self.sample is not None and self.anchors is not None
@@ -212,6 +236,7 @@ class _SideAccumulator:
         gap, gap_anchor = _pooled(self.gaps)
         with np.errstate(invalid="ignore", divide="ignore"):
             acf = self.acf_num / self.acf_den if self.acf_den > 0 else np.full(ACF_MAX_LAG, np.nan)
+            acf_in = self.acf_in_num / self.acf_in_den if self.acf_in_den > 0 else np.full(ACF_MAX_LAG, np.nan)
             allan = np.sqrt(self.allan_sums / np.where(self.allan_counts > 0, self.allan_counts, np.nan))
         has_allan = bool(np.any(self.allan_counts > 0))
         ev = SideEvidence(
@@ -230,6 +255,7 @@ class _SideAccumulator:
             n_fresh_series=tuple(self.n_fresh_series),
             sample=self.sample,
             acf=acf,
+            acf_inliers=acf_in,
             psd_f_hz=self.psd_f,
             psd_mps2_sq_per_hz=None if self.psd_sum is None else self.psd_sum / self.psd_weight,
             allan_tau_s=self.allan_m / self.rate_hz if has_allan else None,

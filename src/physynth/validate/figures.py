@@ -42,7 +42,8 @@ FIGURES: dict[str, str] = {
            "10-90 % band) and the CDF of all AoI values.",
     "outages": "Gap lengths between consecutive valid ranges of one anchor: complementary CDF, log-log "
                "(dropouts at the left, outages in the tail).",
-    "residual_acf": "Residual autocorrelation at lags 1..10 measurements within each anchor's sequence.",
+    "residual_acf": ("Residual autocorrelation at lags 1..10 measurements within each anchor's sequence; pale: "
+                     "the residuals within 0.5 m of their anchor's median (the outliers left out)."),
     "imu_spectrum": "Acceleration power spectral density per axis (Welch, 100 Hz grid), real vs synthetic.",
     "allan": "Overlapping Allan deviation of the acceleration per axis, real vs synthetic.",
 }
@@ -328,6 +329,8 @@ def _fig_acf(Figure, ev: Evidence, report: ValidationReport) -> Any:
     lags = np.arange(1, ev.real.acf.size + 1)
     ax.plot(lags, ev.real.acf, "o-", color=REAL_COLOR, label="real")
     ax.plot(lags, ev.synthetic.acf, "s--", color=SYNTH_COLOR, label="synthetic")
+    ax.plot(lags, ev.real.acf_inliers, "o-", color=REAL_COLOR, alpha=0.45, label="real, within 0.5 m")
+    ax.plot(lags, ev.synthetic.acf_inliers, "s--", color=SYNTH_COLOR, alpha=0.45, label="synthetic, within 0.5 m")
     ax.axhline(0.0, color="0.5", lw=0.8)
     ax.set_xticks(lags)
     ax.set_xlabel("lag [measurements of the same anchor]")

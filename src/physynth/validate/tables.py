@@ -122,7 +122,7 @@ def _extended_value(name: str, value: Any) -> str:
     if name == "gap_quantiles_s":
         return ("real " + " / ".join(_fmt(v, 2) for v in value["real"]) + "; synth "
                 + " / ".join(_fmt(v, 2) for v in value["synthetic"]) + " (P50/P95/P99/max)")
-    if name == "residual_acf":
+    if name in ("residual_acf", "residual_acf_inliers"):
         return ("lag 1,2,5,10 real " + ", ".join(_fmt(value["real"][i], 2) for i in (0, 1, 4, 9))
                 + "; synth " + ", ".join(_fmt(value["synthetic"][i], 2) for i in (0, 1, 4, 9)))
     if name == "imu_allan_ratio":
