@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import importlib.util
 import json
 import math
 import sys
@@ -197,8 +198,8 @@ def test_a_csv_export_is_not_taken_for_a_damaged_dataset(dataset, tmp_path, caps
     assert len(read_dataset(dataset[0]).traces) == 3  # the dataset itself still reads
 
 
+@pytest.mark.skipif(importlib.util.find_spec("rosbags") is None, reason="rosbags (physynth[export]) not installed")
 def test_rosbag2_states_each_trace_anchor_layout_on_tf_static(tmp_path):
-    pytest.importorskip("rosbags")
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
 

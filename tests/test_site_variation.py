@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import importlib.util
+
 import numpy as np
 import pytest
 
@@ -167,8 +169,8 @@ def test_transfer_drops_the_section(base):
     assert transfer_scenario(scn, [real]).variation is None
 
 
+@pytest.mark.skipif(importlib.util.find_spec("distributed") is None, reason="Dask (physynth[scale]) not installed")
 def test_workers_on_a_local_cluster_give_the_same_varied_files(base, tmp_path):
-    pytest.importorskip("distributed")
     from physynth.workflows import generate_dataset
 
     scn = with_variation(base, layout_jitter_m=0.5, random_route_prob=0.5)
