@@ -113,7 +113,9 @@ def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int)
         uwb = Uwb(t_s=np.zeros(0), anchor=np.zeros(0, np.int16), range_m=np.zeros(0))
     else:
         sway = component_rng(root_seed, index, "uwb_sway") if s.uwb.antenna_sway_std_m > 0 else None
-        tries = simulate_uwb(kin, s.uwb, cs.channel, rng=component_rng(root_seed, index, "uwb"), sway_rng=sway)
+        tag = component_rng(root_seed, index, "uwb_tag") if cs.channel.tag_prob > 0 else None
+        tries = simulate_uwb(kin, s.uwb, cs.channel, rng=component_rng(root_seed, index, "uwb"), sway_rng=sway,
+                             tag_rng=tag)
         outage, dropped = simulate_availability(tries.t_true_s, tries.anchor, tries.burst, tries.bursts_s,
                                                 cs.availability, s.uwb.burst_rate_hz, range_m=tries.true_range_m,
                                                 rng=component_rng(root_seed, index, "availability"),
@@ -177,7 +179,7 @@ def dataset_meta(scn: Scenario, root_seed: int) -> dict:
         "root_seed": int(root_seed),
         "seeding": "trace i uses numpy SeedSequence(root_seed, spawn_key=(i, component)), "
                    "components path=0 motion=1 imu=2 uwb=3 availability=4 attitude=5 imu_body=6 jitter=7 uwb_sway=8 "
-                   "site=100",
+                   "uwb_tag=9 site=100",
         "imu_frame": IMU_FRAME,
         "imu_frames": list(scn.imu_frames),
         "provenance": {"generator": f"physynth {__version__}", "pid": os.getpid()},

@@ -697,6 +697,7 @@ class ChannelSet:
     per_anchor: dict[str, ChannelParams]
     nlos_dwell_s: float
     sway: dict[str, Any] = field(default_factory=lambda: {"identifiable": False})
+    tag_nlos: dict[str, Any] = field(default_factory=lambda: {"identifiable": False})
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -1118,6 +1119,58 @@ def _antenna_sway(chan: _Channels, rep: ReportBuilder) -> dict[str, Any]:
     return fit
 
 
+def _mode_arrays(f: MixtureFit) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return (np.array([m.weight for m in f.modes]), np.array([m.mean_m for m in f.modes]),
+            np.array([m.std_m for m in f.modes]))
+
+
+def _near_nlos(f: MixtureFit, x: np.ndarray, nlos: np.ndarray) -> np.ndarray:
+    """Rows the mixture calls NLOS whose most likely NLOS mode is the near-LOS one a tag-side episode
+    gives the anchor (:func:`physynth.models.uwb.tag_mode_index`)."""
+    from ..models.uwb import tag_mode_index
+
+    w, mu, sd = _mode_arrays(f) if f.modes else (np.zeros(0),) * 3
+    k = tag_mode_index(w, mu, sd) if f.modes else -1
+    if k < 0:
+        return np.zeros(x.size, dtype=bool)
+    logp = np.log(np.maximum(w, 1e-300)) - np.log(sd) - 0.5 * ((x[:, None] - mu) / sd) ** 2
+    return nlos & (logp.argmax(axis=1) == k)
+
+
+def _near_share(f: MixtureFit) -> float:
+    """The fraction of rows a mixture gives its near-LOS NLOS mode (nlos_prob x its weight; 0: none)."""
+    from ..models.uwb import tag_mode_index
+
+    if not f.modes:
+        return 0.0
+    w, mu, sd = _mode_arrays(f)
+    k = tag_mode_index(w, mu, sd)
+    return float(f.nlos_prob * w[k]) if k >= 0 else 0.0
+
+
+def _tag_nlos(chan: _Channels, ids: Sequence[str], burst_rate_hz: float, rep: ReportBuilder) -> dict[str, Any]:
+    """The tag-side NLOS fraction from the anchors' NLOS rows burst by burst
+    (:func:`physynth.calibrate.tag_nlos.fit_tag_nlos`), reported."""
+    from .tag_nlos import fit_tag_nlos
+
+    per_run: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+    for k, aid in enumerate(ids):
+        if aid not in chan.per_anchor_rows:
+            continue
+        ra, f, start = chan.per_anchor_rows[aid][0], chan.mix[aid], 0
+        runs = chan.per_anchor_run[aid]
+        for nlos, t in zip(chan.flags[aid], chan.per_anchor_t.get(aid, []), strict=False):
+            x = ra[start:start + nlos.size]
+            run = int(runs[start]) if nlos.size else -1
+            start += nlos.size
+            per_run.setdefault(run, []).append((t, np.full(t.size, k), _near_nlos(f, x, nlos)))
+    runs = [tuple(np.concatenate([p[i] for p in parts]) for i in range(3)) for parts in per_run.values()]
+    fit = fit_tag_nlos(runs, len(ids), 1.0 / burst_rate_hz, np.array([_near_share(chan.mix[a]) for a in ids]))
+    fit["applied"] = False  # reported, not put in the scenario (docs/calibration.md, "Tag-side NLOS")
+    rep.sections["tag_nlos"] = fit
+    return fit
+
+
 def _pooled_channel(pooled_fit: MixtureFit, per_channel: dict[str, ChannelParams], ids: Sequence[str],
                     burst_rate: float, white: float = 1.0) -> ChannelParams:
     """The channel pooled over anchors (the mean rate, the largest link range, the median edge);
@@ -1146,6 +1199,7 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
     per_anchor_dwell, all_runs, dwell, nlos_dwell = _pooled_nlos_dwell(ids, flags, periods)
     episodes_of, short_pool = _episodes_and_short_pool(ids, chan, rep)
     sway = _antenna_sway(chan, rep)
+    tag = _tag_nlos(chan, ids, burst_rate, rep)
     white = float(np.sqrt(1.0 - sway["slow_share"])) if sway["identifiable"] else 1.0
     channel_diag: dict[str, Any] = {}
     per_channel: dict[str, ChannelParams] = {}
@@ -1180,7 +1234,7 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
     if dwell is None:
         rep.not_identifiable.append("uwb.nlos_dwell_s (no NLOS episodes; default kept)")
     rep.param("uwb.nlos_dwell_s", nlos_dwell, n=int(all_runs.size), note="number of NLOS episodes")
-    return ChannelSet(pooled=pooled, per_anchor=per_channel, nlos_dwell_s=nlos_dwell, sway=sway)
+    return ChannelSet(pooled=pooled, per_anchor=per_channel, nlos_dwell_s=nlos_dwell, sway=sway, tag_nlos=tag)
 
 
 THIN_DATA_EVENTS = 10

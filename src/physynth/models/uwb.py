@@ -173,6 +173,15 @@ class UwbParams(ParamsModel):
     the tag. A slow error shared by the anchors the tag sees in one direction, as the real ranges of a
     walk have (docs/calibration.md). It draws from its own stream (``uwb_sway``); 0 (the default) draws
     nothing.
+
+    Tag-side NLOS: with ``tag_nlos_prob`` > 0, part of the NLOS time is the tag's own (a body, a pole
+    or the ground next to the tag antenna): one episode process for the whole tag (long-run fraction
+    ``tag_nlos_prob``, episodes of mean ``nlos_dwell_s``) whose episodes strike every anchor at once,
+    with one error draw per burst shared by all of them (:func:`tag_nlos`). A far tag sees its anchors
+    within a narrow angle, so the real walks' wide range errors come to all anchors together (their
+    range differences, which carry the direction to the tag, stay clean). Each anchor's own episodes
+    are thinned so that its NLOS fraction and mode mixture stay what its channel says
+    (:func:`channel_arrays`). Draws from its own stream (``uwb_tag``); 0 (the default) draws nothing.
     """
 
     burst_rate_hz: PositiveFloat = 23.0
@@ -189,6 +198,7 @@ class UwbParams(ParamsModel):
     terrain: TerrainGrid | None = None
     antenna_sway_std_m: NonNegFloat = 0.0
     antenna_sway_tau_s: PositiveFloat = 2.0
+    tag_nlos_prob: Probability = 0.0
 
 
 class AnchorSpec(ParamsModel):
@@ -232,6 +242,9 @@ class ChannelArrays:
     link: LinkBudgetArrays | None = None  # None: no anchor has a link budget
     obstacles: tuple = ()
     terrain: TerrainGrid | None = None
+    tag_prob: float = 0.0  # long-run fraction of tag-side NLOS time (UwbParams.tag_nlos_prob)
+    tag_mode: np.ndarray | None = None  # (A,) the mode a tag-side episode gives each anchor (tag_mode_index)
+    tag_join: np.ndarray | None = None  # (A,) probability that an anchor takes part in a tag-side episode
     # derived from the fields above on construction: each anchor's NLOS episode law (None where
     # nlos_prob is 0 or 1: no episodes), the per-scenario constants of nlos_episodes
     episode_laws: tuple[EpisodeLaw | None, ...] = field(init=False, repr=False, compare=False)
@@ -326,6 +339,8 @@ def channel_arrays(params: UwbParams, anchors: Sequence[AnchorSpec],
         jitter[i, :k] = [np.nan if mode.held_jitter_m is None else mode.held_jitter_m for mode in c.nlos_modes]
         mean[i, k:], std[i, k:], dwell[i, k:] = mean[i, k - 1], std[i, k - 1], dwell[i, k - 1]
         fixed[i, k:], jitter[i, k:] = fixed[i, k - 1], jitter[i, k - 1]
+    nlos_prob = np.array([c.nlos_prob for c in chans])
+    tag = _tag_thinning(params.tag_nlos_prob, nlos_prob, cumw, mean, std) if params.tag_nlos_prob > 0 else {}
     z = params.zones
     return ChannelArrays(
         anchor_pos_enu_m=np.array([a.pos_enu_m for a in anchors], dtype=float),
@@ -334,8 +349,8 @@ def channel_arrays(params: UwbParams, anchors: Sequence[AnchorSpec],
         los_std_m=np.array([c.los_std_m for c in chans]),
         range_bias_per_m=np.array([c.range_bias_per_m for c in chans]),
         range_bias_per_decade_m=np.array([c.range_bias_per_decade_m for c in chans]),
-        nlos_prob=np.array([c.nlos_prob for c in chans]),
-        mode_cumw=cumw, mode_mean_m=mean, mode_std_m=std, mode_dwell_s=dwell, mode_fixed_dwell=fixed,
+        nlos_prob=tag.get("nlos_prob", nlos_prob),
+        mode_cumw=tag.get("cumw", cumw), mode_mean_m=mean, mode_std_m=std, mode_dwell_s=dwell, mode_fixed_dwell=fixed,
         mode_held_jitter_m=jitter,
         max_range_m=np.array([c.max_range_m for c in chans]),
         edge_width_m=np.array([c.edge_width_m for c in chans]),
@@ -344,7 +359,50 @@ def channel_arrays(params: UwbParams, anchors: Sequence[AnchorSpec],
         link=_link_arrays(anchors, chans),
         obstacles=tuple(params.obstacles),
         terrain=params.terrain,
+        tag_prob=float(params.tag_nlos_prob) if tag else 0.0,
+        tag_mode=tag.get("mode"), tag_join=tag.get("join"),
     )
+
+
+TAG_MODE_MAX_M = 0.5
+"""A tag-side episode gives an anchor its near-LOS NLOS mode: the heaviest mode whose mean offset and
+std are both within this [m] (a mode of gross outliers, metres off, is the anchor's own radio's)."""
+
+
+def tag_mode_index(weights: np.ndarray, mean_m: np.ndarray, std_m: np.ndarray) -> int:
+    """Index of the NLOS mode a tag-side episode gives (see :data:`TAG_MODE_MAX_M`); -1: none."""
+    ok = (np.asarray(weights) > 0) & (np.abs(mean_m) <= TAG_MODE_MAX_M) & (np.asarray(std_m) <= TAG_MODE_MAX_M)
+    return int(np.argmax(np.where(ok, weights, -1.0))) if ok.any() else -1
+
+
+def _tag_thinning(p_tag: float, nlos_prob: np.ndarray, cumw: np.ndarray, mean: np.ndarray,
+                  std: np.ndarray) -> dict[str, np.ndarray]:
+    """Each anchor's own NLOS process thinned for a tag-side process of fraction ``p_tag``.
+
+    A tag-side episode gives anchor a its near-LOS mode n (:func:`tag_mode_index`; an anchor without
+    one does not join) and is joined by the anchor
+    with probability j = min(1, p_a w_n / p_tag), so the tag side brings t = p_tag j of NLOS time in
+    mode n. The anchor's own episodes (which win where both are on) keep q = (p_a - t) / (1 - t) with
+    weights w'_m = p_a w_m / q (m != n) and the rest for n: its NLOS fraction p_a and the time share
+    of every mode stay those of the channel. Returns the own ``nlos_prob``, ``cumw``, the tag ``mode``
+    and ``join`` probabilities per anchor (anchors with p_a of 0 or 1 keep their own process and do
+    not join).
+    """
+    weights = np.diff(cumw, axis=1, prepend=0.0)
+    found = np.array([tag_mode_index(weights[i], mean[i], std[i]) for i in range(nlos_prob.size)], dtype=np.intp)
+    mode = np.maximum(found, 0)
+    rows = np.arange(nlos_prob.size)
+    w_n = np.where(found >= 0, weights[rows, mode], 0.0)
+    open_ = (nlos_prob > 0) & (nlos_prob < 1) & (found >= 0)
+    join = np.where(open_, np.minimum(1.0, nlos_prob * w_n / p_tag), 0.0)
+    t = p_tag * join
+    q = np.where(open_, (nlos_prob - t) / (1.0 - t), nlos_prob)
+    own = np.where(q[:, None] > 0, nlos_prob[:, None] * weights / np.where(q > 0, q, 1.0)[:, None], weights)
+    own[rows, mode] = 0.0
+    own[rows, mode] = np.clip(1.0 - own.sum(axis=1), 0.0, 1.0)
+    new_cumw = np.cumsum(own, axis=1)
+    new_cumw /= new_cumw[:, -1:]
+    return {"nlos_prob": np.clip(q, 0.0, 1.0), "cumw": new_cumw, "mode": mode, "join": join}
 
 
 def burst_times(t_start_s: float, t_end_s: float, burst_rate_hz: float, jitter_s: float, min_period_s: float,
@@ -659,6 +717,35 @@ def _zone_nlos_prob(s_m: np.ndarray, ch: ChannelArrays) -> np.ndarray:
     return p
 
 
+def tag_nlos(bursts_s: np.ndarray, burst: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, err: np.ndarray,
+             ch: ChannelArrays, dwell_s: float, *, rng: np.random.Generator) -> None:
+    """Tag-side NLOS episodes (in place on ``nlos`` and ``err``): one alternating renewal process over
+    the bursts (fraction ``ch.tag_prob``, exponential episodes of mean ``dwell_s``); each anchor joins
+    each episode with probability ``ch.tag_join``; a joined row that its own process left LOS becomes
+    NLOS with the error mean + std * z of the anchor's ``ch.tag_mode``, z one draw per burst shared by
+    the anchors of that burst. Draws: the process, the joins (episodes x anchors), z per burst."""
+    if bursts_s.size == 0:
+        return
+    law = episode_law(ch.tag_prob, np.ones(1), np.array([dwell_s]))
+    k, _, start_on = episode_switches(bursts_s, law, rng=rng, ascending=True)
+    if not start_on:
+        k = k + 1
+    on_burst = (k & 1) == 0
+    ep_of_burst = np.right_shift(k, 1) - (0 if start_on else 1)
+    n_ep = int(ep_of_burst.max()) + 1
+    joins = rng.random((max(n_ep, 1), ch.tag_join.size)) < ch.tag_join
+    z = rng.standard_normal(bursts_s.size)
+    on = on_burst.take(burst)
+    rows = np.flatnonzero(on & ~nlos)
+    a = anchor.take(rows)
+    b = burst.take(rows)
+    rows = rows[joins[ep_of_burst.take(b), a]]
+    a, b = anchor.take(rows), burst.take(rows)
+    m = ch.tag_mode.take(a)
+    err[rows] = ch.mode_mean_m[a, m] + ch.mode_std_m[a, m] * z.take(b)
+    nlos[rows] = True
+
+
 SWAY_STEPS_PER_TAU = 20
 """Grid steps per correlation time on which the antenna sway is drawn (then read linearly at the
 attempts): 5 % of tau apart, where the process moves by sqrt(2 x 0.05) = 0.32 of its std."""
@@ -724,10 +811,12 @@ class UwbAttempts:
 
 
 def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: np.random.Generator,
-                 sway_rng: np.random.Generator | None = None) -> UwbAttempts:
+                 sway_rng: np.random.Generator | None = None,
+                 tag_rng: np.random.Generator | None = None) -> UwbAttempts:
     """All ranging attempts of one run with their true and measured ranges and NLOS state.
 
-    ``sway_rng``: the stream of the antenna sway, needed when ``params.antenna_sway_std_m`` > 0.
+    ``sway_rng``: the stream of the antenna sway, needed when ``params.antenna_sway_std_m`` > 0;
+    ``tag_rng``: that of the tag-side NLOS, needed when the channel has a tag-side process.
     """
     u = params
     n_anchors = ch.anchor_pos_enu_m.shape[0]
@@ -761,6 +850,10 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
     rows_of = _rows_per_anchor(scheduled)
     nlos, mode, episode = nlos_states(t_true, anchor, s_m, ch, rng=rng, blocked=blocked, rows_of=rows_of)
     err = range_error(true_range, anchor, nlos, mode, ch, rng=rng, episode=episode)
+    if ch.tag_prob > 0:  # the tag's own obstruction: every anchor at once
+        if tag_rng is None:
+            raise ValueError("tag-side NLOS needs its random stream (tag_rng)")
+        tag_nlos(bursts, b_idx, anchor, nlos, err, ch, u.nlos_dwell_s, rng=tag_rng)
     offsets = run_offsets(n_anchors, u, rng=rng)
     if offsets.any():  # adding zeros would change only a -0.0 error, and true_range + (-0.0) is true_range
         err += offsets[anchor]

@@ -1,0 +1,125 @@
+"""Tag-side NLOS: one episode process for the whole tag, striking every anchor at once, and its estimate."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from helpers import simple_scenario
+
+from physynth.calibrate import calibrate
+from physynth.calibrate.tag_nlos import fit_tag_nlos
+from physynth.generate import compile_scenario, generate_trace, generate_traces
+from physynth.models.uwb import _tag_thinning, tag_mode_index
+
+HANYANG = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hanyang-uwb" / "Dynamic_measurements"
+MODES = [{"weight": 0.2, "mean_m": -6.0, "std_m": 2.0}, {"weight": 0.8, "mean_m": 0.3, "std_m": 0.15}]
+
+
+def _scenario(p_tag: float, **more):
+    return simple_scenario(**{"channel.nlos_prob": 0.1, "channel.nlos_modes": MODES, "channel.los_std_m": 0.02,
+                              "uwb.nlos_dwell_s": 0.5, "uwb.tag_nlos_prob": p_tag, "motion.cruise_speed_mps": 1.0,
+                              **more})
+
+
+def test_near_los_mode_is_the_heaviest_within_half_a_metre():
+    assert tag_mode_index(np.array([0.2, 0.8]), np.array([-6.0, 0.3]), np.array([2.0, 0.15])) == 1
+    assert tag_mode_index(np.array([0.5, 0.3, 0.2]), np.array([-6.0, 0.1, -0.2]), np.array([2.0, 0.2, 0.1])) == 1
+    assert tag_mode_index(np.array([1.0]), np.array([-6.0]), np.array([0.3])) == -1  # gross only: no tag mode
+
+
+def test_thinning_keeps_each_anchors_nlos_fraction_and_mode_shares():
+    p = np.array([0.1, 0.05, 0.02, 0.0])
+    w = np.array([[0.2, 0.8], [0.5, 0.5], [0.1, 0.9], [0.2, 0.8]])
+    mean = np.array([[-6.0, 0.3]] * 4)
+    std = np.array([[2.0, 0.15]] * 4)
+    out = _tag_thinning(0.03, p, np.cumsum(w, axis=1), mean, std)
+    t = 0.03 * out["join"]
+    q = out["nlos_prob"]
+    own_w = np.diff(out["cumw"], axis=1, prepend=0.0)
+    np.testing.assert_allclose(q + (1 - q) * t, p, atol=1e-12)  # NLOS fraction of every anchor
+    # time share of each mode: own episodes (which win), plus the tag's where the own process is LOS
+    near = q * own_w[:, 1] + (1 - q) * t
+    np.testing.assert_allclose(near, p * w[:, 1], atol=1e-12)
+    np.testing.assert_allclose(q * own_w[:, 0], p * w[:, 0], atol=1e-12)
+    np.testing.assert_allclose(out["join"], [1.0, min(1.0, 0.5 * 0.05 / 0.03), 0.9 * 0.02 / 0.03, 0.0])
+
+
+def test_default_draws_nothing_and_compiles_no_tag_process():
+    assert compile_scenario(_scenario(0.0)).channel.tag_prob == 0.0
+    a, b = generate_trace(_scenario(0.0), 0, 3), generate_trace(_scenario(1e-12), 0, 3)
+    np.testing.assert_array_equal(a.uwb.range_m, b.uwb.range_m)  # a vanishing process changes nothing
+
+
+def _bursts(trace):
+    """(burst id, anchor, NLOS, error) of the valid rows."""
+    u = trace.uwb
+    ok = u.valid
+    return u.burst[ok], u.anchor[ok], u.nlos[ok], (u.range_m - u.true_range_m)[ok]
+
+
+def test_tag_episodes_strike_the_anchors_together_and_keep_their_nlos_fraction():
+    traces = {p: list(generate_traces(_scenario(p), 6, seed=4)) for p in (0.0, 0.06)}
+    both = {}
+    for p, trs in traces.items():
+        nl, pairs, joint = [], 0, 0
+        for tr in trs:
+            b, a, n, _ = _bursts(tr)
+            nl.append(n)
+            m = np.zeros((int(b.max()) + 1, 3), dtype=bool)
+            seen = np.zeros_like(m)
+            m[b, a] = n
+            seen[b, a] = True
+            ok = seen[:, 0] & seen[:, 1]
+            pairs += int(ok.sum())
+            joint += int((m[ok, 0] & m[ok, 1]).sum())
+        frac = np.concatenate(nl).mean()
+        n_eps = sum(tr.duration_s for tr in trs) / 0.5 * 0.1  # about as many NLOS episodes per anchor
+        assert frac == pytest.approx(0.1, abs=5 * 0.1 / np.sqrt(n_eps))
+        both[p] = joint / pairs
+    assert both[0.0] < 0.1 * 0.1 * 3  # independent anchors: about p^2
+    assert both[0.06] > 0.06 * 0.6  # shared episodes: at least most of the tag's fraction
+    b, a, n, err = _bursts(traces[0.06][0])
+    near = n & (np.abs(err - 0.3) < 1.0)
+    # rows of one burst in a tag episode share their draw: equal errors (same mode) across anchors
+    key = b[near]
+    _, first, inv, counts = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
+    shared = counts[inv] > 1
+    assert shared.sum() > 20
+    spread = err[near][shared] - err[near][first][inv][shared]
+    assert np.median(np.abs(spread)) < 0.01  # the anchors' own near-LOS draws would differ by ~0.2 m
+
+
+def test_estimator_finds_the_shared_fraction_and_none_without_it():
+    fits = {p: calibrate(list(generate_traces(_scenario(p), 4, seed=9))).report["tag_nlos"] for p in (0.0, 0.05)}
+    assert fits[0.0]["prob"] < 0.01
+    assert fits[0.05]["identifiable"]
+    assert 0.025 < fits[0.05]["prob"] < 0.1
+    assert fits[0.05]["applied"] is False  # reported, not put in the scenario
+
+
+def test_estimator_on_known_indicators():
+    """The pair equation on flags drawn with a known shared fraction and every near row seen (d = 1)."""
+    rng = np.random.default_rng(2)
+    n, p_tag, own = 40000, 0.05, 0.04
+    shared = rng.random(n) < p_tag
+    t = np.repeat(np.arange(n) * 0.1, 3)
+    anchor = np.tile(np.arange(3), n)
+    near = np.repeat(shared, 3) | (rng.random(3 * n) < own)
+    fit = fit_tag_nlos([(t, anchor, near)], 3, 0.1)
+    assert fit["identifiable"]
+    se = np.sqrt(p_tag * (1 - p_tag) / n)
+    assert fit["prob"] == pytest.approx(p_tag, abs=6 * se + 0.005)
+    assert not fit_tag_nlos([(t[:300], anchor[:300], near[:300])], 3, 0.1)["identifiable"]  # too few bursts
+
+
+@pytest.mark.skipif(not HANYANG.is_dir(), reason=f"real Hanyang data not found at {HANYANG}")
+def test_hanyang_walks_share_their_wide_errors():
+    """The real walks' near-LOS NLOS rows come to several anchors at once (data in ../shared)."""
+    from physynth.studies.tracking import hanyang_default_runs
+
+    train, test = hanyang_default_runs()
+    fit = calibrate([r.trace for r in [*train, test]], anchor_policy="per-run").report["tag_nlos"]
+    assert fit["identifiable"]
+    assert fit["prob"] > 0.005
