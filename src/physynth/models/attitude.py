@@ -114,8 +114,9 @@ def _at_least(x: np.ndarray, y: np.ndarray, limit: float) -> np.ndarray:
     limit = float(limit)
     if not 1e-100 < limit < 1e100:
         return np.hypot(x, y) >= limit
-    sq = x * x
-    sq += y * y
+    with np.errstate(over="ignore"):  # an overflow to inf decides as hypot does, and hypot is silent
+        sq = x * x
+        sq += y * y
     lim2 = limit * limit
     above = sq >= lim2 * (1.0 + _SQUARE_MARGIN)
     unsure = np.flatnonzero(~(above | (sq <= lim2 * (1.0 - _SQUARE_MARGIN))))
