@@ -280,6 +280,23 @@ def test_unwrap_matches_numpy_bit_for_bit():
         assert np.array_equal(want, got) and np.array_equal(np.signbit(want), np.signbit(got))
 
 
+def test_speed_threshold_matches_hypot_bit_for_bit():
+    from physynth.models.attitude import _at_least
+
+    rng = np.random.default_rng(5)
+    for limit in (0.05, 1.0, 3.7e-7, 1e-120, 1e120):
+        ang = rng.uniform(0.0, 2.0 * np.pi, 4000)
+        # speeds at the limit to within a few ulps, far from it, and of every magnitude
+        r = np.concatenate([limit * (1.0 + rng.integers(-8, 9, 2000) * 2.0**-52),
+                            limit * 10.0 ** rng.uniform(-3.0, 3.0, 1000), 10.0 ** rng.uniform(-320, 300, 1000)])
+        x, y = r * np.cos(ang), r * np.sin(ang)
+        x[:5] = [np.nan, np.inf, -np.inf, 0.0, -0.0]
+        y[:5] = [1.0, np.nan, 2.0, -0.0, limit]
+        want = np.hypot(x, y) >= limit
+        assert np.array_equal(_at_least(x, y, limit), want)
+        assert np.array_equal(_at_least(np.array(y), np.array(x), limit), np.hypot(y, x) >= limit)
+
+
 def test_gyro_vibration_grows_with_the_acceleration_per_body_axis():
     # a level, non-rotating unit at rest for 300 s, then accelerating at 4 m/s^2 for 300 s: the gyro
     # reads only its vibration, variance gain_k x |a| on body axis k (0 at rest)

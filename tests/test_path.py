@@ -62,3 +62,25 @@ def test_bad_paths_are_refused():
         PathParams(kind="polynomial", coeffs_enu_m=[[0, 1], [0, 1], [0, 1]])
     with pytest.raises(ValueError):
         PerturbationParams(lateral_std_m=-1.0)
+
+
+def test_polynomial_evaluation_matches_numpy_polyval_bit_for_bit():
+    from numpy.polynomial import polynomial as P
+
+    from physynth.models.path import _polyval_cf
+
+    rng = np.random.default_rng(11)
+    x = np.concatenate([rng.uniform(-800.0, 800.0, 997), [0.0, -0.0, 1e-300, -5e300, 5e300]])
+    coeffs = [rng.standard_normal((11, 3)) * 10.0 ** -np.arange(11)[:, None],  # a degree-10 path, E N U
+              np.array([[1.0, 0.0, -0.0], [2.0, 0.0, 0.0], [0.0, 3.0, -0.0]]),  # zero leading terms
+              np.array([[0.5, -1.5], [-0.0, 0.0]]), np.array([[7.0, -2.0]])]
+    with np.errstate(over="ignore", invalid="ignore"):  # the extreme x overflow, as in numpy
+        for c in coeffs:
+            want = P.polyval(x, c)
+            for finite in (False, True):
+                got = _polyval_cf(x, c, finite)
+                assert np.array_equal(np.signbit(got), np.signbit(want))
+                assert np.array_equal(got, want)
+        bad = np.array([np.nan, np.inf, -np.inf, 1.0])
+        got = _polyval_cf(bad, coeffs[0], False)
+        assert np.array_equal(got, P.polyval(bad, coeffs[0]), equal_nan=True)

@@ -37,19 +37,19 @@ def interp_many(x: np.ndarray, xp: np.ndarray, fps: Sequence[np.ndarray]) -> lis
     at_knot = np.flatnonzero(dx == 0.0)
     step = xp[1:] - xp[:-1]
     out = []
-    for fp in fps:
-        fp = np.asarray(fp, dtype=np.float64)
-        with np.errstate(all="ignore"):  # infinite or NaN values: silent, as in numpy.interp (redone below)
+    with np.errstate(all="ignore"):  # infinite or NaN values: silent, as in numpy.interp (redone below)
+        for fp in fps:
+            fp = np.asarray(fp, dtype=np.float64)
             slope = fp[1:] - fp[:-1]
             slope /= step
             y = slope.take(j)
             y *= dx
             y += fp.take(j)
-        if at_knot.size:
-            y[at_knot] = fp.take(j[at_knot])
-        if other.size:
-            y[other] = np.interp(x[other], xp, fp)
-        if np.isnan(y.sum()):  # NaN (or inf - inf) somewhere: numpy's own NaN rules
-            y = np.interp(x, xp, fp)
-        out.append(y)
+            if at_knot.size:
+                y[at_knot] = fp.take(j[at_knot])
+            if other.size:
+                y[other] = np.interp(x[other], xp, fp)
+            if np.isnan(y.sum()):  # NaN (or inf - inf) somewhere: numpy's own NaN rules
+                y = np.interp(x, xp, fp)
+            out.append(y)
     return out

@@ -259,12 +259,12 @@ def simulate_availability(t_s: np.ndarray, anchor: np.ndarray, burst: np.ndarray
         rows_of = rows_by_label(anchor, av.dropout_prob.shape[0])
     ascending = is_ascending(t_s)  # checked once for every anchor's rows
     for i, rows in enumerate(rows_of):  # one outage process per anchor
-        outage[rows] = outage_mask(t_s[rows], av.outage_onset_prob[i], burst_rate_hz, av.outage_mean_s[i],
+        outage[rows] = outage_mask(t_s.take(rows), av.outage_onset_prob[i], burst_rate_hz, av.outage_mean_s[i],
                                    start_stationary=av.start_stationary, rng=rng, ascending=ascending)
     if av.tag_outage_onset_prob > 0:  # one process for the tag, applied to every anchor of a burst
         tag_out = outage_mask(bursts_s, av.tag_outage_onset_prob, burst_rate_hz, av.tag_outage_mean_s,
                               start_stationary=av.start_stationary, rng=rng)
-        outage |= tag_out[burst]
+        outage |= tag_out.take(burst)
     dropped = rng.random(t_s.shape[0]) < by_label(av.dropout_prob, anchor)
     if av.long_outage[0] > 0:  # drawn last: scenarios without long outages draw what they always did
         if range_m is None:

@@ -227,32 +227,50 @@ def vibration(t_s: np.ndarray, params: VibrationParams, *, rng: np.random.Genera
 
 def _vibration_cf(t_s: np.ndarray, params: VibrationParams, *, rng: np.random.Generator) -> np.ndarray:
     n = t_s.shape[0]
-    w = np.asarray(params.harmonic_weights, dtype=float)
-    if params.amplitude_mps2 == 0 or n < 2 or w.sum() == 0:
+    if params.amplitude_mps2 == 0 or n < 2:
         return np.zeros((3, n))
-    nyquist = 0.5 / (t_s[1] - t_s[0])
-    freqs = params.fundamental_hz * np.arange(1, w.size + 1)
-    w = np.where(freqs < nyquist, w, 0.0)
-    if w.sum() == 0:
-        return np.zeros((3, n))
-    amp = params.amplitude_mps2 * np.sqrt(2.0 * w / w.sum())  # Re(z e^{iwt}) has variance |z|^2 / 2
-    n_h = int(np.count_nonzero(w))
     env_t = _knots(t_s, 1.0 / max(8.0 * params.bandwidth_hz, 2.0))  # knots well above the line width
-    rho = np.exp(-np.pi * params.bandwidth_hz * (env_t[1] - env_t[0]))  # OU rate pi * bandwidth
-    # linear interpolation between knots keeps on average a share 2/3 + rho/3 of the envelope variance:
-    # scale it back so that the vibration RMS is amplitude_mps2
-    amp = amp / np.sqrt(2.0 / 3.0 + rho / 3.0)
+    lines = _comb_lines(params.amplitude_mps2, params.fundamental_hz, tuple(params.harmonic_weights),
+                        params.bandwidth_hz, float(t_s[1] - t_s[0]), float(env_t[1] - env_t[0]))
+    if lines is None:
+        return np.zeros((3, n))
+    amp_h, freq_h, rho, n_h = lines
     # exact complex OU recursion z_k = rho z_{k-1} + sqrt(1 - rho^2) e_k, started in its stationary law
     innov = rng.standard_normal((2 * 3 * n_h, env_t.shape[0])) * np.sqrt(0.5)
     innov[:, 1:] *= np.sqrt(1.0 - rho**2)
     env = _ar1(innov, rho).reshape(n_h, 2, 3, -1)  # on the knots: (line, re/im, axis, knot)
     phase0 = rng.uniform(0.0, 2.0 * np.pi, n_h)
-    harmonic = np.flatnonzero(w) + 1
-    out = _comb(t_s, env_t, env[:, 0] + 1j * env[:, 1], amp[harmonic - 1], harmonic * params.fundamental_hz, phase0)
-    gain = np.asarray(params.axis_gain, dtype=float)
-    if np.any(gain != 1.0):
-        out *= gain[:, None]
+    out = _comb(t_s, env_t, env[:, 0] + 1j * env[:, 1], amp_h, freq_h, phase0)
+    if any(g != 1.0 for g in params.axis_gain):
+        out *= np.asarray(params.axis_gain, dtype=float)[:, None]
     return out
+
+
+@lru_cache(maxsize=64)
+def _comb_lines(amplitude_mps2: float, fundamental_hz: float, weights: tuple[float, ...], bandwidth_hz: float,
+                dt: float, knot_step_s: float) -> tuple[np.ndarray, np.ndarray, np.float64, int] | None:
+    """The comb's lines for samples ``dt`` apart and envelope knots ``knot_step_s`` apart: (amplitude and
+    frequency of each line below the Nyquist frequency (read-only), the envelope's AR(1) factor rho,
+    the number of lines), or None when no line is left. Built once per (vibration, time step), not per trace.
+    """
+    w = np.asarray(weights, dtype=float)
+    if w.sum() == 0:
+        return None
+    nyquist = 0.5 / dt
+    freqs = fundamental_hz * np.arange(1, w.size + 1)
+    w = np.where(freqs < nyquist, w, 0.0)  # harmonics at or above the Nyquist frequency are left out
+    if w.sum() == 0:
+        return None
+    amp = amplitude_mps2 * np.sqrt(2.0 * w / w.sum())  # Re(z e^{iwt}) has variance |z|^2 / 2
+    rho = np.exp(-np.pi * bandwidth_hz * np.float64(knot_step_s))  # OU rate pi * bandwidth
+    # linear interpolation between knots keeps on average a share 2/3 + rho/3 of the envelope variance:
+    # scale it back so that the vibration RMS is amplitude_mps2
+    amp = amp / np.sqrt(2.0 / 3.0 + rho / 3.0)
+    harmonic = np.flatnonzero(w) + 1
+    amp_h, freq_h = amp[harmonic - 1], harmonic * fundamental_hz
+    amp_h.setflags(write=False)
+    freq_h.setflags(write=False)
+    return amp_h, freq_h, rho, int(np.count_nonzero(w))
 
 
 def simulate_imu(kin: Kinematics, params: ImuParams, *, rng: np.random.Generator,

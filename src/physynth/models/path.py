@@ -62,15 +62,25 @@ class PathParams(ParamsModel):
 UP = np.array([0.0, 0.0, 1.0])
 
 
-def _polyval_cf(x: np.ndarray, c: np.ndarray) -> np.ndarray:
+def _polyval_cf(x: np.ndarray, c: np.ndarray, x_finite: bool = False) -> np.ndarray:
     """``numpy.polynomial.polynomial.polyval(x, c)`` for (deg+1, C) coefficients -> (C, N), bit for bit,
-    with Horner's steps done in place (three times faster: no temporary per degree)."""
+    with Horner's steps done in place (three times faster: no temporary per degree).
+
+    ``x_finite``: the caller knows every x is finite; then, when every leading coefficient is finite and
+    not zero, NumPy's start c[-1] + x * 0 is c[-1] itself and the first step c[-1] * x is taken directly
+    (three passes fewer)."""
     if x.ndim != 1 or c.ndim != 2:
         return P.polyval(x, c)
     out = np.empty((c.shape[1], x.shape[0]))
-    out[:] = c[-1][:, None]
-    out += x * 0  # as NumPy's polyval starts: c[-1] + x * 0 (keeps NaN/inf propagation identical)
-    for i in range(2, c.shape[0] + 1):
+    first = 2
+    if x_finite and c.shape[0] > 1 and bool(np.all((c[-1] != 0) & np.isfinite(c[-1]))):
+        np.multiply(c[-1][:, None], x, out=out)
+        out += c[-2][:, None]
+        first = 3
+    else:
+        out[:] = c[-1][:, None]
+        out += x * 0  # as NumPy's polyval starts: c[-1] + x * 0 (keeps NaN/inf propagation identical)
+    for i in range(first, c.shape[0] + 1):
         out *= x
         out += c[-i][:, None]
     return out
@@ -100,7 +110,9 @@ class PathGeometry:
         s_m = np.asarray(s_m, dtype=np.float64)
         if self.spline is not None:
             return self.spline(s_m).T, self.spline(s_m, 1).T, self.spline(s_m, 2).T
-        return _polyval_cf(s_m, self.coeffs_s), _polyval_cf(s_m, self._d1), _polyval_cf(s_m, self._d2)
+        finite = s_m.ndim == 1 and bool(np.isfinite(np.add.reduce(s_m)))  # a NaN or inf makes the sum one
+        return (_polyval_cf(s_m, self.coeffs_s, finite), _polyval_cf(s_m, self._d1, finite),
+                _polyval_cf(s_m, self._d2, finite))
 
     def lateral_direction(self) -> np.ndarray:
         """Horizontal unit vector normal to the chord between the end stations (E, N, 0)."""

@@ -664,7 +664,7 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
         if ch.nlos_prob[i] >= 1:
             nlos[rows] = True
             continue
-        parts.append((rows, *episode_switches(t_s[rows], ch.episode_laws[i], rng=rng, ascending=ascending)))
+        parts.append((rows, *episode_switches(t_s.take(rows), ch.episode_laws[i], rng=rng, ascending=ascending)))
     if parts:  # the anchors' rows are disjoint: their states in one pass over all of them
         _write_episodes(parts, nlos, mode, episode)
     if ch.zone_s_m.size:
@@ -681,27 +681,31 @@ def _write_episodes(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, bool]]
     counts, episode modes, start_on) of each anchor (:func:`episode_switches`), in anchor order. The
     values of :func:`nlos_episodes` anchor by anchor, with ``first_episode`` running over the anchors
     (each anchor's episodes numbered after the last one of the anchors before it); LOS rows keep their
-    mode and episode (-1)."""
+    mode and episode (-1). The switch counts are changed in place."""
     for _, k, _, start_on in parts:
-        if not start_on:
-            k += 1  # in an episode exactly where the count (shifted by one here) is even
+        if not start_on:  # in an episode exactly where the count with its lowest bit flipped is even;
+            np.bitwise_xor(k, 1, out=k)  # there, k >> 1 (the episode's pair) is that of the unflipped count
     k = np.concatenate([q[1] for q in parts])
     rows = np.concatenate([q[0] for q in parts])
     in_episode = (k & 1) == 0
     nlos[rows] = in_episode
     at = np.flatnonzero(in_episode)  # the few rows in an episode: pair, mode and id computed there only
-    part = np.searchsorted(list(accumulate(q[0].size for q in parts)), at, side="right")
-    shift = np.array([0 if q[3] else 1 for q in parts]).take(part)
-    pair = np.right_shift(k.take(at), 1)  # the (episode, gap) pair: k // 2 of the unshifted count
-    pair -= shift
-    np.minimum(pair, np.array([q[2].size - 1 for q in parts]).take(part), out=pair)
-    first_mode = np.array(list(accumulate((q[2].size for q in parts[:-1]), initial=0))).take(part)
-    first_mode += pair
-    mode[rows.take(at)] = np.concatenate([q[2] for q in parts]).take(first_mode)
-    last = np.full(len(parts), -1, dtype=pair.dtype)  # each anchor's last episode, -1: none
-    np.maximum.at(last, part, pair)
-    pair += np.array(list(accumulate((last[:-1] + 1).tolist(), initial=0)), dtype=pair.dtype).take(part)
-    episode[rows.take(at)] = pair
+    pair = np.right_shift(k.take(at), 1)  # the (episode, gap) pair: k // 2
+    mode_at = np.empty_like(pair)
+    ends = at.searchsorted(list(accumulate(q[0].size for q in parts))).tolist()  # each anchor's rows in `at`
+    start, first = 0, 0  # the anchor's first row in `at`, its first episode id
+    for (_, _, modes, _), end in zip(parts, ends, strict=True):
+        if end > start:
+            p = pair[start:end]  # a view: clipped and numbered in place
+            np.minimum(p, modes.size - 1, out=p)
+            mode_at[start:end] = modes.take(p)
+            last = int(p.max())
+            p += first
+            first += last + 1
+        start = end
+    dest = rows.take(at)
+    mode[dest] = mode_at
+    episode[dest] = pair
 
 
 def _zone_nlos_prob(s_m: np.ndarray, ch: ChannelArrays) -> np.ndarray:
@@ -825,15 +829,17 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
     bursts = burst_times(float(kin.t_s[0]), t_end, u.burst_rate_hz, u.burst_jitter_s,
                          n_anchors * u.slot_s + 1e-4, rng=rng, phase_s=phase)
     scheduled = rng.random((bursts.shape[0], n_anchors)) < ch.attempt_prob
-    # row-major: sorted by burst, then anchor slot (np.nonzero's indices; flat indices and divmod are
-    # ~2.5x faster than its 2-D multi-index iteration)
-    b_idx, anchor = np.divmod(np.flatnonzero(scheduled), n_anchors)
-    t_true = bursts[b_idx] + anchor * u.slot_s
+    # row-major: sorted by burst, then anchor slot (np.nonzero's indices; flat indices and their quotient
+    # and remainder are ~2.5x faster than its 2-D multi-index iteration; // by a number is faster than divmod)
+    flat = np.flatnonzero(scheduled)
+    b_idx = flat // n_anchors
+    anchor = flat - b_idx * n_anchors
+    t_true = bursts.take(b_idx) + anchor * u.slot_s
     # the tag's E, N, U and path coordinate at the attempts: numpy.interp's values, one search for all four
     *tag_enu, s_m = interp_many(t_true, kin.t_s, [*kin.pos_enu_m.T, kin.s_m])
     sq = None
     for k in range(3):  # |p(t) - a_i|, one ENU component at a time (contiguous, no (N, 3) temporaries)
-        d = tag_enu[k] - ch.anchor_pos_enu_m[:, k][anchor]
+        d = tag_enu[k] - ch.anchor_pos_enu_m[:, k].take(anchor)  # take: numpy's fastest gather
         d *= d
         sq = d if sq is None else np.add(sq, d, out=sq)  # as 0 + d_E^2 + d_N^2 + d_U^2 (0 + x is x)
     true_range = np.sqrt(sq)
