@@ -92,11 +92,27 @@ def test_tag_episodes_strike_the_anchors_together_and_keep_their_nlos_fraction()
 
 
 def test_estimator_finds_the_shared_fraction_and_none_without_it():
-    fits = {p: calibrate(list(generate_traces(_scenario(p), 4, seed=9))).report["tag_nlos"] for p in (0.0, 0.05)}
+    res = {p: calibrate(list(generate_traces(_scenario(p), 4, seed=9))) for p in (0.0, 0.05)}
+    fits = {p: r.report["tag_nlos"] for p, r in res.items()}
     assert fits[0.0]["prob"] < 0.01
-    assert fits[0.05]["identifiable"]
+    assert res[0.0].scenario.uwb.tag_nlos_prob == (fits[0.0]["prob"] if fits[0.0]["applied"] else 0.0)
+    assert fits[0.05]["identifiable"] and fits[0.05]["applied"]
     assert 0.025 < fits[0.05]["prob"] < 0.1
-    assert fits[0.05]["applied"] is False  # reported, not put in the scenario
+    assert res[0.05].scenario.uwb.tag_nlos_prob == pytest.approx(fits[0.05]["prob"], abs=1e-4)
+
+
+def test_validation_measures_how_clean_the_range_differences_are():
+    """residual_burst_deviation_std_m: shared tag-side errors leave the range differences cleaner."""
+    from physynth.validate.compare import compare
+
+    shared = list(generate_traces(_scenario(0.08), 3, seed=21))
+    own = list(generate_traces(_scenario(0.0), 3, seed=22))
+    rep = compare(shared, own)
+    dev = rep.extended["residual_burst_deviation_std_m"]
+    assert dev["synthetic"] > 1.2 * dev["real"]  # per-anchor episodes: noisier differences
+    assert rep.extended["residual_burst_deviation_ratio"] == pytest.approx(dev["synthetic"] / dev["real"])
+    same = compare(own, list(generate_traces(_scenario(0.0), 3, seed=23))).extended["residual_burst_deviation_ratio"]
+    assert same == pytest.approx(1.0, abs=0.15)
 
 
 def test_estimator_on_known_indicators():

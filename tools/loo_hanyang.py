@@ -11,11 +11,14 @@ channel and availability parameter from the three others), exactly as
 and prints one row per left-out run: KS, UWB >= 1 and mean AoI relative deviations, the signed-median
 difference, whether the real P95 lies in the synthetic 5-95 % band, the largest residual-ACF
 difference over lags 1..10 and the autocorrelation of the residuals within 0.5 m of their anchor's
-median (``residual_acf_inliers``) at lags 1, 5 and 10. Targets (issue 12): KS <= 0.10, UWB >= 1 and
-mean AoI within 15 %, median within 3 cm, real P95 inside the band.
+median (``residual_acf_inliers``) at lags 1, 5 and 10, and the std of the within-burst deviation of the
+residuals (``residual_burst_deviation_std_m``, the error of the range differences). ``--no-tag-nlos``
+validates each calibration with its tag-side NLOS fraction set to 0 (the model before it).
+Targets (issue 12): KS <= 0.10, UWB >= 1 and mean AoI within 15 %, median within 3 cm, real P95 inside
+the band.
 
     .venv/bin/python tools/loo_hanyang.py [--n 50] [--seed 1] [--long-outages] [--range-bias-law L] [--out DIR]
-                                          [--white-twin]
+                                          [--white-twin] [--no-tag-nlos]
                                           [--data ../shared/data/hanyang-uwb]
 """
 
@@ -54,6 +57,8 @@ def main() -> None:
     ap.add_argument("--white-twin", action="store_true",
                     help="validate each calibration without its antenna sway, each LOS std given back the "
                          "swaying part (the model before the sway; tools/sway_check.py)")
+    ap.add_argument("--no-tag-nlos", action="store_true",
+                    help="validate each calibration with uwb.tag_nlos_prob = 0 (no tag-side NLOS)")
     args = ap.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -74,6 +79,8 @@ def main() -> None:
             scn = res.scenario
             if args.white_twin and res.report["antenna_sway"]["identifiable"]:
                 scn = white_twin(scn, res.report["antenna_sway"]["slow_share"])
+            if args.no_tag_nlos:
+                scn = scn.model_copy(update={"uwb": scn.uwb.model_copy(update={"tag_nlos_prob": 0.0})})
             rep = validate_datasets(dirs[left], scenario=scn, n=args.n, seed=args.seed, transfer=True)
             if args.out is not None:
                 out = args.out / left.replace(" ", "-")
@@ -90,18 +97,18 @@ def main() -> None:
                          c["abs_residual_p95_m"]["real_in_band"], c["abs_residual_p95_m"]["band_5_95"],
                          rep.real["abs_residual_p95_m"], rep.extended["residual_acf_max_abs_diff"],
                          acf["real"][:3], acf["synthetic"][:3], rep.extended["residual_acf_inliers"],
-                         time.perf_counter() - t0))
+                         rep.extended["residual_burst_deviation_std_m"], time.perf_counter() - t0))
     print(f"leave-one-out, {args.n} synthetic traces per run, seed {args.seed}")
     print("| left-out run | KS | UWB>=1 dev. % | mean AoI dev. % | AoI dev. of the per-trace median % "
           "| AoI real in band | median diff. cm | P95 real (band) | P95 in band | ACF max diff (lags 1-10) "
-          "| ACF lag 1/2/3 real | synth | inlier ACF lag 1/5/10 real | synth |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for (name, ks, ge1, aoi, aoi_med, aoi_in, med, p95_in, band, p95, acf_d, acf_r, acf_s, acf_in, _) in rows:
+          "| ACF lag 1/2/3 real | synth | inlier ACF lag 1/5/10 real | synth | burst deviation cm real / synth |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for (name, ks, ge1, aoi, aoi_med, aoi_in, med, p95_in, band, p95, acf_d, acf_r, acf_s, acf_in, bd, _) in rows:
         inl = [" / ".join(f"{acf_in[side][k]:.2f}" for k in (0, 4, 9)) for side in ("real", "synthetic")]
         print(f"| {name} | {ks:.3f} | {ge1:.1f} | {aoi:.1f} | {aoi_med:.1f} | {'yes' if aoi_in else 'no'} | {med:+.1f} "
               f"| {p95:.3f} ({band[0]:.3f}-{band[1]:.3f}) | {'yes' if p95_in else 'no'} | {acf_d:.2f} "
               f"| {'/'.join(f'{x:.2f}' for x in acf_r)} | {'/'.join(f'{x:.2f}' for x in acf_s)} "
-              f"| {inl[0]} | {inl[1]} |")
+              f"| {inl[0]} | {inl[1]} | {100 * bd['real']:.1f} / {100 * bd['synthetic']:.1f} |")
     print(f"wall time per run: {', '.join(f'{r[-1]:.0f} s' for r in rows)}")
 
 

@@ -101,6 +101,12 @@ EXTENDED_STATISTICS: dict[str, tuple[str, str]] = {
              "of the ranging error a tracker filters."),
     "residual_acf_inliers_max_abs_diff": (
         "-", "Largest |ACF_synthetic - ACF_real| of residual_acf_inliers over lags 1..10."),
+    "residual_burst_deviation_std_m": (
+        "m", "Std of the within-burst deviation of the residuals (within 0.5 m of their anchor's median, "
+             "that median removed, each minus the mean of its burst of 2+ anchors), real and synthetic: "
+             "the error of the range differences, which carry the direction to a far tag."),
+    "residual_burst_deviation_ratio": (
+        "-", "residual_burst_deviation_std_m synthetic / real; 1 = range differences as clean as the real ones."),
     "imu_allan_ratio": (
         "-", "Allan deviation of the acceleration, synthetic / real, per axis (E, N, U) at tau = 0.1, "
              "1 and 10 s (overlapping estimator on the 100 Hz grid); 1 = equal."),
@@ -298,6 +304,11 @@ def _quantiles(x: np.ndarray) -> list[float]:
     return [float(v) for v in np.percentile(x, [50.0, 95.0, 99.0])] + [float(x.max())]
 
 
+def _finite(x: float) -> float | None:
+    """``x``, or None (JSON null) where it is NaN or infinite."""
+    return float(x) if np.isfinite(x) else None
+
+
 def _extended(real: SideEvidence, synth: SideEvidence) -> dict[str, Any]:
     ad, ad_p = anderson_darling(real.residual_m, synth.residual_m)
     ext: dict[str, Any] = {
@@ -314,6 +325,10 @@ def _extended(real: SideEvidence, synth: SideEvidence) -> dict[str, Any]:
         "residual_acf_inliers": {"lags": list(range(1, ACF_MAX_LAG + 1)), "real": real.acf_inliers.tolist(),
                                  "synthetic": synth.acf_inliers.tolist()},
         "residual_acf_inliers_max_abs_diff": float(np.max(np.abs(synth.acf_inliers - real.acf_inliers))),
+        "residual_burst_deviation_std_m": {"real": _finite(real.burst_deviation_std_m),
+                                           "synthetic": _finite(synth.burst_deviation_std_m)},
+        "residual_burst_deviation_ratio": _finite(synth.burst_deviation_std_m / real.burst_deviation_std_m
+                                                  if real.burst_deviation_std_m > 0 else float("nan")),
     }
     both_imu = real.allan_dev_mps2 is not None and synth.allan_dev_mps2 is not None
     if both_imu:

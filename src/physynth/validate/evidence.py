@@ -24,6 +24,9 @@ from ..records import Anchors, Trace
 ACF_MAX_LAG = 10
 """Residual autocorrelation is reported at lags 1..ACF_MAX_LAG measurements of one anchor."""
 INLIER_HALF_WIDTH_M = 0.5
+BURST_GAP_S = 0.02
+"""Ranges of one trace less than this apart [s] (and less than half an anchor's own ranging period)
+belong to one burst (the anchors ranged one after another in a few milliseconds)."""
 """The inlier autocorrelation keeps the residuals within this of their anchor's median in the trace:
 without the gross outliers, whose held values dominate every sum of products."""
 
@@ -90,6 +93,7 @@ class SideEvidence:
     sample: Trace  # the first trace, for the range-versus-time figure
     acf: np.ndarray  # (ACF_MAX_LAG,)
     acf_inliers: np.ndarray  # (ACF_MAX_LAG,), residuals within INLIER_HALF_WIDTH_M of their anchor's median
+    burst_deviation_std_m: float  # within-burst deviation of the inlier residuals (NaN: no burst of 2+)
     psd_f_hz: np.ndarray | None
     psd_mps2_sq_per_hz: np.ndarray | None  # (3, F)
     allan_tau_s: np.ndarray | None
@@ -128,6 +132,8 @@ class _SideAccumulator:
         self.acf_den = 0.0
         self.acf_in_num = np.zeros(ACF_MAX_LAG)
         self.acf_in_den = 0.0
+        self.burst_dev_ss = 0.0
+        self.burst_dev_n = 0
         self.allan_m = _allan_m_grid(rate_hz)
         self.allan_sums = np.zeros((3, self.allan_m.size))
         self.allan_counts = np.zeros(self.allan_m.size, dtype=np.int64)
@@ -187,6 +193,7 @@ class _SideAccumulator:
                     same_k = a[k:] == a[:-k]
                     self.acf_num[k - 1] += float(np.dot(x[k:][same_k], x[:-k][same_k]))
             self._add_inlier_acf(s.residual_m[order], a)
+            self._add_burst_deviation(trace)
 
         # IMU: Allan variance and Welch spectrum of the 100 Hz-grid acceleration
         y = _fill_gaps(s.imu_grid_mps2) if trace.imu is not None else None
@@ -229,6 +236,35 @@ class _SideAccumulator:
                 same_k = b[k:] == b[:-k]
                 self.acf_in_num[k - 1] += float(np.dot(x[k:][same_k], x[:-k][same_k]))
 
+    def _add_burst_deviation(self, trace: Trace) -> None:
+        """Sums of the within-burst deviations: each inlier residual (within INLIER_HALF_WIDTH_M of its
+        anchor's median, that median removed) minus the mean of its burst, bursts of two anchors or
+        more, scaled by sqrt(n / (n - 1)) so that independent errors of std s give s."""
+        from ..evaluate.metrics import residuals
+
+        r, a, t = residuals(trace)
+        if r.size < 2:
+            return
+        med = np.zeros(len(trace.anchors))
+        for j in np.unique(a):  # one median per anchor: a loop over anchors
+            med[j] = np.median(r[a == j])
+        x = r - med[a]
+        keep = np.abs(x) < INLIER_HALF_WIDTH_M
+        order = np.argsort(t[keep], kind="stable")
+        x, a, t = x[keep][order], a[keep][order], t[keep][order]
+        if x.size < 2:
+            return
+        same = np.diff(t)
+        per_anchor = [np.median(np.diff(t[a == j])) for j in np.unique(a) if np.count_nonzero(a == j) > 1]
+        gap = min(BURST_GAP_S, 0.5 * float(np.min(per_anchor))) if per_anchor else BURST_GAP_S
+        burst = np.concatenate([[0], np.cumsum(same > gap)])
+        n = np.bincount(burst)
+        mean = np.bincount(burst, weights=x) / n
+        multi = n[burst] >= 2
+        dev = (x - mean[burst])[multi]
+        self.burst_dev_ss += float(np.sum(dev * dev * (n[burst][multi] / (n[burst][multi] - 1.0))))
+        self.burst_dev_n += int(dev.size)
+
     def finish(self) -> tuple[SideEvidence, np.ndarray]:
         metrics = self.metrics.result()  # exactly what metrics.compute_metrics returns
         assert self.sample is not None and self.anchors is not None
@@ -256,6 +292,8 @@ class _SideAccumulator:
             sample=self.sample,
             acf=acf,
             acf_inliers=acf_in,
+            burst_deviation_std_m=(float(np.sqrt(self.burst_dev_ss / self.burst_dev_n)) if self.burst_dev_n
+                                   else float("nan")),
             psd_f_hz=self.psd_f,
             psd_mps2_sq_per_hz=None if self.psd_sum is None else self.psd_sum / self.psd_weight,
             allan_tau_s=self.allan_m / self.rate_hz if has_allan else None,

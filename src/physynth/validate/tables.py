@@ -125,6 +125,8 @@ def _extended_value(name: str, value: Any) -> str:
     if name in ("residual_acf", "residual_acf_inliers"):
         return ("lag 1,2,5,10 real " + ", ".join(_fmt(value["real"][i], 2) for i in (0, 1, 4, 9))
                 + "; synth " + ", ".join(_fmt(value["synthetic"][i], 2) for i in (0, 1, 4, 9)))
+    if name == "residual_burst_deviation_std_m":
+        return f"real {_fmt(value['real'], 4)}; synth {_fmt(value['synthetic'], 4)}"
     if name == "imu_allan_ratio":
         taus = value["tau_s"]
         return "; ".join(f"{ax.upper()}: " + ", ".join(f"{_fmt(r, 2)}@{t:g}s" for r, t in zip(row, taus, strict=True))
