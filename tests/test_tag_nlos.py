@@ -95,10 +95,10 @@ def test_estimator_finds_the_shared_fraction_and_none_without_it():
     res = {p: calibrate(list(generate_traces(_scenario(p), 4, seed=9))) for p in (0.0, 0.05)}
     fits = {p: r.report["tag_nlos"] for p, r in res.items()}
     assert fits[0.0]["prob"] < 0.01
-    assert res[0.0].scenario.uwb.tag_nlos_prob == (fits[0.0]["prob"] if fits[0.0]["applied"] else 0.0)
-    assert fits[0.05]["identifiable"] and fits[0.05]["applied"]
+    assert fits[0.05]["identifiable"]
     assert 0.025 < fits[0.05]["prob"] < 0.1
-    assert res[0.05].scenario.uwb.tag_nlos_prob == pytest.approx(fits[0.05]["prob"], abs=1e-4)
+    # reported, not put in the scenario (docs/calibration.md says why)
+    assert not fits[0.05]["applied"] and res[0.05].scenario.uwb.tag_nlos_prob == 0.0
 
 
 def test_validation_measures_how_clean_the_range_differences_are():

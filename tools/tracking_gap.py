@@ -16,7 +16,10 @@ the anchor centroid. If the network does much better on ``synthetic`` than on ``
 misses something the real run has; if about as well, the learner (its size, schedule, amount of data)
 is the limit; the split says which part of the error differs.
 
-    .venv/bin/python tools/tracking_gap.py [--test 1] [--seed 0] [--n-eval 4]
+    .venv/bin/python tools/tracking_gap.py [--test 1] [--seed 0] [--n-eval 4] [--tag-nlos]
+
+``--tag-nlos`` puts each calibration's tag-side NLOS estimate (report section ``tag_nlos``) into its
+scenario (``uwb.tag_nlos_prob``), which the calibration does not do by itself (docs/calibration.md).
 
 ``--test`` is the index of the left-out run in LOS Case_1, LOS Case_2, NLOS Case_1, NLOS Case_2
 (the three others train). About 4 min on one core.
@@ -34,7 +37,6 @@ import numpy as np  # noqa: E402
 from physynth.calibrate import calibrate  # noqa: E402
 from physynth.generate import generate_trace  # noqa: E402
 from physynth.studies.tracking import (  # noqa: E402
-    _calibrate_training_runs,
     _synth_phy,
     _time_offset,
     hanyang_default_runs,
@@ -46,6 +48,14 @@ from physynth.track.trackers import make_tracker  # noqa: E402
 
 BINS_M = (0, 10, 20, 30, 40, 60)
 STALE_S = 1.0
+
+
+def _with_tag(res):
+    """The calibrated scenario with its tag-side NLOS estimate put in (4 significant digits, as a scenario
+    file holds it)."""
+    s, fit = res.scenario, res.report["tag_nlos"]
+    p = float(f"{fit['prob']:.4g}") if fit["identifiable"] else 0.0
+    return s.model_copy(update={"uwb": s.uwb.model_copy(update={"tag_nlos_prob": p})})
 
 
 def _split(est: np.ndarray, inp) -> np.ndarray:
@@ -80,6 +90,7 @@ def main() -> None:
     ap.add_argument("--test", type=int, default=1, choices=range(4), help="index of the left-out run")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--n-eval", type=int, default=4, help="synthetic traces scored per synthetic set")
+    ap.add_argument("--tag-nlos", action="store_true", help="put the calibrations' tag-side NLOS estimates in")
     args = ap.parse_args()
     require_torch().set_num_threads(1)
     train3, last = hanyang_default_runs()
@@ -88,8 +99,9 @@ def main() -> None:
     train = [r for i, r in enumerate(runs) if i != args.test]
     lag, _ = _time_offset([r.trace for r in train])
     train_inputs = [track_input(r.trace, time_offset_s=lag, label=r.label) for r in train]
-    scn, _ = _calibrate_training_runs([r.trace for r in train], lambda *_: None)
-    twin = calibrate([test.trace], name="twin").scenario
+    scn = calibrate([r.trace for r in train], name="tracking-study-calibrated", anchor_policy="per-run")
+    twin = calibrate([test.trace], name="twin")
+    scn, twin = (_with_tag(r) if args.tag_nlos else r.scenario for r in (scn, twin))
     sets = {"real": [track_input(test.trace, time_offset_s=lag)],
             "synthetic": [track_input(generate_trace(scn, i, 777), time_offset_s=lag) for i in range(args.n_eval)],
             "twin": [track_input(generate_trace(twin, i, 777), time_offset_s=lag) for i in range(args.n_eval)]}
