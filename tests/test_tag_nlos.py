@@ -36,14 +36,13 @@ def test_thinning_keeps_each_anchors_nlos_fraction_and_mode_shares():
     std = np.array([[2.0, 0.15]] * 4)
     out = _tag_thinning(0.03, p, np.cumsum(w, axis=1), mean, std)
     t = 0.03 * out["join"]
-    q = out["nlos_prob"]
-    own_w = np.diff(out["cumw"], axis=1, prepend=0.0)
+    near_own = p * w[:, 1] * (1 - out["drop"])  # own near-LOS time left after the drops
+    q = p * w[:, 0] + near_own  # own NLOS time: the other mode untouched
     np.testing.assert_allclose(q + (1 - q) * t, p, atol=1e-12)  # NLOS fraction of every anchor
     # time share of each mode: own episodes (which win), plus the tag's where the own process is LOS
-    near = q * own_w[:, 1] + (1 - q) * t
-    np.testing.assert_allclose(near, p * w[:, 1], atol=1e-12)
-    np.testing.assert_allclose(q * own_w[:, 0], p * w[:, 0], atol=1e-12)
+    np.testing.assert_allclose(near_own + (1 - q) * t, p * w[:, 1], atol=1e-12)
     np.testing.assert_allclose(out["join"], [1.0, min(1.0, 0.5 * 0.05 / 0.03), 0.9 * 0.02 / 0.03, 0.0])
+    assert ((out["drop"] >= 0) & (out["drop"] <= 1)).all() and out["drop"][3] == 0.0
 
 
 def test_default_draws_nothing_and_compiles_no_tag_process():
@@ -91,14 +90,28 @@ def test_tag_episodes_strike_the_anchors_together_and_keep_their_nlos_fraction()
     assert np.median(np.abs(spread)) < 0.01  # the anchors' own near-LOS draws would differ by ~0.2 m
 
 
+def test_tag_side_leaves_the_anchors_own_draws_alone():
+    """The tag side draws from its own stream and changes only the rows it strikes: the schedule, the
+    LOS errors and the run-level draws (run offsets) stay those of the same seed without it."""
+    scn = {"uwb.run_offset_std_m": 0.05}
+    a, b = generate_trace(_scenario(0.0, **scn), 0, 3), generate_trace(_scenario(0.06, **scn), 0, 3)
+    np.testing.assert_array_equal(a.uwb.t_s, b.uwb.t_s)
+    np.testing.assert_array_equal(a.uwb.true_range_m, b.uwb.true_range_m)
+    both_los = ~a.uwb.nlos & ~b.uwb.nlos & a.uwb.valid & b.uwb.valid
+    assert both_los.mean() > 0.6
+    np.testing.assert_array_equal(a.uwb.range_m[both_los], b.uwb.range_m[both_los])
+    changed = a.uwb.nlos != b.uwb.nlos
+    assert 0.01 < changed.mean() < 0.2  # the tag side moved some NLOS time, not the rest
+
+
 def test_estimator_finds_the_shared_fraction_and_none_without_it():
     res = {p: calibrate(list(generate_traces(_scenario(p), 4, seed=9))) for p in (0.0, 0.05)}
     fits = {p: r.report["tag_nlos"] for p, r in res.items()}
     assert fits[0.0]["prob"] < 0.01
     assert fits[0.05]["identifiable"]
     assert 0.025 < fits[0.05]["prob"] < 0.1
-    # reported, not put in the scenario (docs/calibration.md says why)
-    assert not fits[0.05]["applied"] and res[0.05].scenario.uwb.tag_nlos_prob == 0.0
+    assert fits[0.05]["applied"] and res[0.05].scenario.uwb.tag_nlos_prob == pytest.approx(fits[0.05]["prob"],
+                                                                                          abs=1e-4)
 
 
 def test_validation_measures_how_clean_the_range_differences_are():

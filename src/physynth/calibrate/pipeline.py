@@ -1166,8 +1166,13 @@ def _tag_nlos(chan: _Channels, ids: Sequence[str], burst_rate_hz: float, rep: Re
             per_run.setdefault(run, []).append((t, np.full(t.size, k), _near_nlos(f, x, nlos)))
     runs = [tuple(np.concatenate([p[i] for p in parts]) for i in range(3)) for parts in per_run.values()]
     fit = fit_tag_nlos(runs, len(ids), 1.0 / burst_rate_hz, np.array([_near_share(chan.mix[a]) for a in ids]))
-    fit["applied"] = False  # reported, not put in the scenario (docs/calibration.md, "Tag-side NLOS")
+    fit["applied"] = bool(fit["identifiable"])
     rep.sections["tag_nlos"] = fit
+    if fit["identifiable"]:
+        rep.param("uwb.tag_nlos_prob", fit["prob"], n=fit["n_bursts"], summary=True,
+                  note="anchors NLOS in the same burst more often than apart (pairs of anchors pooled)")
+    else:
+        rep.not_identifiable.append(f"uwb.tag_nlos_prob ({fit['why']})")
     return fit
 
 
@@ -1405,7 +1410,8 @@ def build_scenario(name: str, inp: CalibrationInputs, geometry: GeometryFit, tim
                     nlos_dwell_s=rounded(channels.nlos_dwell_s, 4), zones=[],
                     run_offset_std_m=rounded(ranging.run_offset_std_m, 4),
                     run_anchor_offset_std_m=rounded(ranging.run_anchor_offset_std_m, 4),
-                    **_sway_params(channels.sway))
+                    **_sway_params(channels.sway),
+                    tag_nlos_prob=rounded(channels.tag_nlos["prob"], 4) if channels.tag_nlos["applied"] else 0.0)
     report.not_identifiable.append("uwb.zones (NLOS zones along the path are not fitted)")
     provenance = {
         "calibrated_by": f"physynth {__version__}",

@@ -245,6 +245,7 @@ class ChannelArrays:
     tag_prob: float = 0.0  # long-run fraction of tag-side NLOS time (UwbParams.tag_nlos_prob)
     tag_mode: np.ndarray | None = None  # (A,) the mode a tag-side episode gives each anchor (tag_mode_index)
     tag_join: np.ndarray | None = None  # (A,) probability that an anchor takes part in a tag-side episode
+    tag_drop: np.ndarray | None = None  # (A,) probability that an own episode of mode tag_mode is dropped
     # derived from the fields above on construction: each anchor's NLOS episode law (None where
     # nlos_prob is 0 or 1: no episodes), the per-scenario constants of nlos_episodes
     episode_laws: tuple[EpisodeLaw | None, ...] = field(init=False, repr=False, compare=False)
@@ -349,8 +350,8 @@ def channel_arrays(params: UwbParams, anchors: Sequence[AnchorSpec],
         los_std_m=np.array([c.los_std_m for c in chans]),
         range_bias_per_m=np.array([c.range_bias_per_m for c in chans]),
         range_bias_per_decade_m=np.array([c.range_bias_per_decade_m for c in chans]),
-        nlos_prob=tag.get("nlos_prob", nlos_prob),
-        mode_cumw=tag.get("cumw", cumw), mode_mean_m=mean, mode_std_m=std, mode_dwell_s=dwell, mode_fixed_dwell=fixed,
+        nlos_prob=nlos_prob, mode_cumw=cumw, mode_mean_m=mean, mode_std_m=std, mode_dwell_s=dwell,
+        mode_fixed_dwell=fixed,
         mode_held_jitter_m=jitter,
         max_range_m=np.array([c.max_range_m for c in chans]),
         edge_width_m=np.array([c.edge_width_m for c in chans]),
@@ -360,7 +361,7 @@ def channel_arrays(params: UwbParams, anchors: Sequence[AnchorSpec],
         obstacles=tuple(params.obstacles),
         terrain=params.terrain,
         tag_prob=float(params.tag_nlos_prob) if tag else 0.0,
-        tag_mode=tag.get("mode"), tag_join=tag.get("join"),
+        tag_mode=tag.get("mode"), tag_join=tag.get("join"), tag_drop=tag.get("drop"),
     )
 
 
@@ -377,32 +378,29 @@ def tag_mode_index(weights: np.ndarray, mean_m: np.ndarray, std_m: np.ndarray) -
 
 def _tag_thinning(p_tag: float, nlos_prob: np.ndarray, cumw: np.ndarray, mean: np.ndarray,
                   std: np.ndarray) -> dict[str, np.ndarray]:
-    """Each anchor's own NLOS process thinned for a tag-side process of fraction ``p_tag``.
+    """How each anchor's own NLOS episodes make room for a tag-side process of fraction ``p_tag``.
 
     A tag-side episode gives anchor a its near-LOS mode n (:func:`tag_mode_index`; an anchor without
-    one does not join) and is joined by the anchor
-    with probability j = min(1, p_a w_n / p_tag), so the tag side brings t = p_tag j of NLOS time in
-    mode n. The anchor's own episodes (which win where both are on) keep q = (p_a - t) / (1 - t) with
-    weights w'_m = p_a w_m / q (m != n) and the rest for n: its NLOS fraction p_a and the time share
-    of every mode stay those of the channel. Returns the own ``nlos_prob``, ``cumw``, the tag ``mode``
-    and ``join`` probabilities per anchor (anchors with p_a of 0 or 1 keep their own process and do
-    not join).
+    one does not join) and is joined by the anchor with probability j = min(1, p_a w_n / p_tag), so the
+    tag side brings t = p_tag j of NLOS time in mode n where the anchor's own process is LOS. The
+    anchor's own process is drawn as its channel says (the same draws as without a tag side); each of
+    its episodes of mode n is then dropped with probability d = (p_a - q) / (p_a w_n), q = (p_a - t) /
+    (1 - t), which leaves own NLOS time q: the union q + (1 - q) t is p_a, and the other modes keep
+    their time p_a w_m, so the NLOS fraction and every mode's time share stay those of the channel.
+    Returns per anchor the tag ``mode``, the ``join`` and ``drop`` probabilities (anchors with p_a of 0
+    or 1 keep their own process and do not join).
     """
     weights = np.diff(cumw, axis=1, prepend=0.0)
     found = np.array([tag_mode_index(weights[i], mean[i], std[i]) for i in range(nlos_prob.size)], dtype=np.intp)
     mode = np.maximum(found, 0)
-    rows = np.arange(nlos_prob.size)
-    w_n = np.where(found >= 0, weights[rows, mode], 0.0)
-    open_ = (nlos_prob > 0) & (nlos_prob < 1) & (found >= 0)
+    w_n = np.where(found >= 0, weights[np.arange(nlos_prob.size), mode], 0.0)
+    open_ = (nlos_prob > 0) & (nlos_prob < 1) & (found >= 0) & (w_n > 0)
     join = np.where(open_, np.minimum(1.0, nlos_prob * w_n / p_tag), 0.0)
     t = p_tag * join
     q = np.where(open_, (nlos_prob - t) / (1.0 - t), nlos_prob)
-    own = np.where(q[:, None] > 0, nlos_prob[:, None] * weights / np.where(q > 0, q, 1.0)[:, None], weights)
-    own[rows, mode] = 0.0
-    own[rows, mode] = np.clip(1.0 - own.sum(axis=1), 0.0, 1.0)
-    new_cumw = np.cumsum(own, axis=1)
-    new_cumw /= new_cumw[:, -1:]
-    return {"nlos_prob": np.clip(q, 0.0, 1.0), "cumw": new_cumw, "mode": mode, "join": join}
+    near = np.where(open_, nlos_prob * w_n, 1.0)
+    drop = np.where(open_, np.clip((nlos_prob - q) / near, 0.0, 1.0), 0.0)
+    return {"mode": mode, "join": join, "drop": drop}
 
 
 def burst_times(t_start_s: float, t_end_s: float, burst_rate_hz: float, jitter_s: float, min_period_s: float,
@@ -561,6 +559,15 @@ def range_error_log_components(err_m: np.ndarray, true_range_m: np.ndarray, *, l
     return np.stack(comp)
 
 
+def los_errors(true_range_m: np.ndarray, anchor: np.ndarray, ch: ChannelArrays, z: np.ndarray) -> np.ndarray:
+    """LOS range errors [m] of rows from their standard normal draws ``z``: N(mu_i + beta_i r + gamma_i
+    log10 r, sigma_i^2) of each row's anchor i."""
+    decade = by_label(ch.range_bias_per_decade_m, anchor) if ch.range_bias_per_decade_m.any() else 0.0  # 0: off
+    return (los_error_mean(true_range_m, by_label(ch.los_mean_m, anchor), by_label(ch.range_bias_per_m, anchor),
+                           decade)
+            + by_label(ch.los_std_m, anchor) * z)
+
+
 def range_error(true_range_m: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, mode: np.ndarray,
                 ch: ChannelArrays, *, rng: np.random.Generator, episode: np.ndarray | None = None) -> np.ndarray:
     """Range errors [m] of rows: LOS Gaussian N(mu_i + beta_i r + gamma_i log10 r, sigma_i^2), replaced where
@@ -570,10 +577,7 @@ def range_error(true_range_m: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, 
     share one draw of the offset plus their own jitter; these draws come after all others, so a
     scenario without held modes draws exactly as before.
     """
-    decade = by_label(ch.range_bias_per_decade_m, anchor) if ch.range_bias_per_decade_m.any() else 0.0  # 0: off
-    err = (los_error_mean(true_range_m, by_label(ch.los_mean_m, anchor), by_label(ch.range_bias_per_m, anchor),
-                          decade)
-           + by_label(ch.los_std_m, anchor) * rng.standard_normal(true_range_m.shape[0]))
+    err = los_errors(true_range_m, anchor, ch, rng.standard_normal(true_range_m.shape[0]))
     in_episode = mode >= 0
     ep = np.flatnonzero(in_episode)  # row indices: the NLOS rows are few, each gather then a short one
     nl = np.flatnonzero(nlos)
@@ -643,13 +647,15 @@ def episode_switches(t_s: np.ndarray, law: EpisodeLaw, *, rng: np.random.Generat
 
 def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: ChannelArrays, *,
                 rng: np.random.Generator, blocked: np.ndarray | None = None,
-                rows_of: Sequence[np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                rows_of: Sequence[np.ndarray] | None = None,
+                forced_out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """NLOS indicator, mode and episode id of each row: per-anchor episodes, raised inside NLOS zones and
     where ``blocked`` (the line of sight meets an obstacle).
 
     Rows made NLOS by a zone or an obstacle (and not by an episode) draw their mode by weight (mode -1
     marks them). Episode ids are unique over anchors (-1 outside an episode). ``rows_of``: the rows of
-    each anchor, ``rows_by_label(anchor, A)``, when the caller has them already.
+    each anchor, ``rows_by_label(anchor, A)``, when the caller has them already. ``forced_out``: a
+    boolean array of the rows, set where a zone or ``blocked`` makes a row NLOS (whatever its episodes).
     """
     nlos = np.zeros(t_s.shape[0], dtype=bool)
     mode = np.full(t_s.shape[0], -1, dtype=np.int64)
@@ -667,11 +673,14 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
         parts.append((rows, *episode_switches(t_s.take(rows), ch.episode_laws[i], rng=rng, ascending=ascending)))
     if parts:  # the anchors' rows are disjoint: their states in one pass over all of them
         _write_episodes(parts, nlos, mode, episode)
+    forced = nlos if forced_out is None else forced_out  # the zone and obstacle rows: into nlos, or apart
     if ch.zone_s_m.size:
         p_zone = _zone_nlos_prob(s_m, ch)
-        nlos |= rng.random(t_s.shape[0]) < p_zone
+        forced |= rng.random(t_s.shape[0]) < p_zone
     if blocked is not None:
-        nlos |= blocked
+        forced |= blocked
+    if forced_out is not None:
+        nlos |= forced_out
     return nlos, mode, episode
 
 
@@ -721,15 +730,20 @@ def _zone_nlos_prob(s_m: np.ndarray, ch: ChannelArrays) -> np.ndarray:
     return p
 
 
-def tag_nlos(bursts_s: np.ndarray, burst: np.ndarray, anchor: np.ndarray, nlos: np.ndarray, err: np.ndarray,
-             ch: ChannelArrays, dwell_s: float, *, rng: np.random.Generator) -> None:
-    """Tag-side NLOS episodes (in place on ``nlos`` and ``err``): one alternating renewal process over
-    the bursts (fraction ``ch.tag_prob``, exponential episodes of mean ``dwell_s``); each anchor joins
-    each episode with probability ``ch.tag_join``; a joined row that its own process left LOS becomes
-    NLOS with the error mean + std * z of the anchor's ``ch.tag_mode``, z one draw per burst shared by
-    the anchors of that burst. Draws: the process, the joins (episodes x anchors), z per burst."""
+def tag_nlos(bursts_s: np.ndarray, burst: np.ndarray, rows: TagRows, err: np.ndarray, ch: ChannelArrays,
+             dwell_s: float, *, rng: np.random.Generator) -> None:
+    """Tag-side NLOS episodes (in place on ``rows.nlos`` and ``err``): one alternating renewal process
+    over the bursts (fraction ``ch.tag_prob``, exponential episodes of mean ``dwell_s``); each anchor
+    joins each episode with probability ``ch.tag_join``; a joined row that its own process left LOS
+    becomes NLOS with the error mean + std * z of the anchor's ``ch.tag_mode``, z one draw per burst
+    shared by the anchors of that burst. First, each own episode of mode ``ch.tag_mode`` is dropped with
+    probability ``ch.tag_drop`` (its rows turn LOS and draw a LOS error; rows a zone or an obstacle
+    makes NLOS stay as they are): see :func:`_tag_thinning`. Every draw comes from ``rng``, so the
+    anchors' own streams draw what they draw without a tag side. Draws: the process, the joins
+    (episodes x anchors), z per burst, one per own episode id, one per dropped row."""
     if bursts_s.size == 0:
         return
+    anchor, nlos = rows.anchor, rows.nlos
     law = episode_law(ch.tag_prob, np.ones(1), np.array([dwell_s]))
     k, _, start_on = episode_switches(bursts_s, law, rng=rng, ascending=True)
     if not start_on:
@@ -739,15 +753,35 @@ def tag_nlos(bursts_s: np.ndarray, burst: np.ndarray, anchor: np.ndarray, nlos: 
     n_ep = int(ep_of_burst.max()) + 1
     joins = rng.random((max(n_ep, 1), ch.tag_join.size)) < ch.tag_join
     z = rng.standard_normal(bursts_s.size)
+    coin = rng.random(int(rows.episode.max()) + 1) if rows.episode.size else np.empty(0)
+    own = np.flatnonzero((rows.episode >= 0) & ~rows.forced)
+    a = anchor.take(own)
+    gone = own[(rows.mode.take(own) == ch.tag_mode.take(a)) & (coin.take(rows.episode.take(own)) < ch.tag_drop.take(a))]
+    nlos[gone] = False
+    err[gone] = los_errors(rows.true_range_m.take(gone), anchor.take(gone), ch, rng.standard_normal(gone.size))
     on = on_burst.take(burst)
-    rows = np.flatnonzero(on & ~nlos)
-    a = anchor.take(rows)
-    b = burst.take(rows)
-    rows = rows[joins[ep_of_burst.take(b), a]]
-    a, b = anchor.take(rows), burst.take(rows)
+    hit = np.flatnonzero(on & ~nlos)
+    a = anchor.take(hit)
+    b = burst.take(hit)
+    hit = hit[joins[ep_of_burst.take(b), a]]
+    a, b = anchor.take(hit), burst.take(hit)
     m = ch.tag_mode.take(a)
-    err[rows] = ch.mode_mean_m[a, m] + ch.mode_std_m[a, m] * z.take(b)
-    nlos[rows] = True
+    err[hit] = ch.mode_mean_m[a, m] + ch.mode_std_m[a, m] * z.take(b)
+    nlos[hit] = True
+
+
+@dataclass(frozen=True, slots=True)
+class TagRows:
+    """The rows' state that :func:`tag_nlos` reads (and changes: ``nlos``): anchor, true range [m],
+    NLOS indicator, episode mode and id (-1 outside an own episode), and the rows a zone or an
+    obstacle makes NLOS."""
+
+    anchor: np.ndarray
+    true_range_m: np.ndarray
+    nlos: np.ndarray
+    mode: np.ndarray
+    episode: np.ndarray
+    forced: np.ndarray
 
 
 SWAY_STEPS_PER_TAU = 20
@@ -854,12 +888,15 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
         p_link = p_link * link_detection_probability(tag, anchor, ch, loss)
     linked = rng.random(t_true.shape[0]) < p_link
     rows_of = _rows_per_anchor(scheduled)
-    nlos, mode, episode = nlos_states(t_true, anchor, s_m, ch, rng=rng, blocked=blocked, rows_of=rows_of)
+    forced = np.zeros(t_true.shape[0], dtype=bool) if ch.tag_prob > 0 else None
+    nlos, mode, episode = nlos_states(t_true, anchor, s_m, ch, rng=rng, blocked=blocked, rows_of=rows_of,
+                                      forced_out=forced)
     err = range_error(true_range, anchor, nlos, mode, ch, rng=rng, episode=episode)
-    if ch.tag_prob > 0:  # the tag's own obstruction: every anchor at once
+    if forced is not None:  # the tag's own obstruction: every anchor at once
         if tag_rng is None:
             raise ValueError("tag-side NLOS needs its random stream (tag_rng)")
-        tag_nlos(bursts, b_idx, anchor, nlos, err, ch, u.nlos_dwell_s, rng=tag_rng)
+        tag_nlos(bursts, b_idx, TagRows(anchor, true_range, nlos, mode, episode, forced), err, ch, u.nlos_dwell_s,
+                 rng=tag_rng)
     offsets = run_offsets(n_anchors, u, rng=rng)
     if offsets.any():  # adding zeros would change only a -0.0 error, and true_range + (-0.0) is true_range
         err += offsets[anchor]
