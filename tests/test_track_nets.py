@@ -40,6 +40,16 @@ def test_network_loss_falls_on_a_small_task(inputs, arch):
     assert np.isfinite(est[inputs[0].eval_mask()]).all()
 
 
+def test_cosine_schedule_ends_each_stage_on_small_steps(inputs):
+    const = make_tracker("aoi-fusion", epochs=3, lr=3e-3, **SMALL).fit(inputs)
+    cos = make_tracker("aoi-fusion", epochs=3, lr=3e-3, lr_schedule="cosine", **SMALL).fit(inputs)
+    assert const.history[0]["final_lr"] == 3e-3
+    assert cos.history[0]["final_lr"] < 1e-6 and cos.history[0]["lr_schedule"] == "cosine"
+    assert cos.history[0]["loss"][-1] != const.history[0]["loss"][-1]  # the rate changed the steps
+    with pytest.raises(PhySynthError, match="learning-rate schedule"):
+        make_tracker("aoi-fusion", lr_schedule="step", **SMALL)
+
+
 def test_aoi_fusion_takes_any_anchor_count(inputs):
     net = make_tracker("aoi-fusion", epochs=1, **SMALL).fit(inputs)
     three = site_scenario(anchors=[{"id": "A1", "pos_enu_m": [0, -8, 2]}, {"id": "A2", "pos_enu_m": [40, -8, 0.5]},

@@ -54,6 +54,9 @@ def tracking_cmd(
     finetune_synth_ratio: float = typer.Option(None, "--finetune-synth-ratio", metavar="RATIO",
                                                help="Synthetic windows kept per real window while SYNTH_PHY fine-tunes "
                                                     "(0: real only)."),
+    lr_schedule: str = typer.Option(None, "--lr-schedule", metavar="SCHEDULE",
+                                    help="Learning rate within each training stage: constant (default) or cosine "
+                                         "(falls to 0 over the stage)."),
     turn_test: float = typer.Option(0.0, "--turn-test", metavar="DEGREES",
                                     help="Turn every test run by this many degrees (counter-clockwise) about the "
                                          "vertical through its anchor centroid: the same ranges along another "
@@ -88,6 +91,10 @@ def tracking_cmd(
     if frame not in FRAMES:
         raise PhySynthError(f"--frame must be one of {', '.join(FRAMES)}, got '{frame}'")
     over = {"seed": seed, "methods": chosen, "threads": threads, **FRAMES[frame]}
+    if lr_schedule is not None:
+        if lr_schedule not in ("constant", "cosine"):
+            raise PhySynthError(f"--lr-schedule must be constant or cosine, got '{lr_schedule}'")
+        over["net"] = {"lr_schedule": lr_schedule}
     for key, value in (("epochs", epochs), ("pretrain_epochs", pretrain_epochs),
                        ("finetune_epochs", finetune_epochs), ("n_synth_traces", n_synth),
                        ("finetune_synth_ratio", finetune_synth_ratio)):

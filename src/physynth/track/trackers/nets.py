@@ -85,6 +85,10 @@ class NetConfig:
     lr: float = 1e-3
     weight_decay: float = 0.0
     grad_clip: float = 5.0
+    lr_schedule: str = "constant"
+    """``constant``: Adam at the stage's learning rate throughout; ``cosine``: the rate falls from the
+    stage's value to 0 over its steps along half a cosine (``torch.optim.lr_scheduler.CosineAnnealingLR``),
+    so each stage ends on small steps instead of stopping wherever the last large one landed."""
     use_imu: bool = False
     age_weighted_direction: bool = True
     random_isometry: bool = False
@@ -99,6 +103,8 @@ class NetConfig:
         if self.route_frame and self.random_isometry:
             raise PhySynthError("route_frame and random_isometry exclude each other (a route frame keeps the "
                                 "routes' heading relative to themselves; random turns remove it)")
+        if self.lr_schedule not in ("constant", "cosine"):
+            raise PhySynthError(f"unknown learning-rate schedule '{self.lr_schedule}' (constant or cosine)")
         if self.rnn not in ("gru", "lstm"):
             raise PhySynthError(f"unknown recurrent model '{self.rnn}' (gru or lstm)")
         if self.burn_in_steps >= self.window_steps:
@@ -249,6 +255,8 @@ class NetTracker:
         loader = torch.utils.data.DataLoader(dataset, batch_size=c.batch_size, shuffle=True, generator=gen,
                                              collate_fn=collate_windows, num_workers=0)
         opt = torch.optim.Adam(self.model.parameters(), lr=lr, weight_decay=c.weight_decay)
+        sched = (torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(epochs * len(loader), 1))
+                 if c.lr_schedule == "cosine" else None)
         self.model.train()
         dev = self.device()
         losses = []
@@ -263,13 +271,16 @@ class NetTracker:
                 if c.grad_clip > 0:
                     nn.utils.clip_grad_norm_(self.model.parameters(), c.grad_clip)
                 opt.step()
+                if sched is not None:
+                    sched.step()
                 total += float(loss.detach()) * len(batch["x"])
                 n += len(batch["x"])
             losses.append(total / max(n, 1))
             if progress is not None:
                 rmse = math.sqrt(max(losses[-1], 0.0)) * c.length_scale_m
                 progress(f"{self.name} {stage}: epoch {ep + 1}/{epochs}, training RMSE {rmse:.3f} m")
-        self.history.append({"stage": stage, "epochs": epochs, "lr": lr, "windows": len(dataset),
+        self.history.append({"stage": stage, "epochs": epochs, "lr": lr, "lr_schedule": c.lr_schedule,
+                             "final_lr": float(opt.param_groups[0]["lr"]), "windows": len(dataset),
                              "random_isometry": c.random_isometry, "route_frame": c.route_frame, "loss": losses})
         self.model.eval()
         return losses
