@@ -46,7 +46,7 @@ def test_cosine_schedule_ends_each_stage_on_small_steps(inputs):
     assert const.history[0]["final_lr"] == 3e-3
     assert cos.history[0]["final_lr"] < 1e-6 and cos.history[0]["lr_schedule"] == "cosine"
     assert cos.history[0]["loss"][-1] != const.history[0]["loss"][-1]  # the rate changed the steps
-    with pytest.raises(PhySynthError, match="learning-rate schedule"):
+    with pytest.raises(PhySynthError, match="lr_schedule must be constant or cosine"):
         make_tracker("aoi-fusion", lr_schedule="step", **SMALL)
 
 

@@ -144,6 +144,8 @@ def test_cli_bad_input_exit_2_one_line(runs, tmp_path, capsys):
          "--finetune-synth-ratio must be in [0, 100]"),  # the option, not the parameter
         (["--train", train, "--test", train, "--methods", "ls", "--turn-test", "nan"], "--turn-test"),
         (["--train", train, "--test", train, "--methods", "ls", "--frame", "north"], "--frame must be one of"),
+        (["--train", train, "--test", train, "--methods", "NOAUG", "--lr-schedule", "step"],
+         "--lr-schedule must be constant or cosine"),
     ]
     for args, needle in cases:
         code, out = _cli(capsys, "study", "tracking", *args, "--out", tmp_path / "o", "-q")
@@ -230,3 +232,11 @@ def test_default_runs_follow_physynth_shared_data(tmp_path, monkeypatch):
     assert default_data_root() == tmp_path
     with pytest.raises(PhySynthError, match=r"not found under .*hanyang-uwb.*set PHYSYNTH_SHARED_DATA"):
         hanyang_default_runs()
+
+
+def test_bad_network_settings_fail_before_any_work():
+    with pytest.raises(PhySynthError, match="lr_schedule must be constant or cosine"):
+        StudyConfig(methods=("SYNTH_PHY",), net={"lr_schedule": "step"})
+    with pytest.raises(PhySynthError, match="unknown network setting"):
+        StudyConfig(methods=("NOAUG",), net={"hiden": 8})
+    assert StudyConfig(methods=("SYNTH_PHY",), net={"lr_schedule": "cosine"}).net == {"lr_schedule": "cosine"}

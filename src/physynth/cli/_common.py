@@ -125,6 +125,7 @@ PARAMETER_FLAGS = (
     (re.compile(r"\bpretrain_epochs\b"), "--pretrain-epochs"),
     (re.compile(r"\bfinetune_epochs\b"), "--finetune-epochs"),
     (re.compile(r"\bfinetune_synth_ratio\b"), "--finetune-synth-ratio"),
+    (re.compile(r"\blr_schedule\b"), "--lr-schedule"),
     (re.compile(r"\bfigures=False\b"), "--no-figures"),
 )
 """Library parameter names (which the library's errors and notes name) and the options that set them."""

@@ -91,15 +91,10 @@ def tracking_cmd(
     if frame not in FRAMES:
         raise PhySynthError(f"--frame must be one of {', '.join(FRAMES)}, got '{frame}'")
     over = {"seed": seed, "methods": chosen, "threads": threads, **FRAMES[frame]}
-    if lr_schedule is not None:
-        if lr_schedule not in ("constant", "cosine"):
-            raise PhySynthError(f"--lr-schedule must be constant or cosine, got '{lr_schedule}'")
-        over["net"] = {"lr_schedule": lr_schedule}
-    for key, value in (("epochs", epochs), ("pretrain_epochs", pretrain_epochs),
-                       ("finetune_epochs", finetune_epochs), ("n_synth_traces", n_synth),
-                       ("finetune_synth_ratio", finetune_synth_ratio)):
-        if value is not None:
-            over[key] = value
+    over |= {k: v for k, v in (("epochs", epochs), ("pretrain_epochs", pretrain_epochs),
+                                ("finetune_epochs", finetune_epochs), ("n_synth_traces", n_synth),
+                                ("finetune_synth_ratio", finetune_synth_ratio),
+                                ("net", {"lr_schedule": lr_schedule} if lr_schedule else None)) if v is not None}
     cfg = quick_config(**over) if quick else StudyConfig(**over)
     if {"NOAUG", "AUG_GAN", "SYNTH_PHY", "bilstm"} & set(cfg.methods):
         require_torch()

@@ -109,12 +109,27 @@ class StudyConfig:
                 raise PhySynthError(f"{name} must be at least 1, got {getattr(self, name)}")
         if not 0.0 <= self.finetune_synth_ratio <= 100.0:
             raise PhySynthError(f"finetune_synth_ratio must be in [0, 100], got {self.finetune_synth_ratio}")
+        if self.net and {"NOAUG", "AUG_GAN", "SYNTH_PHY", "bilstm"} & set(self.methods):
+            _check_net_overrides(self.net)
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["variation"] = self.variation.to_dict()
         d["methods"] = list(self.methods)
         return d
+
+
+def _check_net_overrides(net: dict[str, Any]) -> None:
+    """The ``net`` overrides checked before any work: an unknown key or a bad value fails here, not after
+    the calibration (the networks are built late)."""
+    import dataclasses
+
+    from ..track.trackers.nets import NetConfig
+
+    unknown = sorted(set(net) - {f.name for f in dataclasses.fields(NetConfig)})
+    if unknown:
+        raise PhySynthError(f"unknown network setting(s) {', '.join(unknown)}")
+    NetConfig(**net)
 
 
 def quick_config(**overrides: Any) -> StudyConfig:

@@ -104,7 +104,7 @@ class NetConfig:
             raise PhySynthError("route_frame and random_isometry exclude each other (a route frame keeps the "
                                 "routes' heading relative to themselves; random turns remove it)")
         if self.lr_schedule not in ("constant", "cosine"):
-            raise PhySynthError(f"unknown learning-rate schedule '{self.lr_schedule}' (constant or cosine)")
+            raise PhySynthError(f"lr_schedule must be constant or cosine, got '{self.lr_schedule}'")
         if self.rnn not in ("gru", "lstm"):
             raise PhySynthError(f"unknown recurrent model '{self.rnn}' (gru or lstm)")
         if self.burn_in_steps >= self.window_steps:
