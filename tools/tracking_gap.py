@@ -16,10 +16,10 @@ the anchor centroid. If the network does much better on ``synthetic`` than on ``
 misses something the real run has; if about as well, the learner (its size, schedule, amount of data)
 is the limit; the split says which part of the error differs.
 
-    .venv/bin/python tools/tracking_gap.py [--test 1] [--seed 0] [--n-eval 4] [--tag-nlos]
+    .venv/bin/python tools/tracking_gap.py [--test 1] [--seed 0] [--n-eval 4] [--no-tag-nlos]
 
-``--tag-nlos`` puts each calibration's tag-side NLOS estimate (report section ``tag_nlos``) into its
-scenario (``uwb.tag_nlos_prob``), which the calibration does not do by itself (docs/calibration.md).
+``--no-tag-nlos`` sets each calibration's tag-side NLOS fraction (``uwb.tag_nlos_prob``, which the
+calibration fits and puts in: docs/calibration.md) to 0, the model before it.
 
 ``--test`` is the index of the left-out run in LOS Case_1, LOS Case_2, NLOS Case_1, NLOS Case_2
 (the three others train). About 4 min on one core.
@@ -50,12 +50,10 @@ BINS_M = (0, 10, 20, 30, 40, 60)
 STALE_S = 1.0
 
 
-def _with_tag(res):
-    """The calibrated scenario with its tag-side NLOS estimate put in (4 significant digits, as a scenario
-    file holds it)."""
-    s, fit = res.scenario, res.report["tag_nlos"]
-    p = float(f"{fit['prob']:.4g}") if fit["identifiable"] else 0.0
-    return s.model_copy(update={"uwb": s.uwb.model_copy(update={"tag_nlos_prob": p})})
+def _without_tag(res):
+    """The calibrated scenario without its tag-side NLOS (``uwb.tag_nlos_prob`` 0)."""
+    s = res.scenario
+    return s.model_copy(update={"uwb": s.uwb.model_copy(update={"tag_nlos_prob": 0.0})})
 
 
 def _split(est: np.ndarray, inp) -> np.ndarray:
@@ -90,7 +88,7 @@ def main() -> None:
     ap.add_argument("--test", type=int, default=1, choices=range(4), help="index of the left-out run")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--n-eval", type=int, default=4, help="synthetic traces scored per synthetic set")
-    ap.add_argument("--tag-nlos", action="store_true", help="put the calibrations' tag-side NLOS estimates in")
+    ap.add_argument("--no-tag-nlos", action="store_true", help="the calibrations without their tag-side NLOS")
     args = ap.parse_args()
     require_torch().set_num_threads(1)
     train3, last = hanyang_default_runs()
@@ -101,7 +99,7 @@ def main() -> None:
     train_inputs = [track_input(r.trace, time_offset_s=lag, label=r.label) for r in train]
     scn = calibrate([r.trace for r in train], name="tracking-study-calibrated", anchor_policy="per-run")
     twin = calibrate([test.trace], name="twin")
-    scn, twin = (_with_tag(r) if args.tag_nlos else r.scenario for r in (scn, twin))
+    scn, twin = (_without_tag(r) if args.no_tag_nlos else r.scenario for r in (scn, twin))
     sets = {"real": [track_input(test.trace, time_offset_s=lag)],
             "synthetic": [track_input(generate_trace(scn, i, 777), time_offset_s=lag) for i in range(args.n_eval)],
             "twin": [track_input(generate_trace(twin, i, 777), time_offset_s=lag) for i in range(args.n_eval)]}
