@@ -76,6 +76,7 @@ def tracking_cmd(
     from ..io.safety import check_study_output
     from ..studies.tracking import (
         METHODS,
+        NETWORK_METHODS,
         StudyConfig,
         hanyang_default_runs,
         quick_config,
@@ -93,10 +94,10 @@ def tracking_cmd(
     over = {"seed": seed, "methods": chosen, "threads": threads, **FRAMES[frame]}
     over |= {k: v for k, v in (("epochs", epochs), ("pretrain_epochs", pretrain_epochs),
                                 ("finetune_epochs", finetune_epochs), ("n_synth_traces", n_synth),
-                                ("finetune_synth_ratio", finetune_synth_ratio),
-                                ("net", {"lr_schedule": lr_schedule} if lr_schedule else None)) if v is not None}
+                                ("finetune_synth_ratio", finetune_synth_ratio)) if v is not None}
+    over |= {"net": {"lr_schedule": lr_schedule}} if lr_schedule is not None else {}
     cfg = quick_config(**over) if quick else StudyConfig(**over)
-    if {"NOAUG", "AUG_GAN", "SYNTH_PHY", "bilstm"} & set(cfg.methods):
+    if NETWORK_METHODS & set(cfg.methods):
         require_torch()
     if bool(train) != bool(test):
         raise PhySynthError("give both --train and --test, or neither (default Hanyang runs)")

@@ -29,7 +29,7 @@ import json
 import os
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +48,8 @@ from ..transform import ISOMETRY_META_KEY, apply_isometry
 ProgressFn = Callable[[str], None]
 
 METHODS = ("NOAUG", "AUG_GAN", "SYNTH_PHY", "bilstm", "ls", "ekf")
+NETWORK_METHODS = frozenset({"NOAUG", "AUG_GAN", "SYNTH_PHY", "bilstm"})
+"""The methods that train a network (they need PyTorch and take ``StudyConfig.net``)."""
 """Methods of the study, in table order (reference rows come last)."""
 HANYANG_RUNS = ("LOS/Trajectory_A/Case_1", "LOS/Trajectory_A/Case_2", "NLOS/Trajectory_A/Case_1",
                 "NLOS/Trajectory_A/Case_2")
@@ -109,7 +111,7 @@ class StudyConfig:
                 raise PhySynthError(f"{name} must be at least 1, got {getattr(self, name)}")
         if not 0.0 <= self.finetune_synth_ratio <= 100.0:
             raise PhySynthError(f"finetune_synth_ratio must be in [0, 100], got {self.finetune_synth_ratio}")
-        if self.net and {"NOAUG", "AUG_GAN", "SYNTH_PHY", "bilstm"} & set(self.methods):
+        if self.net and NETWORK_METHODS & set(self.methods):
             _check_net_overrides(self.net)
 
     def to_dict(self) -> dict[str, Any]:
@@ -122,11 +124,9 @@ class StudyConfig:
 def _check_net_overrides(net: dict[str, Any]) -> None:
     """The ``net`` overrides checked before any work: an unknown key or a bad value fails here, not after
     the calibration (the networks are built late)."""
-    import dataclasses
-
     from ..track.trackers.nets import NetConfig
 
-    unknown = sorted(set(net) - {f.name for f in dataclasses.fields(NetConfig)})
+    unknown = sorted(set(net) - {f.name for f in fields(NetConfig)})
     if unknown:
         raise PhySynthError(f"unknown network setting(s) {', '.join(unknown)}")
     NetConfig(**net)
@@ -269,7 +269,7 @@ def run_tracking_study(train: Sequence[StudyRun], test: StudyRun | Sequence[Stud
     say = progress or (lambda _m: None)
     tests = [test] if isinstance(test, StudyRun) else list(test)
     _check_runs(train, tests)
-    torch = require_torch() if {"NOAUG", "AUG_GAN", "SYNTH_PHY", "bilstm"} & set(cfg.methods) else None
+    torch = require_torch() if NETWORK_METHODS & set(cfg.methods) else None
     t_start = time.perf_counter()
     cpu_start = time.process_time()
     old_threads = torch.get_num_threads() if torch is not None else None
