@@ -57,6 +57,9 @@ def tracking_cmd(
     lr_schedule: str = typer.Option(None, "--lr-schedule", metavar="SCHEDULE",
                                     help="Learning rate within each training stage: constant (default) or cosine "
                                          "(falls to 0 over the stage)."),
+    weight_average: str = typer.Option(None, "--weight-average", metavar="HOW",
+                                       help="Weights each training stage ends on: none (its last, default) or swa "
+                                            "(the average over the epochs of its second half)."),
     turn_test: float = typer.Option(0.0, "--turn-test", metavar="DEGREES",
                                     help="Turn every test run by this many degrees (counter-clockwise) about the "
                                          "vertical through its anchor centroid: the same ranges along another "
@@ -95,7 +98,8 @@ def tracking_cmd(
     over |= {k: v for k, v in (("epochs", epochs), ("pretrain_epochs", pretrain_epochs),
                                 ("finetune_epochs", finetune_epochs), ("n_synth_traces", n_synth),
                                 ("finetune_synth_ratio", finetune_synth_ratio)) if v is not None}
-    over |= {"net": {"lr_schedule": lr_schedule}} if lr_schedule is not None else {}
+    net = {k: v for k, v in (("lr_schedule", lr_schedule), ("weight_average", weight_average)) if v is not None}
+    over |= {"net": net} if net else {}
     cfg = quick_config(**over) if quick else StudyConfig(**over)
     if NETWORK_METHODS & set(cfg.methods):
         require_torch()

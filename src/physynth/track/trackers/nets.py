@@ -89,6 +89,10 @@ class NetConfig:
     """``constant``: Adam at the stage's learning rate throughout; ``cosine``: the rate falls from the
     stage's value to 0 over its steps along half a cosine (``torch.optim.lr_scheduler.CosineAnnealingLR``),
     so each stage ends on small steps instead of stopping wherever the last large one landed."""
+    weight_average: str = "none"
+    """``none``: each stage ends on its last weights; ``swa``: on the equal-weight average of the weights
+    after each epoch of the stage's second half (stochastic weight averaging at the stage's constant rate,
+    ``torch.optim.swa_utils.AveragedModel``; the nets have no batch statistics to recompute)."""
     use_imu: bool = False
     age_weighted_direction: bool = True
     random_isometry: bool = False
@@ -105,6 +109,8 @@ class NetConfig:
                                 "routes' heading relative to themselves; random turns remove it)")
         if self.lr_schedule not in ("constant", "cosine"):
             raise PhySynthError(f"lr_schedule must be constant or cosine, got '{self.lr_schedule}'")
+        if self.weight_average not in ("none", "swa"):
+            raise PhySynthError(f"weight_average must be none or swa, got '{self.weight_average}'")
         if self.rnn not in ("gru", "lstm"):
             raise PhySynthError(f"unknown recurrent model '{self.rnn}' (gru or lstm)")
         if self.burn_in_steps >= self.window_steps:
@@ -257,6 +263,7 @@ class NetTracker:
         opt = torch.optim.Adam(self.model.parameters(), lr=lr, weight_decay=c.weight_decay)
         sched = (torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(epochs * len(loader), 1))
                  if c.lr_schedule == "cosine" else None)
+        swa = torch.optim.swa_utils.AveragedModel(self.model) if c.weight_average == "swa" else None
         self.model.train()
         dev = self.device()
         losses = []
@@ -276,11 +283,17 @@ class NetTracker:
                 total += float(loss.detach()) * len(batch["x"])
                 n += len(batch["x"])
             losses.append(total / max(n, 1))
+            if swa is not None and ep >= epochs // 2:
+                swa.update_parameters(self.model)
             if progress is not None:
                 rmse = math.sqrt(max(losses[-1], 0.0)) * c.length_scale_m
                 progress(f"{self.name} {stage}: epoch {ep + 1}/{epochs}, training RMSE {rmse:.3f} m")
+        if swa is not None:
+            self.model.load_state_dict(swa.module.state_dict())
         self.history.append({"stage": stage, "epochs": epochs, "lr": lr, "lr_schedule": c.lr_schedule,
                              "final_lr": float(opt.param_groups[0]["lr"]), "windows": len(dataset),
+                             "weight_average": c.weight_average,
+                             "averaged_epochs": 0 if swa is None else int(swa.n_averaged),
                              "random_isometry": c.random_isometry, "route_frame": c.route_frame, "loss": losses})
         self.model.eval()
         return losses
