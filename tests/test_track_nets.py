@@ -50,6 +50,22 @@ def test_cosine_schedule_ends_each_stage_on_small_steps(inputs):
         make_tracker("aoi-fusion", lr_schedule="step", **SMALL)
 
 
+def test_weight_averaging_ends_each_stage_on_the_mean_of_its_second_half(inputs):
+    snaps = []
+    net = make_tracker("aoi-fusion", epochs=5, lr=3e-3, weight_average="swa", **SMALL)
+    net.fit(inputs, progress=lambda msg: snaps.append({k: v.clone() for k, v in net.model.state_dict().items()}))
+    assert len(snaps) == 5 and net.history[0]["averaged_epochs"] == 3  # epochs 3, 4 and 5 of 5
+    final = net.model.state_dict()
+    for k, v in final.items():
+        torch.testing.assert_close(v, torch.stack([s[k] for s in snaps[2:]]).mean(dim=0))
+    assert any(not torch.equal(final[k], snaps[-1][k]) for k in final)  # not simply the last epoch's weights
+    plain = make_tracker("aoi-fusion", epochs=5, lr=3e-3, **SMALL).fit(inputs)
+    assert plain.history[0]["loss"] == net.history[0]["loss"]  # averaging leaves the training steps alone
+    assert plain.history[0]["averaged_epochs"] == 0
+    with pytest.raises(PhySynthError, match="weight_average must be none or swa"):
+        make_tracker("aoi-fusion", weight_average="ema", **SMALL)
+
+
 def test_aoi_fusion_takes_any_anchor_count(inputs):
     net = make_tracker("aoi-fusion", epochs=1, **SMALL).fit(inputs)
     three = site_scenario(anchors=[{"id": "A1", "pos_enu_m": [0, -8, 2]}, {"id": "A2", "pos_enu_m": [40, -8, 0.5]},

@@ -146,6 +146,8 @@ def test_cli_bad_input_exit_2_one_line(runs, tmp_path, capsys):
         (["--train", train, "--test", train, "--methods", "ls", "--frame", "north"], "--frame must be one of"),
         (["--train", train, "--test", train, "--methods", "NOAUG", "--lr-schedule", "step"],
          "--lr-schedule must be constant or cosine"),
+        (["--train", train, "--test", train, "--methods", "NOAUG", "--weight-average", "ema"],
+         "--weight-average must be none or swa"),
     ]
     for args, needle in cases:
         code, out = _cli(capsys, "study", "tracking", *args, "--out", tmp_path / "o", "-q")
