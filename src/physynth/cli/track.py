@@ -51,6 +51,9 @@ def tracking_cmd(
     finetune_epochs: int = typer.Option(None, "--finetune-epochs", metavar="N", min=1,
                                         help="SYNTH_PHY fine-tuning epochs (200)."),
     n_synth: int = typer.Option(None, "--n-synth", metavar="N", min=1, help="Number of synthetic pre-training traces."),
+    synth_windows: int = typer.Option(None, "--synth-windows", metavar="N", min=1,
+                                      help="Windows taken from each synthetic trace, evenly spaced over it (quick: "
+                                           "48; full: 64)."),
     finetune_synth_ratio: float = typer.Option(None, "--finetune-synth-ratio", metavar="RATIO",
                                                help="Synthetic windows kept per real window while SYNTH_PHY fine-tunes "
                                                     "(0: real only)."),
@@ -81,10 +84,8 @@ def tracking_cmd(
         METHODS,
         NETWORK_METHODS,
         StudyConfig,
-        hanyang_default_runs,
         quick_config,
         run_tracking_study,
-        runs_from_dataset,
         write_results,
     )
     from ..track import require_torch
@@ -97,26 +98,19 @@ def tracking_cmd(
     over = {"seed": seed, "methods": chosen, "threads": threads, **FRAMES[frame]}
     over |= {k: v for k, v in (("epochs", epochs), ("pretrain_epochs", pretrain_epochs),
                                 ("finetune_epochs", finetune_epochs), ("n_synth_traces", n_synth),
+                                ("synth_windows_per_trace", synth_windows),
                                 ("finetune_synth_ratio", finetune_synth_ratio)) if v is not None}
     net = {k: v for k, v in (("lr_schedule", lr_schedule), ("weight_average", weight_average)) if v is not None}
     over |= {"net": net} if net else {}
     cfg = quick_config(**over) if quick else StudyConfig(**over)
     if NETWORK_METHODS & set(cfg.methods):
         require_torch()
-    if bool(train) != bool(test):
-        raise PhySynthError("give both --train and --test, or neither (default Hanyang runs)")
+    train_runs, test_runs = _load_runs(train, test)
     scn = None
     if scenario is not None:
         from ..io.scenario_file import load_scenario
 
         scn = load_scenario(scenario)
-    if train:
-        train_runs = [r for p in train for r in runs_from_dataset(p)]
-        test_runs = [r for p in test for r in runs_from_dataset(p)]
-    else:
-        train_runs, test_run = hanyang_default_runs()
-        test_runs = [test_run]
-
     if turn_test or mirror_test:
         test_runs = _turned(test_runs, turn_test, mirror_test)
     if quiet:
@@ -134,6 +128,18 @@ def tracking_cmd(
     _print_table(result, test_runs)
     typer.echo(f"wrote {', '.join(str(f) for f in files.values())} "
                f"(wall time {result.data['wall_time_s']:.0f} s)")
+
+
+def _load_runs(train: list[Path] | None, test: list[Path] | None) -> tuple[list, list]:
+    """The training and test runs: the datasets given, or the default Hanyang runs."""
+    from ..studies.tracking import hanyang_default_runs, runs_from_dataset
+
+    if bool(train) != bool(test):
+        raise PhySynthError("give both --train and --test, or neither (default Hanyang runs)")
+    if train:
+        return [r for p in train for r in runs_from_dataset(p)], [r for p in test for r in runs_from_dataset(p)]
+    train_runs, test_run = hanyang_default_runs()
+    return train_runs, [test_run]
 
 
 def _turned(runs: list, turn_deg: float, mirror: bool) -> list:
