@@ -137,7 +137,8 @@ def test_make_run_installs_matplotlib_for_the_readme_figures():
     assert "pip install 'physynth[" not in readme
 
 
-@pytest.mark.parametrize("option", ["--epochs", "--pretrain-epochs", "--finetune-epochs", "--n-synth", "--threads"])
+@pytest.mark.parametrize("option", ["--epochs", "--pretrain-epochs", "--finetune-epochs", "--n-synth",
+                                    "--synth-windows", "--threads"])
 @pytest.mark.parametrize("value", ["0", "-1"])
 def test_study_tracking_refuses_counts_below_one(tmp_path, capsys, option, value):
     code, _, err = run(capsys, "study", "tracking", option, value, "--methods", "ls", "--out", tmp_path / "o")

@@ -15,6 +15,7 @@ from physynth.cli import main  # noqa: E402
 from physynth.errors import PhySynthError  # noqa: E402
 from physynth.generate import generate_trace  # noqa: E402
 from physynth.io import write_dataset  # noqa: E402
+from physynth.io.scenario_file import save_scenario  # noqa: E402
 from physynth.records import Trace, Truth, Uwb  # noqa: E402
 from physynth.studies.tracking import (  # noqa: E402
     METHODS,
@@ -153,6 +154,24 @@ def test_cli_bad_input_exit_2_one_line(runs, tmp_path, capsys):
         code, out = _cli(capsys, "study", "tracking", *args, "--out", tmp_path / "o", "-q")
         assert code == 2, (args, out.err)
         assert needle in out.err and len(out.err.strip().splitlines()) == 1 and "Traceback" not in out.err
+
+
+def test_cli_passes_the_pretraining_options_to_the_study(runs, tmp_path, capsys):
+    pytest.importorskip("torch")
+    scn, rr = runs
+    train = write_dataset(tmp_path / "train", [r.trace for r in rr[:2]])
+    test = write_dataset(tmp_path / "test", [rr[2].trace])
+    main(["study", "tracking", "--train", str(train), "--test", str(test), "--methods", "SYNTH_PHY",
+          "--scenario", str(save_scenario(scn, tmp_path / "s.yaml")), "--pretrain-epochs", "2",
+          "--finetune-epochs", "2", "--n-synth", "2", "--synth-windows", "3", "--weight-average", "swa",
+          "--out", str(tmp_path / "out"), "-q"])
+    res = json.loads((tmp_path / "out" / "results.json").read_text())
+    cfg = res["config"]
+    assert cfg["synth_windows_per_trace"] == 3 and cfg["n_synth_traces"] == 2
+    assert cfg["net"] == {"weight_average": "swa"}
+    stages = res["data"]["notes"]["SYNTH_PHY.training"]
+    assert stages[0]["windows"] == 6  # 2 traces x 3 windows
+    assert [h["averaged_epochs"] for h in stages] == [1, 1]  # the second of 2 epochs, in each stage
 
 
 def test_cli_classical_methods_write_results(runs, tmp_path, capsys):
