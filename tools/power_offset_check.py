@@ -9,39 +9,46 @@ anchor and range bin and pooled, to show whether the runs that read short are th
 
     .venv/bin/python tools/power_offset_check.py [--data ../shared/data/hanyang-uwb] [--lag 0.17]
 
-Residual = measured range - distance from the anchor to the RTK track interpolated at the UWB stamp
-minus ``--lag`` seconds (the UWB stamps lag the track by ~0.17 s), tag height = track z + 1.0 m.
+Residuals come from the importer and ``physynth.evaluate.metrics.residuals`` (the trace's UWB stamps
+moved back by ``--lag`` seconds: they lag the RTK track by ~0.17 s); each range's power is read from
+its anchor file at the same stamp.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from physynth.evaluate.metrics import residuals
+from physynth.io.importers import import_hanyang
+
 RUNS = (("LOS", "Case_1"), ("LOS", "Case_2"), ("NLOS", "Case_1"), ("NLOS", "Case_2"))
-ANCHORS = (3, 5, 9, 12)
 BINS_M = ((0, 10), (10, 20), (20, 35), (35, 70))
 DEFAULT_DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hanyang-uwb"
 
 
 def run_rows(folder: Path, lag_s: float) -> pd.DataFrame:
-    """One row per LOS-like range of one run: anchor, range [m], residual [m], first-path power [dBm]."""
-    track = pd.read_csv(folder / "trajectory.csv")
-    t = track["timestamp"].to_numpy(float) * 1e-9
+    """One row per LOS-like range (|residual| < 0.3 m) of one run: anchor, range and residual [m], first-path
+    power [dBm]."""
+    trace, _ = import_hanyang(folder, crop_to_uwb=True)
+    trace = dataclasses.replace(trace, uwb=dataclasses.replace(trace.uwb, t_s=trace.uwb.t_s - lag_s))
+    res, idx, t = residuals(trace)
     rows = []
-    for a in ANCHORS:
-        u = pd.read_csv(folder / f"A{a}.csv")
-        ts = u["field.stamp"].to_numpy(float) * 1e-9 - lag_s
-        inside = (ts > t[0]) & (ts < t[-1])
-        p = np.column_stack([np.interp(ts, t, track[c]) for c in ("x", "y", "z")]) + [0.0, 0.0, 1.0]
-        r = np.linalg.norm(p - u[["field.x", "field.y", "field.z"]].to_numpy(float), axis=1)
-        res = u["field.distanceFromTag"].to_numpy(float) - r
-        ok = inside & (np.abs(res) < 0.3)
-        rows.append(pd.DataFrame({"anchor": f"A{a}", "range_m": r[ok], "residual_m": res[ok],
-                                  "fp_dbm": u["field.rssi_fp"].to_numpy(float)[ok]}))
+    origin = trace.meta["time_origin_unix_s"]
+    for k, aid in enumerate(trace.anchors.ids):
+        raw = pd.read_csv(folder / f"{aid}.csv", usecols=["field.stamp", "field.rssi_fp"]).sort_values("field.stamp")
+        raw_t = raw["field.stamp"].to_numpy(float) * 1e-9 - origin - lag_s
+        sel = idx == k
+        j = np.clip(np.searchsorted(raw_t, t[sel]), 1, raw_t.size - 1)
+        j -= np.abs(raw_t[j - 1] - t[sel]) < np.abs(raw_t[j] - t[sel])  # the nearest stamp
+        geom = np.linalg.norm(trace.truth.position_at(t[sel]) - trace.anchors.pos_enu_m[k], axis=1)
+        ok = np.abs(res[sel]) < 0.3
+        rows.append(pd.DataFrame({"anchor": aid, "range_m": geom[ok], "residual_m": res[sel][ok],
+                                  "fp_dbm": raw["field.rssi_fp"].to_numpy(float)[j][ok]}))
     return pd.concat(rows, ignore_index=True)
 
 
