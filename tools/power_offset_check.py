@@ -57,6 +57,8 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA, help="hanyang-uwb folder")
     ap.add_argument("--lag", type=float, default=0.17, help="UWB stamp lag behind the track [s]")
     args = ap.parse_args()
+    if not (args.data / "Dynamic_measurements").is_dir():
+        raise SystemExit(f"--data: {args.data} has no Dynamic_measurements folder (the hanyang-uwb dataset)")
     cells, pooled = [], []
     for env, case in RUNS:
         df = run_rows(args.data / "Dynamic_measurements" / env / "Trajectory_A" / case, args.lag)
