@@ -126,6 +126,7 @@ PARAMETER_FLAGS = (
     (re.compile(r"\bfinetune_epochs\b"), "--finetune-epochs"),
     (re.compile(r"\bfinetune_synth_ratio\b"), "--finetune-synth-ratio"),
     (re.compile(r"\blr_schedule\b"), "--lr-schedule"),
+    (re.compile(r"\bekf_prior\b"), "--ekf-prior"),
     (re.compile(r"\bweight_average\b"), "--weight-average"),
     (re.compile(r"\bfigures=False\b"), "--no-figures"),
 )

@@ -39,6 +39,8 @@ centimetres to a metre for anchors a few metres apart, invisible at the scale of
 N_GLOBAL_FEATURES = 12
 """Per-step network features: far-field direction estimate u (3), mean range x u / L (3), and the same
 two for the level solve (tag at the anchors' level, ``u_z = 0``; :func:`far_field_direction`)."""
+N_EKF_FEATURES = 3
+"""Per-step features added by ``network_arrays(..., ekf_prior=True)``: the ``ekf`` position / L."""
 DIRECTION_RIDGE_M2 = 0.1
 """Ridge [m^2] of the far-field direction solve (keeps it defined with few anchors or a flat layout)."""
 DIRECTION_RANGE_STD_M = 0.1
@@ -168,8 +170,10 @@ class NetArrays:
     in the last ``decimation`` bins, ``log1p(aoi / AOI_SCALE_S)``, has-range, mean range of the anchors
     with a range / L, (range - mean range) / ``RANGE_DIFF_SCALE_M``; L = ``length_scale_m``; ``acc``
     (T, 3) float32 bin-mean acceleration [m s^-2] (zeros without IMU); ``has_imu`` bool; ``y`` (T, 3)
-    float32 truth / L (0 where unknown); ``y_ok`` (T,) bool; ``step`` (T,) grid indices; ``g`` (T, 6)
-    float32 per-step features (:func:`far_field_direction` ``u`` and mean range x ``u`` / L).
+    float32 truth / L (0 where unknown); ``y_ok`` (T,) bool; ``step`` (T,) grid indices; ``g`` (T, 12)
+    float32 per-step features (:func:`far_field_direction` ``u`` and mean range x ``u`` / L, full and level
+    solves), (T, 15) with the ``ekf`` position / L appended (``ekf_prior``). Every three columns of ``g``
+    are one 3-vector.
     """
 
     x: np.ndarray
@@ -228,12 +232,14 @@ def far_field_direction(range_m: np.ndarray, has: np.ndarray, anchor_rel_m: np.n
 
 def network_arrays(inp: TrackInput, *, decimation: int = 10, length_scale_m: float = 10.0,
                    anchor_scale_m: float = 2.0, use_imu: bool = True,
-                   age_weighted_direction: bool = True) -> NetArrays:
+                   age_weighted_direction: bool = True, ekf_prior: bool = False) -> NetArrays:
     """Decimated, normalised network inputs of one :class:`TrackInput` (vectorised over steps).
 
     ``age_weighted_direction``: the far-field direction solve weights each range by its age relative
     to the newest one (:func:`far_field_direction`); False gives every range weight 1 (the
     unweighted solve of earlier releases).
+    ``ekf_prior``: append the position of the classical ``ekf`` tracker run on ``inp``
+    (:func:`ekf_prior_rel_m`) / L to ``g``.
     """
     k = np.arange(0, inp.n_steps, decimation, dtype=np.int64)
     rng_m = inp.range_m[k]
@@ -265,11 +271,27 @@ def network_arrays(inp: TrackInput, *, decimation: int = 10, length_scale_m: flo
     ages = inp.aoi_s[k] if age_weighted_direction else None
     r_bar, u = far_field_direction(rng_m, has, inp.anchor_pos_rel_m, aoi_s=ages)
     _, u_level = far_field_direction(rng_m, has, inp.anchor_pos_rel_m, aoi_s=ages, level=True)
-    g = np.concatenate([u, (r_bar[:, None] * u) / length_scale_m, u_level, (r_bar[:, None] * u_level) / length_scale_m],
-                       axis=1)
+    g = [u, (r_bar[:, None] * u) / length_scale_m, u_level, (r_bar[:, None] * u_level) / length_scale_m]
+    if ekf_prior:
+        g.append(ekf_prior_rel_m(inp, use_imu=has_imu, fallback_rel_m=r_bar[:, None] * u_level, steps=k)
+                 / length_scale_m)
+    g = np.concatenate(g, axis=1)
     return NetArrays(x=x.astype(np.float32), acc=acc.astype(np.float32), has_imu=bool(has_imu),
                      y=np.where(y_ok[:, None], y, 0.0).astype(np.float32), y_ok=y_ok, step=k,
                      g=g.astype(np.float32))
+
+
+def ekf_prior_rel_m(inp: TrackInput, *, use_imu: bool, fallback_rel_m: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """(len(steps), 3) [m]: the ``ekf`` tracker's position relative to the anchor centroid at grid ``steps``.
+
+    A fixed filter (:class:`~physynth.track.trackers.ekf.EkfTracker` with its default noise, not fitted:
+    the feature depends on the run alone), causal like the networks' recurrent model. Before its first
+    fix, ``fallback_rel_m`` (the far-field position of the level solve).
+    """
+    from .trackers.ekf import EkfTracker
+
+    pos = EkfTracker(use_imu=use_imu, fit_range_std=False).predict_rel(inp)[steps]
+    return np.where(np.isfinite(pos).all(axis=1, keepdims=True), pos, fallback_rel_m)
 
 
 def turn_arrays(arr: NetArrays, matrix: np.ndarray) -> NetArrays:

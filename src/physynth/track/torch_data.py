@@ -2,9 +2,10 @@
 
 Every item is one window of :func:`~physynth.track.inputs.network_arrays` as a dict of tensors:
 ``x`` (W, A, 9) float32 per-anchor features, ``anchor_ok`` (A,) bool, ``acc`` (W, 3) float32, ``g``
-(W, 12) float32 per-step features, ``has_imu`` () bool, ``y`` (W, 3) float32 relative truth / length
-scale, ``y_ok`` (W,) bool. :func:`collate_windows` pads the anchor axis of a batch to its largest anchor
-count (``anchor_ok`` False on padding), so traces with different anchor counts mix in one batch.
+(W, 12) float32 per-step features (15 with the ``ekf`` prior), ``has_imu`` () bool, ``y`` (W, 3) float32
+relative truth / length scale, ``y_ok`` (W,) bool. :func:`collate_windows` pads the anchor axis of a batch
+to its largest anchor count (``anchor_ok`` False on padding), so traces with different anchor counts mix
+in one batch.
 
 - :class:`TraceWindows`: windows of stored traces (a dataset directory, Trace records or TrackInputs).
 - :class:`SyntheticWindows`: trace ``i`` is generated on the fly from its own seed
@@ -46,13 +47,14 @@ class WindowSpec:
     use_imu: bool = False
     age_weighted_direction: bool = True
     route_frame: bool = False  # every trace turned into its own route frame (inputs.route_frame)
+    ekf_prior: bool = False  # the ekf position appended to g (inputs.network_arrays)
 
-    def arrays(self, inp: TrackInput) -> NetArrays:
-        """The network arrays of ``inp`` under this spec."""
+    def arrays(self, inp: TrackInput, *, turn: bool = True) -> NetArrays:
+        """The network arrays of ``inp`` under this spec (``turn=False``: not turned into the route frame)."""
         arr = network_arrays(inp, decimation=self.decimation, length_scale_m=self.length_scale_m,
                              anchor_scale_m=self.anchor_scale_m, use_imu=self.use_imu,
-                             age_weighted_direction=self.age_weighted_direction)
-        return route_frame(arr)[0] if self.route_frame else arr
+                             age_weighted_direction=self.age_weighted_direction, ekf_prior=self.ekf_prior)
+        return route_frame(arr)[0] if self.route_frame and turn else arr
 
     def __post_init__(self) -> None:
         if min(self.length, self.stride, self.decimation) < 1 or self.length_scale_m <= 0:

@@ -37,9 +37,9 @@ from ...errors import PhySynthError
 from .. import require_torch
 from ..inputs import (
     N_ANCHOR_FEATURES,
+    N_EKF_FEATURES,
     N_GLOBAL_FEATURES,
     TrackInput,
-    network_arrays,
     route_frame,
     upsample,
     window_starts,
@@ -93,6 +93,11 @@ class NetConfig:
     """``none``: each stage ends on its last weights; ``swa``: on the equal-weight average of the weights
     after each epoch of the stage's second half (stochastic weight averaging at the stage's constant rate,
     ``torch.optim.swa_utils.AveragedModel``; the nets have no batch statistics to recompute)."""
+    ekf_prior: str = "none"
+    """``none``; ``input``: the position of the classical ``ekf`` tracker run on the same inputs is one more
+    per-step input (:func:`~physynth.track.inputs.ekf_prior_rel_m`); ``residual``: that input, and the
+    network's output is added to it, so the network learns a correction of the filter (where it coasts
+    through an outage or follows a wrong range) instead of the position itself."""
     use_imu: bool = False
     age_weighted_direction: bool = True
     random_isometry: bool = False
@@ -109,6 +114,8 @@ class NetConfig:
                                 "routes' heading relative to themselves; random turns remove it)")
         if self.lr_schedule not in ("constant", "cosine"):
             raise PhySynthError(f"lr_schedule must be constant or cosine, got '{self.lr_schedule}'")
+        if self.ekf_prior not in EKF_PRIORS:
+            raise PhySynthError(f"ekf_prior must be one of {', '.join(EKF_PRIORS)}, got '{self.ekf_prior}'")
         if self.weight_average not in ("none", "swa"):
             raise PhySynthError(f"weight_average must be none or swa, got '{self.weight_average}'")
         if self.rnn not in ("gru", "lstm"):
@@ -122,6 +129,19 @@ class NetConfig:
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
+    @property
+    def n_global(self) -> int:
+        """Per-step features the networks read (``g``): 12, 15 with the ``ekf`` prior."""
+        return N_GLOBAL_FEATURES + (N_EKF_FEATURES if self.ekf_prior != "none" else 0)
+
+
+EKF_PRIORS = ("none", "input", "residual")
+
+
+def _with_prior(out: Any, g: Any, cfg: NetConfig) -> Any:
+    """The network output, plus the ``ekf`` position (the last three columns of ``g``) for ``residual``."""
+    return out + g[..., -N_EKF_FEATURES:] if cfg.ekf_prior == "residual" else out
+
 
 def _mlp(n_in: int, hidden: int, n_out: int) -> nn.Module:
     return nn.Sequential(nn.Linear(n_in, hidden), nn.GELU(), nn.Linear(hidden, n_out))
@@ -132,7 +152,7 @@ class AoIFusionNet(nn.Module):
 
     def __init__(self, cfg: NetConfig) -> None:
         super().__init__()
-        h, self.heads = cfg.hidden, cfg.heads
+        h, self.heads, self.cfg = cfg.hidden, cfg.heads, cfg
         self.embed = nn.Sequential(nn.Linear(N_ANCHOR_FEATURES, h), nn.GELU(), nn.Linear(h, h), nn.GELU())
         self.score = nn.Linear(h, cfg.heads)
         self.aoi_penalty = _mlp(1, 16, cfg.heads)
@@ -140,7 +160,7 @@ class AoIFusionNet(nn.Module):
         self.null_logit = nn.Parameter(torch.zeros(cfg.heads))
         self.null_value = nn.Parameter(torch.zeros(h))
         self.imu = _mlp(3, h // 2, h // 2)
-        self.fuse = nn.Sequential(nn.Linear(2 * h + h // 2 + N_GLOBAL_FEATURES, h), nn.GELU())
+        self.fuse = nn.Sequential(nn.Linear(2 * h + h // 2 + cfg.n_global, h), nn.GELU())
         rnn = nn.GRU if cfg.rnn == "gru" else nn.LSTM
         self.rnn = rnn(h, h, num_layers=cfg.layers, batch_first=True)
         self.head = _mlp(h, h, 3)
@@ -162,7 +182,7 @@ class AoIFusionNet(nn.Module):
         imu = self.imu(acc) * has_imu[:, None, None].to(e.dtype)
         z = self.fuse(torch.cat([pooled, mean, imu, g], dim=-1))
         out, _ = self.rnn(z)
-        return self.head(out)
+        return _with_prior(self.head(out), g, self.cfg)
 
 
 class BiLstmNet(nn.Module):
@@ -170,8 +190,8 @@ class BiLstmNet(nn.Module):
 
     def __init__(self, cfg: NetConfig, n_anchors: int) -> None:
         super().__init__()
-        self.n_anchors = n_anchors
-        n_in = n_anchors * N_ANCHOR_FEATURES + 3 + N_GLOBAL_FEATURES
+        self.n_anchors, self.cfg = n_anchors, cfg
+        n_in = n_anchors * N_ANCHOR_FEATURES + 3 + cfg.n_global
         self.inp = nn.Sequential(nn.Linear(n_in, cfg.hidden), nn.GELU())
         self.rnn = nn.LSTM(cfg.hidden, cfg.hidden, num_layers=cfg.layers, batch_first=True, bidirectional=True)
         self.head = nn.Linear(2 * cfg.hidden, 3)
@@ -185,7 +205,7 @@ class BiLstmNet(nn.Module):
             x = F.pad(x, (0, 0, 0, self.n_anchors - a))
         flat = torch.cat([x.reshape(b, t, -1), acc * has_imu[:, None, None].to(x.dtype), g], dim=-1)
         out, _ = self.rnn(self.inp(flat))
-        return self.head(out)
+        return _with_prior(self.head(out), g, self.cfg)
 
 
 def masked_loss(pred: Any, batch: dict[str, Any], burn_in: int) -> Any:
@@ -221,7 +241,8 @@ class NetTracker:
         c = self.config
         return WindowSpec(length=c.window_steps, stride=c.stride_steps, decimation=c.decimation,
                           length_scale_m=c.length_scale_m, anchor_scale_m=c.anchor_scale_m, use_imu=c.use_imu,
-                          age_weighted_direction=c.age_weighted_direction, route_frame=c.route_frame)
+                          age_weighted_direction=c.age_weighted_direction, route_frame=c.route_frame,
+                          ekf_prior=c.ekf_prior != "none")
 
     def device(self) -> Any:
         """``config.device``; ``auto``: the GPU when one is present, else the CPU (deterministic there)."""
@@ -304,9 +325,7 @@ class NetTracker:
         if self.model is None:
             raise PhySynthError(f"{self.name}: predict before fit")
         c = self.config
-        arr = network_arrays(inp, decimation=c.decimation, length_scale_m=c.length_scale_m,
-                             anchor_scale_m=c.anchor_scale_m, use_imu=c.use_imu,
-                             age_weighted_direction=c.age_weighted_direction)
+        arr = self.window_spec().arrays(inp, turn=False)
         frame = np.eye(3)
         if c.route_frame:
             arr, frame = route_frame(arr)
@@ -366,7 +385,7 @@ class NetTracker:
             tr.model.load_state_dict(state["weights"])
         except RuntimeError as exc:  # a state saved by a release with other inputs (e.g. 6 per-step features)
             raise PhySynthError(f"this network state does not fit this release's {state['arch']} inputs "
-                                f"({N_GLOBAL_FEATURES} per-step features); retrain it: "
+                                f"({tr.config.n_global} per-step features); retrain it: "
                                 f"{str(exc).splitlines()[0]}") from None
         tr.model.eval()
         return tr
