@@ -66,6 +66,34 @@ def test_weight_averaging_ends_each_stage_on_the_mean_of_its_second_half(inputs)
         make_tracker("aoi-fusion", weight_average="ema", **SMALL)
 
 
+def test_ekf_prior_is_the_filters_position_and_a_residual_net_corrects_it(inputs):
+    from physynth.track.trackers.ekf import EkfTracker
+
+    inp = inputs[0]
+    plain, prior = WindowSpec().arrays(inp), WindowSpec(ekf_prior=True).arrays(inp)
+    assert plain.g.shape[1] == 12 and prior.g.shape[1] == 15
+    np.testing.assert_array_equal(prior.g[:, :12], plain.g)  # appended, nothing else moved
+    ekf = EkfTracker(use_imu=False, fit_range_std=False).predict_rel(inp)[prior.step]
+    fixed = np.isfinite(ekf).all(axis=1)
+    assert fixed.mean() > 0.9
+    np.testing.assert_allclose(prior.g[fixed, 12:] * 10.0, ekf[fixed], atol=1e-4, rtol=1e-5)
+    # residual: with the output layer zeroed the network returns the filter's position itself
+    net = make_tracker("aoi-fusion", epochs=1, ekf_prior="residual", **SMALL).fit(inputs)
+    with torch.no_grad():
+        net.model.head[-1].weight.zero_()
+        net.model.head[-1].bias.zero_()
+    est = net.predict(inp)[prior.step]
+    ok = fixed & np.isfinite(est).all(axis=1)
+    assert ok.mean() > 0.9
+    np.testing.assert_allclose(est[ok], ekf[ok] + inp.ref_enu_m, atol=1e-3)
+    # input: one more per-step input; trains, and the state round-trips with it
+    net = make_tracker("aoi-fusion", epochs=2, lr=3e-3, ekf_prior="input", **SMALL).fit(inputs)
+    assert net.model.fuse[0].in_features == 2 * 16 + 8 + 15
+    np.testing.assert_array_equal(NetTracker.from_state(net.state()).predict(inp), net.predict(inp))
+    with pytest.raises(PhySynthError, match="ekf_prior must be one of none, input, residual"):
+        make_tracker("aoi-fusion", ekf_prior="kalman", **SMALL)
+
+
 def test_aoi_fusion_takes_any_anchor_count(inputs):
     net = make_tracker("aoi-fusion", epochs=1, **SMALL).fit(inputs)
     three = site_scenario(anchors=[{"id": "A1", "pos_enu_m": [0, -8, 2]}, {"id": "A2", "pos_enu_m": [40, -8, 0.5]},

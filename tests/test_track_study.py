@@ -149,6 +149,8 @@ def test_cli_bad_input_exit_2_one_line(runs, tmp_path, capsys):
          "--lr-schedule must be constant or cosine"),
         (["--train", train, "--test", train, "--methods", "NOAUG", "--weight-average", "ema"],
          "--weight-average must be none or swa"),
+        (["--train", train, "--test", train, "--methods", "NOAUG", "--ekf-prior", "kalman"],
+         "--ekf-prior must be one of none, input, residual"),
     ]
     for args, needle in cases:
         code, out = _cli(capsys, "study", "tracking", *args, "--out", tmp_path / "o", "-q")
@@ -164,11 +166,11 @@ def test_cli_passes_the_pretraining_options_to_the_study(runs, tmp_path, capsys)
     main(["study", "tracking", "--train", str(train), "--test", str(test), "--methods", "SYNTH_PHY",
           "--scenario", str(save_scenario(scn, tmp_path / "s.yaml")), "--pretrain-epochs", "2",
           "--finetune-epochs", "2", "--n-synth", "2", "--synth-windows", "3", "--weight-average", "swa",
-          "--out", str(tmp_path / "out"), "-q"])
+          "--ekf-prior", "residual", "--out", str(tmp_path / "out"), "-q"])
     res = json.loads((tmp_path / "out" / "results.json").read_text())
     cfg = res["config"]
     assert cfg["synth_windows_per_trace"] == 3 and cfg["n_synth_traces"] == 2
-    assert cfg["net"] == {"weight_average": "swa"}
+    assert cfg["net"] == {"weight_average": "swa", "ekf_prior": "residual"}
     stages = res["data"]["notes"]["SYNTH_PHY.training"]
     assert stages[0]["windows"] == 6  # 2 traces x 3 windows
     assert [h["averaged_epochs"] for h in stages] == [1, 1]  # the second of 2 epochs, in each stage
