@@ -73,7 +73,7 @@ def test_ekf_prior_is_the_filters_position_and_a_residual_net_corrects_it(inputs
     plain, prior = WindowSpec().arrays(inp), WindowSpec(ekf_prior=True).arrays(inp)
     assert plain.g.shape[1] == 12 and prior.g.shape[1] == 15
     np.testing.assert_array_equal(prior.g[:, :12], plain.g)  # appended, nothing else moved
-    ekf = EkfTracker(use_imu=False, fit_range_std=False).predict_rel(inp)[prior.step]
+    ekf = EkfTracker(use_imu=False, fit_range_std=False, max_coast_s=1.0).predict_rel(inp)[prior.step]
     fixed = np.isfinite(ekf).all(axis=1)
     assert fixed.mean() > 0.9
     np.testing.assert_allclose(prior.g[fixed, 12:] * 10.0, ekf[fixed], atol=1e-4, rtol=1e-5)

@@ -41,6 +41,10 @@ N_GLOBAL_FEATURES = 12
 two for the level solve (tag at the anchors' level, ``u_z = 0``; :func:`far_field_direction`)."""
 N_EKF_FEATURES = 3
 """Per-step features added by ``network_arrays(..., ekf_prior=True)``: the ``ekf`` position / L."""
+EKF_PRIOR_COAST_S = 1.0
+"""Longest extrapolation [s] of the ``ekf`` prior past its last range update; then it holds its position
+(:func:`ekf_prior_rel_m`): a filter that coasts on its last velocity through a 22 s outage of a tag that
+stopped ends up 20 m away, a prior the networks could not undo."""
 DIRECTION_RIDGE_M2 = 0.1
 """Ridge [m^2] of the far-field direction solve (keeps it defined with few anchors or a flat layout)."""
 DIRECTION_RANGE_STD_M = 0.1
@@ -285,12 +289,13 @@ def ekf_prior_rel_m(inp: TrackInput, *, use_imu: bool, fallback_rel_m: np.ndarra
     """(len(steps), 3) [m]: the ``ekf`` tracker's position relative to the anchor centroid at grid ``steps``.
 
     A fixed filter (:class:`~physynth.track.trackers.ekf.EkfTracker` with its default noise, not fitted:
-    the feature depends on the run alone), causal like the networks' recurrent model. Before its first
-    fix, ``fallback_rel_m`` (the far-field position of the level solve).
+    the feature depends on the run alone), causal like the networks' recurrent model, that holds its
+    position after ``EKF_PRIOR_COAST_S`` without a range. Before its first fix, ``fallback_rel_m`` (the
+    far-field position of the level solve).
     """
     from .trackers.ekf import EkfTracker
 
-    pos = EkfTracker(use_imu=use_imu, fit_range_std=False).predict_rel(inp)[steps]
+    pos = EkfTracker(use_imu=use_imu, fit_range_std=False, max_coast_s=EKF_PRIOR_COAST_S).predict_rel(inp)[steps]
     return np.where(np.isfinite(pos).all(axis=1, keepdims=True), pos, fallback_rel_m)
 
 

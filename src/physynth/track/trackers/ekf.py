@@ -47,6 +47,10 @@ class EkfTracker:
     init_vel_std_mps: float = 1.0
     use_imu: bool = True
     fit_range_std: bool = True
+    max_coast_s: float = math.inf
+    """Longest time [s] the output is extrapolated past the last range update; after it the position is
+    held (the filter's own state still propagates in full). ``inf``: the constant-velocity (or IMU) path
+    all the way, which carries the filter far off in a long outage of a tag that stopped."""
     name: str = "ekf"
 
     def fit(self, inputs: Sequence[TrackInput], *, progress: ProgressFn | None = None) -> EkfTracker:
@@ -84,6 +88,8 @@ class EkfTracker:
         steps = np.arange(k0, inp.n_steps)
         j = np.searchsorted(upd, steps, side="right") - 1
         dt = 1.0 / inp.rate_hz
+        if math.isfinite(self.max_coast_s):
+            steps = np.minimum(steps, upd[j] + int(round(self.max_coast_s * inp.rate_hz)))
         pos_c, _ = self._control(inp, upd[j], steps)
         out[k0:] = states[j, :3] + ((steps - upd[j]) * dt)[:, None] * states[j, 3:] + pos_c
         return out
