@@ -123,3 +123,26 @@ def test_fast_ls_cost_is_not_above_the_reference(name, request):
     assert np.mean(c_new <= c_old + 1e-9) >= 0.9
     assert np.sum(c_new < c_old - 1e-6) >= 0.5 * c_new.size
     assert c_new.sum() < c_old.sum()
+
+
+def test_ekf_max_coast_holds_the_output_through_a_gap_and_changes_nothing_else():
+    from dataclasses import replace
+
+    from physynth.records import Uwb
+
+    tr = generate_trace(site_scenario(noise_m=0.1), 0, 7)
+    u = tr.uwb
+    t0, t1 = u.t_s[0] + 0.3 * tr.duration_s, u.t_s[0] + 0.6 * tr.duration_s
+    assert t1 - t0 > 3.0
+    gap = (u.t_s > t0) & (u.t_s < t1)  # seconds without any range
+    inp = track_input(replace(tr, uwb=Uwb(t_s=u.t_s, anchor=u.anchor, range_m=np.where(gap, np.nan, u.range_m))))
+    free = EkfTracker(fit_range_std=False).predict_rel(inp)
+    held = EkfTracker(fit_range_std=False, max_coast_s=1.0).predict_rel(inp)
+    last = np.flatnonzero(inp.fresh.any(axis=1) & (inp.t_s <= t0))[-1]
+    k1 = last + int(round(inp.rate_hz))  # one second after the last range before the gap
+    nxt = np.flatnonzero(inp.fresh.any(axis=1) & (inp.t_s >= t1))[0]
+    before = np.arange(inp.n_steps) <= k1
+    after = np.arange(inp.n_steps) >= nxt
+    _same(held[before | after], free[before | after], rtol=0, atol=0)  # the filter itself is unchanged
+    np.testing.assert_array_equal(held[k1:nxt], np.broadcast_to(held[k1], (nxt - k1, 3)))  # then held
+    assert np.linalg.norm(free[nxt - 1] - free[k1]) > 2.0  # where the free filter walks on (9.5 m)
