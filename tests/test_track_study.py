@@ -173,6 +173,9 @@ def test_cli_passes_the_pretraining_options_to_the_study(runs, tmp_path, capsys)
     assert cfg["net"] == {"weight_average": "swa", "ekf_prior": "residual"}
     stages = res["data"]["notes"]["SYNTH_PHY.training"]
     assert stages[0]["windows"] == 6  # 2 traces x 3 windows
+    # the prior the networks were given is scored too
+    assert [r["key"] for r in res["rows"]] == ["SYNTH_PHY (synthetic only)", "SYNTH_PHY", "ekf prior"]
+    assert all(np.isfinite(r["rmse_m"]) for r in res["rows"])
     assert [h["averaged_epochs"] for h in stages] == [1, 1]  # the second of 2 epochs, in each stage
 
 

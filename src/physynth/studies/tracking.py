@@ -39,7 +39,7 @@ from .. import __version__
 from ..errors import PhySynthError
 from ..records import Trace
 from ..scenario import Scenario, scenario_to_dict
-from ..track.inputs import TrackInput, track_input
+from ..track.inputs import EKF_PRIOR_COAST_S, TrackInput, track_input
 from ..track.reference import reference_estimates
 from ..track.scoring import error_stats
 from ..track.synth import SynthVariation
@@ -344,6 +344,11 @@ def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | 
         if hasattr(tr, "history"):
             notes[f"{method}.training"] = [{k: (v if k != "loss" else [round(x, 6) for x in v])
                                              for k, v in h.items()} for h in tr.history]
+    if cfg.net.get("ekf_prior", "none") != "none" and NETWORK_METHODS & set(cfg.methods):
+        from ..track.trackers.ekf import EkfTracker
+
+        # what the networks were given: the prior alone, scored like every method
+        predict_all("ekf prior", EkfTracker(use_imu=use_imu, fit_range_std=False, max_coast_s=EKF_PRIOR_COAST_S))
 
     refs: dict[str, list[np.ndarray]] = {}
     for r, inp in zip(tests, test_inputs, strict=True):
@@ -460,6 +465,7 @@ ROW_NAMES = {
     "bilstm": "bilstm (real only)",
     "ls": "ls (robust multilateration)",
     "ekf": "ekf (constant velocity)",
+    "ekf prior": f"ekf prior of the networks (not fitted; holds after {EKF_PRIOR_COAST_S:g} s without a range)",
 }
 
 
