@@ -64,8 +64,8 @@ def tracking_cmd(
                                        help="Weights each training stage ends on: none (its last, default) or swa "
                                             "(the average over the epochs of its second half)."),
     ekf_prior: str = typer.Option(None, "--ekf-prior", metavar="HOW",
-                                  help="The classical ekf's position in the networks: none (default), input (one more "
-                                       "input per step) or residual (the networks correct it)."),
+                                  help="The classical ekf's position in the networks: residual (default: the networks "
+                                       "correct it), input (one more input per step) or none (the networks alone)."),
     turn_test: float = typer.Option(0.0, "--turn-test", metavar="DEGREES",
                                     help="Turn every test run by this many degrees (counter-clockwise) about the "
                                          "vertical through its anchor centroid: the same ranges along another "
@@ -101,10 +101,9 @@ def tracking_cmd(
     over = {"seed": seed, "methods": chosen, "threads": threads, **FRAMES[frame]}
     over |= {k: v for k, v in (("epochs", epochs), ("pretrain_epochs", pretrain_epochs),
                                 ("finetune_epochs", finetune_epochs), ("n_synth_traces", n_synth),
-                                ("synth_windows_per_trace", synth_windows),
+                                ("synth_windows_per_trace", synth_windows), ("ekf_prior", ekf_prior),
                                 ("finetune_synth_ratio", finetune_synth_ratio)) if v is not None}
-    net = {k: v for k, v in (("lr_schedule", lr_schedule), ("weight_average", weight_average),
-                             ("ekf_prior", ekf_prior)) if v is not None}
+    net = {k: v for k, v in (("lr_schedule", lr_schedule), ("weight_average", weight_average)) if v is not None}
     over |= {"net": net} if net else {}
     cfg = quick_config(**over) if quick else StudyConfig(**over)
     if NETWORK_METHODS & set(cfg.methods):

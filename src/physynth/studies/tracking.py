@@ -39,7 +39,7 @@ from .. import __version__
 from ..errors import PhySynthError
 from ..records import Trace
 from ..scenario import Scenario, scenario_to_dict
-from ..track.inputs import EKF_PRIOR_COAST_S, TrackInput, track_input
+from ..track.inputs import EKF_PRIOR_COAST_S, EKF_PRIORS, TrackInput, track_input
 from ..track.reference import reference_estimates
 from ..track.scoring import error_stats
 from ..track.synth import SynthVariation
@@ -93,6 +93,11 @@ class StudyConfig:
     route's shape relative to its heading, better on runs of the training routes' shape along any
     heading, lost on a route of another shape (a loop: docs/tracking.md). Excludes ``random_isometry``.
     With both False the networks learn the compass heading of the training runs."""
+    ekf_prior: str = "residual"
+    """How every network uses the classical ``ekf`` run on its inputs (``NetConfig.ekf_prior``): ``residual``
+    (the default) adds the network's output to the filter's position, so it learns to correct the filter;
+    ``input``: one more input; ``none``: the paper's network alone (docs/tracking.md, "The classical filter
+    as a prior")."""
     training_layouts: bool = True
     threads: int = 1
 
@@ -102,6 +107,8 @@ class StudyConfig:
             raise PhySynthError(f"unknown method(s) {', '.join(unknown)} (choose from {', '.join(METHODS)})")
         if not self.methods:
             raise PhySynthError("no method to run")
+        if self.ekf_prior not in EKF_PRIORS:
+            raise PhySynthError(f"ekf_prior must be one of {', '.join(EKF_PRIORS)}, got '{self.ekf_prior}'")
         if self.route_frame and self.random_isometry:
             raise PhySynthError("route_frame needs random_isometry off (random turns would remove the route "
                                 "heading the frame keeps)")
@@ -289,7 +296,7 @@ def _net(cfg: StudyConfig, arch: str = "aoi-fusion", **extra: Any) -> Any:
 
     net_cfg = NetConfig(**{"seed": cfg.seed, "epochs": cfg.epochs, "lr": cfg.lr,
                            "random_isometry": cfg.random_isometry, "route_frame": cfg.route_frame,
-                           **cfg.net, **extra})
+                           "ekf_prior": cfg.ekf_prior, **cfg.net, **extra})
     return NetTracker(arch, net_cfg)
 
 
@@ -344,7 +351,7 @@ def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | 
         if hasattr(tr, "history"):
             notes[f"{method}.training"] = [{k: (v if k != "loss" else [round(x, 6) for x in v])
                                              for k, v in h.items()} for h in tr.history]
-    if cfg.net.get("ekf_prior", "none") != "none" and NETWORK_METHODS & set(cfg.methods):
+    if cfg.net.get("ekf_prior", cfg.ekf_prior) != "none" and NETWORK_METHODS & set(cfg.methods):
         from ..track.trackers.ekf import EkfTracker
 
         # what the networks were given: the prior alone, scored like every method

@@ -41,6 +41,9 @@ N_GLOBAL_FEATURES = 12
 two for the level solve (tag at the anchors' level, ``u_z = 0``; :func:`far_field_direction`)."""
 N_EKF_FEATURES = 3
 """Per-step features added by ``network_arrays(..., ekf_prior=True)``: the ``ekf`` position / L."""
+EKF_PRIORS = ("none", "input", "residual")
+"""How a network uses the ``ekf`` prior (``NetConfig.ekf_prior``): not at all, as an input, or as an input
+its output is added to."""
 EKF_PRIOR_COAST_S = 1.0
 """Longest extrapolation [s] of the ``ekf`` prior past its last range update; then it holds its position
 (:func:`ekf_prior_rel_m`): a filter that coasts on its last velocity through a 22 s outage of a tag that

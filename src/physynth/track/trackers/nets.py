@@ -36,6 +36,7 @@ import numpy as np
 from ...errors import PhySynthError
 from .. import require_torch
 from ..inputs import (
+    EKF_PRIORS,
     N_ANCHOR_FEATURES,
     N_EKF_FEATURES,
     N_GLOBAL_FEATURES,
@@ -134,8 +135,6 @@ class NetConfig:
         """Per-step features the networks read (``g``): 12, 15 with the ``ekf`` prior."""
         return N_GLOBAL_FEATURES + (N_EKF_FEATURES if self.ekf_prior != "none" else 0)
 
-
-EKF_PRIORS = ("none", "input", "residual")
 
 
 def _with_prior(out: Any, g: Any, cfg: NetConfig) -> Any:
