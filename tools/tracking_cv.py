@@ -45,7 +45,8 @@ import numpy as np
 RUNS = ("LOS/Case_1", "LOS/Case_2", "NLOS/Case_1", "NLOS/Case_2")
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hanyang-uwb" / "Dynamic_measurements"
 CLI = [sys.executable, "-m", "physynth.cli"]
-ORDER = ("NOAUG", "AUG_GAN", "SYNTH_PHY (synthetic only)", "SYNTH_PHY", "ekf", "ekf prior", "ref: authors' ESKF")
+ORDER = ("NOAUG", "AUG_GAN", "SYNTH_PHY (synthetic only)", "SYNTH_PHY", "bilstm", "ls", "ekf", "ekf prior",
+         "ref: authors' ESKF")
 
 
 def _run(cmd: list[str], log: Path) -> None:
