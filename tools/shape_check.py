@@ -11,7 +11,8 @@ real path (``physynth generate`` of that scenario, trace 0, seed 7). Then, for e
 
 on datasets made by ``physynth import hanyang RUN --crop-to-uwb``, and one RMSE table.
 
-    .venv/bin/python tools/shape_check.py [--seed 0] [--frames turned,route,compass] [--jobs 2] [--out DIR]
+    .venv/bin/python tools/shape_check.py [--seed 0] [--frames turned,route,compass] [--jobs 2]
+                                          [--study-args "OPTIONS"] [--out DIR]
 
 Each study takes 3-5 min on one core.
 """
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -77,6 +79,8 @@ def main() -> None:
     ap.add_argument("--frames", default="turned,route,compass")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--methods", default="NOAUG,SYNTH_PHY,ekf")
+    ap.add_argument("--study-args", default="",
+                    help='more options for every study, e.g. "--ekf-prior none" (use another --out)')
     ap.add_argument("--out", type=Path, default=Path("runs/shape-check"))
     args = ap.parse_args()
     train, loop = _loop_dataset(args.data, args.out)
@@ -87,7 +91,7 @@ def main() -> None:
         if not (out / "results.json").is_file():
             _run(CLI + ["study", "tracking", "--quick", "--seed", str(args.seed),
                         *[a for t in train for a in ("--train", str(t))], "--test", str(loop), "--frame", frame,
-                        "--methods", args.methods, "--out", str(out), "--quiet"])
+                        "--methods", args.methods, *shlex.split(args.study_args), "--out", str(out), "--quiet"])
         rows = json.loads((out / "results.json").read_text())["rows"]
         return {r["method"].split(" (")[0]: r["rmse_m"] for r in rows}
 
