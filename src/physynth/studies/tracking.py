@@ -96,8 +96,8 @@ class StudyConfig:
     ekf_prior: str = "residual"
     """How every network uses the classical ``ekf`` run on its inputs (``NetConfig.ekf_prior``): ``residual``
     (the default) adds the network's output to the filter's position, so it learns to correct the filter;
-    ``input``: one more input; ``none``: the paper's network alone (docs/tracking.md, "The classical filter
-    as a prior")."""
+    ``input``: one more input; ``none``: the paper's network alone (docs/tracking.md, "Measured: the
+    networks correct a classical filter")."""
     training_layouts: bool = True
     threads: int = 1
 

@@ -136,7 +136,6 @@ class NetConfig:
         return N_GLOBAL_FEATURES + (N_EKF_FEATURES if self.ekf_prior != "none" else 0)
 
 
-
 def _with_prior(out: Any, g: Any, cfg: NetConfig) -> Any:
     """The network output, plus the ``ekf`` position (the last three columns of ``g``) for ``residual``."""
     return out + g[..., -N_EKF_FEATURES:] if cfg.ekf_prior == "residual" else out
