@@ -63,9 +63,8 @@ def tracking_cmd(
     weight_average: str = typer.Option(None, "--weight-average", metavar="HOW",
                                        help="Weights each training stage ends on: none (its last, default) or swa "
                                             "(the average over the epochs of its second half)."),
-    ekf_prior: str = typer.Option(None, "--ekf-prior", metavar="HOW",
-                                  help="The classical ekf's position in the networks: residual (default: the networks "
-                                       "correct it), input (one more input per step) or none (the networks alone)."),
+    ekf_prior: str = typer.Option(None, "--ekf-prior", metavar="HOW", help="How the networks use the classical ekf's "
+                                  "position: residual (default: they correct it), input (one more input) or none."),
     turn_test: float = typer.Option(0.0, "--turn-test", metavar="DEGREES",
                                     help="Turn every test run by this many degrees (counter-clockwise) about the "
                                          "vertical through its anchor centroid: the same ranges along another "
