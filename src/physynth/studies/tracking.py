@@ -39,7 +39,7 @@ from .. import __version__
 from ..errors import PhySynthError
 from ..records import Trace
 from ..scenario import Scenario, scenario_to_dict
-from ..track.inputs import EKF_PRIOR_COAST_S, EKF_PRIORS, TrackInput, track_input
+from ..track.inputs import EKF_PRIOR_COAST_S, TrackInput, check_ekf_prior, track_input
 from ..track.reference import reference_estimates
 from ..track.scoring import error_stats
 from ..track.synth import SynthVariation
@@ -107,8 +107,7 @@ class StudyConfig:
             raise PhySynthError(f"unknown method(s) {', '.join(unknown)} (choose from {', '.join(METHODS)})")
         if not self.methods:
             raise PhySynthError("no method to run")
-        if self.ekf_prior not in EKF_PRIORS:
-            raise PhySynthError(f"ekf_prior must be one of {', '.join(EKF_PRIORS)}, got '{self.ekf_prior}'")
+        check_ekf_prior(self.ekf_prior)
         if self.route_frame and self.random_isometry:
             raise PhySynthError("route_frame needs random_isometry off (random turns would remove the route "
                                 "heading the frame keeps)")

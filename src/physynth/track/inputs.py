@@ -44,6 +44,17 @@ N_EKF_FEATURES = 3
 EKF_PRIORS = ("none", "input", "residual")
 """How a network uses the ``ekf`` prior (``NetConfig.ekf_prior``): not at all, as an input, or as an input
 its output is added to."""
+
+
+def check_ekf_prior(value: str) -> None:
+    """Raise ``PhySynthError`` unless ``value`` is one of :data:`EKF_PRIORS` (shared by the network and the
+    study settings)."""
+    if value not in EKF_PRIORS:
+        from ..errors import PhySynthError
+
+        raise PhySynthError(f"ekf_prior must be one of {', '.join(EKF_PRIORS)}, got '{value}'")
+
+
 EKF_PRIOR_COAST_S = 1.0
 """Longest extrapolation [s] of the ``ekf`` prior past its last range update; then it holds its position
 (:func:`ekf_prior_rel_m`): a filter that coasts on its last velocity through a 22 s outage of a tag that

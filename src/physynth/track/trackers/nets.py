@@ -36,11 +36,11 @@ import numpy as np
 from ...errors import PhySynthError
 from .. import require_torch
 from ..inputs import (
-    EKF_PRIORS,
     N_ANCHOR_FEATURES,
     N_EKF_FEATURES,
     N_GLOBAL_FEATURES,
     TrackInput,
+    check_ekf_prior,
     route_frame,
     upsample,
     window_starts,
@@ -115,8 +115,7 @@ class NetConfig:
                                 "routes' heading relative to themselves; random turns remove it)")
         if self.lr_schedule not in ("constant", "cosine"):
             raise PhySynthError(f"lr_schedule must be constant or cosine, got '{self.lr_schedule}'")
-        if self.ekf_prior not in EKF_PRIORS:
-            raise PhySynthError(f"ekf_prior must be one of {', '.join(EKF_PRIORS)}, got '{self.ekf_prior}'")
+        check_ekf_prior(self.ekf_prior)
         if self.weight_average not in ("none", "swa"):
             raise PhySynthError(f"weight_average must be none or swa, got '{self.weight_average}'")
         if self.rnn not in ("gru", "lstm"):
