@@ -5,11 +5,35 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from helpers import simple_scenario
-from scipy import signal
+from scipy import signal, stats
 
 from physynth.generate import compile_scenario, generate_trace
 from physynth.models.imu import bias_random_walk, vibration, white_noise
+from physynth.rng import standard_normal_rows
 from physynth.scenario import VibrationParams
+
+
+def test_box_muller_draws_are_independent_standard_normals():
+    """The IMU's sampler (Box-Muller, not NumPy's ziggurat) against N(0, 1): marginal, tails, pairs."""
+    rows, n = 3, 400_001  # an odd total: the last pair's sine is dropped
+    x = standard_normal_rows(np.random.default_rng(5), rows, n)
+    assert x.shape == (rows, n) and x.dtype == np.float64 and np.isfinite(x).all()
+    flat = x.ravel()
+    m = flat.size
+    # KS against N(0, 1): the 0.1 % critical value 1.95 / sqrt(m)
+    assert stats.kstest(flat, "norm").statistic < 1.95 / np.sqrt(m)
+    for k in (3.0, 4.0):  # tail mass: 5 binomial standard errors
+        p = 2 * stats.norm.sf(k)
+        assert abs(np.mean(np.abs(flat) > k) - p) < 5 * np.sqrt(p * (1 - p) / m)
+    # the two members of a pair (cosine half, sine half) and neighbours within a row are uncorrelated,
+    # and a pair's squared radius is exponential with mean 2 (chi-square, 2 degrees of freedom)
+    half = (m + 1) // 2
+    a, b = flat[: m - half], flat[half:]
+    assert abs(np.corrcoef(a, b)[0, 1]) < 5 / np.sqrt(a.size)
+    assert abs(np.corrcoef(x[0, :-1], x[0, 1:])[0, 1]) < 5 / np.sqrt(n)
+    assert stats.kstest(a**2 + b**2, "expon", args=(0, 2)).statistic < 1.95 / np.sqrt(a.size)
+    # seeded: the same generator state gives the same draws
+    np.testing.assert_array_equal(x, standard_normal_rows(np.random.default_rng(5), rows, n))
 
 
 def test_white_noise_variance_is_density_squared_times_rate():

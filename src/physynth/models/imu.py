@@ -26,6 +26,7 @@ from pydantic import Field, model_validator
 
 from ..constants import G0_MPS2
 from ..records import Imu
+from ..rng import standard_normal_rows
 from ._filters import ar1 as _ar1
 from ._params import NonNegFloat, ParamsModel, PositiveFloat, Vec3
 from .motion import Kinematics
@@ -107,7 +108,7 @@ def white_noise(n: int, density_mps2_per_sqrt_hz: np.ndarray, rate_hz: float, *,
 
 def _white_noise_cf(n: int, density: np.ndarray, rate_hz: float, *, rng: np.random.Generator) -> np.ndarray:
     std = np.asarray(density, dtype=float) * np.sqrt(rate_hz)
-    out = rng.standard_normal((3, n))
+    out = standard_normal_rows(rng, 3, n)
     out *= std[:, None]
     return out
 
