@@ -118,7 +118,10 @@ def test_declared_column_groups_leave_out_null_columns_and_refuse_undeclared_dat
             w.add(t, index=i)
     names = pq.read_schema(tmp_path / "d" / "imu.parquet").names
     assert names == ["trace", "t_s", "acc_e_mps2", "acc_n_mps2", "acc_u_mps2"]  # no columns of nulls
-    assert not pq.read_schema(tmp_path / "d" / "imu.parquet").field("t_s").nullable
+    for table in ("truth", "imu", "uwb", "anchors"):  # REQUIRED (never null) but for the NLOS flag
+        schema = pq.read_schema(tmp_path / "d" / f"{table}.parquet")
+        assert [f.name for f in schema if f.nullable] == (["nlos"] if table == "uwb" else [])
+    assert pq.read_schema(tmp_path / "d" / "uwb.parquet").field("anchor_id").type == "string"  # not dictionary
     back = read_dataset(tmp_path / "d")
     for a, b in zip(traces, back, strict=True):
         assert b.imu.acc_body_mps2 is None and b.imu.gyro_body_radps is None
@@ -129,3 +132,41 @@ def test_declared_column_groups_leave_out_null_columns_and_refuse_undeclared_dat
         with DatasetWriter(tmp_path / "e", column_groups=generated_column_groups([IMU_FRAME])) as w:
             w.add(generate_trace(body, 0, 3), index=0)
     assert not (tmp_path / "e").exists()  # nothing half-written appears
+    with pytest.raises(DatasetError, match="lacks imu columns acc_x_mps2"):  # ENU-only data, body declared
+        with DatasetWriter(tmp_path / "f", column_groups=generated_column_groups([IMU_FRAME, IMU_BODY_FRAME])) as w:
+            w.add(traces[0], index=0)
+    assert not (tmp_path / "f").exists()
+
+
+def test_generated_columns_use_the_measured_encodings_and_read_back_exactly(tmp_path):
+    """The per-column encodings and codecs of a generated dataset (``_column_options``) as written in
+    the Parquet metadata, and every value back as generated (float32 columns to float32 precision)."""
+    from physynth.constants import IMU_FRAME
+    from physynth.io.dataset import DatasetWriter, generated_column_groups
+
+    cs = compile_scenario(load_scenario("cablecar-descending"))
+    traces = [generate_trace(cs, i, 5) for i in range(3)]
+    with DatasetWriter(tmp_path / "d", compact=True, column_groups=generated_column_groups([IMU_FRAME])) as w:
+        for i, t in enumerate(traces):
+            w.add(t, index=i)
+
+    def chunks(table):
+        md = pq.ParquetFile(tmp_path / "d" / f"{table}.parquet").metadata.row_group(0)
+        return {md.column(c).path_in_schema: md.column(c) for c in range(md.num_columns)}
+
+    imu, uwb, truth = chunks("imu"), chunks("uwb"), chunks("truth")
+    assert imu["acc_e_mps2"].compression == "UNCOMPRESSED" and "PLAIN" in imu["acc_e_mps2"].encodings
+    assert "BYTE_STREAM_SPLIT" not in imu["acc_e_mps2"].encodings
+    assert "BYTE_STREAM_SPLIT" in truth["pos_e_m"].encodings and truth["pos_e_m"].compression == "SNAPPY"
+    for col in ("burst", "reason"):
+        assert "DELTA_BINARY_PACKED" in uwb[col].encodings
+    assert "BYTE_STREAM_SPLIT" not in uwb["range_m"].encodings and uwb["range_m"].compression == "SNAPPY"
+    assert "RLE_DICTIONARY" in uwb["anchor_id"].encodings
+    back = read_dataset(tmp_path / "d")
+    for a, b in zip(traces, back, strict=True):
+        assert list(b.anchors.ids) == list(a.anchors.ids)
+        for col in ("t_s", "range_m", "true_range_m", "anchor", "burst", "reason", "nlos"):
+            np.testing.assert_array_equal(getattr(b.uwb, col), getattr(a.uwb, col))
+        np.testing.assert_array_equal(b.truth.pos_enu_m, a.truth.pos_enu_m)
+        np.testing.assert_array_equal(b.imu.t_s, a.imu.t_s)
+        np.testing.assert_array_equal(b.imu.acc_mps2, a.imu.acc_mps2.astype(np.float32))

@@ -92,18 +92,27 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-REQUIRED_COLUMNS = frozenset({"trace", "t_s"})
-"""Columns never null in any table: written as Parquet REQUIRED (no definition levels to encode)."""
+NULLABLE_COLUMNS = frozenset({"nlos"})
+"""Columns that may be null in any dataset (``nlos``: unknown in most real recordings). Every other column
+is written as Parquet REQUIRED (no definition levels to encode), except the optional groups
+(:data:`OPTIONAL_COLUMNS`) of a dataset that holds all of them (``column_groups=None``), where a trace
+may lack a group."""
 
 
-def _schema(name: str, compact: bool, held: set[str]) -> pa.Schema:
-    """The table's schema, restricted to the optional groups ``held`` (:func:`_held_groups`)."""
+def _schema(name: str, compact: bool, held: set[str], declared: bool) -> pa.Schema:
+    """The table's schema, restricted to the optional groups ``held`` (:func:`_held_groups`). Declared
+    groups (``declared``) are REQUIRED: every trace of the dataset has them."""
     import pyarrow as pa
 
     schema = arrow_schemas()[1 if compact else 0][name]
+    optional = {c for cols in OPTIONAL_COLUMNS.get(name, {}).values() for c in cols}
     drop = {c for attr, cols in OPTIONAL_COLUMNS.get(name, {}).items() if attr not in held for c in cols}
-    keep = [f for f in schema if f.name not in drop]
-    return pa.schema([f.with_nullable(False) if f.name in REQUIRED_COLUMNS else f for f in keep])
+    fields = [f.with_nullable(f.name in NULLABLE_COLUMNS or (f.name in optional and not declared))
+              for f in schema if f.name not in drop]
+    # the UWB anchor ids from a dictionary array (indices: the rows' anchor index), stored as Parquet
+    # strings, dictionary-encoded; without the Arrow schema in the file they read back as strings
+    return pa.schema([f.with_type(pa.dictionary(pa.int16(), pa.string())) if name == "uwb" and f.name == "anchor_id"
+                      else f for f in fields])
 
 
 def _held_groups(name: str, groups: Mapping[str, Iterable[str]] | None) -> set[str]:
@@ -127,12 +136,43 @@ def generated_column_groups(imu_frames: Iterable[str]) -> dict[str, list[str]]:
     return {"truth": list(OPTIONAL_COLUMNS["truth"]), "imu": imu}
 
 
-def _float_columns(schema: pa.Schema) -> list[str]:
-    """The float columns of ``schema``, written with Parquet's BYTE_STREAM_SPLIT encoding: noisy floats
-    then compress (snappy) to about 20 % fewer bytes than plain encoding, at the same CPU time."""
+SENSOR_COLUMNS = frozenset(c for group in ("acc_mps2", "acc_body_mps2", "gyro_body_radps")
+                           for c in OPTIONAL_COLUMNS["imu"][group])
+"""IMU sample columns: in generated (float32) datasets written PLAIN and uncompressed, since their white
+noise leaves snappy nothing to gain (4 % of their bytes, at three times the CPU time)."""
+
+
+def _column_options(schema: pa.Schema, compact: bool) -> dict[str, Any]:
+    """Per-column encodings and codecs of :class:`pyarrow.parquet.ParquetWriter`, chosen by measured
+    bytes and CPU time (``benchmarks/bench_generate.py``; docs/scale.md "Bytes on disk"):
+
+    - float columns: BYTE_STREAM_SPLIT + snappy (noisy floats then compress to about 20 % fewer bytes
+      than plain encoding, at the same CPU time); in generated data, the float32 IMU samples PLAIN and
+      uncompressed (:data:`SENSOR_COLUMNS`) and ``range_m`` PLAIN + snappy (its NaNs of undelivered
+      attempts compress better unsplit);
+    - ``burst`` and ``reason``: DELTA_BINARY_PACKED (runs of small integers: a tenth of the bytes of
+      plain + snappy at less CPU time);
+    - ``anchor_id`` and ``name``: dictionary encoding; ``trace``: plain + snappy, with statistics (the
+      reader finds each trace's row groups from them).
+    """
     import pyarrow as pa
 
-    return [f.name for f in schema if pa.types.is_floating(f.type)]
+    encoding, codec = {}, {}
+    for f in schema:
+        codec[f.name] = "snappy"
+        if f.name in ("anchor_id", "name"):
+            continue
+        if f.name in ("burst", "reason"):
+            encoding[f.name] = "DELTA_BINARY_PACKED"
+        elif compact and (f.name in SENSOR_COLUMNS and pa.types.is_float32(f.type) or f.name == "range_m"):
+            encoding[f.name] = "PLAIN"
+            codec[f.name] = "none" if f.name in SENSOR_COLUMNS else "snappy"
+        elif pa.types.is_floating(f.type):
+            encoding[f.name] = "BYTE_STREAM_SPLIT"
+        else:
+            encoding[f.name] = "PLAIN"
+    return {"compression": codec, "column_encoding": encoding, "use_dictionary": ["anchor_id", "name"],
+            "write_statistics": ["trace"]}
 
 
 UNITS = {
@@ -184,28 +224,6 @@ def _arrow(values: Any, typ: pa.DataType) -> pa.Array:
     return pa.array(values, type=typ)
 
 
-def _strings_at(values: Sequence[str], index: np.ndarray) -> pa.Array:
-    """Arrow strings ``values[index]`` gathered with NumPy (``cast``/``take`` would import pyarrow.compute)."""
-    import pyarrow as pa
-
-    enc = [str(v).encode("utf-8") for v in values]
-    index = np.asarray(index, dtype=np.intp)
-    width = len(enc[0]) if enc else 0
-    if enc and width and all(len(b) == width for b in enc):  # equal-length ids (the usual case): one gather
-        table = np.frombuffer(b"".join(enc), dtype=np.uint8).reshape(len(enc), width)
-        offsets = (np.arange(index.size + 1, dtype=np.int64) * width).astype(np.int32)
-        return pa.Array.from_buffers(pa.string(), index.size,
-                                     [None, pa.py_buffer(offsets), pa.py_buffer(np.ascontiguousarray(table[index]))])
-    lens = np.array([len(b) for b in enc], dtype=np.int64)
-    blob = np.frombuffer(b"".join(enc), dtype=np.uint8)
-    starts = np.concatenate([[0], np.cumsum(lens)[:-1]]).astype(np.int64)
-    row_lens = lens[index] if lens.size else np.zeros(0, np.int64)
-    offsets = np.concatenate([[0], np.cumsum(row_lens)]).astype(np.int32)
-    src = np.repeat(starts[index] - offsets[:-1], row_lens) + np.arange(offsets[-1]) if index.size else np.zeros(0, int)
-    data = blob[src] if src.size else np.zeros(0, np.uint8)
-    return pa.Array.from_buffers(pa.string(), index.size, [None, pa.py_buffer(offsets), pa.py_buffer(data)])
-
-
 def _table(name: str, cols: list[Any], schema: pa.Schema) -> pa.Table:
     """A table of ``schema`` (one of ``SCHEMAS``, compact or restricted by :func:`_schema`) from NumPy columns."""
     import pyarrow as pa
@@ -232,15 +250,18 @@ def _optional(record: Any, table: str, schema: pa.Schema) -> list[np.ndarray | N
     return out
 
 
-def _check_declared(trace: Trace, held: Mapping[str, set[str]]) -> None:
+def _check_declared(trace: Trace, held: Mapping[str, set[str]], declared: bool) -> None:
     """DatasetError when ``trace`` has an optional column group that the dataset does not hold
-    (``held``: :func:`_held_groups` of each table), as :func:`_optional` would raise when writing it."""
+    (``held``: :func:`_held_groups` of each table), as :func:`_optional` would raise when writing it,
+    or, in a dataset whose groups were ``declared``, lacks one that it holds (its columns are REQUIRED)."""
     for table, record in (("truth", trace.truth), ("imu", trace.imu)):
-        if record is None:
-            continue
         for attr, cols in OPTIONAL_COLUMNS[table].items():
-            if attr not in held[table] and getattr(record, attr) is not None:
+            has = record is not None and getattr(record, attr) is not None
+            if has and attr not in held[table]:
                 raise DatasetError(f"a trace has {table} columns {', '.join(cols)} that this dataset was not "
+                                   "declared to hold")
+            if declared and not has and attr in held[table]:
+                raise DatasetError(f"a trace lacks {table} columns {', '.join(cols)} that this dataset was "
                                    "declared to hold")
 
 
@@ -268,7 +289,7 @@ def _tables_of(trace: Trace, index: int, schemas: Mapping[str, pa.Schema]) -> di
                                     *_optional(im, "imu", schemas["imu"])], schemas["imu"])
     u = trace.uwb
     nlos = (_arrow(u.nlos, pa.bool_()) if u.nlos_known else pa.nulls(len(u), pa.bool_()))
-    anchor_id = _strings_at(trace.anchors.ids, u.anchor)
+    anchor_id = pa.DictionaryArray.from_arrays(_arrow(u.anchor, pa.int16()), _arrow(trace.anchors.ids, pa.string()))
     out["uwb"] = _table("uwb", [np.full(len(u), index, np.int32), u.t_s, anchor_id, u.range_m, u.true_range_m,
                                 nlos, u.burst, u.reason], schemas["uwb"])
     a = trace.anchors
@@ -287,8 +308,9 @@ class DatasetWriter:
     ``compact``: store :data:`FLOAT32_COLUMNS` as float32 (generated data). ``column_groups``: the
     optional column groups (:data:`OPTIONAL_COLUMNS`, by record attribute) the dataset holds, per table,
     e.g. :func:`generated_column_groups`; None holds them all, with nulls where a trace lacks a group.
-    Naming them saves writing (and reading) columns of nulls; a trace that has a group the dataset does
-    not hold raises :class:`DatasetError` (in :meth:`add`) rather than lose it.
+    Naming them saves writing (and reading) columns of nulls and writes them as Parquet REQUIRED columns
+    (no definition levels: about a quarter less encoding time); a trace that has a group the dataset does
+    not hold, or lacks one it holds, raises :class:`DatasetError` (in :meth:`add`) rather than lose it.
 
     :meth:`add` keeps the trace it is given as it is and converts the one before to Arrow tables (so
     at most one trace waits unconverted); a row group is written when it holds ``row_group_traces``
@@ -317,6 +339,7 @@ class DatasetWriter:
             raise
         self._rows = {name: 0 for name in TABLES}
         self._held = {name: _held_groups(name, column_groups) for name in TABLES}
+        self._declared = column_groups is not None
         self._compact = compact
         self._schemas: dict[str, pa.Schema] = {}
         self._writers: dict[str, pq.ParquetWriter] = {}  # opened by _open_writers
@@ -335,7 +358,7 @@ class DatasetWriter:
     def add(self, trace: Trace, index: int | None = None) -> None:
         safety.check_interrupted()  # a signal whose exception was swallowed (physynth.io.safety)
         index = len(self._trace_meta) if index is None else int(index)
-        _check_declared(trace, self._held)
+        _check_declared(trace, self._held, self._declared)
         self._convert()  # the previous trace
         self._unconverted = (trace, index)
         self._pending += 1
@@ -351,12 +374,12 @@ class DatasetWriter:
         if len(self._writers) < len(TABLES):
             import pyarrow.parquet as pq
 
-            self._schemas = self._schemas or {name: _schema(name, self._compact, self._held[name]) for name in TABLES}
+            self._schemas = self._schemas or {name: _schema(name, self._compact, self._held[name], self._declared)
+                                             for name in TABLES}
             for name in (n for n in TABLES if n not in self._writers):
                 self._writers[name] = pq.ParquetWriter(
-                    self.tmp / f"{name}.parquet", self._schemas[name], compression="snappy",
-                    use_byte_stream_split=_float_columns(self._schemas[name]),
-                    use_dictionary=["anchor_id", "name"], write_statistics=["trace"])
+                    self.tmp / f"{name}.parquet", self._schemas[name], store_schema=False,
+                    **_column_options(self._schemas[name], self._compact))
         return self._writers
 
     def _convert(self) -> None:
