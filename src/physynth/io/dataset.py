@@ -224,42 +224,20 @@ def _arrow(values: Any, typ: pa.DataType) -> pa.Array:
     return pa.array(values, type=typ)
 
 
-def _joined(parts: list[Any], typ: pa.DataType) -> pa.Array | pa.ChunkedArray:
-    """One column of a row group from the traces' parts: NumPy parts joined (and cast) by one
-    ``numpy.concatenate``; Arrow parts (anchor ids) or None (nulls: a trace lacks the column) chunked."""
+def _table(name: str, cols: list[Any], schema: pa.Schema) -> pa.Table:
+    """A table of ``schema`` (one of ``SCHEMAS``, compact or restricted by :func:`_schema`) from NumPy columns."""
     import pyarrow as pa
 
-    numpy_of = _numpy_of()
-    if all(isinstance(p, np.ndarray) for p in parts):
-        if typ in numpy_of:
-            return _arrow(np.concatenate(parts, dtype=numpy_of[typ]), typ)
-        if typ == pa.bool_():
-            return _arrow(np.concatenate(parts), typ)
-    if typ == pa.string() and all(isinstance(p, (list, tuple)) for p in parts):
-        return _arrow([v for p in parts for v in p], typ)
-    return pa.chunked_array([pa.nulls(len(p), typ) if isinstance(p, _Nulls) else _arrow(p, typ) for p in parts],
-                            type=typ)
+    n = len(cols[0])
+    return pa.Table.from_arrays([pa.nulls(n, f.type) if c is None else _arrow(c, f.type)
+                                 for c, f in zip(cols, schema, strict=True)], schema=schema)
 
 
-class _Nulls(int):
-    """A trace's column of ``int(self)`` nulls (a group or flag that the trace lacks)."""
-
-    def __len__(self) -> int:
-        return int(self)
-
-
-def _table(parts: list[list[Any]], schema: pa.Schema) -> pa.Table:
-    """A row group of ``schema`` (:func:`_schema`) from the columns of its traces (:func:`_columns_of`)."""
-    import pyarrow as pa
-
-    return pa.Table.from_arrays([_joined([cols[j] for cols in parts], f.type) for j, f in enumerate(schema)],
-                                schema=schema)
-
-
-def _optional(record: Any, table: str, schema: pa.Schema) -> list[np.ndarray | _Nulls]:
-    """Columns of the optional groups of ``record`` that ``schema`` holds, in schema order; nulls where the
-    record lacks a group. A group the record has but the schema lacks is an error (it would be lost)."""
-    out: list[np.ndarray | _Nulls] = []
+def _optional(record: Any, table: str, schema: pa.Schema) -> list[np.ndarray | None]:
+    """Columns of the optional groups of ``record`` that ``schema`` holds, in schema order; None (written
+    as nulls) where the record lacks a group. A group the record has but the schema lacks is an error
+    (it would be lost)."""
+    out: list[np.ndarray | None] = []
     names = set(schema.names)
     for attr, cols in OPTIONAL_COLUMNS[table].items():
         value = getattr(record, attr)
@@ -268,7 +246,7 @@ def _optional(record: Any, table: str, schema: pa.Schema) -> list[np.ndarray | _
                 raise DatasetError(f"a trace has {table} columns {', '.join(cols)} that this dataset was not "
                                    "declared to hold")
             continue
-        out += [_Nulls(record.t_s.shape[0]) if value is None else value[:, k] for k in range(len(cols))]
+        out += [None if value is None else value[:, k] for k in range(len(cols))]
     return out
 
 
@@ -298,22 +276,25 @@ def _optional_group(cols: dict[str, np.ndarray], table: str, attr: str) -> np.nd
     return arr
 
 
-def _columns_of(trace: Trace, index: int, schemas: Mapping[str, pa.Schema]) -> dict[str, list[Any]]:
-    """The columns of ``trace`` per table, in schema order (NumPy arrays, views where possible)."""
+def _tables_of(trace: Trace, index: int, schemas: Mapping[str, pa.Schema]) -> dict[str, pa.Table]:
     import pyarrow as pa
 
     tr = trace.truth
-    out = {"truth": [np.full(tr.t_s.shape[0], index, np.int32), tr.t_s, *tr.pos_enu_m.T, *tr.vel_enu_mps.T,
-                     *_optional(tr, "truth", schemas["truth"])]}
+    n = tr.t_s.shape[0]
+    out = {"truth": _table("truth", [np.full(n, index, np.int32), tr.t_s, *tr.pos_enu_m.T, *tr.vel_enu_mps.T,
+                                     *_optional(tr, "truth", schemas["truth"])], schemas["truth"])}
     if trace.imu is not None:
         im = trace.imu
-        out["imu"] = [np.full(im.t_s.shape[0], index, np.int32), im.t_s, *_optional(im, "imu", schemas["imu"])]
+        out["imu"] = _table("imu", [np.full(im.t_s.shape[0], index, np.int32), im.t_s,
+                                    *_optional(im, "imu", schemas["imu"])], schemas["imu"])
     u = trace.uwb
+    nlos = (_arrow(u.nlos, pa.bool_()) if u.nlos_known else pa.nulls(len(u), pa.bool_()))
     anchor_id = pa.DictionaryArray.from_arrays(_arrow(u.anchor, pa.int16()), _arrow(trace.anchors.ids, pa.string()))
-    out["uwb"] = [np.full(len(u), index, np.int32), u.t_s, anchor_id, u.range_m, u.true_range_m,
-                  u.nlos if u.nlos_known else _Nulls(len(u)), u.burst, u.reason]
+    out["uwb"] = _table("uwb", [np.full(len(u), index, np.int32), u.t_s, anchor_id, u.range_m, u.true_range_m,
+                                nlos, u.burst, u.reason], schemas["uwb"])
     a = trace.anchors
-    out["anchors"] = [np.full(len(a), index, np.int32), list(a.ids), list(a.names), *a.pos_enu_m.T]
+    out["anchors"] = _table("anchors", [np.full(len(a), index, np.int32), a.ids, a.names, *a.pos_enu_m.T],
+                            schemas["anchors"])
     return out
 
 
@@ -331,11 +312,10 @@ class DatasetWriter:
     (no definition levels: about a quarter less encoding time); a trace that has a group the dataset does
     not hold, or lacks one it holds, raises :class:`DatasetError` (in :meth:`add`) rather than lose it.
 
-    :meth:`add` keeps the traces it is given as they are (``row_group_traces`` at most); a row group is
-    written when it holds ``row_group_traces`` traces or the writer closes, each column joined across
-    its traces by one NumPy concatenation (per-trace Arrow tables cost 0.3 ms a default trace more).
-    The Parquet files are opened, and pyarrow imported, by the first row group: the first trace is added
-    (and a caller can report it) before pyarrow is imported.
+    :meth:`add` keeps the trace it is given as it is and converts the one before to Arrow tables (so
+    at most one trace waits unconverted); a row group is written when it holds ``row_group_traces``
+    traces or the writer closes. The Parquet files are opened, and pyarrow imported, by the first
+    conversion: the first trace is added (and a caller can report it) before pyarrow is imported.
     """
 
     def __init__(self, path: str | os.PathLike, *, meta: dict[str, Any] | None = None,
@@ -363,7 +343,9 @@ class DatasetWriter:
         self._compact = compact
         self._schemas: dict[str, pa.Schema] = {}
         self._writers: dict[str, pq.ParquetWriter] = {}  # opened by _open_writers
-        self._pending: list[tuple[Trace, int]] = []  # the traces of the row group being filled
+        self._unconverted: tuple[Trace, int] | None = None  # the last trace added, converted by the next add
+        self._tables: dict[str, list[pa.Table]] = {name: [] for name in TABLES}  # the row group being filled
+        self._pending = 0  # traces of the row group being filled
         self._row_group_traces = row_group_traces
         self._trace_meta: list[dict[str, Any]] = []
         self._frames: set[str] = set()
@@ -377,16 +359,18 @@ class DatasetWriter:
         safety.check_interrupted()  # a signal whose exception was swallowed (physynth.io.safety)
         index = len(self._trace_meta) if index is None else int(index)
         _check_declared(trace, self._held, self._declared)
-        self._pending.append((trace, index))
+        self._convert()  # the previous trace
+        self._unconverted = (trace, index)
+        self._pending += 1
         self._trace_meta.append({"trace": index, **jsonable(trace.meta)})
         if trace.imu is not None:
             self._frames.update(trace.imu.frames)
         self._attitude = self._attitude or trace.truth.has_attitude
-        if len(self._pending) >= self._row_group_traces:
+        if self._pending >= self._row_group_traces:
             self._flush()
 
     def _open_writers(self) -> dict[str, pq.ParquetWriter]:
-        """The Parquet writers of the tables, opened on the first call (the first row group, or close)."""
+        """The Parquet writers of the tables, opened on the first call (the first conversion, or close)."""
         if len(self._writers) < len(TABLES):
             import pyarrow.parquet as pq
 
@@ -398,17 +382,27 @@ class DatasetWriter:
                     **_column_options(self._schemas[name], self._compact))
         return self._writers
 
+    def _convert(self) -> None:
+        """Convert the trace waiting unconverted, if any, to Arrow tables of the row group being filled."""
+        if self._unconverted is not None:
+            self._open_writers()
+            (trace, index), self._unconverted = self._unconverted, None
+            for name, table in _tables_of(trace, index, self._schemas).items():
+                self._tables[name].append(table)
+
     def _flush(self) -> None:
         """Write the traces added since the last row group as one row group of every table."""
+        import pyarrow as pa
+
         writers = self._open_writers()
-        columns = [_columns_of(trace, index, self._schemas) for trace, index in self._pending]
-        for name in TABLES:
-            parts = [c[name] for c in columns if name in c]
-            if parts:
-                table = _table(parts, self._schemas[name])
+        self._convert()
+        for name, tables in self._tables.items():
+            if tables:
+                table = pa.concat_tables(tables)
                 writers[name].write_table(table)
                 self._rows[name] += table.num_rows
-        self._pending = []
+            self._tables[name] = []
+        self._pending = 0
 
     def close(self) -> Path:
         """Finish every table, write ``dataset.json`` and swap the dataset into place.
