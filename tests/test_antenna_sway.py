@@ -9,7 +9,7 @@ from helpers import simple_scenario
 from physynth.calibrate import calibrate
 from physynth.calibrate.antenna_sway import fit_antenna_sway
 from physynth.generate import generate_trace, generate_traces
-from physynth.models.uwb import antenna_sway
+from physynth.models.uwb import antenna_sway, travelled_m
 
 
 def test_sway_is_a_stationary_ou_process_with_its_std_and_correlation_time():
@@ -57,6 +57,7 @@ def test_calibration_recovers_the_sway_and_keeps_the_white_rest():
     sc = fit.scenario
     span = sum(t.duration_s for t in traces)
     n_indep = span / (2.0 * tau)
+    assert sc.uwb.antenna_sway_clock == "time"  # no stop to tell the clocks apart: the time clock, as before
     assert sc.uwb.antenna_sway_std_m == pytest.approx(std, rel=4.0 / np.sqrt(2.0 * n_indep))
     assert sc.uwb.antenna_sway_tau_s == pytest.approx(tau, rel=0.25)
     assert sc.channel.los_std_m == pytest.approx(white, rel=0.35)
@@ -82,3 +83,143 @@ def test_fit_on_a_known_sequence():
     assert fit["identifiable"]
     assert fit["std_m"] == pytest.approx(0.05, rel=0.15) and fit["tau_s"] == pytest.approx(1.5, rel=0.25)
     assert fit["white_std_m"] == pytest.approx(0.02, rel=0.3)
+
+
+def test_travelled_distance_integrates_the_speed():
+    t = np.arange(0.0, 10.0, 0.5)
+    vel = np.zeros((t.size, 3))
+    vel[:, 0], vel[:, 1] = 3.0, 4.0  # 5 m/s
+    vel[8:12] = 0.0  # a stop: 4 samples at rest
+    vel[5, 2] = np.nan  # an unknown velocity counts as rest
+    c = travelled_m(t, vel)
+    seg = 0.5 * (np.nan_to_num(np.linalg.norm(vel, axis=1))[1:] + np.nan_to_num(np.linalg.norm(vel, axis=1))[:-1]) * 0.5
+    np.testing.assert_allclose(c, np.concatenate([[0.0], np.cumsum(seg)]))
+    assert c[0] == 0.0 and np.all(np.diff(c) >= 0) and c[11] == c[8]  # nothing travelled while at rest
+    assert c[4] == pytest.approx(10.0)  # 2 s at 5 m/s
+
+
+def _sway_errors(clock: str, speed: float, seed: int, **extra):
+    """Range errors of anchor A1 (sway only) of one trace, with its times and the tag's speed."""
+    scn = simple_scenario(**{"uwb.antenna_sway_std_m": 0.1, "uwb.antenna_sway_clock": clock,
+                             "uwb.antenna_sway_length_m": 2.0, "uwb.antenna_sway_tau_s": 2.0,
+                             "motion.cruise_speed_mps": speed, **extra})
+    tr = generate_trace(scn, 0, seed)
+    u = tr.uwb
+    m = (u.anchor == 0) & np.isfinite(u.range_m)
+    return u.t_s[m], (u.range_m - u.true_range_m)[m]
+
+
+def test_distance_clock_holds_the_offset_while_the_tag_stands_still():
+    stops = {"motion.dwell_start_s": 20.0, "motion.dwell_end_s": 20.0}
+    t, err = _sway_errors("distance", 3.0, 5, **stops)
+    still = t < 19.5
+    assert still.sum() > 300
+    assert np.ptp(err[still]) < 1e-9  # the same offset along the same line of sight
+    assert np.std(err[~still]) > 0.02  # and a new one as the tag moves
+    t, err = _sway_errors("time", 3.0, 5, **stops)
+    assert np.ptp(err[t < 19.5]) > 0.05  # the time clock's offset wanders while the tag stands
+
+
+def _lag_correlation(t: np.ndarray, err: np.ndarray, lag_s: float) -> tuple[float, int]:
+    k = int(np.median(np.searchsorted(t, t + lag_s) - np.arange(t.size)))  # rows one lag apart
+    return float(np.corrcoef(err[:-k], err[k:])[0, 1]), err.size
+
+
+def test_distance_clock_changes_faster_on_a_faster_carrier():
+    """Correlation of the errors 1 s apart: exp(-v / L) on the distance clock (v = 1 and 4 m/s, L = 2 m:
+    0.61 and 0.14), exp(-1 / tau) = 0.61 at either speed on the time clock."""
+    got = {}
+    for clock in ("distance", "time"):
+        for v in (1.0, 4.0):
+            pairs = [_lag_correlation(*_sway_errors(clock, v, s), 1.0) for s in range(4)]
+            got[clock, v] = np.mean([p[0] for p in pairs])
+    # independent stretches of the 300 m line: 300 / (2 L) at least, over 4 traces: 0.1 is > 2 standard errors
+    assert got["distance", 1.0] == pytest.approx(np.exp(-0.5), abs=0.12)
+    assert got["distance", 4.0] == pytest.approx(np.exp(-2.0), abs=0.12)
+    assert got["time", 1.0] == pytest.approx(np.exp(-0.5), abs=0.12)
+    assert got["time", 4.0] == pytest.approx(np.exp(-0.5), abs=0.2)
+
+
+ZIGZAG = {"kind": "waypoints", "perturbation": {"lateral_std_m": 0.0, "sag_std_m": 0.0},
+          "waypoints_enu_m": [[0, 0, 1], [30, 0, 1], [30, 30, 1], [60, 30, 1], [60, 0, 1], [90, 0, 1], [90, 30, 1],
+                              [120, 30, 1], [120, 0, 1], [150, 0, 1], [150, 30, 1]]}
+"""Ten 30 m legs with a right angle between each: a carrier that turns."""
+ZIGZAG_ANCHORS = [{"id": "A1", "pos_enu_m": [-40, -60, 3]}, {"id": "A2", "pos_enu_m": [200, -60, 3]},
+                  {"id": "A3", "pos_enu_m": [80, 90, 3]}]
+
+
+def _change_by_turn(clock: str) -> dict[str, float]:
+    """Mean |change| of the range error (sway only, one far anchor: one line of sight) between rows 5 m
+    of travel apart, for pairs turned under 0.1 rad and over 0.4 rad between them; six traces."""
+    from physynth.models.uwb import turned_rad
+
+    far = [{"id": "A1", "pos_enu_m": [-5000.0, 15.0, 1.0]}]
+    scn = simple_scenario(path=ZIGZAG, anchors=far, **{
+        "uwb.antenna_sway_std_m": 0.1, "uwb.antenna_sway_clock": clock, "uwb.antenna_sway_length_m": 1000.0,
+        "uwb.antenna_sway_turn_rad": 0.5, "uwb.antenna_sway_tau_s": 2.0, "motion.cruise_speed_mps": 2.0,
+        "attitude.kind": "tangent"})
+    out: dict[str, list[np.ndarray]] = {"straight": [], "turning": []}
+    for seed in range(6):
+        tr = generate_trace(scn, 0, seed)
+        u, truth = tr.uwb, tr.truth
+        err = u.range_m - u.true_range_m
+        d = np.interp(u.t_s, truth.t_s, travelled_m(truth.t_s, truth.vel_enu_mps))
+        h = np.interp(u.t_s, truth.t_s, turned_rad(truth.t_s, truth.vel_enu_mps, truth.omega_body_radps))
+        for k in range(20, 120):  # rows k apart: 5 m of travel is about 57 rows at 2 m/s and 20 Hz
+            five = np.abs(d[k:] - d[:-k] - 5.0) < 0.5
+            dh, de = (h[k:] - h[:-k])[five], np.abs(err[k:] - err[:-k])[five]
+            out["straight"].append(de[dh < 0.1])
+            out["turning"].append(de[dh > 0.4])
+    return {key: float(np.mean(np.concatenate(v))) for key, v in out.items()}
+
+
+def test_motion_clock_changes_the_offset_where_the_carrier_turns():
+    """Length 1 km (the distance alone barely moves it), turn 0.5 rad: over the same 5 m the offset moves
+    about 2.4 times as much where the carrier turns (> 0.4 rad) as where it goes straight (< 0.1 rad);
+    on the time clock the turns make no difference."""
+    motion, time_ = _change_by_turn("motion"), _change_by_turn("time")
+    assert motion["turning"] > 1.8 * motion["straight"], motion
+    assert 0.7 < time_["turning"] / time_["straight"] < 1.4, time_
+
+
+@pytest.mark.parametrize("clock", ["distance", "time"])
+def test_calibration_tells_the_clocks_apart_when_the_tag_stops(clock):
+    """Stops of 15 s at both ends of a 1 m/s walk: the clock the traces were made with is the one picked,
+    with its scale (300 m / (2 x 2 m) x 4 traces: 300 independent stretches, a few per cent of sampling
+    error; 30 % also leaves room for the range law, which the rows of a long stop at one range pull)."""
+    std, scale, white = 0.06, 2.0, 0.02
+    scn = simple_scenario(**{"uwb.antenna_sway_std_m": std, "uwb.antenna_sway_clock": clock,
+                             "uwb.antenna_sway_tau_s": scale, "uwb.antenna_sway_length_m": scale,
+                             "channel.los_std_m": white, "motion.cruise_speed_mps": 1.0,
+                             "motion.dwell_start_s": 15.0, "motion.dwell_end_s": 15.0,
+                             "uwb.burst_rate_hz": 10.0, "channel.rate_hz": 10.0})  # fewer rows: a faster fit
+    fit = calibrate(list(generate_traces(scn, 4, seed=7)))
+    sw = fit.report["antenna_sway"]
+    other = "distance" if clock == "time" else "time"
+    assert sw["clock"] == clock, sw["fits"]
+    assert sw["fits"][clock]["mse_m4"] < 0.7 * sw["fits"][other]["mse_m4"]
+    u = fit.scenario.uwb
+    assert u.antenna_sway_clock == clock
+    fitted = u.antenna_sway_length_m if clock == "distance" else u.antenna_sway_tau_s
+    assert fitted == pytest.approx(scale, rel=0.3)
+    assert u.antenna_sway_std_m == pytest.approx(std, rel=0.25)
+
+
+def test_calibration_finds_the_motion_clock_of_a_turning_carrier():
+    """A 1 m/s walk along the zigzag: an offset that follows the turns (length 20 m, turn 0.4 rad) is found
+    on the motion clock with its turn scale (within a grid step and the sampling error of three traces).
+    (An offset that follows the time is kept on the time clock: the stops test above.)"""
+    clock = "motion"
+    scn = simple_scenario(path=ZIGZAG, anchors=ZIGZAG_ANCHORS, **{
+        "uwb.antenna_sway_std_m": 0.06, "uwb.antenna_sway_clock": clock, "uwb.antenna_sway_tau_s": 2.0,
+        "uwb.antenna_sway_length_m": 20.0, "uwb.antenna_sway_turn_rad": 0.4, "channel.los_std_m": 0.02,
+        "motion.cruise_speed_mps": 1.0, "attitude.kind": "tangent", "motion.dwell_start_s": 10.0,
+        "motion.dwell_end_s": 10.0, "uwb.burst_rate_hz": 10.0, "channel.rate_hz": 10.0})
+    fit = calibrate(list(generate_traces(scn, 3, seed=7)))
+    sw = fit.report["antenna_sway"]
+    other = [k for k in sw["fits"] if k != clock]
+    assert sw["clock"] == clock and sw["fits"][clock]["mse_m4"] < 0.5 * sw["fits"][other[0]]["mse_m4"]
+    u = fit.scenario.uwb
+    assert u.antenna_sway_clock == clock
+    assert u.antenna_sway_std_m == pytest.approx(0.06, rel=0.25)
+    assert u.antenna_sway_turn_rad == pytest.approx(0.4, rel=0.4)

@@ -18,7 +18,7 @@ Targets (issue 12): KS <= 0.10, UWB >= 1 and mean AoI within 15 %, median within
 the band.
 
     .venv/bin/python tools/loo_hanyang.py [--n 50] [--seed 1] [--long-outages] [--range-bias-law L] [--out DIR]
-                                          [--white-twin] [--no-tag-nlos]
+                                          [--white-twin] [--no-tag-nlos] [--sway-clock auto|time|motion]
                                           [--data ../shared/data/hanyang-uwb]
 """
 
@@ -59,6 +59,9 @@ def main() -> None:
                          "swaying part (the model before the sway; tools/sway_check.py)")
     ap.add_argument("--no-tag-nlos", action="store_true",
                     help="validate each calibration with uwb.tag_nlos_prob = 0 (no tag-side NLOS)")
+    ap.add_argument("--sway-clock", choices=("auto", "time", "motion"), default="auto",
+                    help="validate with the antenna sway on this clock, fitted on it (auto: the one calibrate "
+                         "picks; motion: the motion or distance fit; the LOS white std stays that of the pick)")
     args = ap.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -79,6 +82,8 @@ def main() -> None:
             scn = res.scenario
             if args.white_twin and res.report["antenna_sway"]["identifiable"]:
                 scn = white_twin(scn, res.report["antenna_sway"]["slow_share"])
+            if args.sway_clock != "auto":
+                scn = with_sway_clock(scn, res.report["antenna_sway"], args.sway_clock)
             if args.no_tag_nlos:
                 scn = scn.model_copy(update={"uwb": scn.uwb.model_copy(update={"tag_nlos_prob": 0.0})})
             rep = validate_datasets(dirs[left], scenario=scn, n=args.n, seed=args.seed, transfer=True)
@@ -97,19 +102,39 @@ def main() -> None:
                          c["abs_residual_p95_m"]["real_in_band"], c["abs_residual_p95_m"]["band_5_95"],
                          rep.real["abs_residual_p95_m"], rep.extended["residual_acf_max_abs_diff"],
                          acf["real"][:3], acf["synthetic"][:3], rep.extended["residual_acf_inliers"],
-                         rep.extended["residual_burst_deviation_std_m"], time.perf_counter() - t0))
+                         rep.extended["residual_burst_deviation_std_m"], rep.extended["residual_still_correlation"],
+                         time.perf_counter() - t0))
     print(f"leave-one-out, {args.n} synthetic traces per run, seed {args.seed}")
     print("| left-out run | KS | UWB>=1 dev. % | mean AoI dev. % | AoI dev. of the per-trace median % "
           "| AoI real in band | median diff. cm | P95 real (band) | P95 in band | ACF max diff (lags 1-10) "
-          "| ACF lag 1/2/3 real | synth | inlier ACF lag 1/5/10 real | synth | burst deviation cm real / synth |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for (name, ks, ge1, aoi, aoi_med, aoi_in, med, p95_in, band, p95, acf_d, acf_r, acf_s, acf_in, bd, _) in rows:
+          "| ACF lag 1/2/3 real | synth | inlier ACF lag 1/5/10 real | synth | burst deviation cm real / synth "
+          "| 1-3 s correlation still / moving, real | synth |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for (name, ks, ge1, aoi, aoi_med, aoi_in, med, p95_in, band, p95, acf_d, acf_r, acf_s, acf_in, bd, sc, _) in rows:
         inl = [" / ".join(f"{acf_in[side][k]:.2f}" for k in (0, 4, 9)) for side in ("real", "synthetic")]
         print(f"| {name} | {ks:.3f} | {ge1:.1f} | {aoi:.1f} | {aoi_med:.1f} | {'yes' if aoi_in else 'no'} | {med:+.1f} "
               f"| {p95:.3f} ({band[0]:.3f}-{band[1]:.3f}) | {'yes' if p95_in else 'no'} | {acf_d:.2f} "
               f"| {'/'.join(f'{x:.2f}' for x in acf_r)} | {'/'.join(f'{x:.2f}' for x in acf_s)} "
-              f"| {inl[0]} | {inl[1]} | {100 * bd['real']:.1f} / {100 * bd['synthetic']:.1f} |")
+              f"| {inl[0]} | {inl[1]} | {100 * bd['real']:.1f} / {100 * bd['synthetic']:.1f} "
+              f"| {_corr(sc, 'real')} | {_corr(sc, 'synthetic')} |")
     print(f"wall time per run: {', '.join(f'{r[-1]:.0f} s' for r in rows)}")
+
+
+def _corr(sc: dict, side: str) -> str:
+    return " / ".join("-" if sc[k][side] is None else f"{sc[k][side]:.2f}" for k in ("still", "moving"))
+
+
+def with_sway_clock(scn, fit: dict, clock: str):
+    """``scn`` with its antenna sway fitted on ``clock`` (the calibration report's ``antenna_sway.fits``)."""
+    fits = fit.get("fits", {})
+    key = clock if clock == "time" else next((k for k in ("motion", "distance") if k in fits), None)
+    if key not in fits:
+        raise SystemExit(f"no {clock} fit of the antenna sway in this calibration")
+    f = fits[key]
+    turn = {"antenna_sway_turn_rad": f["turn_rad"]} if f.get("turn_rad") else {}
+    scale = {"antenna_sway_tau_s": f["tau_s"]} if key == "time" else {"antenna_sway_length_m": f["length_m"], **turn}
+    return scn.model_copy(update={"uwb": scn.uwb.model_copy(update={
+        "antenna_sway_std_m": f["std_m"], "antenna_sway_clock": key, **scale})})
 
 
 if __name__ == "__main__":

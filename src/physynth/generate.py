@@ -115,7 +115,7 @@ def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int)
         sway = component_rng(root_seed, index, "uwb_sway") if s.uwb.antenna_sway_std_m > 0 else None
         tag = component_rng(root_seed, index, "uwb_tag") if cs.channel.tag_prob > 0 else None
         tries = simulate_uwb(kin, s.uwb, cs.channel, rng=component_rng(root_seed, index, "uwb"), sway_rng=sway,
-                             tag_rng=tag)
+                             tag_rng=tag, omega_body_radps=att.omega_body_radps)
         outage, dropped = simulate_availability(tries.t_true_s, tries.anchor, tries.burst, tries.bursts_s,
                                                 cs.availability, s.uwb.burst_rate_hz, range_m=tries.true_range_m,
                                                 rng=component_rng(root_seed, index, "availability"),

@@ -36,7 +36,7 @@ from scipy.optimize import minimize
 from .. import __version__
 from ..bounds import BOUNDS
 from ..models.availability import AvailabilityOverride, RatePosterior, gamma_rate_posterior
-from ..models.uwb import range_decades
+from ..models.uwb import range_decades, travelled_m, turned_rad
 from ..progress import ProgressCallback, no_progress
 from ..records import Trace
 from ..scenario import (
@@ -366,6 +366,8 @@ class _Channels:
     notes: list[str]
     per_anchor_t: dict[str, list[np.ndarray]] = field(default_factory=dict)  # row times per run
     per_anchor_run: dict[str, np.ndarray] = field(default_factory=dict)  # run index (into the traces) of each row
+    per_anchor_c: dict[str, list[np.ndarray]] = field(default_factory=dict)  # distance travelled at the rows, per run
+    per_anchor_h: dict[str, list[np.ndarray]] = field(default_factory=dict)  # angle turned at the rows, per run
 
     def los_masks(self) -> dict[str, np.ndarray]:
         return {a: self.mix[a].nlos_resp < 0.5 for a in self.per_anchor_rows}
@@ -415,11 +417,16 @@ def _fit_channels(trs: Sequence[Trace], offset: float | Sequence[float], ids: Se
     rows: dict[str, AnchorRows] = {}
     times: dict[str, list[np.ndarray]] = {}
     run_of: dict[str, np.ndarray] = {}
+    dist: dict[str, list[np.ndarray]] = {}
+    turned: dict[str, list[np.ndarray]] = {}
+    motion = [(travelled_m(t.truth.t_s, t.truth.vel_enu_mps),  # the antenna sway's motion clocks
+               turned_rad(t.truth.t_s, t.truth.vel_enu_mps, t.truth.omega_body_radps)) for t in trs]
     notes: list[str] = []
     for aid in ids:  # one mixture per anchor (one physical device), pooled over the runs
-        parts = [(r.residual_m[m], r.range_m[m], r.range_rate_mps[m], r.t_s[m], np.full(int(m.sum()), i))
-                 for i, (t, r) in enumerate(zip(trs, res, strict=True)) if aid in t.anchors.ids
-                 for m in [r.anchor == t.anchors.index(aid)]]
+        parts = [(r.residual_m[m], r.range_m[m], r.range_rate_mps[m], r.t_s[m], np.full(int(m.sum()), i),
+                  np.interp(r.t_s[m] - lag, t.truth.t_s, dist), np.interp(r.t_s[m] - lag, t.truth.t_s, turn))
+                 for i, (t, r, lag, (dist, turn)) in enumerate(zip(trs, res, lags, motion, strict=True))
+                 if aid in t.anchors.ids for m in [r.anchor == t.anchors.index(aid)]]
         sizes = [p[0].size for p in parts]
         ra = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0)
         ga = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0)
@@ -452,8 +459,11 @@ def _fit_channels(trs: Sequence[Trace], offset: float | Sequence[float], ids: Se
         rows[aid] = (ra, ga, np.concatenate([p[2] for p in parts]))
         times[aid] = [p[3] for p in parts]
         run_of[aid] = np.concatenate([p[4] for p in parts])
+        dist[aid] = [p[5] for p in parts]
+        turned[aid] = [p[6] for p in parts]
     return _Channels(pooled_r=pooled_r, pooled_fit=pooled_fit, pooled_sel=pooled_sel, mix=mix, mix_diag=mix_diag,
-                     flags=flags, per_anchor_rows=rows, notes=notes, per_anchor_t=times, per_anchor_run=run_of)
+                     flags=flags, per_anchor_rows=rows, notes=notes, per_anchor_t=times, per_anchor_run=run_of,
+                     per_anchor_c=dist, per_anchor_h=turned)
 
 
 def refine_time_offset(rows: dict[str, AnchorRows], los: dict[str, np.ndarray]) -> dict[str, Any] | None:
@@ -1100,11 +1110,12 @@ def _antenna_sway(chan: _Channels, rep: ReportBuilder) -> dict[str, Any]:
     def sequences():
         for aid, (ra, ga, _) in chan.per_anchor_rows.items():
             f, start = chan.mix[aid], 0
-            for nlos, t in zip(chan.flags[aid], chan.per_anchor_t.get(aid, []), strict=False):
+            for nlos, t, c, h in zip(chan.flags[aid], chan.per_anchor_t.get(aid, []), chan.per_anchor_c.get(aid, []),
+                                     chan.per_anchor_h.get(aid, []), strict=False):
                 x = ra[start:start + nlos.size] - f.los_centre(ga[start:start + nlos.size])
                 start += nlos.size
                 keep = ~nlos & np.isfinite(x)
-                yield x[keep], t[keep]
+                yield x[keep], t[keep], c[keep], h[keep]
 
     fit = fit_antenna_sway(sequences())
     rep.sections["antenna_sway"] = fit
@@ -1112,8 +1123,19 @@ def _antenna_sway(chan: _Channels, rep: ReportBuilder) -> dict[str, Any]:
         note = (f"slow share {fit['slow_share']:.2f} of the LOS variance; each anchor's los_std_m keeps the white "
                 f"rest (x {np.sqrt(1.0 - fit['slow_share']):.3f})")
         rep.param("uwb.antenna_sway_std_m", fit["std_m"], n=fit["n_rows"], summary=True, note=note)
-        rep.param("uwb.antenna_sway_tau_s", fit["tau_s"], n=fit["n_rows"], summary=True,
-                  note="exponential fit to the LOS residual autocovariance over 0.1-2 s")
+        mse = ", ".join(f"{k} {v['mse_m4']:.3g}" for k, v in fit["fits"].items())
+        rep.param("uwb.antenna_sway_clock", fit["clock"], n=fit["n_rows"], summary=True,
+                  note=f"the clock whose exponential fits the LOS residuals' semivariogram best (mean squared "
+                       f"error [m^4]: {mse})")
+        if fit["clock"] == "time":
+            rep.param("uwb.antenna_sway_tau_s", fit["tau_s"], n=fit["n_rows"], summary=True,
+                      note="exponential fit to the LOS residual autocovariance over 0.1-2 s")
+        else:
+            rep.param("uwb.antenna_sway_length_m", fit["length_m"], n=fit["n_rows"], summary=True,
+                      note="distance travelled over which the slow error decorrelates (semivariogram fit)")
+            if fit["clock"] == "motion":
+                rep.param("uwb.antenna_sway_turn_rad", fit["turn_rad"], n=fit["n_rows"], summary=True,
+                          note="angle turned over which the slow error decorrelates (semivariogram fit)")
     else:
         rep.not_identifiable.append(f"uwb.antenna_sway_* ({fit['why']})")
     return fit
@@ -1394,6 +1416,10 @@ def _sway_params(sway: dict[str, Any]) -> dict[str, float]:
     """``uwb.antenna_sway_*`` of an identified sway fit (none otherwise: the defaults, no sway)."""
     if not sway.get("identifiable"):
         return {}
+    if sway.get("clock") in ("distance", "motion"):
+        turn = {"antenna_sway_turn_rad": rounded(sway["turn_rad"], 3)} if sway["clock"] == "motion" else {}
+        return {"antenna_sway_std_m": rounded(sway["std_m"], 4), "antenna_sway_clock": sway["clock"],
+                "antenna_sway_length_m": rounded(sway["length_m"], 3), **turn}
     return {"antenna_sway_std_m": rounded(sway["std_m"], 4), "antenna_sway_tau_s": rounded(sway["tau_s"], 3)}
 
 

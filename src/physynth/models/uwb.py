@@ -31,7 +31,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from itertools import accumulate
-from typing import Annotated
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import Field
@@ -172,7 +172,13 @@ class UwbParams(ParamsModel):
     measured from the antenna: its error gains u . offset, with u the unit vector from the anchor to
     the tag. A slow error shared by the anchors the tag sees in one direction, as the real ranges of a
     walk have (docs/calibration.md). It draws from its own stream (``uwb_sway``); 0 (the default) draws
-    nothing.
+    nothing. ``antenna_sway_clock``: what the offset evolves with: ``time`` (correlation time
+    ``antenna_sway_tau_s``), ``distance``, the path the tag has travelled (correlation length
+    ``antenna_sway_length_m``), or ``motion``: the distance over ``antenna_sway_length_m`` plus the angle
+    the carrier turned over ``antenna_sway_turn_rad`` (:func:`motion_clock`). On the two motion clocks
+    the offset holds while the tag stands still and changes faster on a faster or turning carrier, as
+    the real walks' slow error does (it holds over 3 s of standing still and changes most where the
+    walker turns; docs/calibration.md).
 
     Tag-side NLOS: with ``tag_nlos_prob`` > 0, part of the NLOS time is the tag's own (a body, a pole
     or the ground next to the tag antenna): one episode process for the whole tag (long-run fraction
@@ -198,6 +204,9 @@ class UwbParams(ParamsModel):
     terrain: TerrainGrid | None = None
     antenna_sway_std_m: NonNegFloat = 0.0
     antenna_sway_tau_s: PositiveFloat = 2.0
+    antenna_sway_clock: Literal["time", "distance", "motion"] = "time"
+    antenna_sway_length_m: PositiveFloat = 2.0
+    antenna_sway_turn_rad: PositiveFloat = 1.0
     tag_nlos_prob: Probability = 0.0
 
 
@@ -807,6 +816,63 @@ def antenna_sway(t_s: np.ndarray, t0_s: float, t1_s: float, std_m: float, tau_s:
     return np.stack([np.interp(t_s, grid, path[k]) for k in range(3)], axis=1)
 
 
+def travelled_m(t_s: np.ndarray, vel_enu_mps: np.ndarray) -> np.ndarray:
+    """Distance travelled [m] since the first of the times ``t_s`` (T,): the speed |v| of the velocities
+    ``vel_enu_mps`` (T, 3) integrated by the trapezoidal rule (non-decreasing; NaN speeds count as 0)."""
+    speed = np.nan_to_num(np.sqrt(np.einsum("ij,ij->i", vel_enu_mps, vel_enu_mps)))
+    out = np.zeros(t_s.shape[0])
+    if t_s.shape[0] > 1:
+        np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(t_s), out=out[1:])
+    return out
+
+
+TURN_MIN_SPEED_MPS = 0.3
+"""Below this horizontal speed the direction of travel is no heading: :func:`turned_rad` counts no turn."""
+
+
+def turned_rad(t_s: np.ndarray, vel_enu_mps: np.ndarray, omega_body_radps: np.ndarray | None = None) -> np.ndarray:
+    """Angle [rad] the carrier has turned since the first of the times ``t_s`` (T,), non-decreasing: the
+    body rate |omega| integrated (``omega_body_radps`` (T, 3), each row held over its step, as the truth
+    stores it), or without it the changes of the direction of horizontal travel between samples both
+    moving faster than :data:`TURN_MIN_SPEED_MPS`."""
+    out = np.zeros(t_s.shape[0])
+    if t_s.shape[0] < 2:
+        return out
+    if omega_body_radps is not None:
+        rate = np.nan_to_num(np.sqrt(np.einsum("ij,ij->i", omega_body_radps, omega_body_radps)))
+        np.cumsum(rate[:-1] * np.diff(t_s), out=out[1:])
+        return out
+    v = np.nan_to_num(vel_enu_mps[:, :2])
+    speed = np.hypot(v[:, 0], v[:, 1])
+    step = np.abs(np.angle(np.exp(1j * np.diff(np.arctan2(v[:, 1], v[:, 0])))))  # wrapped to [0, pi]
+    step[(speed[1:] < TURN_MIN_SPEED_MPS) | (speed[:-1] < TURN_MIN_SPEED_MPS)] = 0.0
+    np.cumsum(step, out=out[1:])
+    return out
+
+
+def motion_clock(t_s: np.ndarray, vel_enu_mps: np.ndarray, omega_body_radps: np.ndarray | None, length_m: float,
+                 turn_rad: float) -> np.ndarray:
+    """The antenna sway's ``motion`` clock (T,): distance travelled over ``length_m`` plus angle turned
+    over ``turn_rad`` (:func:`travelled_m`, :func:`turned_rad`); ``turn_rad`` inf: the distance alone."""
+    clock = travelled_m(t_s, vel_enu_mps) / length_m
+    if np.isfinite(turn_rad):
+        clock += turned_rad(t_s, vel_enu_mps, omega_body_radps) / turn_rad
+    return clock
+
+
+def sway_at(t_s: np.ndarray, kin: Kinematics, params: UwbParams, *, rng: np.random.Generator,
+            omega_body_radps: np.ndarray | None = None) -> np.ndarray:
+    """(N, 3) antenna offset [m] at the times ``t_s`` of a run: :func:`antenna_sway` on the scenario's
+    clock, the time, or the truth's motion (:func:`motion_clock`; ``omega_body_radps``: the truth's body
+    rate, for the angle turned)."""
+    if params.antenna_sway_clock == "time":
+        return antenna_sway(t_s, float(kin.t_s[0]), float(kin.t_s[-1]), params.antenna_sway_std_m,
+                            params.antenna_sway_tau_s, rng=rng)
+    turn = params.antenna_sway_turn_rad if params.antenna_sway_clock == "motion" else np.inf
+    c = motion_clock(kin.t_s, kin.vel_enu_mps, omega_body_radps, params.antenna_sway_length_m, turn)
+    return antenna_sway(np.interp(t_s, kin.t_s, c), 0.0, float(c[-1]), params.antenna_sway_std_m, 1.0, rng=rng)
+
+
 def run_offsets(n_anchors: int, params: UwbParams, *, rng: np.random.Generator) -> np.ndarray:
     """Per-trace ranging offsets [m] of the anchors, (A,): a common one plus one per anchor.
 
@@ -850,8 +916,11 @@ class UwbAttempts:
 
 def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: np.random.Generator,
                  sway_rng: np.random.Generator | None = None,
-                 tag_rng: np.random.Generator | None = None) -> UwbAttempts:
+                 tag_rng: np.random.Generator | None = None,
+                 omega_body_radps: np.ndarray | None = None) -> UwbAttempts:
     """All ranging attempts of one run with their true and measured ranges and NLOS state.
+
+    ``omega_body_radps``: the truth's body rate (T, 3), for an antenna sway on the ``motion`` clock.
 
     ``sway_rng``: the stream of the antenna sway, needed when ``params.antenna_sway_std_m`` > 0;
     ``tag_rng``: that of the tag-side NLOS, needed when the channel has a tag-side process.
@@ -903,8 +972,7 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
     if u.antenna_sway_std_m > 0:  # the range from the swaying antenna: + u . offset
         if sway_rng is None:
             raise ValueError("antenna sway needs its random stream (sway_rng)")
-        sway = antenna_sway(t_true, float(kin.t_s[0]), float(kin.t_s[-1]), u.antenna_sway_std_m,
-                            u.antenna_sway_tau_s, rng=sway_rng)
+        sway = sway_at(t_true, kin, u, rng=sway_rng, omega_body_radps=omega_body_radps)
         for k in range(3):
             err += (tag_enu[k] - ch.anchor_pos_enu_m[:, k][anchor]) / np.maximum(true_range, 1e-9) * sway[:, k]
     err += true_range  # true_range + err

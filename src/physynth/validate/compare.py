@@ -107,6 +107,11 @@ EXTENDED_STATISTICS: dict[str, tuple[str, str]] = {
              "the error of the range differences, which carry the direction to a far tag."),
     "residual_burst_deviation_ratio": (
         "-", "residual_burst_deviation_std_m synthetic / real; 1 = range differences as clean as the real ones."),
+    "residual_still_correlation": (
+        "-", "Correlation of one anchor's residuals (within 0.5 m of its median) 1-3 s apart, for pairs "
+             "between which the tag travelled under 0.1 m (still) or 1 m or more (moving), real and "
+             "synthetic: a slow error tied to the tag's place holds while it stands; one tied to the clock "
+             "fades alike in both."),
     "imu_allan_ratio": (
         "-", "Allan deviation of the acceleration, synthetic / real, per axis (E, N, U) at tau = 0.1, "
              "1 and 10 s (overlapping estimator on the 100 Hz grid); 1 = equal."),
@@ -329,6 +334,9 @@ def _extended(real: SideEvidence, synth: SideEvidence) -> dict[str, Any]:
                                            "synthetic": _finite(synth.burst_deviation_std_m)},
         "residual_burst_deviation_ratio": _finite(synth.burst_deviation_std_m / real.burst_deviation_std_m
                                                   if real.burst_deviation_std_m > 0 else float("nan")),
+        "residual_still_correlation": {k: {"real": _finite(real.still_correlation[k]),
+                                           "synthetic": _finite(synth.still_correlation[k])}
+                                       for k in ("still", "moving")},
     }
     both_imu = real.allan_dev_mps2 is not None and synth.allan_dev_mps2 is not None
     if both_imu:

@@ -24,6 +24,13 @@ from ..records import Anchors, Trace
 ACF_MAX_LAG = 10
 """Residual autocorrelation is reported at lags 1..ACF_MAX_LAG measurements of one anchor."""
 INLIER_HALF_WIDTH_M = 0.5
+STILL_LAG_S = (1.0, 3.0)
+"""Pairs of one anchor's inlier residuals this far apart in time [s] give the still and moving
+correlations (``residual_still_correlation``)."""
+STILL_MAX_M = 0.1
+MOVING_MIN_M = 1.0
+"""A pair is still when the tag travelled less than STILL_MAX_M [m] between its two ranges, moving when
+it travelled MOVING_MIN_M [m] or more."""
 BURST_GAP_S = 0.02
 """Ranges of one trace less than this apart [s] (and less than half an anchor's own ranging period)
 belong to one burst (the anchors ranged one after another in a few milliseconds)."""
@@ -94,6 +101,7 @@ class SideEvidence:
     acf: np.ndarray  # (ACF_MAX_LAG,)
     acf_inliers: np.ndarray  # (ACF_MAX_LAG,), residuals within INLIER_HALF_WIDTH_M of their anchor's median
     burst_deviation_std_m: float  # within-burst deviation of the inlier residuals (NaN: no burst of 2+)
+    still_correlation: dict[str, float]  # "still", "moving": inlier residual correlation 1-3 s apart (NaN: no pair)
     psd_f_hz: np.ndarray | None
     psd_mps2_sq_per_hz: np.ndarray | None  # (3, F)
     allan_tau_s: np.ndarray | None
@@ -134,6 +142,7 @@ class _SideAccumulator:
         self.acf_in_den = 0.0
         self.burst_dev_ss = 0.0
         self.burst_dev_n = 0
+        self.still_sums = {k: np.zeros(3) for k in ("still", "moving")}  # sum x_i x_j, x_i^2, x_j^2
         self.allan_m = _allan_m_grid(rate_hz)
         self.allan_sums = np.zeros((3, self.allan_m.size))
         self.allan_counts = np.zeros(self.allan_m.size, dtype=np.int64)
@@ -194,6 +203,7 @@ class _SideAccumulator:
                     self.acf_num[k - 1] += float(np.dot(x[k:][same_k], x[:-k][same_k]))
             self._add_inlier_acf(s.residual_m[order], a)
             self._add_burst_deviation(trace)
+            self._add_still_correlation(trace)
 
         # IMU: Allan variance and Welch spectrum of the 100 Hz-grid acceleration
         y = _fill_gaps(s.imu_grid_mps2) if trace.imu is not None else None
@@ -265,6 +275,37 @@ class _SideAccumulator:
         self.burst_dev_ss += float(np.sum(dev * dev * (n[burst][multi] / (n[burst][multi] - 1.0))))
         self.burst_dev_n += int(dev.size)
 
+    def _add_still_correlation(self, trace: Trace) -> None:
+        """Sums of the products of one anchor's inlier residuals (within INLIER_HALF_WIDTH_M of its median,
+        its inlier mean removed) in pairs STILL_LAG_S apart, by the distance the tag travelled between
+        them (truth speed integrated): less than STILL_MAX_M (still) or MOVING_MIN_M and more (moving).
+        A slow error tied to the tag's place and carriage holds while it stands still; one tied to the
+        clock fades alike in both."""
+        from ..evaluate.metrics import residuals
+        from ..models.uwb import travelled_m
+
+        r, a, t = residuals(trace)
+        clock = np.interp(t, trace.truth.t_s, travelled_m(trace.truth.t_s, trace.truth.vel_enu_mps))
+        for j in np.unique(a):  # one anchor at a time: its rows in time order
+            m = a == j
+            x, tj, cj = r[m], t[m], clock[m]
+            order = np.argsort(tj, kind="stable")
+            x, tj, cj = x[order], tj[order], cj[order]
+            keep = np.abs(x - np.median(x)) < INLIER_HALF_WIDTH_M
+            x, tj, cj = x[keep], tj[keep], cj[keep]
+            if x.size < 2:
+                continue
+            x = x - x.mean()
+            for k in range(1, x.size):
+                dt = tj[k:] - tj[:-k]
+                if dt.min() > STILL_LAG_S[1]:
+                    break
+                pair = (dt >= STILL_LAG_S[0]) & (dt <= STILL_LAG_S[1])
+                dc = cj[k:] - cj[:-k]
+                for key, sel in (("still", pair & (dc < STILL_MAX_M)), ("moving", pair & (dc >= MOVING_MIN_M))):
+                    xi, xj = x[:-k][sel], x[k:][sel]
+                    self.still_sums[key] += (float(xi @ xj), float(xi @ xi), float(xj @ xj))
+
     def finish(self) -> tuple[SideEvidence, np.ndarray]:
         metrics = self.metrics.result()  # exactly what metrics.compute_metrics returns
         assert self.sample is not None and self.anchors is not None
@@ -294,6 +335,8 @@ class _SideAccumulator:
             acf_inliers=acf_in,
             burst_deviation_std_m=(float(np.sqrt(self.burst_dev_ss / self.burst_dev_n)) if self.burst_dev_n
                                    else float("nan")),
+            still_correlation={k: (float(v[0] / np.sqrt(v[1] * v[2])) if v[1] > 0 and v[2] > 0 else float("nan"))
+                               for k, v in self.still_sums.items()},
             psd_f_hz=self.psd_f,
             psd_mps2_sq_per_hz=None if self.psd_sum is None else self.psd_sum / self.psd_weight,
             allan_tau_s=self.allan_m / self.rate_hz if has_allan else None,

@@ -127,6 +127,9 @@ def _extended_value(name: str, value: Any) -> str:
                 + "; synth " + ", ".join(_fmt(value["synthetic"][i], 2) for i in (0, 1, 4, 9)))
     if name == "residual_burst_deviation_std_m":
         return f"real {_fmt(value['real'], 4)}; synth {_fmt(value['synthetic'], 4)}"
+    if name == "residual_still_correlation":
+        return "; ".join(f"{k} real {_fmt(value[k]['real'], 2)}, synth {_fmt(value[k]['synthetic'], 2)}"
+                         for k in ("still", "moving"))
     if name == "imu_allan_ratio":
         taus = value["tau_s"]
         return "; ".join(f"{ax.upper()}: " + ", ".join(f"{_fmt(r, 2)}@{t:g}s" for r, t in zip(row, taus, strict=True))
