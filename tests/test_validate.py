@@ -483,3 +483,28 @@ def test_inlier_autocorrelation_tells_a_slow_error_from_a_white_one(tmp_path):
     x = x[np.abs(x - np.median(x)) < INLIER_HALF_WIDTH_M]
     x = x - x.mean()
     assert float(x[1:] @ x[:-1] / (x @ x)) == pytest.approx(a["real"][0], abs=0.05)
+
+
+def test_still_correlation_tells_an_error_that_follows_the_motion_from_one_that_follows_the_clock(tmp_path):
+    """Stops of 20 s at both ends: on the distance clock the sway holds while the tag stands (still
+    correlation near 1: only the 2 mm white rest moves), on the time clock (tau 2 s) pairs 1-3 s apart
+    keep exp(-1 / 2)-exp(-3 / 2) of it; both fade alike while the tag walks 1 m/s."""
+    from helpers import simple_scenario
+
+    from physynth.generate import generate_traces
+    from physynth.io import write_dataset
+
+    def scenario(clock: str):
+        return simple_scenario(**{"uwb.antenna_sway_std_m": 0.06, "uwb.antenna_sway_clock": clock,
+                                  "uwb.antenna_sway_tau_s": 2.0, "uwb.antenna_sway_length_m": 2.0,
+                                  "channel.los_std_m": 0.002, "motion.cruise_speed_mps": 1.0,
+                                  "motion.dwell_start_s": 20.0, "motion.dwell_end_s": 20.0})
+
+    write_dataset(tmp_path / "motion", list(generate_traces(scenario("distance"), 2, seed=1)),
+                  meta={"kind": "synthetic"})
+    rep = validate_datasets(tmp_path / "motion", scenario=scenario("time"), n=2, seed=2)
+    sc = rep.extended["residual_still_correlation"]
+    assert sc["still"]["real"] > 0.95  # the distance clock: held while standing
+    assert 0.1 < sc["still"]["synthetic"] < 0.7  # the time clock: exp(-dt / 2 s) over 1-3 s, and pairs apart
+    for side in ("real", "synthetic"):  # 1-3 m walked over 1-3 s, length or tau 2: both about exp(-1)
+        assert 0.1 < sc["moving"][side] < 0.7
