@@ -1,5 +1,5 @@
 """Generation throughput of the default preset: traces per second in memory and written to Parquet,
-and peak memory. A benchmark that prints figures, not a timed test.
+and peak memory; and the CPU time of writing alone. A benchmark that prints figures, not a timed test.
 
     python benchmarks/bench_generate.py [--scenario NAME] [-n N] [--repeat R] [--body]
 
@@ -29,6 +29,26 @@ from physynth.generate import compile_scenario, generate_trace  # noqa: E402
 from physynth.io.scenario_file import load_scenario  # noqa: E402
 from physynth.scenario import scenario_from_dict, scenario_to_dict  # noqa: E402
 from physynth.workflows import generate_dataset  # noqa: E402
+
+WRITE_TRACES = 128
+"""Traces of the write-only measurement (one shard of ``generate``), held in memory."""
+
+
+def write_ms(scn, cs, n: int, repeat: int) -> float:
+    """CPU time [ms] per trace of writing ``n`` traces generated beforehand as one shard (what
+    ``generate`` does per shard: Parquet tables, SHA-256 records, atomic swap), best of ``repeat``."""
+    from physynth.io.shards import write_shard
+
+    traces = [generate_trace(cs, i, 0) for i in range(n)]
+    meta = {"imu_frames": list(scn.imu_frames)}
+    best = float("inf")
+    with tempfile.TemporaryDirectory(prefix="physynth-bench-") as tmp:
+        for r in range(repeat):
+            (Path(tmp) / f"p{r}").mkdir()
+            c0 = time.process_time()
+            write_shard(Path(tmp) / f"p{r}", 0, enumerate(traces), meta)
+            best = min(best, time.process_time() - c0)
+    return 1e3 * best / n
 
 
 def main() -> None:
@@ -85,6 +105,8 @@ def main() -> None:
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     print(f"to Parquet: {best_pq:8.1f} traces/s  ({size / args.n / 1e6:.2f} MB per trace on disk)")
+    print(f"writing alone (one shard of {min(args.n, WRITE_TRACES)} traces generated beforehand): "
+          f"{write_ms(scn, cs, min(args.n, WRITE_TRACES), args.repeat):.2f} ms per trace (best of {args.repeat})")
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"peak memory (max RSS of this process): {peak_mb:.0f} MB")
 
