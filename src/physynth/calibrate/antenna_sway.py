@@ -50,8 +50,6 @@ bends the autocovariance down)."""
 LAG_BIN_M = 0.1
 """Width of the travelled-distance-difference bins [m] (the ``distance`` clock)."""
 MAX_LAG_M = 3.0
-FIT_MAX_LAG_M = 2.0
-"""Longest travelled distance between two rows the exponential is fitted to [m]."""
 MIN_SLOW_SHARE = 0.2
 """Smallest share of the LOS variance the slow part must carry to be kept."""
 MIN_PAIRS_PER_BIN = 50
