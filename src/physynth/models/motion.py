@@ -169,11 +169,20 @@ def kinematics(geometry: PathGeometry, pert: PathPerturbation, params: MotionPar
     u /= trip
     np.maximum(u, 0.0, out=u)  # numpy.clip's values (a zero's sign aside, which numpy.interp does not see)
     np.minimum(u, 1.0, out=u)
-    moving = (t > params.dwell_start_s) & (t < params.dwell_start_s + trip)
     scale = geometry.length_m / shape.mean
-    along = scale * np.interp(u, shape.u, shape.cum)  # distance travelled [m]
-    speed = np.where(moving, scale / trip * np.interp(u, shape.u, shape.g), 0.0)
-    accel = np.where(moving, scale / trip**2 * np.interp(u, shape.u, shape.dg), 0.0)
+    along = np.interp(u, shape.u, shape.cum)  # distance travelled [m]
+    along *= scale
+    speed = np.interp(u, shape.u, shape.g)
+    speed *= scale / trip
+    accel = np.interp(u, shape.u, shape.dg)
+    accel *= scale / trip**2
+    # zero outside the open interval of motion (dwell_start, dwell_start + trip): the times are sorted
+    # (and finite), so that interval is one run of samples and the rest is set in place
+    first = int(t.searchsorted(params.dwell_start_s, side="right"))  # t <= dwell_start: at rest
+    end = int(t.searchsorted(params.dwell_start_s + trip, side="left"))  # t >= its end: at rest
+    for a in (speed, accel):
+        a[:first] = 0.0
+        a[end:] = 0.0
     s, ds, dds = _signed(geometry.length_m, along, speed, accel, reverse)
     p, d1, d2 = perturbed_cf(geometry, pert, s, lateral_dir)  # (3, T): fast broadcasting over time
     for _ in range(SPEED_LIMIT_PASSES if params.max_acc_mps2 is not None else 0):

@@ -424,16 +424,23 @@ def burst_times(t_start_s: float, t_end_s: float, burst_rate_hz: float, jitter_s
     period = 1.0 / burst_rate_hz
     n = int(np.ceil((t_end_s - t_start_s) * burst_rate_hz)) + 2
     first = rng.uniform(0.0, period) if phase_s is None else float(phase_s) % period
-    t = t_start_s + first + period * np.arange(n)
+    t = np.arange(n, dtype=np.float64)  # t_start + first + period k, in one buffer (the same values)
+    t *= period
+    t += t_start_s + first
     if jitter_s > 0:
         jitter = rng.standard_normal(n)
         jitter *= jitter_s
         np.maximum(jitter, -0.45 * period, out=jitter)  # numpy.clip's values
         np.minimum(jitter, 0.45 * period, out=jitter)
-        t = t + jitter
-        gap = np.maximum(np.diff(t), min_period_s)
-        t = np.concatenate([t[:1], t[0] + np.cumsum(gap)])
-    return t[(t >= t_start_s) & (t < t_end_s)]
+        t += jitter
+        gap = np.subtract(t[1:], t[:-1])  # numpy.diff's values
+        np.maximum(gap, min_period_s, out=gap)
+        np.cumsum(gap, out=t[1:])  # t_0 + the cumulative gaps, into t (t_0 itself stays)
+        t[1:] += t[0]
+        if not min_period_s >= 0:  # gaps of either sign: not sorted
+            return t[(t >= t_start_s) & (t < t_end_s)]
+    # sorted times (periods, or gaps of at least min_period_s >= 0): those in [t_start, t_end) are one run
+    return t[t.searchsorted(t_start_s, side="left"):t.searchsorted(t_end_s, side="left")]
 
 
 def link_probability(range_m: np.ndarray, max_range_m: np.ndarray, edge_width_m: np.ndarray) -> np.ndarray:
