@@ -86,6 +86,36 @@ def _polyval_cf(x: np.ndarray, c: np.ndarray, x_finite: bool = False) -> np.ndar
     return out
 
 
+_PRODUCT_MAX_COEFFS = 24
+"""Longest power series evaluated by :func:`_products_cf` (longer ones: Horner's steps)."""
+_PRODUCT_COLUMNS = 2048
+"""Samples per matrix product in :func:`_products_cf`: 9 x 11 x 2048 multiply-adds stay below the size at
+which OpenBLAS splits a product over threads (which costs more CPU time than it saves at this size)."""
+
+
+def _products_cf(s_m: np.ndarray, stack: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """p, dp/ds, d2p/ds2 (each (3, N), rows of one (9, N) array) at finite 1-D ``s_m`` as one matrix
+    product of the (9, K) coefficient rows (:attr:`PathGeometry._stack`) with the powers s^k (K, N).
+
+    Three times faster than Horner's 27 steps per sample (:func:`_polyval_cf`), and as accurate (both
+    within a few ulp of the largest term; the values differ from Horner's in the last bits). None when a
+    power s^(K-1) would not be finite (then Horner's steps decide).
+    """
+    k, n = stack.shape[1], s_m.shape[0]
+    big = max(abs(float(s_m.max())), abs(float(s_m.min())))
+    if big > 1.0 and (k - 1) * np.log10(big) >= 300.0:  # s^(K-1) near or past the float64 range
+        return None
+    powers = np.empty((k, n))
+    powers[0] = 1.0
+    powers[1] = s_m
+    for i in range(2, k):
+        np.multiply(powers[i - 1], s_m, out=powers[i])
+    out = np.empty((9, n))
+    for a in range(0, n, _PRODUCT_COLUMNS):
+        np.matmul(stack, powers[:, a:a + _PRODUCT_COLUMNS], out=out[:, a:a + _PRODUCT_COLUMNS])
+    return out[0:3], out[3:6], out[6:9]
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class PathGeometry:
     """A compiled path. ``evaluate(s)`` returns p, dp/ds, d2p/ds2, each (N, 3), for s in [0, L] [m]."""
@@ -95,11 +125,19 @@ class PathGeometry:
     spline: Any | None = None  # a scipy.interpolate.CubicSpline  # p(s), s in [0, L]
     _d1: np.ndarray | None = None  # derivative coefficients, cached
     _d2: np.ndarray | None = None
+    _stack: np.ndarray | None = None  # (9, deg+1): p, p', p'' coefficients as rows (_products_cf); None: Horner
 
     def __post_init__(self) -> None:
         if self.coeffs_s is not None:
             object.__setattr__(self, "_d1", P.polyder(self.coeffs_s, 1, axis=0))
             object.__setattr__(self, "_d2", P.polyder(self.coeffs_s, 2, axis=0))
+            n = self.coeffs_s.shape[0]
+            if 2 <= n <= _PRODUCT_MAX_COEFFS and np.all(np.isfinite(self.coeffs_s)):
+                stack = np.zeros((9, n))
+                for row, c in enumerate((self.coeffs_s, self._d1, self._d2)):
+                    stack[3 * row:3 * row + 3, :c.shape[0]] = c.T
+                stack.setflags(write=False)
+                object.__setattr__(self, "_stack", stack)
 
     def evaluate(self, s_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         p, d1, d2 = self.evaluate_cf(s_m)
@@ -111,6 +149,10 @@ class PathGeometry:
         if self.spline is not None:
             return self.spline(s_m).T, self.spline(s_m, 1).T, self.spline(s_m, 2).T
         finite = s_m.ndim == 1 and bool(np.isfinite(np.add.reduce(s_m)))  # a NaN or inf makes the sum one
+        if finite and self._stack is not None and s_m.shape[0]:
+            out = _products_cf(s_m, self._stack)
+            if out is not None:
+                return out
         return (_polyval_cf(s_m, self.coeffs_s, finite), _polyval_cf(s_m, self._d1, finite),
                 _polyval_cf(s_m, self._d2, finite))
 
