@@ -17,7 +17,8 @@ validates each calibration with its tag-side NLOS fraction set to 0 (the model b
 Targets (issue 12): KS <= 0.10, UWB >= 1 and mean AoI within 15 %, median within 3 cm, real P95 inside
 the band.
 
-    .venv/bin/python tools/loo_hanyang.py [--n 50] [--seed 1] [--long-outages] [--range-bias-law L] [--out DIR]
+    .venv/bin/python tools/loo_hanyang.py [--n 50] [--seed 1] [--long-outages] [--tag-pattern] [--range-bias-law L]
+                                          [--out DIR]
                                           [--white-twin] [--no-tag-nlos] [--sway-clock auto|time|motion]
                                           [--data ../shared/data/hanyang-uwb]
 """
@@ -51,6 +52,7 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=50, help="synthetic traces per validation")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--long-outages", action="store_true", help="calibrate with long_outages=True")
+    ap.add_argument("--tag-pattern", action="store_true", help="calibrate with tag_pattern=True")
     ap.add_argument("--range-bias-law", choices=("log", "linear"), default="log",
                     help="calibrate with this range-bias law (default log)")
     ap.add_argument("--out", type=Path, default=None, help="write the four reports (and scenarios) here")
@@ -78,6 +80,7 @@ def main() -> None:
             t0 = time.perf_counter()
             others = [traces[k] for k in traces if k != left]
             res = calibrate(others, name=f"loo-without-{left.replace(' ', '-')}", long_outages=args.long_outages,
+                            tag_pattern=args.tag_pattern,
                             range_bias_law=args.range_bias_law)
             scn = res.scenario
             if args.white_twin and res.report["antenna_sway"]["identifiable"]:

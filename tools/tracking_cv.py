@@ -6,12 +6,13 @@ NOAUG and AUG_GAN, and the runs SYNTH_PHY's scenario is calibrated on). Every fo
     physynth study tracking --quick --seed S --train A --train B --train C --test D \\
         --methods NOAUG,AUG_GAN,SYNTH_PHY,ekf --out DIR
 
-on datasets made by ``physynth import hanyang RUN --crop-to-uwb``. With ``--long-outages`` each fold
-also calibrates its training runs with ``physynth calibrate --long-outages`` and trains SYNTH_PHY on
-that scenario (``--scenario``). Prints one table: RMSE (m) per fold and seed, the mean over all, and
+on datasets made by ``physynth import hanyang RUN --crop-to-uwb``. With ``--long-outages`` (or
+``--tag-pattern``) each fold also calibrates its training runs with ``physynth calibrate --long-outages``
+(``--tag-pattern``) and trains SYNTH_PHY on that scenario (``--scenario``): rows ``+long`` (``+pattern``).
+Prints one table: RMSE (m) per fold and seed, the mean over all, and
 how often each method beats NOAUG of the same fold and seed.
 
-    .venv/bin/python tools/tracking_cv.py [--seeds 0,1] [--jobs 2] [--long-outages] [--frame F]
+    .venv/bin/python tools/tracking_cv.py [--seeds 0,1] [--jobs 2] [--long-outages] [--tag-pattern] [--frame F]
                                           [--turn-test DEG] [--mirror-test] [--methods M,...]
                                           [--study-args "OPTIONS"] [--runs R,R,...] [--out DIR]
 
@@ -66,6 +67,7 @@ def main() -> None:
     ap.add_argument("--seeds", default="0,1", help="comma-separated seeds")
     ap.add_argument("--jobs", type=int, default=2, help="studies run at once")
     ap.add_argument("--long-outages", action="store_true", help="also SYNTH_PHY on --long-outages scenarios")
+    ap.add_argument("--tag-pattern", action="store_true", help="also SYNTH_PHY on --tag-pattern scenarios")
     ap.add_argument("--frame", choices=("route", "turned", "compass"), default="turned",
                     help="the networks' frame (physynth study tracking --frame)")
     ap.add_argument("--turn-test", type=float, default=0.0, help="turn each test run by this many degrees")
@@ -100,20 +102,23 @@ def main() -> None:
     for test in runs:
         train = [r for r in runs if r != test]
         train_args = [a for r in train for a in ("--train", str(ds[r]))]
-        if args.long_outages:
-            scn = args.out / f"long-without-{_name(test)}.yaml"
-            if not scn.is_file():
-                _run(CLI + ["calibrate", *[str(ds[r]) for r in train], "--long-outages", "--out", str(scn),
-                            "--quiet"], args.out / f"calibrate-{_name(test)}.log")
+        scenarios = {}  # the calibrate variants: tag -> scenario calibrated on this fold's training runs
+        for tag, flag in (("+long", "--long-outages"), ("+pattern", "--tag-pattern")):
+            if getattr(args, flag[2:].replace("-", "_")):
+                scn = args.out / f"{tag[1:]}-without-{_name(test)}.yaml"
+                if not scn.is_file():
+                    _run(CLI + ["calibrate", *[str(ds[r]) for r in train], flag, "--out", str(scn), "--quiet"],
+                         args.out / f"calibrate-{tag[1:]}-{_name(test)}.log")
+                scenarios[tag] = scn
         for seed in seeds:
             base = ["study", "tracking", "--quick", "--seed", str(seed), *train_args, "--test", str(ds[test]),
                     *extra, "--quiet"]
             out = args.out / f"{_name(test)}-s{seed}"
             jobs.append((test, seed, "", CLI + base + ["--methods", args.methods, "--out", str(out)]))
-            if args.long_outages:
-                out = args.out / f"{_name(test)}-s{seed}-long"
-                jobs.append((test, seed, "+long", CLI + base + ["--scenario", str(scn), "--methods", "SYNTH_PHY",
-                                                                "--out", str(out)]))
+            for tag, scn in scenarios.items():
+                out = args.out / f"{_name(test)}-s{seed}-{tag[1:]}"
+                jobs.append((test, seed, tag, CLI + base + ["--scenario", str(scn), "--methods", "SYNTH_PHY",
+                                                            "--out", str(out)]))
 
     def one(job: tuple[str, int, str, list[str]]) -> tuple[str, int, str, list[dict]]:
         test, seed, tag, cmd = job
@@ -131,7 +136,7 @@ def main() -> None:
             if tag and r["key"].startswith("ref:"):
                 continue  # the reference rows do not depend on the scenario
             table.setdefault(r["key"] + tag, {})[(test, seed)] = r["rmse_m"]
-    keys = [k for base in ORDER for k in (base, base + "+long") if k in table]
+    keys = [k for base in ORDER for k in (base, base + "+long", base + "+pattern") if k in table]
     print(f"leave-one-run-out, quick schedule, seeds {args.seeds}: RMSE (m) per test run, seed by seed")
     print("| method | " + " | ".join(r.replace("/", " ") for r in runs) + " | mean | beats NOAUG |")
     print("|---|" + "---|" * (len(runs) + 2))

@@ -73,6 +73,7 @@ BOUNDS: dict[str, Bound] = {
     "uwb.antenna_sway_tau_s": Bound(0.01, 3600.0, "s", "correlation time of the antenna sway"),
     "uwb.antenna_sway_length_m": Bound(0.01, 1e5, "m", "correlation length of the antenna sway along the path"),
     "uwb.antenna_sway_turn_rad": Bound(0.001, 1e3, "rad", "angle turned over which the antenna sway decorrelates"),
+    "uwb.tag_pattern_m[]": Bound(-1.0, 1.0, "m", "tag antenna delay per harmonic of the anchor's bearing"),
     "uwb.tag_nlos_prob": Bound(0.0, 1.0, "-", "fraction of the time the tag side is obstructed (all anchors at once)"),
     "imu.rate_hz": Bound(1.0, 10_000.0, "Hz", "MEMS accelerometer output rates"),
     "imu.white_noise_density_mps2_per_sqrt_hz[]": Bound(0.0, 10.0, "m/s^2/sqrt(Hz)", "accelerometer noise density"),

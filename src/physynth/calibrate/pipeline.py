@@ -36,7 +36,7 @@ from scipy.optimize import minimize
 from .. import __version__
 from ..bounds import BOUNDS
 from ..models.availability import AvailabilityOverride, RatePosterior, gamma_rate_posterior
-from ..models.uwb import range_decades, travelled_m, turned_rad
+from ..models.uwb import heading_at, pattern_features, range_decades, relative_bearing, travelled_m, turned_rad
 from ..progress import ProgressCallback, no_progress
 from ..records import Trace
 from ..scenario import (
@@ -368,6 +368,8 @@ class _Channels:
     per_anchor_run: dict[str, np.ndarray] = field(default_factory=dict)  # run index (into the traces) of each row
     per_anchor_c: dict[str, list[np.ndarray]] = field(default_factory=dict)  # distance travelled at the rows, per run
     per_anchor_h: dict[str, list[np.ndarray]] = field(default_factory=dict)  # angle turned at the rows, per run
+    per_anchor_p: dict[str, list[np.ndarray]] = field(default_factory=dict)  # tag-pattern terms (N, 4), per run
+    per_anchor_v: dict[str, list[np.ndarray]] = field(default_factory=dict)  # horizontal speed at the rows, per run
 
     def los_masks(self) -> dict[str, np.ndarray]:
         return {a: self.mix[a].nlos_resp < 0.5 for a in self.per_anchor_rows}
@@ -386,25 +388,48 @@ def _slope_in_bounds(f: MixtureFit, law: str) -> bool:
     return b.lo <= float(getattr(f, _SLOPE_FIELD[law])) <= b.hi
 
 
+def _bearing_rows(trace: Trace, r: Residuals, lag: float) -> tuple[np.ndarray, np.ndarray]:
+    """The tag-pattern terms (N, 4) (:func:`~physynth.models.uwb.pattern_features` of each row's anchor
+    bearing relative to the truth's heading) and the truth's horizontal speed (N,) at the rows of ``r``."""
+    tt = r.t_s - lag
+    pos = trace.truth.position_at(tt)
+    head = heading_at(tt, trace.truth.t_s, trace.truth.vel_enu_mps)
+    a = trace.anchors.pos_enu_m[r.anchor]
+    cos_phi, sin_phi = relative_bearing(a[:, 0] - pos[:, 0], a[:, 1] - pos[:, 1], head[:, 0], head[:, 1])
+    v = np.nan_to_num(trace.truth.vel_enu_mps[:, :2])
+    speed = np.interp(tt, trace.truth.t_s, np.hypot(v[:, 0], v[:, 1]))
+    return pattern_features(cos_phi, sin_phi), speed
+
+
 def _fit_channels(trs: Sequence[Trace], offset: float | Sequence[float], ids: Sequence[str], fixed_slope: float | None,
-                  labels: Sequence[str], run_offsets: RunOffsets | None = None, law: str = "log") -> _Channels:
+                  labels: Sequence[str], run_offsets: RunOffsets | None = None, law: str = "log",
+                  tag_pattern: Sequence[float] | None = None) -> _Channels:
     """Per-anchor LOS/NLOS mixtures (and the pooled one) at a given time offset (one for all runs, or
     one per run).
 
     Each run's residuals are taken against its own anchor positions; ``run_offsets`` (when given) are
     subtracted from the run's rows of that anchor first, so that the mixture describes the errors
-    within a run and the run-to-run part is left to ``uwb.run_*offset_std_m``.
+    within a run and the run-to-run part is left to ``uwb.run_*offset_std_m``; so is the tag antenna
+    pattern ``tag_pattern`` (``uwb.tag_pattern_m``) at each row's bearing, when given.
     """
     res: list[Residuals] = []
+    bearing: list[tuple[np.ndarray, np.ndarray]] = []
     lags = [float(offset)] * len(trs) if np.ndim(offset) == 0 else [float(o) for o in offset]
     for t, lab, lag in zip(trs, labels, lags, strict=True):
         r = corrected_residuals(t, lag)
+        feats, speed = _bearing_rows(t, r, lag)
+        shift = np.zeros(r.residual_m.size)
         if run_offsets:
-            shift = np.array([run_offsets.get((lab, a), 0.0) for a in t.anchors.ids])
-            if shift.size:
-                r = Residuals(residual_m=r.residual_m - shift[r.anchor], range_m=r.range_m, anchor=r.anchor,
-                              t_s=r.t_s, range_rate_mps=r.range_rate_mps)
+            per_anchor = np.array([run_offsets.get((lab, a), 0.0) for a in t.anchors.ids])
+            if per_anchor.size:
+                shift += per_anchor[r.anchor]
+        if tag_pattern is not None and any(tag_pattern):
+            shift += feats @ np.asarray(tag_pattern, dtype=float)
+        if shift.any():
+            r = Residuals(residual_m=r.residual_m - shift, range_m=r.range_m, anchor=r.anchor,
+                          t_s=r.t_s, range_rate_mps=r.range_rate_mps)
         res.append(r)
+        bearing.append((feats, speed))
     pooled_r = np.concatenate([r.residual_m for r in res])
     pooled_g = np.concatenate([r.range_m for r in res])
     if pooled_r.size < MIN_ANCHOR_ROWS:
@@ -419,13 +444,17 @@ def _fit_channels(trs: Sequence[Trace], offset: float | Sequence[float], ids: Se
     run_of: dict[str, np.ndarray] = {}
     dist: dict[str, list[np.ndarray]] = {}
     turned: dict[str, list[np.ndarray]] = {}
+    pattern_terms: dict[str, list[np.ndarray]] = {}
+    speeds: dict[str, list[np.ndarray]] = {}
     motion = [(travelled_m(t.truth.t_s, t.truth.vel_enu_mps),  # the antenna sway's motion clocks
                turned_rad(t.truth.t_s, t.truth.vel_enu_mps, t.truth.omega_body_radps)) for t in trs]
     notes: list[str] = []
     for aid in ids:  # one mixture per anchor (one physical device), pooled over the runs
         parts = [(r.residual_m[m], r.range_m[m], r.range_rate_mps[m], r.t_s[m], np.full(int(m.sum()), i),
-                  np.interp(r.t_s[m] - lag, t.truth.t_s, dist), np.interp(r.t_s[m] - lag, t.truth.t_s, turn))
-                 for i, (t, r, lag, (dist, turn)) in enumerate(zip(trs, res, lags, motion, strict=True))
+                  np.interp(r.t_s[m] - lag, t.truth.t_s, dist), np.interp(r.t_s[m] - lag, t.truth.t_s, turn),
+                  feats[m], speed[m])
+                 for i, (t, r, lag, (dist, turn), (feats, speed))
+                 in enumerate(zip(trs, res, lags, motion, bearing, strict=True))
                  if aid in t.anchors.ids for m in [r.anchor == t.anchors.index(aid)]]
         sizes = [p[0].size for p in parts]
         ra = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0)
@@ -461,9 +490,11 @@ def _fit_channels(trs: Sequence[Trace], offset: float | Sequence[float], ids: Se
         run_of[aid] = np.concatenate([p[4] for p in parts])
         dist[aid] = [p[5] for p in parts]
         turned[aid] = [p[6] for p in parts]
+        pattern_terms[aid] = [p[7] for p in parts]
+        speeds[aid] = [p[8] for p in parts]
     return _Channels(pooled_r=pooled_r, pooled_fit=pooled_fit, pooled_sel=pooled_sel, mix=mix, mix_diag=mix_diag,
                      flags=flags, per_anchor_rows=rows, notes=notes, per_anchor_t=times, per_anchor_run=run_of,
-                     per_anchor_c=dist, per_anchor_h=turned)
+                     per_anchor_c=dist, per_anchor_h=turned, per_anchor_p=pattern_terms, per_anchor_v=speeds)
 
 
 def refine_time_offset(rows: dict[str, AnchorRows], los: dict[str, np.ndarray]) -> dict[str, Any] | None:
@@ -687,6 +718,7 @@ class RangingFit:
     run_anchor_offset_std_m: float
     range_bias_law: str = "log"
     offset_std_s: float = 0.0  # run-to-run spread of the lag [s]
+    tag_pattern_m: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)  # uwb.tag_pattern_m (zeros: none kept)
 
     @property
     def slope_key(self) -> str:
@@ -889,10 +921,11 @@ def fit_timing(inp: CalibrationInputs, report: ReportBuilder, progress: Progress
 
 def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, Any] | None,
                 range_bias: Literal["dynamic", "static"], report: ReportBuilder,
-                law: str = "log") -> RangingFit:
+                law: str = "log", tag_pattern: bool = False) -> RangingFit:
     """Per-anchor LOS/NLOS mixtures pooled over runs, the refined time offset and run-to-run offsets.
 
     ``law``: how the LOS mean grows with the range (:data:`~physynth.calibrate.uwb_fit.RANGE_BIAS_LAWS`).
+    ``tag_pattern``: apply the tag antenna pattern the fit keeps (always fitted and reported).
     """
     trs, labels, ids = inp.traces, inp.labels, inp.anchor_ids
     if range_bias == "static" and static is None:
@@ -934,9 +967,10 @@ def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, 
                      note="the runs' lags do not differ beyond their errors (Cochran's Q)")
     run_offsets, off_diag = run_offset_table(trs, labels, chan)
     report.sections["run_offsets"] = off_diag
-    if refined or run_offsets:
+    pattern = _tag_pattern(chan, report, apply=tag_pattern)  # each sequence's level and range law projected out
+    if refined or run_offsets or any(pattern):  # the channels again, each run's offsets and each row's pattern removed
         chan = _fit_channels(trs, lags if lag_std > 0 else offset, ids, fixed_slope, labels,
-                             run_offsets=run_offsets, law=law)
+                             run_offsets=run_offsets, law=law, tag_pattern=pattern)
     if off_diag["identifiable"]:
         s_run, s_anchor = off_diag["run_offset_std_m"], off_diag["run_anchor_offset_std_m"]
         note = "run-to-run spread of the per-run mean LOS residual (two-way random effects)"
@@ -949,7 +983,41 @@ def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, 
     report.not_identifiable.extend(chan.notes)
     return RangingFit(offset_s=offset, offset_se_s=se_off, channels=chan, refinement=ref, fixed_slope=fixed_slope,
                       run_offset_std_m=s_run, run_anchor_offset_std_m=s_anchor, range_bias_law=law,
-                      offset_std_s=lag_std)
+                      offset_std_s=lag_std, tag_pattern_m=pattern)
+
+
+def _tag_pattern(chan: _Channels, rep: ReportBuilder, *, apply: bool) -> tuple[float, ...]:
+    """``uwb.tag_pattern_m`` from the LOS rows of every (run, anchor) sequence
+    (:func:`physynth.calibrate.tag_pattern.fit_tag_pattern`), reported; zeros when not kept or not
+    ``apply``."""
+    from .tag_pattern import fit_tag_pattern
+
+    def sequences():
+        for aid, (ra, ga, _) in chan.per_anchor_rows.items():
+            start, runs = 0, chan.per_anchor_run[aid]
+            for nlos, t, f, v in zip(chan.flags[aid], chan.per_anchor_t[aid], chan.per_anchor_p[aid],
+                                     chan.per_anchor_v[aid], strict=True):
+                sl = slice(start, start + nlos.size)
+                run = int(runs[start]) if nlos.size else 0
+                start += nlos.size
+                keep = ~nlos
+                yield ra[sl][keep], ga[sl][keep], f[keep], t[keep], v[keep], run
+
+    fit = {**fit_tag_pattern(sequences()), "applied": False}
+    rep.sections["tag_pattern"] = fit
+    if not fit["identifiable"]:
+        rep.not_identifiable.append(f"uwb.tag_pattern_m ({fit['why']})")
+        return (0.0, 0.0, 0.0, 0.0)
+    se = ", ".join(f"{1e3 * x:.1f}" for x in fit["std_error_m"])
+    fit["applied"] = bool(apply and fit["kept"])
+    coef = [rounded(c, 4) if fit["applied"] else 0.0 for c in fit["coef_m"]]
+    status = ("kept and applied" if fit["applied"] else "kept, not generated unless tag_pattern=True"
+              if fit["kept"] else "not kept")
+    rep.param("uwb.tag_pattern_m", coef, n=fit["n_rows"], summary=True,
+              note=(f"range bias vs the anchor's bearing from the heading, cos/sin/cos2/sin2; fitted "
+                    f"{', '.join(f'{1e3 * c:.1f}' for c in fit['fitted_coef_m'])} mm (se {se} mm), Wald "
+                    f"{fit['wald']:.1f} (threshold {fit['wald_min']}): {status}"))
+    return tuple(coef)
 
 
 def _lag_spread_section(spread: dict[str, Any] | None, labels: Sequence[str], grid_offset_s: float
@@ -1436,7 +1504,7 @@ def build_scenario(name: str, inp: CalibrationInputs, geometry: GeometryFit, tim
                     nlos_dwell_s=rounded(channels.nlos_dwell_s, 4), zones=[],
                     run_offset_std_m=rounded(ranging.run_offset_std_m, 4),
                     run_anchor_offset_std_m=rounded(ranging.run_anchor_offset_std_m, 4),
-                    **_sway_params(channels.sway),
+                    **_sway_params(channels.sway), tag_pattern_m=list(ranging.tag_pattern_m),
                     tag_nlos_prob=rounded(channels.tag_nlos["prob"], 4) if channels.tag_nlos["applied"] else 0.0)
     report.not_identifiable.append("uwb.zones (NLOS zones along the path are not fitted)")
     provenance = {
@@ -1476,7 +1544,7 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
               anchor_policy: AnchorPolicy = "per-run", layout_from: int | str | None = None,
               static_sweeps: str | os.PathLike | None = None, range_bias: Literal["dynamic", "static"] = "dynamic",
               range_bias_law: Literal["log", "linear"] = "log",
-              sources: Sequence[str] | None = None, long_outages: bool = False,
+              sources: Sequence[str] | None = None, long_outages: bool = False, tag_pattern: bool = False,
               progress: ProgressCallback | None = None) -> CalibrationResult:
     """Calibrate a scenario on one or several recordings (real or synthetic Traces).
 
@@ -1509,6 +1577,11 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
         are always fitted and reported; off by default because on the shared Hanyang runs they belong
         to one anchor placement, not to range alone, and generating them everywhere worsens the
         leave-one-out age of information (docs/calibration.md, "Long outages").
+    tag_pattern
+        Generate the tag antenna pattern (``uwb.tag_pattern_m``) when the fit keeps it, and fit the
+        channels to the residuals with it removed. It is always fitted and reported; off by default
+        because on the shared Hanyang walks (all along one route) applying it worsened the left-out
+        runs' KS and the tracking study (docs/calibration.md, "Where the anchors lie from the walker").
     progress
         ``progress(message, done, total)`` before each step (:mod:`physynth.progress`).
     """
@@ -1538,7 +1611,8 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
         rep.sections["static_range_bias"] = static
     if range_bias_law not in RANGE_BIAS_LAWS:
         raise CalibrationError(f"unknown range-bias law {range_bias_law!r} (choose from {', '.join(RANGE_BIAS_LAWS)})")
-    ranging = fit_ranging(inp, timing, static=static, range_bias=range_bias, report=rep, law=range_bias_law)
+    ranging = fit_ranging(inp, timing, static=static, range_bias=range_bias, report=rep, law=range_bias_law,
+                          tag_pattern=tag_pattern)
     tick("fitting availability (link range, dropouts, outages)")
     avail = fit_link_availability(inp, ranging, timing, rep)
     channels = assemble_channels(inp, ranging, avail, timing, rep)

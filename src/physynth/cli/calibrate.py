@@ -63,6 +63,10 @@ def calibrate_cmd(
                                       help="Also generate the long outages the fit finds (multi-second fades "
                                            "whose rate may grow with range; always reported). See "
                                            "docs/calibration.md."),
+    tag_pattern: bool = typer.Option(False, "--tag-pattern",
+                                     help="Also generate the tag antenna pattern the fit finds (range bias by "
+                                          "the anchor's bearing from the direction of travel; always "
+                                          "reported). See docs/calibration.md."),
     allow_mixed: bool = typer.Option(False, "--allow-mixed",
                                      help="Pool datasets even when they are not the same kind of site."),
     overwrite: bool = typer.Option(False, "--overwrite",
@@ -92,7 +96,7 @@ def calibrate_cmd(
                    path_kind=path_kind, anchor_policy=anchor_layout, layout_from=chosen,
                    static_sweeps=static_sweeps, range_bias=range_bias, range_bias_law=range_bias_law,
                    allow_mixed=allow_mixed,
-                   long_outages=long_outages)
+                   long_outages=long_outages, tag_pattern=tag_pattern)
 
 
 def _calibrate(datasets: list[Path], out: Path, report: Path | None, quiet: bool, real_out: Path,

@@ -180,6 +180,15 @@ class UwbParams(ParamsModel):
     the real walks' slow error does (it holds over 3 s of standing still and changes most where the
     walker turns; docs/calibration.md).
 
+    Tag antenna pattern: the tag's antenna delays a range by an amount that depends on where the anchor
+    lies as seen from the carrier, which holds the antenna in one way relative to its direction of
+    travel. ``tag_pattern_m`` = (c1, s1, c2, s2) adds c1 cos(phi) + s1 sin(phi) + c2 cos(2 phi) +
+    s2 sin(2 phi) [m] to every range, phi being the anchor's horizontal bearing from the tag relative to
+    the tag's heading (0 ahead, pi/2 to the left; :func:`relative_bearing`), the heading being the
+    direction of horizontal travel, held while the carrier stands (:func:`heading_unit`). The real walks'
+    ranges are 2-3 cm longer with the anchors ahead or behind than beside the walker, and step by as
+    much at the turns (docs/calibration.md). Deterministic; all zero (the default) adds nothing.
+
     Tag-side NLOS: with ``tag_nlos_prob`` > 0, part of the NLOS time is the tag's own (a body, a pole
     or the ground next to the tag antenna): one episode process for the whole tag (long-run fraction
     ``tag_nlos_prob``, episodes of mean ``nlos_dwell_s``) whose episodes strike every anchor at once,
@@ -208,6 +217,7 @@ class UwbParams(ParamsModel):
     antenna_sway_length_m: PositiveFloat = 2.0
     antenna_sway_turn_rad: PositiveFloat = 1.0
     tag_nlos_prob: Probability = 0.0
+    tag_pattern_m: Annotated[list[FiniteFloat], Field(min_length=4, max_length=4)] = [0.0, 0.0, 0.0, 0.0]
 
 
 class AnchorSpec(ParamsModel):
@@ -857,6 +867,60 @@ def turned_rad(t_s: np.ndarray, vel_enu_mps: np.ndarray, omega_body_radps: np.nd
     return out
 
 
+def heading_unit(vel_enu_mps: np.ndarray) -> np.ndarray:
+    """Unit vectors (T, 2) (east, north) of the direction of horizontal travel of velocities
+    ``vel_enu_mps`` (T, 3): where the horizontal speed is below :data:`TURN_MIN_SPEED_MPS` (or NaN) the
+    last heading is held, before the first such sample the first heading is taken; a carrier that never
+    moves faces east."""
+    v = np.nan_to_num(vel_enu_mps[:, :2])
+    speed = np.hypot(v[:, 0], v[:, 1])
+    moving = speed >= TURN_MIN_SPEED_MPS
+    if not moving.any():
+        return np.tile([1.0, 0.0], (v.shape[0], 1))
+    idx = np.where(moving, np.arange(v.shape[0]), 0)
+    np.maximum.accumulate(idx, out=idx)  # the last moving sample at or before each one
+    idx[: int(np.argmax(moving))] = int(np.argmax(moving))
+    return v[idx] / speed[idx, None]
+
+
+def relative_bearing(d_east: np.ndarray, d_north: np.ndarray, head_east: np.ndarray, head_north: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """(cos phi, sin phi) of the bearing phi of the horizontal vectors (``d_east``, ``d_north``) (tag to
+    anchor) relative to the headings (``head_east``, ``head_north``) (unit vectors): 0 ahead, pi/2 to the
+    left. A zero vector (the anchor straight above the tag) counts as ahead."""
+    norm = np.hypot(d_east, d_north)
+    safe = np.where(norm > 0, norm, 1.0)
+    cos_phi = np.where(norm > 0, (d_east * head_east + d_north * head_north) / safe, 1.0)
+    sin_phi = np.where(norm > 0, (head_east * d_north - head_north * d_east) / safe, 0.0)
+    return cos_phi, sin_phi
+
+
+def pattern_features(cos_phi: np.ndarray, sin_phi: np.ndarray) -> np.ndarray:
+    """(N, 4) [cos phi, sin phi, cos 2 phi, sin 2 phi], the terms of ``UwbParams.tag_pattern_m``."""
+    return np.stack([cos_phi, sin_phi, 2.0 * cos_phi * cos_phi - 1.0, 2.0 * sin_phi * cos_phi], axis=1)
+
+
+def tag_pattern_bias(tag_e: np.ndarray, tag_n: np.ndarray, anchor_e: np.ndarray, anchor_n: np.ndarray,
+                     head: np.ndarray, coef: Sequence[float]) -> np.ndarray:
+    """Range bias [m] of the tag antenna pattern ``coef`` (``UwbParams.tag_pattern_m``) for tags at
+    (``tag_e``, ``tag_n``) ranging anchors at (``anchor_e``, ``anchor_n``) with headings ``head`` (N, 2)."""
+    cos_phi, sin_phi = relative_bearing(anchor_e - tag_e, anchor_n - tag_n, head[:, 0], head[:, 1])
+    return pattern_features(cos_phi, sin_phi) @ np.asarray(coef, dtype=float)
+
+
+def heading_at(t_s: np.ndarray, grid_t_s: np.ndarray, vel_enu_mps: np.ndarray) -> np.ndarray:
+    """Headings (N, 2) at the times ``t_s``: :func:`heading_unit` of the velocities on ``grid_t_s``,
+    interpolated component-wise and renormalised."""
+    h = heading_unit(vel_enu_mps)
+    he, hn = np.interp(t_s, grid_t_s, h[:, 0]), np.interp(t_s, grid_t_s, h[:, 1])
+    norm = np.hypot(he, hn)
+    bad = norm < 1e-9  # a reversal between two grid samples: take the earlier heading
+    if bad.any():
+        k = np.clip(np.searchsorted(grid_t_s, t_s[bad], side="right") - 1, 0, grid_t_s.size - 1)
+        he[bad], hn[bad], norm[bad] = h[k, 0], h[k, 1], 1.0
+    return np.stack([he / norm, hn / norm], axis=1)
+
+
 def motion_clock(t_s: np.ndarray, vel_enu_mps: np.ndarray, omega_body_radps: np.ndarray | None, length_m: float,
                  turn_rad: float) -> np.ndarray:
     """The antenna sway's ``motion`` clock (T,): distance travelled over ``length_m`` plus angle turned
@@ -982,6 +1046,10 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
         sway = sway_at(t_true, kin, u, rng=sway_rng, omega_body_radps=omega_body_radps)
         for k in range(3):
             err += (tag_enu[k] - ch.anchor_pos_enu_m[:, k][anchor]) / np.maximum(true_range, 1e-9) * sway[:, k]
+    if any(u.tag_pattern_m):  # the tag antenna's delay towards the anchor's bearing (deterministic)
+        head = heading_at(t_true, kin.t_s, kin.vel_enu_mps)
+        err += tag_pattern_bias(tag_enu[0], tag_enu[1], ch.anchor_pos_enu_m[:, 0].take(anchor),
+                                ch.anchor_pos_enu_m[:, 1].take(anchor), head, u.tag_pattern_m)
     err += true_range  # true_range + err
     measured = np.maximum(err, 0.0, out=err)  # a range is never negative
     return UwbAttempts(bursts_s=bursts, burst=b_idx, anchor=anchor, t_true_s=t_true, true_range_m=true_range,
