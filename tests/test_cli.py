@@ -228,3 +228,18 @@ def test_scenarios_wraps_whole_descriptions_in_80_columns(capsys, monkeypatch):
     assert max(map(len, descriptions.values())) > 80 - 25  # one at least needs more than a line
     for name, description in descriptions.items():
         assert f"{name} {description}" in text, name
+
+
+@pytest.mark.parametrize(("given", "seen"), [(None, "1"), ("3", "3")])
+def test_command_line_runs_blas_on_one_thread_unless_told(given, seen):
+    """Generation parallelises over worker processes; a second BLAS thread in each only costs CPU time.
+    The command line sets OPENBLAS_NUM_THREADS=1 before NumPy loads, and keeps a value the user set."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if given is not None:
+        env["OPENBLAS_NUM_THREADS"] = given
+    code = ("import sys; import physynth.cli; assert 'numpy' not in sys.modules; import os, numpy; "
+            "print(os.environ['OPENBLAS_NUM_THREADS'])")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == seen

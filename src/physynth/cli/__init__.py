@@ -20,7 +20,12 @@ from __future__ import annotations
 import os
 import sys
 
-import typer
+# One BLAS thread per process unless the user says otherwise (set before NumPy loads OpenBLAS): the
+# parallelism is the workers' (Dask's worker processes get the same from their nanny); a second BLAS
+# thread in a generating process only adds CPU time (docs/scale.md, "BLAS threads").
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import typer  # noqa: E402
 
 from ..errors import BudgetError, Interrupted, MixedSitesError, OutputExistsError, PhySynthError
 from ._common import EXIT_BUG, EXIT_INTERRUPTED, EXIT_SYSTEM, fail, use_command_class
