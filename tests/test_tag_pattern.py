@@ -10,7 +10,7 @@ import pytest
 from helpers import simple_scenario
 
 from physynth.calibrate import calibrate
-from physynth.calibrate.tag_pattern import WALD_MIN
+from physynth.calibrate.tag_pattern import WALD_MIN, fit_tag_pattern
 from physynth.generate import generate_trace, generate_traces
 from physynth.models.uwb import heading_unit, relative_bearing
 
@@ -109,3 +109,19 @@ def test_no_pattern_is_found_where_there_is_none():
     rep = fit.report["tag_pattern"]
     assert rep["identifiable"] and not rep["kept"], rep["wald"]
     assert fit.scenario.uwb.tag_pattern_m == [0.0, 0.0, 0.0, 0.0]
+
+
+def test_bearings_that_do_not_vary_leave_the_pattern_unidentified():
+    """Anchors on the line of travel: every bearing is 0 or pi, the sine terms vanish and the normal
+    equations are singular; the fit says why instead of failing, and keeps nothing."""
+    rng = np.random.default_rng(5)
+    seqs = []
+    for run in range(3):
+        t = np.arange(0.0, 300.0, 0.1)
+        cos_phi = np.where(t < 150.0, 1.0, -1.0)  # towards the anchor, then away from it
+        feats = np.stack([cos_phi, np.zeros_like(t), np.ones_like(t), np.zeros_like(t)], axis=1)
+        g = 5.0 + np.abs(150.0 - t)
+        seqs.append((0.02 * rng.standard_normal(t.size), g, feats, t, np.full(t.size, 1.0), run))
+    rep = fit_tag_pattern(seqs)
+    assert not rep["identifiable"] and not rep["kept"] and rep["coef_m"] == [0.0] * 4
+    assert "barely vary" in rep["why"]

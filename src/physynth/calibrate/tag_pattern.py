@@ -38,6 +38,8 @@ MIN_ROWS = 500
 MIN_BLOCKS = 8
 """Fewest jackknife blocks on which a pattern is fitted."""
 
+COND_MAX = 1e6
+"""Largest condition number of the (scaled) normal equations: beyond it the bearings do not vary enough."""
 TERM_MIN_SE = 3.0
 """A kept pattern's term whose |coefficient| is below this many standard errors is set to 0."""
 
@@ -90,11 +92,19 @@ def fit_tag_pattern(sequences: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray
     np.add.at(xtx, block, f[:, :, None] * f[:, None, :])
     np.add.at(xty, block, f * x[:, None])
     tot_xx, tot_xy = xtx.sum(axis=0), xty.sum(axis=0)
+    scale = np.sqrt(np.diag(tot_xx))
+    if np.any(scale <= 0) or np.linalg.cond(tot_xx / np.outer(scale, scale)) > COND_MAX:
+        return {"identifiable": False, "kept": False, "coef_m": [0.0] * 4, "n_rows": n,
+                "why": "the anchors' bearings from the heading barely vary (a path along the anchors' line?)"}
     coef = np.linalg.solve(tot_xx, tot_xy)
-    loo = np.linalg.solve(tot_xx[None] - xtx, (tot_xy[None] - xty)[..., None])[..., 0]
+    try:
+        loo = np.linalg.solve(tot_xx[None] - xtx, (tot_xy[None] - xty)[..., None])[..., 0]
+    except np.linalg.LinAlgError:  # one block holds all of some term's variation
+        return {"identifiable": False, "kept": False, "coef_m": [0.0] * 4, "n_rows": n,
+                "why": "one block of the data holds all the variation of a bearing term"}
     dev = loo - loo.mean(axis=0)
     cov = (n_blocks - 1) / n_blocks * dev.T @ dev
-    wald = float(coef @ np.linalg.solve(cov, coef))
+    wald = float(coef @ np.linalg.pinv(cov) @ coef)
     se = np.sqrt(np.diag(cov))
     kept = wald >= WALD_MIN
     terms = np.abs(coef) >= TERM_MIN_SE * se if kept else np.zeros(4, dtype=bool)
