@@ -21,8 +21,8 @@ import os
 import sys
 
 # One BLAS thread per process unless the user says otherwise (set before NumPy loads OpenBLAS): the
-# parallelism is the workers' (Dask's worker processes get the same from their nanny); a second BLAS
-# thread in a generating process only adds CPU time (docs/scale.md, "BLAS threads").
+# parallelism is the workers' (Dask's worker processes get the same from their nanny), so a run with
+# --workers 1 computes as one worker does and `bench`'s one-core rates use one core (docs/scale.md).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import typer  # noqa: E402
