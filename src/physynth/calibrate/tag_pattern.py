@@ -3,8 +3,9 @@
 A carrier holds its tag antenna one way relative to its direction of travel, and an antenna's delay
 depends on the direction the signal comes from: the range error then depends on the anchor's bearing
 phi relative to the heading. On the shared Hanyang walks, ranges with the anchors ahead or behind are
-2-3 cm longer than with the anchors beside the walker, in each of the four runs, and the residuals step
-by as much within seconds at the turns, where the position hardly changes (docs/calibration.md).
+longer than with the anchors beside the walker in each of the four runs (2 c2 = 1.9-6.2 cm run by run,
+3.7 cm pooled), and the residuals step by up to as much within seconds at the turns, where the position
+hardly changes (docs/calibration.md).
 
 Model: b(phi) = c1 cos(phi) + s1 sin(phi) + c2 cos(2 phi) + s2 sin(2 phi)
 (:func:`physynth.models.uwb.pattern_features`). Fit: the LOS rows of every (run, anchor) sequence
