@@ -336,7 +336,7 @@ def test_cli_calibrate_end_to_end(roundtrip, tmp_path, capsys):
     write_dataset(tmp_path / "ds", traces[:3])
     out, rep = tmp_path / "new" / "sub" / "cal.yaml", tmp_path / "other" / "fit.json"  # parents made, as generate's
     cli_main(["calibrate", str(tmp_path / "ds"), "--out", str(out), "--report", str(rep), "--name", "mine", "-q",
-              "--tag-pattern"])
+              "--tag-pattern", "--run-slopes"])
     assert sorted(p.name for p in out.parent.iterdir()) == ["cal.yaml"]  # written atomically: no temp file left
     scn = load_scenario(out)
     assert scn.name == "mine" and str(tmp_path / "ds") in scn.provenance["datasets"]
@@ -345,6 +345,10 @@ def test_cli_calibrate_end_to_end(roundtrip, tmp_path, capsys):
     # --tag-pattern: the pattern is applied exactly when the fit keeps it (a cable car never turns: not kept)
     assert report["tag_pattern"]["applied"] == report["tag_pattern"]["kept"]
     assert scn.uwb.tag_pattern_m == pytest.approx(report["tag_pattern"]["coef_m"], abs=1e-4)
+    # --run-slopes: the tilt spread is generated exactly when the fit finds one (one preset: none)
+    sl = report["run_slopes"]
+    assert sl["applied"] == (sl["identifiable"] and sl["significant"])
+    assert scn.uwb.run_slope_std_m == (pytest.approx(sl["run_slope_std_m"], abs=1e-4) if sl["applied"] else 0.0)
     # generate accepts the file directly
     cli_main(["generate", "-s", str(out), "-n", "1", "--seed", "1", "--out", str(tmp_path / "gen"), "-q"])
     assert (tmp_path / "gen" / "dataset.json").is_file()

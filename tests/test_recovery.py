@@ -64,3 +64,6 @@ def test_no_spread_invented(recovered):
     off = res.report["run_offsets"]
     assert off["identifiable"] and not off["significant"]
     assert res.scenario.uwb.run_offset_std_m == 0.0 and res.scenario.uwb.run_anchor_offset_std_m == 0.0
+    # nor run-to-run tilts of the range law
+    sl = res.report["run_slopes"]
+    assert sl["identifiable"] and not sl["significant"] and res.scenario.uwb.run_slope_std_m == 0.0

@@ -53,6 +53,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--long-outages", action="store_true", help="calibrate with long_outages=True")
     ap.add_argument("--tag-pattern", action="store_true", help="calibrate with tag_pattern=True")
+    ap.add_argument("--run-slopes", action="store_true", help="calibrate with run_slopes=True")
     ap.add_argument("--range-bias-law", choices=("log", "linear"), default="log",
                     help="calibrate with this range-bias law (default log)")
     ap.add_argument("--out", type=Path, default=None, help="write the four reports (and scenarios) here")
@@ -80,7 +81,7 @@ def main() -> None:
             t0 = time.perf_counter()
             others = [traces[k] for k in traces if k != left]
             res = calibrate(others, name=f"loo-without-{left.replace(' ', '-')}", long_outages=args.long_outages,
-                            tag_pattern=args.tag_pattern,
+                            tag_pattern=args.tag_pattern, run_slopes=args.run_slopes,
                             range_bias_law=args.range_bias_law)
             scn = res.scenario
             if args.white_twin and res.report["antenna_sway"]["identifiable"]:

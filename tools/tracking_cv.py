@@ -7,12 +7,14 @@ NOAUG and AUG_GAN, and the runs SYNTH_PHY's scenario is calibrated on). Every fo
         --methods NOAUG,AUG_GAN,SYNTH_PHY,ekf --out DIR
 
 on datasets made by ``physynth import hanyang RUN --crop-to-uwb``. With ``--long-outages`` (or
-``--tag-pattern``) each fold also calibrates its training runs with ``physynth calibrate --long-outages``
-(``--tag-pattern``) and trains SYNTH_PHY on that scenario (``--scenario``): rows ``+long`` (``+pattern``).
+``--tag-pattern``, ``--run-slopes``) each fold also calibrates its training runs with ``physynth calibrate
+--long-outages`` (``--tag-pattern``, ``--run-slopes``) and trains SYNTH_PHY on that scenario
+(``--scenario``): rows ``+long`` (``+pattern``, ``+slopes``).
 Prints one table: RMSE (m) per fold and seed, the mean over all, and
 how often each method beats NOAUG of the same fold and seed.
 
     .venv/bin/python tools/tracking_cv.py [--seeds 0,1] [--jobs 2] [--long-outages] [--tag-pattern] [--frame F]
+                                          [--run-slopes]
                                           [--turn-test DEG] [--mirror-test] [--methods M,...]
                                           [--study-args "OPTIONS"] [--runs R,R,...] [--out DIR]
 
@@ -68,6 +70,7 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2, help="studies run at once")
     ap.add_argument("--long-outages", action="store_true", help="also SYNTH_PHY on --long-outages scenarios")
     ap.add_argument("--tag-pattern", action="store_true", help="also SYNTH_PHY on --tag-pattern scenarios")
+    ap.add_argument("--run-slopes", action="store_true", help="also SYNTH_PHY on --run-slopes scenarios")
     ap.add_argument("--frame", choices=("route", "turned", "compass"), default="turned",
                     help="the networks' frame (physynth study tracking --frame)")
     ap.add_argument("--turn-test", type=float, default=0.0, help="turn each test run by this many degrees")
@@ -103,7 +106,7 @@ def main() -> None:
         train = [r for r in runs if r != test]
         train_args = [a for r in train for a in ("--train", str(ds[r]))]
         scenarios = {}  # the calibrate variants: tag -> scenario calibrated on this fold's training runs
-        for tag, flag in (("+long", "--long-outages"), ("+pattern", "--tag-pattern")):
+        for tag, flag in (("+long", "--long-outages"), ("+pattern", "--tag-pattern"), ("+slopes", "--run-slopes")):
             if getattr(args, flag[2:].replace("-", "_")):
                 scn = args.out / f"{tag[1:]}-without-{_name(test)}.yaml"
                 if not scn.is_file():
@@ -136,7 +139,7 @@ def main() -> None:
             if tag and r["key"].startswith("ref:"):
                 continue  # the reference rows do not depend on the scenario
             table.setdefault(r["key"] + tag, {})[(test, seed)] = r["rmse_m"]
-    keys = [k for base in ORDER for k in (base, base + "+long", base + "+pattern") if k in table]
+    keys = [k for base in ORDER for k in (base, base + "+long", base + "+pattern", base + "+slopes") if k in table]
     print(f"leave-one-run-out, quick schedule, seeds {args.seeds}: RMSE (m) per test run, seed by seed")
     print("| method | " + " | ".join(r.replace("/", " ") for r in runs) + " | mean | beats NOAUG |")
     print("|---|" + "---|" * (len(runs) + 2))

@@ -31,7 +31,6 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
-from scipy.optimize import minimize
 
 from .. import __version__
 from ..bounds import BOUNDS
@@ -67,6 +66,15 @@ from .geometry import (
 )
 from .jitter_fit import fit_jitter
 from .run_lag import fit_run_lags
+from .run_spread import (
+    RUN_OFFSET_BLOCK_ROWS,  # noqa: F401  (re-exported)
+    RUN_OFFSET_LR_MIN,  # noqa: F401
+    RUN_OFFSET_MAX_BLOCKS,  # noqa: F401
+    _batch_mean_var,
+    _reml_two_way,  # noqa: F401
+    cell_slope,
+    two_way_spread,
+)
 from .uwb_fit import (
     MIN_ANCHOR_ROWS,
     RANGE_BIAS_LAWS,
@@ -403,14 +411,15 @@ def _bearing_rows(trace: Trace, r: Residuals, lag: float) -> tuple[np.ndarray, n
 
 def _fit_channels(trs: Sequence[Trace], offset: float | Sequence[float], ids: Sequence[str], fixed_slope: float | None,
                   labels: Sequence[str], run_offsets: RunOffsets | None = None, law: str = "log",
-                  tag_pattern: Sequence[float] | None = None) -> _Channels:
+                  tag_pattern: Sequence[float] | None = None, run_slopes: RunSlopes | None = None) -> _Channels:
     """Per-anchor LOS/NLOS mixtures (and the pooled one) at a given time offset (one for all runs, or
     one per run).
 
     Each run's residuals are taken against its own anchor positions; ``run_offsets`` (when given) are
     subtracted from the run's rows of that anchor first, so that the mixture describes the errors
     within a run and the run-to-run part is left to ``uwb.run_*offset_std_m``; so is the tag antenna
-    pattern ``tag_pattern`` (``uwb.tag_pattern_m``) at each row's bearing, when given.
+    pattern ``tag_pattern`` (``uwb.tag_pattern_m``) at each row's bearing, and each run's tilt of an
+    anchor's range law ``run_slopes`` (about the cell's own mean log range), when given.
     """
     res: list[Residuals] = []
     bearing: list[tuple[np.ndarray, np.ndarray]] = []
@@ -425,6 +434,12 @@ def _fit_channels(trs: Sequence[Trace], offset: float | Sequence[float], ids: Se
                 shift += per_anchor[r.anchor]
         if tag_pattern is not None and any(tag_pattern):
             shift += feats @ np.asarray(tag_pattern, dtype=float)
+        if run_slopes:
+            for i, a in enumerate(t.anchors.ids):
+                if (lab, a) in run_slopes:
+                    tilt, centre = run_slopes[(lab, a)]
+                    m = r.anchor == i
+                    shift[m] += tilt * (range_decades(r.range_m[m]) - centre)
         if shift.any():
             r = Residuals(residual_m=r.residual_m - shift, range_m=r.range_m, anchor=r.anchor,
                           t_s=r.t_s, range_rate_mps=r.range_rate_mps)
@@ -538,60 +553,20 @@ def refine_time_offset(rows: dict[str, AnchorRows], los: dict[str, np.ndarray]) 
             "sensitivity": sens}
 
 
-RUN_OFFSET_MAX_BLOCKS = 10
-"""Sampling variance of a run's mean LOS residual: batch means over at most this many blocks in time."""
-RUN_OFFSET_BLOCK_ROWS = 50
-"""... of at least this many rows each (at least two blocks)."""
-RUN_OFFSET_LR_MIN = 10.0
-"""REML likelihood-ratio statistic (spreads vs none) below which both run-to-run spreads are 0."""
-
-
-def _batch_mean_var(x: np.ndarray, floor: float) -> float:
-    """Variance of the mean of ``x`` (rows in time order) from the scatter of its block means.
-
-    Slow error components (NLOS episodes, misclassified rows) make it larger than sigma^2 / n; the
-    block means see them, up to the block length. At least ``floor``.
-    """
-    b = int(np.clip(x.size // RUN_OFFSET_BLOCK_ROWS, 2, RUN_OFFSET_MAX_BLOCKS))
-    means = np.array([blk.mean() for blk in np.array_split(x, b)])  # b <= 10 blocks
-    return max(float(means.var(ddof=1)) / b, floor)
-
-
-def _reml_two_way(y: np.ndarray, anchor: np.ndarray, run: np.ndarray,
-                  v: np.ndarray) -> tuple[float, float, np.ndarray, np.ndarray]:
-    """REML of y = mu_anchor + u_run + e_cell + eps, u ~ N(0, s_r), e ~ N(0, s_e), eps ~ N(0, v) known.
-
-    Returns (s_r, s_e, BLUP of u_run + e_cell per cell, the REML profile at the optimum's corners).
-    """
-    n_a, n_r = int(anchor.max()) + 1, int(run.max()) + 1
-    x = np.eye(n_a)[anchor]
-    z = np.eye(n_r)[run]
-    zz = z @ z.T
-    scale = float(np.mean(v) + np.var(y))
-
-    def parts(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        vm = scale * (q[0] * zz + np.diag(q[1] + v / scale))
-        return vm, np.linalg.inv(vm)
-
-    def nll(q: np.ndarray) -> float:
-        vm, vi = parts(q)
-        xtvx = x.T @ vi @ x
-        p = vi - vi @ x @ np.linalg.solve(xtvx, x.T @ vi)
-        return 0.5 * float(np.linalg.slogdet(vm)[1] + np.linalg.slogdet(xtvx)[1] + y @ p @ y)
-
-    best = None
-    for q0 in ((0.1, 0.1), (1.0, 0.01), (0.01, 1.0), (1e-4, 1e-4)):  # a few starts of a 2-parameter search
-        res = minimize(nll, np.array(q0), method="L-BFGS-B", bounds=[(0.0, 1e3), (0.0, 1e3)])
-        if best is None or res.fun < best.fun:
-            best = res
-    q = best.x
-    vm, vi = parts(q)
-    beta = np.linalg.solve(x.T @ vi @ x, x.T @ vi @ y)
-    cov_re = scale * (q[0] * zz + q[1] * np.eye(y.size))
-    blup = cov_re @ vi @ (y - x @ beta)
-    profile = np.array([nll(np.array([0.0, 0.0])), nll(np.array([q[0], 0.0])), nll(np.array([0.0, q[1]])),
-                        float(best.fun)])
-    return float(scale * q[0]), float(scale * q[1]), blup, profile
+def _los_cells(trs: Sequence[Trace], labels: Sequence[str], chan: _Channels):
+    """(run label, anchor id, LOS residuals after the anchor's range law, their true ranges, the anchor's
+    LOS std) of every cell with at least :data:`MIN_ANCHOR_ROWS` LOS rows (posterior NLOS probability
+    < 0.5), rows in time order."""
+    for aid, (ra, ga, _) in chan.per_anchor_rows.items():
+        f = chan.mix[aid]
+        runs_of = [lab for t, lab in zip(trs, labels, strict=True) if aid in t.anchors.ids]
+        start = 0
+        for lab, nlos in zip(runs_of, chan.flags[aid], strict=True):  # the anchor's rows, run by run
+            sl = slice(start, start + nlos.size)
+            start += nlos.size
+            x = ra[sl] - f.los_centre(ga[sl])
+            if int((~nlos).sum()) >= MIN_ANCHOR_ROWS:
+                yield lab, aid, x[~nlos], ga[sl][~nlos], f.los_std_m
 
 
 def run_offset_table(trs: Sequence[Trace], labels: Sequence[str], chan: _Channels) -> tuple[RunOffsets, dict[str, Any]]:
@@ -603,73 +578,70 @@ def run_offset_table(trs: Sequence[Trace], labels: Sequence[str], chan: _Channel
     (``run_offset_std_m``: the truth system or the tag antenna moved), a per-anchor remainder e_ra
     (``run_anchor_offset_std_m``: an anchor re-placed and re-surveyed) and the sampling error eps_ra of
     the run's mean, whose variance is estimated for each cell from its block means in time (at least
-    sigma_LOS^2 / n_ra, pooled over the anchor's runs). The two spreads are the REML estimates
-    (restricted maximum likelihood, non-negative); when the REML likelihood ratio against no spread is
-    below :data:`RUN_OFFSET_LR_MIN` the sampling errors explain the table and both are 0 (a point
-    estimate of a spread nobody can tell from 0 would be drawn for every synthetic run). The offsets
-    returned for removal from the rows are each run's own d_ra minus the anchor's mean over runs, 0
-    when the spreads are (the best linear unbiased predictions, shrunk by the sampling variances, are
-    in the report: removing those instead moved the left-out Hanyang medians by up to 1 cm, two of
-    three for the worse).
+    sigma_LOS^2 / n_ra, pooled over the anchor's runs); :func:`~physynth.calibrate.run_spread.two_way_spread`
+    (REML; 0 below :data:`RUN_OFFSET_LR_MIN`). The offsets returned for removal from the rows are each
+    run's own d_ra minus the anchor's mean over runs, 0 when the spreads are (the best linear unbiased
+    predictions, shrunk by the sampling variances, are in the report: removing those instead moved the
+    left-out Hanyang medians by up to 1 cm, two of three for the worse).
     """
-    raw: dict[tuple[str, str], tuple[float, float]] = {}  # (run, anchor) -> (offset, sampling variance)
-    n_los: dict[tuple[str, str], int] = {}
-    for aid, (ra, ga, _) in chan.per_anchor_rows.items():
-        f = chan.mix[aid]
-        runs_of = [lab for t, lab in zip(trs, labels, strict=True) if aid in t.anchors.ids]
-        start = 0
-        for lab, nlos in zip(runs_of, chan.flags[aid], strict=True):  # the anchor's rows, run by run
-            x = ra[start:start + nlos.size] - f.los_centre(ga[start:start + nlos.size])
-            start += nlos.size
-            xl = x[~nlos]
-            if xl.size >= MIN_ANCHOR_ROWS:
-                raw[(lab, aid)] = (float(np.mean(xl)), _batch_mean_var(xl, f.los_std_m**2 / float(xl.size)))
-                n_los[(lab, aid)] = int(xl.size)
-    ids = sorted({a for _, a in raw})
-    runs = [lab for lab in labels if any((lab, a) in raw for a in ids)]
-    centred: dict[tuple[str, str], float] = {}
-    for aid in ids:
-        vals = [raw[(lab, aid)][0] for lab in runs if (lab, aid) in raw]
-        mean = float(np.mean(vals)) if vals else 0.0
-        for lab in runs:
-            if (lab, aid) in raw:
-                centred[(lab, aid)] = raw[(lab, aid)][0] - mean
-    diag: dict[str, Any] = {"per_run": {lab: {a: centred[(lab, a)] for a in ids if (lab, a) in centred}
-                                        for lab in runs}}
-    shared = [a for a in ids if sum((lab, a) in raw for lab in runs) >= 2]
-    if len(runs) < 2 or not shared:
-        diag.update(identifiable=False, why="fewer than two runs share an anchor", run_offset_std_m=0.0,
-                    run_anchor_offset_std_m=0.0)
+    raw, n_los = {}, {}
+    for lab, aid, xl, _, los_std in _los_cells(trs, labels, chan):
+        raw[(lab, aid)] = (float(np.mean(xl)), _batch_mean_var(xl, los_std**2 / float(xl.size)))
+        n_los[(lab, aid)] = int(xl.size)
+    offsets, d = two_way_spread(raw, n_los, labels, unit="m")
+    diag: dict[str, Any] = {"per_run": d["per_run"], "identifiable": d["identifiable"]}
+    if not d["identifiable"]:
+        diag.update(why=d["why"], run_offset_std_m=0.0, run_anchor_offset_std_m=0.0)
         return {}, diag
-    cells = [(lab, a) for lab in runs for a in shared if (lab, a) in raw]
-    y = np.array([raw[k][0] for k in cells])
-    # each cell's sampling variance: n_ra x (variance of the mean) is a per-row variance inflated by the
-    # slow error components; it belongs to the anchor (its channel), so it is pooled over the anchor's
-    # runs (a few block means per run are too few for one cell) and divided by each run's row count
-    n_rows = np.array([n_los[k] for k in cells], dtype=float)
-    infl = {a: float(np.mean([raw[k][1] * n_los[k] for k in cells if k[1] == a])) for a in shared}
-    v = np.array([infl[a] for _, a in cells]) / n_rows
-    a_idx = np.array([shared.index(a) for _, a in cells])
-    r_idx = np.array([runs.index(lab) for lab, _ in cells])
-    s_r, s_e, blup, prof = _reml_two_way(y, a_idx, r_idx, v)
-    lr = float(2.0 * (prof[0] - prof[3]))
-    significant = lr >= RUN_OFFSET_LR_MIN
-    if not significant:  # the sampling errors explain the table: no spread, nothing removed
-        s_r, s_e = 0.0, 0.0
-    run_mean = {lab: float(np.mean([centred[(lab, a)] for a in shared if (lab, a) in centred])) for lab in runs}
-    offsets: RunOffsets = {k: (centred[k] if significant else 0.0) for k in cells}
-    diag.update(identifiable=True, n_runs=len(runs), n_anchors=len(shared), run_means_m=run_mean,
-                run_offset_std_m=float(np.sqrt(s_r)), run_anchor_offset_std_m=float(np.sqrt(s_e)),
-                sampling_var_m2=float(np.mean(v)), sampling_var_per_cell_m2={f"{r} {a}": float(x)
-                                                                             for (r, a), x in zip(cells, v,
-                                                                                                  strict=True)},
-                removed_offsets_m={f"{r} {a}": offsets[(r, a)] for r, a in cells},
-                blup_offsets_m={f"{r} {a}": float(b) for (r, a), b in zip(cells, blup, strict=True)},
-                reml_lr_vs_no_spread=lr, significant=significant,
+    diag.update(n_runs=d["n_runs"], n_anchors=d["n_anchors"], run_means_m=d["run_means"],
+                run_offset_std_m=d["run_std"], run_anchor_offset_std_m=d["run_anchor_std"],
+                sampling_var_m2=d["sampling_var"], sampling_var_per_cell_m2=d["sampling_var_per_cell"],
+                removed_offsets_m=d["removed"], blup_offsets_m=d["blup"],
+                reml_lr_vs_no_spread=d["reml_lr_vs_no_spread"], significant=d["significant"],
                 method=("two-way random effects (run, run x anchor) on the per-run mean LOS residuals, "
                         "REML with each cell's sampling variance (block means in time) known; removed "
                         "offsets = each run's own (anchor mean removed) when the spreads are significant, else 0"))
     return offsets, diag
+
+
+RunSlopes = dict[tuple[str, str], tuple[float, float]]
+"""(run label, anchor id) -> (the run's tilt of the anchor's range law relative to the anchor's mean
+over runs [m per decade of range], the mean log10 range of the cell's rows it pivots about)."""
+
+
+def run_slope_table(trs: Sequence[Trace], labels: Sequence[str], chan: _Channels,
+                    law: str) -> tuple[RunSlopes, dict[str, Any]]:
+    """Per-run tilts of every anchor's LOS range law and their run-to-run spreads (random effects).
+
+    For run r and anchor a, b_ra is the least-squares slope of the LOS residuals (as in
+    :func:`run_offset_table`) on log10 range, its sampling variance by a jackknife over blocks in time
+    (:func:`~physynth.calibrate.run_spread.cell_slope`); then the same two-way REML split as the
+    offsets. The tilts returned for removal pivot about each cell's own mean log range, so removing
+    them leaves the cell's mean (its offset) as it was. The pivot the scenario draws about
+    (``uwb.run_slope_ref_range_m``) is the pooled mean log range of the cells. Only for the log law.
+    """
+    if law != "log":
+        return {}, {"identifiable": False, "why": "the run-to-run tilt is fitted for the log range law only",
+                    "run_slope_std_m": 0.0, "run_anchor_slope_std_m": 0.0}
+    raw, n_los, centres = {}, {}, {}
+    for lab, aid, xl, gl, _ in _los_cells(trs, labels, chan):
+        got = cell_slope(xl, range_decades(gl))
+        if got is not None:
+            raw[(lab, aid)], n_los[(lab, aid)], centres[(lab, aid)] = (got[0], got[1]), int(xl.size), got[2]
+    tilts, d = two_way_spread(raw, n_los, labels, unit="m per decade")
+    diag: dict[str, Any] = {"per_run": d["per_run"], "identifiable": d["identifiable"]}
+    if not d["identifiable"]:
+        diag.update(why=d["why"], run_slope_std_m=0.0, run_anchor_slope_std_m=0.0)
+        return {}, diag
+    ref = float(10.0 ** np.average(list(centres.values()), weights=list(n_los.values())))
+    diag.update(n_runs=d["n_runs"], n_anchors=d["n_anchors"], run_means_m=d["run_means"],
+                run_slope_std_m=d["run_std"], run_anchor_slope_std_m=d["run_anchor_std"], ref_range_m=ref,
+                sampling_var_per_cell_m2=d["sampling_var_per_cell"], removed_slopes_m=d["removed"],
+                blup_slopes_m=d["blup"], reml_lr_vs_no_spread=d["reml_lr_vs_no_spread"],
+                significant=d["significant"],
+                method=("least-squares slope of each (run, anchor) cell's LOS residuals on log10 range, "
+                        "jackknife over blocks in time; two-way random effects by REML as the offsets"))
+    return {k: (v, centres[k]) for k, v in tilts.items() if v != 0.0}, diag
 
 
 # ---------------------------------------------------------------- step records
@@ -719,6 +691,9 @@ class RangingFit:
     range_bias_law: str = "log"
     offset_std_s: float = 0.0  # run-to-run spread of the lag [s]
     tag_pattern_m: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)  # uwb.tag_pattern_m (zeros: none kept)
+    run_slope_std_m: float = 0.0  # run-to-run tilt of the range law [m per decade]
+    run_anchor_slope_std_m: float = 0.0
+    run_slope_ref_range_m: float = 10.0
 
     @property
     def slope_key(self) -> str:
@@ -921,11 +896,13 @@ def fit_timing(inp: CalibrationInputs, report: ReportBuilder, progress: Progress
 
 def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, Any] | None,
                 range_bias: Literal["dynamic", "static"], report: ReportBuilder,
-                law: str = "log", tag_pattern: bool = False) -> RangingFit:
+                law: str = "log", tag_pattern: bool = False, run_slopes: bool = False) -> RangingFit:
     """Per-anchor LOS/NLOS mixtures pooled over runs, the refined time offset and run-to-run offsets.
 
     ``law``: how the LOS mean grows with the range (:data:`~physynth.calibrate.uwb_fit.RANGE_BIAS_LAWS`).
     ``tag_pattern``: apply the tag antenna pattern the fit keeps (always fitted and reported).
+    ``run_slopes``: remove and generate the run-to-run tilts of the range law (:func:`run_slope_table`;
+    always fitted and reported).
     """
     trs, labels, ids = inp.traces, inp.labels, inp.anchor_ids
     if range_bias == "static" and static is None:
@@ -967,10 +944,15 @@ def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, 
                      note="the runs' lags do not differ beyond their errors (Cochran's Q)")
     run_offsets, off_diag = run_offset_table(trs, labels, chan)
     report.sections["run_offsets"] = off_diag
+    tilts, slope_diag = run_slope_table(trs, labels, chan, law)
+    slope_diag["applied"] = bool(run_slopes and slope_diag["identifiable"] and slope_diag["significant"])
+    report.sections["run_slopes"] = slope_diag
+    if not slope_diag["applied"]:
+        tilts = {}
     pattern = _tag_pattern(chan, report, apply=tag_pattern)  # each sequence's level and range law projected out
-    if refined or run_offsets or any(pattern):  # the channels again, each run's offsets and each row's pattern removed
+    if refined or run_offsets or tilts or any(pattern):  # again: each run's offsets and tilts, the pattern removed
         chan = _fit_channels(trs, lags if lag_std > 0 else offset, ids, fixed_slope, labels,
-                             run_offsets=run_offsets, law=law, tag_pattern=pattern)
+                             run_offsets=run_offsets, law=law, tag_pattern=pattern, run_slopes=tilts)
     if off_diag["identifiable"]:
         s_run, s_anchor = off_diag["run_offset_std_m"], off_diag["run_anchor_offset_std_m"]
         note = "run-to-run spread of the per-run mean LOS residual (two-way random effects)"
@@ -980,10 +962,29 @@ def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, 
     else:
         s_run = s_anchor = 0.0
         report.not_identifiable.append("uwb.run_offset_std_m, uwb.run_anchor_offset_std_m (one run; 0 kept)")
+    slope_std = _report_run_slopes(slope_diag, report)
+    if not slope_diag["applied"]:
+        slope_std = {}
     report.not_identifiable.extend(chan.notes)
     return RangingFit(offset_s=offset, offset_se_s=se_off, channels=chan, refinement=ref, fixed_slope=fixed_slope,
                       run_offset_std_m=s_run, run_anchor_offset_std_m=s_anchor, range_bias_law=law,
-                      offset_std_s=lag_std, tag_pattern_m=pattern)
+                      offset_std_s=lag_std, tag_pattern_m=pattern, **slope_std)
+
+
+def _report_run_slopes(diag: dict[str, Any], report: ReportBuilder) -> dict[str, float]:
+    """Report the run-to-run tilts of the range law; the RangingFit fields (zeros when not identifiable)."""
+    if not diag["identifiable"]:
+        report.not_identifiable.append(f"uwb.run_slope_std_m, uwb.run_anchor_slope_std_m ({diag['why']}; 0 kept)")
+        return {}
+    note = ("run-to-run spread of the per-run slope of the LOS residuals on log10 range (two-way random "
+            "effects); " + ("generated" if diag["applied"] else "not generated unless run_slopes=True"))
+    report.param("uwb.run_slope_std_m", diag["run_slope_std_m"], n=diag["n_runs"], note=note, summary=True)
+    report.param("uwb.run_anchor_slope_std_m", diag["run_anchor_slope_std_m"],
+                 n=diag["n_runs"] * diag["n_anchors"], note=note, summary=True)
+    report.param("uwb.run_slope_ref_range_m", diag["ref_range_m"], n=diag["n_runs"],
+                 note="the pooled mean log range of the LOS rows the tilts pivot about")
+    return {"run_slope_std_m": diag["run_slope_std_m"], "run_anchor_slope_std_m": diag["run_anchor_slope_std_m"],
+            "run_slope_ref_range_m": diag["ref_range_m"]}
 
 
 def _tag_pattern(chan: _Channels, rep: ReportBuilder, *, apply: bool) -> tuple[float, ...]:
@@ -1504,6 +1505,9 @@ def build_scenario(name: str, inp: CalibrationInputs, geometry: GeometryFit, tim
                     nlos_dwell_s=rounded(channels.nlos_dwell_s, 4), zones=[],
                     run_offset_std_m=rounded(ranging.run_offset_std_m, 4),
                     run_anchor_offset_std_m=rounded(ranging.run_anchor_offset_std_m, 4),
+                    run_slope_std_m=rounded(ranging.run_slope_std_m, 4),
+                    run_anchor_slope_std_m=rounded(ranging.run_anchor_slope_std_m, 4),
+                    run_slope_ref_range_m=rounded(ranging.run_slope_ref_range_m, 3),
                     **_sway_params(channels.sway), tag_pattern_m=list(ranging.tag_pattern_m),
                     tag_nlos_prob=rounded(channels.tag_nlos["prob"], 4) if channels.tag_nlos["applied"] else 0.0)
     report.not_identifiable.append("uwb.zones (NLOS zones along the path are not fitted)")
@@ -1545,7 +1549,7 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
               static_sweeps: str | os.PathLike | None = None, range_bias: Literal["dynamic", "static"] = "dynamic",
               range_bias_law: Literal["log", "linear"] = "log",
               sources: Sequence[str] | None = None, long_outages: bool = False, tag_pattern: bool = False,
-              progress: ProgressCallback | None = None) -> CalibrationResult:
+              run_slopes: bool = False, progress: ProgressCallback | None = None) -> CalibrationResult:
     """Calibrate a scenario on one or several recordings (real or synthetic Traces).
 
     Parameters
@@ -1582,6 +1586,12 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
         channels to the residuals with it removed. It is always fitted and reported; off by default
         because on the shared Hanyang walks (all along one route) applying it worsened the left-out
         runs' KS and the tracking study (docs/calibration.md, "Where the anchors lie from the walker").
+    run_slopes
+        Generate the run-to-run tilts of the range law (``uwb.run_slope_std_m``,
+        ``uwb.run_anchor_slope_std_m``; several runs needed) when the fit finds them, and fit the
+        channels with each run's own tilt removed. Always fitted and reported; off by default because on
+        the shared Hanyang walks it made one left-out run's KS worse and none better (docs/calibration.md,
+        "Run-to-run tilts of the range law").
     progress
         ``progress(message, done, total)`` before each step (:mod:`physynth.progress`).
     """
@@ -1612,7 +1622,7 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
     if range_bias_law not in RANGE_BIAS_LAWS:
         raise CalibrationError(f"unknown range-bias law {range_bias_law!r} (choose from {', '.join(RANGE_BIAS_LAWS)})")
     ranging = fit_ranging(inp, timing, static=static, range_bias=range_bias, report=rep, law=range_bias_law,
-                          tag_pattern=tag_pattern)
+                          tag_pattern=tag_pattern, run_slopes=run_slopes)
     tick("fitting availability (link range, dropouts, outages)")
     avail = fit_link_availability(inp, ranging, timing, rep)
     channels = assemble_channels(inp, ranging, avail, timing, rep)

@@ -67,6 +67,10 @@ def calibrate_cmd(
                                      help="Also generate the tag antenna pattern the fit finds (range bias by "
                                           "the anchor's bearing from the direction of travel; always "
                                           "reported). See docs/calibration.md."),
+    run_slopes: bool = typer.Option(False, "--run-slopes",
+                                    help="Also generate the run-to-run tilts of the range law the fit finds "
+                                         "(each trace's error grows with range at its own rate; needs several "
+                                         "runs; always reported). See docs/calibration.md."),
     allow_mixed: bool = typer.Option(False, "--allow-mixed",
                                      help="Pool datasets even when they are not the same kind of site."),
     overwrite: bool = typer.Option(False, "--overwrite",
@@ -96,7 +100,7 @@ def calibrate_cmd(
                    path_kind=path_kind, anchor_policy=anchor_layout, layout_from=chosen,
                    static_sweeps=static_sweeps, range_bias=range_bias, range_bias_law=range_bias_law,
                    allow_mixed=allow_mixed,
-                   long_outages=long_outages, tag_pattern=tag_pattern)
+                   long_outages=long_outages, tag_pattern=tag_pattern, run_slopes=run_slopes)
 
 
 def _calibrate(datasets: list[Path], out: Path, report: Path | None, quiet: bool, real_out: Path,

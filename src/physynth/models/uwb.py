@@ -160,8 +160,14 @@ class UwbParams(ParamsModel):
     Run-to-run ranging offsets: each trace adds one offset ~ N(0, ``run_offset_std_m``^2) to every
     range of every anchor (a truth-system or tag-antenna offset that changes from run to run) and one
     offset ~ N(0, ``run_anchor_offset_std_m``^2) per anchor (an anchor re-placed and re-surveyed for
-    each run). Both are 0 by default; they, and the per-trace lag, are drawn after every other draw of
-    the trace's UWB stream, so a scenario without them generates exactly what it did before they existed.
+    each run). Run-to-run range law: each trace also tilts the range law about
+    ``run_slope_ref_range_m`` by a slope ~ N(0, ``run_slope_std_m``^2) common to its anchors plus one ~
+    N(0, ``run_anchor_slope_std_m``^2) per anchor [m per decade of range]: every range gains
+    slope * log10(r / ``run_slope_ref_range_m``) (the real walks' received-power bias grows by 13-15 cm
+    per decade of range in one run and 20-26 cm in the three others, every anchor of a run alike;
+    docs/calibration.md). All four are 0 by default; they, and the per-trace lag, are drawn after every
+    other draw of the trace's UWB stream, so a scenario without them generates exactly what it did
+    before they existed.
     ``obstacles`` and ``terrain`` (optional) block the line of sight: an attempt whose tag-anchor
     segment meets one is NLOS (:mod:`physynth.models.obstacles`), in addition to the ``zones``.
 
@@ -210,6 +216,9 @@ class UwbParams(ParamsModel):
     zones: list[NlosZone] = []
     run_offset_std_m: NonNegFloat = 0.0
     run_anchor_offset_std_m: NonNegFloat = 0.0
+    run_slope_std_m: NonNegFloat = 0.0
+    run_anchor_slope_std_m: NonNegFloat = 0.0
+    run_slope_ref_range_m: PositiveFloat = 10.0
     obstacles: list[Obstacle] = []
     terrain: TerrainGrid | None = None
     antenna_sway_std_m: NonNegFloat = 0.0
@@ -958,6 +967,17 @@ def run_offsets(n_anchors: int, params: UwbParams, *, rng: np.random.Generator) 
     return out
 
 
+def run_slopes(n_anchors: int, params: UwbParams, *, rng: np.random.Generator) -> np.ndarray:
+    """Per-trace tilts of the anchors' range laws [m per decade of range], (A,): a common one plus one
+    per anchor. Draws nothing (and returns zeros) when both spreads are 0."""
+    out = np.zeros(n_anchors)
+    if params.run_slope_std_m > 0:
+        out += params.run_slope_std_m * rng.standard_normal()
+    if params.run_anchor_slope_std_m > 0:
+        out += params.run_anchor_slope_std_m * rng.standard_normal(n_anchors)
+    return out
+
+
 LAG_MARGIN_STDS = 4.0
 """Bursts end this many ``time_offset_std_s`` (plus the mean lag) before the truth: stamps stay inside it."""
 
@@ -1041,6 +1061,9 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
     offsets = run_offsets(n_anchors, u, rng=rng)
     if offsets.any():  # adding zeros would change only a -0.0 error, and true_range + (-0.0) is true_range
         err += offsets[anchor]
+    tilts = run_slopes(n_anchors, u, rng=rng)
+    if tilts.any():
+        err += tilts[anchor] * (range_decades(true_range) - np.log10(u.run_slope_ref_range_m))
     if u.antenna_sway_std_m > 0:  # the range from the swaying antenna: + u . offset
         if sway_rng is None:
             raise ValueError("antenna sway needs its random stream (sway_rng)")
