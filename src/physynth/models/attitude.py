@@ -266,7 +266,8 @@ def simulate_attitude(t_s: np.ndarray, vel_enu_mps: np.ndarray, acc_enu_mps2: np
     if params.kind == "tangent":  # turns about the fixed world z axis add up: exact rates without logs
         half = 0.5 * yaw
         q = np.zeros((n, 4))
-        q[:, 0], q[:, 3] = np.cos(half), np.sin(half)
+        np.cos(half, out=q[:, 0])  # into the columns: no temporaries
+        np.sin(half, out=q[:, 3])
         omega = np.zeros((n, 3))
         if n > 1:
             omega[:-1, 2] = (yaw[1:] - yaw[:-1]) / (t[1:] - t[:-1])  # numpy.diff's values, without its overhead

@@ -1095,9 +1095,14 @@ def uwb_record(att: UwbAttempts, *, outage: np.ndarray, dropped: np.ndarray) -> 
     n = att.t_true_s.shape[0]
     masks = (att.linked, outage, dropped)
     if all(isinstance(m, np.ndarray) and m.dtype == np.bool_ and m.shape == (n,) for m in masks):
-        # boolean masks (as simulate_availability returns): the precedence below in two selections
-        reason = np.where(att.linked, np.where(outage, np.int8(Reason.OUTAGE), dropped.view(np.int8)),
-                          np.int8(Reason.NO_LINK))  # a dropped row is 1 = Reason.DROPOUT, a kept one 0 = OK
+        # boolean masks (as simulate_availability returns): the precedence below as the largest code that
+        # applies, in 8-bit integer passes (twice as fast as two selections): a dropped row is 1 = DROPOUT,
+        # an outage 2 = OUTAGE, no link 3 = NO_LINK, a kept row 0 = OK
+        reason = np.left_shift(outage.view(np.int8), 1)
+        np.maximum(reason, dropped.view(np.int8), out=reason)
+        no_link = np.invert(att.linked).view(np.int8)
+        no_link *= np.int8(Reason.NO_LINK)
+        np.maximum(reason, no_link, out=reason)
     else:
         reason = np.full(n, Reason.OK, dtype=np.int8)
         reason[dropped] = Reason.DROPOUT
