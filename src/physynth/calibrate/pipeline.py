@@ -963,8 +963,6 @@ def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, 
         s_run = s_anchor = 0.0
         report.not_identifiable.append("uwb.run_offset_std_m, uwb.run_anchor_offset_std_m (one run; 0 kept)")
     slope_std = _report_run_slopes(slope_diag, report)
-    if not slope_diag["applied"]:
-        slope_std = {}
     report.not_identifiable.extend(chan.notes)
     return RangingFit(offset_s=offset, offset_se_s=se_off, channels=chan, refinement=ref, fixed_slope=fixed_slope,
                       run_offset_std_m=s_run, run_anchor_offset_std_m=s_anchor, range_bias_law=law,
@@ -972,15 +970,21 @@ def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, 
 
 
 def _report_run_slopes(diag: dict[str, Any], report: ReportBuilder) -> dict[str, float]:
-    """Report the run-to-run tilts of the range law; the RangingFit fields (zeros when not identifiable)."""
+    """Report the run-to-run tilts of the range law as the scenario gets them (0 unless applied; the
+    fitted values in the notes); the RangingFit fields (none when not applied)."""
     if not diag["identifiable"]:
         report.not_identifiable.append(f"uwb.run_slope_std_m, uwb.run_anchor_slope_std_m ({diag['why']}; 0 kept)")
         return {}
-    note = ("run-to-run spread of the per-run slope of the LOS residuals on log10 range (two-way random "
-            "effects); " + ("generated" if diag["applied"] else "not generated unless run_slopes=True"))
-    report.param("uwb.run_slope_std_m", diag["run_slope_std_m"], n=diag["n_runs"], note=note, summary=True)
-    report.param("uwb.run_anchor_slope_std_m", diag["run_anchor_slope_std_m"],
-                 n=diag["n_runs"] * diag["n_anchors"], note=note, summary=True)
+    applied = diag["applied"]
+    status = ("generated" if applied else "not generated unless run_slopes=True" if diag["significant"]
+              else "not significant: 0")
+    for key, n in (("run_slope_std_m", diag["n_runs"]), ("run_anchor_slope_std_m", diag["n_runs"] * diag["n_anchors"])):
+        report.param(f"uwb.{key}", diag[key] if applied else 0.0, n=n, summary=True,
+                     note=(f"run-to-run spread of the per-run slope of the LOS residuals on log10 range (two-way "
+                           f"random effects, REML likelihood ratio {diag['reml_lr_vs_no_spread']:.1f}); fitted "
+                           f"{diag[key]:.4f} m per decade: {status}"))
+    if not applied:
+        return {}
     report.param("uwb.run_slope_ref_range_m", diag["ref_range_m"], n=diag["n_runs"],
                  note="the pooled mean log range of the LOS rows the tilts pivot about")
     return {"run_slope_std_m": diag["run_slope_std_m"], "run_anchor_slope_std_m": diag["run_anchor_slope_std_m"],
