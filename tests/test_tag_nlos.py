@@ -143,6 +143,25 @@ def test_estimator_on_known_indicators():
     assert not fit_tag_nlos([(t[:300], anchor[:300], near[:300])], 3, 0.1)["identifiable"]  # too few bursts
 
 
+def test_an_anchor_without_a_near_mode_does_not_dilute_the_fraction():
+    """A fourth anchor whose mixture has no near-LOS mode never joins a tag-side episode: its pairs are
+    left out, and the fraction the three others share is found as without it (before, its three pairs
+    of six entered as 0 and halved the estimate)."""
+    rng = np.random.default_rng(3)
+    n, p_tag, own = 40000, 0.05, 0.04
+    shared = rng.random(n) < p_tag
+    t = np.repeat(np.arange(n) * 0.1, 4)
+    anchor = np.tile(np.arange(4), n)
+    near = (np.repeat(shared, 4) | (rng.random(4 * n) < own)) & (anchor < 3)  # anchor 3: never seen near
+    share = np.array([0.1, 0.1, 0.1, 0.0])  # the mixtures' near-mode fractions: none for anchor 3
+    three = fit_tag_nlos([(t[anchor < 3], anchor[anchor < 3], near[anchor < 3])], 3, 0.1, share[:3])
+    four = fit_tag_nlos([(t, anchor, near)], 4, 0.1, share)
+    assert len(four["per_pair"]) == 3 and all(3 not in p["anchors"] for p in four["per_pair"])
+    assert four["prob"] == pytest.approx(three["prob"], abs=1e-12)
+    se = np.sqrt(p_tag * (1 - p_tag) / n)
+    assert four["prob"] == pytest.approx(p_tag, abs=6 * se + 0.005)
+
+
 @pytest.mark.skipif(not HANYANG.is_dir(), reason=f"real Hanyang data not found at {HANYANG}")
 def test_hanyang_walks_share_their_wide_errors():
     """The real walks' near-LOS NLOS rows come to several anchors at once (data in ../shared)."""

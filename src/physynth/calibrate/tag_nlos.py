@@ -18,7 +18,11 @@ For two anchors a, b ranged in the same burst, an own process per anchor and a s
 
 solved for p on a grid over [0, min(pi_a, pi_b)] (with d = 1 it is p = 1 - (1 - P_a)(1 - P_b) /
 P(neither)). P_a, P_b and P(neither) are counted over the bursts where both were ranged. The estimate
-pools the pairs of every run (weighted by their bursts). Kept when it rests on at least
+pools the pairs of every run (weighted by their bursts) of anchors that both have a near-LOS mode: an
+anchor without one never joins a tag-side episode (:func:`physynth.models.uwb.tag_mode_index`), so its
+pairs say nothing about the fraction (counted as 0 they diluted it: on the Hanyang fold without LOS
+Case_1 one pair of six was informative, and whether it was turned on the mixture order of one anchor).
+Kept when it rests on at least
 :data:`MIN_BURSTS` shared bursts and exceeds :data:`MIN_PROB`.
 """
 
@@ -85,6 +89,8 @@ def fit_tag_nlos(runs: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]], n_an
         n, na, nb, n0 = counts[a, b]
         if n < 1 or n0 < 1:
             continue
+        if near_prob is not None and min(near_prob[a], near_prob[b]) <= 0:
+            continue  # an anchor without a near-LOS mode never joins a tag-side episode: the pair says nothing
         pa, pb, p0 = na / n, nb / n, n0 / n
         pi_a, pi_b = (1.0, 1.0) if near_prob is None else (float(near_prob[a]), float(near_prob[b]))
         da, db = (1.0, 1.0) if near_prob is None else (min(1.0, pa / max(pi_a, 1e-12)), min(1.0, pb / max(pi_b, 1e-12)))
