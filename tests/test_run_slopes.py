@@ -91,7 +91,7 @@ def test_calibration_recovers_the_tilt_spread():
     res = calibrate([generate_trace(cs, i, 21) for i in range(n)], name="tilted", run_slopes=True)
     sec = res.report["run_slopes"]
     assert sec["identifiable"] and sec["significant"] and sec["applied"]
-    v = np.mean(list(sec["sampling_var_per_cell_m2"].values()))
+    v = np.mean(list(sec["sampling_var_per_cell"].values()))
     se = np.sqrt(2.0 / (n - 1)) * (s_true**2 + v / sec["n_anchors"]) / (2.0 * s_true)
     assert res.scenario.uwb.run_slope_std_m == pytest.approx(s_true, abs=3.0 * se)
     assert 10.0 < res.scenario.uwb.run_slope_ref_range_m < 1000.0

@@ -634,10 +634,10 @@ def run_slope_table(trs: Sequence[Trace], labels: Sequence[str], chan: _Channels
         diag.update(why=d["why"], run_slope_std_m=0.0, run_anchor_slope_std_m=0.0)
         return {}, diag
     ref = float(10.0 ** np.average(list(centres.values()), weights=list(n_los.values())))
-    diag.update(n_runs=d["n_runs"], n_anchors=d["n_anchors"], run_means_m=d["run_means"],
-                run_slope_std_m=d["run_std"], run_anchor_slope_std_m=d["run_anchor_std"], ref_range_m=ref,
-                sampling_var_per_cell_m2=d["sampling_var_per_cell"], removed_slopes_m=d["removed"],
-                blup_slopes_m=d["blup"], reml_lr_vs_no_spread=d["reml_lr_vs_no_spread"],
+    diag.update(unit="m per decade of range", n_runs=d["n_runs"], n_anchors=d["n_anchors"],
+                run_means=d["run_means"], run_slope_std_m=d["run_std"], run_anchor_slope_std_m=d["run_anchor_std"],
+                ref_range_m=ref, sampling_var_per_cell=d["sampling_var_per_cell"], removed_slopes=d["removed"],
+                blup_slopes=d["blup"], reml_lr_vs_no_spread=d["reml_lr_vs_no_spread"],
                 significant=d["significant"],
                 method=("least-squares slope of each (run, anchor) cell's LOS residuals on log10 range, "
                         "jackknife over blocks in time; two-way random effects by REML as the offsets"))
@@ -1594,8 +1594,8 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
         Generate the run-to-run tilts of the range law (``uwb.run_slope_std_m``,
         ``uwb.run_anchor_slope_std_m``; several runs needed) when the fit finds them, and fit the
         channels with each run's own tilt removed. Always fitted and reported; off by default because on
-        the shared Hanyang walks it made one left-out run's KS worse and none better (docs/calibration.md,
-        "Run-to-run tilts of the range law").
+        the shared Hanyang walks it made one left-out run's KS worse and none better, and the tracking
+        study worse (docs/calibration.md, "Run-to-run tilts of the range law").
     progress
         ``progress(message, done, total)`` before each step (:mod:`physynth.progress`).
     """
