@@ -409,6 +409,25 @@ def _bearing_rows(trace: Trace, r: Residuals, lag: float) -> tuple[np.ndarray, n
     return pattern_features(cos_phi, sin_phi), speed
 
 
+def _run_shift(t: Trace, lab: str, r: Residuals, feats: np.ndarray, run_offsets: RunOffsets | None,
+               tag_pattern: Sequence[float] | None, run_slopes: RunSlopes | None) -> np.ndarray:
+    """What :func:`_fit_channels` removes from each row of run ``lab``: the run's offset of the row's
+    anchor, the tag pattern at the row's bearing (``feats``) and the run's tilt of the anchor's range law."""
+    shift = np.zeros(r.residual_m.size)
+    if run_offsets:
+        per_anchor = np.array([run_offsets.get((lab, a), 0.0) for a in t.anchors.ids])
+        if per_anchor.size:
+            shift += per_anchor[r.anchor]
+    if tag_pattern is not None and any(tag_pattern):
+        shift += feats @ np.asarray(tag_pattern, dtype=float)
+    for i, a in enumerate(t.anchors.ids if run_slopes else ()):
+        if (lab, a) in run_slopes:
+            tilt, centre = run_slopes[(lab, a)]
+            m = r.anchor == i
+            shift[m] += tilt * (range_decades(r.range_m[m]) - centre)
+    return shift
+
+
 def _fit_channels(trs: Sequence[Trace], offset: float | Sequence[float], ids: Sequence[str], fixed_slope: float | None,
                   labels: Sequence[str], run_offsets: RunOffsets | None = None, law: str = "log",
                   tag_pattern: Sequence[float] | None = None, run_slopes: RunSlopes | None = None) -> _Channels:
@@ -427,19 +446,7 @@ def _fit_channels(trs: Sequence[Trace], offset: float | Sequence[float], ids: Se
     for t, lab, lag in zip(trs, labels, lags, strict=True):
         r = corrected_residuals(t, lag)
         feats, speed = _bearing_rows(t, r, lag)
-        shift = np.zeros(r.residual_m.size)
-        if run_offsets:
-            per_anchor = np.array([run_offsets.get((lab, a), 0.0) for a in t.anchors.ids])
-            if per_anchor.size:
-                shift += per_anchor[r.anchor]
-        if tag_pattern is not None and any(tag_pattern):
-            shift += feats @ np.asarray(tag_pattern, dtype=float)
-        if run_slopes:
-            for i, a in enumerate(t.anchors.ids):
-                if (lab, a) in run_slopes:
-                    tilt, centre = run_slopes[(lab, a)]
-                    m = r.anchor == i
-                    shift[m] += tilt * (range_decades(r.range_m[m]) - centre)
+        shift = _run_shift(t, lab, r, feats, run_offsets, tag_pattern, run_slopes)
         if shift.any():
             r = Residuals(residual_m=r.residual_m - shift, range_m=r.range_m, anchor=r.anchor,
                           t_s=r.t_s, range_rate_mps=r.range_rate_mps)
