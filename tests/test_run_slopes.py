@@ -16,7 +16,6 @@ from physynth.calibrate import calibrate
 from physynth.calibrate.run_spread import MIN_DECADE_SPAN, cell_slope
 from physynth.generate import compile_scenario, generate_trace
 from physynth.io.scenario_file import load_scenario
-from physynth.models.attitude import simulate_attitude
 from physynth.models.motion import draw_run, kinematics
 from physynth.models.path import draw_perturbation
 from physynth.models.uwb import range_decades, simulate_uwb
@@ -52,14 +51,13 @@ def test_cell_slope_needs_a_span_of_ranges():
 
 
 def _attempts(scn, index: int):
+    """The UWB attempts of trace ``index`` (root seed 1) before availability, as generation draws them."""
     cs = compile_scenario(scn)
-    s = scn
-    pert = draw_perturbation(s.path.perturbation, rng=component_rng(1, index, "path"))
-    run = draw_run(s.motion, rng=component_rng(1, index, "motion"))
-    kin = kinematics(cs.geometry, pert, s.motion, cs.shape, run, rate_hz=s.truth_rate_hz, reverse=s.path.reverse,
-                     lateral_dir=cs.lateral_dir)
-    simulate_attitude(kin.t_s, kin.vel_enu_mps, kin.acc_enu_mps2, s.attitude, rng=None)
-    return simulate_uwb(kin, s.uwb, cs.channel, rng=component_rng(1, index, "uwb"))
+    pert = draw_perturbation(scn.path.perturbation, rng=component_rng(1, index, "path"))
+    run = draw_run(scn.motion, rng=component_rng(1, index, "motion"))
+    kin = kinematics(cs.geometry, pert, scn.motion, cs.shape, run, rate_hz=scn.truth_rate_hz,
+                     reverse=scn.path.reverse, lateral_dir=cs.lateral_dir)
+    return simulate_uwb(kin, scn.uwb, cs.channel, rng=component_rng(1, index, "uwb"))
 
 
 def test_one_tilt_per_trace_and_nothing_else_moves():
