@@ -157,6 +157,10 @@ def test_an_anchor_without_a_near_mode_does_not_dilute_the_fraction():
     three = fit_tag_nlos([(t[anchor < 3], anchor[anchor < 3], near[anchor < 3])], 3, 0.1, share[:3])
     four = fit_tag_nlos([(t, anchor, near)], 4, 0.1, share)
     assert len(four["per_pair"]) == 3 and all(3 not in p["anchors"] for p in four["per_pair"])
+    assert four["pairs_without_near_mode"] == 3
+    # with no anchor able to show a tag-side episode nothing is fitted, and the report says why
+    none = fit_tag_nlos([(t, anchor, near)], 4, 0.1, np.zeros(4))
+    assert not none["identifiable"] and none["prob"] == 0.0 and "without a near-LOS NLOS mode" in none["why"]
     assert four["prob"] == pytest.approx(three["prob"], abs=1e-12)
     se = np.sqrt(p_tag * (1 - p_tag) / n)
     assert four["prob"] == pytest.approx(p_tag, abs=6 * se + 0.005)

@@ -75,7 +75,8 @@ def fit_tag_nlos(runs: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]], n_an
     (None: every near row is seen, d = 1).
 
     Returns ``identifiable``, ``prob`` (0 when not kept), ``n_bursts`` (pairs' shared bursts summed),
-    ``per_pair`` (anchor indices, bursts, p_a, p_b, P(neither), p) and ``why`` when not kept.
+    ``per_pair`` (anchor indices, bursts, p_a, p_b, P(neither), p), ``pairs_without_near_mode`` (pairs
+    left out: an anchor without a near-LOS mode) and ``why`` when not kept.
     """
     counts = np.zeros((n_anchors, n_anchors, 4))
     for t, anchor, near in runs:
@@ -84,13 +85,14 @@ def fit_tag_nlos(runs: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]], n_an
         order = np.argsort(t, kind="stable")
         burst = _burst_ids(t[order], 0.5 * burst_period_s)
         counts += _pair_counts(burst, anchor[order], near[order], n_anchors)
-    pairs = []
+    pairs, skipped = [], 0
     for a, b in combinations(range(n_anchors), 2):
         n, na, nb, n0 = counts[a, b]
         if n < 1 or n0 < 1:
             continue
         if near_prob is not None and min(near_prob[a], near_prob[b]) <= 0:
-            continue  # an anchor without a near-LOS mode never joins a tag-side episode: the pair says nothing
+            skipped += 1  # an anchor without a near-LOS mode never joins a tag-side episode: the pair says nothing
+            continue
         pa, pb, p0 = na / n, nb / n, n0 / n
         pi_a, pi_b = (1.0, 1.0) if near_prob is None else (float(near_prob[a]), float(near_prob[b]))
         da, db = (1.0, 1.0) if near_prob is None else (min(1.0, pa / max(pi_a, 1e-12)), min(1.0, pb / max(pi_b, 1e-12)))
@@ -100,8 +102,10 @@ def fit_tag_nlos(runs: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]], n_an
                       "prob": _solve_pair(pa, pb, p0, da, db, ceiling)})
     total = sum(p["n_bursts"] for p in pairs)
     out: dict[str, Any] = {"identifiable": False, "prob": 0.0, "n_bursts": int(total), "per_pair": pairs}
+    out["pairs_without_near_mode"] = skipped
     if total < MIN_BURSTS:
-        out["why"] = f"{total} bursts with two anchors ranged, fewer than {MIN_BURSTS}"
+        lacking = f" ({skipped} pairs left out: an anchor without a near-LOS NLOS mode)" if skipped else ""
+        out["why"] = f"{total} bursts with two anchors ranged, fewer than {MIN_BURSTS}{lacking}"
         return out
     prob = float(sum(p["prob"] * p["n_bursts"] for p in pairs) / total)
     out["prob"] = prob
