@@ -86,15 +86,21 @@ def test_calibration_recovers_the_tilt_spread():
     preset = load_scenario("cablecar-descending")
     scn = preset.model_copy(update={"uwb": preset.uwb.model_copy(update={"run_slope_std_m": s_true})})
     cs = compile_scenario(scn)
-    res = calibrate([generate_trace(cs, i, 21) for i in range(n)], name="tilted", run_slopes=True)
+    traces = [generate_trace(cs, i, 21) for i in range(n)]
+    res = calibrate(traces, name="tilted", run_slopes=True)
     sec = res.report["run_slopes"]
     assert sec["identifiable"] and sec["significant"] and sec["applied"]
     v = np.mean(list(sec["sampling_var_per_cell"].values()))
     se = np.sqrt(2.0 / (n - 1)) * (s_true**2 + v / sec["n_anchors"]) / (2.0 * s_true)
     assert res.scenario.uwb.run_slope_std_m == pytest.approx(s_true, abs=3.0 * se)
-    assert 10.0 < res.scenario.uwb.run_slope_ref_range_m < 1000.0
+    # the pivot is the LOS rows' mean log range: within 0.1 decade of the mean log range of all valid rows
+    # (the NLOS rows left out move it by less), not the default 10 m
+    decades = np.concatenate([np.log10(np.linalg.norm(
+        t.truth.position_at(t.uwb.t_s[t.uwb.valid]) - t.anchors.pos_enu_m[t.uwb.anchor[t.uwb.valid]], axis=1))
+        for t in traces])
+    assert np.log10(res.scenario.uwb.run_slope_ref_range_m) == pytest.approx(decades.mean(), abs=0.1)
     # without the option the spread is fitted and reported, not generated
-    plain = calibrate([generate_trace(cs, i, 21) for i in range(n)], name="plain")
+    plain = calibrate(traces, name="plain")
     assert plain.report["run_slopes"]["significant"] and not plain.report["run_slopes"]["applied"]
     assert plain.scenario.uwb.run_slope_std_m == 0.0
     assert plain.report["parameters"]["uwb.run_slope_std_m"]["value"] == 0.0  # the report says what is generated

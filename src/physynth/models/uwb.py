@@ -954,28 +954,29 @@ def sway_at(t_s: np.ndarray, kin: Kinematics, params: UwbParams, *, rng: np.rand
     return antenna_sway(np.interp(t_s, kin.t_s, c), 0.0, float(c[-1]), params.antenna_sway_std_m, 1.0, rng=rng)
 
 
+def _run_effect(n_anchors: int, common_std: float, anchor_std: float, rng: np.random.Generator) -> np.ndarray:
+    """(A,) per-trace draws: one ~ N(0, common_std^2) shared by the anchors plus one ~ N(0, anchor_std^2)
+    per anchor, in that order; a spread of 0 draws nothing, so the stream is unchanged without it."""
+    out = np.zeros(n_anchors)
+    if common_std > 0:
+        out += common_std * rng.standard_normal()
+    if anchor_std > 0:
+        out += anchor_std * rng.standard_normal(n_anchors)
+    return out
+
+
 def run_offsets(n_anchors: int, params: UwbParams, *, rng: np.random.Generator) -> np.ndarray:
     """Per-trace ranging offsets [m] of the anchors, (A,): a common one plus one per anchor.
 
     Draws nothing (and returns zeros) when both spreads are 0, so that the stream is unchanged.
     """
-    out = np.zeros(n_anchors)
-    if params.run_offset_std_m > 0:
-        out += params.run_offset_std_m * rng.standard_normal()
-    if params.run_anchor_offset_std_m > 0:
-        out += params.run_anchor_offset_std_m * rng.standard_normal(n_anchors)
-    return out
+    return _run_effect(n_anchors, params.run_offset_std_m, params.run_anchor_offset_std_m, rng)
 
 
 def run_slopes(n_anchors: int, params: UwbParams, *, rng: np.random.Generator) -> np.ndarray:
     """Per-trace tilts of the anchors' range laws [m per decade of range], (A,): a common one plus one
     per anchor. Draws nothing (and returns zeros) when both spreads are 0."""
-    out = np.zeros(n_anchors)
-    if params.run_slope_std_m > 0:
-        out += params.run_slope_std_m * rng.standard_normal()
-    if params.run_anchor_slope_std_m > 0:
-        out += params.run_anchor_slope_std_m * rng.standard_normal(n_anchors)
-    return out
+    return _run_effect(n_anchors, params.run_slope_std_m, params.run_anchor_slope_std_m, rng)
 
 
 LAG_MARGIN_STDS = 4.0
