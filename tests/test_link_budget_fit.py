@@ -27,6 +27,7 @@ def test_path_loss_fit_recovers_the_law():
     truth = np.array([-45.0, 2.2, 0.5, -70.0])
     p = path_loss_model(truth, d, h, 1.0, 0.0462) + 0.5 * rng.standard_normal(d.size)
     fit = fit_path_loss(d, h, p)
+    assert fit.tag_height_fitted and fit.tag_height_m == pytest.approx(1.0, abs=0.05)
     assert fit.path_loss_exponent == pytest.approx(2.2, abs=0.1)
     assert fit.ref_power_dbm == pytest.approx(-45.0, abs=1.5)
     assert fit.ground_reflection == pytest.approx(0.5, abs=0.1)
@@ -34,6 +35,25 @@ def test_path_loss_fit_recovers_the_law():
     assert fit.shadowing_std_db == pytest.approx(0.5, rel=0.3)
     with pytest.raises(PhySynthError, match="at least 6 positions"):
         fit_path_loss(d[:3], h[:3], p[:3])
+    with pytest.raises(PhySynthError, match="tag_height_m must be positive"):
+        fit_path_loss(d, h, p, tag_height_m=0.0)
+
+
+def test_path_loss_fit_finds_the_tag_height_from_the_nulls_and_a_wrong_fixed_one_costs():
+    """The nulls lie where 2 h_anchor h_tag / d is a whole number of wavelengths: sweeps over several
+    anchor heights give the tag height back; holding it at a wrong value leaves a larger misfit."""
+    rng = np.random.default_rng(7)
+    d = np.tile(np.arange(2.0, 62.0, 2.0), 7)
+    h = np.repeat([0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0], 30)
+    truth = np.array([-55.0, 2.0, 0.55, -81.0])
+    p = path_loss_model(truth, d, h, 0.7, 0.0462) + 0.5 * rng.standard_normal(d.size)
+    fit = fit_path_loss(d, h, p)
+    assert fit.tag_height_m == pytest.approx(0.7, abs=0.03)
+    assert fit.ground_reflection == pytest.approx(0.55, abs=0.1)
+    assert fit.rms_db == pytest.approx(0.5, rel=0.2)
+    held = fit_path_loss(d, h, p, tag_height_m=1.0)
+    assert not held.tag_height_fitted and held.tag_height_m == 1.0
+    assert held.rms_db > 2.0 * fit.rms_db
 
 
 def test_detection_fit_recovers_the_sensitivity_and_bounds_it_without_losses():
@@ -57,8 +77,18 @@ def test_hanyang_static_link_budget():
     assert -82.0 < pl["saturation_dbm"] < -79.0  # the DW1000 first-path power tops out near -80 dBm
     assert 0.1 < pl["ground_reflection"] < 0.9  # the interference nulls of the two-ray term are real
     assert pl["shadowing_std_db"] < 3.0
-    assert rep["detection"]["n_detected"] / rep["detection"]["n_attempts"] > 0.99  # no weak-link loss <= 60 m
-    assert params.sensitivity_dbm <= rep["weakest_mean_power_dbm"]
+    assert rep["detection"]["n_detected"] / rep["detection"]["n_attempts"] > 0.97  # measured 0.975
+    # the deepest nulls lose rows: the sensitivity is found, a few dB below the -81 dBm plateau and
+    # within the powers the law predicts at the weakest positions
+    assert rep["note"] == "sensitivity from the detection losses"
+    assert rep["weakest_mean_power_dbm"] - 3.0 < params.sensitivity_dbm < -90.0
+    assert rep["n_positions_losing_half"] >= 1
+    assert max(rep["mean_power_of_positions_losing_half_dbm"]) < -90.0  # they lie in predicted nulls
+    # the nulls put the tag antenna about 0.9 m above the ground, and with it the law is free space
+    assert 0.8 < pl["tag_height_m"] < 1.0 and pl["tag_height_fitted"]
+    assert 1.7 < pl["path_loss_exponent"] < 2.3
+    _, held = fit_link_budget_hanyang_static(STATIC / "LOS", environment="LOS", tag_height_m=1.0)
+    assert pl["rms_db"] < 0.75 * held["path_loss"]["rms_db"]  # measured 1.30 against 2.61 dB
 
 
 def test_sensitivity_from_detection_rate_against_distance_of_a_recording():

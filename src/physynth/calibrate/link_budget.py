@@ -7,8 +7,10 @@ Two sources, used where a recording has them:
   :func:`physynth.io.importers.import_hanyang_static`): :func:`fit_path_loss` fits the log-distance
   law P(r) = P0 - 10 n log10(r / 1 m) plus the two-ray ground term of the antenna heights, with the
   receiver's power-estimate saturation as a nuisance parameter (the DW1000 reports about -80 dBm
-  for every stronger signal). The shadowing spread is the scatter of the per-position medians about
-  the fit;
+  for every stronger signal), and the height of the other antenna above the reflecting ground: the
+  interference nulls sit where the ground path is a whole number of wavelengths longer, at a
+  distance proportional to the product of the two heights, so their positions fix it. The shadowing
+  spread is the scatter of the per-position medians about the fit;
 - detection against distance (any recording): :func:`fit_detection_vs_distance` fits the sensitivity
   S of Phi((P(r) - S) / sigma) by maximum likelihood on detected / attempted counts, with P(r) and sigma
   from the power fit (or assumed). When no attempt is lost the likelihood has no maximum: only an
@@ -31,7 +33,7 @@ from ..errors import PhySynthError
 from ..models.uwb import LinkBudgetParams, ground_gain_db
 
 OUTAGE_RATE_FRAC = 0.5
-"""A static position that delivered less than this fraction of the sweep's row rate had an outage."""
+"""Static positions that delivered less than this fraction of the sweep's row rate are reported apart."""
 
 CHI2_1_95_HALF = 1.3528
 """Half the 90 % quantile of chi-square(1): the profile-likelihood drop of a one-sided 95 % bound."""
@@ -48,6 +50,8 @@ class PathLossFit:
     shadowing_std_db: float
     wavelength_m: float
     tag_height_m: float
+    tag_height_fitted: bool
+    rms_db: float
     n_positions: int
 
 
@@ -77,17 +81,25 @@ def path_loss_model(params: np.ndarray, horiz_m: np.ndarray, anchor_h_m: np.ndar
     return _smooth_min(p, psat) if with_saturation else p
 
 
+TAG_HEIGHT_BOUNDS_M = (0.2, 3.0)
+"""Range [m] of the fitted height of the other antenna (:func:`fit_path_loss` with ``tag_height_m=None``)."""
+
+
 def fit_path_loss(horiz_m: np.ndarray, anchor_height_m: np.ndarray, power_dbm: np.ndarray, *,
-                  tag_height_m: float = 1.0, wavelength_m: float = 0.0462) -> PathLossFit:
-    """Fit P0, n, the ground reflection rho and the saturation level to per-position power medians.
+                  tag_height_m: float | None = None, wavelength_m: float = 0.0462) -> PathLossFit:
+    """Fit P0, n, the ground reflection rho, the saturation level and the tag height to per-position
+    power medians.
 
     Parameters
     ----------
     horiz_m, anchor_height_m, power_dbm : arrays (K,)
         Horizontal tag-anchor distance [m], anchor antenna height above ground [m] and the median
         reported power [dBm] at each position.
-    tag_height_m : float
-        Tag antenna height above ground [m].
+    tag_height_m : float or None
+        Height of the other (tag) antenna above the reflecting ground [m]. None (the default) fits it
+        within :data:`TAG_HEIGHT_BOUNDS_M`: the nulls of the two-ray term lie at horizontal distances
+        near 2 h_anchor h_tag / (k lambda), k = 1, 2, ..., so sweeps over several anchor heights fix
+        it. A number holds it fixed.
     wavelength_m : float
         Carrier wavelength [m] (channel 5: 0.0462 m).
     """
@@ -97,16 +109,24 @@ def fit_path_loss(horiz_m: np.ndarray, anchor_height_m: np.ndarray, power_dbm: n
     ok = np.isfinite(h) & np.isfinite(a) & np.isfinite(p)
     if ok.sum() < 6:
         raise PhySynthError(f"a path-loss fit needs at least 6 positions with a finite power, got {int(ok.sum())}")
+    if tag_height_m is not None and not tag_height_m > 0:
+        raise PhySynthError(f"tag_height_m must be positive (or None to fit it), got {tag_height_m}")
     h, a, p = h[ok], a[ok], p[ok]
+    fit_h = tag_height_m is None
 
     def resid(x: np.ndarray) -> np.ndarray:
-        return path_loss_model(x, h, a, tag_height_m, wavelength_m) - p
+        return path_loss_model(x[:4], h, a, x[4] if fit_h else tag_height_m, wavelength_m) - p
 
+    lo, hi = [-120.0, 0.5, 0.0, -120.0], [0.0, 6.0, 0.99, 0.0]
+    if fit_h:
+        lo, hi = lo + [TAG_HEIGHT_BOUNDS_M[0]], hi + [TAG_HEIGHT_BOUNDS_M[1]]
+    heights = (0.8, 1.2, 1.8) if fit_h else (None,)
     best = None
-    starts = [(p0, n, rho) for p0 in (-40.0, -55.0, -70.0) for n in (1.5, 2.0, 3.0) for rho in (0.2, 0.5, 0.8)]
-    for p0, n0, rho0 in starts:  # a grid of starts: saturation and the two-ray term make the cost multi-modal
-        sol = optimize.least_squares(resid, x0=[p0, n0, rho0, float(np.max(p))], loss="soft_l1", f_scale=2.0,
-                                     bounds=([-120.0, 0.5, 0.0, -120.0], [0.0, 6.0, 0.99, 0.0]))
+    starts = [(p0, n, rho, ht) for p0 in (-40.0, -55.0, -70.0) for n in (1.5, 2.0, 3.0) for rho in (0.2, 0.5, 0.8)
+              for ht in heights]
+    for p0, n0, rho0, ht0 in starts:  # a grid of starts: saturation and the two-ray term make the cost multi-modal
+        x0 = [p0, n0, rho0, float(np.max(p))] + ([ht0] if fit_h else [])
+        sol = optimize.least_squares(resid, x0=x0, loss="soft_l1", f_scale=2.0, bounds=(lo, hi))
         if best is None or sol.cost < best.cost:
             best = sol
     assert best is not None
@@ -114,7 +134,8 @@ def fit_path_loss(horiz_m: np.ndarray, anchor_height_m: np.ndarray, power_dbm: n
     mad = float(np.median(np.abs(r - np.median(r))) * 1.4826)
     return PathLossFit(ref_power_dbm=float(best.x[0]), path_loss_exponent=float(best.x[1]),
                        ground_reflection=float(best.x[2]), saturation_dbm=float(best.x[3]), shadowing_std_db=mad,
-                       wavelength_m=wavelength_m, tag_height_m=tag_height_m, n_positions=int(h.size))
+                       wavelength_m=wavelength_m, tag_height_m=float(best.x[4]) if fit_h else float(tag_height_m),
+                       tag_height_fitted=fit_h, rms_db=float(np.sqrt(np.mean(r**2))), n_positions=int(h.size))
 
 
 def fit_detection_vs_distance(mean_power_dbm: np.ndarray, n_detected: np.ndarray, n_attempts: np.ndarray, *,
@@ -199,32 +220,34 @@ def static_positions(root: str | os.PathLike, *, power: str = "rssi_fp_dbm") -> 
 
 
 def fit_link_budget_hanyang_static(root: str | os.PathLike, *, environment: str = "LOS",
-                                   power: str = "rssi_fp_dbm") -> tuple[LinkBudgetParams, dict[str, Any]]:
+                                   power: str = "rssi_fp_dbm", tag_height_m: float | None = None
+                                   ) -> tuple[LinkBudgetParams, dict[str, Any]]:
     """Link budget from the Hanyang static sweeps of one environment (LOS or NLOS).
 
     Power law from the per-position medians (:func:`fit_path_loss`); detection from the rows each
     ~13 s position delivered against the median row rate of the sweep (the logger's own rate), as
-    binomial counts (:func:`fit_detection_vs_distance`). Returns the parameters (sensitivity at its
-    upper bound when no loss is seen) and a JSON-able report.
+    binomial counts (:func:`fit_detection_vs_distance`). ``tag_height_m``: the other antenna's height
+    above the ground (None: fitted from the nulls). Returns the parameters (sensitivity at its upper
+    bound when no loss is seen) and a JSON-able report.
     """
     tab = static_positions(root, power=power)
     tab = tab[tab["environment"] == environment]
     if tab.empty:
         raise PhySynthError(f"no static sweep of environment {environment!r} below {root}")
     fit = fit_path_loss(tab["nominal_distance_m"].to_numpy(), tab["height_m"].to_numpy(),
-                        tab["power_dbm"].to_numpy())
+                        tab["power_dbm"].to_numpy(), tag_height_m=tag_height_m)
     rate = tab["n_rows"] / tab["duration_s"].clip(lower=1e-9)
     nominal_rate = float(np.median(rate))
     attempts = np.maximum(np.round(tab["duration_s"].to_numpy() * nominal_rate), 1.0)
     detected = np.minimum(tab["n_rows"].to_numpy(), attempts)
-    # a position that lost more than half its rows had an outage (logger or radio reset; the
-    # availability model's business), not a weak link: counted, left out of the sensitivity fit
-    outage = detected < OUTAGE_RATE_FRAC * attempts
+    # every position counts, those that lost more than half their rows too: on the Hanyang sweeps they
+    # are the deepest ground nulls of the fitted law (predicted -92.6 to -95.2 dBm), weak links, not
+    # logger resets; they are reported with their predicted power
+    heavy = detected < OUTAGE_RATE_FRAC * attempts
     full = np.array([fit.ref_power_dbm, fit.path_loss_exponent, fit.ground_reflection, fit.saturation_dbm])
     mean_p = path_loss_model(full, tab["nominal_distance_m"].to_numpy(), tab["height_m"].to_numpy(),
                              fit.tag_height_m, fit.wavelength_m, with_saturation=False)
-    det = fit_detection_vs_distance(mean_p[~outage], detected[~outage], attempts[~outage],
-                                    shadowing_std_db=max(fit.shadowing_std_db, 0.5))
+    det = fit_detection_vs_distance(mean_p, detected, attempts, shadowing_std_db=max(fit.shadowing_std_db, 0.5))
     params = LinkBudgetParams(ref_power_dbm=round(fit.ref_power_dbm, 2),
                               path_loss_exponent=round(fit.path_loss_exponent, 3),
                               sensitivity_dbm=round(det.sensitivity_dbm if det.sensitivity_dbm is not None
@@ -234,8 +257,9 @@ def fit_link_budget_hanyang_static(root: str | os.PathLike, *, environment: str 
     report = {"environment": environment, "power_column": power, "path_loss": asdict(fit),
               "detection": asdict(det),
               "nominal_row_rate_hz": nominal_rate, "n_positions": int(len(tab)),
-              "n_positions_with_outage": int(outage.sum()),
-              "weakest_mean_power_dbm": float(np.min(mean_p[~outage])),
+              "n_positions_losing_half": int(heavy.sum()),
+              "mean_power_of_positions_losing_half_dbm": [round(float(v), 2) for v in mean_p[heavy]],
+              "weakest_mean_power_dbm": float(np.min(mean_p)),
               "distance_range_m": [float(tab["nominal_distance_m"].min()), float(tab["nominal_distance_m"].max())],
               "note": ("no detection loss in the sweeps: the sensitivity is the 95 % upper bound"
                        if det.sensitivity_dbm is None else "sensitivity from the detection losses")}
