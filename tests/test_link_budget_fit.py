@@ -108,3 +108,87 @@ def test_sensitivity_from_detection_rate_against_distance_of_a_recording():
     assert det[0] / exp[0] > 0.9 and det[-1] / exp[-1] < 0.1
     fit = fit_detection_vs_distance(-40.0 - 20 * np.log10(np.maximum(centre, 1.0)), det, exp, shadowing_std_db=3.0)
     assert fit.sensitivity_dbm == pytest.approx(-80.0, abs=1.0)
+
+
+def test_link_detection_from_recordings_gives_the_sensitivity_back():
+    """Losses along the truth of generated walks past three anchors with one link budget (ground term
+    on, the tag antenna's height set): the sensitivity and fading come back, told apart from a constant
+    loss rate, and a wrong tag height fits worse."""
+    from dataclasses import replace
+
+    from helpers import simple_scenario
+
+    from physynth.calibrate.link_budget import PathLossFit, fit_link_detection
+    from physynth.generate import compile_scenario, generate_trace
+
+    lb = {"ref_power_dbm": -40.0, "path_loss_exponent": 2.0, "sensitivity_dbm": -80.0, "shadowing_std_db": 3.0,
+          "ground_reflection": 0.5, "tag_height_m": 1.0}
+    scn = simple_scenario(**{"path": {"kind": "waypoints", "waypoints_enu_m": [[0, 0, 1.2], [300, 0, 1.2]],
+                                      "perturbation": {"lateral_std_m": 0.0, "sag_std_m": 0.0}},
+                             "anchors": [{"id": "A1", "pos_enu_m": [0, 0, 1.5]}, {"id": "A2", "pos_enu_m": [150, 5, 1]},
+                                         {"id": "A3", "pos_enu_m": [300, -5, 2]}],
+                             "channel.link_budget": lb})
+    cs = compile_scenario(scn)
+    traces = [generate_trace(cs, i, 23) for i in range(3)]
+    law = PathLossFit(ref_power_dbm=-40.0, path_loss_exponent=2.0, ground_reflection=0.5, saturation_dbm=0.0,
+                      shadowing_std_db=0.0, wavelength_m=0.0462, tag_height_m=1.0, tag_height_fitted=False,
+                      rms_db=0.0, n_positions=0)
+    fit = fit_link_detection(traces, law)
+    assert fit["identifiable"] and fit["likelihood_ratio"] > 100.0
+    # bursts every anchor missed are unseen (the tag looks silent): a small bias, inside 1 dB here
+    assert fit["sensitivity_dbm"] == pytest.approx(-80.0, abs=1.0)
+    assert fit["shadowing_std_db"] == pytest.approx(3.0, rel=0.25)
+    assert max(fit["baseline_miss"].values()) < 0.02
+    wrong = fit_link_detection(traces, replace(law, tag_height_m=2.0))
+    assert wrong["likelihood_ratio"] < fit["likelihood_ratio"]
+
+
+@pytest.mark.skipif(not STATIC.is_dir(), reason=f"real Hanyang static sweeps not found at {STATIC}")
+def test_hanyang_link_budget_for_the_dynamic_runs_finds_the_weak_placement():
+    """On the four shared walks the losses follow the power the static law predicts, and in the two runs
+    where anchor A5 stands at 1.39 m it is the anchor the budget expects to lose most."""
+    from scipy.special import ndtr
+
+    from physynth.calibrate.link_budget import PathLossFit, burst_link_rows, link_budget_for_runs
+    from physynth.io.importers import import_hanyang
+
+    dyn = STATIC.parent / "Dynamic_measurements"
+    runs = [import_hanyang(dyn / env / "Trajectory_A" / case, crop_to_uwb=True)[0]
+            for env in ("LOS", "NLOS") for case in ("Case_1", "Case_2")]
+    params, mean_det, rep = link_budget_for_runs(runs, STATIC)
+    assert params is not None and rep["detection"]["likelihood_ratio"] > 100.0  # measured 407
+    assert 0.8 < params.tag_height_m < 1.0 and set(mean_det) == {"A3", "A5", "A9", "A12"}
+    law = PathLossFit(**rep["static"]["path_loss"])
+    checked = 0
+    for tr in runs:
+        p, _, idx = burst_link_rows(tr, law)
+        det = ndtr((p - params.sensitivity_dbm) / params.shadowing_std_db)
+        low = {aid: np.quantile(det[idx == i], 0.05) for i, aid in enumerate(tr.anchors.ids)}
+        if abs(tr.anchors.pos_enu_m[tr.anchors.index("A5"), 2] - 1.39) < 0.01:
+            assert low["A5"] < min(v for k, v in low.items() if k != "A5"), low
+            checked += 1
+    assert checked == 2
+
+
+@pytest.mark.skipif(not STATIC.is_dir(), reason=f"real Hanyang static sweeps not found at {STATIC}")
+def test_calibrate_with_link_budget_puts_it_on_every_anchor_and_takes_its_losses_out_of_the_dropouts():
+    from physynth.calibrate import calibrate
+    from physynth.calibrate._base import CalibrationError
+    from physynth.io.importers import import_hanyang
+
+    dyn = STATIC.parent / "Dynamic_measurements"
+    runs = [import_hanyang(dyn / "LOS" / "Trajectory_A" / "Case_2", crop_to_uwb=True)[0],
+            import_hanyang(dyn / "NLOS" / "Trajectory_A" / "Case_1", crop_to_uwb=True)[0]]
+    with pytest.raises(CalibrationError, match="link_budget=True needs static_sweeps"):
+        calibrate(runs, link_budget=True)
+    res = calibrate(runs, link_budget=True, static_sweeps=STATIC)
+    scn, lb = res.scenario, res.report["link_budget"]
+    assert lb["applied"]
+    budgets = [scn.channel_per_anchor[a].link_budget for a in ("A3", "A5", "A9", "A12")]
+    assert all(b is not None and b == budgets[0] for b in budgets)
+    assert budgets[0].tag_height_m == pytest.approx(lb["static"]["path_loss"]["tag_height_m"], abs=1e-3)
+    for aid, before in lb["dropout_prob_before"].items():
+        after = scn.availability_per_anchor[aid].dropout_prob
+        m = lb["mean_detection_per_anchor"][aid]
+        assert after == pytest.approx(max(0.0, 1.0 - (1.0 - before) / m), abs=1e-6)
+        assert after <= before

@@ -121,6 +121,8 @@ def test_errors_name_the_options_not_the_parameters(dataset, tmp_path, capsys):
              "--layout-from=7: there are 2 recordings")
     _refused(["calibrate", str(dataset), "--range-bias", "static", "--out", str(tmp_path / "s.yaml"), "-q"], capsys,
              "--range-bias static needs --static-sweeps")
+    _refused(["calibrate", str(dataset), "--link-budget", "--out", str(tmp_path / "s.yaml"), "-q"], capsys,
+             "--link-budget needs --static-sweeps")
 
 
 def test_verify_checks_every_dataset(dataset, tmp_path, capsys):

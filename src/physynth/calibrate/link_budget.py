@@ -264,3 +264,127 @@ def fit_link_budget_hanyang_static(root: str | os.PathLike, *, environment: str 
               "note": ("no detection loss in the sweeps: the sensitivity is the 95 % upper bound"
                        if det.sensitivity_dbm is None else "sensitivity from the detection losses")}
     return params, report
+
+
+LINK_LR_MIN = 10.0
+"""Likelihood ratio a link-budget detection fit on recordings must reach against losses independent of
+the predicted power (:func:`fit_link_detection`) for its sensitivity to count as found."""
+
+
+def burst_link_rows(trace: Any, law: PathLossFit, *, ground_u_m: float = 0.0
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per (burst in which some anchor answered, anchor): the power ``law`` predicts [dBm] (no saturation;
+    anchor heights from the layout above ``ground_u_m``, the tag at ``law.tag_height_m``), whether that
+    anchor answered, and its index in ``trace.anchors`` (each (M,)). A burst no anchor answered says
+    nothing about any one link (the tag was silent)."""
+    from .uwb_fit import burst_ids
+
+    u = trace.uwb
+    ok = u.valid
+    b, t, a = burst_ids(trace)[ok], u.t_s[ok], u.anchor[ok].astype(np.intp)
+    ub, first = np.unique(b, return_index=True)
+    n_a = len(trace.anchors)
+    answered = np.zeros((ub.size, n_a), dtype=bool)
+    answered[np.searchsorted(ub, b), a] = True
+    pos = trace.truth.position_at(t[first])
+    anc = trace.anchors.pos_enu_m
+    horiz = np.hypot(pos[:, None, 0] - anc[None, :, 0], pos[:, None, 1] - anc[None, :, 1])
+    heights = np.broadcast_to(anc[None, :, 2] - ground_u_m, horiz.shape)
+    x = np.array([law.ref_power_dbm, law.path_loss_exponent, law.ground_reflection, law.saturation_dbm])
+    power = path_loss_model(x, horiz.ravel(), heights.ravel(), law.tag_height_m, law.wavelength_m,
+                            with_saturation=False)
+    idx = np.broadcast_to(np.arange(n_a)[None, :], horiz.shape).ravel()
+    keep = np.isfinite(power)
+    return power[keep], answered.ravel()[keep], idx[keep]
+
+
+def fit_link_detection(traces: Any, law: PathLossFit, *, ground_u_m: float = 0.0) -> dict[str, Any]:
+    """Sensitivity and per-attempt fading of a link budget from recordings, given its power law.
+
+    Each (burst, anchor) of every trace (:func:`burst_link_rows`) answered with probability
+    (1 - q_anchor) Phi((P - S) / sigma): a loss independent of the power per anchor id (dropouts,
+    outages) times the link's detection at the power P the law predicts along the truth. S and sigma
+    are fitted by maximum likelihood with the q's; the fit is kept (``identifiable``) when its
+    likelihood ratio against the q's alone reaches :data:`LINK_LR_MIN` (the losses follow the
+    predicted power). Returns a JSON-able dict.
+    """
+    from scipy.optimize import minimize
+    from scipy.special import expit, log_ndtr
+
+    rows = [burst_link_rows(tr, law, ground_u_m=ground_u_m) for tr in traces]
+    ids = sorted({aid for tr in traces for aid in tr.anchors.ids})
+    gid = [np.searchsorted(ids, np.asarray(tr.anchors.ids))[r[2]] for tr, r in zip(traces, rows, strict=True)]
+    p = np.concatenate([r[0] for r in rows])
+    y = np.concatenate([r[1] for r in rows])
+    g = np.concatenate(gid)
+    if p.size == 0:
+        raise PhySynthError("a link-detection fit needs bursts with ranges and truth")
+    n_g = np.maximum(np.bincount(g, minlength=len(ids)), 1)
+    miss = np.bincount(g, weights=~y, minlength=len(ids)) / n_g
+    null = -float(np.sum(np.where(y, np.log1p(-miss[g] + 1e-12), np.log(miss[g] + 1e-12))))
+    strong = p >= np.quantile(p, 0.5)  # where the link itself hardly loses: a start for the q's
+    miss_strong = np.bincount(g[strong], weights=~y[strong], minlength=len(ids)) / np.maximum(
+        np.bincount(g[strong], minlength=len(ids)), 1)
+
+    def logit(q: np.ndarray) -> np.ndarray:
+        q = np.clip(q, 1e-4, 0.5)
+        return np.log(q / (1.0 - q))
+
+    def nll(x: np.ndarray) -> float:
+        s, log_sig, q = x[0], x[1], expit(x[2:])[g]
+        ld = np.log1p(-q) + log_ndtr((p - s) / np.exp(log_sig))
+        return -float(np.sum(np.where(y, ld, np.log(-np.expm1(np.minimum(ld, -1e-12))))))
+
+    best = None
+    starts = [(s0, sig0, q0) for s0 in (float(p.min()) - 10.0, float(p.min()), float(np.quantile(p, 0.05)))
+              for sig0 in (1.0, 3.0) for q0 in (miss_strong, miss)]
+    for s0, sig0, q0 in starts:  # the q's trade off against a soft curve: start from both sides
+        sol = minimize(nll, np.concatenate([[s0, np.log(sig0)], logit(q0)]), method="L-BFGS-B",
+                       bounds=[(float(p.min()) - 40.0, float(p.max())), (np.log(0.1), np.log(20.0))]
+                       + [(-12.0, 0.0)] * len(ids))
+        if best is None or sol.fun < best.fun:
+            best = sol
+    assert best is not None
+    lr = 2.0 * (null - float(best.fun))
+    return {"sensitivity_dbm": float(best.x[0]), "shadowing_std_db": float(np.exp(best.x[1])),
+            "baseline_miss": {a: float(v) for a, v in zip(ids, expit(best.x[2:]), strict=True)},
+            "likelihood_ratio": lr, "identifiable": bool(lr >= LINK_LR_MIN), "n_attempts": int(p.size),
+            "n_missed": int((~y).sum()), "weakest_predicted_power_dbm": float(p.min())}
+
+
+def link_budget_for_runs(traces: Any, static_root: str | os.PathLike, *, environment: str = "LOS"
+                         ) -> tuple[LinkBudgetParams | None, dict[str, float], dict[str, Any]]:
+    """A link budget for recordings of a site with Hanyang-style static sweeps: the power law (and the
+    tag antenna's height) from the sweeps (:func:`fit_link_budget_hanyang_static`), the sensitivity and
+    per-attempt fading from the recordings' own losses along their truth (:func:`fit_link_detection`).
+
+    Returns the parameters (None when the recordings' losses do not follow the predicted power), the
+    mean detection probability the budget gives each anchor id over the recordings' bursts (to take out
+    of a loss model fitted on the same recordings, so that the two do not count the same losses twice),
+    and a JSON-able report.
+    """
+    from scipy.special import ndtr
+
+    _, static_rep = fit_link_budget_hanyang_static(static_root, environment=environment)
+    law = PathLossFit(**static_rep["path_loss"])
+    det = fit_link_detection(traces, law)
+    report = {"static": static_rep, "detection": det}
+    if not det["identifiable"]:
+        return None, {}, report
+    sums: dict[str, list[float]] = {}
+    for tr in traces:
+        p, _, idx = burst_link_rows(tr, law)
+        pd_ = ndtr((p - det["sensitivity_dbm"]) / det["shadowing_std_db"])
+        for i, aid in enumerate(tr.anchors.ids):
+            s = sums.setdefault(aid, [0.0, 0.0])
+            s[0] += float(pd_[idx == i].sum())
+            s[1] += float((idx == i).sum())
+    mean_det = {aid: s[0] / max(s[1], 1.0) for aid, s in sums.items()}
+    params = LinkBudgetParams(ref_power_dbm=round(law.ref_power_dbm, 2),
+                              path_loss_exponent=round(law.path_loss_exponent, 3),
+                              sensitivity_dbm=round(det["sensitivity_dbm"], 2),
+                              shadowing_std_db=round(det["shadowing_std_db"], 2),
+                              ground_reflection=round(law.ground_reflection, 3), wavelength_m=law.wavelength_m,
+                              tag_height_m=round(law.tag_height_m, 3))
+    report["mean_detection_per_anchor"] = mean_det
+    return params, mean_det, report

@@ -27,7 +27,7 @@ import datetime as _dt
 import hashlib
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -1295,6 +1295,53 @@ def _pooled_channel(pooled_fit: MixtureFit, per_channel: dict[str, ChannelParams
                          edge_width_m=rounded(float(np.median([c.edge_width_m for c in per_channel.values()])), 4))
 
 
+def _with_link_budget(inp: CalibrationInputs, channels: ChannelSet, static_sweeps: str | os.PathLike,
+                      rep: ReportBuilder) -> ChannelSet:
+    """``channels`` with the link budget of :func:`link_budget_for_runs` on every anchor (unchanged, and
+    said so, when the recordings' losses do not follow the predicted power)."""
+    from .link_budget import link_budget_for_runs
+
+    params, mean_det, lb_rep = link_budget_for_runs(inp.traces, static_sweeps)
+    rep.sections["link_budget"] = {**lb_rep, "applied": params is not None}
+    if params is None:
+        rep.not_identifiable.append("channel.link_budget (the recordings' losses do not follow the power "
+                                    "the static sweeps predict)")
+        return channels
+    det = lb_rep["detection"]
+    rep.param("channel.link_budget.sensitivity_dbm", params.sensitivity_dbm, n=det["n_attempts"],
+              note=f"losses along the truth, likelihood ratio {det['likelihood_ratio']:.1f}")
+    rep.param("channel.link_budget.shadowing_std_db", params.shadowing_std_db, n=det["n_attempts"])
+    rep.param("channel.link_budget.tag_height_m", params.tag_height_m, n=lb_rep["static"]["n_positions"],
+              note="from the static sweeps' ground nulls")
+    per = {aid: c.model_copy(update={"link_budget": params}) for aid, c in channels.per_anchor.items()}
+    return replace(channels, pooled=channels.pooled.model_copy(update={"link_budget": params}), per_anchor=per)
+
+
+def _link_losses_out_of_dropouts(availability: AvailabilitySet, rep: ReportBuilder) -> AvailabilitySet:
+    """The per-attempt dropout probabilities with the losses the link budget now makes taken out: the
+    dropouts were fitted on all losses, the budget's among them, and the two must not count them twice.
+    Per anchor, with m its mean detection under the budget over the recordings' bursts,
+    (1 - d') = (1 - d) / m, at least 0; what a dropout probability of 0 cannot take out is reported
+    (``link_loss_not_compensated``)."""
+    lb = rep.sections.get("link_budget", {})
+    mean_det = lb.get("mean_detection_per_anchor")
+    if not lb.get("applied") or not mean_det:
+        return availability
+    pooled_d = availability.pooled.dropout_prob
+    per = dict(availability.per_anchor)
+    before, left = {}, {}
+    for aid, m in mean_det.items():
+        o = per.get(aid, AvailabilityOverride())
+        d = pooled_d if o.dropout_prob is None else o.dropout_prob
+        d_new = max(0.0, 1.0 - (1.0 - d) / max(m, 1e-6))
+        before[aid], left[aid] = d, max(0.0, (1.0 - d_new) * m - (1.0 - d))
+        per[aid] = o.model_copy(update={"dropout_prob": rounded(d_new, 6)})
+        rep.param(f"availability.per_anchor.{aid}.dropout_prob", rounded(d_new, 6),
+                  note=f"{d:.5f} fitted on all losses, less the link budget's (mean detection {m:.4f})")
+    lb["dropout_prob_before"], lb["link_loss_not_compensated"] = before, left
+    return replace(availability, per_anchor=per)
+
+
 def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: AvailabilityFit, timing: TimingFit,
                       report: ReportBuilder) -> ChannelSet:
     """Per-anchor channel parameters (LOS, NLOS modes with their episode lengths, rate, link range)."""
@@ -1560,7 +1607,8 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
               static_sweeps: str | os.PathLike | None = None, range_bias: Literal["dynamic", "static"] = "dynamic",
               range_bias_law: Literal["log", "linear"] = "log",
               sources: Sequence[str] | None = None, long_outages: bool = False, tag_pattern: bool = False,
-              run_slopes: bool = False, progress: ProgressCallback | None = None) -> CalibrationResult:
+              run_slopes: bool = False, link_budget: bool = False,
+              progress: ProgressCallback | None = None) -> CalibrationResult:
     """Calibrate a scenario on one or several recordings (real or synthetic Traces).
 
     Parameters
@@ -1603,6 +1651,13 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
         channels with each run's own tilt removed. Always fitted and reported; off by default because on
         the shared Hanyang walks it made one left-out run's KS worse and none better, and the tracking
         study worse (docs/calibration.md, "Run-to-run tilts of the range law").
+    link_budget
+        Give every anchor a link budget (``channel.link_budget``; needs ``static_sweeps``): the power law
+        and the tag antenna's height from the static sweeps, the sensitivity and per-attempt fading from
+        the recordings' own losses along their truth, the dropout probability lowered by the budget's mean
+        loss so that the two do not count the same losses twice. Detection then falls where the
+        ground reflection of the anchor's height puts a null on the route. Off by default
+        (docs/calibration.md, "Fades from the anchor's height").
     progress
         ``progress(message, done, total)`` before each step (:mod:`physynth.progress`).
     """
@@ -1612,6 +1667,8 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
     def tick(message: str) -> None:
         say(message, next(step, N_STEPS - 1), N_STEPS)
 
+    if link_budget and static_sweeps is None:
+        raise CalibrationError("link_budget=True needs static_sweeps (the Static_measurements folder)")
     trs = as_trace_list(traces)
     if trs and all(_imu_only(t) for t in trs):  # IMU recordings only: IMU models, path and motion, no anchors
         from .imu_only import calibrate_imu_only
@@ -1637,6 +1694,9 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
     tick("fitting availability (link range, dropouts, outages)")
     avail = fit_link_availability(inp, ranging, timing, rep)
     channels = assemble_channels(inp, ranging, avail, timing, rep)
+    if link_budget:
+        assert static_sweeps is not None  # checked on entry
+        channels = _with_link_budget(inp, channels, static_sweeps, rep)
     if static is not None:
         for key in ("range_bias_per_m", "range_bias_per_decade_m"):
             rep.param(f"static.{key}", static[key], se=static["std_errors"][key], n=static["n_rows"],
@@ -1644,6 +1704,8 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
                            f"{static['residual_std_per_law_m'][key]:.4f} m about the per-file medians",
                       summary=key == ranging.slope_key)
     availability = assemble_availability(inp, avail, timing, rep, long_outages=long_outages)
+    if link_budget:
+        availability = _link_losses_out_of_dropouts(availability, rep)
     imu = fit_imu_step(inp, rep, lambda msg, *_: tick(msg))
     scn = build_scenario(name, inp, geometry, timing, ranging, channels, availability, imu,
                          sources=list(sources or []), created_utc=rep.sections["created_utc"], report=rep)

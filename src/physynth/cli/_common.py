@@ -119,6 +119,7 @@ PARAMETER_FLAGS = (
     (re.compile(r"\brange_bias='static'"), "--range-bias static"),
     (re.compile(r"\blayout_from\b"), "--layout-from"),
     (re.compile(r"\bstatic_sweeps\b"), "--static-sweeps"),
+    (re.compile(r"\blink_budget=True\b"), "--link-budget"),
     (re.compile(r"\brange_bias_law\b"), "--range-bias-law"),
     (re.compile(r"\bcrop_to_uwb\b"), "--crop-to-uwb"),
     (re.compile(r"\bn_synth_traces\b"), "--n-synth"),

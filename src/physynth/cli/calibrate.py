@@ -3,7 +3,7 @@
     physynth calibrate DATASET_DIR [DATASET_DIR...] --out scenario.yaml [--report fit.json]
                        [--path-kind auto|polynomial|waypoints] [--name NAME]
                        [--anchor-layout per-run|strict|first] [--layout-from RUN]
-                       [--static-sweeps DIR] [--range-bias dynamic|static]
+                       [--static-sweeps DIR] [--range-bias dynamic|static] [--link-budget]
                        [--long-outages]
                        [--overwrite] [--quiet]
 
@@ -71,6 +71,11 @@ def calibrate_cmd(
                                     help="Also generate the run-to-run tilts of the range law the fit finds "
                                          "(each trace's error grows with range at its own rate; needs several "
                                          "runs; always reported). See docs/calibration.md."),
+    link_budget: bool = typer.Option(False, "--link-budget",
+                                     help="Give every anchor a link budget: power law and tag height from the "
+                                          "static sweeps, sensitivity from the datasets' own losses, so that "
+                                          "detection falls where the ground reflection puts a null (needs "
+                                          "--static-sweeps). See docs/calibration.md."),
     allow_mixed: bool = typer.Option(False, "--allow-mixed",
                                      help="Pool datasets even when they are not the same kind of site."),
     overwrite: bool = typer.Option(False, "--overwrite",
@@ -100,7 +105,8 @@ def calibrate_cmd(
                    path_kind=path_kind, anchor_policy=anchor_layout, layout_from=chosen,
                    static_sweeps=static_sweeps, range_bias=range_bias, range_bias_law=range_bias_law,
                    allow_mixed=allow_mixed,
-                   long_outages=long_outages, tag_pattern=tag_pattern, run_slopes=run_slopes)
+                   long_outages=long_outages, tag_pattern=tag_pattern, run_slopes=run_slopes,
+                   link_budget=link_budget)
 
 
 def _calibrate(datasets: list[Path], out: Path, report: Path | None, quiet: bool, real_out: Path,

@@ -89,6 +89,8 @@ class LinkBudgetParams(ParamsModel):
     antenna heights h_a, h_t above the ground plane U = ``ground_u_m`` and horizontal distance d, the
     ground path is longer by Delta = sqrt(d^2 + (h_a + h_t)^2) - sqrt(d^2 + (h_a - h_t)^2) and
     G_ground = 20 log10 |1 - rho e^(-j 2 pi Delta / wavelength_m)| with rho = ``ground_reflection``.
+    h_t is the tag's height above U, or ``tag_height_m`` where set: the tag antenna's own height when
+    the path follows another point of the carrier (a walker's RTK antenna, a vehicle's reference).
     Defaults: a free-space budget of a DW1000-class radio on channel 5 at the regulatory limit
     (-41.3 dBm/MHz over 500 MHz, 48.7 dB free-space loss at 1 m: P0 = -63 dBm; sensitivity -106 dBm in
     the 110 kb/s mode; 4 dB outdoor shadowing): 50 % detection near 140 m. A fit to a recording:
@@ -103,6 +105,7 @@ class LinkBudgetParams(ParamsModel):
     ground_reflection: Probability = 0.0
     ground_u_m: FiniteFloat = 0.0
     wavelength_m: PositiveFloat = 0.0462
+    tag_height_m: PositiveFloat | None = None
 
 
 class ChannelParams(ParamsModel):
@@ -325,6 +328,7 @@ class LinkBudgetArrays:
     ground_reflection: np.ndarray
     ground_u_m: np.ndarray
     wavelength_m: np.ndarray
+    tag_height_m: np.ndarray  # NaN: the tag's height above ground_u_m
     boresight_enu: np.ndarray  # (A, 3) unit vectors, zeros where omnidirectional
     front_back_db: np.ndarray
 
@@ -341,7 +345,8 @@ def _link_arrays(anchors: Sequence[AnchorSpec], chans: Sequence[ChannelParams]) 
             bore[i] = v / norm if norm > 0 else 0.0
     return LinkBudgetArrays(
         enabled=np.array([c.link_budget is not None for c in chans]),
-        **{f: np.array([getattr(lb, f) for lb in lbs], dtype=float) for f in LinkBudgetParams.model_fields},
+        **{f: np.array([np.nan if getattr(lb, f) is None else getattr(lb, f) for lb in lbs], dtype=float)
+           for f in LinkBudgetParams.model_fields},
         boresight_enu=bore,
         front_back_db=np.array([a.front_back_db for a in anchors], dtype=float),
     )
@@ -506,7 +511,9 @@ def received_power_dbm(tag_enu_m: np.ndarray, anchor: np.ndarray, ch: ChannelArr
     rho = lb.ground_reflection[anchor]
     if np.any(rho > 0):
         g = lb.ground_u_m[anchor]
-        p = p + ground_gain_db(np.hypot(d[:, 0], d[:, 1]), ch.anchor_pos_enu_m[anchor, 2] - g, tag_enu_m[:, 2] - g,
+        h_tag = lb.tag_height_m[anchor]
+        h_tag = np.where(np.isnan(h_tag), tag_enu_m[:, 2] - g, h_tag)
+        p = p + ground_gain_db(np.hypot(d[:, 0], d[:, 1]), ch.anchor_pos_enu_m[anchor, 2] - g, h_tag,
                                rho, lb.wavelength_m[anchor])
     return p - obstacle_loss_db
 
