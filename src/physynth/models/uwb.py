@@ -726,15 +726,13 @@ def _write_episodes(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, bool]]
     counts, episode modes, start_on) of each anchor (:func:`episode_switches`), in anchor order. The
     values of :func:`nlos_episodes` anchor by anchor, with ``first_episode`` running over the anchors
     (each anchor's episodes numbered after the last one of the anchors before it); LOS rows keep their
-    mode and episode (-1). The switch counts are changed in place."""
+    state (False), mode and episode (-1). The switch counts are changed in place."""
     for _, k, _, start_on in parts:
         if not start_on:  # in an episode exactly where the count with its lowest bit flipped is even;
             np.bitwise_xor(k, 1, out=k)  # there, k >> 1 (the episode's pair) is that of the unflipped count
     k = np.concatenate([q[1] for q in parts])
     rows = np.concatenate([q[0] for q in parts])
-    in_episode = (k & 1) == 0
-    nlos[rows] = in_episode
-    at = np.flatnonzero(in_episode)  # the few rows in an episode: pair, mode and id computed there only
+    at = np.flatnonzero((k & 1) == 0)  # the few rows in an episode: state, pair, mode and id set there only
     pair = np.right_shift(k.take(at), 1)  # the (episode, gap) pair: k // 2
     mode_at = np.empty_like(pair)
     ends = at.searchsorted(list(accumulate(q[0].size for q in parts))).tolist()  # each anchor's rows in `at`
@@ -749,6 +747,7 @@ def _write_episodes(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, bool]]
             first += last + 1
         start = end
     dest = rows.take(at)
+    nlos[dest] = True
     mode[dest] = mode_at
     episode[dest] = pair
 
