@@ -1156,6 +1156,6 @@ def uwb_record(att: UwbAttempts, *, outage: np.ndarray, dropped: np.ndarray) -> 
         reason[dropped] = Reason.DROPOUT
         reason[outage] = Reason.OUTAGE
         reason[~att.linked] = Reason.NO_LINK
-    range_m = np.where(reason == Reason.OK, att.measured_m, np.nan)
+    range_m = np.where(reason == np.int8(Reason.OK), att.measured_m, np.nan)  # an enum operand: 7x slower
     return Uwb(t_s=att.t_true_s + att.time_offset_s, anchor=att.anchor, range_m=range_m,
                true_range_m=att.true_range_m, nlos=att.nlos, burst=att.burst, reason=reason, nlos_known=True)
