@@ -41,3 +41,25 @@ def test_interp_many_matches_numpy_interp_bit_for_bit():
             assert len(got) == len(fps)
             for g, fp in zip(got, fps, strict=True):
                 assert _same(g, np.interp(x, xp, fp))
+
+
+def test_interp_many_blocks_are_their_rows_interpolated():
+    """A 2-D entry (a block of series, C-contiguous or a transposed view) gives the stacked numpy.interp of
+    its rows, bit for bit, whatever the other entries, also with NaN and inf in some rows and on edge points."""
+    rng = np.random.default_rng(4)
+    t = np.arange(1500) / 100.0
+    block = np.cumsum(rng.standard_normal((3, t.size)), axis=1)
+    odd = block.copy()
+    odd[1, 40] = np.nan
+    odd[2, [7, 900]] = np.inf
+    x_cases = [np.sort(rng.uniform(0.0, t[-1], 2000)),
+               np.concatenate([t[:50], [-3.0, 99.0, t[-1]], rng.uniform(-1.0, 16.0, 300)]),
+               np.array([np.nan, 1.0])]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for x in x_cases:
+            for b in (block, odd, np.ascontiguousarray(block.T).T, np.zeros((0, t.size))):
+                got_block, got_one = interp_many(x, t, [b, block[0]])
+                want = np.stack([np.interp(x, t, row) for row in b]) if b.shape[0] else np.empty((0, x.size))
+                assert _same(got_block, want)
+                assert _same(got_one, np.interp(x, t, block[0]))

@@ -306,3 +306,34 @@ def test_nlos_states_equal_the_anchors_episodes_one_after_another():
     for g, r in zip(got, ref, strict=True):
         np.testing.assert_array_equal(g, r)
     assert got[0].any() and got[2].max() > 10  # several anchors with episodes
+
+
+def test_zone_prob_near_the_zones_equals_the_full_interpolation():
+    """zone_nlos_prob_at (the path coordinate interpolated only near each zone) is the zones' probability
+    of numpy.interp at every row, bit for bit: runs forwards and backwards, with stops, zones at the ends
+    of the path or beyond it, overlapping zones, a non-monotone path coordinate, unsorted times."""
+    from dataclasses import replace
+
+    from physynth.models.uwb import _zone_nlos_prob, zone_nlos_prob_at
+
+    ch0 = compile_scenario(simple_scenario()).channel
+    rng = np.random.default_rng(11)
+    grid_t = np.arange(2001) / 20.0
+    speed = np.clip(rng.normal(1.0, 1.0, grid_t.size), 0.0, None)  # stops (equal path coordinates)
+    forwards = np.concatenate([[0.0], np.cumsum(speed[1:])]) * 0.05
+    zones = [(np.array([0.0, 3.0, 40.0]), np.array([0.5, 2.0, 9.0]), np.array([0.3, 0.6, 0.2])),
+             (np.array([forwards[-1], 20.0, 21.0]), np.array([1.0, 3.0, 0.05]), np.array([0.9, 0.4, 0.7])),
+             (np.array([-5.0, 500.0]), np.array([1.0, 1.0]), np.array([0.5, 0.5]))]
+    paths = [forwards, forwards[-1] - forwards, 10.0 * np.sin(grid_t / 7.0)]  # the last is not monotone
+    for s_grid in paths:
+        for z_s, half, prob in zones:
+            ch = replace(ch0, zone_s_m=z_s, zone_half_width_m=half, zone_nlos_prob=prob)
+            t = np.sort(rng.uniform(-1.0, grid_t[-1] + 1.0, 3000))
+            t[100:110] = grid_t[500:510]  # on the knots
+            t = np.sort(t)
+            want = _zone_nlos_prob(np.interp(t, grid_t, s_grid), ch)
+            np.testing.assert_array_equal(zone_nlos_prob_at(t, grid_t, s_grid, ch), want)
+            np.testing.assert_array_equal(zone_nlos_prob_at(t, grid_t, s_grid, ch, ascending=True), want)
+            shuffled = rng.permutation(t)
+            np.testing.assert_array_equal(zone_nlos_prob_at(shuffled, grid_t, s_grid, ch),
+                                          _zone_nlos_prob(np.interp(shuffled, grid_t, s_grid), ch))

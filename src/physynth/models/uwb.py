@@ -688,10 +688,11 @@ def episode_switches(t_s: np.ndarray, law: EpisodeLaw, *, rng: np.random.Generat
     return k, modes, start_on
 
 
-def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: ChannelArrays, *,
+def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray | None, ch: ChannelArrays, *,
                 rng: np.random.Generator, blocked: np.ndarray | None = None,
                 rows_of: Sequence[np.ndarray] | None = None,
-                forced_out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                forced_out: np.ndarray | None = None, zone_prob: np.ndarray | None = None,
+                ascending: bool | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """NLOS indicator, mode and episode id of each row: per-anchor episodes, raised inside NLOS zones and
     where ``blocked`` (the line of sight meets an obstacle).
 
@@ -699,11 +700,15 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
     marks them). Episode ids are unique over anchors (-1 outside an episode). ``rows_of``: the rows of
     each anchor, ``rows_by_label(anchor, A)``, when the caller has them already. ``forced_out``: a
     boolean array of the rows, set where a zone or ``blocked`` makes a row NLOS (whatever its episodes).
+    ``zone_prob``: the zones' NLOS probability of each row (:func:`zone_nlos_prob_at`) when the caller has
+    it; ``s_m`` (the rows' path coordinates) is then not read and may be None. ``ascending``: whether
+    ``t_s`` is known to be sorted (:func:`~physynth.models.renewal.is_ascending`; None: checked here).
     """
     nlos = np.zeros(t_s.shape[0], dtype=bool)
     mode = np.full(t_s.shape[0], -1, dtype=np.int64)
     episode = np.full(t_s.shape[0], -1, dtype=np.int64)
-    ascending = is_ascending(t_s)  # checked once for every anchor's rows
+    if ascending is None:
+        ascending = is_ascending(t_s)  # checked once for every anchor's rows
     if rows_of is None:
         rows_of = rows_by_label(anchor, ch.nlos_prob.shape[0])
     parts = []  # (rows, switch counts, episode modes, start_on) of each anchor with episodes
@@ -718,7 +723,7 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray, ch: Channe
         _write_episodes(parts, nlos, mode, episode)
     forced = nlos if forced_out is None else forced_out  # the zone and obstacle rows: into nlos, or apart
     if ch.zone_s_m.size:
-        p_zone = _zone_nlos_prob(s_m, ch)
+        p_zone = _zone_nlos_prob(s_m, ch) if zone_prob is None else zone_prob
         forced |= rng.random(t_s.shape[0]) < p_zone
     if blocked is not None:
         forced |= blocked
@@ -733,15 +738,13 @@ def _write_episodes(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, bool]]
     counts, episode modes, start_on) of each anchor (:func:`episode_switches`), in anchor order. The
     values of :func:`nlos_episodes` anchor by anchor, with ``first_episode`` running over the anchors
     (each anchor's episodes numbered after the last one of the anchors before it); LOS rows keep their
-    mode and episode (-1). The switch counts are changed in place."""
+    state (False), mode and episode (-1). The switch counts are changed in place."""
     for _, k, _, start_on in parts:
         if not start_on:  # in an episode exactly where the count with its lowest bit flipped is even;
             np.bitwise_xor(k, 1, out=k)  # there, k >> 1 (the episode's pair) is that of the unflipped count
     k = np.concatenate([q[1] for q in parts])
     rows = np.concatenate([q[0] for q in parts])
-    in_episode = (k & 1) == 0
-    nlos[rows] = in_episode
-    at = np.flatnonzero(in_episode)  # the few rows in an episode: pair, mode and id computed there only
+    at = np.flatnonzero((k & 1) == 0)  # the few rows in an episode: state, pair, mode and id set there only
     pair = np.right_shift(k.take(at), 1)  # the (episode, gap) pair: k // 2
     mode_at = np.empty_like(pair)
     ends = at.searchsorted(list(accumulate(q[0].size for q in parts))).tolist()  # each anchor's rows in `at`
@@ -756,6 +759,7 @@ def _write_episodes(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, bool]]
             first += last + 1
         start = end
     dest = rows.take(at)
+    nlos[dest] = True
     mode[dest] = mode_at
     episode[dest] = pair
 
@@ -770,6 +774,46 @@ def _zone_nlos_prob(s_m: np.ndarray, ch: ChannelArrays) -> np.ndarray:
         np.abs(dist, out=dist)
         here = np.where(dist <= half, prob, 0.0)
         p = here if p is None else np.maximum(p, here, out=p)
+    return p
+
+
+ZONE_MARGIN = 1e-9
+"""Relative margin [of the path's scale] by which :func:`zone_nlos_prob_at` widens each zone when it
+looks for the rows near it (interpolation rounds by a few ulp, some 1e-16 relative)."""
+
+
+def zone_nlos_prob_at(t_s: np.ndarray, grid_t_s: np.ndarray, grid_s_m: np.ndarray, ch: ChannelArrays, *,
+                      ascending: bool | None = None) -> np.ndarray:
+    """``_zone_nlos_prob(numpy.interp(t_s, grid_t_s, grid_s_m), ch)`` (the zones' NLOS probability at the
+    sorted times ``t_s`` of a run whose path coordinate is ``grid_s_m`` at ``grid_t_s``), bit for bit.
+
+    When the path coordinate is monotone (the usual run: forwards or backwards along the path), each
+    zone is met over one stretch of times: the path coordinate is interpolated only at the rows of that
+    stretch (widened by a knot and :data:`ZONE_MARGIN`), the other rows lie outside the zone (0).
+    ``ascending``: whether ``t_s`` is known to be sorted (None: checked here).
+    """
+    n, m = t_s.shape[0], grid_s_m.shape[0]
+    if n == 0 or m < 2 or not (is_ascending(t_s) if ascending is None else ascending):
+        return _zone_nlos_prob(np.interp(t_s, grid_t_s, grid_s_m), ch)
+    forwards = bool(grid_s_m[0] <= grid_s_m[-1])
+    key = grid_s_m if forwards else np.negative(grid_s_m)  # ascending when the run is monotone
+    if not is_ascending(key):
+        return _zone_nlos_prob(np.interp(t_s, grid_t_s, grid_s_m), ch)
+    scale = 1.0 + max(abs(float(key[0])), abs(float(key[-1])))
+    p = np.zeros(n)
+    for z_s, half, prob in zip(ch.zone_s_m.tolist(), ch.zone_half_width_m.tolist(), ch.zone_nlos_prob.tolist(),
+                               strict=True):
+        centre = z_s if forwards else -z_s
+        pad = half + ZONE_MARGIN * (scale + abs(z_s) + half)
+        below = int(key.searchsorted(centre - pad, side="left")) - 1  # the last knot before the zone
+        above = int(key.searchsorted(centre + pad, side="right"))  # the first knot past it
+        lo = 0 if below < 0 else int(t_s.searchsorted(grid_t_s[below], side="left"))
+        hi = n if above >= m else int(t_s.searchsorted(grid_t_s[above], side="right"))
+        if hi > lo:
+            dist = np.interp(t_s[lo:hi], grid_t_s, grid_s_m)
+            dist -= z_s
+            np.abs(dist, out=dist)
+            np.maximum(p[lo:hi], np.where(dist <= half, prob, 0.0), out=p[lo:hi])
     return p
 
 
@@ -1038,8 +1082,9 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
     b_idx = flat // n_anchors
     anchor = flat - b_idx * n_anchors
     t_true = bursts.take(b_idx) + anchor * u.slot_s
-    # the tag's E, N, U and path coordinate at the attempts: numpy.interp's values, one search for all four
-    *tag_enu, s_m = interp_many(t_true, kin.t_s, [*kin.pos_enu_m.T, kin.s_m])
+    # the tag's E, N, U at the attempts (rows of one block): numpy.interp's values (the path coordinate
+    # only near the zones, where it decides: zone_nlos_prob_at)
+    (tag_enu,) = interp_many(t_true, kin.t_s, [kin.pos_enu_m.T])
     sq = None
     for k in range(3):  # |p(t) - a_i|, one ENU component at a time (contiguous, no (N, 3) temporaries)
         d = tag_enu[k] - ch.anchor_pos_enu_m[:, k].take(anchor)  # take: numpy's fastest gather
@@ -1058,8 +1103,10 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
     linked = rng.random(t_true.shape[0]) < p_link
     rows_of = _rows_per_anchor(scheduled)
     forced = np.zeros(t_true.shape[0], dtype=bool) if ch.tag_prob > 0 else None
-    nlos, mode, episode = nlos_states(t_true, anchor, s_m, ch, rng=rng, blocked=blocked, rows_of=rows_of,
-                                      forced_out=forced)
+    ascending = is_ascending(t_true)  # checked once for the zones and every anchor's rows
+    zone_prob = zone_nlos_prob_at(t_true, kin.t_s, kin.s_m, ch, ascending=ascending) if ch.zone_s_m.size else None
+    nlos, mode, episode = nlos_states(t_true, anchor, None, ch, rng=rng, blocked=blocked, rows_of=rows_of,
+                                      forced_out=forced, zone_prob=zone_prob, ascending=ascending)
     err = range_error(true_range, anchor, nlos, mode, ch, rng=rng, episode=episode)
     if forced is not None:  # the tag's own obstruction: every anchor at once
         if tag_rng is None:
@@ -1116,6 +1163,6 @@ def uwb_record(att: UwbAttempts, *, outage: np.ndarray, dropped: np.ndarray) -> 
         reason[dropped] = Reason.DROPOUT
         reason[outage] = Reason.OUTAGE
         reason[~att.linked] = Reason.NO_LINK
-    range_m = np.where(reason == Reason.OK, att.measured_m, np.nan)
+    range_m = np.where(reason == np.int8(Reason.OK), att.measured_m, np.nan)  # an enum operand: 7x slower
     return Uwb(t_s=att.t_true_s + att.time_offset_s, anchor=att.anchor, range_m=range_m,
                true_range_m=att.true_range_m, nlos=att.nlos, burst=att.burst, reason=reason, nlos_known=True)
