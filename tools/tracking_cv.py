@@ -7,14 +7,15 @@ NOAUG and AUG_GAN, and the runs SYNTH_PHY's scenario is calibrated on). Every fo
         --methods NOAUG,AUG_GAN,SYNTH_PHY,ekf --out DIR
 
 on datasets made by ``physynth import hanyang RUN --crop-to-uwb``. With ``--long-outages`` (or
-``--tag-pattern``, ``--run-slopes``) each fold also calibrates its training runs with ``physynth calibrate
---long-outages`` (``--tag-pattern``, ``--run-slopes``) and trains SYNTH_PHY on that scenario
-(``--scenario``): rows ``+long`` (``+pattern``, ``+slopes``).
+``--tag-pattern``, ``--run-slopes``, ``--link-budget``) each fold also calibrates its training runs with
+``physynth calibrate --long-outages`` (``--tag-pattern``, ``--run-slopes``, ``--link-budget --static-sweeps``
+the Static_measurements folder beside ``--data``) and trains SYNTH_PHY on that scenario (``--scenario``):
+rows ``+long`` (``+pattern``, ``+slopes``, ``+budget``).
 Prints one table: RMSE (m) per fold and seed, the mean over all, and
 how often each method beats NOAUG of the same fold and seed.
 
     .venv/bin/python tools/tracking_cv.py [--seeds 0,1] [--jobs 2] [--long-outages] [--tag-pattern] [--frame F]
-                                          [--run-slopes]
+                                          [--run-slopes] [--link-budget]
                                           [--turn-test DEG] [--mirror-test] [--methods M,...]
                                           [--study-args "OPTIONS"] [--runs R,R,...] [--out DIR]
 
@@ -59,6 +60,11 @@ def _run(cmd: list[str], log: Path) -> None:
         raise SystemExit(f"failed ({done.returncode}): {' '.join(cmd)}; see {log}")
 
 
+VARIANTS = (("+long", "--long-outages"), ("+pattern", "--tag-pattern"), ("+slopes", "--run-slopes"),
+            ("+budget", "--link-budget"))
+"""Calibration variants: the row suffix and the ``physynth calibrate`` option."""
+
+
 def _name(run: str) -> str:
     return run.replace("/", "-")
 
@@ -71,6 +77,8 @@ def main() -> None:
     ap.add_argument("--long-outages", action="store_true", help="also SYNTH_PHY on --long-outages scenarios")
     ap.add_argument("--tag-pattern", action="store_true", help="also SYNTH_PHY on --tag-pattern scenarios")
     ap.add_argument("--run-slopes", action="store_true", help="also SYNTH_PHY on --run-slopes scenarios")
+    ap.add_argument("--link-budget", action="store_true",
+                    help="also SYNTH_PHY on --link-budget scenarios (static sweeps beside the --data folder)")
     ap.add_argument("--frame", choices=("route", "turned", "compass"), default="turned",
                     help="the networks' frame (physynth study tracking --frame)")
     ap.add_argument("--turn-test", type=float, default=0.0, help="turn each test run by this many degrees")
@@ -106,12 +114,13 @@ def main() -> None:
         train = [r for r in runs if r != test]
         train_args = [a for r in train for a in ("--train", str(ds[r]))]
         scenarios = {}  # the calibrate variants: tag -> scenario calibrated on this fold's training runs
-        for tag, flag in (("+long", "--long-outages"), ("+pattern", "--tag-pattern"), ("+slopes", "--run-slopes")):
+        for tag, flag in VARIANTS:
             if getattr(args, flag[2:].replace("-", "_")):
                 scn = args.out / f"{tag[1:]}-without-{_name(test)}.yaml"
+                more = ["--static-sweeps", str(args.data.parent / "Static_measurements")] if tag == "+budget" else []
                 if not scn.is_file():
-                    _run(CLI + ["calibrate", *[str(ds[r]) for r in train], flag, "--out", str(scn), "--quiet"],
-                         args.out / f"calibrate-{tag[1:]}-{_name(test)}.log")
+                    _run(CLI + ["calibrate", *[str(ds[r]) for r in train], flag, *more, "--out", str(scn),
+                                "--quiet"], args.out / f"calibrate-{tag[1:]}-{_name(test)}.log")
                 scenarios[tag] = scn
         for seed in seeds:
             base = ["study", "tracking", "--quick", "--seed", str(seed), *train_args, "--test", str(ds[test]),
@@ -139,7 +148,7 @@ def main() -> None:
             if tag and r["key"].startswith("ref:"):
                 continue  # the reference rows do not depend on the scenario
             table.setdefault(r["key"] + tag, {})[(test, seed)] = r["rmse_m"]
-    keys = [k for base in ORDER for k in (base, base + "+long", base + "+pattern", base + "+slopes") if k in table]
+    keys = [k for base in ORDER for k in (base, *(base + tag for tag, _ in VARIANTS)) if k in table]
     print(f"leave-one-run-out, quick schedule, seeds {args.seeds}: RMSE (m) per test run, seed by seed")
     print("| method | " + " | ".join(r.replace("/", " ") for r in runs) + " | mean | beats NOAUG |")
     print("|---|" + "---|" * (len(runs) + 2))
