@@ -86,6 +86,7 @@ def test_hanyang_static_link_budget():
     assert max(rep["mean_power_of_positions_losing_half_dbm"]) < -90.0  # they lie in predicted nulls
     # the nulls put the tag antenna about 0.9 m above the ground, and with it the law is free space
     assert 0.8 < pl["tag_height_m"] < 1.0 and pl["tag_height_fitted"]
+    assert params.tag_height_m == pytest.approx(pl["tag_height_m"], abs=1e-3)  # carried into a scenario
     assert 1.7 < pl["path_loss_exponent"] < 2.3
     _, held = fit_link_budget_hanyang_static(STATIC / "LOS", environment="LOS", tag_height_m=1.0)
     assert pl["rms_db"] < 0.75 * held["path_loss"]["rms_db"]  # measured 1.30 against 2.61 dB

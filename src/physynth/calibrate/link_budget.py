@@ -227,8 +227,9 @@ def fit_link_budget_hanyang_static(root: str | os.PathLike, *, environment: str 
     Power law from the per-position medians (:func:`fit_path_loss`); detection from the rows each
     ~13 s position delivered against the median row rate of the sweep (the logger's own rate), as
     binomial counts (:func:`fit_detection_vs_distance`). ``tag_height_m``: the other antenna's height
-    above the ground (None: fitted from the nulls). Returns the parameters (sensitivity at its upper
-    bound when no loss is seen) and a JSON-able report.
+    above the ground (None: fitted from the nulls, and then set on the parameters, so that a scenario
+    with them puts the nulls where the sweeps do whatever its path's height). Returns the parameters
+    (sensitivity at its upper bound when no loss is seen) and a JSON-able report.
     """
     tab = static_positions(root, power=power)
     tab = tab[tab["environment"] == environment]
@@ -253,7 +254,8 @@ def fit_link_budget_hanyang_static(root: str | os.PathLike, *, environment: str 
                               sensitivity_dbm=round(det.sensitivity_dbm if det.sensitivity_dbm is not None
                                                     else det.sensitivity_upper_95_dbm, 1),
                               shadowing_std_db=round(max(fit.shadowing_std_db, 0.5), 2),
-                              ground_reflection=round(fit.ground_reflection, 3), wavelength_m=fit.wavelength_m)
+                              ground_reflection=round(fit.ground_reflection, 3), wavelength_m=fit.wavelength_m,
+                              tag_height_m=round(fit.tag_height_m, 3) if fit.tag_height_fitted else None)
     report = {"environment": environment, "power_column": power, "path_loss": asdict(fit),
               "detection": asdict(det),
               "nominal_row_rate_hz": nominal_rate, "n_positions": int(len(tab)),
