@@ -1295,6 +1295,15 @@ def _pooled_channel(pooled_fit: MixtureFit, per_channel: dict[str, ChannelParams
                          edge_width_m=rounded(float(np.median([c.edge_width_m for c in per_channel.values()])), 4))
 
 
+def _report_static_bias(static: dict[str, Any], ranging: RangingFit, rep: ReportBuilder) -> None:
+    """The static sweeps' range-bias slopes in the report (both laws; the fitted law's in the summary)."""
+    for key in ("range_bias_per_m", "range_bias_per_decade_m"):
+        rep.param(f"static.{key}", static[key], se=static["std_errors"][key], n=static["n_rows"],
+                  note=f"static sweeps ({static['environment']}), {static['n_files']} files, rms "
+                       f"{static['residual_std_per_law_m'][key]:.4f} m about the per-file medians",
+                  summary=key == ranging.slope_key)
+
+
 def _with_link_budget(inp: CalibrationInputs, channels: ChannelSet, static_sweeps: str | os.PathLike,
                       rep: ReportBuilder) -> ChannelSet:
     """``channels`` with the link budget of :func:`link_budget_for_runs` on every anchor (unchanged, and
@@ -1652,12 +1661,9 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
         the shared Hanyang walks it made one left-out run's KS worse and none better, and the tracking
         study worse (docs/calibration.md, "Run-to-run tilts of the range law").
     link_budget
-        Give every anchor a link budget (``channel.link_budget``; needs ``static_sweeps``): the power law
-        and the tag antenna's height from the static sweeps, the sensitivity and per-attempt fading from
-        the recordings' own losses along their truth, the dropout probability lowered by the budget's mean
-        loss so that the two do not count the same losses twice. Detection then falls where the
-        ground reflection of the anchor's height puts a null on the route. Off by default
-        (docs/calibration.md, "Fades from the anchor's height").
+        Give every anchor a link budget (needs ``static_sweeps``; ``link_budget.link_budget_for_runs``),
+        with the dropouts lowered by its mean loss: detection falls where the ground reflection puts a
+        null on the route. Off by default (docs/calibration.md, "Fades from the anchor's height").
     progress
         ``progress(message, done, total)`` before each step (:mod:`physynth.progress`).
     """
@@ -1694,17 +1700,11 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
     tick("fitting availability (link range, dropouts, outages)")
     avail = fit_link_availability(inp, ranging, timing, rep)
     channels = assemble_channels(inp, ranging, avail, timing, rep)
-    if link_budget:
-        assert static_sweeps is not None  # checked on entry
-        channels = _with_link_budget(inp, channels, static_sweeps, rep)
     if static is not None:
-        for key in ("range_bias_per_m", "range_bias_per_decade_m"):
-            rep.param(f"static.{key}", static[key], se=static["std_errors"][key], n=static["n_rows"],
-                      note=f"static sweeps ({static['environment']}), {static['n_files']} files, rms "
-                           f"{static['residual_std_per_law_m'][key]:.4f} m about the per-file medians",
-                      summary=key == ranging.slope_key)
+        _report_static_bias(static, ranging, rep)
     availability = assemble_availability(inp, avail, timing, rep, long_outages=long_outages)
-    if link_budget:
+    if link_budget and static_sweeps is not None:  # static_sweeps checked on entry
+        channels = _with_link_budget(inp, channels, static_sweeps, rep)
         availability = _link_losses_out_of_dropouts(availability, rep)
     imu = fit_imu_step(inp, rep, lambda msg, *_: tick(msg))
     scn = build_scenario(name, inp, geometry, timing, ranging, channels, availability, imu,
