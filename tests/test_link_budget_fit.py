@@ -193,3 +193,7 @@ def test_calibrate_with_link_budget_puts_it_on_every_anchor_and_takes_its_losses
         m = lb["mean_detection_per_anchor"][aid]
         assert after == pytest.approx(max(0.0, 1.0 - (1.0 - before) / m), abs=1e-6)
         assert after <= before
+        # what a dropout probability of 0 cannot take out is reported, and only then
+        left = lb["link_loss_not_compensated"][aid]
+        assert left == pytest.approx(max(0.0, (1.0 - before) - m), abs=1e-6)
+        assert (left > 0) == (after == 0.0 and m < 1.0 - before)

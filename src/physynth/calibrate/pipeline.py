@@ -1330,8 +1330,8 @@ def _link_losses_out_of_dropouts(availability: AvailabilitySet, rep: ReportBuild
     """The per-attempt dropout probabilities with the losses the link budget now makes taken out: the
     dropouts were fitted on all losses, the budget's among them, and the two must not count them twice.
     Per anchor, with m its mean detection under the budget over the recordings' bursts,
-    (1 - d') = (1 - d) / m, at least 0; what a dropout probability of 0 cannot take out is reported
-    (``link_loss_not_compensated``)."""
+    (1 - d') = (1 - d) / m, at least 0; what a dropout probability of 0 cannot take out, (1 - d) - m,
+    is reported (``link_loss_not_compensated``, a probability per attempt)."""
     lb = rep.sections.get("link_budget", {})
     mean_det = lb.get("mean_detection_per_anchor")
     if not lb.get("applied") or not mean_det:
@@ -1343,7 +1343,7 @@ def _link_losses_out_of_dropouts(availability: AvailabilitySet, rep: ReportBuild
         o = per.get(aid, AvailabilityOverride())
         d = pooled_d if o.dropout_prob is None else o.dropout_prob
         d_new = max(0.0, 1.0 - (1.0 - d) / max(m, 1e-6))
-        before[aid], left[aid] = d, max(0.0, (1.0 - d_new) * m - (1.0 - d))
+        before[aid], left[aid] = d, max(0.0, (1.0 - d) - (1.0 - d_new) * m)  # survival lost beyond d
         per[aid] = o.model_copy(update={"dropout_prob": rounded(d_new, 6)})
         rep.param(f"availability.per_anchor.{aid}.dropout_prob", rounded(d_new, 6),
                   note=f"{d:.5f} fitted on all losses, less the link budget's (mean detection {m:.4f})")
