@@ -243,3 +243,23 @@ def test_static_sweeps_with_skipped_row_counts():
     los = df["environment"] == "LOS"
     assert abs(np.median(err[los])) < 0.3  # decimetre-level bias, not a unit or geometry mistake
     assert np.isfinite(df["range_m"]).all() and (df["anchor_id"] >= -1).all()
+
+
+@pytest.mark.skipif(not STATIC.is_dir(), reason=f"Hanyang static data not found at {STATIC}")
+def test_static_sweeps_are_read_again_when_a_file_changes_and_handed_out_as_copies(tmp_path):
+    src = STATIC / "LOS" / "height_100.0cm"
+    dst = tmp_path / "LOS" / "height_100.0cm"
+    dst.mkdir(parents=True)
+    for name in ("2m.csv", "4m.csv"):
+        shutil.copy(src / name, dst / name)
+    first, _ = import_hanyang_static(tmp_path)
+    first.loc[0, "range_m"] = -1.0  # a caller's edit does not reach the next caller
+    again, _ = import_hanyang_static(tmp_path)
+    assert again.loc[0, "range_m"] > 0
+    shutil.copy(src / "6m.csv", dst / "6m.csv")  # a new file
+    more, _ = import_hanyang_static(tmp_path)
+    assert set(more["nominal_distance_m"]) == {2.0, 4.0, 6.0}
+    lines = (dst / "6m.csv").read_text().splitlines(keepends=True)
+    (dst / "6m.csv").write_text("".join(lines[: len(lines) // 2]))  # a file cut short
+    cut, _ = import_hanyang_static(tmp_path)
+    assert (cut["nominal_distance_m"] == 6.0).sum() < (more["nominal_distance_m"] == 6.0).sum()

@@ -18,6 +18,7 @@ Input files are never modified.
 
 from __future__ import annotations
 
+import copy
 import os
 import re
 from pathlib import Path
@@ -292,6 +293,21 @@ def import_hanyang_static(root: str | os.PathLike) -> tuple[pd.DataFrame, Import
                    if pat.search(f.parent.name) and re.fullmatch(r"\d+(?:\.\d+)?m\.csv", f.name))
     if not files:
         raise RecordingError(f"{base}: no height_<h>cm/<d>m.csv static measurement files below it")
+    # the sweeps are read again and again (range bias, link budget, tools): kept once per set of files,
+    # keyed by every file's path, size and modification time, and handed out as copies
+    sig = (str(base.resolve()), tuple((str(f), st.st_size, st.st_mtime_ns) for f in files for st in [f.stat()]))
+    if sig not in _STATIC_CACHE:
+        _STATIC_CACHE.clear()  # one set of sweeps at a time
+        _STATIC_CACHE[sig] = _read_static(base, files, pat)
+    df, report = _STATIC_CACHE[sig]
+    return df.copy(), copy.deepcopy(report)
+
+
+_STATIC_CACHE: dict[tuple, tuple[pd.DataFrame, ImportReport]] = {}
+
+
+def _read_static(base: Path, files: list[Path], pat: re.Pattern) -> tuple[pd.DataFrame, ImportReport]:
+    """The body of :func:`import_hanyang_static`: every file read and checked, one table."""
     rep = ReportBuilder("hanyang-static", base)
     key = "static"
     frames, empty_files = [], []
