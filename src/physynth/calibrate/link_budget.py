@@ -308,10 +308,11 @@ def fit_link_detection(traces: Any, law: PathLossFit, *, ground_u_m: float = 0.0
     outages) times the link's detection at the power P the law predicts along the truth. S and sigma
     are fitted by maximum likelihood with the q's; the fit is kept (``identifiable``) when its
     likelihood ratio against the q's alone reaches :data:`LINK_LR_MIN` (the losses follow the
-    predicted power). Returns a JSON-able dict.
+    predicted power). Returns a JSON-able dict, with ``mean_detection_per_anchor``: the mean of
+    Phi((P - S) / sigma) over each anchor id's rows, the share of its attempts the budget alone lets through.
     """
     from scipy.optimize import minimize
-    from scipy.special import expit, log_ndtr
+    from scipy.special import expit, log_ndtr, ndtr
 
     rows = [burst_link_rows(tr, law, ground_u_m=ground_u_m) for tr in traces]
     ids = sorted({aid for tr in traces for aid in tr.anchors.ids})
@@ -348,8 +349,10 @@ def fit_link_detection(traces: Any, law: PathLossFit, *, ground_u_m: float = 0.0
             best = sol
     assert best is not None
     lr = 2.0 * (null - float(best.fun))
+    mean_det = np.bincount(g, weights=ndtr((p - best.x[0]) / np.exp(best.x[1])), minlength=len(ids)) / n_g
     return {"sensitivity_dbm": float(best.x[0]), "shadowing_std_db": float(np.exp(best.x[1])),
             "baseline_miss": {a: float(v) for a, v in zip(ids, expit(best.x[2:]), strict=True)},
+            "mean_detection_per_anchor": {a: float(v) for a, v in zip(ids, mean_det, strict=True)},
             "likelihood_ratio": lr, "identifiable": bool(lr >= LINK_LR_MIN), "n_attempts": int(p.size),
             "n_missed": int((~y).sum()), "weakest_predicted_power_dbm": float(p.min())}
 
@@ -365,23 +368,13 @@ def link_budget_for_runs(traces: Any, static_root: str | os.PathLike, *, environ
     of a loss model fitted on the same recordings, so that the two do not count the same losses twice),
     and a JSON-able report.
     """
-    from scipy.special import ndtr
-
     _, static_rep = fit_link_budget_hanyang_static(static_root, environment=environment)
     law = PathLossFit(**static_rep["path_loss"])
     det = fit_link_detection(traces, law)
     report = {"static": static_rep, "detection": det}
     if not det["identifiable"]:
         return None, {}, report
-    sums: dict[str, list[float]] = {}
-    for tr in traces:
-        p, _, idx = burst_link_rows(tr, law)
-        pd_ = ndtr((p - det["sensitivity_dbm"]) / det["shadowing_std_db"])
-        for i, aid in enumerate(tr.anchors.ids):
-            s = sums.setdefault(aid, [0.0, 0.0])
-            s[0] += float(pd_[idx == i].sum())
-            s[1] += float((idx == i).sum())
-    mean_det = {aid: s[0] / max(s[1], 1.0) for aid, s in sums.items()}
+    mean_det = det["mean_detection_per_anchor"]
     params = LinkBudgetParams(ref_power_dbm=round(law.ref_power_dbm, 2),
                               path_loss_exponent=round(law.path_loss_exponent, 3),
                               sensitivity_dbm=round(det["sensitivity_dbm"], 2),
