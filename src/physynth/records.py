@@ -223,6 +223,25 @@ class Uwb:
         return int(self.t_s.shape[0])
 
 
+TRUTH_UNTRUSTED_KEY = "truth_untrusted_s"
+"""``trace.meta`` key of the spans [[start, end), ...] [s, trace time] where the recording's own truth system
+says its position is unreliable (for an RTK-GNSS truth: no RTK fix, or a position std above 3.2 cm).
+Calibration fits the ranging channel's shape on the ranges outside them (docs/calibration.md, "Where the
+truth itself errs"); absent or empty: every sample is trusted."""
+
+
+def untrusted_truth(meta: dict[str, Any], t_s: np.ndarray) -> np.ndarray:
+    """Boolean mask of the truth times ``t_s`` [s] that fall inside a ``TRUTH_UNTRUSTED_KEY`` span of ``meta``."""
+    t = np.asarray(t_s, dtype=float)
+    spans = np.asarray(meta.get(TRUTH_UNTRUSTED_KEY) or [], dtype=float).reshape(-1, 2)
+    if spans.size == 0:
+        return np.zeros(t.shape, dtype=bool)
+    order = np.argsort(spans[:, 0], kind="stable")
+    start, end = spans[order, 0], np.maximum.accumulate(spans[order, 1])
+    k = np.searchsorted(start, t, side="right") - 1  # the last span starting at or before t
+    return (k >= 0) & (t < end[np.clip(k, 0, None)])  # each span [start, end)
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Trace:
     """One run of one tag. ``imu`` is None when the recording has no IMU."""

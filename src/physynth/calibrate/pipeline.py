@@ -37,7 +37,7 @@ from ..bounds import BOUNDS
 from ..models.availability import AvailabilityOverride, RatePosterior, gamma_rate_posterior
 from ..models.uwb import heading_at, pattern_features, range_decades, relative_bearing, travelled_m, turned_rad
 from ..progress import ProgressCallback, no_progress
-from ..records import Trace
+from ..records import Trace, untrusted_truth
 from ..scenario import (
     AnchorSpec,
     AvailabilityParams,
@@ -379,8 +379,11 @@ class _Channels:
     per_anchor_p: dict[str, list[np.ndarray]] = field(default_factory=dict)  # tag-pattern terms (N, 4), per run
     per_anchor_v: dict[str, list[np.ndarray]] = field(default_factory=dict)  # horizontal speed at the rows, per run
 
+    per_anchor_trusted: dict[str, np.ndarray] = field(default_factory=dict)  # the row's truth is trusted
+
     def los_masks(self) -> dict[str, np.ndarray]:
-        return {a: self.mix[a].nlos_resp < 0.5 for a in self.per_anchor_rows}
+        """Per anchor, the rows taken as LOS ranging: classified LOS, and with a trusted truth."""
+        return {a: (self.mix[a].nlos_resp < 0.5) & self.per_anchor_trusted.get(a, True) for a in self.per_anchor_rows}
 
 
 RunOffsets = dict[tuple[str, str], float]
@@ -428,9 +431,14 @@ def _run_shift(t: Trace, lab: str, r: Residuals, feats: np.ndarray, run_offsets:
     return shift
 
 
+def _trusted(r: Residuals) -> np.ndarray:
+    return np.ones(r.residual_m.shape, dtype=bool) if r.trusted is None else r.trusted
+
+
 def _fit_channels(trs: Sequence[Trace], offset: float | Sequence[float], ids: Sequence[str], fixed_slope: float | None,
                   labels: Sequence[str], run_offsets: RunOffsets | None = None, law: str = "log",
-                  tag_pattern: Sequence[float] | None = None, run_slopes: RunSlopes | None = None) -> _Channels:
+                  tag_pattern: Sequence[float] | None = None, run_slopes: RunSlopes | None = None,
+                  trusted_truth: bool = False) -> _Channels:
     """Per-anchor LOS/NLOS mixtures (and the pooled one) at a given time offset (one for all runs, or
     one per run).
 
@@ -438,18 +446,22 @@ def _fit_channels(trs: Sequence[Trace], offset: float | Sequence[float], ids: Se
     subtracted from the run's rows of that anchor first, so that the mixture describes the errors
     within a run and the run-to-run part is left to ``uwb.run_*offset_std_m``; so is the tag antenna
     pattern ``tag_pattern`` (``uwb.tag_pattern_m``) at each row's bearing, and each run's tilt of an
-    anchor's range law ``run_slopes`` (about the cell's own mean log range), when given.
+    anchor's range law ``run_slopes`` (about the cell's own mean log range), when given. With
+    ``trusted_truth`` the mixtures are fitted on the rows whose truth is trusted (the others classified
+    with the LOS peak widened by their own scatter) and only those rows count as LOS ranging.
     """
     res: list[Residuals] = []
     bearing: list[tuple[np.ndarray, np.ndarray]] = []
     lags = [float(offset)] * len(trs) if np.ndim(offset) == 0 else [float(o) for o in offset]
     for t, lab, lag in zip(trs, labels, lags, strict=True):
         r = corrected_residuals(t, lag)
+        if not trusted_truth:
+            r = replace(r, trusted=None)
         feats, speed = _bearing_rows(t, r, lag)
         shift = _run_shift(t, lab, r, feats, run_offsets, tag_pattern, run_slopes)
         if shift.any():
             r = Residuals(residual_m=r.residual_m - shift, range_m=r.range_m, anchor=r.anchor,
-                          t_s=r.t_s, range_rate_mps=r.range_rate_mps)
+                          t_s=r.t_s, range_rate_mps=r.range_rate_mps, trusted=r.trusted)
         res.append(r)
         bearing.append((feats, speed))
     pooled_r = np.concatenate([r.residual_m for r in res])
@@ -457,7 +469,8 @@ def _fit_channels(trs: Sequence[Trace], offset: float | Sequence[float], ids: Se
     if pooled_r.size < MIN_ANCHOR_ROWS:
         raise CalibrationError(f"only {pooled_r.size} UWB ranges fall inside the ground-truth time span; "
                                f"at least {MIN_ANCHOR_ROWS} are needed")
-    pooled_fit, pooled_sel = select_mixture(pooled_r, pooled_g, fixed_slope=fixed_slope, law=law)
+    pooled_ok = np.concatenate([_trusted(r) for r in res])
+    pooled_fit, pooled_sel = select_mixture(pooled_r, pooled_g, fixed_slope=fixed_slope, law=law, fit_mask=pooled_ok)
     mix: dict[str, MixtureFit] = {}
     mix_diag: dict[str, Any] = {}
     flags: dict[str, list[np.ndarray]] = {}
@@ -468,13 +481,14 @@ def _fit_channels(trs: Sequence[Trace], offset: float | Sequence[float], ids: Se
     turned: dict[str, list[np.ndarray]] = {}
     pattern_terms: dict[str, list[np.ndarray]] = {}
     speeds: dict[str, list[np.ndarray]] = {}
+    trusted: dict[str, np.ndarray] = {}
     motion = [(travelled_m(t.truth.t_s, t.truth.vel_enu_mps),  # the antenna sway's motion clocks
                turned_rad(t.truth.t_s, t.truth.vel_enu_mps, t.truth.omega_body_radps)) for t in trs]
     notes: list[str] = []
     for aid in ids:  # one mixture per anchor (one physical device), pooled over the runs
         parts = [(r.residual_m[m], r.range_m[m], r.range_rate_mps[m], r.t_s[m], np.full(int(m.sum()), i),
                   np.interp(r.t_s[m] - lag, t.truth.t_s, dist), np.interp(r.t_s[m] - lag, t.truth.t_s, turn),
-                  feats[m], speed[m])
+                  feats[m], speed[m], _trusted(r)[m])
                  for i, (t, r, lag, (dist, turn), (feats, speed))
                  in enumerate(zip(trs, res, lags, motion, bearing, strict=True))
                  if aid in t.anchors.ids for m in [r.anchor == t.anchors.index(aid)]]
@@ -487,10 +501,12 @@ def _fit_channels(trs: Sequence[Trace], offset: float | Sequence[float], ids: Se
             notes.append(f"channel of {aid} (too few ranges; pooled values used)")
             flags[aid] = []
             continue
-        f, sel = select_mixture(ra, ga, fixed_slope=fixed_slope, law=law)
+        ok = np.concatenate([p[9] for p in parts])
+        f, sel = select_mixture(ra, ga, fixed_slope=fixed_slope, law=law, fit_mask=ok)
         if fixed_slope is None and not _slope_in_bounds(f, law):  # too few rows, or too narrow a span of ranges
             sel["slope_out_of_bounds"] = float(getattr(f, _SLOPE_FIELD[law]))
-            f, sel2 = select_mixture(ra, ga, fixed_slope=float(getattr(pooled_fit, _SLOPE_FIELD[law])), law=law)
+            f, sel2 = select_mixture(ra, ga, fixed_slope=float(getattr(pooled_fit, _SLOPE_FIELD[law])), law=law,
+                                     fit_mask=ok)
             sel = {**sel2, "slope_out_of_bounds": sel["slope_out_of_bounds"], "slope": "pooled over the anchors"}
             notes.append(f"channel_per_anchor.{aid} range-bias slope ({sel['slope_out_of_bounds']:.3g}, outside the "
                          "physical range: too few ranges or too narrow a span of them; the pooled slope is used)")
@@ -514,9 +530,11 @@ def _fit_channels(trs: Sequence[Trace], offset: float | Sequence[float], ids: Se
         turned[aid] = [p[6] for p in parts]
         pattern_terms[aid] = [p[7] for p in parts]
         speeds[aid] = [p[8] for p in parts]
+        trusted[aid] = ok
     return _Channels(pooled_r=pooled_r, pooled_fit=pooled_fit, pooled_sel=pooled_sel, mix=mix, mix_diag=mix_diag,
                      flags=flags, per_anchor_rows=rows, notes=notes, per_anchor_t=times, per_anchor_run=run_of,
-                     per_anchor_c=dist, per_anchor_h=turned, per_anchor_p=pattern_terms, per_anchor_v=speeds)
+                     per_anchor_c=dist, per_anchor_h=turned, per_anchor_p=pattern_terms, per_anchor_v=speeds,
+                     per_anchor_trusted=trusted)
 
 
 def refine_time_offset(rows: dict[str, AnchorRows], los: dict[str, np.ndarray]) -> dict[str, Any] | None:
@@ -903,22 +921,27 @@ def fit_timing(inp: CalibrationInputs, report: ReportBuilder, progress: Progress
 
 def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, Any] | None,
                 range_bias: Literal["dynamic", "static"], report: ReportBuilder,
-                law: str = "log", tag_pattern: bool = False, run_slopes: bool = False) -> RangingFit:
+                law: str = "log", tag_pattern: bool = False, run_slopes: bool = False,
+                trusted_truth: bool = False) -> RangingFit:
     """Per-anchor LOS/NLOS mixtures pooled over runs, the refined time offset and run-to-run offsets.
 
     ``law``: how the LOS mean grows with the range (:data:`~physynth.calibrate.uwb_fit.RANGE_BIAS_LAWS`).
     ``tag_pattern``: apply the tag antenna pattern the fit keeps (always fitted and reported).
     ``run_slopes``: remove and generate the run-to-run tilts of the range law (:func:`run_slope_table`;
     always fitted and reported).
+    ``trusted_truth``: fit the mixtures on the ranges whose truth the recording trusts
+    (``records.TRUTH_UNTRUSTED_KEY``) and take only those as LOS ranging rows (the share is always reported).
     """
     trs, labels, ids = inp.traces, inp.labels, inp.anchor_ids
+    report.sections["truth_quality"] = {"trusted_truth": bool(trusted_truth), "untrusted_share_of_truth": {
+        lab: float(np.mean(untrusted_truth(t.meta, t.truth.t_s))) for t, lab in zip(trs, labels, strict=True)}}
     if range_bias == "static" and static is None:
         raise CalibrationError("range_bias='static' needs static_sweeps (the Static_measurements folder)")
     key = "range_bias_per_decade_m" if law == "log" else "range_bias_per_m"
     fixed_slope = static[key] if (static is not None and range_bias == "static") else None
     of = timing.offset_fit
     offset = timing.offset_s
-    chan = _fit_channels(trs, offset, ids, fixed_slope, labels, law=law)
+    chan = _fit_channels(trs, offset, ids, fixed_slope, labels, law=law, trusted_truth=trusted_truth)
     ref = refine_time_offset(chan.per_anchor_rows, chan.los_masks())
     tsec = report.sections["time_offset"]
     tsec["grid_offset_s"] = offset
@@ -945,7 +968,8 @@ def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, 
         tsec["run_spread"]["lags_used_s"] = dict(zip(labels, lags, strict=True))
         report.param("uwb.time_offset_std_s", lag_std, n=len(trs), summary=True,
                      note="run-to-run spread of the lag (DerSimonian-Laird over the runs' own lags)")
-        chan = _fit_channels(trs, lags, ids, fixed_slope, labels, law=law)  # each run at its own lag
+        chan = _fit_channels(trs, lags, ids, fixed_slope, labels, law=law,  # each run at its own lag
+                             trusted_truth=trusted_truth)
     elif len(trs) >= 2:
         report.param("uwb.time_offset_std_s", 0.0, n=len(trs),
                      note="the runs' lags do not differ beyond their errors (Cochran's Q)")
@@ -959,7 +983,8 @@ def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, 
     pattern = _tag_pattern(chan, report, apply=tag_pattern)  # each sequence's level and range law projected out
     if refined or run_offsets or tilts or any(pattern):  # again: each run's offsets and tilts, the pattern removed
         chan = _fit_channels(trs, lags if lag_std > 0 else offset, ids, fixed_slope, labels,
-                             run_offsets=run_offsets, law=law, tag_pattern=pattern, run_slopes=tilts)
+                             run_offsets=run_offsets, law=law, tag_pattern=pattern, run_slopes=tilts,
+                             trusted_truth=trusted_truth)
     if off_diag["identifiable"]:
         s_run, s_anchor = off_diag["run_offset_std_m"], off_diag["run_anchor_offset_std_m"]
         note = "run-to-run spread of the per-run mean LOS residual (two-way random effects)"
@@ -1183,8 +1208,8 @@ def _report_anchor_channel(aid: str, f: MixtureFit, se: dict[str, Any], n_a: int
 
 
 def _antenna_sway(chan: _Channels, rep: ReportBuilder) -> dict[str, Any]:
-    """The antenna sway from the LOS rows of every (run, anchor) sequence, their range law removed
-    (:func:`physynth.calibrate.antenna_sway.fit_antenna_sway`), reported."""
+    """The antenna sway from the LOS rows of every (run, anchor) sequence (those with a trusted truth), their
+    range law removed (:func:`physynth.calibrate.antenna_sway.fit_antenna_sway`), reported."""
     from .antenna_sway import fit_antenna_sway
 
     def sequences():
@@ -1193,8 +1218,10 @@ def _antenna_sway(chan: _Channels, rep: ReportBuilder) -> dict[str, Any]:
             for nlos, t, c, h in zip(chan.flags[aid], chan.per_anchor_t.get(aid, []), chan.per_anchor_c.get(aid, []),
                                      chan.per_anchor_h.get(aid, []), strict=False):
                 x = ra[start:start + nlos.size] - f.los_centre(ga[start:start + nlos.size])
+                trusted = chan.per_anchor_trusted[aid][start:start + nlos.size] if aid in chan.per_anchor_trusted \
+                    else True
                 start += nlos.size
-                keep = ~nlos & np.isfinite(x)
+                keep = ~nlos & np.isfinite(x) & trusted
                 yield x[keep], t[keep], c[keep], h[keep]
 
     fit = fit_antenna_sway(sequences())
@@ -1616,7 +1643,7 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
               static_sweeps: str | os.PathLike | None = None, range_bias: Literal["dynamic", "static"] = "dynamic",
               range_bias_law: Literal["log", "linear"] = "log",
               sources: Sequence[str] | None = None, long_outages: bool = False, tag_pattern: bool = False,
-              run_slopes: bool = False, link_budget: bool = False,
+              run_slopes: bool = False, link_budget: bool = False, trusted_truth: bool = False,
               progress: ProgressCallback | None = None) -> CalibrationResult:
     """Calibrate a scenario on one or several recordings (real or synthetic Traces).
 
@@ -1664,6 +1691,10 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
         Give every anchor a link budget (needs ``static_sweeps``; ``link_budget.link_budget_for_runs``),
         with the dropouts lowered by its mean loss: detection falls where the ground reflection puts a
         null on the route. Off by default (docs/calibration.md, "Fades from the anchor's height").
+    trusted_truth
+        Fit the ranging channel's mixtures on the ranges whose truth the recording trusts (its
+        ``truth_untrusted_s`` spans, e.g. from an RTK receiver without a fix) and take only those as LOS
+        rows. Off by default (docs/calibration.md, "Where the truth itself errs").
     progress
         ``progress(message, done, total)`` before each step (:mod:`physynth.progress`).
     """
@@ -1696,7 +1727,7 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
     if range_bias_law not in RANGE_BIAS_LAWS:
         raise CalibrationError(f"unknown range-bias law {range_bias_law!r} (choose from {', '.join(RANGE_BIAS_LAWS)})")
     ranging = fit_ranging(inp, timing, static=static, range_bias=range_bias, report=rep, law=range_bias_law,
-                          tag_pattern=tag_pattern, run_slopes=run_slopes)
+                          tag_pattern=tag_pattern, run_slopes=run_slopes, trusted_truth=trusted_truth)
     tick("fitting availability (link range, dropouts, outages)")
     avail = fit_link_availability(inp, ranging, timing, rep)
     channels = assemble_channels(inp, ranging, avail, timing, rep)

@@ -16,7 +16,7 @@ Conventions are the generator's (:mod:`physynth.uwb`):
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -24,7 +24,7 @@ from scipy.optimize import minimize
 from scipy.special import logsumexp
 
 from ..models.uwb import los_error_mean, range_decades, range_error_log_components
-from ..records import Trace
+from ..records import Trace, untrusted_truth
 from ._base import CalibrationError, Fit, trace_label
 
 OFFSET_COARSE_S = (-1.0, 1.0, 0.01)
@@ -68,6 +68,7 @@ class Residuals:
     anchor: np.ndarray
     t_s: np.ndarray
     range_rate_mps: np.ndarray  # d/dt of the geometric range at t - offset
+    trusted: np.ndarray | None = None  # the truth at t - offset is trusted (``records.untrusted_truth``)
 
 
 def corrected_residuals(trace: Trace, offset_s: float, rate_step_s: float = 0.02) -> Residuals:
@@ -80,7 +81,8 @@ def corrected_residuals(trace: Trace, offset_s: float, rate_step_s: float = 0.02
           - geometric_range(trace, t - offset_s - rate_step_s, a)) / (2.0 * rate_step_s)
     r = u.range_m[ok] - g
     keep = np.isfinite(r) & np.isfinite(gd)
-    return Residuals(residual_m=r[keep], range_m=g[keep], anchor=a[keep], t_s=t[keep], range_rate_mps=gd[keep])
+    return Residuals(residual_m=r[keep], range_m=g[keep], anchor=a[keep], t_s=t[keep], range_rate_mps=gd[keep],
+                     trusted=~untrusted_truth(trace.meta, t[keep] - offset_s))
 
 
 def _mad_curve(trace: Trace, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -349,13 +351,41 @@ def _los_like(fit: MixtureFit, g: np.ndarray) -> bool:
     return any(abs(m - centre) < LOS_LIKE_SIGMAS * fit.los_std_m for m in (x.mean_m for x in fit.modes))
 
 
+def nlos_responsibility(fit: MixtureFit, r: np.ndarray, g: np.ndarray, los_std_m: float | None = None) -> np.ndarray:
+    """Posterior NLOS probability of residuals ``r`` at ranges ``g`` under a fitted mixture (with the LOS
+    peak ``los_std_m`` wide instead of the fit's when given)."""
+    if not fit.modes:
+        return np.zeros(r.shape)
+    lp = range_error_log_components(
+        r, g, los_mean_m=fit.los_mean_m, range_bias_per_m=fit.range_bias_per_m,
+        los_std_m=fit.los_std_m if los_std_m is None else los_std_m,
+        nlos_prob=fit.nlos_prob, mode_weights=np.array([m.weight for m in fit.modes]),
+        mode_mean_m=np.array([m.mean_m for m in fit.modes]), mode_std_m=np.array([m.std_m for m in fit.modes]),
+        range_bias_per_decade_m=fit.range_bias_per_decade_m)
+    return 1.0 - np.exp(lp[0] - logsumexp(lp, axis=0))
+
+
 def select_mixture(r: np.ndarray, g: np.ndarray, *, max_modes: int = MAX_NLOS_MODES, fit_slope: bool = True,
-                   fixed_slope: float | None = None, law: str = "log") -> tuple[MixtureFit, dict[str, Any]]:
+                   fixed_slope: float | None = None, law: str = "log", fit_mask: np.ndarray | None = None
+                   ) -> tuple[MixtureFit, dict[str, Any]]:
     """Fit K = 0 .. max_modes NLOS modes and keep the lowest BIC among the admissible fits.
 
     A fit is not admissible when one of its NLOS modes is LOS-like (see ``LOS_LIKE_SIGMAS``) or when
-    it puts less than 3 rows' worth of weight in a mode.
+    it puts less than 3 rows' worth of weight in a mode. ``fit_mask`` (boolean, like ``r``): fit on those
+    rows only (those whose truth is trusted) and give every row its NLOS responsibility under that fit;
+    ignored when fewer than ``MIN_ANCHOR_ROWS`` rows are left.
     """
+    if fit_mask is not None and not fit_mask.all() and int(fit_mask.sum()) >= MIN_ANCHOR_ROWS:
+        f, sel = select_mixture(r[fit_mask], g[fit_mask], max_modes=max_modes, fit_slope=fit_slope,
+                                fixed_slope=fixed_slope, law=law)
+        # rows whose truth errs: classified with the LOS peak widened by their own scatter about it
+        dev = r[~fit_mask] - f.los_centre(g[~fit_mask])
+        core = np.abs(dev) < 1.0
+        wide = float(np.hypot(f.los_std_m, 1.4826 * np.median(np.abs(dev[core])))) if core.any() else f.los_std_m
+        resp = nlos_responsibility(f, r, g)
+        resp[~fit_mask] = nlos_responsibility(f, r[~fit_mask], g[~fit_mask], los_std_m=wide)
+        return replace(f, nlos_resp=resp), {**sel, "n_rows_untrusted_truth": int((~fit_mask).sum()),
+                                            "los_std_untrusted_truth_m": wide}
     fits: dict[int, MixtureFit] = {}
     table: dict[str, Any] = {}
     for k in range(max_modes + 1):

@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 from ...errors import RecordingError
-from ...records import Anchors, Trace, Truth, Uwb
+from ...records import TRUTH_UNTRUSTED_KEY, Anchors, Trace, Truth, Uwb
 from ._common import (
     ImportReport,
     ReportBuilder,
@@ -57,6 +57,14 @@ CITATION = ("Hanyang University ADIP lab, Comprehensive outdoor UWB dataset, DOI
             "(Apache-2.0)")
 _ANCHOR_FILE = re.compile(r"^A(\d+)\.csv$")
 _UWB_COLS = ("field.stamp", "field.id", "field.x", "field.y", "field.z", "field.distanceFromTag")
+RTK_FIXED_STATUS = 2
+"""``field.status.status`` of an RTK-fixed solution in ``gnss.csv`` (sensor_msgs/NavSatStatus GBAS_FIX)."""
+TRUSTED_POSITION_VAR_M2 = 1e-3
+"""Largest horizontal position variance [m^2] of ``gnss.csv`` (``field.position_covariance0`` and ``4``) at
+which the truth is trusted: a 3.2 cm std. Fixed solutions report 2e-4 m^2 (1.4 cm); without the fix it
+reaches 0.01-6 m^2."""
+_GNSS_COLS = ("field.header.stamp", "field.status.status", "field.position_covariance0",
+              "field.position_covariance4")
 _STATIC_HEIGHT_TAG_M = 1.0
 """Tag (receiver) height in the static sweeps [m], per the authors' ``ranging_error_analysis.py``."""
 
@@ -111,6 +119,7 @@ def import_hanyang(run_dir: str | os.PathLike, *, tag_height_offset_m: float = T
 
     meta = _run_meta(run, origin_ns, tag_height_offset_m=tag_height_offset_m, burst_gap_s=burst_gap_s,
                      velocity_window_s=velocity_window_s, crop_to_uwb=crop_to_uwb, rates=rates, gaps=gaps)
+    meta.update(_truth_quality(run / "gnss.csv", origin_ns, float(t_truth[-1]), rep))
     trace = Trace(
         truth=Truth(t_s=t_truth, pos_enu_m=pos, vel_enu_mps=vel),
         uwb=Uwb(t_s=t_uwb, anchor=anchor, range_m=range_m, burst=burst),
@@ -211,6 +220,34 @@ def _run_meta(run: Path, origin_ns: int, *, tag_height_offset_m: float, burst_ga
         "uwb_max_gap_s": gaps,
         "cropped_to_uwb": bool(crop_to_uwb),
     }
+
+
+def _truth_quality(path: Path, origin_ns: int, t_end_s: float, rep: ReportBuilder) -> dict[str, Any]:
+    """``trace.meta`` items on the truth's own quality from ``gnss.csv`` (none when the file is absent): the
+    spans where the GNSS solution is not RTK-fixed or its horizontal position std exceeds 3.2 cm
+    (``truth_untrusted_s``, trace time [s]; each runs from the first such solution to the next trusted one)
+    and the trusted share of the solutions."""
+    if not path.is_file():
+        rep.note("no gnss.csv: the truth's quality is unknown (every sample trusted)")
+        return {}
+    df = read_table(path, rep)
+    require_columns(df, path, _GNSS_COLS)
+    df = drop_nan_rows(to_float(df, list(_GNSS_COLS)), list(_GNSS_COLS), path.name, rep)
+    df = sort_and_dedupe(df[list(_GNSS_COLS)], ["field.header.stamp"], path.name, rep)
+    if df.empty:
+        raise RecordingError(f"{path}: no usable GNSS rows")
+    t = (df["field.header.stamp"].to_numpy() - float(origin_ns)) * 1e-9
+    var = np.maximum(df["field.position_covariance0"].to_numpy(), df["field.position_covariance4"].to_numpy())
+    bad = (df["field.status.status"].to_numpy() != RTK_FIXED_STATUS) | (var > TRUSTED_POSITION_VAR_M2)
+    edges = np.diff(np.concatenate([[0], bad.astype(np.int8), [0]]))
+    first, stop = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # [first, stop) runs of bad rows
+    ends = np.append(t, max(t_end_s, float(t[-1])) + 1e-3)[stop]  # up to the next trusted solution (excluded)
+    spans = [[round(float(a), 3), round(float(b), 3)] for a, b in zip(t[first], ends, strict=True)]
+    share = float(1.0 - bad.mean())
+    rep.note(f"gnss.csv: {share:.1%} of the GNSS solutions RTK-fixed within 3.2 cm; {len(spans)} span(s) "
+             f"without that ({TRUTH_UNTRUSTED_KEY})")
+    return {TRUTH_UNTRUSTED_KEY: spans, "truth_trusted_share": round(share, 4),
+            "truth_quality": "gnss.csv: RTK fix (status 2) and horizontal position std <= 3.2 cm"}
 
 
 def _read_trajectory(path: Path, rep: ReportBuilder) -> tuple[np.ndarray, np.ndarray]:
