@@ -136,3 +136,25 @@ def test_trusted_truth_calibration_sees_through_the_truth_errors():
                        for t in traces])
     assert again.scenario.channel == plain.scenario.channel
     assert again.scenario.channel_per_anchor == plain.scenario.channel_per_anchor
+
+
+@real
+def test_cli_imports_the_spans_and_calibrates_on_the_trusted_truth(tmp_path):
+    """``physynth import hanyang`` keeps the spans through the dataset files; ``physynth calibrate
+    --trusted-truth`` reports the run's untrusted share and that it used them."""
+    import json
+
+    from physynth.cli import main
+    from physynth.io.dataset import read_dataset
+
+    ds, scn, rep = tmp_path / "nlos2", tmp_path / "s.yaml", tmp_path / "fit.json"
+    main(["import", "hanyang", str(DYN / "NLOS" / "Trajectory_A" / "Case_2"), "--crop-to-uwb", "--out", str(ds), "-q"])
+    (trace,) = read_dataset(ds).traces
+    direct, _ = import_hanyang(DYN / "NLOS" / "Trajectory_A" / "Case_2", crop_to_uwb=True)
+    assert trace.meta[TRUTH_UNTRUSTED_KEY] == direct.meta[TRUTH_UNTRUSTED_KEY]
+    main(["calibrate", str(ds), "--trusted-truth", "--out", str(scn), "--report", str(rep), "-q"])
+    tq = json.loads(rep.read_text())["truth_quality"]
+    assert tq["trusted_truth"] is True
+    (share,) = tq["untrusted_share_of_truth"].values()
+    assert share == pytest.approx(float(np.mean(untrusted_truth(direct.meta, direct.truth.t_s))), abs=1e-9)
+    assert 0.2 < share < 0.4

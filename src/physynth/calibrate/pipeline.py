@@ -259,6 +259,8 @@ def _mode_runs(residual_m: np.ndarray, flags: list[np.ndarray], modes: Sequence[
     return [(x, i) for x, i in zip(lengths, run_id, strict=True)] if keep_ids else lengths
 
 
+MIN_WHITE_SHARE = 0.01
+"""Smallest share of an anchor's LOS error variance left white (per attempt) when the antenna sway is fitted."""
 SHORT_EPISODE_MAX_ROWS = 5.0
 """Modes whose episodes last at most this many rows on average are *short* (gross outliers)."""
 
@@ -1390,7 +1392,9 @@ def assemble_channels(inp: CalibrationInputs, ranging: RangingFit, avail: Availa
     episodes_of, short_pool = _episodes_and_short_pool(ids, chan, rep)
     sway = _antenna_sway(chan, rep)
     tag = _tag_nlos(chan, ids, burst_rate, rep)
-    white = float(np.sqrt(1.0 - sway["slow_share"])) if sway["identifiable"] else 1.0
+    # the share of the LOS variance left white: never 0 (each attempt has its own timing noise; a sway fit on
+    # few rows can take the whole variance, which left a LOS std of 0)
+    white = float(np.sqrt(max(1.0 - sway["slow_share"], MIN_WHITE_SHARE))) if sway["identifiable"] else 1.0
     channel_diag: dict[str, Any] = {}
     per_channel: dict[str, ChannelParams] = {}
     for aid in ids:
