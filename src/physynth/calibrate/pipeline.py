@@ -433,6 +433,12 @@ def _run_shift(t: Trace, lab: str, r: Residuals, feats: np.ndarray, run_offsets:
     return shift
 
 
+def _fit_rows(trace: Trace, lag: float, trusted_truth: bool) -> Residuals:
+    """The residual rows of a run at its lag, with their truth's trust only when it is to be used."""
+    r = corrected_residuals(trace, lag)
+    return r if trusted_truth else replace(r, trusted=None)
+
+
 def _trusted(r: Residuals) -> np.ndarray:
     return np.ones(r.residual_m.shape, dtype=bool) if r.trusted is None else r.trusted
 
@@ -456,9 +462,7 @@ def _fit_channels(trs: Sequence[Trace], offset: float | Sequence[float], ids: Se
     bearing: list[tuple[np.ndarray, np.ndarray]] = []
     lags = [float(offset)] * len(trs) if np.ndim(offset) == 0 else [float(o) for o in offset]
     for t, lab, lag in zip(trs, labels, lags, strict=True):
-        r = corrected_residuals(t, lag)
-        if not trusted_truth:
-            r = replace(r, trusted=None)
+        r = _fit_rows(t, lag, trusted_truth)
         feats, speed = _bearing_rows(t, r, lag)
         shift = _run_shift(t, lab, r, feats, run_offsets, tag_pattern, run_slopes)
         if shift.any():
@@ -1676,29 +1680,25 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
     sources
         Names of the datasets the traces came from (provenance).
     long_outages
-        Generate the long outages (``availability.long_outage_*``) when the fit identifies them. They
-        are always fitted and reported; off by default because on the shared Hanyang runs they belong
-        to one anchor placement, not to range alone, and generating them everywhere worsens the
-        leave-one-out age of information (docs/calibration.md, "Long outages").
+        Generate the long outages (``availability.long_outage_*``) the fit identifies (always fitted and
+        reported); off by default: on the shared Hanyang runs they belong to one anchor placement and
+        worsen the leave-one-out age of information (docs/calibration.md, "Long outages").
     tag_pattern
         Generate the tag antenna pattern (``uwb.tag_pattern_m``) when the fit keeps it, and fit the
         channels to the residuals with it removed. It is always fitted and reported; off by default
         because on the shared Hanyang walks (all along one route) applying it worsened the left-out
         runs' KS and the tracking study (docs/calibration.md, "Where the anchors lie from the walker").
     run_slopes
-        Generate the run-to-run tilts of the range law (``uwb.run_slope_std_m``,
-        ``uwb.run_anchor_slope_std_m``; several runs needed) when the fit finds them, and fit the
-        channels with each run's own tilt removed. Always fitted and reported; off by default because on
-        the shared Hanyang walks it made one left-out run's KS worse and none better, and the tracking
-        study worse (docs/calibration.md, "Run-to-run tilts of the range law").
+        Generate the run-to-run tilts of the range law (``uwb.run_slope_std_m``, ``uwb.run_anchor_slope_std_m``;
+        several runs) the fit finds, and fit the channels with each run's tilt removed (always fitted and
+        reported); off by default: on the shared Hanyang walks it made one left-out run's KS and the
+        tracking study worse (docs/calibration.md, "Run-to-run tilts of the range law").
     link_budget
-        Give every anchor a link budget (needs ``static_sweeps``; ``link_budget.link_budget_for_runs``),
-        with the dropouts lowered by its mean loss: detection falls where the ground reflection puts a
-        null on the route. Off by default (docs/calibration.md, "Fades from the anchor's height").
+        Give every anchor a link budget (needs ``static_sweeps``; ``link_budget.link_budget_for_runs``), the
+        dropouts lowered by its mean loss. Off by default (docs/calibration.md, "Fades from the anchor's height").
     trusted_truth
-        Fit the ranging channel's mixtures on the ranges whose truth the recording trusts (its
-        ``truth_untrusted_s`` spans, e.g. from an RTK receiver without a fix) and take only those as LOS
-        rows. Off by default (docs/calibration.md, "Where the truth itself errs").
+        Fit the ranging channel on the ranges whose truth the recording trusts (outside its
+        ``truth_untrusted_s`` spans). Off by default (docs/calibration.md, "Where the truth itself errs").
     progress
         ``progress(message, done, total)`` before each step (:mod:`physynth.progress`).
     """
