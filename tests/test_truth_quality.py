@@ -1,6 +1,7 @@
 """The truth's own quality: spans where the recording says its truth errs (``truth_untrusted_s``), read by
-the Hanyang importer from the RTK receiver's status, and the calibration that fits the ranging channel
-on the ranges outside them (``calibrate(..., trusted_truth=True)``)."""
+the Hanyang importer from the RTK receiver's status; the calibration that fits the ranging channel on the
+ranges outside them and the validation that compares residuals there (both the default; ``trusted_truth=
+False`` / ``all_truth=True`` and ``--all-truth`` take every range)."""
 
 from __future__ import annotations
 
@@ -53,14 +54,27 @@ def test_hanyang_spans_hold_every_solution_without_an_rtk_fix(case, lo, hi):
     assert any("RTK-fixed" in n for n in rep.notes)
 
 
+def test_residuals_leave_out_the_ranges_at_untrusted_truth():
+    scn = simple_scenario(**WALK, **{"uwb.burst_rate_hz": 10.0, "channel.rate_hz": 10.0})
+    (tr,) = generate_traces(scn, 1, seed=2)
+    r_all, _, t_all = residuals(tr)
+    span = [float(t_all[100]), float(t_all[400])]
+    marked = dataclasses.replace(tr, meta={**tr.meta, TRUTH_UNTRUSTED_KEY: [span]})
+    r, _, t = residuals(marked)
+    inside = (t_all >= span[0]) & (t_all < span[1])
+    assert 250 < inside.sum() < r_all.size and r.size == r_all.size - inside.sum()
+    np.testing.assert_array_equal(t, t_all[~inside])
+
+
 @real
 def test_hanyang_ranges_scatter_more_where_the_rtk_truth_is_not_fixed():
     """NLOS Case_2 (31 % of its solutions without the fix): the ranges more than 15 cm off their
     anchor's LOS line (lag-corrected residuals) are at least three times as common where the truth is
     untrusted (measured 14 % against 2.7 %)."""
     tr, _ = import_hanyang(DYN / "NLOS" / "Trajectory_A" / "Case_2", crop_to_uwb=True)
-    lag = 0.177
-    tr = dataclasses.replace(tr, uwb=dataclasses.replace(tr.uwb, t_s=tr.uwb.t_s - lag))
+    spans, lag = tr, 0.177
+    every = {k: v for k, v in tr.meta.items() if k != TRUTH_UNTRUSTED_KEY}  # residuals() would leave them out
+    tr = dataclasses.replace(tr, uwb=dataclasses.replace(tr.uwb, t_s=tr.uwb.t_s - lag), meta=every)
     res, idx, t = residuals(tr)
     rng = np.linalg.norm(tr.truth.position_at(t) - tr.anchors.pos_enu_m[idx], axis=1)
     dev = np.empty_like(res)
@@ -68,7 +82,7 @@ def test_hanyang_ranges_scatter_more_where_the_rtk_truth_is_not_fixed():
         s = idx == k
         mu, beta, _, _ = _robust_line(res[s], range_decades(rng[s]), True)
         dev[s] = res[s] - mu - beta * range_decades(rng[s])
-    bad = untrusted_truth(tr.meta, t)
+    bad = untrusted_truth(spans.meta, t)
     near = np.abs(dev) < 1.0
     off = np.abs(dev) > 0.15
     share_bad, share_good = off[bad & near].mean(), off[~bad & near].mean()
@@ -112,7 +126,8 @@ def _with_truth_errors(trace, *, share: float, shift_m: float, seed: int):
 def test_trusted_truth_calibration_sees_through_the_truth_errors():
     """Walks with 3 cm LOS errors and 4 % NLOS ranges (+0.6 m), and in a third of their time a truth
     that reads 25 cm off: the default fit takes those ranges as ranging errors (a wider channel, more
-    NLOS), the trusted-truth fit recovers the generated channel; the default ignores the spans."""
+    NLOS), the trusted-truth fit (the default) recovers the generated channel; without it the spans are
+    ignored."""
     scn = simple_scenario(**WALK, **{"channel.los_std_m": 0.03, "channel.nlos_prob": 0.04,
                                      "channel.nlos_modes": [{"weight": 1.0, "mean_m": 0.6, "std_m": 0.2}],
                                      "uwb.burst_rate_hz": 10.0, "channel.rate_hz": 10.0,
@@ -121,27 +136,29 @@ def test_trusted_truth_calibration_sees_through_the_truth_errors():
     pairs = [_with_truth_errors(t, share=0.33, shift_m=-0.25, seed=i) for i, t in enumerate(clean)]
     traces = [p[0] for p in pairs]
     assert 0.25 < np.mean([p[1] for p in pairs]) < 0.4
-    plain = calibrate(traces)
-    fit = calibrate(traces, trusted_truth=True)
+    plain = calibrate(traces, trusted_truth=False)
+    fit = calibrate(traces)
     ch, ch0 = fit.scenario.channel, plain.scenario.channel
     assert ch.los_std_m == pytest.approx(0.03, rel=0.15)
     assert ch.nlos_prob == pytest.approx(0.04, abs=0.015)
     far = [m for m in ch.nlos_modes if m.mean_m > 0.3]
     assert far and sum(m.weight for m in far) > 0.8  # the +0.6 m mode, not a truth-error mode below LOS
-    assert ch0.nlos_prob > 0.1 or ch0.los_std_m > 1.5 * 0.03  # the default is fooled by the truth errors
+    assert ch0.nlos_prob > 0.1 or ch0.los_std_m > 1.5 * 0.03  # every range: fooled by the truth errors
     tq = fit.report["truth_quality"]
     assert tq["trusted_truth"] and all(0.25 < v < 0.4 for v in tq["untrusted_share_of_truth"].values())
     # without trusted_truth the spans change nothing
     again = calibrate([dataclasses.replace(t, meta={k: v for k, v in t.meta.items() if k != TRUTH_UNTRUSTED_KEY})
-                       for t in traces])
+                       for t in traces], trusted_truth=False)
+    assert not plain.report["truth_quality"]["trusted_truth"]
     assert again.scenario.channel == plain.scenario.channel
     assert again.scenario.channel_per_anchor == plain.scenario.channel_per_anchor
 
 
 @real
-def test_cli_imports_the_spans_and_calibrates_on_the_trusted_truth(tmp_path):
-    """``physynth import hanyang`` keeps the spans through the dataset files; ``physynth calibrate
-    --trusted-truth`` reports the run's untrusted share and that it used them."""
+def test_cli_imports_the_spans_and_calibrates_and_validates_on_the_trusted_truth(tmp_path):
+    """``physynth import hanyang`` keeps the spans through the dataset files; ``physynth calibrate`` reports
+    the run's untrusted share and that it used them (``--all-truth``: not); ``physynth validate`` leaves the
+    real ranges at untrusted truth out of the residuals, counted (``--all-truth``: compared too)."""
     import json
 
     from physynth.cli import main
@@ -152,9 +169,26 @@ def test_cli_imports_the_spans_and_calibrates_on_the_trusted_truth(tmp_path):
     (trace,) = read_dataset(ds).traces
     direct, _ = import_hanyang(DYN / "NLOS" / "Trajectory_A" / "Case_2", crop_to_uwb=True)
     assert trace.meta[TRUTH_UNTRUSTED_KEY] == direct.meta[TRUTH_UNTRUSTED_KEY]
-    main(["calibrate", str(ds), "--trusted-truth", "--out", str(scn), "--report", str(rep), "-q"])
+    main(["calibrate", str(ds), "--out", str(scn), "--report", str(rep), "-q"])
     tq = json.loads(rep.read_text())["truth_quality"]
     assert tq["trusted_truth"] is True
     (share,) = tq["untrusted_share_of_truth"].values()
     assert share == pytest.approx(float(np.mean(untrusted_truth(direct.meta, direct.truth.t_s))), abs=1e-9)
     assert 0.2 < share < 0.4
+    rep_all = tmp_path / "fit-all.json"
+    main(["calibrate", str(ds), "--all-truth", "--out", str(tmp_path / "a.yaml"), "--report", str(rep_all), "-q"])
+    assert json.loads(rep_all.read_text())["truth_quality"]["trusted_truth"] is False
+    u = direct.uwb
+    n_bad = int(untrusted_truth(direct.meta, u.t_s[u.valid]).sum())
+    inside = (u.t_s[u.valid] >= direct.truth.t_s[0]) & (u.t_s[u.valid] <= direct.truth.t_s[-1])
+    counts = {}
+    for flag in ([], ["--all-truth"]):
+        out = tmp_path / f"rep{len(flag)}"
+        main(["validate", "--real", str(ds), "--scenario", str(scn), "--transfer", "-n", "1", "--seed", "1",
+              "--no-figures", "--out", str(out), "-q", *flag])
+        got = json.loads((out / "report.json").read_text())["inputs"]
+        counts[len(flag)] = got["n_residuals"]["real"]
+        assert got["real"]["truth"]["untrusted_truth_ranges"] == n_bad > 1000
+        assert got["real"]["truth"]["untrusted_left_out_of_residuals"] is (not flag)
+    assert counts[1] == int(inside.sum()) and counts[0] == counts[1] - int((untrusted_truth(
+        direct.meta, u.t_s[u.valid]) & inside).sum())

@@ -201,7 +201,8 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
                       n: int = 50, seed: int | None = None, transfer: bool = False,
                       rate_hz: float = DEFAULT_GRID_RATE_HZ,
                       progress: ProgressCallback | None = None,
-                      anchors: Sequence[str] | None = None, force: bool = False) -> ValidationReport:
+                      anchors: Sequence[str] | None = None, force: bool = False,
+                      all_truth: bool = False) -> ValidationReport:
     """Validate a real dataset against a synthetic dataset or against traces generated from a scenario.
 
     Parameters
@@ -228,6 +229,10 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
         its full set. The ids must be anchors of both sides.
     force : bool
         Generate even when the size estimate exceeds the budget (:func:`physynth.bounds.check_budget`).
+    all_truth : bool
+        Compare the real ranges also where the real dataset says its truth errs (``truth_untrusted_s``);
+        by default those ranges are left out of the residual metrics (counted in the report's
+        ``inputs.real.truth``) and kept in availability and age of information.
 
     Raises
     ------
@@ -253,10 +258,11 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
     if is_imu_only(real_traces):  # IMU recordings without UWB: IMU error statistics only
         return _validate_imu(real, real_ds, synthetic=synthetic, scenario=scenario, n=n, seed=seed,
                              transfer=transfer, progress=progress)
+    real_traces, truth = _real_truth(real_traces, all_truth)
     check_real(real_traces, f"real dataset {real}")
     real_ids = anchor_ids(real_traces)
     inputs: dict[str, Any] = {"real": {"path": str(real), "kind": real_ds.meta.get("kind"),
-                                       "source": real_ds.meta.get("source"), "anchors": real_ids}}
+                                       "source": real_ds.meta.get("source"), "anchors": real_ids, "truth": truth}}
     transfer_info = None
 
     subset = None
@@ -291,6 +297,23 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
     if synthetic is not None and not report.inputs["n_residuals"]["synthetic"]:
         raise PhySynthError(f"synthetic dataset {synthetic} has no valid UWB range: nothing to compare")
     return report
+
+
+def _real_truth(traces: Sequence[Trace], all_truth: bool) -> tuple[Sequence[Trace], dict[str, Any]]:
+    """The real traces as compared (without their untrusted-truth spans when ``all_truth``) and how many
+    of their valid ranges fall where the truth is untrusted."""
+    import dataclasses
+
+    from .records import TRUTH_UNTRUSTED_KEY, untrusted_truth
+
+    n = sum(int(untrusted_truth(t.meta, t.uwb.t_s[t.uwb.valid]).sum()) for t in traces)
+    total = sum(int(t.uwb.valid.sum()) for t in traces)
+    info = {"untrusted_truth_ranges": n, "valid_ranges": total,
+            "untrusted_left_out_of_residuals": bool(n and not all_truth)}
+    if all_truth:
+        traces = [dataclasses.replace(t, meta={k: v for k, v in t.meta.items() if k != TRUTH_UNTRUSTED_KEY})
+                  for t in traces]
+    return traces, info
 
 
 def _synthetic_from_dataset(synthetic: str | Path, real_ids: Sequence[str], subset: list[str] | None

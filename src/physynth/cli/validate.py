@@ -1,7 +1,7 @@
 """``physynth validate``: compare a real dataset with synthetic traces and write a report folder.
 
     physynth validate --real DATASET (--synthetic DATASET | --scenario S [-n N] [--seed S]) [--transfer]
-                      [--anchors A,B,...] --out REPORT_DIR [--no-figures] [--overwrite] [--quiet]
+                      [--anchors A,B,...] [--all-truth] --out REPORT_DIR [--no-figures] [--overwrite] [--quiet]
 
 The command parses, calls :func:`physynth.workflows.validate_datasets` and
 :func:`physynth.validate.render.write_report`, prints a short summary and exits. Bad input raises
@@ -47,6 +47,10 @@ def validate_cmd(
     overwrite: bool = typer.Option(False, "--overwrite",
                                    help="Replace a report already in --out (only a report PhySynth wrote)."),
     force: bool = typer.Option(False, "--force", help="Go ahead even when the size estimate exceeds the budget."),
+    all_truth: bool = typer.Option(False, "--all-truth",
+                                   help="Compare the real ranges also where the real dataset says its truth errs "
+                                        "(by default left out of the residual metrics and counted). See "
+                                        "docs/validation.md."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Validate synthetic traces against a real dataset (paper section IV: Tables I-II, KS, figures)."""
@@ -57,12 +61,12 @@ def validate_cmd(
     with guarded_outputs([out]) as (real_out,):  # lock; orphaned temp files removed
         check_output(out, kind="report", overwrite=overwrite, inputs=inputs)
         _validate(real, synthetic, scenario, n, seed, transfer, out, real_out, figures, overwrite, force, quiet,
-                  anchors)
+                  anchors, all_truth)
 
 
 def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, seed: int | None, transfer: bool,
               out: Path, real_out: Path, figures: bool, overwrite: bool, force: bool, quiet: bool,
-              anchors: str | None = None) -> None:
+              anchors: str | None = None, all_truth: bool = False) -> None:
     from ..errors import AnchorMismatchError, PhySynthError
     from ..validate.render import require_matplotlib, write_report
     from ..workflows import validate_datasets
@@ -77,7 +81,7 @@ def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, 
     try:
         with progress_bar(not quiet) as progress:
             report = validate_datasets(real, synthetic=synthetic, scenario=scenario, n=n, seed=seed,
-                                       transfer=transfer, progress=progress, force=force,
+                                       transfer=transfer, progress=progress, force=force, all_truth=all_truth,
                                        anchors=None if anchors is None else [a.strip() for a in anchors.split(",")])
     except AnchorMismatchError as exc:
         hint = "; use --transfer to take the anchor layout from the real dataset" if scenario else ""

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..constants import DEFAULT_GRID_RATE_HZ
-from ..records import Trace
+from ..records import TRUTH_UNTRUSTED_KEY, Trace, untrusted_truth
 from .grid import age_of_information as _aoi
 from .grid import fresh_mask, grid_times, imu_on_grid
 from .sketch import Moments, QuantileSketch
@@ -38,7 +38,10 @@ METRIC_KEYS = (
 def residuals(trace: Trace) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Signed range residuals r = range - |p_truth(t) - a_i| of every valid range [m].
 
-    Returns (residual_m, anchor_index, t_s); ranges outside the truth time span are left out.
+    Returns (residual_m, anchor_index, t_s); ranges outside the truth time span are left out, and so
+    are those inside a span where the recording says its own truth errs (``trace.meta`` key
+    ``truth_untrusted_s``, :func:`physynth.records.untrusted_truth`; e.g. an RTK receiver without a fix):
+    against a wrong truth the difference is not a ranging error.
     """
     uwb = trace.uwb
     ok = uwb.valid
@@ -48,6 +51,8 @@ def residuals(trace: Trace) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     geom = np.linalg.norm(pos - trace.anchors.pos_enu_m[idx], axis=1)
     r = uwb.range_m[ok] - geom
     keep = np.isfinite(r)
+    if trace.meta.get(TRUTH_UNTRUSTED_KEY):
+        keep &= ~untrusted_truth(trace.meta, t)
     return r[keep], idx[keep], t[keep]
 
 
