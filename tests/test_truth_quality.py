@@ -188,6 +188,8 @@ def test_cli_imports_the_spans_and_calibrates_and_validates_on_the_trusted_truth
               "--no-figures", "--out", str(out), "-q", *flag])
         got = json.loads((out / "report.json").read_text())["inputs"]
         counts[len(flag)] = got["n_residuals"]["real"]
+        md = (out / "report.md").read_text()
+        assert f"{n_bad} of" in md and ("left out of the residual metrics" in md) is (not flag)
         assert got["real"]["truth"]["untrusted_truth_ranges"] == n_bad > 1000
         assert got["real"]["truth"]["untrusted_left_out_of_residuals"] is (not flag)
     assert counts[1] == int(inside.sum()) and counts[0] == counts[1] - int((untrusted_truth(

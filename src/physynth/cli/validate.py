@@ -105,6 +105,12 @@ def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, 
                f"{counted(report.inputs['n_traces']['synthetic'], 'trace')}"
                + (f" (scenario '{syn.get('scenario_name')}', seed {syn.get('root_seed')}"
                   + (", transfer" if syn.get("transfer") else "") + ")" if "scenario" in syn else ""))
+    truth = report.inputs.get("real", {}).get("truth") or {}
+    if truth.get("untrusted_truth_ranges"):
+        from ..validate.tables import truth_line
+
+        hint = " (--all-truth compares them)" if truth.get("untrusted_left_out_of_residuals") else ""
+        typer.echo(truth_line(truth) + hint)
     typer.echo(f"KS {_f(report.ks_statistic)}  fidelity S {_f(report.fidelity_score)}  "
                f"W1 {_f(report.extended.get('residual_wasserstein_m'))} m")
     for key in ("uwb_ge1_frac", "residual_median_m", "abs_residual_p95_m", "mean_aoi_s"):

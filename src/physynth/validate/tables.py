@@ -183,11 +183,21 @@ def _inputs_lines(report: ValidationReport) -> list[str]:
     lines.append(f"Residuals: {nres.get('real', '?')} real, {nres.get('synthetic', '?')} synthetic; "
                  f"grid {inp.get('grid_rate_hz', '?')} Hz; physynth {inp.get('physynth_version', '?')}; "
                  f"created {inp.get('created_utc', '?')}")
+    truth = real.get("truth") or {}
+    if truth.get("untrusted_truth_ranges"):
+        lines.append(truth_line(truth))
     src = str(real.get("source") or "")
     if "hanyang" in src.lower():
         lines.append("Real data: Hanyang outdoor UWB dataset (ADIP lab, Hanyang University), "
                      "DOI 10.5281/zenodo.15226105, Apache-2.0.")
     return lines
+
+
+def truth_line(truth: dict) -> str:
+    """What was done with the real ranges at an untrusted truth (report.md, report.html, the CLI summary)."""
+    n, total = truth.get("untrusted_truth_ranges", 0), truth.get("valid_ranges", 0)
+    how = "left out of the residual metrics" if truth.get("untrusted_left_out_of_residuals") else "compared too"
+    return f"Real truth: {n} of {total} valid ranges lie where the recording says its truth errs; {how}."
 
 
 def _transfer_lines(report: ValidationReport) -> list[str]:
