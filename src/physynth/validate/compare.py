@@ -492,6 +492,7 @@ MIN_VALID_RANGES = 30
 def check_real(traces: Sequence[Trace], where: str) -> None:
     """Refuse real data that cannot be validated against: no truth, no anchors, no valid range."""
     from ..evaluate.metrics import residuals
+    from ..records import TRUTH_UNTRUSTED_KEY
 
     for i, tr in enumerate(traces):
         n_truth = int(np.count_nonzero(np.all(np.isfinite(tr.truth.pos_enu_m), axis=1)))
@@ -502,10 +503,12 @@ def check_real(traces: Sequence[Trace], where: str) -> None:
             raise PhySynthError(f"{where}: trace {i} has no UWB anchors (an IMU-only recording cannot be "
                                 "validated)")
     n_valid = sum(residuals(tr)[0].size for tr in traces)
+    span = "inside the truth time span" + (" where the truth is trusted" if any(
+        tr.meta.get(TRUTH_UNTRUSTED_KEY) for tr in traces) else "")
     if not n_valid:
-        raise PhySynthError(f"{where} has no valid UWB range inside the truth time span: nothing to compare")
+        raise PhySynthError(f"{where} has no valid UWB range {span}: nothing to compare")
     if n_valid < MIN_VALID_RANGES:
-        raise PhySynthError(f"{where} has only {n_valid} valid UWB range(s) inside the truth time span; the "
+        raise PhySynthError(f"{where} has only {n_valid} valid UWB range(s) {span}; the "
                             f"statistics (KS, quantiles) need at least {MIN_VALID_RANGES}")
 
 
