@@ -1,7 +1,7 @@
 """The truth's own quality: spans where the recording says its truth errs (``truth_untrusted_s``), read by
-the Hanyang importer from the RTK receiver's status; the calibration that fits the ranging channel on the
-ranges outside them and the validation that compares residuals there (both the default; ``trusted_truth=
-False`` / ``all_truth=True`` and ``--all-truth`` take every range)."""
+the Hanyang importer from the RTK receiver's status; the validation that compares residuals only outside
+them (the default; ``all_truth=True``, ``--all-truth``: every range) and the calibration that fits the
+ranging channel there (``trusted_truth=True``, ``--trusted-truth``; by default it takes every range)."""
 
 from __future__ import annotations
 
@@ -126,7 +126,7 @@ def _with_truth_errors(trace, *, share: float, shift_m: float, seed: int):
 def test_trusted_truth_calibration_sees_through_the_truth_errors():
     """Walks with 3 cm LOS errors and 4 % NLOS ranges (+0.6 m), and in a third of their time a truth
     that reads 25 cm off: the default fit takes those ranges as ranging errors (a wider channel, more
-    NLOS), the trusted-truth fit (the default) recovers the generated channel; without it the spans are
+    NLOS), the trusted-truth fit recovers the generated channel; without it (the default) the spans are
     ignored."""
     scn = simple_scenario(**WALK, **{"channel.los_std_m": 0.03, "channel.nlos_prob": 0.04,
                                      "channel.nlos_modes": [{"weight": 1.0, "mean_m": 0.6, "std_m": 0.2}],
@@ -136,8 +136,8 @@ def test_trusted_truth_calibration_sees_through_the_truth_errors():
     pairs = [_with_truth_errors(t, share=0.33, shift_m=-0.25, seed=i) for i, t in enumerate(clean)]
     traces = [p[0] for p in pairs]
     assert 0.25 < np.mean([p[1] for p in pairs]) < 0.4
-    plain = calibrate(traces, trusted_truth=False)
-    fit = calibrate(traces)
+    plain = calibrate(traces)
+    fit = calibrate(traces, trusted_truth=True)
     ch, ch0 = fit.scenario.channel, plain.scenario.channel
     assert ch.los_std_m == pytest.approx(0.03, rel=0.15)
     assert ch.nlos_prob == pytest.approx(0.04, abs=0.015)
@@ -148,7 +148,7 @@ def test_trusted_truth_calibration_sees_through_the_truth_errors():
     assert tq["trusted_truth"] and all(0.25 < v < 0.4 for v in tq["untrusted_share_of_truth"].values())
     # without trusted_truth the spans change nothing
     again = calibrate([dataclasses.replace(t, meta={k: v for k, v in t.meta.items() if k != TRUTH_UNTRUSTED_KEY})
-                       for t in traces], trusted_truth=False)
+                       for t in traces])
     assert not plain.report["truth_quality"]["trusted_truth"]
     assert again.scenario.channel == plain.scenario.channel
     assert again.scenario.channel_per_anchor == plain.scenario.channel_per_anchor
@@ -156,9 +156,10 @@ def test_trusted_truth_calibration_sees_through_the_truth_errors():
 
 @real
 def test_cli_imports_the_spans_and_calibrates_and_validates_on_the_trusted_truth(tmp_path):
-    """``physynth import hanyang`` keeps the spans through the dataset files; ``physynth calibrate`` reports
-    the run's untrusted share and that it used them (``--all-truth``: not); ``physynth validate`` leaves the
-    real ranges at untrusted truth out of the residuals, counted (``--all-truth``: compared too)."""
+    """``physynth import hanyang`` keeps the spans through the dataset files; ``physynth calibrate
+    --trusted-truth`` reports the run's untrusted share and that it used them (by default: not);
+    ``physynth validate`` leaves the real ranges at untrusted truth out of the residuals, counted
+    (``--all-truth``: compared too)."""
     import json
 
     from physynth.cli import main
@@ -169,14 +170,14 @@ def test_cli_imports_the_spans_and_calibrates_and_validates_on_the_trusted_truth
     (trace,) = read_dataset(ds).traces
     direct, _ = import_hanyang(DYN / "NLOS" / "Trajectory_A" / "Case_2", crop_to_uwb=True)
     assert trace.meta[TRUTH_UNTRUSTED_KEY] == direct.meta[TRUTH_UNTRUSTED_KEY]
-    main(["calibrate", str(ds), "--out", str(scn), "--report", str(rep), "-q"])
+    main(["calibrate", str(ds), "--trusted-truth", "--out", str(scn), "--report", str(rep), "-q"])
     tq = json.loads(rep.read_text())["truth_quality"]
     assert tq["trusted_truth"] is True
     (share,) = tq["untrusted_share_of_truth"].values()
     assert share == pytest.approx(float(np.mean(untrusted_truth(direct.meta, direct.truth.t_s))), abs=1e-9)
     assert 0.2 < share < 0.4
     rep_all = tmp_path / "fit-all.json"
-    main(["calibrate", str(ds), "--all-truth", "--out", str(tmp_path / "a.yaml"), "--report", str(rep_all), "-q"])
+    main(["calibrate", str(ds), "--out", str(tmp_path / "a.yaml"), "--report", str(rep_all), "-q"])
     assert json.loads(rep_all.read_text())["truth_quality"]["trusted_truth"] is False
     u = direct.uwb
     n_bad = int(untrusted_truth(direct.meta, u.t_s[u.valid]).sum())

@@ -18,7 +18,7 @@ Targets (issue 12): KS <= 0.10, UWB >= 1 and mean AoI within 15 %, median within
 the band.
 
     .venv/bin/python tools/loo_hanyang.py [--n 50] [--seed 1] [--long-outages] [--tag-pattern] [--range-bias-law L]
-                                          [--run-slopes] [--link-budget] [--all-truth]
+                                          [--run-slopes] [--link-budget] [--trusted-truth] [--all-truth]
                                           [--out DIR]
                                           [--white-twin] [--no-tag-nlos] [--sway-clock auto|time|motion]
                                           [--data ../shared/data/hanyang-uwb]
@@ -55,9 +55,11 @@ def main() -> None:
     ap.add_argument("--long-outages", action="store_true", help="calibrate with long_outages=True")
     ap.add_argument("--tag-pattern", action="store_true", help="calibrate with tag_pattern=True")
     ap.add_argument("--run-slopes", action="store_true", help="calibrate with run_slopes=True")
+    ap.add_argument("--trusted-truth", action="store_true",
+                    help="calibrate with trusted_truth=True (ranging fitted where the RTK truth is fixed)")
     ap.add_argument("--all-truth", action="store_true",
-                    help="calibrate with trusted_truth=False and validate with all_truth=True: every range, also "
-                         "where the RTK truth has no fix (the release before)")
+                    help="validate with all_truth=True: compare every real range, also where the RTK truth has no "
+                         "fix (the release before)")
     ap.add_argument("--link-budget", action="store_true",
                     help="calibrate with link_budget=True (static sweeps from the --data folder)")
     ap.add_argument("--range-bias-law", choices=("log", "linear"), default="log",
@@ -89,7 +91,7 @@ def main() -> None:
             res = calibrate(others, name=f"loo-without-{left.replace(' ', '-')}", long_outages=args.long_outages,
                             tag_pattern=args.tag_pattern, run_slopes=args.run_slopes,
                             range_bias_law=args.range_bias_law, link_budget=args.link_budget,
-                            trusted_truth=not args.all_truth,
+                            trusted_truth=args.trusted_truth,
                             static_sweeps=args.data / "Static_measurements" if args.link_budget else None)
             scn = res.scenario
             if args.white_twin and res.report["antenna_sway"]["identifiable"]:

@@ -7,15 +7,15 @@ NOAUG and AUG_GAN, and the runs SYNTH_PHY's scenario is calibrated on). Every fo
         --methods NOAUG,AUG_GAN,SYNTH_PHY,ekf --out DIR
 
 on datasets made by ``physynth import hanyang RUN --crop-to-uwb``. With ``--long-outages`` (or
-``--tag-pattern``, ``--run-slopes``, ``--link-budget``, ``--all-truth``) each fold also calibrates its
+``--tag-pattern``, ``--run-slopes``, ``--link-budget``, ``--trusted-truth``) each fold also calibrates its
 training runs with ``physynth calibrate --long-outages`` (``--tag-pattern``, ``--run-slopes``, ``--link-budget
---static-sweeps`` the Static_measurements folder beside ``--data``, ``--all-truth``) and trains SYNTH_PHY
-on that scenario (``--scenario``): rows ``+long`` (``+pattern``, ``+slopes``, ``+budget``, ``+alltruth``).
+--static-sweeps`` the Static_measurements folder beside ``--data``, ``--trusted-truth``) and trains SYNTH_PHY
+on that scenario (``--scenario``): rows ``+long`` (``+pattern``, ``+slopes``, ``+budget``, ``+trusted``).
 Prints one table: RMSE (m) per fold and seed, the mean over all, and
 how often each method beats NOAUG of the same fold and seed.
 
     .venv/bin/python tools/tracking_cv.py [--seeds 0,1] [--jobs 2] [--long-outages] [--tag-pattern] [--frame F]
-                                          [--run-slopes] [--link-budget] [--all-truth]
+                                          [--run-slopes] [--link-budget] [--trusted-truth]
                                           [--turn-test DEG] [--mirror-test] [--methods M,...]
                                           [--study-args "OPTIONS"] [--runs R,R,...] [--out DIR]
 
@@ -61,7 +61,7 @@ def _run(cmd: list[str], log: Path) -> None:
 
 
 VARIANTS = (("+long", "--long-outages"), ("+pattern", "--tag-pattern"), ("+slopes", "--run-slopes"),
-            ("+budget", "--link-budget"), ("+alltruth", "--all-truth"))
+            ("+budget", "--link-budget"), ("+trusted", "--trusted-truth"))
 """Calibration variants: the row suffix and the ``physynth calibrate`` option."""
 
 
@@ -79,8 +79,8 @@ def main() -> None:
     ap.add_argument("--run-slopes", action="store_true", help="also SYNTH_PHY on --run-slopes scenarios")
     ap.add_argument("--link-budget", action="store_true",
                     help="also SYNTH_PHY on --link-budget scenarios (static sweeps beside the --data folder)")
-    ap.add_argument("--all-truth", action="store_true",
-                    help="also SYNTH_PHY on --all-truth scenarios (ranging fitted also where the RTK truth has no fix)")
+    ap.add_argument("--trusted-truth", action="store_true",
+                    help="also SYNTH_PHY on --trusted-truth scenarios (ranging fitted where the RTK truth is fixed)")
     ap.add_argument("--frame", choices=("route", "turned", "compass"), default="turned",
                     help="the networks' frame (physynth study tracking --frame)")
     ap.add_argument("--turn-test", type=float, default=0.0, help="turn each test run by this many degrees")

@@ -1651,7 +1651,7 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
               static_sweeps: str | os.PathLike | None = None, range_bias: Literal["dynamic", "static"] = "dynamic",
               range_bias_law: Literal["log", "linear"] = "log",
               sources: Sequence[str] | None = None, long_outages: bool = False, tag_pattern: bool = False,
-              run_slopes: bool = False, link_budget: bool = False, trusted_truth: bool = True,
+              run_slopes: bool = False, link_budget: bool = False, trusted_truth: bool = False,
               progress: ProgressCallback | None = None) -> CalibrationResult:
     """Calibrate a scenario on one or several recordings (real or synthetic Traces).
 
@@ -1698,7 +1698,7 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
         dropouts lowered by its mean loss. Off by default (docs/calibration.md, "Fades from the anchor's height").
     trusted_truth
         Fit the ranging channel on the ranges whose truth the recording trusts (outside its
-        ``truth_untrusted_s`` spans; the default). docs/calibration.md, "Where the truth itself errs".
+        ``truth_untrusted_s`` spans). Off by default (docs/calibration.md, "Where the truth itself errs").
     progress
         ``progress(message, done, total)`` before each step (:mod:`physynth.progress`).
     """

@@ -4,7 +4,7 @@
                        [--path-kind auto|polynomial|waypoints] [--name NAME]
                        [--anchor-layout per-run|strict|first] [--layout-from RUN]
                        [--static-sweeps DIR] [--range-bias dynamic|static] [--link-budget]
-                       [--long-outages] [--all-truth]
+                       [--long-outages] [--trusted-truth]
                        [--overwrite] [--quiet]
 
 The command parses, calls :func:`physynth.workflows.calibrate_datasets`, writes the scenario with
@@ -76,10 +76,10 @@ def calibrate_cmd(
                                           "static sweeps, sensitivity from the datasets' own losses, so that "
                                           "detection falls where the ground reflection puts a null (needs "
                                           "--static-sweeps). See docs/calibration.md."),
-    all_truth: bool = typer.Option(False, "--all-truth",
-                                   help="Fit the ranging errors on every range, also where the recording says its "
-                                        "truth errs (by default those ranges are left out of the fit; the share "
-                                        "is always reported). See docs/calibration.md."),
+    trusted_truth: bool = typer.Option(False, "--trusted-truth",
+                                       help="Fit the ranging errors only on the ranges whose truth the recording "
+                                            "trusts (e.g. RTK-fixed; the share is always reported). See "
+                                            "docs/calibration.md."),
     allow_mixed: bool = typer.Option(False, "--allow-mixed",
                                      help="Pool datasets even when they are not the same kind of site."),
     overwrite: bool = typer.Option(False, "--overwrite",
@@ -110,7 +110,7 @@ def calibrate_cmd(
                    static_sweeps=static_sweeps, range_bias=range_bias, range_bias_law=range_bias_law,
                    allow_mixed=allow_mixed,
                    long_outages=long_outages, tag_pattern=tag_pattern, run_slopes=run_slopes,
-                   link_budget=link_budget, trusted_truth=not all_truth)
+                   link_budget=link_budget, trusted_truth=trusted_truth)
 
 
 def _calibrate(datasets: list[Path], out: Path, report: Path | None, quiet: bool, real_out: Path,
