@@ -269,3 +269,31 @@ def test_bad_network_settings_fail_before_any_work():
     with pytest.raises(PhySynthError, match="unknown network setting"):
         StudyConfig(methods=("NOAUG",), net={"hiden": 8})
     assert StudyConfig(methods=("SYNTH_PHY",), net={"lr_schedule": "cosine"}).net == {"lr_schedule": "cosine"}
+
+
+def test_rmse_over_the_trusted_truth_leaves_out_what_the_recording_flags(runs):
+    """A test run whose truth is displaced by 5 m inside a flagged span (a truth that errs): the RMSE over
+    every step grows, the RMSE over the trusted steps is that of the same run with a correct truth, to
+    the last digit (the estimates do not depend on the truth); without spans there is no such figure."""
+    import dataclasses
+
+    from physynth.records import TRUTH_UNTRUSTED_KEY
+
+    scn, rr = runs
+    test = rr[2].trace
+    t0, t1 = float(test.truth.t_s[0]), float(test.truth.t_s[-1])
+    span = [t0 + 0.3 * (t1 - t0), t0 + 0.5 * (t1 - t0)]
+    inside = (test.truth.t_s >= span[0]) & (test.truth.t_s < span[1])
+    pos = test.truth.pos_enu_m.copy()
+    pos[inside, 0] += 5.0
+    meta = {**test.meta, TRUTH_UNTRUSTED_KEY: [span]}
+    wrong = dataclasses.replace(test, truth=dataclasses.replace(test.truth, pos_enu_m=pos), meta=meta)
+    right = dataclasses.replace(test, meta=meta)
+    cfg = StudyConfig(**{**TINY, "methods": ("ekf",)})
+    rows = {}
+    for name, tr in (("wrong", wrong), ("right", right), ("plain", test)):
+        res = run_tracking_study(rr[:2], StudyRun(label="t", trace=tr), scenario=scn, config=cfg)
+        rows[name] = next(r for r in res.rows if r["key"] == "ekf")
+    assert rows["wrong"]["rmse_m"] > 2.0 > 5 * rows["right"]["rmse_m"]
+    assert rows["wrong"]["rmse_trusted_m"] == rows["right"]["rmse_trusted_m"] < rows["right"]["rmse_m"] + 0.05
+    assert rows["plain"]["rmse_trusted_m"] is None

@@ -16,7 +16,7 @@ how often each method beats NOAUG of the same fold and seed.
 
     .venv/bin/python tools/tracking_cv.py [--seeds 0,1] [--jobs 2] [--long-outages] [--tag-pattern] [--frame F]
                                           [--run-slopes] [--link-budget] [--trusted-truth]
-                                          [--turn-test DEG] [--mirror-test] [--methods M,...]
+                                          [--turn-test DEG] [--mirror-test] [--methods M,...] [--trusted-score]
                                           [--study-args "OPTIONS"] [--runs R,R,...] [--out DIR]
 
 ``--turn-test DEG`` / ``--mirror-test`` pass the same options to every study: each left-out run is scored
@@ -81,6 +81,9 @@ def main() -> None:
                     help="also SYNTH_PHY on --link-budget scenarios (static sweeps beside the --data folder)")
     ap.add_argument("--trusted-truth", action="store_true",
                     help="also SYNTH_PHY on --trusted-truth scenarios (ranging fitted where the RTK truth is fixed)")
+    ap.add_argument("--trusted-score", action="store_true",
+                    help="print the RMSE over the steps where the test run's truth is trusted (rmse_trusted_m; "
+                         "the RTK fix of the Hanyang runs) instead of over every step")
     ap.add_argument("--frame", choices=("route", "turned", "compass"), default="turned",
                     help="the networks' frame (physynth study tracking --frame)")
     ap.add_argument("--turn-test", type=float, default=0.0, help="turn each test run by this many degrees")
@@ -149,9 +152,11 @@ def main() -> None:
         for r in rows:
             if tag and r["key"].startswith("ref:"):
                 continue  # the reference rows do not depend on the scenario
-            table.setdefault(r["key"] + tag, {})[(test, seed)] = r["rmse_m"]
+            value = r.get("rmse_trusted_m") if args.trusted_score else r["rmse_m"]
+            table.setdefault(r["key"] + tag, {})[(test, seed)] = np.nan if value is None else value
     keys = [k for base in ORDER for k in (base, *(base + tag for tag, _ in VARIANTS)) if k in table]
-    print(f"leave-one-run-out, quick schedule, seeds {args.seeds}: RMSE (m) per test run, seed by seed")
+    what = "RMSE where the test run's truth is trusted" if args.trusted_score else "RMSE"
+    print(f"leave-one-run-out, quick schedule, seeds {args.seeds}: {what} (m) per test run, seed by seed")
     print("| method | " + " | ".join(r.replace("/", " ") for r in runs) + " | mean | beats NOAUG |")
     print("|---|" + "---|" * (len(runs) + 2))
     for k in keys:

@@ -37,7 +37,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import PhySynthError
-from ..records import Trace
+from ..records import TRUTH_UNTRUSTED_KEY, Trace, untrusted_truth
 from ..scenario import Scenario, scenario_to_dict
 from ..track.inputs import EKF_PRIOR_COAST_S, TrackInput, check_ekf_prior, track_input
 from ..track.reference import reference_estimates
@@ -365,7 +365,9 @@ def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | 
         if len(ests) == len(tests):
             estimates[name] = ests
 
-    rows = _rows(estimates, test_inputs, timing)
+    trusted = [~untrusted_truth(r.trace.meta, inp.t_s) for r, inp in zip(tests, test_inputs, strict=True)]
+    rows = _rows(estimates, test_inputs, timing, trusted if any(r.trace.meta.get(TRUTH_UNTRUSTED_KEY)
+                                                                for r in tests) else None)
     data = {
         "train": [_describe(r) for r in train],
         "test": [_describe(r) for r in tests],
@@ -476,12 +478,17 @@ ROW_NAMES = {
 
 
 def _rows(estimates: dict[str, list[np.ndarray]], test_inputs: list[TrackInput],
-          timing: dict[str, float]) -> list[dict[str, Any]]:
+          timing: dict[str, float], trusted: list[np.ndarray] | None = None) -> list[dict[str, Any]]:
+    """One row of error statistics per method; with ``trusted`` (per test input, the grid steps whose truth
+    the recording trusts) also ``rmse_trusted_m``, the RMSE over those steps only."""
     truth = np.concatenate([i.pos_enu_m for i in test_inputs])
     mask = np.concatenate([i.eval_mask() for i in test_inputs])
+    ok = None if trusted is None else mask & np.concatenate(trusted)
     rows = []
     for name, ests in estimates.items():
-        st = error_stats(np.concatenate(ests), truth, mask)
+        est = np.concatenate(ests)
+        st = error_stats(est, truth, mask)
+        st["rmse_trusted_m"] = None if ok is None else error_stats(est, truth, ok)["rmse_m"]
         rows.append({"method": ROW_NAMES.get(name, name), "key": name, **st, "delta_rmse_pct": None,
                      "fit_s": timing.get(f"{name}.fit_s"), "predict_s": timing.get(f"{name}.predict_s")})
     base = next((r for r in rows if r["key"] == "NOAUG"), None)
@@ -510,6 +517,10 @@ def results_markdown(result: StudyResult) -> str:
         delta = "-" if r["delta_rmse_pct"] is None else f"{r['delta_rmse_pct']:+.1f}"
         lines.append(f"| {r['method']} | {r['rmse_m']:.3f} | {r['rmse_2d_m']:.3f} | {r['mae_m']:.3f} | "
                      f"{r['p50_m']:.3f} | {r['p95_m']:.3f} | {delta} |")
+    trusted = [(r["method"], r["rmse_trusted_m"]) for r in result.rows if r.get("rmse_trusted_m") is not None]
+    if trusted:
+        lines += ["", "RMSE over the steps where the test run's truth is trusted (its recording flags the rest): "
+                  + "; ".join(f"{m} {v:.3f} m" for m, v in trusted) + "."]
     lines += [
         "",
         "Δ RMSE is relative to NOAUG. Errors on the 100 Hz grid against the test run's ground truth; "
