@@ -155,7 +155,7 @@ def test_trusted_truth_calibration_sees_through_the_truth_errors():
 
 
 @real
-def test_cli_imports_the_spans_and_calibrates_and_validates_on_the_trusted_truth(tmp_path):
+def test_cli_imports_the_spans_and_calibrates_and_validates_on_the_trusted_truth(tmp_path, capsys):
     """``physynth import hanyang`` keeps the spans through the dataset files; ``physynth calibrate
     --trusted-truth`` reports the run's untrusted share and that it used them (by default: not);
     ``physynth validate`` leaves the real ranges at untrusted truth out of the residuals, counted
@@ -167,6 +167,9 @@ def test_cli_imports_the_spans_and_calibrates_and_validates_on_the_trusted_truth
 
     ds, scn, rep = tmp_path / "nlos2", tmp_path / "s.yaml", tmp_path / "fit.json"
     main(["import", "hanyang", str(DYN / "NLOS" / "Trajectory_A" / "Case_2"), "--crop-to-uwb", "--out", str(ds), "-q"])
+    capsys.readouterr()
+    main(["inspect", str(ds)])
+    assert "1 trace flags spans where the truth errs" in capsys.readouterr().out
     (trace,) = read_dataset(ds).traces
     direct, _ = import_hanyang(DYN / "NLOS" / "Trajectory_A" / "Case_2", crop_to_uwb=True)
     assert trace.meta[TRUTH_UNTRUSTED_KEY] == direct.meta[TRUTH_UNTRUSTED_KEY]

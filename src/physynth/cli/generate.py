@@ -144,11 +144,15 @@ def inspect_cmd(
     from ..workflows import inspect_dataset
 
     with progress_bar(not quiet) as progress:
-        m, _ = inspect_dataset(dataset, progress=progress)
+        m, meta = inspect_dataset(dataset, progress=progress)
     if as_json:
         typer.echo(json.dumps(jsonable(m.to_dict()), indent=1))
         return
     typer.echo(f"{dataset} - {counted(m.n_traces, 'trace')}, {counted(m.n_residuals, 'range residual')}")
+    flagged = sum(bool(t.get("truth_untrusted_s")) for t in meta.get("traces", []))
+    if flagged:
+        typer.echo(f"({counted(flagged, 'trace')} {'flags' if flagged == 1 else 'flag'} spans where the truth errs "
+                   "(truth_untrusted_s): the ranges there are left out of the residuals; docs/validation.md)")
     rows = []
     for key, value in m.to_dict().items():
         if key == "per_anchor":
