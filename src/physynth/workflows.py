@@ -230,9 +230,8 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
     force : bool
         Generate even when the size estimate exceeds the budget (:func:`physynth.bounds.check_budget`).
     all_truth : bool
-        Compare the real ranges also where the real dataset says its truth errs (``truth_untrusted_s``);
-        by default those ranges are left out of the residual metrics (counted in the report's
-        ``inputs.real.truth``) and kept in availability and age of information.
+        Compare the real ranges also where the dataset says its truth errs (``truth_untrusted_s``; by
+        default left out of the residual metrics, kept in availability, counted in ``inputs.real.truth``).
 
     Raises
     ------
