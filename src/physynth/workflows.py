@@ -199,8 +199,7 @@ def _read(reader: Callable[[str | Path], Any], path: str | Path, role: str) -> A
 def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
                       scenario: str | Path | Scenario | None = None,
                       n: int = 50, seed: int | None = None, transfer: bool = False,
-                      rate_hz: float = DEFAULT_GRID_RATE_HZ,
-                      progress: ProgressCallback | None = None,
+                      rate_hz: float = DEFAULT_GRID_RATE_HZ, progress: ProgressCallback | None = None,
                       anchors: Sequence[str] | None = None, force: bool = False,
                       all_truth: bool = False) -> ValidationReport:
     """Validate a real dataset against a synthetic dataset or against traces generated from a scenario.
