@@ -226,8 +226,9 @@ class Uwb:
 TRUTH_UNTRUSTED_KEY = "truth_untrusted_s"
 """``trace.meta`` key of the spans [[start, end), ...] [s, trace time] where the recording's own truth system
 says its position is unreliable (for an RTK-GNSS truth: no RTK fix, or a position std above 3.2 cm).
-Calibration fits the ranging channel's shape on the ranges outside them (docs/calibration.md, "Where the
-truth itself errs"); absent or empty: every sample is trusted."""
+The residual metrics leave the ranges inside them out, and ``calibrate(..., trusted_truth=True)`` fits the
+ranging channel outside them (docs/calibration.md, "Where the truth itself errs"); absent or empty: every
+sample is trusted."""
 
 
 def untrusted_truth(meta: dict[str, Any], t_s: np.ndarray) -> np.ndarray:
