@@ -72,6 +72,9 @@ def tracking_cmd(
     mirror_test: bool = typer.Option(False, "--mirror-test", help="Mirror every test run (y -> -y about its "
                                      "anchor centroid) before the turn."),
     frame: str = typer.Option("turned", "--frame", metavar="FRAME", help=_FRAME_HELP),
+    train_trusted_truth: bool = typer.Option(False, "--train-trusted-truth",
+                                             help="Train the networks only on the steps where the training "
+                                                  "runs' truth is trusted (their recording flags the rest)."),
     threads: int = typer.Option(1, "--threads", metavar="N", min=1,
                                 help="CPU threads for PyTorch (1: small recurrent nets gain nothing from more, and "
                                      "lose a lot on a shared machine)."),
@@ -98,6 +101,7 @@ def tracking_cmd(
     if frame not in FRAMES:
         raise PhySynthError(f"--frame must be one of {', '.join(FRAMES)}, got '{frame}'")
     over = {"seed": seed, "methods": chosen, "threads": threads, **FRAMES[frame]}
+    over |= {"train_trusted_truth": True} if train_trusted_truth else {}
     over |= {k: v for k, v in (("epochs", epochs), ("pretrain_epochs", pretrain_epochs),
                                 ("finetune_epochs", finetune_epochs), ("n_synth_traces", n_synth),
                                 ("synth_windows_per_trace", synth_windows), ("ekf_prior", ekf_prior),

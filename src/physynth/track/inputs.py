@@ -29,7 +29,7 @@ import numpy as np
 
 from ..constants import DEFAULT_GRID_RATE_HZ
 from ..evaluate.grid import age_of_information, fresh_mask, grid_times, imu_on_grid
-from ..records import Trace, Uwb
+from ..records import Trace, Uwb, untrusted_truth
 
 N_ANCHOR_FEATURES = 9
 """Per-anchor network features: range, anchor position (3), fresh, AoI, has-range, mean range, range - mean."""
@@ -144,12 +144,21 @@ def latest_range(trace: Trace, t_s: np.ndarray) -> np.ndarray:
 
 
 def track_input(trace: Trace, *, time_offset_s: float = 0.0, rate_hz: float = DEFAULT_GRID_RATE_HZ,
-                label: str = "") -> TrackInput:
-    """The grid inputs of one trace (real or synthetic) after removing the UWB lag ``time_offset_s`` [s]."""
+                label: str = "", trusted_truth_only: bool = False) -> TrackInput:
+    """The grid inputs of one trace (real or synthetic) after removing the UWB lag ``time_offset_s`` [s].
+
+    ``trusted_truth_only``: the truth is NaN (unknown) at the grid steps inside the recording's untrusted
+    truth spans (``meta["truth_untrusted_s"]``, :func:`physynth.records.untrusted_truth`; the grid steps
+    are truth times), so that a network is not trained on positions the truth system itself flags, and
+    a score leaves them out. A trace without spans is unchanged.
+    """
     tr = shift_uwb(trace, time_offset_s)
     t_s = grid_times(tr.t0_s, tr.duration_s, rate_hz)
     ref = tr.anchors.pos_enu_m.mean(axis=0) if len(tr.anchors) else np.zeros(3)
     valid_t = tr.uwb.t_s[tr.uwb.valid]
+    pos_rel = tr.truth.position_at(t_s) - ref
+    if trusted_truth_only:
+        pos_rel[untrusted_truth(tr.meta, t_s)] = np.nan
     return TrackInput(
         t_s=t_s,
         range_m=latest_range(tr, t_s),
@@ -157,7 +166,7 @@ def track_input(trace: Trace, *, time_offset_s: float = 0.0, rate_hz: float = DE
         aoi_s=age_of_information(tr, t_s),
         anchor_pos_rel_m=tr.anchors.pos_enu_m - ref,
         acc_mps2=imu_on_grid(tr, t_s, rate_hz) if tr.imu is not None else None,
-        pos_rel_m=tr.truth.position_at(t_s) - ref,
+        pos_rel_m=pos_rel,
         ref_enu_m=ref,
         first_range_s=float(valid_t[0]) if valid_t.size else float("inf"),
         rate_hz=float(rate_hz),
