@@ -257,10 +257,21 @@ def _calibrate_training_runs(traces: Sequence[Trace], progress: ProgressFn) -> t
     return res.scenario, {"anchor_policy": "per-run", "anchor_conflicts": layout.get("conflicts", [])}
 
 
-def _time_offset(traces: Sequence[Trace]) -> tuple[float, dict[str, Any]]:
+def _trusted_ranges(trace: Trace) -> Trace:
+    """The trace with the ranges stamped inside its untrusted truth spans marked undelivered (for fits on
+    truth residuals; the spans are in truth time, the stamps lag it by a fraction of a second)."""
+    u = trace.uwb
+    out = untrusted_truth(trace.meta, u.t_s)
+    if not out.any():
+        return trace
+    uwb = replace(u, range_m=np.where(out, np.nan, u.range_m), reason=None)
+    return replace(trace, uwb=uwb)
+
+
+def _time_offset(traces: Sequence[Trace], trusted_only: bool = False) -> tuple[float, dict[str, Any]]:
     from ..calibrate.uwb_fit import fit_time_offset
 
-    fit = fit_time_offset(list(traces))
+    fit = fit_time_offset([_trusted_ranges(t) for t in traces] if trusted_only else list(traces))
     return float(fit.params), {"offset_s": float(fit.params), "std_error_s": fit.diagnostics.get("std_error_s"),
                                "per_run_s": fit.diagnostics.get("per_run_s")}
 
@@ -308,8 +319,8 @@ def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | 
          say: ProgressFn, t_start: float) -> StudyResult:
     train_traces = [r.trace for r in train]
     say("estimating the UWB time lag on the training runs")
-    offset, offset_info = _time_offset(train_traces)
     trusted_only = cfg.train_trusted_truth
+    offset, offset_info = _time_offset(train_traces, trusted_only)
     train_inputs = [track_input(r.trace, time_offset_s=offset, label=r.label, trusted_truth_only=trusted_only)
                     for r in train]
     test_inputs = [track_input(r.trace, time_offset_s=offset, label=r.label) for r in tests]
