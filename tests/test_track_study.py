@@ -56,6 +56,12 @@ def test_tiny_study_end_to_end_and_results_parse(runs, tmp_path):
     md = files["md"].read_text()
     assert "| Method | RMSE (m)" in md and "NOAUG" in md
     assert files["figure"].stat().st_size > 1000
+    with np.load(files["estimates"]) as est:  # every row's RMSE, recomputed from the saved estimates
+        ok = est["scored"]
+        assert ok.sum() > 1000 and est["trusted"].all() and est["truth_enu_m"].shape == (ok.size, 3)
+        for row in data["rows"]:
+            err = est["estimate/" + row["key"]][ok] - est["truth_enu_m"][ok]
+            assert np.sqrt(np.mean(np.sum(err**2, axis=1))) == pytest.approx(row["rmse_m"], rel=1e-9)
 
 
 def test_study_is_deterministic_for_a_seed(runs):
@@ -271,7 +277,7 @@ def test_bad_network_settings_fail_before_any_work():
     assert StudyConfig(methods=("SYNTH_PHY",), net={"lr_schedule": "cosine"}).net == {"lr_schedule": "cosine"}
 
 
-def test_rmse_over_the_trusted_truth_leaves_out_what_the_recording_flags(runs):
+def test_rmse_over_the_trusted_truth_leaves_out_what_the_recording_flags(runs, tmp_path):
     """A test run whose truth is displaced by 5 m inside a flagged span (a truth that errs): the RMSE over
     every step grows, the RMSE over the trusted steps is that of the same run with a correct truth, to
     the last digit (the estimates do not depend on the truth); without spans there is no such figure."""
@@ -290,13 +296,20 @@ def test_rmse_over_the_trusted_truth_leaves_out_what_the_recording_flags(runs):
     wrong = dataclasses.replace(test, truth=dataclasses.replace(test.truth, pos_enu_m=pos), meta=meta)
     right = dataclasses.replace(test, meta=meta)
     cfg = StudyConfig(**{**TINY, "methods": ("ekf",)})
-    rows = {}
+    rows, res_wrong = {}, None
     for name, tr in (("wrong", wrong), ("right", right), ("plain", test)):
         res = run_tracking_study(rr[:2], StudyRun(label="t", trace=tr), scenario=scn, config=cfg)
         rows[name] = next(r for r in res.rows if r["key"] == "ekf")
+        res_wrong = res if name == "wrong" else res_wrong
     assert rows["wrong"]["rmse_m"] > 2.0 > 5 * rows["right"]["rmse_m"]
     assert rows["wrong"]["rmse_trusted_m"] == rows["right"]["rmse_trusted_m"] < rows["right"]["rmse_m"] + 0.05
     assert rows["plain"]["rmse_trusted_m"] is None
+    with np.load(write_results(res_wrong, tmp_path)["estimates"]) as est:  # the flagged steps, as scored
+        inside = (est["t_s"] >= span[0]) & (est["t_s"] < span[1])
+        np.testing.assert_array_equal(est["trusted"], ~inside)
+        ok = est["scored"] & est["trusted"]
+        err = est["estimate/ekf"][ok] - est["truth_enu_m"][ok]
+        assert np.sqrt(np.mean(np.sum(err**2, axis=1))) == pytest.approx(rows["wrong"]["rmse_trusted_m"], rel=1e-9)
 
 
 def test_training_on_the_trusted_truth_ignores_what_the_recording_flags(runs):

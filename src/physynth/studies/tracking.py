@@ -177,6 +177,8 @@ class StudyResult:
     data: dict[str, Any]
     estimates: dict[str, np.ndarray]
     test_input: TrackInput
+    test_trusted: np.ndarray | None = None
+    """(K,) grid steps of the first test run whose truth its recording trusts (None: every step)."""
 
     def to_json(self) -> dict[str, Any]:
         return {"rows": self.rows, "config": self.config, "data": self.data}
@@ -405,7 +407,8 @@ def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | 
     if "scenario" in notes:
         data["scenario"] = notes.pop("scenario")
     return StudyResult(rows=rows, config=cfg.to_dict(), data=data,
-                       estimates={k: v[0] for k, v in estimates.items()}, test_input=test_inputs[0])
+                       estimates={k: v[0] for k, v in estimates.items()}, test_input=test_inputs[0],
+                       test_trusted=trusted[0])
 
 
 def _input_settings(cfg: StudyConfig) -> dict[str, Any]:
@@ -563,16 +566,38 @@ def results_markdown(result: StudyResult) -> str:
     return "\n".join(lines) + "\n"
 
 
+ESTIMATE_PREFIX = "estimate/"
+"""Key prefix of each method's estimate in ``estimates.npz`` (``estimate/SYNTH_PHY``, ...)."""
+
+
+def estimates_npz(result: StudyResult) -> bytes:
+    """``estimates.npz`` of the (first) test run: ``t_s`` (K,) grid times [s, truth time], ``truth_enu_m``
+    (K, 3) (NaN where unknown), ``scored`` (K,) the steps every row is scored on, ``trusted`` (K,) those
+    whose truth the recording trusts, and ``estimate/<method>`` (K, 3) ENU [m] per row of the table."""
+    import io
+
+    inp = result.test_input
+    trusted = np.ones(inp.n_steps, dtype=bool) if result.test_trusted is None else result.test_trusted
+    arrays = {"t_s": inp.t_s, "truth_enu_m": inp.pos_enu_m, "scored": inp.eval_mask(), "trusted": trusted}
+    arrays |= {ESTIMATE_PREFIX + name: np.asarray(est, dtype=np.float64) for name, est in result.estimates.items()}
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    return buf.getvalue()
+
+
 def write_results(result: StudyResult, out_dir: str | os.PathLike) -> dict[str, Path]:
-    """Write ``results.json``, ``results.md`` and ``paths.png`` (when matplotlib is installed) atomically."""
+    """Write ``results.json``, ``results.md``, ``estimates.npz`` (:func:`estimates_npz`) and ``paths.png``
+    (when matplotlib is installed) atomically."""
     from .._json import jsonable
-    from ..io.atomic import atomic_write_text
+    from ..io.atomic import atomic_write_bytes, atomic_write_text
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     files = {"json": out / "results.json", "md": out / "results.md"}
     atomic_write_text(files["json"], json.dumps(jsonable(result.to_json()), indent=1, allow_nan=True) + "\n")
     atomic_write_text(files["md"], results_markdown(result))
+    files["estimates"] = out / "estimates.npz"
+    atomic_write_bytes(files["estimates"], estimates_npz(result))
     fig = plot_paths(result, out / "paths.png")
     if fig is not None:
         files["figure"] = fig
