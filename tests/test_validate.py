@@ -212,6 +212,15 @@ def test_transfer_keeps_parameters_and_takes_geometry(data, tmp_path):
     assert {"imu", "uwb", "channel", "availability"} <= set(t["from_scenario"])
     assert t["unexpected_changes"] == []
     assert t["anchors"]["transferred"] == ["B1", "B2", "B3", "B4"]
+    assert t["anchors"]["pooled_channel"] == []  # the scenario has no per-anchor channels: nothing to say
+    # a scenario calibrated per anchor on B1 and others: B2-B4 range with its pooled channel, and the report says so
+    own = _scenario_dict(anchors=[{"id": "B1", "pos_enu_m": [50, 20, 3]}, {"id": "A2", "pos_enu_m": [150, -20, 3]}],
+                         channel_per_anchor={"B1": {"los_std_m": 0.2}, "A2": {"los_std_m": 0.3}})
+    per = validate_datasets(tmp_path / "real", scenario=scenario_from_dict(own, "own"), n=1, seed=4, transfer=True)
+    assert per.transfer["anchors"]["pooled_channel"] == ["B2", "B3", "B4"]
+    from physynth.validate.render import render_markdown
+
+    assert "No channel of their own in the scenario (calibrated on other anchors): B2, B3, B4" in render_markdown(per)
     moved = scenario_from_dict(rep.inputs["synthetic"]["scenario_config"], "transferred")
     # every sensor, channel and availability parameter as in the scenario
     for section in ("imu", "channel", "availability", "truth_rate_hz", "grid_rate_hz"):

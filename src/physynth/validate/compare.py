@@ -553,7 +553,10 @@ def transfer_record(before: Scenario, after: Scenario, real_path: str, real_ids:
         "changed_sections": changed,
         "unexpected_changes": unexpected,
         "anchors": {"scenario": list(before.anchor_ids), "real": list(real_ids),
-                    "transferred": list(after.anchor_ids)},
+                    "transferred": list(after.anchor_ids),
+                    # real anchors the scenario has no channel of its own for (when it has per-anchor ones)
+                    "pooled_channel": [i for i in after.anchor_ids
+                                       if before.channel_per_anchor and i not in before.channel_per_anchor]},
         "fit": (after.provenance or {}).get("transfer"),
     }
 

@@ -213,6 +213,9 @@ def _transfer_lines(report: ValidationReport) -> list[str]:
     an = t.get("anchors", {})
     lines.append(f"Anchors: scenario {', '.join(an.get('scenario', []))} -> transferred "
                  f"{', '.join(an.get('transferred', []))} (real {', '.join(an.get('real', []))}).")
+    if an.get("pooled_channel"):
+        lines.append(f"No channel of their own in the scenario (calibrated on other anchors): "
+                     f"{', '.join(an['pooled_channel'])}; they range with the scenario's pooled channel.")
     return lines
 
 
