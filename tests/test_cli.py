@@ -138,7 +138,7 @@ def test_make_run_installs_matplotlib_for_the_readme_figures():
 
 
 @pytest.mark.parametrize("option", ["--epochs", "--pretrain-epochs", "--finetune-epochs", "--n-synth",
-                                    "--synth-windows", "--threads"])
+                                    "--synth-windows", "--threads", "--ensemble"])
 @pytest.mark.parametrize("value", ["0", "-1"])
 def test_study_tracking_refuses_counts_below_one(tmp_path, capsys, option, value):
     code, _, err = run(capsys, "study", "tracking", option, value, "--methods", "ls", "--out", tmp_path / "o")

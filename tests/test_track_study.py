@@ -347,3 +347,30 @@ def test_training_on_the_trusted_truth_ignores_what_the_recording_flags(runs):
             std[shift, trusted] = res.data["notes"]["ekf_range_std_m"]
     assert std[5.0, True] == std[0.0, True]
     assert std[5.0, False] > 1.5 * std[0.0, False]  # robust (MAD): 40 % of the rows 5 m off nearly double it
+
+
+def test_a_seed_ensemble_scores_the_mean_of_the_seeds_studies(runs, tmp_path):
+    """``ensemble=2`` is the two studies of seeds 3 and 4 averaged step by step: each member's rows are those
+    studies' rows to the last digit, and every row of the ensemble scores the mean of their estimates."""
+    from physynth.track.scoring import error_stats
+
+    scn, rr = runs
+    base = {**TINY, "methods": ("NOAUG", "ekf")}
+    single = [run_tracking_study(rr[:2], rr[2], scenario=scn, config=StudyConfig(**base, seed=s)) for s in (3, 4)]
+    ens = run_tracking_study(rr[:2], rr[2], scenario=scn, config=StudyConfig(**base, seed=3, ensemble=2))
+    assert ens.data["ensemble"]["seeds"] == [3, 4] and ens.config["ensemble"] == 2
+    def scores(rows):  # the rows without their timings
+        return [{k: v for k, v in r.items() if k not in ("fit_s", "predict_s")} for r in rows]
+
+    assert [scores(r) for r in ens.data["ensemble"]["member_rows"]] == [scores(s.rows) for s in single]
+    truth, ok = ens.test_input.pos_enu_m, ens.test_input.eval_mask()
+    for row in ens.rows:
+        mean = np.mean([s.estimates[row["key"]] for s in single], axis=0)
+        np.testing.assert_array_equal(ens.estimates[row["key"]], mean)
+        assert row["rmse_m"] == error_stats(mean, truth, ok)["rmse_m"]
+    noaug = [next(r["rmse_m"] for r in s.rows if r["key"] == "NOAUG") for s in single]
+    assert noaug[0] != noaug[1]  # the members differ: an ensemble of one network twice would prove nothing
+    md = write_results(ens, tmp_path)["md"].read_text()
+    assert "seed ensemble: every row scores the mean of 2 studies' estimates (seeds 3, 4" in md
+    with pytest.raises(PhySynthError, match="ensemble must be at least 1"):
+        StudyConfig(**base, ensemble=0)

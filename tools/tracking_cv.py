@@ -17,7 +17,11 @@ how often each method beats NOAUG of the same fold and seed.
     .venv/bin/python tools/tracking_cv.py [--seeds 0,1] [--jobs 2] [--long-outages] [--tag-pattern] [--frame F]
                                           [--run-slopes] [--link-budget] [--trusted-truth]
                                           [--turn-test DEG] [--mirror-test] [--methods M,...] [--trusted-score]
-                                          [--study-args "OPTIONS"] [--runs R,R,...] [--out DIR]
+                                          [--ensemble] [--study-args "OPTIONS"] [--runs R,R,...] [--out DIR]
+
+``--ensemble`` also prints the seed ensemble: per fold, each method's estimates (the studies'
+``estimates.npz``) averaged over the seeds and scored like one study's row, beside the mean of the seeds
+scored one by one.
 
 ``--turn-test DEG`` / ``--mirror-test`` pass the same options to every study: each left-out run is scored
 turned by DEG about the vertical through its anchor centroid (and mirrored): the same ranges in a world
@@ -84,6 +88,9 @@ def main() -> None:
     ap.add_argument("--trusted-score", action="store_true",
                     help="print the RMSE over the steps where the test run's truth is trusted (rmse_trusted_m; "
                          "the RTK fix of the Hanyang runs) instead of over every step")
+    ap.add_argument("--ensemble", action="store_true",
+                    help="also score the seed ensemble: each method's estimates averaged over the seeds "
+                         "(from each study's estimates.npz)")
     ap.add_argument("--frame", choices=("route", "turned", "compass"), default="turned",
                     help="the networks' frame (physynth study tracking --frame)")
     ap.add_argument("--turn-test", type=float, default=0.0, help="turn each test run by this many degrees")
@@ -167,6 +174,42 @@ def main() -> None:
         beats = f"{wins}/{len(runs) * len(seeds)}" if ref else "-"  # NOAUG not among --methods
         print(f"| {k} | " + " | ".join(cells) + f" | {np.mean([v[(r, s)] for r in runs for s in seeds]):.3f} "
               f"| {beats} |")
+    if args.ensemble:
+        _print_ensemble(args.out, runs, seeds, trusted=args.trusted_score)
+
+
+def _rmse(est: np.ndarray, truth: np.ndarray, ok: np.ndarray) -> float:
+    from physynth.track.scoring import error_stats  # as the study scores (steps without an estimate left out)
+
+    return error_stats(est, truth, ok)["rmse_m"]
+
+
+def _print_ensemble(out: Path, runs: tuple[str, ...], seeds: list[int], *, trusted: bool) -> None:
+    """The seed ensemble: per fold, every method's estimate averaged over the seeds' studies (their
+    ``estimates.npz``), scored as the studies score (over ``scored``, and ``trusted`` with --trusted-score)."""
+    if len(seeds) < 2:
+        raise SystemExit("--ensemble needs two or more --seeds")
+    table: dict[str, dict[str, tuple[float, float]]] = {}
+    for run in runs:
+        files = [out / f"{_name(run)}-s{s}" / "estimates.npz" for s in seeds]
+        missing = [str(f) for f in files if not f.is_file()]
+        if missing:
+            raise SystemExit(f"--ensemble: no estimates.npz in {', '.join(missing)} (studies of an older release?)")
+        loaded = [np.load(f) for f in files]
+        ok = loaded[0]["scored"] & (loaded[0]["trusted"] if trusted else True)
+        truth = loaded[0]["truth_enu_m"]
+        for key in (k for k in loaded[0].files if k.startswith("estimate/")):
+            ests = [d[key] for d in loaded]
+            single = float(np.mean([_rmse(e, truth, ok) for e in ests]))
+            table.setdefault(key.split("/", 1)[1], {})[run] = (single, _rmse(np.mean(ests, axis=0), truth, ok))
+    print(f"\nseed ensemble (estimates averaged over seeds {','.join(map(str, seeds))}): RMSE (m) of the "
+          "ensemble, with the mean of the single seeds in brackets")
+    print("| method | " + " | ".join(r.replace("/", " ") for r in runs) + " | mean |")
+    print("|---|" + "---|" * (len(runs) + 1))
+    for k, v in table.items():
+        cells = [f"{v[r][1]:.3f} ({v[r][0]:.3f})" for r in runs]
+        print(f"| {k} | " + " | ".join(cells) + f" | {np.mean([v[r][1] for r in runs]):.3f} "
+              f"({np.mean([v[r][0] for r in runs]):.3f}) |")
 
 
 if __name__ == "__main__":

@@ -72,6 +72,9 @@ def tracking_cmd(
     mirror_test: bool = typer.Option(False, "--mirror-test", help="Mirror every test run (y -> -y about its "
                                      "anchor centroid) before the turn."),
     frame: str = typer.Option("turned", "--frame", metavar="FRAME", help=_FRAME_HELP),
+    ensemble: int = typer.Option(1, "--ensemble", metavar="K", min=1,
+                                 help="Run the study for K seeds from --seed on and score the mean of their "
+                                      "estimates (a seed ensemble; K times the compute)."),
     train_trusted_truth: bool = typer.Option(False, "--train-trusted-truth",
                                              help="Train the networks only on the steps where the training "
                                                   "runs' truth is trusted (their recording flags the rest)."),
@@ -102,6 +105,7 @@ def tracking_cmd(
         raise PhySynthError(f"--frame must be one of {', '.join(FRAMES)}, got '{frame}'")
     over = {"seed": seed, "methods": chosen, "threads": threads, **FRAMES[frame]}
     over |= {"train_trusted_truth": True} if train_trusted_truth else {}
+    over |= {"ensemble": ensemble} if ensemble > 1 else {}
     over |= {k: v for k, v in (("epochs", epochs), ("pretrain_epochs", pretrain_epochs),
                                 ("finetune_epochs", finetune_epochs), ("n_synth_traces", n_synth),
                                 ("synth_windows_per_trace", synth_windows), ("ekf_prior", ekf_prior),

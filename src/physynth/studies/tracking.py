@@ -104,6 +104,11 @@ class StudyConfig:
     trusted_truth_only=True)``): the networks are not trained on, and the ``ekf`` not fitted on, the grid
     steps inside the untrusted truth spans (the Hanyang RTK track without its fix). Test runs are scored
     as always (``rmse_m`` every step, ``rmse_trusted_m`` the trusted ones)."""
+    ensemble: int = 1
+    """Members of a seed ensemble: the study runs once per seed ``seed``, ``seed + 1``, ...,
+    ``seed + ensemble - 1`` (each a whole study: every network retrained, SYNTH_PHY on its own synthetic
+    traces) and every row scores the mean of the members' estimates, step by step. ``results.json`` keeps
+    each member's own rows (``data.ensemble.member_rows``). ``ensemble`` times the compute."""
     threads: int = 1
 
     def __post_init__(self) -> None:
@@ -117,7 +122,7 @@ class StudyConfig:
             raise PhySynthError("route_frame needs random_isometry off (random turns would remove the route "
                                 "heading the frame keeps)")
         for name in ("epochs", "pretrain_epochs", "finetune_epochs", "n_synth_traces", "synth_windows_per_trace",
-                     "gan_steps", "threads"):
+                     "gan_steps", "threads", "ensemble"):
             if getattr(self, name) < 1:  # 0 epochs would report an untrained network
                 raise PhySynthError(f"{name} must be at least 1, got {getattr(self, name)}")
         if not 0.0 <= self.finetune_synth_ratio <= 100.0:
@@ -179,6 +184,8 @@ class StudyResult:
     test_input: TrackInput
     test_trusted: np.ndarray | None = None
     """(K,) grid steps of the first test run whose truth its recording trusts (None: every step)."""
+    estimates_per_test: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    """Every method's estimates on every test run (``estimates`` holds the first test run's)."""
 
     def to_json(self) -> dict[str, Any]:
         return {"rows": self.rows, "config": self.config, "data": self.data}
@@ -300,7 +307,8 @@ def run_tracking_study(train: Sequence[StudyRun], test: StudyRun | Sequence[Stud
     if torch is not None:
         torch.set_num_threads(cfg.threads)
     try:
-        result = _run(train, tests, scenario, cfg, say, t_start)
+        result = (_run(train, tests, scenario, cfg, say, t_start) if cfg.ensemble == 1
+                  else _run_ensemble(train, tests, scenario, cfg, say, t_start))
         result.data["cpu_time_s"] = time.process_time() - cpu_start  # this process, all threads
         return result
     finally:
@@ -408,7 +416,36 @@ def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | 
         data["scenario"] = notes.pop("scenario")
     return StudyResult(rows=rows, config=cfg.to_dict(), data=data,
                        estimates={k: v[0] for k, v in estimates.items()}, test_input=test_inputs[0],
-                       test_trusted=trusted[0])
+                       test_trusted=trusted[0], estimates_per_test=estimates)
+
+
+def _run_ensemble(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | None, cfg: StudyConfig,
+                  say: ProgressFn, t_start: float) -> StudyResult:
+    """``cfg.ensemble`` whole studies, seeds ``cfg.seed`` on; every row scores the mean of their estimates."""
+    members = []
+    for j in range(cfg.ensemble):
+        seed = cfg.seed + j
+        prefix = f"ensemble member {j + 1}/{cfg.ensemble} (seed {seed}): "
+        members.append(_run(train, tests, scenario, replace(cfg, seed=seed, ensemble=1),
+                            lambda m, prefix=prefix: say(prefix + m), t_start))
+    first = members[0]
+    mean = {name: [np.mean([m.estimates_per_test[name][i] for m in members], axis=0) for i in range(len(tests))]
+            for name in first.estimates_per_test}
+    offset = first.data["time_offset"]["offset_s"]
+    test_inputs = [track_input(r.trace, time_offset_s=offset, label=r.label) for r in tests]
+    trusted = [~untrusted_truth(r.trace.meta, inp.t_s) for r, inp in zip(tests, test_inputs, strict=True)]
+    timing: dict[str, float] = {}
+    for m in members:
+        for k, v in m.data["timing_s"].items():
+            timing[k] = timing.get(k, 0.0) + v
+    rows = _rows(mean, test_inputs, timing, trusted if any(r.trace.meta.get(TRUTH_UNTRUSTED_KEY)
+                                                           for r in tests) else None)
+    data = {**first.data, "timing_s": timing, "wall_time_s": time.perf_counter() - t_start,
+            "ensemble": {"members": cfg.ensemble, "seeds": [cfg.seed + j for j in range(cfg.ensemble)],
+                         "scored": "every row: the mean of the members' estimates at each grid step",
+                         "member_rows": [m.rows for m in members]}}
+    return StudyResult(rows=rows, config=cfg.to_dict(), data=data, estimates={k: v[0] for k, v in mean.items()},
+                       test_input=test_inputs[0], test_trusted=trusted[0], estimates_per_test=mean)
 
 
 def _input_settings(cfg: StudyConfig) -> dict[str, Any]:
@@ -550,6 +587,9 @@ def results_markdown(result: StudyResult) -> str:
         "",
         f"- training runs: {', '.join(t['label'] for t in d['train'])}",
         f"- UWB time lag removed: {d['time_offset']['offset_s']:.3f} s (estimated on the training runs)",
+        *([f"- seed ensemble: every row scores the mean of {d['ensemble']['members']} studies' estimates (seeds "
+           f"{', '.join(map(str, d['ensemble']['seeds']))}; each member's own rows in results.json)"]
+          if d.get("ensemble") else []),
         f"- schedule: {c['epochs']} epochs at {c['lr']:g}; SYNTH_PHY {c['pretrain_epochs']} pre-training epochs "
         f"at {c['pretrain_lr']:g} on {c['n_synth_traces']} synthetic traces, then {c['finetune_epochs']} "
         f"fine-tuning epochs at {c['finetune_lr']:g}"
