@@ -73,7 +73,7 @@ def _name(run: str) -> str:
     return run.replace("/", "-")
 
 
-def main() -> None:
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA, help="Hanyang Dynamic_measurements folder")
     ap.add_argument("--seeds", default="0,1", help="comma-separated seeds")
@@ -102,7 +102,11 @@ def main() -> None:
     ap.add_argument("--study-args", default="",
                     help='more options for every study, e.g. "--n-synth 96 --pretrain-epochs 15"')
     ap.add_argument("--out", type=Path, default=Path("runs/tracking-cv"))
-    args = ap.parse_args()
+    return ap
+
+
+def main() -> None:
+    args = _parser().parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     runs = tuple(r.strip() for r in args.runs.split(",") if r.strip())
     if len(runs) < 2 or len(set(runs)) < len(runs) or not set(runs) <= set(RUNS):

@@ -22,6 +22,10 @@ FRAMES = {"route": {"route_frame": True, "random_isometry": False},
 """``--frame`` choices and the study settings each one stands for."""
 
 
+_ENSEMBLE_HELP = ("Run the study for K seeds from --seed on and score the mean of their estimates (a seed "
+                  "ensemble; K times the compute).")
+_TRUSTED_HELP = ("Train the networks only on the steps where the training runs' truth is trusted (their "
+                 "recording flags the rest).")
 _FRAME_HELP = ("How the networks see direction. turned (default): training windows turned and "
                "mirrored at random, 8 turned copies at test: no prior tied to a heading, so runs "
                "along other directions and of other shapes are tracked. route: every run turned so "
@@ -72,12 +76,8 @@ def tracking_cmd(
     mirror_test: bool = typer.Option(False, "--mirror-test", help="Mirror every test run (y -> -y about its "
                                      "anchor centroid) before the turn."),
     frame: str = typer.Option("turned", "--frame", metavar="FRAME", help=_FRAME_HELP),
-    ensemble: int = typer.Option(1, "--ensemble", metavar="K", min=1,
-                                 help="Run the study for K seeds from --seed on and score the mean of their "
-                                      "estimates (a seed ensemble; K times the compute)."),
-    train_trusted_truth: bool = typer.Option(False, "--train-trusted-truth",
-                                             help="Train the networks only on the steps where the training "
-                                                  "runs' truth is trusted (their recording flags the rest)."),
+    ensemble: int = typer.Option(1, "--ensemble", metavar="K", min=1, help=_ENSEMBLE_HELP),
+    train_trusted_truth: bool = typer.Option(False, "--train-trusted-truth", help=_TRUSTED_HELP),
     threads: int = typer.Option(1, "--threads", metavar="N", min=1,
                                 help="CPU threads for PyTorch (1: small recurrent nets gain nothing from more, and "
                                      "lose a lot on a shared machine)."),
@@ -104,23 +104,17 @@ def tracking_cmd(
     if frame not in FRAMES:
         raise PhySynthError(f"--frame must be one of {', '.join(FRAMES)}, got '{frame}'")
     over = {"seed": seed, "methods": chosen, "threads": threads, **FRAMES[frame]}
-    over |= {"train_trusted_truth": True} if train_trusted_truth else {}
-    over |= {"ensemble": ensemble} if ensemble > 1 else {}
-    over |= {k: v for k, v in (("epochs", epochs), ("pretrain_epochs", pretrain_epochs),
-                                ("finetune_epochs", finetune_epochs), ("n_synth_traces", n_synth),
-                                ("synth_windows_per_trace", synth_windows), ("ekf_prior", ekf_prior),
-                                ("finetune_synth_ratio", finetune_synth_ratio)) if v is not None}
-    net = {k: v for k, v in (("lr_schedule", lr_schedule), ("weight_average", weight_average)) if v is not None}
+    over |= _given(epochs=epochs, pretrain_epochs=pretrain_epochs, finetune_epochs=finetune_epochs,
+                   n_synth_traces=n_synth, synth_windows_per_trace=synth_windows, ekf_prior=ekf_prior,
+                   finetune_synth_ratio=finetune_synth_ratio, train_trusted_truth=train_trusted_truth or None,
+                   ensemble=ensemble if ensemble > 1 else None)
+    net = _given(lr_schedule=lr_schedule, weight_average=weight_average)
     over |= {"net": net} if net else {}
     cfg = quick_config(**over) if quick else StudyConfig(**over)
     if NETWORK_METHODS & set(cfg.methods):
         require_torch()
     train_runs, test_runs = _load_runs(train, test)
-    scn = None
-    if scenario is not None:
-        from ..io.scenario_file import load_scenario
-
-        scn = load_scenario(scenario)
+    scn = _scenario(scenario)
     if turn_test or mirror_test:
         test_runs = _turned(test_runs, turn_test, mirror_test)
     if quiet:
@@ -138,6 +132,20 @@ def tracking_cmd(
     _print_table(result, test_runs)
     typer.echo(f"wrote {', '.join(str(f) for f in files.values())} "
                f"(wall time {result.data['wall_time_s']:.0f} s)")
+
+
+def _scenario(name: str | None):
+    """The ``--scenario`` given (a preset name or a file), or None: SYNTH_PHY calibrates its own."""
+    if name is None:
+        return None
+    from ..io.scenario_file import load_scenario
+
+    return load_scenario(name)
+
+
+def _given(**options: object) -> dict[str, object]:
+    """The options the user gave (None: left to the schedule's default)."""
+    return {k: v for k, v in options.items() if v is not None}
 
 
 def _load_runs(train: list[Path] | None, test: list[Path] | None) -> tuple[list, list]:
