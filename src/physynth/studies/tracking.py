@@ -102,8 +102,9 @@ class StudyConfig:
     train_trusted_truth: bool = False
     """The training runs' truth counts only where their recording trusts it (``track_input(...,
     trusted_truth_only=True)``): the networks are not trained on, and the ``ekf`` not fitted on, the grid
-    steps inside the untrusted truth spans (the Hanyang RTK track without its fix). Test runs are scored
-    as always (``rmse_m`` every step, ``rmse_trusted_m`` the trusted ones)."""
+    steps inside the untrusted truth spans (the Hanyang RTK track without its fix), and the UWB lag is
+    estimated on the ranges outside them. Test runs are scored as always (``rmse_m`` every step,
+    ``rmse_trusted_m`` the trusted ones). Measured in docs/tracking.md: no gain, so it is off."""
     ensemble: int = 1
     """Members of a seed ensemble: the study runs once per seed ``seed``, ``seed + 1``, ...,
     ``seed + ensemble - 1`` (each a whole study: every network retrained, SYNTH_PHY on its own synthetic
