@@ -187,6 +187,8 @@ class StudyResult:
     """(K,) grid steps of the first test run whose truth its recording trusts (None: every step)."""
     estimates_per_test: dict[str, list[np.ndarray]] = field(default_factory=dict)
     """Every method's estimates on every test run (``estimates`` holds the first test run's)."""
+    test_inputs: list[TrackInput] = field(default_factory=list)
+    """Every test run's inputs (``test_input`` is the first)."""
 
     def to_json(self) -> dict[str, Any]:
         return {"rows": self.rows, "config": self.config, "data": self.data}
@@ -395,9 +397,7 @@ def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | 
         if len(ests) == len(tests):
             estimates[name] = ests
 
-    trusted = [~untrusted_truth(r.trace.meta, inp.t_s) for r, inp in zip(tests, test_inputs, strict=True)]
-    rows = _rows(estimates, test_inputs, timing, trusted if any(r.trace.meta.get(TRUTH_UNTRUSTED_KEY)
-                                                                for r in tests) else None)
+    rows, trusted = _score(estimates, tests, test_inputs, timing)
     data = {
         "train": [_describe(r) for r in train],
         "test": [_describe(r) for r in tests],
@@ -417,7 +417,16 @@ def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | 
         data["scenario"] = notes.pop("scenario")
     return StudyResult(rows=rows, config=cfg.to_dict(), data=data,
                        estimates={k: v[0] for k, v in estimates.items()}, test_input=test_inputs[0],
-                       test_trusted=trusted[0], estimates_per_test=estimates)
+                       test_trusted=trusted[0], estimates_per_test=estimates, test_inputs=test_inputs)
+
+
+def _score(estimates: dict[str, list[np.ndarray]], tests: Sequence[StudyRun], test_inputs: list[TrackInput],
+           timing: dict[str, float]) -> tuple[list[dict[str, Any]], list[np.ndarray]]:
+    """The rows of ``estimates`` on the test runs, and each test input's trusted steps (``rmse_trusted_m``
+    only when some test run flags spans where its truth errs)."""
+    trusted = [~untrusted_truth(r.trace.meta, inp.t_s) for r, inp in zip(tests, test_inputs, strict=True)]
+    flagged = any(r.trace.meta.get(TRUTH_UNTRUSTED_KEY) for r in tests)
+    return _rows(estimates, test_inputs, timing, trusted if flagged else None), trusted
 
 
 def _run_ensemble(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | None, cfg: StudyConfig,
@@ -432,21 +441,19 @@ def _run_ensemble(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Sc
     first = members[0]
     mean = {name: [np.mean([m.estimates_per_test[name][i] for m in members], axis=0) for i in range(len(tests))]
             for name in first.estimates_per_test}
-    offset = first.data["time_offset"]["offset_s"]
-    test_inputs = [track_input(r.trace, time_offset_s=offset, label=r.label) for r in tests]
-    trusted = [~untrusted_truth(r.trace.meta, inp.t_s) for r, inp in zip(tests, test_inputs, strict=True)]
+    test_inputs = first.test_inputs  # the same in every member (the lag comes from the training runs)
     timing: dict[str, float] = {}
     for m in members:
         for k, v in m.data["timing_s"].items():
             timing[k] = timing.get(k, 0.0) + v
-    rows = _rows(mean, test_inputs, timing, trusted if any(r.trace.meta.get(TRUTH_UNTRUSTED_KEY)
-                                                           for r in tests) else None)
+    rows, trusted = _score(mean, tests, test_inputs, timing)
     data = {**first.data, "timing_s": timing, "wall_time_s": time.perf_counter() - t_start,
             "ensemble": {"members": cfg.ensemble, "seeds": [cfg.seed + j for j in range(cfg.ensemble)],
                          "scored": "every row: the mean of the members' estimates at each grid step",
                          "member_rows": [m.rows for m in members]}}
     return StudyResult(rows=rows, config=cfg.to_dict(), data=data, estimates={k: v[0] for k, v in mean.items()},
-                       test_input=test_inputs[0], test_trusted=trusted[0], estimates_per_test=mean)
+                       test_input=test_inputs[0], test_trusted=trusted[0], estimates_per_test=mean,
+                       test_inputs=test_inputs)
 
 
 def _input_settings(cfg: StudyConfig) -> dict[str, Any]:
