@@ -15,7 +15,7 @@ from physynth.generate import compile_scenario, generate_traces
 from physynth.validate.compare import compare, read_report
 from physynth.validate.figures import available_figures, render_figures
 from physynth.validate.render import render_html, render_markdown, write_report
-from physynth.validate.tables import table_validation
+from physynth.validate.tables import table_per_anchor, table_validation
 
 
 @pytest.fixture(scope="module")
@@ -37,6 +37,12 @@ def test_validation_table_shows_the_reports_numbers(report):
     typical = float(rows["Mean AoI (s)"][2].split("median run ")[1].rstrip(")"))
     assert typical == pytest.approx(report.comparison["mean_aoi_s"]["typical"], abs=6e-4)
     assert float(rows["Fidelity score S"][2]) == pytest.approx(report.fidelity_score, abs=6e-4)
+    anchors = {row[0]: row for row in table_per_anchor(report).rows}
+    assert set(anchors) == set(report.per_anchor)
+    for a, row in anchors.items():  # the per-anchor mean AoI: real / the median synthetic run's
+        real, synth = (float(v) for v in row[3].split(" / "))
+        assert real == pytest.approx(report.per_anchor[a]["real"]["mean_aoi_s"], abs=0.006), a
+        assert synth == pytest.approx(report.per_anchor[a]["typical"]["mean_aoi_s"], abs=0.006), a
 
 
 def test_markdown_and_html_hold_every_table_and_figure(report):

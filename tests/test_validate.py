@@ -391,6 +391,14 @@ def test_comparison_bands_and_absolute_median(data, full_report):
     assert aoi["synthetic"] == pytest.approx(compute_metrics(traces).mean_aoi_s)
     assert aoi["deviation"] == pytest.approx(100 * abs(typical - rep["real"]["mean_aoi_s"]) / rep["real"]["mean_aoi_s"])
     assert all("typical" not in comp[k] for k in ("uwb_ge1_frac", "abs_residual_p95_m"))
+    # and per anchor: against that anchor's own median synthetic run, the pooled value kept beside it
+    pooled = compute_metrics(traces).to_dict()["per_anchor"]
+    for a, d in rep["per_anchor"].items():
+        own = [compute_metrics([t]).to_dict()["per_anchor"][a]["mean_aoi_s"] for t in traces]
+        assert d["typical"]["mean_aoi_s"] == pytest.approx(float(np.median(own))), a
+        assert d["synthetic"]["mean_aoi_s"] == pytest.approx(pooled[a]["mean_aoi_s"])
+        real = d["real"]["mean_aoi_s"]
+        assert d["relative_deviation_pct"]["mean_aoi_s"] == pytest.approx(100 * abs(np.median(own) - real) / real), a
     assert len(comp["imu_std_mps2"]) == 3 and all(len(c["band_5_95"]) == 2 for c in comp["imu_std_mps2"])
     for page in ("report.md", "report.html"):
         text = (full_report / page).read_text()

@@ -45,7 +45,16 @@ from ..evaluate.stats import (
     wasserstein,
 )
 from ..records import Trace
-from .evidence import ACF_MAX_LAG, ALLAN_TAUS_S, Evidence, SideEvidence, _num, _SideAccumulator
+from .evidence import (
+    ACF_MAX_LAG,
+    ALLAN_TAUS_S,
+    PER_TRACE_ANCHOR_KEY,
+    TYPICAL_METRICS,
+    Evidence,
+    SideEvidence,
+    _num,
+    _SideAccumulator,
+)
 
 if TYPE_CHECKING:
     from ..scenario import Scenario
@@ -53,16 +62,6 @@ if TYPE_CHECKING:
 SIGNED_METRICS = ("residual_median_m",)
 """Metrics that are signed and may lie near zero: compared by their absolute difference synth - real
 (a relative deviation of a 1 cm median is meaningless); ``relative_deviation_pct`` holds None for them."""
-
-TYPICAL_METRICS = ("mean_aoi_s",)
-"""Heavy-tailed metrics whose deviation is taken against the ensemble's typical value, not its pooled one.
-
-The mean AoI integrates the square of every gap, so one rare long outage moves a run's value by an order
-of magnitude (Hanyang LOS Case_2: 1.04 s against 0.06-0.12 s for the other runs). The pooled synthetic
-value is the expectation over runs, dominated by the rare ones; a single real run is one draw, most often
-without such an outage. Its deviation is therefore taken against :func:`typical_value`, the median over
-groups of as many synthetic traces as the real side holds; ``synthetic`` keeps the pooled value and the
-band says whether the real run could be one of the synthetic ones."""
 
 BAND_PERCENTILES = (5.0, 95.0)
 """The synthetic ensemble's band of a metric: these percentiles of its per-trace values."""
@@ -374,6 +373,19 @@ PER_ANCHOR_DEVIATION_KEYS = ("fresh_frac", "mean_aoi_s", "residual_std_m", "resi
                              "abs_residual_p95_m", "abs_residual_p99_m")
 
 
+def _anchor_typical(synth: SideEvidence, anchor: str, pooled: Mapping[str, Any], n_real: int) -> dict[str, float]:
+    """The :data:`TYPICAL_METRICS` of one anchor over groups of ``n_real`` synthetic traces (as Table II's)."""
+    out = {}
+    for k in TYPICAL_METRICS:
+        if len(synth.per_trace) <= n_real:  # one group of every trace: exactly the pooled value
+            out[k] = _num(pooled.get(k))
+            continue
+        rows = [{k: t[PER_TRACE_ANCHOR_KEY][k].get(anchor), "duration_s": t.get("duration_s")}
+                for t in synth.per_trace]
+        out[k] = typical_value(rows, k, n_real)
+    return out
+
+
 def _per_anchor(real: SideEvidence, synth: SideEvidence) -> dict[str, Any]:
     ids = list(real.metrics.per_anchor) + [a for a in synth.metrics.per_anchor if a not in real.metrics.per_anchor]
     out: dict[str, Any] = {}
@@ -381,11 +393,16 @@ def _per_anchor(real: SideEvidence, synth: SideEvidence) -> dict[str, Any]:
         ra = real.residual_m[real.residual_anchor == a]
         sa = synth.residual_m[synth.residual_anchor == a]
         pr, ps = real.metrics.per_anchor.get(a), synth.metrics.per_anchor.get(a)
+        typical = _anchor_typical(synth, a, ps, real.n_traces) if ps is not None else {}
+        deviations = None
+        if pr is not None and ps is not None:
+            deviations = _deviations(pr, ps, PER_ANCHOR_DEVIATION_KEYS)
+            deviations.update({k: relative_deviation_pct(_num(pr.get(k)), v) for k, v in typical.items()})
         out[a] = {
             "real": pr,
             "synthetic": ps,
-            "relative_deviation_pct": (_deviations(pr, ps, PER_ANCHOR_DEVIATION_KEYS)
-                                       if pr is not None and ps is not None else None),
+            "typical": typical or None,
+            "relative_deviation_pct": deviations,
             "ks_statistic": ks_statistic(ra, sa),
             "residual_wasserstein_m": wasserstein(ra, sa),
             "gap_ks_statistic": ks_statistic(real.gap_s[real.gap_anchor == a], synth.gap_s[synth.gap_anchor == a]),
