@@ -138,11 +138,17 @@ def test_make_run_installs_matplotlib_for_the_readme_figures():
 
 
 @pytest.mark.parametrize("option", ["--epochs", "--pretrain-epochs", "--finetune-epochs", "--n-synth",
-                                    "--synth-windows", "--threads", "--ensemble"])
+                                    "--synth-windows", "--threads", "--ensemble", "--jobs"])
 @pytest.mark.parametrize("value", ["0", "-1"])
 def test_study_tracking_refuses_counts_below_one(tmp_path, capsys, option, value):
     code, _, err = run(capsys, "study", "tracking", option, value, "--methods", "ls", "--out", tmp_path / "o")
     assert code == 2 and err.count("\n") == 1 and option in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_study_tracking_jobs_without_an_ensemble_is_one_line(tmp_path, capsys):
+    code, _, err = run(capsys, "study", "tracking", "--jobs", "2", "--methods", "ls", "--out", tmp_path / "o")
+    assert code == 2 and err.count("\n") == 1 and "--jobs 2" in err and "--ensemble" in err
     assert not (tmp_path / "o").exists()
 
 

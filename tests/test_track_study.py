@@ -368,9 +368,20 @@ def test_a_seed_ensemble_scores_the_mean_of_the_seeds_studies(runs, tmp_path):
         mean = np.mean([s.estimates[row["key"]] for s in single], axis=0)
         np.testing.assert_array_equal(ens.estimates[row["key"]], mean)
         assert row["rmse_m"] == error_stats(mean, truth, ok)["rmse_m"]
+    # the same members trained at once in two processes: the same numbers, and every member's progress
+    said: list[str] = []
+    par = run_tracking_study(rr[:2], rr[2], scenario=scn, config=StudyConfig(**base, seed=3, ensemble=2, jobs=2),
+                             progress=said.append)
+    assert [scores(r) for r in par.data["ensemble"]["member_rows"]] == [scores(s.rows) for s in single]
+    for row in ens.rows:
+        np.testing.assert_array_equal(par.estimates[row["key"]], ens.estimates[row["key"]])
+    assert {m.split(":")[0] for m in said} == {"ensemble member 1/2 (seed 3)", "ensemble member 2/2 (seed 4)"}
+    assert par.data["cpu_time_s"] > 0.5 * sum(par.data["timing_s"].values())  # the members' CPU time counted
     noaug = [next(r["rmse_m"] for r in s.rows if r["key"] == "NOAUG") for s in single]
     assert noaug[0] != noaug[1]  # the members differ: an ensemble of one network twice would prove nothing
     md = write_results(ens, tmp_path)["md"].read_text()
     assert "seed ensemble: every row scores the mean of 2 studies' estimates (seeds 3, 4" in md
     with pytest.raises(PhySynthError, match="ensemble must be at least 1"):
         StudyConfig(**base, ensemble=0)
+    with pytest.raises(PhySynthError, match="it needs ensemble >= 2"):
+        StudyConfig(**base, jobs=2)

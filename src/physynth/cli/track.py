@@ -24,6 +24,8 @@ FRAMES = {"route": {"route_frame": True, "random_isometry": False},
 
 _ENSEMBLE_HELP = ("Run the study for K seeds from --seed on and score the mean of their estimates (a seed "
                   "ensemble; K times the compute).")
+_JOBS_HELP = ("With --ensemble: train this many members at once, each in a process of its own (on a machine "
+              "with cores to spare; the results do not depend on it).")
 _TRUSTED_HELP = ("Train the networks only on the steps where the training runs' truth is trusted (their "
                  "recording flags the rest).")
 _FRAME_HELP = ("How the networks see direction. turned (default): training windows turned and "
@@ -77,6 +79,7 @@ def tracking_cmd(
                                      "anchor centroid) before the turn."),
     frame: str = typer.Option("turned", "--frame", metavar="FRAME", help=_FRAME_HELP),
     ensemble: int = typer.Option(1, "--ensemble", metavar="K", min=1, help=_ENSEMBLE_HELP),
+    jobs: int = typer.Option(1, "--jobs", metavar="N", min=1, help=_JOBS_HELP),
     train_trusted_truth: bool = typer.Option(False, "--train-trusted-truth", help=_TRUSTED_HELP),
     threads: int = typer.Option(1, "--threads", metavar="N", min=1,
                                 help="CPU threads for PyTorch (1: small recurrent nets gain nothing from more, and "
@@ -103,11 +106,13 @@ def tracking_cmd(
     chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods else METHODS
     if frame not in FRAMES:
         raise PhySynthError(f"--frame must be one of {', '.join(FRAMES)}, got '{frame}'")
+    if jobs > 1 and ensemble == 1:
+        raise PhySynthError(f"--jobs {jobs} trains the members of an ensemble at once: give --ensemble K (K >= 2)")
     over = {"seed": seed, "methods": chosen, "threads": threads, **FRAMES[frame]}
     over |= _given(epochs=epochs, pretrain_epochs=pretrain_epochs, finetune_epochs=finetune_epochs,
                    n_synth_traces=n_synth, synth_windows_per_trace=synth_windows, ekf_prior=ekf_prior,
                    finetune_synth_ratio=finetune_synth_ratio, train_trusted_truth=train_trusted_truth or None,
-                   ensemble=ensemble if ensemble > 1 else None)
+                   ensemble=ensemble if ensemble > 1 else None, jobs=jobs if jobs > 1 else None)
     net = _given(lr_schedule=lr_schedule, weight_average=weight_average)
     over |= {"net": net} if net else {}
     cfg = quick_config(**over) if quick else StudyConfig(**over)

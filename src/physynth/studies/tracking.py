@@ -110,6 +110,10 @@ class StudyConfig:
     ``seed + ensemble - 1`` (each a whole study: every network retrained, SYNTH_PHY on its own synthetic
     traces) and every row scores the mean of the members' estimates, step by step. ``results.json`` keeps
     each member's own rows (``data.ensemble.member_rows``). ``ensemble`` times the compute."""
+    jobs: int = 1
+    """Ensemble members trained at once, each in a process of its own (``threads`` PyTorch threads each):
+    on a machine with cores to spare an ensemble then takes about ``ensemble / jobs`` times one study's
+    wall time. The members' results do not depend on it (each is deterministic from its seed)."""
     threads: int = 1
 
     def __post_init__(self) -> None:
@@ -123,9 +127,11 @@ class StudyConfig:
             raise PhySynthError("route_frame needs random_isometry off (random turns would remove the route "
                                 "heading the frame keeps)")
         for name in ("epochs", "pretrain_epochs", "finetune_epochs", "n_synth_traces", "synth_windows_per_trace",
-                     "gan_steps", "threads", "ensemble"):
+                     "gan_steps", "threads", "ensemble", "jobs"):
             if getattr(self, name) < 1:  # 0 epochs would report an untrained network
                 raise PhySynthError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.jobs > 1 and self.ensemble == 1:
+            raise PhySynthError(f"jobs {self.jobs} runs the members of an ensemble at once: it needs ensemble >= 2")
         if not 0.0 <= self.finetune_synth_ratio <= 100.0:
             raise PhySynthError(f"finetune_synth_ratio must be in [0, 100], got {self.finetune_synth_ratio}")
         if self.net and NETWORK_METHODS & set(self.methods):
@@ -312,7 +318,8 @@ def run_tracking_study(train: Sequence[StudyRun], test: StudyRun | Sequence[Stud
     try:
         result = (_run(train, tests, scenario, cfg, say, t_start) if cfg.ensemble == 1
                   else _run_ensemble(train, tests, scenario, cfg, say, t_start))
-        result.data["cpu_time_s"] = time.process_time() - cpu_start  # this process, all threads
+        # this process, all threads, and the member processes of an ensemble run with jobs > 1
+        result.data["cpu_time_s"] = time.process_time() - cpu_start + result.data.pop("child_cpu_time_s", 0.0)
         return result
     finally:
         if torch is not None and old_threads is not None:
@@ -432,12 +439,14 @@ def _score(estimates: dict[str, list[np.ndarray]], tests: Sequence[StudyRun], te
 def _run_ensemble(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | None, cfg: StudyConfig,
                   say: ProgressFn, t_start: float) -> StudyResult:
     """``cfg.ensemble`` whole studies, seeds ``cfg.seed`` on; every row scores the mean of their estimates."""
-    members = []
-    for j in range(cfg.ensemble):
-        seed = cfg.seed + j
-        prefix = f"ensemble member {j + 1}/{cfg.ensemble} (seed {seed}): "
-        members.append(_run(train, tests, scenario, replace(cfg, seed=seed, ensemble=1),
-                            lambda m, prefix=prefix: say(prefix + m), t_start))
+    configs = [replace(cfg, seed=cfg.seed + j, ensemble=1, jobs=1) for j in range(cfg.ensemble)]
+    prefixes = [f"ensemble member {j + 1}/{cfg.ensemble} (seed {c.seed}): " for j, c in enumerate(configs)]
+    child_cpu_s = 0.0
+    if cfg.jobs > 1:
+        members, child_cpu_s = _members_at_once(train, tests, scenario, configs, prefixes, cfg.jobs, say)
+    else:
+        members = [_run(train, tests, scenario, c, lambda m, prefix=prefix: say(prefix + m), t_start)
+                   for c, prefix in zip(configs, prefixes, strict=True)]
     first = members[0]
     mean = {name: [np.mean([m.estimates_per_test[name][i] for m in members], axis=0) for i in range(len(tests))]
             for name in first.estimates_per_test}
@@ -450,10 +459,65 @@ def _run_ensemble(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Sc
     data = {**first.data, "timing_s": timing, "wall_time_s": time.perf_counter() - t_start,
             "ensemble": {"members": cfg.ensemble, "seeds": [cfg.seed + j for j in range(cfg.ensemble)],
                          "scored": "every row: the mean of the members' estimates at each grid step",
-                         "member_rows": [m.rows for m in members]}}
+                         "member_rows": [m.rows for m in members], "jobs": cfg.jobs},
+            "child_cpu_time_s": child_cpu_s}
     return StudyResult(rows=rows, config=cfg.to_dict(), data=data, estimates={k: v[0] for k, v in mean.items()},
                        test_input=test_inputs[0], test_trusted=trusted[0], estimates_per_test=mean,
                        test_inputs=test_inputs)
+
+
+_MEMBER_QUEUE: Any = None
+"""In a member process of :func:`_members_at_once`: the queue its progress messages go to."""
+
+
+def _member_init(queue: Any) -> None:
+    global _MEMBER_QUEUE
+    _MEMBER_QUEUE = queue
+
+
+def _member(j: int, train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | None,
+            cfg: StudyConfig) -> tuple[StudyResult, float]:
+    """One ensemble member in a process of its own: its result and the CPU time it took."""
+    from ..track import require_torch
+
+    torch = require_torch() if NETWORK_METHODS & set(cfg.methods) else None
+    if torch is not None:
+        torch.set_num_threads(cfg.threads)
+    cpu = time.process_time()
+    result = _run(train, tests, scenario, cfg, lambda m: _MEMBER_QUEUE.put((j, m)), time.perf_counter())
+    return result, time.process_time() - cpu
+
+
+def _members_at_once(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | None,
+                     configs: list[StudyConfig], prefixes: list[str], jobs: int,
+                     say: ProgressFn) -> tuple[list[StudyResult], float]:
+    """The members of an ensemble, ``jobs`` at a time in worker processes (spawned: no state shared with
+    this one); their progress messages are relayed to ``say`` as they come."""
+    import multiprocessing as mp
+    import queue as queue_mod
+    from concurrent.futures import ProcessPoolExecutor, wait
+
+    ctx = mp.get_context("spawn")
+    messages = ctx.Queue()
+
+    def relay() -> None:
+        while True:
+            try:
+                j, m = messages.get_nowait()
+            except queue_mod.Empty:
+                return
+            say(prefixes[j] + m)
+
+    with ProcessPoolExecutor(max_workers=min(jobs, len(configs)), mp_context=ctx, initializer=_member_init,
+                             initargs=(messages,)) as pool:
+        futures = [pool.submit(_member, j, train, tests, scenario, c) for j, c in enumerate(configs)]
+        pending = set(futures)
+        while pending:
+            _done, pending = wait(pending, timeout=0.5)
+            relay()
+        outcomes = [f.result() for f in futures]  # a member's error is raised here, as in one process
+    relay()  # the rest: the pool's processes have exited, so everything they put is in the queue
+    return [r for r, _ in outcomes], float(sum(c for _, c in outcomes))
 
 
 def _input_settings(cfg: StudyConfig) -> dict[str, Any]:
