@@ -385,3 +385,18 @@ def test_a_seed_ensemble_scores_the_mean_of_the_seeds_studies(runs, tmp_path):
         StudyConfig(**base, ensemble=0)
     with pytest.raises(PhySynthError, match="it needs ensemble >= 2"):
         StudyConfig(**base, jobs=2)
+
+
+def test_an_ensemble_member_that_dies_without_a_word_is_an_error():
+    """A member process that ends without its result (killed, out of memory) is one clear error, not a hang."""
+    import multiprocessing as mp
+    import os
+
+    from physynth.studies.tracking import _next_message
+
+    ctx = mp.get_context("spawn")
+    proc = ctx.Process(target=os._exit, args=(3,))
+    proc.start()
+    proc.join()
+    with pytest.raises(PhySynthError, match=r"ensemble member 1 \(seed 7\) ended without a result \(exit code 3\)"):
+        _next_message(ctx.Queue(), {0: proc}, [StudyConfig(**TINY, seed=7)])

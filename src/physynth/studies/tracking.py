@@ -466,58 +466,73 @@ def _run_ensemble(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Sc
                        test_inputs=test_inputs)
 
 
-_MEMBER_QUEUE: Any = None
-"""In a member process of :func:`_members_at_once`: the queue its progress messages go to."""
+def _member_main(j: int, train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | None,
+                 cfg: StudyConfig, messages: Any) -> None:
+    """One ensemble member in a process of its own: its progress, then its result and CPU time (or its
+    error), as ``(kind, j, payload)`` on ``messages``."""
+    try:
+        from ..track import require_torch
 
-
-def _member_init(queue: Any) -> None:
-    global _MEMBER_QUEUE
-    _MEMBER_QUEUE = queue
-
-
-def _member(j: int, train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | None,
-            cfg: StudyConfig) -> tuple[StudyResult, float]:
-    """One ensemble member in a process of its own: its result and the CPU time it took."""
-    from ..track import require_torch
-
-    torch = require_torch() if NETWORK_METHODS & set(cfg.methods) else None
-    if torch is not None:
-        torch.set_num_threads(cfg.threads)
-    cpu = time.process_time()
-    result = _run(train, tests, scenario, cfg, lambda m: _MEMBER_QUEUE.put((j, m)), time.perf_counter())
-    return result, time.process_time() - cpu
+        torch = require_torch() if NETWORK_METHODS & set(cfg.methods) else None
+        if torch is not None:
+            torch.set_num_threads(cfg.threads)
+        cpu = time.process_time()
+        result = _run(train, tests, scenario, cfg, lambda m: messages.put(("say", j, m)), time.perf_counter())
+        messages.put(("done", j, (result, time.process_time() - cpu)))
+    except BaseException as exc:  # noqa: BLE001 - every failure goes back to the parent, which raises it
+        messages.put(("error", j, exc))
 
 
 def _members_at_once(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | None,
                      configs: list[StudyConfig], prefixes: list[str], jobs: int,
                      say: ProgressFn) -> tuple[list[StudyResult], float]:
-    """The members of an ensemble, ``jobs`` at a time in worker processes (spawned: no state shared with
-    this one); their progress messages are relayed to ``say`` as they come."""
+    """The members of an ensemble, ``jobs`` at a time, each in a spawned process (no state shared with
+    this one); their progress is relayed to ``say`` as it comes. A member's error is raised here; on any
+    error or interruption the members still running are terminated."""
     import multiprocessing as mp
-    import queue as queue_mod
-    from concurrent.futures import ProcessPoolExecutor, wait
 
     ctx = mp.get_context("spawn")
     messages = ctx.Queue()
+    todo, running, done = list(range(len(configs))), {}, {}
+    try:
+        while todo or running:
+            while todo and len(running) < jobs:
+                j = todo.pop(0)
+                running[j] = ctx.Process(target=_member_main, name=f"physynth-ensemble-member-{j + 1}",
+                                         args=(j, train, tests, scenario, configs[j], messages))
+                running[j].start()
+            kind, j, payload = _next_message(messages, running, configs)
+            if kind == "say":
+                say(prefixes[j] + payload)
+            elif kind == "done":
+                done[j] = payload
+                running.pop(j).join()
+            else:
+                raise payload
+    finally:
+        for proc in running.values():
+            proc.terminate()
+        for proc in running.values():
+            proc.join()
+    return [done[j][0] for j in range(len(configs))], float(sum(c for _, c in done.values()))
 
-    def relay() -> None:
-        while True:
+
+def _next_message(messages: Any, running: dict[int, Any], configs: list[StudyConfig]) -> tuple[str, int, Any]:
+    """The next ``(kind, j, payload)`` from the members; an error for a member that died without a word."""
+    import queue
+
+    while True:
+        try:
+            return messages.get(timeout=0.5)
+        except queue.Empty:
+            dead = [j for j, proc in running.items() if not proc.is_alive()]
+        if dead:  # it may have put its result just before it ended: one more look
             try:
-                j, m = messages.get_nowait()
-            except queue_mod.Empty:
-                return
-            say(prefixes[j] + m)
-
-    with ProcessPoolExecutor(max_workers=min(jobs, len(configs)), mp_context=ctx, initializer=_member_init,
-                             initargs=(messages,)) as pool:
-        futures = [pool.submit(_member, j, train, tests, scenario, c) for j, c in enumerate(configs)]
-        pending = set(futures)
-        while pending:
-            _done, pending = wait(pending, timeout=0.5)
-            relay()
-        outcomes = [f.result() for f in futures]  # a member's error is raised here, as in one process
-    relay()  # the rest: the pool's processes have exited, so everything they put is in the queue
-    return [r for r, _ in outcomes], float(sum(c for _, c in outcomes))
+                return messages.get(timeout=1.0)
+            except queue.Empty:
+                j = dead[0]
+                raise PhySynthError(f"ensemble member {j + 1} (seed {configs[j].seed}) ended without a result "
+                                    f"(exit code {running[j].exitcode})") from None
 
 
 def _input_settings(cfg: StudyConfig) -> dict[str, Any]:
