@@ -188,15 +188,24 @@ def test_cli_passes_the_pretraining_options_to_the_study(runs, tmp_path, capsys)
     assert [h["averaged_epochs"] for h in stages] == [1, 1]  # the second of 2 epochs, in each stage
 
 
-def test_cli_classical_methods_write_results(runs, tmp_path, capsys):
+def test_cli_classical_methods_write_results(runs, tmp_path, capsys, monkeypatch):
     scn, rr = runs
     train = write_dataset(tmp_path / "train", [r.trace for r in rr[:2]])
     test = write_dataset(tmp_path / "test", [rr[2].trace])
+    monkeypatch.setenv("COLUMNS", "80")
     main(["study", "tracking", "--train", str(train), "--test", str(test), "--methods", "ls,ekf",
           "--out", str(tmp_path / "out")])
-    assert "results.json" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "results.json" in out
     rows = json.loads((tmp_path / "out" / "results.json").read_text())["rows"]
     assert [r["key"] for r in rows] == ["ls", "ekf"]
+    # the table in 80 columns: every number whole on its method's line, the description under its name
+    table = out.split("wrote ")[0].splitlines()
+    assert max(len(line) for line in table) <= 80
+    for r in rows:
+        line = next(line for line in table if line.startswith(f"│ {r['key']} "))
+        assert f"{r['rmse_m']:.3f}" in line and f"{r['p95_m']:.3f}" in line
+    assert any("robust multilateration" in line for line in table)
     # the same test run turned by 120 degrees and mirrored: the same ranges, a path in another direction;
     # the classical trackers do not depend on the direction, so their errors are the same (to the
     # stopping tolerances of the iterative least-squares solver: 1e-8 m steps, well inside 1e-3)

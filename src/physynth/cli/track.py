@@ -180,15 +180,19 @@ def _turned(runs: list, turn_deg: float, mirror: bool) -> list:
 
 
 def _print_table(result, test_runs: list) -> None:
-    """The study's rows as a table on stdout."""
+    """The study's rows as a table on stdout, readable in 80 columns: short number columns that never
+    wrap, and each method's description in its cell under its name."""
     from rich.console import Console
     from rich.table import Table
 
-    table = Table(title=f"test run {', '.join(r.label for r in test_runs)}")
-    for col in ("method", "RMSE (m)", "RMSE 2D (m)", "MAE (m)", "P50 (m)", "P95 (m)", "Δ RMSE (%)"):
-        table.add_column(col, justify="left" if col == "method" else "right")
+    table = Table(title=f"test run {', '.join(r.label for r in test_runs)}",
+                  caption="errors in metres; Δ RMSE: against NOAUG, in %")
+    table.add_column("method", ratio=1)
+    for col in ("RMSE", "RMSE 2D", "MAE", "P50", "P95", "Δ RMSE"):
+        table.add_column(col, justify="right", no_wrap=True)
     for r in result.rows:
         delta = "-" if r["delta_rmse_pct"] is None else f"{r['delta_rmse_pct']:+.1f}"
-        table.add_row(r["method"], *(f"{r[k]:.3f}" for k in ("rmse_m", "rmse_2d_m", "mae_m", "p50_m", "p95_m")),
-                      delta)
+        name, _, about = r["method"].partition(" (")
+        label = name if not about else f"{name}\n[dim]{about.removesuffix(')')}[/dim]"
+        table.add_row(label, *(f"{r[k]:.3f}" for k in ("rmse_m", "rmse_2d_m", "mae_m", "p50_m", "p95_m")), delta)
     Console().print(table)
