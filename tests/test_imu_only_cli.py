@@ -56,6 +56,12 @@ def test_calibrate_and_validate_imu_only_datasets(tmp_path, capsys):
     assert len(rep["extended"]["imu_allan_ratio"]["ratio"]) == 4
     assert (tmp_path / "rep" / "report.md").is_file() and (tmp_path / "rep" / "report.html").is_file()
     assert "imu_error_std_mps2" in out
+    lines = out.splitlines()  # the summary: each per-axis metric in lines that fit 80 columns
+    assert max(len(line) for line in lines if not line.startswith("wrote ")) <= 79, out  # (the path it names)
+    i = lines.index("  imu_error_std_mps2 (E/N/U)")
+    assert lines[i + 1].split()[1:] == [f"{x:.3f}" for x in real]
+    assert lines[i + 2].split()[1:4] == [f"{x:.3f}" for x in synth]
+    assert lines[i + 2].split()[-3:] == [f"{x:+.1f}" for x in dev]
     # the report folder is PhySynth's own: --overwrite replaces it (it was refused before it was marked)
     code, _, err = run(capsys, "validate", "--real", tmp_path / "b21", "--scenario", tmp_path / "s.yaml",
                        "--transfer", "-n", 2, "--seed", 3, "--out", tmp_path / "rep", "--no-figures", "--overwrite")

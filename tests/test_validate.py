@@ -405,6 +405,24 @@ def test_comparison_bands_and_absolute_median(data, full_report):
         assert "Synth 5–95 %" in text and "Real in band" in text, page
 
 
+def test_summary_fits_80_columns_and_shows_the_typical_mean_aoi(data, tmp_path, capsys):
+    """The command's summary: one line per headline metric within 79 characters, the mean AoI against the
+    median synthetic run (as Table II), the band and whether the real value is in it."""
+    assert _run(["validate", "--real", str(data / "real"), "--scenario", str(data / "a.yaml"), "-n", "3",
+                 "--seed", "11", "--out", str(tmp_path / "r"), "--no-figures"]) == 0
+    out = capsys.readouterr().out
+    rep = json.loads((tmp_path / "r" / "report.json").read_text())
+    assert max(len(line) for line in out.splitlines() if not line.startswith("wrote ")) <= 79  # (a path)
+    for key in ("uwb_ge1_frac", "residual_median_m", "abs_residual_p95_m", "mean_aoi_s"):
+        c = rep["comparison"][key]
+        words = next(line for line in out.splitlines() if line.startswith(f"  {key} ")).split()
+        assert words[2] == f"{rep['real'][key]:.3f}"
+        assert words[4] == f"{c.get('typical', rep['synthetic'][key]):.3f}", key
+        assert words[-2] == f"{c['band_5_95'][0]:.3f}-{c['band_5_95'][1]:.3f}"
+        assert words[-1] == ("in" if c["real_in_band"] else "OUT")
+    assert f"pooled over the runs {rep['synthetic']['mean_aoi_s']:.3f} s" in out
+
+
 def test_typical_value_is_the_median_group_pooled_by_duration():
     per_trace = [{"m": v, "duration_s": d} for v, d in ((1.0, 1.0), (1.0, 1.0), (1.0, 1.0), (101.0, 1.0))]
     assert typical_value(per_trace, "m", 1) == 1.0  # one rare outlier does not move the typical run
@@ -466,8 +484,11 @@ def test_cli_prints_body_imu_error_deviations(tmp_path, capsys):
     assert main(["validate", "--real", str(tmp_path / "r"), "--synthetic", str(tmp_path / "s"),
                  "--no-figures", "--out", str(tmp_path / "rep")]) in (0, None)
     out = capsys.readouterr().out
-    dev = r"[+-]\d+\.\d"
-    assert re.search(rf"gyro_error_std_radps\s+deviation {dev} / {dev} / {dev} % \(x / y / z\)", out), out
+    rep = json.loads((tmp_path / "rep" / "report.json").read_text())
+    lines = out.splitlines()
+    i = lines.index("  gyro_error_std_radps (x/y/z)")
+    assert lines[i + 2].split()[-3:] == [f"{x:+.1f}" for x in rep["imu_errors"]["relative_deviation_pct"]
+                                         ["gyro_error_std_radps"]], out
     assert json.loads((tmp_path / "rep" / "report.json").read_text())["imu_errors"] is not None
 
 

@@ -10,6 +10,7 @@ The command parses, calls :func:`physynth.workflows.validate_datasets` and
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import typer
@@ -99,7 +100,6 @@ def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, 
         written = write_report(report, tmp, figures=figures, overwrite=True)
     if quiet:
         return
-    dev = report.relative_deviation_pct
     syn = report.inputs.get("synthetic", {})
     typer.echo(f"real {counted(report.inputs['n_traces']['real'], 'trace')} vs synthetic "
                f"{counted(report.inputs['n_traces']['synthetic'], 'trace')}"
@@ -110,32 +110,65 @@ def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, 
         from ..validate.tables import truth_line
 
         hint = " (--all-truth compares them)" if truth.get("untrusted_left_out_of_residuals") else ""
-        typer.echo(truth_line(truth) + hint)
+        typer.echo(textwrap.fill(truth_line(truth) + hint, SUMMARY_WIDTH))
     typer.echo(f"KS {_f(report.ks_statistic)}  fidelity S {_f(report.fidelity_score)}  "
                f"W1 {_f(report.extended.get('residual_wasserstein_m'))} m")
+    for line in _metric_lines(report):
+        typer.echo(line)
+    imu = report.imu_errors or {}
+    for key, d in imu.get("relative_deviation_pct", {}).items():
+        if d is not None:  # body-frame IMU errors, when both sides have them
+            for line in _axis_lines(key, imu["real"][key], imu["synthetic"][key], d):
+                typer.echo(line)
+    typer.echo(f"wrote {counted(len(written), 'file')} to {out} (open {out / 'report.html'})")
+
+
+SUMMARY_WIDTH = 79
+"""The terminal summary's lines fit an 80-column terminal."""
+
+
+def _metric_lines(report) -> list[str]:
+    """One line per headline metric: real, synthetic (the median synthetic run for the mean AoI, as the
+    report's Table II), the deviation, the synthetic 5-95 % band and whether the real value is in it."""
+    lines, pooled = [], None
     for key in ("uwb_ge1_frac", "residual_median_m", "abs_residual_p95_m", "mean_aoi_s"):
         c = report.comparison.get(key, {})
-        delta = (f"{c['deviation']:+.3f} m" if c.get("deviation_kind") == "absolute" and c.get("deviation") is not None
-                 else f"{_f(dev.get(key), 1)} %")
+        dev = c.get("deviation")
+        delta = (f"{dev:+.3f} m" if c.get("deviation_kind") == "absolute" and dev is not None
+                 else f"{_f(report.relative_deviation_pct.get(key), 1)} %")
+        synth = report.synthetic[key]
+        if c.get("typical") is not None:  # heavy-tailed: compared with the median synthetic run
+            synth, pooled = c["typical"], report.synthetic[key]
         band = c.get("band_5_95")
-        inside = "" if band is None else (f"  synth 5-95 % [{_f(band[0])}, {_f(band[1])}]"
-                                          + (" (real inside)" if c.get("real_in_band") else " (real OUTSIDE)"))
-        typer.echo(f"  {key:20s} real {_f(report.real[key])}  synth {_f(report.synthetic[key])}  ({delta}){inside}")
-    for key, d in (report.imu_errors or {}).get("relative_deviation_pct", {}).items():
-        if d is not None:  # body-frame IMU errors, when both sides have them
-            typer.echo(f"  {key:24s} deviation {' / '.join(f'{x:+.1f}' for x in d)} % (x / y / z)")
-    typer.echo(f"wrote {counted(len(written), 'file')} to {out} (open {out / 'report.html'})")
+        inside = "" if band is None else (f"  band {_f(band[0])}-{_f(band[1])} "
+                                          + ("in" if c.get("real_in_band") else "OUT"))
+        lines.append(f"  {key:18s} real {_f(report.real[key])}  synth {_f(synth)}  Δ {delta:>8s}{inside}")
+    if pooled is not None:
+        lines.append(f"  (mean_aoi_s synth: the median synthetic run's; pooled over the runs {_f(pooled)} s)")
+    return lines
 
 
 def _f(x: object, digits: int = 3) -> str:
     return "-" if not isinstance(x, (int, float)) or x != x else f"{x:.{digits}f}"
 
 
+def _axis_lines(key: str, real, synth, dev) -> list[str]:
+    """A per-axis metric in three lines of at most :data:`SUMMARY_WIDTH` characters."""
+    axes = "E/N/U" if key.startswith("imu_") else "x/y/z"
+
+    def three(xs, digits: int = 3, sign: str = "") -> str:
+        return " ".join(f"{x:{sign}.{digits}f}" if isinstance(x, (int, float)) and x == x else "-" for x in xs)
+
+    return [f"  {key} ({axes})", f"{'':6s}real  {three(real)}",
+            f"{'':6s}synth {three(synth)}  deviation % {three(dev, 1, '+')}"]
+
+
 def _print_imu_summary(report, out: Path, n_files: int) -> None:
+    typer.echo("IMU-only recording: error std per axis, real vs synthetic (docs/imu.md)")
     for key, real in report.real.items():
         synth, dev = report.synthetic.get(key), report.relative_deviation_pct.get(key)
         if real is None or synth is None:
             continue
-        typer.echo(f"  {key:26s} real {' / '.join(_f(x) for x in real)}  synth {' / '.join(_f(x) for x in synth)}  "
-                   f"({' / '.join(_f(x, 1) for x in dev)} %)")
+        for line in _axis_lines(key, real, synth, dev or [None] * len(real)):
+            typer.echo(line)
     typer.echo(f"wrote {counted(n_files, 'file')} to {out} (open {out / 'report.html'})")
