@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import textwrap
 from pathlib import Path
 
 import typer
@@ -115,7 +116,6 @@ def generate_cmd(
 def scenarios_cmd() -> None:
     """List the built-in scenario presets."""
     import shutil
-    import textwrap
 
     from ..io.scenario_file import list_presets, load_scenario
 
@@ -151,8 +151,9 @@ def inspect_cmd(
     typer.echo(f"{dataset} - {counted(m.n_traces, 'trace')}, {counted(m.n_residuals, 'range residual')}")
     flagged = sum(bool(t.get("truth_untrusted_s")) for t in meta.get("traces", []))
     if flagged:
-        typer.echo(f"({counted(flagged, 'trace')} {'flags' if flagged == 1 else 'flag'} spans where the truth errs "
-                   "(truth_untrusted_s): the ranges there are left out of the residuals; docs/validation.md)")
+        typer.echo(textwrap.fill(f"({counted(flagged, 'trace')} {'flags' if flagged == 1 else 'flag'} spans where "
+                                 "the truth errs (truth_untrusted_s): the ranges there are left out of the "
+                                 "residuals; docs/validation.md)", 79))
     rows = []
     for key, value in m.to_dict().items():
         if key == "per_anchor":
