@@ -52,5 +52,5 @@ def bench_cmd(
         ("peak memory", f"{res['peak_rss_mb']:.0f} MB"),
     ]
     typer.echo(format_table(("measure", "value"), rows))
-    typer.echo(f"{scn.name}, n={n}; {counted(m['cores'], 'core')} {m['cpu']}, load {m['load_average_1min']} "
-               "(a busy machine lowers every figure)")
+    typer.echo(f"{scn.name}, n={n}; {counted(m['cores'], 'core')} {m['cpu']}, load {m['load_average_1min']}")
+    typer.echo("(a busy machine lowers every figure)")
