@@ -21,7 +21,8 @@ how often each method beats NOAUG of the same fold and seed.
 
 ``--ensemble`` also prints the seed ensemble: per fold, each method's estimates (the studies'
 ``estimates.npz``) averaged over the seeds and scored like one study's row, beside the mean of the seeds
-scored one by one.
+scored one by one; then the RMSE by ensemble size K = 1 .. number of seeds (mean over the folds and over
+every subset of K seeds).
 
 ``--turn-test DEG`` / ``--mirror-test`` pass the same options to every study: each left-out run is scored
 turned by DEG about the vertical through its anchor centroid (and mirrored): the same ranges in a world
@@ -46,6 +47,7 @@ import shlex
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
+from itertools import combinations
 from pathlib import Path
 
 import numpy as np
@@ -194,6 +196,7 @@ def _print_ensemble(out: Path, runs: tuple[str, ...], seeds: list[int], *, trust
     if len(seeds) < 2:
         raise SystemExit("--ensemble needs two or more --seeds")
     table: dict[str, dict[str, tuple[float, float]]] = {}
+    curve: dict[str, dict[int, list[float]]] = {}  # method -> ensemble size -> per fold, mean over subsets
     for run in runs:
         files = [out / f"{_name(run)}-s{s}" / "estimates.npz" for s in seeds]
         missing = [str(f) for f in files if not f.is_file()]
@@ -206,6 +209,10 @@ def _print_ensemble(out: Path, runs: tuple[str, ...], seeds: list[int], *, trust
             ests = [d[key] for d in loaded]
             single = float(np.mean([_rmse(e, truth, ok) for e in ests]))
             table.setdefault(key.split("/", 1)[1], {})[run] = (single, _rmse(np.mean(ests, axis=0), truth, ok))
+            by_size = curve.setdefault(key.split("/", 1)[1], {})
+            for k in range(1, len(seeds) + 1):  # every subset of k seeds, so no seed order is favoured
+                by_size.setdefault(k, []).append(np.mean([_rmse(np.mean([ests[i] for i in sub], axis=0), truth, ok)
+                                                          for sub in combinations(range(len(seeds)), k)]))
     print(f"\nseed ensemble (estimates averaged over seeds {','.join(map(str, seeds))}): RMSE (m) of the "
           "ensemble, with the mean of the single seeds in brackets")
     print("| method | " + " | ".join(r.replace("/", " ") for r in runs) + " | mean |")
@@ -214,6 +221,12 @@ def _print_ensemble(out: Path, runs: tuple[str, ...], seeds: list[int], *, trust
         cells = [f"{v[r][1]:.3f} ({v[r][0]:.3f})" for r in runs]
         print(f"| {k} | " + " | ".join(cells) + f" | {np.mean([v[r][1] for r in runs]):.3f} "
               f"({np.mean([v[r][0] for r in runs]):.3f}) |")
+    sizes = range(1, len(seeds) + 1)
+    print("\nby ensemble size K: mean RMSE (m) over the folds and over every subset of K of the seeds")
+    print("| method | " + " | ".join(f"K = {k}" for k in sizes) + " |")
+    print("|---|" + "---|" * len(sizes))
+    for name, by_size in curve.items():
+        print(f"| {name} | " + " | ".join(f"{np.mean(by_size[k]):.3f}" for k in sizes) + " |")
 
 
 if __name__ == "__main__":
