@@ -148,19 +148,15 @@ def _metric_lines(report) -> list[str]:
     return lines
 
 
-def _f(x: object, digits: int = 3) -> str:
-    return "-" if not isinstance(x, (int, float)) or x != x else f"{x:.{digits}f}"
+def _f(x: object, digits: int = 3, sign: str = "") -> str:
+    return "-" if not isinstance(x, (int, float)) or x != x else f"{x:{sign}.{digits}f}"
 
 
 def _axis_lines(key: str, real, synth, dev) -> list[str]:
     """A per-axis metric in three lines of at most :data:`SUMMARY_WIDTH` characters."""
     axes = "E/N/U" if key.startswith("imu_") else "x/y/z"
-
-    def three(xs, digits: int = 3, sign: str = "") -> str:
-        return " ".join(f"{x:{sign}.{digits}f}" if isinstance(x, (int, float)) and x == x else "-" for x in xs)
-
-    return [f"  {key} ({axes})", f"{'':6s}real  {three(real)}",
-            f"{'':6s}synth {three(synth)}  deviation % {three(dev, 1, '+')}"]
+    return [f"  {key} ({axes})", f"{'':6s}real  {' '.join(_f(x) for x in real)}",
+            f"{'':6s}synth {' '.join(_f(x) for x in synth)}  deviation % {' '.join(_f(x, 1, '+') for x in dev)}"]
 
 
 def _print_imu_summary(report, out: Path, n_files: int) -> None:
