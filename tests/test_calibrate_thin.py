@@ -79,3 +79,59 @@ def test_the_same_recording_twice_is_refused():
     trace = next(generate_traces(load_scenario("cablecar-descending"), 1, seed=1))
     with pytest.raises(CalibrationError, match="hold the same recording"):
         calibrate([trace, trace])
+
+
+def _outage_attempts(rng: np.random.Generator, n_rec: int, n: int, r_of) -> tuple[np.ndarray, np.ndarray]:
+    """Attempts of ``n_rec`` recordings of ``n`` each at ranges ``r_of(k)`` (k the attempt index within a
+    recording), heard with 0.96 unless in an outage; outages of ~300 attempts cover about half the time."""
+    rs, hs = [], []
+    for _ in range(n_rec):
+        k = np.arange(n)
+        state = np.zeros(n, dtype=bool)  # True: in outage
+        i = int(rng.integers(0, 300))
+        while i < n:  # a few dozen alternations per recording
+            length = int(rng.exponential(300.0))
+            state[i:i + length] = True
+            i += length + int(rng.exponential(300.0))
+        rs.append(r_of(k))
+        hs.append(~state & (rng.random(n) < 0.96))
+    return np.concatenate(rs), np.concatenate(hs)
+
+
+def test_outages_that_fall_at_long_range_are_not_a_radio_horizon():
+    from physynth.calibrate.availability_fit import fit_link
+
+    rng = np.random.default_rng(12)
+    n_rec, n = 4, 4000
+    r, heard = _outage_attempts(rng, n_rec, n, lambda k: 20.0 + 0.15 * k)  # 20-620 m, no range dependence
+    fit = fit_link(r, heard, [n] * n_rec)
+    # read as independent attempts, this draw shows a horizon by both criteria: a large LR and enough
+    # attempts beyond the edge (outages that happened to come at long range)
+    assert fit["lr_statistic"] >= 10.0 and fit["n_attempts_beyond"] >= 30, "pick another seed"
+    assert fit["design_effect"] > 10.0
+    assert not fit["identifiable"] and "design effect" in fit["why"]
+    # a real horizon with the same outages stays identifiable, its edge where it was drawn
+    r2, h2 = _outage_attempts(rng, n_rec, n, lambda k: 20.0 + 0.15 * k)  # 20-620 m
+    h2 &= rng.random(r2.size) < 1.0 / (1.0 + np.exp((r2 - 400.0) / 10.0))
+    real = fit_link(r2, h2, [n] * n_rec)
+    assert real["identifiable"], real
+    assert abs(real["max_range_m"] - 400.0) < 15.0
+
+
+def test_lengths_must_cover_the_attempts():
+    import pytest
+
+    from physynth.calibrate.availability_fit import fit_link
+
+    with pytest.raises(ValueError, match="lengths"):
+        fit_link(np.linspace(1.0, 100.0, 50), np.ones(50, dtype=bool), [20, 20])
+
+
+def test_a_soft_edge_wider_than_the_ranges_keeps_attempts_in_range():
+    from physynth.calibrate.availability_fit import _in_range_limit
+
+    link = {"max_range_m": 359.0, "edge_width_m": 92.7}  # its 0.999 point lies at -281 m
+    r = np.linspace(50.0, 450.0, 1000)
+    assert _in_range_limit(link, r) == 359.0 and "in_range_note" in link
+    sharp = {"max_range_m": 400.0, "edge_width_m": 5.0}
+    assert abs(_in_range_limit(sharp, r) - (400.0 - 5.0 * np.log(999.0))) < 1e-9 and "in_range_note" not in sharp

@@ -11,10 +11,12 @@ has them, e.g. synthetic traces; otherwise one attempt per burst of the tag's bu
 with no row at all included):
 
 1. the link model by maximum likelihood on (range, heard) of every attempt, with a free loss floor;
-   when the anchor is heard at every range seen the limit is *not identifiable* and ``max_range_m``
-   is put above the largest range;
-2. attempts the link model gives less than 99.9 % are unobserved for the availability process, and
-   so are the bursts of a detected tag outage;
+   when the anchor is heard at every range seen, or its likelihood ratio against a range-independent
+   loss, divided by the design effect of the attempts' correlated misses (outages), is below 10, the
+   limit is *not identifiable* and ``max_range_m`` is put above the largest range;
+2. attempts the link model gives less than 99.9 % (or beyond R, when that would leave fewer than 10 %
+   of them) are unobserved for the availability process, and so are the bursts of a detected tag
+   outage;
 3. dropout and outage by exact maximum likelihood of the alternating process *sampled at the
    attempts*: a two-state hidden Markov chain whose transition matrix over one attempt interval T is
    expm(Q T), Q the generator of the up/outage process, and whose *up* state is heard with probability
@@ -143,13 +145,50 @@ def _link_nll(theta: np.ndarray, r: np.ndarray, h: np.ndarray) -> float:
     return float(-np.sum(np.where(h, np.log(p), np.log1p(-p))))
 
 
-def fit_link(range_m: np.ndarray, heard: np.ndarray) -> dict[str, Any]:
+LINK_DEFF_BLOCKS = 5
+"""The design effect of :func:`fit_link` from batch means over this many blocks per recording ..."""
+LINK_DEFF_MIN_BLOCK = 20
+"""... of at least this many attempts each."""
+
+
+def _design_effect(u: np.ndarray, starts: np.ndarray) -> float:
+    """Variance inflation of a sum of per-attempt score contributions ``u`` (time order, recordings
+    starting at ``starts``) over independent ones, by batch means: each recording cut into up to
+    :data:`LINK_DEFF_BLOCKS` blocks in time, the summed squared block sums over the summed squares
+    (at least 1)."""
+    ss = float(u @ u)
+    if ss <= 0.0:
+        return 1.0
+    sq = 0.0
+    for a, b in zip(starts, [*starts[1:], u.size], strict=True):  # a handful of recordings
+        nb = int(min(LINK_DEFF_BLOCKS, (b - a) // LINK_DEFF_MIN_BLOCK))
+        if nb >= 1:
+            sq += sum(float(blk.sum()) ** 2 for blk in np.array_split(u[a:b], nb))  # <= 5 blocks
+        else:
+            sq += float(u[a:b] @ u[a:b])
+    return max(1.0, sq / ss)
+
+
+def fit_link(range_m: np.ndarray, heard: np.ndarray, lengths: Sequence[int] | None = None) -> dict[str, Any]:
     """Maximum-likelihood soft radio horizon P(heard) = (1 - e) / (1 + exp((r - R) / w)).
 
     Compared by a likelihood-ratio test with a range-independent loss; when the anchor is heard
-    equally at all ranges seen (LR < 10) or R lies beyond them, R is not identifiable.
+    equally at all ranges seen (effective LR < 10) or R lies beyond them, R is not identifiable.
+
+    ``range_m``, ``heard``: the anchor's attempts in time order, recordings one after the other, of
+    ``lengths`` attempts each (default: one recording). The likelihood treats attempts as independent,
+    but outages miss hundreds in a row: a few long outages that happen to fall at long range then look
+    like a horizon. The LR statistic is therefore divided by the design effect of the fitted model's
+    residuals (:func:`_design_effect`, batch means within each recording; a first-order Rao-Scott
+    correction): a real horizon explains its own run of misses and leaves independent residuals,
+    outages leave them correlated.
     """
     ok = np.isfinite(range_m)
+    bounds = np.cumsum([0, *(lengths if lengths is not None else [range_m.size])])
+    if int(bounds[-1]) != range_m.size:
+        raise ValueError("lengths must add up to the number of attempts")
+    # recording starts among the finite attempts
+    starts = np.unique(np.cumsum(np.concatenate([[0], ok]))[bounds[:-1]])
     r, h = range_m[ok], heard[ok]
     out: dict[str, Any] = {"n_attempts": int(r.size), "max_range_seen_m": float(r.max()) if r.size else None,
                            "max_range_heard_m": float(r[h].max()) if h.any() else None}
@@ -169,13 +208,20 @@ def fit_link(range_m: np.ndarray, heard: np.ndarray) -> dict[str, Any]:
             best = res
     lr = 2.0 * (nll0 - best.fun)
     big_r, w = float(best.x[0]), float(np.exp(best.x[1]))
+    # the score of the horizon R per attempt: (h - p) / (p (1 - p)) dp/dR, dp/dR = p sigma((r - R) / w) / w
+    x = np.clip((r - big_r) / w, -50, 50)
+    p_fit = np.clip(expit(-x) * (1.0 - expit(best.x[2])), 1e-9, 1 - 1e-9)
+    deff = _design_effect((h - p_fit) / (1.0 - p_fit) * expit(x) / w, starts)
+    lr_eff = lr / deff
     beyond = r > big_r + w
     n_beyond = int(beyond.sum())
     heard_beyond = float(h[beyond].mean()) if n_beyond else float("nan")
-    out.update(lr_statistic=float(lr), max_range_m=big_r, edge_width_m=w, loss_floor=float(expit(best.x[2])),
+    out.update(lr_statistic=float(lr), design_effect=deff,
+               lr_effective=float(lr_eff), max_range_m=big_r, edge_width_m=w, loss_floor=float(expit(best.x[2])),
                n_attempts_beyond=n_beyond, heard_frac_beyond=heard_beyond)
-    if lr < 10.0:
-        out.update(identifiable=False, why=f"no range dependence (LR {lr:.1f} < 10)")
+    if lr_eff < 10.0:
+        out.update(identifiable=False, why=f"no range dependence (LR {lr:.1f} / design effect {deff:.1f} = "
+                   f"{lr_eff:.1f} < 10)")
     elif n_beyond < MIN_ATTEMPTS_BEYOND_HORIZON:
         out.update(identifiable=False, why=f"only {n_beyond} attempts beyond the fitted horizon "
                    f"({big_r:.1f} m; at least {MIN_ATTEMPTS_BEYOND_HORIZON} needed)")
@@ -323,7 +369,7 @@ def fit_dropout_outage(stats: RunStats, period_s: float, burst_rate_hz: float,
     n_att, n_heard = stats.n_attempts, stats.n_heard
     out: dict[str, Any] = {"n_attempts": n_att, "n_heard": n_heard, "attempt_period_s": period_s}
     if n_att == 0:
-        out["identifiable"] = False
+        out.update(identifiable=False, why="no attempt within link range to fit dropouts and outages on")
         return out
     miss_frac = 1.0 - n_heard / n_att
     # dropout-only model (alpha = 0): closed form
@@ -857,6 +903,25 @@ def _fit_long(traces: Sequence[Trace], tabs: Sequence[AttemptTable], in_range: S
     return fit_long_outages(runs)
 
 
+LINK_MIN_IN_RANGE_FRAC = 0.1
+"""Share of an anchor's attempts that must lie within its in-range limit; below it the limit is R itself."""
+
+
+def _in_range_limit(link: dict[str, Any], range_m: np.ndarray) -> float:
+    """The range [m] up to which an anchor's attempts count as in link range for the dropout/outage fit:
+    where the fitted link probability is :data:`LINK_IN_RANGE_PROB`, or the horizon R itself when that
+    leaves fewer than :data:`LINK_MIN_IN_RANGE_FRAC` of the attempts (a soft edge as wide as the ranges
+    seen); recorded in ``link`` (``in_range_limit_m``)."""
+    lim = link["max_range_m"] - link["edge_width_m"] * np.log(LINK_IN_RANGE_PROB / (1 - LINK_IN_RANGE_PROB))
+    r = range_m[np.isfinite(range_m)]
+    if r.size and np.mean(r <= lim) < LINK_MIN_IN_RANGE_FRAC:
+        link["in_range_note"] = (f"the {LINK_IN_RANGE_PROB:g} link-probability range ({lim:.1f} m) holds "
+                                 f"{100 * np.mean(r <= lim):.0f} % of the attempts: attempts up to the horizon R count")
+        lim = link["max_range_m"]
+    link["in_range_limit_m"] = float(lim)
+    return float(lim)
+
+
 def fit_availability(traces: Sequence[Trace], offset_s: float, burst_rate_hz: float,
                      anchor_ids: Sequence[str]) -> Fit[dict[str, Any]]:
     """Link range, attempt rate, dropout and outages per anchor, and tag outages, pooled over traces."""
@@ -879,16 +944,15 @@ def fit_availability(traces: Sequence[Trace], offset_s: float, burst_rate_hz: fl
             att_count[aid] += int(att.sum())
             burst_count[aid] += tab.t_s.size
         rng_tab.append(r_all)
-    links = {a: fit_link(np.concatenate(ranges[a]), np.concatenate(heards[a])) for a in anchor_ids
-             if ranges[a]}
+    links = {a: fit_link(np.concatenate(ranges[a]), np.concatenate(heards[a]), [x.size for x in ranges[a]])
+             for a in anchor_ids if ranges[a]}
+    limits = {a: _in_range_limit(lk, np.concatenate(ranges[a])) for a, lk in links.items() if lk.get("identifiable")}
     in_range = []
     for tr, r_all in zip(traces, rng_tab, strict=True):
         ok = np.isfinite(r_all)
         for j, aid in enumerate(tr.anchors.ids):
-            lk = links.get(aid, {})
-            if lk.get("identifiable"):
-                lim = lk["max_range_m"] - lk["edge_width_m"] * np.log(LINK_IN_RANGE_PROB / (1 - LINK_IN_RANGE_PROB))
-                ok[:, j] &= r_all[:, j] <= lim
+            if aid in limits:
+                ok[:, j] &= r_all[:, j] <= limits[aid]
         in_range.append(ok)
 
     att_period = {a: period * burst_count[a] / max(att_count[a], 1) for a in anchor_ids}
