@@ -90,3 +90,22 @@ def test_calibration_writes_the_spread():
     sec = res.report["time_offset"]["run_spread"]
     assert sec["significant"] and res.scenario.uwb.time_offset_std_s == pytest.approx(sec["spread_s"], abs=1e-5)
     assert res.scenario.uwb.time_offset_std_s > 0.005
+
+
+@pytest.mark.parametrize(("mean_s", "std_s"), [(-0.5, 0.0), (0.5, 0.0), (-0.05, 0.03), (0.02, 0.03)])
+def test_stamps_stay_inside_the_truth_for_either_sign_of_the_lag(mean_s: float, std_s: float):
+    d = scenario_to_dict(load_scenario("cablecar-descending"))
+    d["uwb"].update(time_offset_s=mean_s, time_offset_std_s=std_s)
+    scn = scenario_from_dict(d, "lag")
+    for t in generate_traces(scn, 6, seed=4):
+        lag = t.meta.get("uwb_time_offset_s", mean_s)
+        if abs(lag - mean_s) > 4.0 * std_s:  # beyond the margin the schedule keeps (LAG_MARGIN_STDS)
+            continue
+        assert t.uwb.t_s.size > 0
+        assert t.uwb.t_s.min() >= t.truth.t_s[0] and t.uwb.t_s.max() <= t.truth.t_s[-1], (mean_s, lag)
+        # the schedule gives up no more of the truth than the lag needs: true times run from the start plus
+        # the lead max(0, 4 std - mean) to the end minus the slots and the trail max(0, mean + 4 std)
+        period, slots = 1.0 / scn.uwb.burst_rate_hz, len(scn.anchors) * scn.uwb.slot_s
+        lead, trail = max(0.0, 4.0 * std_s - mean_s), max(0.0, mean_s + 4.0 * std_s)
+        assert t.uwb.t_s.min() - (t.truth.t_s[0] + lead + lag) < period + 0.05
+        assert (t.truth.t_s[-1] - trail - slots + lag) - t.uwb.t_s.max() < period + 0.05

@@ -1031,7 +1031,8 @@ def run_slopes(n_anchors: int, params: UwbParams, *, rng: np.random.Generator) -
 
 
 LAG_MARGIN_STDS = 4.0
-"""Bursts end this many ``time_offset_std_s`` (plus the mean lag) before the truth: stamps stay inside it."""
+"""Bursts end this many ``time_offset_std_s`` plus the mean lag before the truth's end, and begin this many
+minus the mean lag after its start: stamps stay inside it."""
 
 
 def trace_time_offset(params: UwbParams, *, rng: np.random.Generator) -> float:
@@ -1071,10 +1072,15 @@ def simulate_uwb(kin: Kinematics, params: UwbParams, ch: ChannelArrays, *, rng: 
     """
     u = params
     n_anchors = ch.anchor_pos_enu_m.shape[0]
-    t_end = float(kin.t_s[-1]) - n_anchors * u.slot_s - abs(u.time_offset_s) - LAG_MARGIN_STDS * u.time_offset_std_s
+    # stamps (true time + the trace's lag) stay inside the truth span, for lags within LAG_MARGIN_STDS
+    spread = LAG_MARGIN_STDS * u.time_offset_std_s
+    t_end = float(kin.t_s[-1]) - n_anchors * u.slot_s - max(0.0, u.time_offset_s + spread)
     phase = None if u.burst_phase_s is None else u.burst_phase_s - u.time_offset_s  # stamp -> true time
     bursts = burst_times(float(kin.t_s[0]), t_end, u.burst_rate_hz, u.burst_jitter_s,
                          n_anchors * u.slot_s + 1e-4, rng=rng, phase_s=phase)
+    lead = spread - u.time_offset_s  # a UWB clock ahead of the truth: no burst whose stamp precedes it
+    if lead > 0:
+        bursts = bursts[bursts.searchsorted(float(kin.t_s[0]) + lead, side="left"):]
     scheduled = rng.random((bursts.shape[0], n_anchors)) < ch.attempt_prob
     # row-major: sorted by burst, then anchor slot (np.nonzero's indices; flat indices and their quotient
     # and remainder are ~2.5x faster than its 2-D multi-index iteration; // by a number is faster than divmod)
