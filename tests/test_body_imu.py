@@ -348,3 +348,20 @@ def test_body_specific_force_is_scipys_apply_bit_for_bit(kind):
         assert np.ascontiguousarray(got).tobytes() == want.tobytes()
     with pytest.raises(ValueError):
         ideal_body_imu(np.arange(n) * 0.01, acc, np.zeros((n, 4)), np.zeros((n, 3)))  # zero quaternions
+
+
+def test_the_tumble_attitude_is_the_running_product_of_its_steps():
+    from scipy.spatial.transform import Rotation
+
+    from physynth.models.attitude import _cumulative_compose
+
+    rng = np.random.default_rng(7)
+    first = Rotation.random(random_state=8)
+    steps = Rotation.from_rotvec(rng.normal(0.0, 0.05, (777, 3)))  # not a power of two
+    got = _cumulative_compose(first, steps)
+    expected, cur = [first.as_matrix()], first
+    for k in range(len(steps)):  # the definition, one composition at a time (777 steps, test only)
+        cur = cur * steps[k]
+        expected.append(cur.as_matrix())
+    assert len(got) == len(steps) + 1
+    np.testing.assert_allclose(got.as_matrix(), np.array(expected), atol=1e-12)

@@ -185,20 +185,30 @@ def _smooth_rates(n: int, dt: float, std: float, tau_s: float, *, rng: np.random
     return np.fft.irfft(coef, n, axis=0) * (std / np.sqrt(var)) if var > 0 else np.zeros((n, 3))
 
 
+def _quat_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton products a b of (N, 4) quaternions in scipy's scalar-last order (x, y, z, w): the rotation
+    a * b of :class:`scipy.spatial.transform.Rotation` (b applied first), without its per-call overhead."""
+    ax, ay, az, aw = a.T
+    bx, by, bz, bw = b.T
+    return np.stack([aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw,
+                     aw * bw - ax * bx - ay * by - az * bz], axis=1)
+
+
 def _cumulative_compose(first: Rotation, steps: Rotation) -> Rotation:
-    """R_0 = first, R_{k+1} = R_k * steps[k]: a prefix product in log2(K) vectorised compositions."""
+    """R_0 = first, R_{k+1} = R_k * steps[k]: a prefix product in log2(K) vectorised compositions
+    (quaternion products in NumPy: scipy's composition costs ~20 ms per pass over 50,000 rotations)."""
     from scipy.spatial.transform import Rotation
 
-    q = steps.as_quat()
-    n = q.shape[0]
-    acc = Rotation.from_quat(q)
+    acc = steps.as_quat()  # (K, 4) unit quaternions, scalar last
+    n = acc.shape[0]
     shift = 1
     while shift < n:  # Hillis-Steele scan: each pass composes with the partial product `shift` back
-        prev = acc[: n - shift]
-        tail = acc[shift:]
-        acc = Rotation.concatenate([acc[:shift], prev * tail])
+        acc = np.concatenate([acc[:shift], _quat_product(acc[: n - shift], acc[shift:])])
         shift *= 2
-    return Rotation.concatenate([first, first * acc])
+    q0 = first.as_quat()[None, :]
+    return Rotation.from_quat(np.concatenate([q0, _quat_product(np.broadcast_to(q0, acc.shape), acc)]))
 
 
 def body_rates(rot: Rotation, t_s: np.ndarray) -> np.ndarray:
