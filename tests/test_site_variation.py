@@ -138,6 +138,23 @@ def test_recorded_layouts_and_anchor_subsets(base):
     assert sub.variation.layouts == [[lays[0][1], lays[0][3]], [lays[1][1], lays[1][3]]]
 
 
+@pytest.mark.parametrize("prov", [{"anchor_layout": "garbage"}, {"anchor_layout": {"layouts": ["a"]}},
+                                  {"anchor_layout": {"layouts": {"run": {"A1": [1.0, "x", 2.0]}}}},
+                                  {"anchor_layout": {"layouts": {"run": {"A1": [1.0, 2.0]}}}}])
+def test_a_malformed_recorded_layout_is_one_clear_error(base, tmp_path, capsys, prov):
+    d = scenario_to_dict(base)
+    d["provenance"] = prov
+    from physynth.io.scenario_file import save_scenario
+
+    path = tmp_path / "site.yaml"
+    save_scenario(scenario_from_dict(d, "t"), path)  # provenance is free-form: the file itself loads
+    with pytest.raises(SystemExit) as exc:
+        main(["generate", "-s", str(path), "-n", "2", "--vary-site", "--out", str(tmp_path / "ds")])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "provenance.anchor_layout" in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "ds").exists()
+
+
 def test_generate_vary_site_uses_the_recorded_layouts(base, tmp_path, capsys):
     d = scenario_to_dict(base)
     layouts = {k: dict(zip(base.anchor_ids, shifted_layout(base, de), strict=True))

@@ -29,6 +29,7 @@ from typing import Annotated, Any
 import numpy as np
 from pydantic import Field
 
+from ..errors import ScenarioError
 from ._params import NonNegFloat, ParamsModel, Probability, Vec3
 
 RANDOM_ROUTE_TURN_STD_DEG = 70.0
@@ -150,9 +151,19 @@ def recorded_layouts(provenance: dict[str, Any], anchor_ids: Sequence[str]) -> l
     """The anchor layouts a calibration on several runs recorded (``provenance.anchor_layout.layouts``:
     run label -> anchor id -> [E, N, U]) that place exactly ``anchor_ids``, each in that order; [] when
     none is recorded. They are the natural ``layouts`` of a site whose anchors were re-placed between runs."""
-    layouts = ((provenance or {}).get("anchor_layout") or {}).get("layouts") or {}
+    what = "provenance.anchor_layout.layouts must map run labels to {anchor id: [E, N, U]}"
+    section = (provenance or {}).get("anchor_layout") or {}
+    if not isinstance(section, dict):
+        raise ScenarioError(f"provenance.anchor_layout must be a mapping, not {type(section).__name__}")
+    layouts = section.get("layouts") or {}
+    if not isinstance(layouts, dict) or not all(isinstance(lay, dict) for lay in layouts.values()):
+        raise ScenarioError(what)
     out = []
-    for lay in layouts.values():
-        if isinstance(lay, dict) and set(lay) == set(anchor_ids) and len(lay) == len(anchor_ids):
+    for label, lay in layouts.items():  # a handful of recorded runs
+        for aid, pos in lay.items():
+            v = np.asarray(pos, dtype=object)
+            if v.shape != (3,) or not all(isinstance(x, (int, float)) and np.isfinite(x) for x in v):
+                raise ScenarioError(f"{what}: run {label!r}, anchor {aid!r} has {pos!r}")
+        if set(lay) == set(anchor_ids) and len(lay) == len(anchor_ids):
             out.append([[float(x) for x in lay[a]] for a in anchor_ids])
     return out
