@@ -462,3 +462,23 @@ def test_the_summary_keeps_parameter_names_whole_in_80_columns(roundtrip, tmp_pa
     assert any(len(k) > 30 for k in keys)  # long keys exist, and each stays on one line
     for k in keys:
         assert any(k in line for line in lines), k
+
+
+def test_gross_ranges_are_left_out_and_counted_not_fitted_as_a_mode():
+    import dataclasses
+
+    from physynth.calibrate.uwb_fit import GROSS_RESIDUAL_M
+
+    scn = load_scenario("walk-hanyang")
+    clean = generate_trace(scn, 0, 3)
+    r = clean.uwb.range_m.copy()
+    rows = np.flatnonzero(np.isfinite(r))[100:111]
+    r[rows] = 65535.0  # a radio's "no range" code, 11 rows
+    dirty = dataclasses.replace(clean, uwb=dataclasses.replace(clean.uwb, range_m=r))
+    res = calibrate([dirty])  # it used to fit an NLOS mode at 65529 m, outside the scenario's bounds
+    sec = res.report["gross_residuals"]
+    assert list(sec["per_run"].values()) == [11] and sec["limits_m"] == list(GROSS_RESIDUAL_M)
+    assert any("11 range(s)" in w for w in res.report["warnings"])
+    ref = calibrate([clean])
+    assert res.scenario.uwb.time_offset_s == pytest.approx(ref.scenario.uwb.time_offset_s, abs=2e-3)
+    assert max(m.mean_m for m in res.scenario.channel.nlos_modes) < GROSS_RESIDUAL_M[1]

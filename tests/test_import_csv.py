@@ -275,6 +275,16 @@ def test_negative_ranges(tmp_path, tables):
     assert not trace.uwb.valid[bad].any()
 
 
+def test_a_radio_error_code_is_kept_as_invalid_not_as_a_range(tmp_path, tables):
+    tables["uwb"].loc[[3, 40, 41], "range_m"] = 65535.0  # DW1000 firmware's "no range"
+    tables["uwb"].loc[[60], "range_m"] = 800.0  # long but possible: kept
+    trace, report = import_csv(write_rec(tmp_path / "rec", tables))
+    assert report.flagged["uwb.csv"] == {"implausible_range": 3}
+    bad = trace.uwb.reason == Reason.INVALID
+    assert bad.sum() == 3 and np.all(np.isnan(trace.uwb.range_m[bad])) and len(trace.uwb) == len(tables["uwb"])
+    assert np.nanmax(trace.uwb.range_m) == 800.0  # the long row stays a range
+
+
 def test_truncated_and_blank_rows_are_skipped(tmp_path, tables):
     rec = write_rec(tmp_path / "rec", tables)
     lines = (rec / "uwb.csv").read_text().splitlines()

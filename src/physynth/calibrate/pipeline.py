@@ -76,6 +76,7 @@ from .run_spread import (
     two_way_spread,
 )
 from .uwb_fit import (
+    GROSS_RESIDUAL_M,
     MIN_ANCHOR_ROWS,
     RANGE_BIAS_LAWS,
     MixtureFit,
@@ -85,6 +86,7 @@ from .uwb_fit import (
     fit_burst_schedule,
     fit_mode_dwell,
     fit_time_offset,
+    gross_residual_count,
     select_mixture,
 )
 
@@ -947,6 +949,12 @@ def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, 
     fixed_slope = static[key] if (static is not None and range_bias == "static") else None
     of = timing.offset_fit
     offset = timing.offset_s
+    gross = {lab: gross_residual_count(t, offset) for t, lab in zip(trs, labels, strict=True)}
+    report.sections["gross_residuals"] = {"per_run": gross, "limits_m": list(GROSS_RESIDUAL_M)}
+    if any(gross.values()):
+        report.warnings.append(f"{sum(gross.values())} range(s) lie outside {GROSS_RESIDUAL_M[0]:g} .. "
+                               f"{GROSS_RESIDUAL_M[1]:g} m of the truth's distance (a radio's error code, a "
+                               "corrupt value): left out of every ranging fit")
     chan = _fit_channels(trs, offset, ids, fixed_slope, labels, law=law, trusted_truth=trusted_truth)
     ref = refine_time_offset(chan.per_anchor_rows, chan.los_masks())
     tsec = report.sections["time_offset"]

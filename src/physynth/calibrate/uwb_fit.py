@@ -23,6 +23,7 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import logsumexp
 
+from ..bounds import BOUNDS
 from ..models.uwb import los_error_mean, range_decades, range_error_log_components
 from ..records import Trace, untrusted_truth
 from ._base import CalibrationError, Fit, trace_label
@@ -71,8 +72,27 @@ class Residuals:
     trusted: np.ndarray | None = None  # the truth at t - offset is trusted (``records.untrusted_truth``)
 
 
+GROSS_RESIDUAL_M = (BOUNDS["channel.nlos_modes[].mean_m"].lo, BOUNDS["channel.nlos_modes[].mean_m"].hi)
+"""Residuals outside the physical range of an NLOS excess (-100 .. 1000 m) are no ranging error the model
+can have (a radio's error code such as 65535, a corrupt value): left out of every fit and counted
+(:func:`gross_residual_count`, the report's ``gross_residuals``)."""
+
+
+def _is_gross(r: np.ndarray) -> np.ndarray:
+    return (r < GROSS_RESIDUAL_M[0]) | (r > GROSS_RESIDUAL_M[1])
+
+
+def gross_residual_count(trace: Trace, offset_s: float) -> int:
+    """Valid rows inside the truth span whose residual lies outside :data:`GROSS_RESIDUAL_M`."""
+    u = trace.uwb
+    ok = u.valid
+    r = u.range_m[ok] - geometric_range(trace, u.t_s[ok] - offset_s, u.anchor[ok].astype(np.intp))
+    return int(np.count_nonzero(_is_gross(r[np.isfinite(r)])))
+
+
 def corrected_residuals(trace: Trace, offset_s: float, rate_step_s: float = 0.02) -> Residuals:
-    """Residuals ``range - |p(t - offset) - a_i|`` of the valid rows inside the truth span."""
+    """Residuals ``range - |p(t - offset) - a_i|`` of the valid rows inside the truth span, gross ones
+    (:data:`GROSS_RESIDUAL_M`) left out."""
     u = trace.uwb
     ok = u.valid
     t, a = u.t_s[ok], u.anchor[ok].astype(np.intp)
@@ -81,6 +101,7 @@ def corrected_residuals(trace: Trace, offset_s: float, rate_step_s: float = 0.02
           - geometric_range(trace, t - offset_s - rate_step_s, a)) / (2.0 * rate_step_s)
     r = u.range_m[ok] - g
     keep = np.isfinite(r) & np.isfinite(gd)
+    keep[keep] = ~_is_gross(r[keep])
     return Residuals(residual_m=r[keep], range_m=g[keep], anchor=a[keep], t_s=t[keep], range_rate_mps=gd[keep],
                      trusted=~untrusted_truth(trace.meta, t[keep] - offset_s))
 

@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 from scipy.signal import savgol_filter
 
+from ..._args import check_number
 from ...errors import RecordingError
 
 #: Unit suffixes that are recognised in column names and the unit PhySynth expects instead.
@@ -373,6 +374,24 @@ def check_range_scale(path: Path, t_uwb: np.ndarray, anchor: np.ndarray, range_m
                              f"the anchors (median); are {guess}? convert them to metres")
 
 
+IMPLAUSIBLE_RANGE_EXCESS_M = 1000.0
+"""A range longer than the farthest the truth ever is from its anchor by more than this [m] cannot come from
+the recorded geometry (no multipath adds a kilometre): a radio's error code (65535) or a corrupt value."""
+
+
+def flag_implausible_ranges(range_m: np.ndarray, anchor: np.ndarray, pos_m: np.ndarray, anchor_pos_m: np.ndarray,
+                            file: str, report: ReportBuilder) -> np.ndarray:
+    """Ranges with NaN (reason INVALID) where they exceed the truth's largest distance from their anchor by
+    more than :data:`IMPLAUSIBLE_RANGE_EXCESS_M`; counted as flagged ``implausible_range``."""
+    p = pos_m[np.all(np.isfinite(pos_m), axis=1)]
+    if p.size == 0 or anchor_pos_m.size == 0:
+        return range_m
+    far = np.sqrt(np.max([np.sum((p - a) ** 2, axis=1) for a in anchor_pos_m], axis=1))  # one row per anchor
+    bad = range_m > far[anchor] + IMPLAUSIBLE_RANGE_EXCESS_M  # NaN compares False
+    report.flag(file, "implausible_range", int(np.count_nonzero(bad)))
+    return np.where(bad, np.nan, range_m)
+
+
 def integer_column(values: pd.Series, file: str, col: str, report: ReportBuilder,
                    missing: int = -1) -> np.ndarray:
     """An integer column: empty cells become ``missing``; text and non-integers become ``missing`` too,
@@ -477,6 +496,19 @@ def velocity_from_position(t_s: np.ndarray, pos_m: np.ndarray, *, window_s: floa
             vg = np.gradient(pg, tg, axis=0)
         vel[rows] = np.stack([np.interp(ts, tg, vg[:, k]) for k in range(3)], axis=1)
     return vel
+
+
+def checked_window_and_gap(velocity_window_s: float, burst_gap_s: float | None = None) -> tuple[float, float | None]:
+    """An importer's smoothing window and burst gap [s] (None: none given), checked before any file is read:
+    positive finite numbers (a gap of 0 or less would make every row its own burst).
+
+    Raises
+    ------
+    ArgumentError
+        One of them is not a positive finite number.
+    """
+    window = check_number(velocity_window_s, "velocity_window_s", positive=True, unit="s")
+    return window, None if burst_gap_s is None else check_number(burst_gap_s, "burst_gap_s", positive=True, unit="s")
 
 
 def gap_bursts(t_s: np.ndarray, gap_s: float) -> np.ndarray:

@@ -35,8 +35,10 @@ from ._common import (
     check_seconds,
     check_time_spans,
     check_time_steps,
+    checked_window_and_gap,
     drop_nan_rows,
     find_table,
+    flag_implausible_ranges,
     flag_ranges,
     gap_bursts,
     integer_column,
@@ -80,7 +82,10 @@ def import_csv(rec_dir: str | os.PathLike, *, velocity_window_s: float = 0.5,
     RecordingError
         One line naming the file and the problem (missing file or column, unit mistake, anchor
         without coordinates, UWB rows of an unknown anchor, tables that do not overlap in time).
+    ArgumentError
+        ``velocity_window_s`` or ``burst_gap_s`` is not a positive finite number.
     """
+    velocity_window_s, burst_gap_s = checked_window_and_gap(velocity_window_s, burst_gap_s)
     rec = Path(rec_dir)
     if not rec.exists():
         raise RecordingError(f"recording folder {rec} does not exist")
@@ -103,6 +108,7 @@ def import_csv(rec_dir: str | os.PathLike, *, velocity_window_s: float = 0.5,
     check_time_spans(uwb_path, t_uwb, truth_path, t_truth)
     _check_overlap(uwb_path, t_uwb, truth_path, t_truth)
     check_range_scale(uwb_path, t_uwb, anchor, range_m, t_truth, pos, anchors.pos_enu_m)
+    range_m = flag_implausible_ranges(range_m, anchor, pos, anchors.pos_enu_m, uwb_path.name, rep)
     meta: dict[str, Any] = {
         "source": "csv",
         "recording": rec.name,
