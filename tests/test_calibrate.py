@@ -482,3 +482,14 @@ def test_gross_ranges_are_left_out_and_counted_not_fitted_as_a_mode():
     ref = calibrate([clean])
     assert res.scenario.uwb.time_offset_s == pytest.approx(ref.scenario.uwb.time_offset_s, abs=2e-3)
     assert max(m.mean_m for m in res.scenario.channel.nlos_modes) < GROSS_RESIDUAL_M[1]
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [({"range_bias": "static"}, "needs static_sweeps"),
+                                               ({"static_sweeps": "/no/such/folder"}, "does not exist"),
+                                               ({"range_bias_law": "cubic"}, "unknown range-bias law")])
+def test_option_mistakes_are_refused_before_any_fitting(kwargs, match):
+    ticks = []
+    trace = generate_trace(load_scenario("walk-hanyang"), 0, 1)
+    with pytest.raises(CalibrationError, match=match):
+        calibrate([trace], progress=lambda msg, *_: ticks.append(msg), **kwargs)
+    assert ticks == []

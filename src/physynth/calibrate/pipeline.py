@@ -28,6 +28,7 @@ import hashlib
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -1718,6 +1719,12 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
 
     if link_budget and static_sweeps is None:
         raise CalibrationError("link_budget=True needs static_sweeps (the Static_measurements folder)")
+    if range_bias == "static" and static_sweeps is None:  # checked before any fitting, as the law
+        raise CalibrationError("range_bias='static' needs static_sweeps (the Static_measurements folder)")
+    if range_bias_law not in RANGE_BIAS_LAWS:
+        raise CalibrationError(f"unknown range-bias law {range_bias_law!r} (choose from {', '.join(RANGE_BIAS_LAWS)})")
+    if static_sweeps is not None and not Path(static_sweeps).is_dir():
+        raise CalibrationError(f"static sweeps folder {static_sweeps} does not exist")
     trs = as_trace_list(traces)
     if trs and all(_imu_only(t) for t in trs):  # IMU recordings only: IMU models, path and motion, no anchors
         from .imu_only import calibrate_imu_only
@@ -1736,8 +1743,6 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
 
         static = fit_static_range_bias(static_sweeps)
         rep.sections["static_range_bias"] = static
-    if range_bias_law not in RANGE_BIAS_LAWS:
-        raise CalibrationError(f"unknown range-bias law {range_bias_law!r} (choose from {', '.join(RANGE_BIAS_LAWS)})")
     ranging = fit_ranging(inp, timing, static=static, range_bias=range_bias, report=rep, law=range_bias_law,
                           tag_pattern=tag_pattern, run_slopes=run_slopes, trusted_truth=trusted_truth)
     tick("fitting availability (link range, dropouts, outages)")
