@@ -299,3 +299,9 @@ def test_truncated_and_blank_rows_are_skipped(tmp_path, tables):
     assert len(trace.uwb) == len(tables["uwb"]) - 2
     lines = report.summary_lines()
     assert any("truncated_row=2" in ln for ln in lines)
+
+
+def test_a_uwb_table_without_rows_is_refused(tmp_path, tables):
+    tables["uwb"] = tables["uwb"].iloc[:0]
+    with pytest.raises(RecordingError, match="no ranging attempt"):
+        import_csv(write_rec(tmp_path / "rec", tables))

@@ -265,6 +265,8 @@ def _read_uwb(path: Path, anchors: Anchors, rep: ReportBuilder
     cols = ["t_s", "anchor", "range_m", *(["burst"] if has_burst else [])]
     df = df.assign(anchor=idx.astype(np.int16).to_numpy())[cols]
     df = sort_and_dedupe(df, ["t_s", "anchor"], path.name, rep)
+    if df.empty:
+        raise RecordingError(f"{path}: no ranging attempt left (a recording needs at least one uwb row)")
     range_m = flag_ranges(df["range_m"].to_numpy(), path.name, rep)
     rep.kept(path.name, len(df))
     burst = df["burst"].fillna(-1).to_numpy().astype(np.int64) if has_burst else None
