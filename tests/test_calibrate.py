@@ -462,6 +462,18 @@ def test_the_summary_keeps_parameter_names_whole_in_80_columns(roundtrip, tmp_pa
     assert any(len(k) > 30 for k in keys)  # long keys exist, and each stays on one line
     for k in keys:
         assert any(k in line for line in lines), k
+    for _, value, _ in res.summary_rows():  # values unbroken too (three-axis values wrapped into 10 columns)
+        assert any(value in line for line in lines), value
+
+
+def test_a_wide_terminal_keeps_the_table(roundtrip, tmp_path, capsys, monkeypatch):
+    from physynth.cli.calibrate import _print_summary
+
+    _, _, res = roundtrip
+    monkeypatch.setenv("COLUMNS", "200")
+    _print_summary(res, tmp_path / "cal.yaml", None)
+    out = capsys.readouterr().out
+    assert "uncertainty / samples" in out and max(len(line) for line in out.splitlines()) <= 200
 
 
 def test_gross_ranges_are_left_out_and_counted_not_fitted_as_a_mode():

@@ -162,17 +162,25 @@ def _print_summary(result, out: Path, report: Path | None) -> None:
     from rich.table import Table
 
     rows = result.summary_rows()
-    table = Table(title=f"calibrated scenario '{result.scenario.name}'", expand=True)
-    # keys are kept whole where the terminal allows (a key broken mid-word reads badly) and fold only in a
-    # terminal too narrow for the longest; the value and uncertainty wrap at spaces
-    key_width = max((len(k) for k, _, _ in rows), default=9)
-    table.add_column("parameter", overflow="fold", min_width=min(key_width, 48))
-    table.add_column("value", justify="right", overflow="fold", ratio=1)
-    table.add_column("uncertainty / samples", justify="right", overflow="fold", ratio=1)
-    for key, value, unc in rows:
-        table.add_row(key, value, unc)
     console = Console()
-    console.print(table)
+    title = f"calibrated scenario '{result.scenario.name}'"
+    # keys are kept whole (a key broken mid-word reads badly); where the key, value and uncertainty do not
+    # fit side by side (an IMU's three-axis values beside 53-character keys in 80 columns), each value and
+    # its uncertainty go on an indented line under the key instead of wrapping into columns 10 wide
+    key_width = max((len(k) for k, _, _ in rows), default=9)
+    if console.width - key_width - 10 < 2 * 20:  # value and uncertainty columns of at least 20 each
+        console.print(title)
+        for key, value, unc in rows:
+            console.print(key, highlight=False, overflow="fold")
+            console.print(f"    {value}" + (f"   ({unc})" if unc else ""), highlight=False)
+    else:
+        table = Table(title=title, expand=True)
+        table.add_column("parameter", no_wrap=True)
+        table.add_column("value", justify="right", overflow="fold", ratio=1)
+        table.add_column("uncertainty / samples", justify="right", overflow="fold", ratio=1)
+        for key, value, unc in rows:
+            table.add_row(key, value, unc)
+        console.print(table)
     missing = result.report.get("not_identifiable", [])
     if missing:
         console.print(f"not identifiable ({len(missing)}): " + "; ".join(missing))
