@@ -67,3 +67,17 @@ def test_write_report_round_trips_and_refuses_to_replace(report, tmp_path):
         write_report(report, out, figures=False)
     write_report(report, out, figures=False, overwrite=True)
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temporary file left
+
+
+def test_a_narrow_band_shows_enough_digits_to_tell_its_ends_apart():
+    from physynth.validate.tables import _band_cells
+
+    band, inside = _band_cells({"band_5_95": [0.0771, 0.0838], "real_in_band": False}, 2)
+    assert band == "0.077 – 0.084" and inside == "NO"  # at two digits both ends read 0.08
+    assert _band_cells({"band_5_95": [1.0, 1.0], "real_in_band": True}, 2)[0] == "1.00 – 1.00"
+    assert _band_cells({"band_5_95": [0.10, 0.35], "real_in_band": True}, 2)[0] == "0.10 – 0.35"
+
+
+def test_the_fidelity_score_note_says_it_uses_absolute_differences(report):
+    note = table_validation(report).note
+    assert "absolute differences" in note and "Δavail" not in note

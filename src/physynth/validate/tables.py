@@ -83,7 +83,10 @@ def _band_cells(c: dict[str, Any] | None, digits: int) -> tuple[str, str]:
         return "—", "—"
     lo, hi = c["band_5_95"]
     inside = c.get("real_in_band")
-    return f"{_fmt(lo, digits)} – {_fmt(hi, digits)}", ("—" if inside is None else "yes" if inside else "NO")
+    d = digits
+    while d < digits + 3 and lo != hi and _fmt(lo, d) == _fmt(hi, d):  # a narrow band: digits until it shows
+        d += 1
+    return f"{_fmt(lo, d)} – {_fmt(hi, d)}", ("—" if inside is None else "yes" if inside else "NO")
 
 
 def table_validation(report: ValidationReport) -> _Table:
@@ -113,7 +116,8 @@ def table_validation(report: ValidationReport) -> _Table:
                   "Synth 5–95 %: percentiles of the metric over the synthetic traces taken one by one; "
                   "Real in band: whether the real value lies inside. Metrics as defined in docs/data-and-metrics.md "
                   "(100 Hz grid; residuals pooled over anchors and traces; KS of the signed residuals). "
-                  "S = Δavail + Δmed/10 + ΔP95/20 (lower is better).")
+                  "S = d_avail + d_med/10 + d_P95/20 with the absolute differences |Synth − Real| of UWB ≥ 1 "
+                  "(fraction) and of the residual median and P95 (m), not the Δ column (lower is better).")
 
 
 def _extended_value(name: str, value: Any) -> str:
