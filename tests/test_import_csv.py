@@ -305,3 +305,18 @@ def test_a_uwb_table_without_rows_is_refused(tmp_path, tables):
     tables["uwb"] = tables["uwb"].iloc[:0]
     with pytest.raises(RecordingError, match="no ranging attempt"):
         import_csv(write_rec(tmp_path / "rec", tables))
+
+
+def test_a_dataset_or_its_csv_export_is_named_as_such(tmp_path):
+    from physynth.generate import generate_traces
+    from physynth.io import write_dataset
+    from physynth.io.export import export_dataset
+    from physynth.io.scenario_file import load_scenario
+
+    ds = tmp_path / "ds"
+    write_dataset(ds, list(generate_traces(load_scenario("walk-hanyang"), 1, seed=1)))
+    with pytest.raises(RecordingError, match="is a PhySynth dataset, not a recording"):
+        import_csv(ds)
+    export_dataset(ds, tmp_path / "csvout", "csv")
+    with pytest.raises(RecordingError, match=r"is a PhySynth dataset \(a CSV export\)"):
+        import_csv(tmp_path / "csvout")

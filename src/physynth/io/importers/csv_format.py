@@ -26,6 +26,7 @@ from ...constants import G0_MPS2
 from ...errors import RecordingError
 from ...models.attitude import body_rates_from_quat
 from ...records import Anchors, Imu, Trace, Truth, Uwb
+from ..dataset import is_csv_export
 from ._common import (
     ImportReport,
     ReportBuilder,
@@ -91,6 +92,10 @@ def import_csv(rec_dir: str | os.PathLike, *, velocity_window_s: float = 0.5,
         raise RecordingError(f"recording folder {rec} does not exist")
     if not rec.is_dir():
         raise RecordingError(f"{rec} is not a folder (a recording is a folder of CSV/Parquet tables)")
+    if (rec / "dataset.json").is_file():  # a dataset, or the CSV export of one, has no recording's tables
+        raise RecordingError(f"{rec} is a PhySynth dataset{' (a CSV export)' if is_csv_export(rec) else ''}, not a "
+                             "recording: the other commands read a dataset as it is; import csv reads the "
+                             "tables of docs/recording-format.md")
     rep = ReportBuilder("csv", rec)
 
     anchors = _read_anchors(find_table(rec, "anchors", required=True), rep)
