@@ -21,12 +21,14 @@ _RECORDS = ("Anchors", "Imu", "Reason", "Trace", "Truth", "Uwb")
 _LAZY = {
     **{name: "physynth.records" for name in _RECORDS},
     "Scenario": "physynth.scenario",
+    "scenario_from_dict": "physynth.scenario",
+    "scenario_to_dict": "physynth.scenario",
     "load_scenario": "physynth.io.scenario_file",
     "save_scenario": "physynth.io.scenario_file",
     "list_presets": "physynth.io.scenario_file",
     "compile_scenario": "physynth.generate",
-    "generate_trace": "physynth.generate",
-    "generate_traces": "physynth.generate",
+    "generate_trace": "physynth.workflows",  # physynth.generate's, on a preset name, file or mapping too
+    "generate_traces": "physynth.workflows",
     "compute_metrics": "physynth.evaluate.metrics",
     "read_dataset": "physynth.io.dataset",
     "iter_traces": "physynth.io.dataset",

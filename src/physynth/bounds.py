@@ -285,10 +285,7 @@ def estimate_size(scn: Scenario, n_traces: int) -> SizeEstimate:
     except (ValueError, ArithmeticError) as exc:
         raise ScenarioError(f"scenario '{scn.name}': {exc}") from None
     m = scn.motion
-    v_hi = m.cruise_speed_mps * (1 + m.cruise_speed_spread_frac)
-    v_lo = m.cruise_speed_mps * (1 - m.cruise_speed_spread_frac)
-    trip_max = length * (1 + m.length_spread_frac) / (v_lo * shape_mean)
-    trip_min = length * (1 - m.length_spread_frac) / (v_hi * shape_mean)
+    trip_min, trip_max = trip_range_s(scn, length, shape_mean)
     duration = m.dwell_start_s + trip_max + m.dwell_end_s
     truth = math.floor(duration * scn.truth_rate_hz) + 1
     imu = math.floor(duration * scn.imu.rate_hz) + 1
@@ -316,23 +313,49 @@ def _random_route_bound_m(scn: Scenario) -> float:
     return 1.2 * max_route_length_m(scn.variation, pts, np.asarray(centre, dtype=float))
 
 
+def trip_range_s(scn: Scenario, length_m: float, shape_mean: float) -> tuple[float, float]:
+    """(shortest, longest) trip [s] of the scenario's runs over a path of ``length_m`` whose speed profile
+    has mean ``shape_mean`` (the spreads of cruise speed and length at their extremes)."""
+    m = scn.motion
+    v_hi = m.cruise_speed_mps * (1 + m.cruise_speed_spread_frac)
+    v_lo = m.cruise_speed_mps * (1 - m.cruise_speed_spread_frac)
+    return (length_m * (1 - m.length_spread_frac) / (v_hi * shape_mean),
+            length_m * (1 + m.length_spread_frac) / (v_lo * shape_mean))
+
+
+def check_trip(scn: Scenario, est: SizeEstimate | None = None, *, min_trip_s: float | None = None) -> None:
+    """Refuse a scenario whose shortest trip is too short to make traces (every generation path checks
+    it: :func:`check_budget`, :func:`physynth.generate.compile_scenario`). The shortest trip comes from
+    ``min_trip_s`` (compile_scenario's, from its compiled path and speed profile), else ``est``, else a
+    size estimate of one trace.
+
+    Raises
+    ------
+    ScenarioError
+        The shortest trip gives fewer than :data:`MIN_TRUTH_SAMPLES` truth samples (not overridable).
+    """
+    if min_trip_s is None:
+        min_trip_s = (estimate_size(scn, 1) if est is None else est).min_trip_s
+    moving = min_trip_s * scn.truth_rate_hz
+    if not moving >= MIN_TRUTH_SAMPLES:
+        raise ScenarioError(f"scenario '{scn.name}': the trip takes only {min_trip_s:.3g} s "
+                            f"({moving:.3g} truth samples at {scn.truth_rate_hz:g} Hz, fewer than "
+                            f"{MIN_TRUTH_SAMPLES}): check path length and cruise speed")
+
+
 def check_budget(scn: Scenario, n_traces: int, *, force: bool = False) -> SizeEstimate:
     """Refuse, before any work, a generation that is too short to make traces or over budget.
 
     Raises
     ------
     ScenarioError
-        The shortest trip gives fewer than :data:`MIN_TRUTH_SAMPLES` truth samples (not overridable).
+        The shortest trip gives fewer than :data:`MIN_TRUTH_SAMPLES` truth samples (:func:`check_trip`).
     BudgetError
         Unless ``force``: the peak memory or the output size exceeds its budget; the message holds
         the estimate.
     """
     est = estimate_size(scn, n_traces)
-    moving = est.min_trip_s * scn.truth_rate_hz
-    if not moving >= MIN_TRUTH_SAMPLES:
-        raise ScenarioError(f"scenario '{scn.name}': the trip takes only {est.min_trip_s:.3g} s "
-                            f"({moving:.3g} truth samples at {scn.truth_rate_hz:g} Hz, fewer than "
-                            f"{MIN_TRUTH_SAMPLES}): check path length and cruise speed")
+    check_trip(scn, est)
     if force:
         return est
     if est.peak_memory_bytes > MEMORY_BUDGET_BYTES:

@@ -8,6 +8,12 @@ class PhySynthError(Exception):
     """
 
 
+class ArgumentError(PhySynthError, ValueError):
+    """A function was called with an argument of the wrong type or outside its range (a float seed, a
+    negative trace index, a grid rate of 0 Hz, no traces). Also a ``ValueError``, as such mistakes were
+    before they were checked at the call."""
+
+
 class ScenarioError(PhySynthError):
     """A scenario file or object is invalid."""
 

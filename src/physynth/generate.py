@@ -16,7 +16,10 @@ import numpy as np
 
 from . import __version__
 from ._alloc import tune_allocator
+from ._args import check_int, check_seed
+from .bounds import check_trip, trip_range_s
 from .constants import IMU_BODY_FRAME, IMU_FRAME
+from .errors import ScenarioError
 from .models.attitude import simulate_attitude
 from .models.availability import AvailabilityArrays, availability_arrays, simulate_availability
 from .models.imu import simulate_body_imu, simulate_imu
@@ -48,12 +51,23 @@ def compile_scenario(scn: Scenario) -> CompiledScenario:
 
     The first call in a process also tunes glibc's allocator (:mod:`physynth._alloc`; opt-out
     ``PHYSYNTH_MALLOPT=0``): fewer page faults per trace, the same values.
+
+    Raises
+    ------
+    ScenarioError
+        ``scn`` is not a :class:`Scenario`, or its shortest trip gives fewer truth samples than a trace
+        needs (:func:`physynth.bounds.check_trip`, as :func:`physynth.workflows.generate_dataset` checks).
     """
+    if not isinstance(scn, Scenario):
+        raise ScenarioError(f"expected a Scenario, got {type(scn).__name__} (physynth.load_scenario reads a preset "
+                            "name, a scenario file or a mapping)")
+    geometry, shape = compile_path(scn.path), compile_speed_shape(scn.motion.profile)
+    check_trip(scn, min_trip_s=trip_range_s(scn, geometry.length_m, shape.mean)[0])
     tune_allocator()
     return CompiledScenario(
         scenario=scn,
-        geometry=(geometry := compile_path(scn.path)),
-        shape=compile_speed_shape(scn.motion.profile),
+        geometry=geometry,
+        shape=shape,
         channel=(channel_arrays(scn.uwb, scn.anchors, [scn.channel_for(a) for a in scn.anchor_ids])
                  if scn.anchors else None),
         availability=(availability_arrays(scn.availability, [scn.availability_for(a) for a in scn.anchor_ids])
@@ -94,7 +108,17 @@ def _vary_site(cs: CompiledScenario, index: int, root_seed: int) -> tuple[Compil
 
 
 def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int) -> Trace:
-    """Trace ``index`` of the dataset with root seed ``root_seed``."""
+    """Trace ``index`` of the dataset with root seed ``root_seed``.
+
+    Raises
+    ------
+    ArgumentError
+        ``index`` or ``root_seed`` is not a non-negative integer (a float is never truncated).
+    ScenarioError
+        As :func:`compile_scenario`.
+    """
+    index = check_int(index, "index", what="the index of the trace")
+    root_seed = check_int(root_seed, "root_seed", what="the root seed")
     cs = _compiled(scn)
     site = None
     if cs.scenario.variation is not None:  # this trace's own anchor layout and path
@@ -159,15 +183,17 @@ def generate_traces(scn: Scenario | CompiledScenario, n: int, seed: int | None =
 
     Raises
     ------
-    ValueError
-        ``n`` or ``start`` is negative (at the call, not at the first trace).
+    ArgumentError
+        ``n``, ``start`` or ``seed`` is not a non-negative integer (at the call, not at the first trace;
+        also a ``ValueError``).
+    ScenarioError
+        As :func:`compile_scenario` (at the call).
     """
-    if n < 0:
-        raise ValueError(f"n must be >= 0 (the number of traces), got {n}")
-    if start < 0:
-        raise ValueError(f"start must be >= 0 (the index of the first trace), got {start}")
+    n = check_int(n, "n", what="the number of traces")
+    start = check_int(start, "start", what="the index of the first trace")
+    seed = check_seed(seed)
     cs = _compiled(scn)
-    root = new_root_seed() if seed is None else int(seed)
+    root = new_root_seed() if seed is None else seed
     return (generate_trace(cs, i, root) for i in range(start, start + n))
 
 

@@ -107,6 +107,44 @@ def require_dask() -> Any:
     return distributed
 
 
+MAIN_GUARD_HINT = ('a script that starts worker processes (workers > 1) must make its calls under '
+                   '`if __name__ == "__main__":`, since each worker process imports the script again')
+"""The one line that tells a script author why an embedded cluster did not start (docs/scale.md)."""
+
+
+def check_not_bootstrapping() -> None:
+    """Refuse to start worker processes from a process that is itself starting as one.
+
+    A worker process (started by spawn, as Dask's are) imports the calling script again; a script
+    without the ``if __name__ == "__main__":`` guard then calls the generation again, while the process
+    is still starting up. This is the test :mod:`multiprocessing` makes before it starts a process.
+
+    Raises
+    ------
+    PhySynthError
+        This process is importing the script that started it (:data:`MAIN_GUARD_HINT`).
+    """
+    import multiprocessing
+
+    if getattr(multiprocessing.current_process(), "_inheriting", False):
+        raise PhySynthError(f"this process is a worker process still starting up, which cannot start workers "
+                            f"of its own: {MAIN_GUARD_HINT}")
+
+
+def _local_cluster(distributed: Any, n_workers: int) -> Any:
+    """An embedded cluster of ``n_workers`` worker processes (one thread each), or a one-line error."""
+    import logging
+
+    check_not_bootstrapping()
+    try:
+        with _children_ignore_terminal_signals(), _quiet_workers():
+            return distributed.LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                                            dashboard_address=":0", silence_logs=logging.ERROR)
+    except Exception as exc:  # noqa: BLE001 - any failure to start ("Nanny failed to start") is reported so
+        reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise PhySynthError(f"the Dask worker processes did not start ({reason}); {MAIN_GUARD_HINT}") from None
+
+
 def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, todo: Sequence[int],
                meta: dict[str, Any], *, workers: int = 1, scheduler: str | None = None,
                progress: Callable[[int], None] | None = None) -> None:
@@ -145,11 +183,7 @@ def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, to
             raise PhySynthError(f"cannot connect to the Dask scheduler {scheduler}: {exc}") from None
         cluster = None
     else:
-        import logging
-
-        with _children_ignore_terminal_signals(), _quiet_workers():
-            cluster = distributed.LocalCluster(n_workers=min(workers, len(todo)), threads_per_worker=1,
-                                               processes=True, dashboard_address=":0", silence_logs=logging.ERROR)
+        cluster = _local_cluster(distributed, min(workers, len(todo)))
         client = distributed.Client(cluster)
     try:
         futures = {}

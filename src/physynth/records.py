@@ -12,12 +12,14 @@ World frame ENU [m], time float64 seconds, shapes time-first then component: (T,
 from __future__ import annotations
 
 import enum
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from .constants import IMU_BODY_FRAME, IMU_FRAME
+from .errors import ArgumentError
 
 
 class Reason(enum.IntEnum):
@@ -100,6 +102,8 @@ class Truth:
         object.__setattr__(self, "pos_enu_m", _f64(self.pos_enu_m, (3,), "truth.pos_enu_m"))
         object.__setattr__(self, "vel_enu_mps", _f64(self.vel_enu_mps, (3,), "truth.vel_enu_mps"))
         n = self.t_s.shape[0]
+        if n == 0:
+            raise ValueError("truth: no samples (t_s is empty); a trace needs at least one truth sample")
         if self.pos_enu_m.shape[0] != n or self.vel_enu_mps.shape[0] != n:
             raise ValueError("truth: t_s, pos_enu_m and vel_enu_mps differ in length")
         for name, width in (("quat_wxyz", 4), ("omega_body_radps", 3)):
@@ -254,8 +258,9 @@ class Trace:
     meta: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if len(self.uwb) and int(self.uwb.anchor.max(initial=0)) >= len(self.anchors):
-            raise ValueError("uwb rows refer to an anchor index outside the anchor layout")
+        if len(self.uwb) and (int(self.uwb.anchor.max()) >= len(self.anchors) or int(self.uwb.anchor.min()) < 0):
+            raise ValueError(f"uwb rows refer to an anchor index outside the anchor layout (0 .. "
+                             f"{len(self.anchors) - 1}): {int(self.uwb.anchor.min())} .. {int(self.uwb.anchor.max())}")
 
     @property
     def t0_s(self) -> float:
@@ -264,3 +269,16 @@ class Trace:
     @property
     def duration_s(self) -> float:
         return float(self.truth.t_s[-1] - self.truth.t_s[0])
+
+
+def trace_iterable(traces: Iterable[Trace]) -> Iterable[Trace]:
+    """``traces`` as given; one :class:`Trace` passed where an iterable of them is expected is refused.
+
+    Raises
+    ------
+    ArgumentError
+        ``traces`` is a single Trace.
+    """
+    if isinstance(traces, Trace):
+        raise ArgumentError("traces must be an iterable of Trace records, got a single Trace (pass [trace])")
+    return traces

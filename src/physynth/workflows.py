@@ -8,19 +8,20 @@ result; none draws anything or knows the command line. Long ones take a ``progre
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from . import generate as _generate
+from ._args import check_int, check_number, check_seed
 from .bounds import check_budget
-from .constants import DEFAULT_GRID_RATE_HZ
 from .errors import AnchorMismatchError, PhySynthError
-from .generate import compile_scenario, dataset_meta, generate_traces
+from .generate import CompiledScenario, compile_scenario, dataset_meta
 from .io import safety
-from .io.dataset import iter_traces, n_traces, read_dataset, read_meta, table_files
+from .io.dataset import iter_traces, n_traces, read_dataset, read_meta, recorded_grid_rate_hz, table_files
 from .io.scenario_file import load_scenario
 from .io.shards import DEFAULT_SHARD_TRACES
-from .parallel import require_dask, run_shards
+from .parallel import check_not_bootstrapping, require_dask, run_shards
 from .progress import ProgressCallback
 from .records import Trace
 from .rng import new_root_seed
@@ -32,18 +33,48 @@ if TYPE_CHECKING:
     from .validate.compare import ValidationReport
 
 
+ScenarioLike = str | os.PathLike | Scenario | dict[str, Any]
+"""A scenario as the workflows take it: a preset name, a scenario file, a mapping or a Scenario."""
+
+
 # ---------------------------------------------------------------- generate
-def generate_dataset(scn: Scenario, n: int, out: str | Path, *, seed: int | None = None,
+def _scenario(scenario: ScenarioLike | CompiledScenario) -> Scenario | CompiledScenario:
+    """The scenario of a preset name, file or mapping (:func:`load_scenario`); a compiled one as it is."""
+    return scenario if isinstance(scenario, CompiledScenario) else load_scenario(scenario)
+
+
+def generate_trace(scenario: ScenarioLike | CompiledScenario, index: int, root_seed: int) -> Trace:
+    """:func:`physynth.generate.generate_trace` on a scenario given also as a preset name, a scenario file
+    or a mapping (``physynth.generate_trace``)."""
+    return _generate.generate_trace(_scenario(scenario), index, root_seed)
+
+
+def generate_traces(scenario: ScenarioLike | CompiledScenario, n: int, seed: int | None = None,
+                    start: int = 0) -> Iterator[Trace]:
+    """:func:`physynth.generate.generate_traces` on a scenario given also as a preset name, a scenario file
+    or a mapping (``physynth.generate_traces``); bad arguments are refused at the call."""
+    return _generate.generate_traces(_scenario(scenario), n, seed=seed, start=start)
+
+
+def generate_dataset(scn: ScenarioLike, n: int, out: str | Path, *, seed: int | None = None,
                      overwrite: bool = False, progress: ProgressCallback | None = None, workers: int = 1,
                      scheduler: str | None = None, resume: bool = False,
                      shard_traces: int = DEFAULT_SHARD_TRACES, force: bool = False,
                      inputs: Sequence[str | os.PathLike] = ()) -> tuple[Path, int]:
     """Generate ``n`` traces and write them as a dataset directory (atomically), in shards.
 
+    Every argument is checked before the output is touched (:class:`~physynth.errors.ArgumentError` for
+    a count or seed that is not a non-negative integer); a run that fails before it wrote a shard leaves
+    nothing that a later run would have to resume.
+
     Parameters
     ----------
+    scn : Scenario, preset name, scenario file or mapping
+        The scenario (:func:`physynth.io.scenario_file.load_scenario`).
     workers : int
-        Worker processes (an embedded Dask cluster when > 1; :mod:`physynth.parallel`).
+        Worker processes (an embedded Dask cluster when > 1; :mod:`physynth.parallel`). A script that
+        asks for more than one must make its calls under ``if __name__ == "__main__":`` (each worker
+        process imports the script again); without it the call fails with one line saying so.
     scheduler : str, optional
         Address of an existing Dask scheduler to run the shards on instead.
     resume : bool
@@ -63,18 +94,23 @@ def generate_dataset(scn: Scenario, n: int, out: str | Path, *, seed: int | None
     """
     from .io import shards
 
-    if n < 1:
-        raise PhySynthError(f"the number of traces must be at least 1, got {n}")
-    if seed is not None and seed < 0:
-        raise PhySynthError(f"the root seed must be a non-negative integer, got {seed}")
-    if shard_traces < 1:
-        raise PhySynthError(f"traces per shard must be at least 1, got {shard_traces}")
-    if workers < 1:
-        raise PhySynthError(f"the number of workers must be at least 1, got {workers}")
+    n = check_int(n, "n", minimum=1, what="the number of traces")
+    seed = check_seed(seed)
+    shard_traces = check_int(shard_traces, "shard_traces", minimum=1, what="traces per shard")
+    workers = check_int(workers, "workers", minimum=1, what="the number of worker processes")
     if resume and overwrite:
         raise PhySynthError("resume and overwrite exclude each other: resume completes an unfinished run, "
                             "overwrite discards it; ask for one")
+    if scheduler is None and workers > 1:
+        check_not_bootstrapping()  # a worker re-running an unguarded script: fail before the output is touched
+    scn = load_scenario(scn)
     check_budget(scn, n, force=force)
+    if resume:  # an output that is already complete: nothing to resume, or another run's (docs/scale.md)
+        done = shards.finished_run(safety.resolve_output(out), scenario_to_dict(scn), seed, n, shard_traces)
+        if done is not None:
+            if progress is not None:
+                progress(f"{out} is already complete: nothing to resume")
+            return safety.resolve_output(out), done
     # safety hook (physynth.io.safety): what may be replaced, inputs, the output's lock, orphaned temp folders
     out, lock = safety.prepare_output(out, kind="dataset", overwrite=overwrite, inputs=inputs)
     try:
@@ -98,9 +134,9 @@ def generate_dataset(scn: Scenario, n: int, out: str | Path, *, seed: int | None
         try:
             run_shards(scn, root, partial, plan, todo, meta, workers=workers, scheduler=scheduler,
                        progress=None if progress is None else (lambda done: progress(message, already + done, n)))
-        except PhySynthError:
-            if not complete and not any(partial.glob("shard-*")):  # nothing generated (e.g. no scheduler):
-                safety.remove_tree(partial)  # leave nothing behind that a later run would have to resume
+        except Exception:  # not an interruption: a killed or interrupted run stays resumable
+            if not complete and not any(partial.glob("shard-*")):  # nothing generated (e.g. no scheduler,
+                safety.remove_tree(partial)  # workers that did not start): nothing a later run must resume
             raise
         return shards.finalize(out, partial, plan, meta), root
     finally:
@@ -108,16 +144,18 @@ def generate_dataset(scn: Scenario, n: int, out: str | Path, *, seed: int | None
 
 
 # ---------------------------------------------------------------- calibrate
-def read_recordings(paths: Sequence[str | os.PathLike], *,
+def read_recordings(paths: str | os.PathLike | Sequence[str | os.PathLike], *,
                     allow_mixed: bool = True) -> tuple[list[Trace], list[str]]:
     """Traces of one or several dataset directories, labelled ``<dataset>/<run or trace index>``.
 
-    Unless ``allow_mixed``, datasets of different kinds of site are refused
-    (:func:`physynth.calibrate.sites.check_same_site`).
+    ``paths`` is a sequence of directories or one directory. Unless ``allow_mixed``, datasets of
+    different kinds of site are refused (:func:`physynth.calibrate.sites.check_same_site`).
     """
     from .calibrate._base import CalibrationError
     from .calibrate.sites import check_same_site, site_of
 
+    if isinstance(paths, (str, os.PathLike)):  # one dataset, not the characters of its path
+        paths = [paths]
     if not paths:
         raise CalibrationError("no dataset directories given")
     traces, sources, sites = [], [], []
@@ -134,9 +172,10 @@ def read_recordings(paths: Sequence[str | os.PathLike], *,
     return traces, sources
 
 
-def calibrate_datasets(paths: Sequence[str | os.PathLike], *, allow_mixed: bool = False,
+def calibrate_datasets(paths: str | os.PathLike | Sequence[str | os.PathLike], *, allow_mixed: bool = False,
                        **kwargs: Any) -> CalibrationResult:
-    """:func:`physynth.calibrate.calibrate` on every trace of one or several dataset directories, pooled.
+    """:func:`physynth.calibrate.calibrate` on every trace of one or several dataset directories, pooled
+    (``paths``: a sequence of directories, or one).
 
     Datasets of different kinds of site are refused unless ``allow_mixed``
     (:mod:`physynth.calibrate.sites`).
@@ -148,14 +187,19 @@ def calibrate_datasets(paths: Sequence[str | os.PathLike], *, allow_mixed: bool 
 
 
 # ---------------------------------------------------------------- inspect
-def inspect_dataset(path: str | Path, *, rate_hz: float = DEFAULT_GRID_RATE_HZ,
+def inspect_dataset(path: str | Path, *, rate_hz: float | None = None,
                     progress: ProgressCallback | None = None) -> tuple[Metrics, dict[str, Any]]:
     """Pooled section-5 metrics of a dataset, streamed trace by trace, and its ``dataset.json``.
 
+    ``rate_hz``: the evaluation grid rate [Hz]; None takes the one the dataset records (its scenario's
+    ``grid_rate_hz``, :func:`physynth.io.dataset.recorded_grid_rate_hz`; 100 Hz for imported recordings).
     Memory does not grow with the number of traces (:func:`physynth.io.dataset.iter_traces`,
     :class:`physynth.evaluate.metrics.MetricsAccumulator`). ``progress`` is called after each trace.
     """
+    if rate_hz is not None:
+        rate_hz = check_number(rate_hz, "rate_hz", positive=True, unit="Hz")
     meta = read_meta(path)
+    rate_hz = recorded_grid_rate_hz(meta) if rate_hz is None else rate_hz
     total = n_traces(meta)
     done = 0
 
@@ -197,9 +241,9 @@ def _read(reader: Callable[[str | Path], Any], path: str | Path, role: str) -> A
 
 
 def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
-                      scenario: str | Path | Scenario | None = None,
+                      scenario: ScenarioLike | None = None,
                       n: int = 50, seed: int | None = None, transfer: bool = False,
-                      rate_hz: float = DEFAULT_GRID_RATE_HZ, progress: ProgressCallback | None = None,
+                      rate_hz: float | None = None, progress: ProgressCallback | None = None,
                       anchors: Sequence[str] | None = None, force: bool = False,
                       all_truth: bool = False) -> ValidationReport:
     """Validate a real dataset against a synthetic dataset or against traces generated from a scenario.
@@ -211,14 +255,16 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
     synthetic : path, optional
         Dataset directory of synthetic traces. Exactly one of ``synthetic`` and ``scenario``.
     scenario : str, path or Scenario, optional
-        Preset name, scenario file or object; ``n`` traces are generated from root seed ``seed``
+        Preset name, scenario file, mapping or object; ``n`` traces are generated from root seed ``seed``
         (drawn from OS entropy and recorded when None).
     transfer : bool
         Take path geometry, motion and anchor layout from the real dataset
         (:func:`physynth.calibrate.transfer_scenario`) and keep every sensor, channel and
         availability parameter of the scenario (paper section IV.C). Needs ``scenario``.
-    rate_hz : float
-        Evaluation grid rate [Hz].
+    rate_hz : float, optional
+        Evaluation grid rate [Hz], the same for both sides (recorded in the report's inputs). None: the
+        scenario's ``grid_rate_hz`` when a scenario is given, else the one the synthetic dataset records
+        (:func:`physynth.io.dataset.recorded_grid_rate_hz`), else 100 Hz.
     progress : callable, optional
         ``progress(message, done, total)`` after each synthetic trace is generated and reduced.
     anchors : sequence of str, optional
@@ -242,13 +288,7 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
 
     from .validate.compare import anchor_ids, check_real, compare
 
-    if (synthetic is None) == (scenario is None):
-        raise PhySynthError("give exactly one of a synthetic dataset and a scenario "
-                            f"({'both' if synthetic is not None else 'neither'} given)")
-    if transfer and scenario is None:
-        raise PhySynthError("transfer needs a scenario (it builds a scenario for the real run's geometry)")
-    if scenario is not None and n < 1:
-        raise PhySynthError(f"the number of synthetic traces must be at least 1, got {n}")
+    rate_hz = _check_validate_arguments(synthetic, scenario, transfer=transfer, n=n, rate_hz=rate_hz)
     real_ds = _read(read_dataset, real, "real")
     real_traces = real_ds.traces
     from .validate.imu_report import is_imu_only
@@ -271,10 +311,12 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
         inputs["anchor_subset"] = subset
 
     if synthetic is not None:
-        synth_iter, total, inputs["synthetic"] = _synthetic_from_dataset(synthetic, real_ids, subset)
+        synth_iter, total, inputs["synthetic"], recorded_rate = _synthetic_from_dataset(synthetic, real_ids, subset)
     else:
         synth_iter, total, inputs["synthetic"], transfer_info = _synthetic_from_scenario(
             scenario, real, real_traces, real_ids, subset, n=n, seed=seed, transfer=transfer, force=force)
+        recorded_rate = float(inputs["synthetic"]["scenario_config"]["grid_rate_hz"])
+    rate_hz = recorded_rate if rate_hz is None else rate_hz
 
     verb = "generating + reducing" if synthetic is None else "reducing"
     done = 0
@@ -297,6 +339,20 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
     return report
 
 
+def _check_validate_arguments(synthetic: str | Path | None, scenario: ScenarioLike | None, *, transfer: bool, n: int,
+                              rate_hz: float | None) -> float | None:
+    """:func:`validate_datasets`' choice of inputs, checked before anything is read; returns ``rate_hz``
+    checked (None: the scenario's or the synthetic dataset's)."""
+    if (synthetic is None) == (scenario is None):
+        raise PhySynthError("give exactly one of a synthetic dataset and a scenario "
+                            f"({'both' if synthetic is not None else 'neither'} given)")
+    if transfer and scenario is None:
+        raise PhySynthError("transfer needs a scenario (it builds a scenario for the real run's geometry)")
+    if scenario is not None and n < 1:
+        raise PhySynthError(f"the number of synthetic traces must be at least 1, got {n}")
+    return None if rate_hz is None else check_number(rate_hz, "rate_hz", positive=True, unit="Hz")
+
+
 def _real_truth(traces: Sequence[Trace], all_truth: bool) -> tuple[Sequence[Trace], dict[str, Any]]:
     """The real traces as compared (without their untrusted-truth spans when ``all_truth``) and how many
     of their valid ranges fall where the truth is untrusted."""
@@ -315,8 +371,9 @@ def _real_truth(traces: Sequence[Trace], all_truth: bool) -> tuple[Sequence[Trac
 
 
 def _synthetic_from_dataset(synthetic: str | Path, real_ids: Sequence[str], subset: list[str] | None
-                            ) -> tuple[Iterable[Trace], int | None, dict[str, Any]]:
-    """The synthetic side read from a dataset: (streamed traces, count, provenance); anchors checked."""
+                            ) -> tuple[Iterable[Trace], int | None, dict[str, Any], float]:
+    """The synthetic side read from a dataset: (streamed traces, count, provenance, the grid rate it
+    records); anchors checked."""
     from .studies.subset import check_subset, restrict_to_anchors
     from .validate.compare import describe_anchor_mismatch
 
@@ -337,7 +394,7 @@ def _synthetic_from_dataset(synthetic: str | Path, real_ids: Sequence[str], subs
     traces: Iterable[Trace] = _checked_stream(synthetic, synth_meta)
     if subset is not None:
         traces = (restrict_to_anchors(t, subset) for t in traces if set(subset) <= set(t.anchors.ids))
-    return traces, total, provenance
+    return traces, total, provenance, recorded_grid_rate_hz(synth_meta)
 
 
 def _synthetic_from_scenario(scenario: str | Path | Scenario, real: str | Path, real_traces: Sequence[Trace],
@@ -349,8 +406,8 @@ def _synthetic_from_scenario(scenario: str | Path | Scenario, real: str | Path, 
     from .studies.subset import check_subset, restrict_to_anchors
     from .validate.compare import describe_anchor_mismatch, transfer_record
 
-    scn = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-    source = scn.name if isinstance(scenario, Scenario) else str(scenario)
+    scn = load_scenario(scenario)
+    source = str(scenario) if isinstance(scenario, (str, os.PathLike)) else scn.name
     transfer_info = None
     if transfer:
         try:
@@ -371,7 +428,7 @@ def _synthetic_from_scenario(scenario: str | Path | Scenario, real: str | Path, 
     root = new_root_seed() if seed is None else int(seed)
     provenance = {"scenario": source, "scenario_name": scn.name, "n_traces": int(n), "root_seed": root,
                   "transfer": bool(transfer), "scenario_config": scenario_to_dict(scn)}
-    traces: Iterable[Trace] = generate_traces(compile_scenario(scn), n, seed=root)
+    traces: Iterable[Trace] = _generate.generate_traces(compile_scenario(scn), n, seed=root)
     if subset is not None:
         traces = (restrict_to_anchors(t, subset) for t in traces)
     return traces, n, provenance, transfer_info
@@ -402,27 +459,24 @@ def _validate_imu(real: str | Path, real_ds: Any, *, synthetic: str | Path | Non
         synth_ds = _read(read_dataset, synthetic, "synthetic")
         inputs["synthetic"] = {"path": str(synthetic), "n_traces": len(synth_ds)}
         return validate_imu(real_ds.traces, synthetic=synth_ds.traces, inputs=inputs)
-    scn = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    scn = load_scenario(scenario)
     return validate_imu(real_ds.traces, scenario=scn, n=n, seed=seed, transfer=transfer, inputs=inputs,
                         progress=progress)
 
 
 # ---------------------------------------------------------------- studies
-def _scenario(scenario: str | Path | Scenario) -> Scenario:
-    return scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-
-
 def anchor_study(scenario: str | Path | Scenario, *, real: str | Path | None = None, n: int = 50,
                  seed: int | None = None, counts: Sequence[int] | None = None,
                  regimes: Sequence[str] = ("dense", "sparse", "degraded"), order: Sequence[str] | None = None,
                  workers: int | None = None, tracker_traces: int | None = None,
-                 progress: ProgressCallback | None = None) -> Any:
+                 progress: ProgressCallback | None = None, force: bool = False) -> Any:
     """:func:`physynth.studies.anchors.run_anchor_study` on a scenario (preset, file or object) and,
     optionally, a real dataset directory (its traces need truth and valid ranges).
 
     ``seed=None`` draws a root seed from OS entropy; it is recorded in the result. ``tracker_traces``:
     traces per cell the trackers run on (default :data:`physynth.studies.anchors.TRACKER_TRACES`; 0: no
-    tracker column).
+    tracker column). ``force``: go ahead even when the study's traces exceed the size budget
+    (:func:`physynth.bounds.check_budget`, checked before any work).
     """
     from .studies.anchors import TRACKER_TRACES, GdopColumn, TrackerColumn, run_anchor_study
     from .validate.compare import check_real
@@ -436,7 +490,7 @@ def anchor_study(scenario: str | Path | Scenario, *, real: str | Path | None = N
     tracker_traces = TRACKER_TRACES if tracker_traces is None else int(tracker_traces)
     columns = (GdopColumn(),) if tracker_traces == 0 else (GdopColumn(), TrackerColumn(tracker_traces))
     study = run_anchor_study(scn, real=real_traces, n=n, seed=root, counts=counts, regimes=regimes, order=order,
-                             workers=workers, columns=columns, progress=progress)
+                             workers=workers, columns=columns, progress=progress, force=force)
     if real is not None:
         study.reference["path"] = str(real)
     return study
@@ -444,8 +498,9 @@ def anchor_study(scenario: str | Path | Scenario, *, real: str | Path | None = N
 
 def placement_study(scenario: str | Path | Scenario, candidates: str | Path, *, k: int, objective: str = "ge1",
                     n: int = 20, seed: int | None = None, regime: str = "nominal", workers: int | None = None,
-                    progress: ProgressCallback | None = None) -> Any:
-    """:func:`physynth.studies.placement.greedy_placement` with candidates read from a file."""
+                    progress: ProgressCallback | None = None, force: bool = False) -> Any:
+    """:func:`physynth.studies.placement.greedy_placement` with candidates read from a file (``force``: go
+    ahead even when its traces exceed the size budget)."""
     from .studies.placement import greedy_placement, read_candidates
     from .studies.regimes import apply_regime
 
@@ -453,4 +508,4 @@ def placement_study(scenario: str | Path | Scenario, candidates: str | Path, *, 
     cands = read_candidates(candidates)
     root = new_root_seed() if seed is None else int(seed)
     return greedy_placement(scn, cands, k=k, objective=objective, n=n, seed=root, workers=workers,
-                            progress=progress)
+                            progress=progress, force=force)

@@ -14,8 +14,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._args import check_number
 from ..constants import DEFAULT_GRID_RATE_HZ
-from ..records import TRUTH_UNTRUSTED_KEY, Trace, untrusted_truth
+from ..errors import ArgumentError
+from ..records import TRUTH_UNTRUSTED_KEY, Trace, trace_iterable, untrusted_truth
 from .grid import age_of_information as _aoi
 from .grid import fresh_mask, grid_times, imu_on_grid
 from .sketch import Moments, QuantileSketch
@@ -192,9 +194,10 @@ class MetricsAccumulator:
         }
 
     def result(self) -> Metrics:
-        """The pooled metrics of every trace added so far."""
+        """The pooled metrics of every trace added so far (:class:`~physynth.errors.ArgumentError`, also a
+        ``ValueError``, when there are none)."""
         if self.n_traces == 0:
-            raise ValueError("no traces to compute metrics on")
+            raise ArgumentError("no traces to compute metrics on")
         per_anchor = {}
         for a in self.anchor_ids:
             sk, sk_abs, mom = self.per_anchor_residual[a]
@@ -231,10 +234,17 @@ def compute_metrics(traces: Iterable[Trace], rate_hz: float = DEFAULT_GRID_RATE_
                     on_trace: Callable[[], None] | None = None) -> Metrics:
     """Pooled section-5 metrics of traces, reduced one at a time (any iterable, e.g. a streamed dataset).
 
-    ``on_trace()`` is called after each trace (progress display).
+    ``traces`` is an iterable of at least one :class:`~physynth.records.Trace` (for one trace, ``[trace]``);
+    ``rate_hz`` the evaluation grid rate [Hz]. ``on_trace()`` is called after each trace (progress display).
+
+    Raises
+    ------
+    ArgumentError
+        ``rate_hz`` is not a positive finite number, ``traces`` is a single Trace or holds none.
     """
+    rate_hz = check_number(rate_hz, "rate_hz", positive=True, unit="Hz")
     acc = MetricsAccumulator()
-    for t in traces:
+    for t in trace_iterable(traces):
         acc.add(summarize(t, rate_hz))
         if on_trace is not None:
             on_trace()

@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import datetime as _dt
 import functools
+import itertools
 import json
+import math
 import os
 import shutil
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -26,9 +28,9 @@ import numpy as np
 
 from .. import __version__
 from .._json import jsonable
-from ..constants import IMU_BODY_FRAME, IMU_FRAME, SCHEMA_VERSION
-from ..errors import DatasetError
-from ..records import Anchors, Imu, Trace, Truth, Uwb
+from ..constants import DEFAULT_GRID_RATE_HZ, IMU_BODY_FRAME, IMU_FRAME, SCHEMA_VERSION
+from ..errors import ArgumentError, DatasetError
+from ..records import Anchors, Imu, Trace, Truth, Uwb, trace_iterable
 from . import integrity, safety
 from .atomic import temp_sibling
 
@@ -487,10 +489,22 @@ def write_dataset(path: str | os.PathLike, traces: Iterable[Trace], *, meta: dic
                   overwrite: bool = False, inputs: Sequence[str | os.PathLike] = ()) -> Path:
     """Write traces as a dataset directory, atomically. Returns the path.
 
-    ``inputs`` are the files or folders the traces were read from: the output may not be or hold one.
+    ``traces`` is an iterable of at least one :class:`Trace` (a list, a generator; for one trace,
+    ``[trace]``). ``inputs`` are the files or folders the traces were read from: the output may not be
+    or hold one.
+
+    Raises
+    ------
+    ArgumentError
+        ``traces`` is a single Trace, or holds none (nothing is written: a dataset without traces could
+        not be read back).
     """
+    stream = iter(trace_iterable(traces))
+    first = next(stream, None)
+    if first is None:
+        raise ArgumentError(f"no traces to write to {path}: a dataset holds at least one trace")
     with DatasetWriter(path, meta=meta, overwrite=overwrite, inputs=inputs) as w:
-        for trace in traces:
+        for trace in itertools.chain([first], stream):
             w.add(trace)
     return Path(path)
 
@@ -539,9 +553,18 @@ def is_csv_export(path: Path) -> bool:
             and not (path / "truth").is_dir())
 
 
-def table_files(path: Path, name: str) -> list[Path]:
-    """The Parquet files of table ``name``: ``<name>.parquet``, or the parts ``<name>/part-*.parquet`` of
-    a dataset generated in shards (:mod:`physynth.io.shards`), in trace order."""
+def table_files(path: Path, name: str, meta: Mapping[str, Any] | None = None) -> list[Path]:
+    """The Parquet files of table ``name``, in trace order: exactly those that the integrity record of
+    ``dataset.json`` (``meta``, read when None) lists (:func:`physynth.io.integrity.table_records`), so
+    that a stray file in the folder is never read; in a dataset without a record (an older PhySynth),
+    ``<name>.parquet``, or the parts ``<name>/part-*.parquet`` of a dataset generated in shards."""
+    files = (read_meta(path) if meta is None else meta).get("files")
+    if isinstance(files, dict):
+        recorded = integrity.table_records(files, name)
+        if not recorded:
+            raise DatasetError(f"dataset {path} is damaged: its integrity record (dataset.json 'files') lacks "
+                               f"the table {name}")
+        return [path / f for f in recorded]
     single = path / f"{name}.parquet"
     if single.is_file():
         return [single]
@@ -581,12 +604,12 @@ def _columns(table: pa.Table, name: str, f: Path) -> dict[str, np.ndarray]:
     return cols
 
 
-def _read_table(path: Path, name: str) -> dict[str, np.ndarray]:
+def _read_table(files: list[Path], name: str) -> dict[str, np.ndarray]:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     parts = []
-    for f in table_files(path, name):
+    for f in files:
         try:
             parts.append(_columns(pq.read_table(f), name, f))
         except (OSError, pa.ArrowException) as exc:
@@ -643,11 +666,11 @@ def _row_group(pf: pq.ParquetFile, g: int, name: str, f: Path) -> dict[str, np.n
         raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
 
 
-def _table_stream(path: Path, name: str) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
+def _table_stream(path: Path, name: str, meta: Mapping[str, Any]) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
     """(trace index, columns) of one table, read one row group at a time, in trace order."""
-    files = table_files(path, name)
+    files = table_files(path, name, meta)
     if not _row_groups_sorted(files):  # not written by DatasetWriter: read it whole, once
-        yield from sorted(_split(_read_table(path, name)).items())
+        yield from sorted(_split(_read_table(files, name)).items())
         return
     pending: tuple[int, dict[str, np.ndarray]] | None = None
     for f in files:
@@ -715,7 +738,7 @@ def iter_indexed_traces(path: str | os.PathLike, meta: dict[str, Any] | None = N
     meta = read_meta(path) if meta is None else meta
     # integrity hook (physynth.io.integrity): sizes, row counts, hashes and trace ids against dataset.json
     integrity.check_dataset(path, meta, hashes=not integrity.environ_skip_hashes())
-    streams = {name: _table_stream(path, name) for name in TABLES}
+    streams = {name: _table_stream(path, name, meta) for name in TABLES}
     streams["meta"] = iter_trace_meta(path, meta)
     heads: dict[str, tuple[int, dict] | None] = {name: next(streams[name], None) for name in streams if name != "truth"}
 
@@ -776,6 +799,17 @@ def n_traces(meta: dict[str, Any]) -> int | None:
     """Number of traces recorded in a dataset's ``dataset.json`` (None when it does not say)."""
     n = meta.get("n_traces")
     return int(n) if isinstance(n, int) else None
+
+
+def recorded_grid_rate_hz(meta: dict[str, Any]) -> float:
+    """The evaluation grid rate [Hz] a dataset records: its scenario's ``grid_rate_hz`` (written by the
+    generator), or :data:`~physynth.constants.DEFAULT_GRID_RATE_HZ` when it records none (an imported
+    recording) or not a positive finite number."""
+    scenario = meta.get("scenario")
+    rate = scenario.get("grid_rate_hz") if isinstance(scenario, dict) else None
+    if isinstance(rate, (int, float)) and not isinstance(rate, bool) and math.isfinite(rate) and rate > 0:
+        return float(rate)
+    return DEFAULT_GRID_RATE_HZ
 
 
 def read_dataset(path: str | os.PathLike) -> Dataset:

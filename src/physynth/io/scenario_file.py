@@ -7,6 +7,7 @@ names the file, the field and the reason.
 from __future__ import annotations
 
 import math
+import os
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -116,8 +117,22 @@ def _nan_guard(obj: Any, where: str = "") -> None:
             _nan_guard(v, f"{where}[{i}]")
 
 
-def load_scenario(name_or_path: str | Path) -> Scenario:
-    """A preset by name, or a scenario YAML file by path."""
+def load_scenario(name_or_path: str | os.PathLike | Scenario | dict[str, Any]) -> Scenario:
+    """A preset by name, a scenario YAML file by path, or a mapping (as a scenario file holds it,
+    :func:`physynth.scenario.scenario_from_dict`); a :class:`Scenario` is returned as it is.
+
+    Raises
+    ------
+    ScenarioError
+        One line naming the file or mapping, the field and the reason; or an argument of another type.
+    """
+    if isinstance(name_or_path, Scenario):
+        return name_or_path
+    if isinstance(name_or_path, dict):
+        return _from_mapping(name_or_path, "<dict>")
+    if not isinstance(name_or_path, (str, os.PathLike)):
+        raise ScenarioError(f"a scenario is a preset name, a scenario file, a mapping or a Scenario, got "
+                            f"{type(name_or_path).__name__}")
     text: str
     source = str(name_or_path)
     p = Path(name_or_path)
@@ -144,6 +159,11 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         mark = getattr(exc, "problem_mark", None)
         at = f" at line {mark.line + 1}" if mark is not None else ""
         raise ScenarioError(f"scenario {source}: not valid YAML{at}") from None
+    return _from_mapping(data, source)
+
+
+def _from_mapping(data: Any, source: str) -> Scenario:
+    """The scenario of a mapping read from ``source``; non-finite numbers anywhere are refused first."""
     try:
         _nan_guard(data)
     except ScenarioError as exc:

@@ -27,7 +27,7 @@ from scipy.spatial.transform import Rotation
 from ...errors import RecordingError
 from ...models.attitude import body_rates_from_quat
 from ...records import Anchors, Imu, Trace, Truth, Uwb
-from ._common import ImportReport, ReportBuilder, velocity_from_position
+from ._common import ImportReport, ReportBuilder, checked_window_and_gap, velocity_from_position
 
 CITATION = ("D. Laidig, M. Caruso, A. Cereatti, T. Seel, BROAD - A Benchmark for Robust Inertial "
             "Orientation Estimation, Data 6(7):72, 2021, doi:10.3390/data6070072 (CC BY 4.0)")
@@ -57,6 +57,7 @@ def import_broad(mat_file: str | os.PathLike, *, velocity_window_s: float = 0.1
         ``imu.acc_body_mps2`` and ``imu.gyro_body_radps``; the truth carries ``opt_quat`` as its
         attitude and the body rates between consecutive quaternions.
     """
+    velocity_window_s, _ = checked_window_and_gap(velocity_window_s)
     path = Path(mat_file)
     mat = _load_trial(path)
     acc_b, gyr_b, quat, pos, moving, rate_hz = _trial_arrays(path, mat)

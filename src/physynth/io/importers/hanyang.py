@@ -27,12 +27,14 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ..._args import check_number
 from ...errors import RecordingError
 from ...records import TRUTH_UNTRUSTED_KEY, Anchors, Trace, Truth, Uwb
 from ._common import (
     ImportReport,
     ReportBuilder,
     check_range_metres,
+    checked_window_and_gap,
     drop_nan_rows,
     flag_ranges,
     gap_bursts,
@@ -79,11 +81,11 @@ def import_hanyang(run_dir: str | os.PathLike, *, tag_height_offset_m: float = T
     run_dir
         Folder with ``A<id>.csv`` per anchor and ``trajectory.csv``.
     tag_height_offset_m
-        Added to the trajectory ``z`` to get the tag antenna height [m] (1.0 m per SOURCE.md).
+        Added to the trajectory ``z`` to get the tag antenna height [m] (1.0 m per SOURCE.md); finite.
     burst_gap_s
-        A new ranging burst starts after a gap longer than this between consecutive UWB rows [s].
+        A new ranging burst starts after a gap longer than this between consecutive UWB rows [s]; > 0.
     velocity_window_s
-        Savitzky-Golay window [s] of the truth velocity (the ~8 Hz RTK track has no velocity).
+        Savitzky-Golay window [s] of the truth velocity (the ~8 Hz RTK track has no velocity); > 0.
     crop_to_uwb
         Drop (and count) truth samples after the last UWB measurement, e.g. where the UWB logging
         stopped before the GNSS logging (NLOS Case_1: ~55 s). Off by default.
@@ -94,7 +96,16 @@ def import_hanyang(run_dir: str | os.PathLike, *, tag_height_offset_m: float = T
         ENU = anchor frame (E = x, N = y, U = z) [m]; t = 0 at the first truth sample, whose Unix time
         is ``trace.meta["time_origin_unix_s"]``. Anchor ids are ``"A<id>"`` in numeric order. The
         UWB/GNSS time lag is not corrected (``trace.meta["uwb_time_lag_applied"]`` is False).
+
+    Raises
+    ------
+    ArgumentError
+        A parameter is not a finite number, or ``burst_gap_s`` or ``velocity_window_s`` is not positive.
+    RecordingError
+        The run cannot be imported (missing files or columns, no overlap of UWB and truth).
     """
+    tag_height_offset_m = check_number(tag_height_offset_m, "tag_height_offset_m", unit="m")
+    velocity_window_s, burst_gap_s = checked_window_and_gap(velocity_window_s, burst_gap_s)
     run = Path(run_dir)
     files, traj = _run_files(run)
     rep = ReportBuilder("hanyang", run)
