@@ -115,8 +115,10 @@ def test_export_cli_errors_are_one_line(dataset, tmp_path, capsys):
             main(argv)
         err = capsys.readouterr().err
         assert e.value.code == 2 and needle in err and err.count("\n") == 1
-    (tmp_path / "taken").mkdir()
-    with pytest.raises(SystemExit) as e:
+    (tmp_path / "taken").mkdir()  # an empty folder holds nothing to lose: used as if new
+    main(["export", str(path), "--format", "csv", "--out", str(tmp_path / "taken"), "-q"])
+    assert (tmp_path / "taken" / "truth.csv").is_file()
+    with pytest.raises(SystemExit) as e:  # now an export: replaced only with --overwrite
         main(["export", str(path), "--format", "csv", "--out", str(tmp_path / "taken"), "-q"])
     assert e.value.code == 2 and "--overwrite" in capsys.readouterr().err
 
@@ -228,3 +230,71 @@ def test_rosbag2_states_each_trace_anchor_layout_on_tf_static(tmp_path):
         np.testing.assert_array_equal(pos, tr.anchors.pos_enu_m)
         got.append(pos)
     assert not np.array_equal(got[0], got[1])
+
+
+def _damaged_copy(path, tmp_path, name, damage):
+    """A copy of the dataset ``path`` without an integrity record (as an older PhySynth wrote it), damaged."""
+    import shutil
+
+    import pyarrow.parquet as pq
+
+    copy = tmp_path / name
+    shutil.copytree(path, copy)
+    meta = json.loads((copy / "dataset.json").read_text())
+    meta.pop("files")
+    (copy / "dataset.json").write_text(json.dumps(meta))
+    if damage == "truncated":
+        f = copy / "imu" / "part-00000.parquet"
+        f.write_bytes(f.read_bytes()[: f.stat().st_size // 2])
+    else:  # a UWB table without its labels
+        for f in (copy / "uwb").glob("part-*.parquet"):
+            pq.write_table(pq.read_table(f).drop(["true_range_m"]), f)
+    return copy
+
+
+@pytest.mark.parametrize(("damage", "needle"), [("truncated", "cannot read"), ("no_label", "true_range_m")])
+def test_csv_export_checks_the_dataset_as_the_other_formats(dataset, tmp_path, capsys, damage, needle):
+    """Not "internal error: ArrowInvalid" (exit 3), nor a uwb.csv without the column (exit 0)."""
+    copy = _damaged_copy(dataset[0], tmp_path, damage, damage)
+    for fmt in ("csv", "rosbag2") if importlib.util.find_spec("rosbags") else ("csv",):
+        with pytest.raises(SystemExit) as e:
+            main(["export", str(copy), "-f", fmt, "--out", str(tmp_path / f"out-{fmt}"), "-q"])
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and err.count("\n") == 1 and needle in err, err
+        assert not (tmp_path / f"out-{fmt}").exists()
+
+
+@pytest.mark.skipif(importlib.util.find_spec("rosbags") is None, reason="rosbags (physynth[export]) not installed")
+def test_rosbag2_leaves_out_and_counts_messages_with_nan_fields(body_dataset, tmp_path):
+    """As an imported BROAD trial's masked optical dropouts: NaN truth position and attitude, and NaN ENU
+    acceleration (derived from them); the body-frame sensor itself is intact."""
+    import dataclasses
+
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    from physynth.io.dataset import write_dataset
+
+    tr = body_dataset[1].traces[0]
+    pos, quat, acc = tr.truth.pos_enu_m.copy(), tr.truth.quat_wxyz.copy(), tr.imu.acc_mps2.copy()
+    pos[10:14] = np.nan
+    quat[[10, 11, 12, 13, 50]] = np.nan
+    acc[100:107, 1] = np.nan
+    nan_trace = dataclasses.replace(tr, truth=dataclasses.replace(tr.truth, pos_enu_m=pos, quat_wxyz=quat),
+                                    imu=dataclasses.replace(tr.imu, acc_mps2=acc))
+    src = write_dataset(tmp_path / "nan", [nan_trace])
+    said = []
+    out = export_dataset(src, tmp_path / "bags", "rosbag2", progress=lambda m, done=None, total=None: said.append(m))
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    count: dict[str, int] = {}
+    with Reader(out / "trace_00000000") as r:
+        for conn, _, raw in r.messages():
+            count[conn.topic] = count.get(conn.topic, 0) + 1
+            msg = ts.deserialize_cdr(raw, conn.msgtype)
+            for field in ("point", "quaternion", "linear_acceleration", "angular_velocity"):
+                value = getattr(msg, field, None)
+                assert value is None or all(np.isfinite(getattr(value, c)) for c in "xyz")
+    n_truth, n_imu = tr.truth.t_s.size, tr.imu.t_s.size
+    assert count["/truth"] == n_truth - 4 and count["/truth/orientation"] == n_truth - 5
+    assert count["/imu"] == n_imu - 7 and count["/imu/body"] == n_imu
+    assert "left out 16 message(s) with a NaN field: /imu 7, /truth 4, /truth/orientation 5" in said

@@ -192,3 +192,32 @@ def test_a_file_where_a_folder_goes_and_back_is_said_at_once(dataset, tmp_path, 
                  ["export", str(dataset), "-f", "hdf5", "--out", str(folder)]):
         _refused([*argv, "-q"], capsys, f"output {folder} is a folder, not a file")
     assert afile.read_text() == "mine" and not any(folder.iterdir())
+
+
+def test_an_empty_output_is_used_and_a_foreign_one_is_refused_at_once(dataset, tmp_path, capsys):
+    """An empty folder (an empty file for a file output) holds nothing to lose: it is used as if new. A
+    folder of other files is refused at once, without advice to use --overwrite (which would refuse it)."""
+    from physynth.io.safety import check_output
+
+    empty_ds, empty_csv = tmp_path / "emptyout", tmp_path / "emptycsv"
+    empty_ds.mkdir()
+    empty_csv.mkdir()
+    main(["generate", "-n", "1", "--seed", "1", "--out", str(empty_ds), "-q"])
+    assert json.loads((empty_ds / "dataset.json").read_text())["n_traces"] == 1
+    main(["export", str(dataset), "-f", "csv", "--out", str(empty_csv), "-q"])
+    assert (empty_csv / "uwb.csv").is_file()
+    empty_file = tmp_path / "site.yaml"
+    empty_file.write_text("")
+    assert check_output(empty_file, kind="scenario", overwrite=False) == empty_file.resolve()
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "thesis.txt").write_text("mine")
+    for argv, needle in ((["generate", "-n", "1", "--out", str(mine)], "not a PhySynth dataset"),
+                         (["export", str(dataset), "-f", "csv", "--out", str(mine)], "not a CSV export")):
+        with pytest.raises(SystemExit) as e:
+            main([*argv, "-q"])
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and needle in err and err.count("\n") == 1, err
+        assert "--overwrite" not in err and "already exists" not in err
+    assert [p.name for p in mine.iterdir()] == ["thesis.txt"]

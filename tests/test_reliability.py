@@ -633,3 +633,39 @@ def test_a_dataset_of_several_shards_is_verified_and_replaceable(tmp_path, small
     code, _, err = run(capsys, *args, "--overwrite")  # the parts folders are PhySynth's own
     assert code == 0, err
     assert run(capsys, "verify", out)[0] == 0
+
+
+def test_readers_read_the_recorded_files_and_verify_names_stray_ones(tmp_path, small, capsys):
+    """A uwb.parquet beside uwb/part-*.parquet, or an extra part, is neither read nor passed by verify."""
+    out, other = tmp_path / "ds", tmp_path / "other"
+    args = ["generate", "-s", small, "-n", 5, "--seed", 3, "-q", "--workers", 1, "--shard-traces", 2]
+    assert run(capsys, *args, "--out", out)[0] == 0
+    assert run(capsys, "generate", "-s", small, "-n", 1, "--seed", 9, "-q", "--out", other)[0] == 0
+    before = [t.uwb.range_m for t in read_dataset(out)]
+    shutil.copy(other / "uwb.parquet", out / "uwb.parquet")
+    shutil.copy(out / "uwb" / "part-00000.parquet", out / "uwb" / "part-00099.parquet")
+    after = [t.uwb.range_m for t in read_dataset(out)]
+    assert len(after) == 5 and all(np.array_equal(a, b, equal_nan=True) for a, b in zip(after, before, strict=True))
+    code, _, err = run(capsys, "verify", out)
+    lines = err.splitlines()
+    assert code == 2 and len(lines) == 2, err
+    assert "holds uwb.parquet" in lines[0] and "holds uwb/part-00099.parquet" in lines[1]
+    assert "does not list" in lines[0]
+    meta = json.loads((out / "dataset.json").read_text())  # without a record (an older PhySynth): as before
+    meta.pop("files")
+    (out / "dataset.json").write_text(json.dumps(meta))
+    (out / "uwb.parquet").unlink()
+    (out / "uwb" / "part-00099.parquet").unlink()
+    assert len(read_dataset(out)) == 5
+
+
+@pytest.mark.parametrize("record", ["empty", "partial"])
+def test_an_empty_or_partial_integrity_record_is_damage(dataset, capsys, record):
+    meta = json.loads((dataset / "dataset.json").read_text())
+    meta["files"] = {} if record == "empty" else {k: v for k, v in meta["files"].items() if k != "imu.parquet"}
+    (dataset / "dataset.json").write_text(json.dumps(meta))
+    code, out, err = run(capsys, "verify", dataset)
+    assert code == 2 and out == "" and one_line(err), err
+    assert ("is empty" if record == "empty" else "lacks the table(s) imu") in err
+    with pytest.raises(IntegrityError, match="integrity record"):
+        read_dataset(dataset)

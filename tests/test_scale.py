@@ -176,6 +176,100 @@ def test_sigkill_then_resume_completes_identically(scn, tmp_path):
     assert len(mtimes) == len(kept)
 
 
+# ---------------------------------------------------------------- resume: damaged shards are written again
+def _stopped_run(scn, out: Path, n: int, shard_traces: int, after: int) -> list[str]:
+    """A run stopped (as a kill would) once ``after`` traces are written; returns its complete shards."""
+    def progress(message, done=None, total=None):
+        if done is not None and done >= after:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        generate_dataset(scn, n, out, seed=SEED, shard_traces=shard_traces, progress=progress)
+    return sorted(p.name for p in partial_dir(out).glob("shard-*"))
+
+
+def _damage(shard: Path, how: str) -> None:
+    if how == "junk":
+        (shard / "imu.parquet").write_text("junk\n")
+    elif how == "flipped":  # same size: only the hash tells
+        data = bytearray((shard / "uwb.parquet").read_bytes())
+        data[len(data) // 2] ^= 0x01
+        (shard / "uwb.parquet").write_bytes(bytes(data))
+    else:
+        (shard / how).unlink()
+
+
+@pytest.mark.parametrize("how", ["junk", "flipped", "uwb.parquet", "dataset.json"])
+def test_resume_writes_damaged_shards_again(tmp_path, capsys, how):
+    from helpers import simple_scenario_dict
+
+    from physynth.cli import main
+    from physynth.io.scenario_file import load_scenario
+
+    yaml_file = tmp_path / "walk.yaml"
+    yaml_file.write_text(json.dumps(simple_scenario_dict()))  # JSON is YAML
+    small = load_scenario(yaml_file)
+    out = tmp_path / "R"
+    kept = _stopped_run(small, out, 12, 2, after=7)
+    assert kept[:3] == ["shard-00000", "shard-00001", "shard-00002"]
+    _damage(partial_dir(out) / "shard-00001", how)
+    with pytest.raises(SystemExit) as e:
+        main(["generate", "-s", str(yaml_file), "-n", "12", "--seed", str(SEED), "--shard-traces", "2", "-w", "1",
+              "--out", str(out), "--resume", "-q"])
+        raise SystemExit(0)
+    err = capsys.readouterr().err
+    assert e.value.code == 0, err
+    assert f"warning: 1 of the {len(kept)} complete shard(s)" in err and "written again" in err and "shard-00001" in err
+    assert err.count("\n") == 1
+    ref, _ = generate_dataset(small, 12, tmp_path / "ref", seed=SEED, shard_traces=2)
+    assert _files(out) == _files(ref)  # byte for byte an uninterrupted run
+    with pytest.raises(SystemExit) as e:
+        main(["verify", str(out), "-q"])
+        raise SystemExit(0)
+    assert e.value.code == 0
+
+
+def test_a_shard_damaged_before_assembly_is_not_assembled(tmp_path, monkeypatch):
+    from helpers import simple_scenario
+
+    from physynth.errors import DatasetError
+    from physynth.io import shards
+
+    finalize = shards.finalize
+
+    def damaged_then_finalize(out, partial, plan, meta):
+        _damage(partial / "shard-00001", "junk")
+        return finalize(out, partial, plan, meta)
+
+    monkeypatch.setattr(shards, "finalize", damaged_then_finalize)
+    with pytest.raises(DatasetError, match="cannot finish .*shard-00001.*imu.parquet has 5 bytes"):
+        generate_dataset(simple_scenario(), 6, tmp_path / "ds", seed=SEED, shard_traces=2)
+    assert not (tmp_path / "ds").exists() and partial_dir(tmp_path / "ds").is_dir()  # resumable
+
+
+def test_a_complete_run_is_recognised_by_resume(tmp_path):
+    """What ``resume`` finds in an output that is already complete (:func:`physynth.io.shards.finished_run`)."""
+    from helpers import simple_scenario
+
+    from physynth.errors import IntegrityError
+    from physynth.io.shards import finished_run
+    from physynth.scenario import scenario_to_dict
+
+    scn = simple_scenario()
+    out, _ = generate_dataset(scn, 5, tmp_path / "ds", seed=SEED, shard_traces=2)
+    d = scenario_to_dict(scn)
+    assert finished_run(out, d, SEED, 5, 2) == SEED and finished_run(out, d, None, 5, 2) == SEED
+    assert finished_run(tmp_path / "absent", d, SEED, 5, 2) is None
+    for args, what in (((SEED + 1, 5, 2), "root_seed"), ((SEED, 6, 2), "n_traces"), ((SEED, 5, 3), "shard_traces")):
+        with pytest.raises(PhySynthError, match=f"complete dataset, of a run that differs in {what}$"):
+            finished_run(out, d, *args)
+    with pytest.raises(PhySynthError, match="differs in scenario"):
+        finished_run(out, {**d, "name": "other"}, SEED, 5, 2)
+    _damage(out / "uwb", "part-00001.parquet")
+    with pytest.raises(IntegrityError, match="uwb/part-00001.parquet is missing"):
+        finished_run(out, d, SEED, 5, 2)
+
+
 # ---------------------------------------------------------------- the command line in 80 columns
 def test_inspect_and_scenarios_fit_80_columns(scn, tmp_path, capsys, monkeypatch):
     from physynth.cli import main

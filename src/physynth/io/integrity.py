@@ -9,7 +9,9 @@ dataset; the records go under ``dataset.json`` ``"files"``::
 raises :class:`~physynth.errors.IntegrityError` naming the first file that disagrees;
 :func:`verify_dataset` (``physynth verify``) makes the same checks and returns every problem.
 Datasets written before the records existed have no ``"files"``; readers accept them, ``verify`` says
-they cannot be verified.
+they cannot be verified. A record names every file of a dataset: readers read exactly the files it
+lists (:func:`table_records`), a record that lacks a table is damage, and so, for ``verify``, is a
+Parquet file in the folder that the record does not list.
 
 pyarrow is imported by the functions that read Parquet footers or tables, not with this module.
 """
@@ -19,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +33,7 @@ from ..errors import IntegrityError
 
 HASH = "sha256"
 _CHUNK = 1 << 20
+_PART = re.compile(r"^(?P<table>[a-z_]+)/part-(?P<k>\d+)\.parquet$")
 
 
 def file_sha256(path: Path) -> str:
@@ -68,6 +72,21 @@ def shard_file_records(shards: Sequence[Path], tables: Iterable[str], *, single:
     return out
 
 
+def table_records(files: Mapping[str, Any], name: str) -> list[str]:
+    """The recorded files of table ``name`` (names in ``dataset.json`` ``"files"``), in trace order:
+    ``<name>.parquet``, or the parts ``<name>/part-<k>.parquet`` of a dataset assembled from shards
+    (by ``k``). Empty when the record lacks the table."""
+    single = [f for f in files if f == f"{name}.parquet"]
+    parts = [(int(m["k"]), f) for f in files if (m := _PART.match(f)) and m["table"] == name]
+    return single + [f for _, f in sorted(parts)]
+
+
+def unrecorded_files(path: Path, files: Mapping[str, Any]) -> list[str]:
+    """The Parquet files under the dataset folder ``path`` that its record ``files`` does not list."""
+    found = (p.relative_to(path).as_posix() for p in path.rglob("*.parquet") if p.is_file())
+    return sorted(f for f in found if f not in files)
+
+
 @dataclass(frozen=True, slots=True)
 class VerifyResult:
     """What :func:`check_dataset` or :func:`verify_dataset` checked: files, total rows and bytes (of the
@@ -101,9 +120,11 @@ def check_dataset(path: Path, meta: Mapping[str, Any], *, hashes: bool = True) -
 def verify_dataset(path: Path, meta: Mapping[str, Any], *, hashes: bool = True) -> VerifyResult:
     """The checks of :func:`check_dataset`, every one of them: each file that disagrees with its record
     is one entry of ``problems`` (a file's first disagreement only: a file of the wrong size has the
-    wrong hash too), and the trace ids are checked when the truth tables themselves are intact."""
+    wrong hash too), and the trace ids are checked when the truth tables themselves are intact; and
+    every Parquet file in the folder that the record does not list (readers ignore it; a stray table
+    file or part is a sign of a damaged or tampered dataset) is one more."""
     totals = [0, 0]
-    problems = tuple(_problems(path, meta, hashes=hashes, totals=totals))
+    problems = tuple(_problems(path, meta, hashes=hashes, totals=totals, strays=True))
     return _result(meta, totals, problems)
 
 
@@ -113,16 +134,27 @@ def _result(meta: Mapping[str, Any], totals: list[int], problems: tuple[str, ...
                         recorded=files is not None, problems=problems)
 
 
-def _problems(path: Path, meta: Mapping[str, Any], *, hashes: bool, totals: list[int]) -> Iterator[str]:
+def _problems(path: Path, meta: Mapping[str, Any], *, hashes: bool, totals: list[int],
+              strays: bool = False) -> Iterator[str]:
     """The problems of a dataset, one line each, lazily (the first comes before later files are read);
-    ``totals`` gathers the rows and bytes of the files that match their records."""
+    ``totals`` gathers the rows and bytes of the files that match their records; ``strays``: also the
+    Parquet files the record does not list."""
+    from .dataset import TABLES
+
     files = meta.get("files")
     if files is None:
         return
     if not isinstance(files, dict):
         yield f"dataset {path}: dataset.json 'files' is not a mapping"
         return
-    truth = [n for n in files if n == "truth.parquet" or n.startswith("truth/")]
+    if not files:
+        yield f"dataset {path} is damaged: its integrity record (dataset.json 'files') is empty"
+        return
+    lacking = [t for t in TABLES if not table_records(files, t)]
+    if lacking:
+        yield (f"dataset {path} is damaged: its integrity record (dataset.json 'files') lacks the "
+               f"table(s) {', '.join(lacking)}")
+    truth = table_records(files, "truth")
     truth_intact = True
     for name, rec in files.items():
         problem = _file_problem(path, name, rec, hashes=hashes)
@@ -136,6 +168,11 @@ def _problems(path: Path, meta: Mapping[str, Any], *, hashes: bool, totals: list
         check_trace_ids(path, meta, truth if truth_intact else [])
     except IntegrityError as exc:
         yield str(exc)
+    for name in unrecorded_files(path, files) if strays else ():
+        if name.split("/")[0].removesuffix(".parquet") in lacking:
+            continue  # said already: the record lacks that table
+        yield (f"dataset {path} is damaged: it holds {name}, which its integrity record (dataset.json 'files') "
+               "does not list (added after the dataset was written; readers ignore it)")
 
 
 def _file_problem(path: Path, name: str, rec: Any, *, hashes: bool) -> str | None:

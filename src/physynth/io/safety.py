@@ -2,10 +2,11 @@
 
 - :func:`resolve_output` follows symlinks, so a ``--out`` that is a link replaces the folder it
   points to and the link stays valid.
-- :func:`check_replaceable` lets ``overwrite`` replace only what PhySynth wrote: a dataset folder
+- :func:`check_output` lets ``overwrite`` replace only what PhySynth wrote: a dataset folder
   with a ``dataset.json`` written by PhySynth (and nothing else in it), a report folder with a
   PhySynth ``report.json``, or a scenario / fit-report file PhySynth wrote. Anything else, an output
-  that is or holds an input of the same command, and the current folder are refused.
+  that is or holds an input of the same command, and the current folder are refused, with or without
+  ``overwrite``; an empty folder (or empty file) is used as if it were new.
 - :class:`OutputLock` is a lock file ``.<name>.lock`` beside an output, holding the owner's pid and
   host: a second writer is refused while the first runs; a lock whose owner is gone (killed) is
   stale and taken over.
@@ -175,9 +176,10 @@ def check_output(out: str | os.PathLike, *, kind: str, overwrite: bool,
     ------
     UnsafeOutputError
         ``out`` is the current folder or one of its parents, is, holds or lies inside one of ``inputs``, or
-        exists and (with ``overwrite``) is not PhySynth output of ``kind``.
+        exists and is not PhySynth output of ``kind`` (with or without ``overwrite``: it would refuse it).
     OutputExistsError
-        ``out`` exists (or, for a report folder, holds a report) and ``overwrite`` is False.
+        ``out`` is PhySynth output of ``kind`` (for a report folder: holds a report) and ``overwrite`` is
+        False. An empty folder (an empty file for a file output) is used as if new (:func:`is_vacant`).
     """
     real = resolve_output(out)
     _check_apart(out, real, inputs)
@@ -189,18 +191,27 @@ def check_output(out: str | os.PathLike, *, kind: str, overwrite: bool,
         raise UnsafeOutputError(f"output {out} is a file, not a folder; choose another output")
     if kind in FILE_KINDS and real.is_dir():
         raise UnsafeOutputError(f"output {out} is a folder, not a file; give a file name")
-    if kind == "report" and real.is_dir() and not any(real.iterdir()):
-        return real  # an empty folder: nothing to lose
-    if kind == "report" and real.is_dir() and not (real / "report.json").exists() and not overwrite:
-        reason = why_not_replaceable(real, kind)
-        raise UnsafeOutputError(f"refusing to write a report into {out}: {reason}; choose another output")
-    if not overwrite:
-        raise OutputExistsError(out, "holds a report" if kind == "report" else "")
+    if is_vacant(real, kind):
+        return real  # nothing to lose: used as if new (and replaced atomically)
     reason = why_not_replaceable(real, kind)
+    if reason and not overwrite:  # --overwrite would refuse it too: say so at once
+        what = "a report into " if kind == "report" else ""
+        raise UnsafeOutputError(f"refusing to write {what}{out}: {reason}; choose another output")
     if reason:
         raise UnsafeOutputError(f"refusing to overwrite {out}: {reason}; remove it yourself or choose "
                                 "another output")
+    if not overwrite:
+        raise OutputExistsError(out, "holds a report" if kind == "report" else "")
     return real
+
+
+def is_vacant(path: Path, kind: str) -> bool:
+    """True when the existing output ``path`` holds nothing to lose: an empty folder where a folder goes,
+    an empty file where a file goes (``kind`` one of :data:`FILE_KINDS`). A writer uses it as if it were
+    new, without ``overwrite``."""
+    if kind in FILE_KINDS:
+        return path.is_file() and path.stat().st_size == 0
+    return path.is_dir() and not any(path.iterdir())
 
 
 def check_study_output(out: str | os.PathLike, *, marker: str, what: str, overwrite: bool,

@@ -10,7 +10,10 @@ While the run is under way everything lives in a hidden sibling ``.<name>.partia
   ``--resume`` refuses a plan that differs from the one it is asked to complete;
 - ``shard-00000/`` ...: each a small dataset written by :class:`~physynth.io.dataset.DatasetWriter`,
   hence atomic: a shard directory exists only when complete. A killed worker leaves at most a hidden
-  ``.shard-*.tmp-*`` directory, removed when the run resumes.
+  ``.shard-*.tmp-*`` directory, removed when the run resumes. A resumed run keeps a shard only when it
+  matches its own integrity record (:func:`shard_problem`); a damaged one (a file changed, truncated or
+  removed after it was written) is removed, written again and reported (a
+  :class:`~physynth.errors.PhySynthWarning`).
 
 When every shard is complete the shards are hard-linked (copied where links are impossible) into a
 hidden staging directory holding the final layout, which is renamed into place; the partial
@@ -26,16 +29,18 @@ import json
 import os
 import re
 import shutil
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from .. import __version__
 from .._json import jsonable
-from ..errors import DatasetError, OutputExistsError, PhySynthError
+from ..errors import DatasetError, OutputExistsError, PhySynthError, PhySynthWarning
+from . import integrity
 from .atomic import atomic_write_text, temp_sibling
-from .dataset import TABLES, DatasetWriter, generated_column_groups
-from .safety import swap_in
+from .dataset import TABLES, DatasetWriter, generated_column_groups, read_meta
+from .safety import is_vacant, remove_tree, swap_in
 
 DEFAULT_SHARD_TRACES = 128
 """Traces per shard: small enough that a killed run loses little, large enough to keep files few."""
@@ -99,7 +104,7 @@ def prepare(out: Path, plan_record: dict[str, Any], *, resume: bool, overwrite: 
         An unfinished run exists and neither ``resume`` nor ``overwrite`` was asked, or ``resume`` was
         asked for a plan that differs from the unfinished one.
     """
-    if out.exists() and not overwrite:
+    if out.exists() and not overwrite and not is_vacant(out, "dataset"):
         raise OutputExistsError(out)
     if out.exists() and not out.is_dir():
         raise DatasetError(f"{out} exists and is not a directory")
@@ -113,10 +118,9 @@ def prepare(out: Path, plan_record: dict[str, Any], *, resume: bool, overwrite: 
             old = json.loads((partial / "run.json").read_text(encoding="utf-8"))
         except (OSError, ValueError):
             old = None
-        if old != jsonable(plan_record):
-            diff = sorted(k for k in set(plan_record) | set(old or {})
-                          if (old or {}).get(k) != jsonable(plan_record).get(k))
-            raise PhySynthError(f"cannot resume {out}: the unfinished run differs in {', '.join(diff) or 'run.json'}")
+        diff = _differences(old, plan_record)
+        if diff is not None:
+            raise PhySynthError(f"cannot resume {out}: the unfinished run differs in {diff}")
         for junk in partial.glob(".shard-*"):  # a shard being written when the run was killed
             shutil.rmtree(junk, ignore_errors=True)
     else:
@@ -126,7 +130,85 @@ def prepare(out: Path, plan_record: dict[str, Any], *, resume: bool, overwrite: 
             raise DatasetError(f"cannot create {partial}: {exc.strerror}") from None
         atomic_write_text(partial / "run.json", json.dumps(jsonable(plan_record), indent=1))
     done = {int(m.group(1)) for p in partial.iterdir() if p.is_dir() and (m := _SHARD_RE.match(p.name))}
-    return partial, done
+    return partial, _drop_damaged(out, partial, done, plan_record) if done else done
+
+
+def _differences(old: Any, record: dict[str, Any]) -> str | None:
+    """The keys in which the plan ``old`` (read from a file; None when unreadable) differs from ``record``
+    (comma-separated), or None when they agree."""
+    new = jsonable(record)
+    if old == new:
+        return None
+    prev = old if isinstance(old, dict) else {}
+    return ", ".join(sorted(k for k in set(new) | set(prev) if prev.get(k) != new.get(k))) or "run.json"
+
+
+def shard_problem(shard: Path, bounds: tuple[int, int], *, hashes: bool = True) -> str | None:
+    """Why the shard folder ``shard``, to hold traces ``bounds[0] .. bounds[1] - 1``, cannot be used (one
+    line), or None: its ``dataset.json`` is missing or unreadable, lists other traces or no integrity
+    record, or a file disagrees with the record (:func:`physynth.io.integrity.check_dataset`: present,
+    size, row count, SHA-256 when ``hashes``, trace ids)."""
+    try:
+        meta = read_meta(shard)
+        listed = [t.get("trace") if isinstance(t, dict) else None for t in meta.get("traces") or []]
+        if listed != list(range(*bounds)):
+            return f"{shard.name} does not list traces {bounds[0]}..{bounds[1] - 1}"
+        if not isinstance(meta.get("files"), dict):
+            return f"{shard.name} has no integrity record"
+        integrity.check_dataset(shard, meta, hashes=hashes)
+    except DatasetError as exc:
+        return str(exc)
+    return None
+
+
+def _drop_damaged(out: Path, partial: Path, done: set[int], record: dict[str, Any]) -> set[int]:
+    """The complete shards ``done`` of a resumed run that match their integrity records; the others are
+    removed (to be written again) and reported in one :class:`PhySynthWarning`."""
+    plan = ShardPlan(int(record["n_traces"]), int(record["shard_traces"]))
+    hashes = not integrity.environ_skip_hashes()
+    damaged = {}
+    for k in sorted(done):
+        problem = (f"{shard_name(k)} lies beyond the run's {plan.n_shards} shard(s)" if k >= plan.n_shards
+                   else shard_problem(partial / shard_name(k), plan.bounds(k), hashes=hashes))
+        if problem is not None:
+            damaged[k] = problem
+            remove_tree(partial / shard_name(k))
+    if damaged:
+        first = next(iter(damaged.values())).splitlines()[0]
+        warnings.warn(f"{len(damaged)} of the {len(done)} complete shard(s) of the unfinished run of {out} "
+                      f"did not match their integrity records and are written again ({first})",
+                      PhySynthWarning, stacklevel=3)
+    return done - set(damaged)
+
+
+def finished_run(out: Path, scenario: dict[str, Any], seed: int | None, n: int, shard_traces: int) -> int | None:
+    """What a resumed run does with an output that is already complete: its root seed when ``out`` is the
+    complete dataset of the run asked for (``scenario``, root ``seed`` (None: any), ``n`` traces,
+    ``shard_traces``, this generator version) and matches its integrity record, so nothing is left to
+    do; None when ``out`` is no dataset generated in shards (absent, empty, anything else).
+
+    Raises
+    ------
+    PhySynthError
+        ``out`` is the complete dataset of another run (naming what differs).
+    IntegrityError
+        ``out`` is the run asked for but damaged (:func:`physynth.io.integrity.check_dataset`).
+    """
+    try:
+        meta = json.loads((Path(out) / "dataset.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(meta, dict) or not isinstance(meta.get("shards"), dict) or meta.get("kind") != "synthetic":
+        return None
+    gen = meta.get("generator") if isinstance(meta.get("generator"), dict) else {}
+    done = {"scenario": meta.get("scenario"), "root_seed": meta.get("root_seed"), "n_traces": meta.get("n_traces"),
+            "shard_traces": meta["shards"].get("shard_traces"), "generator": f"{gen.get('name')} {gen.get('version')}"}
+    root = done["root_seed"] if seed is None else int(seed)
+    diff = _differences(done, plan_record(scenario, root, n, shard_traces)) if isinstance(root, int) else "root_seed"
+    if diff is not None:
+        raise PhySynthError(f"cannot resume {out}: it is a complete dataset, of a run that differs in {diff}")
+    integrity.check_dataset(Path(out), meta, hashes=not integrity.environ_skip_hashes())
+    return root
 
 
 def read_plan(out: Path) -> dict[str, Any] | None:
@@ -145,18 +227,26 @@ def _link(src: Path, dst: Path) -> None:
 
 
 def finalize(out: Path, partial: Path, plan: ShardPlan, meta: dict[str, Any]) -> Path:
-    """Assemble the complete shards into the dataset ``out`` (renamed into place) and remove ``partial``."""
+    """Assemble the complete shards into the dataset ``out`` (renamed into place) and remove ``partial``.
+
+    Every shard is checked against its integrity record first (:func:`shard_problem`, without the hashes,
+    which a resumed run checked when it kept the shard): the records of the dataset are the shards' own,
+    so a shard damaged since it was written raises :class:`DatasetError` instead of being assembled.
+    """
+    shards = [partial / shard_name(k) for k in range(plan.n_shards)]
+    missing = [s.name for s in shards if not s.is_dir()]
+    if missing:
+        raise DatasetError(f"cannot finish {out}: shard(s) {', '.join(missing[:3])} missing")
+    for k, shard in enumerate(shards):
+        problem = shard_problem(shard, plan.bounds(k), hashes=False)
+        if problem is not None:
+            raise DatasetError(f"cannot finish {out}: {problem}; resume the run to write that shard again")
     stage = temp_sibling(out)
     if stage.exists():
         shutil.rmtree(stage)
     stage.mkdir()
     traces_meta: list[dict[str, Any]] = []  # one shard: in dataset.json; several: traces/part-<k>.jsonl
     n_total = 0
-    files: dict[str, Any] = {}  # integrity records (physynth.io.integrity) of the assembled layout
-    shards = [partial / shard_name(k) for k in range(plan.n_shards)]
-    missing = [s.name for s in shards if not s.is_dir()]
-    if missing:
-        raise DatasetError(f"cannot finish {out}: shard(s) {', '.join(missing[:3])} missing")
     try:
         for k, shard in enumerate(shards):
             for name in TABLES:
@@ -165,12 +255,8 @@ def finalize(out: Path, partial: Path, plan: ShardPlan, meta: dict[str, Any]) ->
                 else:
                     (stage / name).mkdir(exist_ok=True)
                     _link(shard / f"{name}.parquet", stage / name / f"part-{k:05d}.parquet")
-            shard_meta = json.loads((shard / "dataset.json").read_text(encoding="utf-8"))
-            part = shard_meta["traces"]
+            part = json.loads((shard / "dataset.json").read_text(encoding="utf-8"))["traces"]
             n_total += len(part)
-            for fname, rec in (shard_meta.get("files") or {}).items():
-                name = fname.removesuffix(".parquet")
-                files[fname if plan.n_shards == 1 else f"{name}/part-{k:05d}.parquet"] = rec
             if plan.n_shards == 1:
                 traces_meta = part
             else:  # one shard's list at a time: memory does not grow with the number of traces
@@ -180,6 +266,8 @@ def finalize(out: Path, partial: Path, plan: ShardPlan, meta: dict[str, Any]) ->
         first = json.loads((shards[0] / "dataset.json").read_text(encoding="utf-8"))
         first.pop("traces", None)
         first.pop("shard", None)
+        # integrity records (physynth.io.integrity) of the assembled layout: the shards' own
+        files = integrity.shard_file_records(shards, TABLES, single=plan.n_shards == 1)
         record = {**first, **jsonable(meta), "n_traces": n_total, "files": files,
                   "shards": {"n_shards": plan.n_shards, "shard_traces": plan.shard_traces,
                              "layout": "single" if plan.n_shards == 1 else "parts"}}

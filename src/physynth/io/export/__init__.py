@@ -9,12 +9,13 @@ export leaves nothing that looks finished. HDF5 needs ``h5py`` and ROS 2 bags ne
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections import deque
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 from ...errors import PhySynthError
 from ...progress import ProgressCallback, no_progress
-from .. import integrity
 from ..atomic import temp_sibling
 from ..dataset import iter_indexed_traces, n_traces, read_meta
 from ..safety import prepare_output, register_temporary, remove_tree, swap_in, unregister_temporary
@@ -37,6 +38,11 @@ def export_dataset(dataset: str | os.PathLike, out: str | os.PathLike, fmt: str,
     - ``hdf5``: one file, one group ``/traces/<index>`` per trace (:mod:`.hdf5`);
     - ``rosbag2``: a folder with one ROS 2 bag per trace (:mod:`.rosbag2`);
     - ``csv``: a folder with one CSV file per table (:mod:`.csv`).
+
+    Every format reads the dataset as every reader does (:func:`~physynth.io.dataset.iter_indexed_traces`:
+    files against ``dataset.json``, columns, valid traces) before its output appears; the CSV export,
+    which copies the tables row group by row group, reads it trace by trace first to check it. The
+    ROS 2 export leaves out messages with a NaN field and says how many through ``progress``.
     """
     if fmt not in FORMATS:
         raise PhySynthError(f"unknown export format '{fmt}' (choose one of {', '.join(FORMATS)})")
@@ -55,6 +61,15 @@ def export_dataset(dataset: str | os.PathLike, out: str | os.PathLike, fmt: str,
         lock.release()
 
 
+def _checked(dataset: Path, meta: dict, message: str, total: int | None,
+             progress: ProgressCallback) -> Iterator[tuple[int, Any]]:
+    """The dataset's ``(index, Trace)`` pairs, read and checked as every reader does (files against
+    ``dataset.json``, columns, valid records), with ``progress(message, done, total)`` after each."""
+    for done, item in enumerate(iter_indexed_traces(dataset, meta), 1):
+        yield item
+        progress(message, done, total)
+
+
 def _export(dataset: Path, meta: dict, out: Path, fmt: str, progress: ProgressCallback) -> Path:
     total = n_traces(meta)
     tmp = temp_sibling(out)
@@ -66,21 +81,16 @@ def _export(dataset: Path, meta: dict, out: Path, fmt: str, progress: ProgressCa
         from .rosbag2 import write_rosbag2 as writer
     else:
         from .csv import write_csv as writer
-    counter = {"done": 0}
-
-    def traces():
-        for item in iter_indexed_traces(dataset, meta):
-            yield item
-            counter["done"] += 1
-            progress(f"exporting to {fmt}", counter["done"], total)
-
     register_temporary(tmp)
     try:
-        if fmt == "csv":  # table by table, row group by row group: no records needed, so check the files here
-            integrity.check_dataset(dataset, meta, hashes=not integrity.environ_skip_hashes())
+        if fmt == "csv":  # copied table by table: first read trace by trace, checked as by the other formats
+            deque(_checked(dataset, meta, "checking the dataset", total, progress), maxlen=0)
             writer(dataset, meta, tmp, progress)
         else:
-            writer(traces(), meta, tmp)
+            skipped = writer(_checked(dataset, meta, f"exporting to {fmt}", total, progress), meta, tmp)
+            if skipped:
+                progress(f"left out {sum(skipped.values())} message(s) with a NaN field: "
+                         + ", ".join(f"{topic} {n}" for topic, n in skipped.items()))
         swap_in(tmp, out)
     except BaseException:
         remove_tree(tmp)

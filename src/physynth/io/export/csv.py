@@ -5,7 +5,9 @@
 tables are copied one Parquet row group at a time by Arrow's CSV writer: floats in their shortest
 round-trip form (float64 columns read back exactly; float32 columns of generated datasets as
 float32), ``nan`` for a range not delivered, an empty field for an unknown ``nlos``, strings quoted,
-a header line first (pandas.read_csv and Python's csv module read it as is).
+a header line first (pandas.read_csv and Python's csv module read it as is). The files copied are
+those the dataset's integrity record lists (:func:`~physynth.io.dataset.table_files`), once
+:func:`physynth.io.export.export_dataset` has read the dataset trace by trace to check it.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ def write_csv(dataset: Path, meta: dict[str, Any], path: Path, progress=None) ->
     import pyarrow.parquet as pq
 
     path.mkdir(parents=True)
-    groups = [(name, f, g) for name in TABLES for f in table_files(dataset, name)
+    groups = [(name, f, g) for name in TABLES for f in table_files(dataset, name, meta)
               for g in range(pq.ParquetFile(f).metadata.num_row_groups)]
     writers: dict[str, Any] = {}
     try:

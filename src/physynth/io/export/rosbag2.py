@@ -23,6 +23,10 @@ receive timestamp of the bag record equal to the header stamp:
   it): one message at the trace's first truth stamp with a transform ``enu`` -> ``<anchor id>`` per
   anchor (translation its position, no rotation): where the frames of the ``/uwb`` ranges are. Each
   bag holds its own trace's layout (traces of a ``variation`` section each have their own).
+
+A row with a NaN (or infinite) value in a message's fields (an imported recording's optical dropouts,
+for instance) has no message: ROS messages cannot say "unknown". :func:`write_rosbag2` returns how many
+it left out per topic.
 """
 
 from __future__ import annotations
@@ -68,74 +72,115 @@ def _anchor_frames(w: Any, ts: Any, trace: Trace, hdr: Any) -> tuple[int, Any, b
     return int(ns), conn, ts.serialize_cdr(TFMessage(transforms=transforms), tf_type)
 
 
-def write_rosbag2(traces: Iterable[tuple[int, Trace]], meta: dict[str, Any], path: Path) -> None:
-    """Write one ROS 2 bag per trace into the new folder ``path``."""
+def _header(ts: Any, ns: int, frame: str) -> Any:
+    Header, Time = ts.types["std_msgs/msg/Header"], ts.types["builtin_interfaces/msg/Time"]
+    return Header(stamp=Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000)), frame_id=frame)
+
+
+def _finite_rows(n: int, *arrays: np.ndarray | None) -> np.ndarray:
+    """Rows whose every value in the (n, k) ``arrays`` (None: absent) is finite, as a mask."""
+    ok = np.ones(n, dtype=bool)
+    for a in arrays:
+        if a is not None:
+            ok &= np.isfinite(a).all(axis=1)
+    return ok
+
+
+def _kept(skipped: dict[str, int], topic: str, n: int, *arrays: np.ndarray | None) -> np.ndarray:
+    """The rows of a topic's message fields to write; those with a NaN (or infinite) field are counted
+    in ``skipped`` (a message cannot say "unknown": e.g. an optical tracker's dropouts in a recording)."""
+    ok = _finite_rows(n, *arrays)
+    skipped[topic] = skipped.get(topic, 0) + int(n - ok.sum())
+    return ok
+
+
+def _imu_messages(w: Any, ts: Any, imu: Any, skipped: dict[str, int]) -> list[tuple[int, Any, bytes]]:
+    """The ``/imu`` (ENU) and ``/imu/body`` (body-frame sensor) records of a trace's IMU."""
+    Imu, Vector3 = ts.types["sensor_msgs/msg/Imu"], ts.types["geometry_msgs/msg/Vector3"]
+    identity = ts.types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
+    no_cov, zero_cov = np.array([-1.0] + [0.0] * 8), np.zeros(9)
+    messages = []
+    channels = [] if imu is None else [
+        (topic, frame, acc, gyro) for topic, frame, acc, gyro in (
+            ("/imu", "enu", imu.acc_mps2, None), ("/imu/body", "body", imu.acc_body_mps2, imu.gyro_body_radps))
+        if acc is not None or gyro is not None]
+    for topic, frame, acc, gyro in channels:
+        conn = w.add_connection(topic, Imu.__msgtype__, typestore=ts)
+        n = imu.t_s.shape[0]
+        ok = _kept(skipped, topic, n, acc, gyro)
+        acc_l = np.zeros((n, 3))[ok].tolist() if acc is None else acc[ok].tolist()
+        gyro_l = np.zeros((n, 3))[ok].tolist() if gyro is None else gyro[ok].tolist()
+        for ns, a, g in zip(_stamps_ns(imu.t_s[ok]), acc_l, gyro_l, strict=True):
+            msg = Imu(header=_header(ts, int(ns), frame), orientation=identity, orientation_covariance=no_cov,
+                      angular_velocity=Vector3(x=g[0], y=g[1], z=g[2]),
+                      angular_velocity_covariance=no_cov if gyro is None else zero_cov,
+                      linear_acceleration=Vector3(x=a[0], y=a[1], z=a[2]),
+                      linear_acceleration_covariance=no_cov if acc is None else zero_cov)
+            messages.append((int(ns), conn, ts.serialize_cdr(msg, Imu.__msgtype__)))
+    return messages
+
+
+def _uwb_messages(w: Any, ts: Any, trace: Trace) -> list[tuple[int, Any, bytes]]:
+    """The ``/uwb/<anchor id>`` records: one per delivered range."""
+    Range = ts.types["sensor_msgs/msg/Range"]
+    u = trace.uwb
+    ok = np.isfinite(u.range_m)
+    max_range = float(np.max(u.range_m[ok])) if ok.any() else 0.0
+    messages = []
+    for a_idx, a_id in enumerate(trace.anchors.ids):
+        sel = ok & (u.anchor == a_idx)
+        if not sel.any():
+            continue
+        conn = w.add_connection(f"/uwb/{a_id}", Range.__msgtype__, typestore=ts)
+        for ns, r in zip(_stamps_ns(u.t_s[sel]), u.range_m[sel].tolist(), strict=True):
+            msg = Range(header=_header(ts, int(ns), a_id), radiation_type=RADIO, field_of_view=float(2 * np.pi),
+                        min_range=0.0, max_range=max_range, range=r)
+            messages.append((int(ns), conn, ts.serialize_cdr(msg, Range.__msgtype__)))
+    return messages
+
+
+def _truth_messages(w: Any, ts: Any, trace: Trace, skipped: dict[str, int]) -> list[tuple[int, Any, bytes]]:
+    """The ``/truth`` position records, the ``/tf_static`` anchor layout and the ``/truth/orientation``
+    records of a trace (in this order of their connections)."""
+    Point, PointMsg = ts.types["geometry_msgs/msg/PointStamped"], ts.types["geometry_msgs/msg/Point"]
+    QuatStamped, Quaternion = ts.types["geometry_msgs/msg/QuaternionStamped"], ts.types["geometry_msgs/msg/Quaternion"]
+    truth = trace.truth
+    n = truth.t_s.shape[0]
+    c_truth = w.add_connection("/truth", Point.__msgtype__, typestore=ts)
+    ok = _kept(skipped, "/truth", n, truth.pos_enu_m)
+    messages = [(int(ns), c_truth, ts.serialize_cdr(
+        Point(header=_header(ts, int(ns), "enu"), point=PointMsg(x=p[0], y=p[1], z=p[2])), Point.__msgtype__))
+        for ns, p in zip(_stamps_ns(truth.t_s[ok]), truth.pos_enu_m[ok].tolist(), strict=True)]
+    if len(trace.anchors):
+        messages.append(_anchor_frames(w, ts, trace, _header(ts, int(_stamps_ns(truth.t_s[:1])[0]), "enu")))
+    if truth.quat_wxyz is not None:
+        c_att = w.add_connection("/truth/orientation", QuatStamped.__msgtype__, typestore=ts)
+        ok = _kept(skipped, "/truth/orientation", n, truth.quat_wxyz)
+        for ns, q in zip(_stamps_ns(truth.t_s[ok]), truth.quat_wxyz[ok].tolist(), strict=True):
+            quat = Quaternion(x=q[1], y=q[2], z=q[3], w=q[0])  # stored scalar-first (w, x, y, z)
+            msg = QuatStamped(header=_header(ts, int(ns), "enu"), quaternion=quat)
+            messages.append((int(ns), c_att, ts.serialize_cdr(msg, QuatStamped.__msgtype__)))
+    return messages
+
+
+def write_rosbag2(traces: Iterable[tuple[int, Trace]], meta: dict[str, Any], path: Path) -> dict[str, int]:
+    """Write one ROS 2 bag per trace into the new folder ``path``.
+
+    Returns the number of messages left out per topic (topics with none left out are not named): a
+    row with a NaN (or infinite) value in a message's fields is not written, since a ROS message has
+    no way to say "unknown" (an imported recording's optical dropouts, for instance).
+    """
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore
 
     ts = get_typestore(Stores.ROS2_HUMBLE)
-    Imu = ts.types["sensor_msgs/msg/Imu"]
-    Range = ts.types["sensor_msgs/msg/Range"]
-    Point = ts.types["geometry_msgs/msg/PointStamped"]
-    Header = ts.types["std_msgs/msg/Header"]
-    Time = ts.types["builtin_interfaces/msg/Time"]
-    Vector3 = ts.types["geometry_msgs/msg/Vector3"]
-    PointMsg = ts.types["geometry_msgs/msg/Point"]
-    Quaternion = ts.types["geometry_msgs/msg/Quaternion"]
-    QuatStamped = ts.types["geometry_msgs/msg/QuaternionStamped"]
-    no_cov = np.array([-1.0] + [0.0] * 8)
-    zero_cov = np.zeros(9)
-    identity = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
-
-    def header(ns: int, frame: str):
-        return Header(stamp=Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000)), frame_id=frame)
-
+    skipped: dict[str, int] = {}
     path.mkdir(parents=True)
     for index, trace in traces:
         with Writer(path / f"trace_{index:08d}", version=8) as w:
-            messages: list[tuple[int, Any, bytes]] = []
-            imu = trace.imu
-            channels = [] if imu is None else [
-                (topic, frame, acc, gyro) for topic, frame, acc, gyro in (
-                    ("/imu", "enu", imu.acc_mps2, None), ("/imu/body", "body", imu.acc_body_mps2, imu.gyro_body_radps))
-                if acc is not None or gyro is not None]
-            for topic, frame, acc, gyro in channels:
-                conn = w.add_connection(topic, Imu.__msgtype__, typestore=ts)
-                n = imu.t_s.shape[0]
-                acc_l = np.zeros((n, 3)).tolist() if acc is None else acc.tolist()
-                gyro_l = np.zeros((n, 3)).tolist() if gyro is None else gyro.tolist()
-                for ns, a, g in zip(_stamps_ns(imu.t_s), acc_l, gyro_l, strict=True):
-                    msg = Imu(header=header(int(ns), frame), orientation=identity, orientation_covariance=no_cov,
-                              angular_velocity=Vector3(x=g[0], y=g[1], z=g[2]),
-                              angular_velocity_covariance=no_cov if gyro is None else zero_cov,
-                              linear_acceleration=Vector3(x=a[0], y=a[1], z=a[2]),
-                              linear_acceleration_covariance=no_cov if acc is None else zero_cov)
-                    messages.append((int(ns), conn, ts.serialize_cdr(msg, Imu.__msgtype__)))
-            u = trace.uwb
-            ok = np.isfinite(u.range_m)
-            max_range = float(np.max(u.range_m[ok])) if ok.any() else 0.0
-            conns = {}
-            for a_idx, a_id in enumerate(trace.anchors.ids):
-                sel = ok & (u.anchor == a_idx)
-                if not sel.any():
-                    continue
-                conns[a_idx] = w.add_connection(f"/uwb/{a_id}", Range.__msgtype__, typestore=ts)
-                for ns, r in zip(_stamps_ns(u.t_s[sel]), u.range_m[sel].tolist(), strict=True):
-                    msg = Range(header=header(int(ns), a_id), radiation_type=RADIO, field_of_view=float(2 * np.pi),
-                                min_range=0.0, max_range=max_range, range=r)
-                    messages.append((int(ns), conns[a_idx], ts.serialize_cdr(msg, Range.__msgtype__)))
-            c_truth = w.add_connection("/truth", Point.__msgtype__, typestore=ts)
-            for ns, p in zip(_stamps_ns(trace.truth.t_s), trace.truth.pos_enu_m.tolist(), strict=True):
-                msg = Point(header=header(int(ns), "enu"), point=PointMsg(x=p[0], y=p[1], z=p[2]))
-                messages.append((int(ns), c_truth, ts.serialize_cdr(msg, Point.__msgtype__)))
-            if len(trace.anchors):
-                messages.append(_anchor_frames(w, ts, trace, header(int(_stamps_ns(trace.truth.t_s[:1])[0]), "enu")))
-            if trace.truth.quat_wxyz is not None:
-                c_att = w.add_connection("/truth/orientation", QuatStamped.__msgtype__, typestore=ts)
-                for ns, q in zip(_stamps_ns(trace.truth.t_s), trace.truth.quat_wxyz.tolist(), strict=True):
-                    quat = Quaternion(x=q[1], y=q[2], z=q[3], w=q[0])  # stored scalar-first (w, x, y, z)
-                    msg = QuatStamped(header=header(int(ns), "enu"), quaternion=quat)
-                    messages.append((int(ns), c_att, ts.serialize_cdr(msg, QuatStamped.__msgtype__)))
+            messages = [*_imu_messages(w, ts, trace.imu, skipped), *_uwb_messages(w, ts, trace),
+                        *_truth_messages(w, ts, trace, skipped)]
             messages.sort(key=lambda m: m[0])  # a bag is written in time order
             for ns, conn, data in messages:
                 w.write(conn, ns, data)
+    return {topic: n for topic, n in skipped.items() if n}
