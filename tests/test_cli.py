@@ -181,6 +181,17 @@ def test_generate_refuses_resume_with_overwrite(tmp_path, capsys):
         generate_dataset(load_scenario("cablecar-descending"), 1, tmp_path / "ds", resume=True, overwrite=True)
 
 
+def test_resume_of_a_complete_run_says_so_and_of_another_run_names_the_difference(tmp_path, capsys):
+    out = tmp_path / "ds"
+    assert run(capsys, "generate", "-n", 3, "--seed", 4, "--shard-traces", 2, "--out", out, "-q")[0] == 0
+    before = (out / "dataset.json").read_bytes()
+    code, text, err = run(capsys, "generate", "-n", 3, "--seed", 4, "--shard-traces", 2, "--out", out, "--resume")
+    assert code == 0 and "is already complete (3 traces, root seed 4): nothing to resume" in text and err == ""
+    code, _, err = run(capsys, "generate", "-n", 4, "--seed", 4, "--shard-traces", 2, "--out", out, "--resume")
+    assert code == 2 and err.count("\n") == 1 and "differs in n_traces" in err and "--overwrite" not in err
+    assert (out / "dataset.json").read_bytes() == before
+
+
 def test_generate_workers_help_is_plain_words(capsys):
     code, out, _ = run(capsys, "generate", "--help")
     text = " ".join(out.split())  # as read, whatever the wrapping
@@ -249,3 +260,42 @@ def test_command_line_runs_blas_on_one_thread_unless_told(given, seen):
             "print(os.environ['OPENBLAS_NUM_THREADS'])")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == seen
+
+
+def test_generate_refuses_a_scheduler_with_workers(tmp_path, capsys):
+    code, _, err = run(capsys, "generate", "--scheduler", "tcp://127.0.0.1:1", "--workers", 2, "-n", 1,
+                       "--out", tmp_path / "ds", "-q")
+    assert code == 2 and err.count("\n") == 1 and "--scheduler and --workers exclude each other" in err
+    assert not (tmp_path / "ds").exists()
+
+
+@pytest.mark.parametrize(("option", "value", "needle"), [
+    ("--n-synth", "999999999", "--n-synth only matters for SYNTH_PHY"),
+    ("--scenario", "cablecar-descending", "--scenario only matters for SYNTH_PHY"),
+    ("--epochs", "3", "--epochs only matters for NOAUG, AUG_GAN or bilstm"),
+    ("--ekf-prior", "input", "--ekf-prior only matters for NOAUG, AUG_GAN, SYNTH_PHY or bilstm"),
+])
+def test_study_tracking_refuses_an_option_no_chosen_method_uses(tmp_path, capsys, option, value, needle):
+    code, _, err = run(capsys, "study", "tracking", option, value, "--methods", "ls,ekf", "--out", tmp_path / "o")
+    assert code == 2 and err.count("\n") == 1 and needle in err and "(ls,ekf)" in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_study_tracking_knows_which_methods_are_networks():
+    from physynth.cli.track import _NETWORKS
+    from physynth.studies.tracking import NETWORK_METHODS
+
+    assert set(_NETWORKS) == NETWORK_METHODS
+
+
+def test_bench_warns_when_the_scaling_run_is_too_short(capsys):
+    """Two traces on two workers measure the workers' start, not the scaling: one line on stderr says so."""
+    pytest.importorskip("distributed")
+    from physynth.bench import SCALING_MIN_RUN_S, scaling_caveat
+
+    assert scaling_caveat(SCALING_MIN_RUN_S, 2) is None
+    code, out, err = run(capsys, "bench", "-n", 1, "--n-scaling", 2, "--workers", 2, "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["scaling_caveat"] and "scaling_efficiency" in res["scaling_caveat"]
+    assert err.count("\n") == 1 and err.startswith("physynth: warning: ") and "--n-scaling" in err

@@ -168,7 +168,9 @@ def test_generate_vary_site_uses_the_recorded_layouts(base, tmp_path, capsys):
         main(["generate", "-s", str(path), "-n", "6", "--seed", "3", "--vary-site", "--out", str(tmp_path / "ds")])
         raise SystemExit(0)
     assert (exc.value.code or 0) == 0
-    assert "site varied per trace around 2 anchor layouts" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "site varied per trace around 2 anchor layouts (--vary-site defaults; the" in out  # not the (absent)
+    assert "layouts the calibration recorded)" in out and max(map(len, out.splitlines()[1:])) <= 80  # section
     ds = read_dataset(tmp_path / "ds")
     east = np.array([t.anchors.pos_enu_m[:, 0].mean() for t in ds.traces])
     east0 = np.mean([a.pos_enu_m[0] for a in base.anchors])

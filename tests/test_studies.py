@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 from helpers import simple_scenario, simple_scenario_dict
 
+from physynth import bounds
 from physynth.cli import main
-from physynth.errors import PhySynthError
+from physynth.cli.study import parse_counts
+from physynth.errors import BudgetError, PhySynthError
 from physynth.evaluate.metrics import compute_metrics
 from physynth.generate import compile_scenario, generate_trace
 from physynth.io.scenario_file import load_scenario, save_scenario
@@ -279,6 +281,7 @@ def run(capsys, *args):
     (["study", "anchors", "-n", "0"], "greater than or equal to 1"),
     (["study", "anchors", "--real", "/nonexistent/ds"], "real dataset"),
     (["generate", "--regime", "foggy"], "unknown regime 'foggy'"),
+    (["generate", "-s", "handheld-broad", "--regime", "sparse"], "scenario 'handheld-broad' has no anchors"),
     (["study", "placement", "--candidates", "/nonexistent.csv", "-k", "2"], "does not exist"),
 ])
 def test_cli_bad_input_is_one_line_exit_2(tmp_path, capsys, args, needle):
@@ -326,3 +329,48 @@ def test_cli_study_anchors_and_validate_subset(tmp_path, capsys):
 def test_helpers_roundtrip():
     d = simple_scenario_dict()
     assert scenario_to_dict(scenario_from_dict(d))["anchors"][0]["id"] == "A1"
+
+
+def test_counts_beyond_the_anchors_fail_at_once_in_one_short_line(tmp_path, capsys):
+    with pytest.raises(PhySynthError, match=r"1\.\.6 \(the scenario's anchors\), got 2\.\.1000000000000$"):
+        parse_counts("1,2..1000000000000", 6)  # refused before the range is expanded
+    assert parse_counts("1..3,6", 6) == [1, 2, 3, 6]
+    code, _, err = run(capsys, "study", "anchors", "--counts", "1..100000", "-n", 1, "--out", tmp_path / "o", "-q")
+    assert code == 2 and err.count("\n") == 1 and len(err) < 200 and "got 1..100000" in err
+    with pytest.raises(PhySynthError) as exc:  # the library names a few of the counts, not all of them
+        run_anchor_study(_rated_scenario(), n=1, counts=range(1, 100_000), regimes=("nominal",), workers=1)
+    assert len(str(exc.value)) < 200 and "(99996 in all)" in str(exc.value)
+    assert not (tmp_path / "o").exists()
+
+
+def test_studies_refuse_a_size_over_budget_unless_forced(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(bounds, "OUTPUT_BUDGET_BYTES", 1.0)  # every study is over it
+    scn = _rated_scenario()
+    with pytest.raises(BudgetError, match="2 trace"):  # one regime and the reference run
+        run_anchor_study(scn, n=1, counts=[1], regimes=("nominal",), workers=1)
+    assert run_anchor_study(scn, n=1, counts=[1], regimes=("nominal",), workers=1, force=True).scores
+    (tmp_path / "c.csv").write_text("id,e,n,u\nP1,50,20,3\nP2,250,20,3\n")
+    cands = read_candidates(tmp_path / "c.csv")
+    with pytest.raises(BudgetError, match="4 trace"):  # selection and held-out traces
+        greedy_placement(scn, cands, k=1, n=2, workers=1)
+    scn_path = save_scenario(scn, tmp_path / "s.yaml")
+    commands = (["study", "anchors", "-s", scn_path, "-n", 1, "--counts", 1, "--regimes", "nominal",
+                 "--tracker-traces", 0, "--workers", 1, "--no-figures", "-q"],
+                ["study", "placement", "-s", scn_path, "--candidates", tmp_path / "c.csv", "-k", 1, "-n", 1,
+                 "--workers", 1, "--no-figures", "-q"])
+    for j, args in enumerate(commands):
+        code, _, err = run(capsys, *args, "--out", tmp_path / f"o{j}")
+        assert code == 2 and err.count("\n") == 1 and "budget" in err and "use --force" in err, err
+        assert not (tmp_path / f"o{j}").exists()
+        code, _, err = run(capsys, *args, "--force", "--out", tmp_path / f"o{j}")
+        assert code == 0, err
+
+
+def test_cli_study_anchors_summary_fits_80_columns(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "80")
+    code, out, err = run(capsys, "study", "anchors", "-n", 1, "--seed", 1, "--counts", 1, "--regimes", "nominal",
+                         "--tracker-traces", 0, "--workers", 1, "--no-figures", "--out", tmp_path / "st")
+    assert code == 0, err
+    assert max(len(line) for line in out.splitlines()) <= 79, out
+    assert "(by reference-run availability)" in out and "reference: reference run" not in out
+    assert "wall time" in out  # on the last line, wrapped like the others: the output folder's path is long

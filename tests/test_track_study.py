@@ -132,6 +132,45 @@ def test_bad_inputs_are_user_errors(runs):
         run_tracking_study([StudyRun(label="y", trace=no_uwb)], rr[2], config=StudyConfig(methods=("ls",)))
 
 
+def test_a_run_that_is_trained_on_and_scored_is_refused(runs):
+    """The same recording on both sides: the same samples, or the same source recording over overlapping
+    times (a test run turned, or imported again); one recording's other times may be scored."""
+    import dataclasses
+
+    from physynth.studies.tracking import results_markdown
+    from physynth.transform import turn_trace
+
+    scn, rr = runs
+    cfg = StudyConfig(methods=("ls",))
+    with pytest.raises(PhySynthError, match="test run copy holds the same recording as training run run0"):
+        run_tracking_study(rr[:2], StudyRun(label="copy", trace=rr[0].trace), config=cfg)
+    recorded = dataclasses.replace(rr[0].trace, meta={**rr[0].trace.meta, "path": "/data/run0", "time_origin_s": 0.0})
+    train = [StudyRun(label="run0", trace=recorded), rr[1]]
+    turned = turn_trace(recorded, 1.0)
+    with pytest.raises(PhySynthError, match="same recording"):
+        run_tracking_study(train, StudyRun(label="turned", trace=turned), config=cfg)
+    later = dataclasses.replace(turned, meta={**turned.meta, "time_origin_s": 1e6})  # another stretch of it
+    res = run_tracking_study(train, StudyRun(label="later", trace=later), config=StudyConfig(methods=("ls", "ekf")))
+    md = results_markdown(res)  # what applies to ls and ekf only: no Δ against NOAUG, no training schedule
+    assert "Δ" not in md and "schedule" not in md and "SYNTH_PHY" not in md and "thread" not in md
+    assert "| Method | RMSE (m) | RMSE 2D (m) | MAE (m) | P50 (m) | P95 (m) |\n" in md
+    rows = [{**res.rows[0], "key": "NOAUG"}, {**res.rows[1], "delta_rmse_pct": 1.0}]
+    config = {**res.config, "methods": ["NOAUG", "SYNTH_PHY", "ekf"]}
+    md = results_markdown(dataclasses.replace(res, rows=rows, config=config))
+    assert "Δ RMSE (%) |" in md and "| +1.0 |" in md and "Δ RMSE is relative to NOAUG" in md
+    assert "- schedule: NOAUG 200 epochs" in md and "SYNTH_PHY 300 pre-training epochs" in md
+
+
+def test_cli_shows_no_delta_column_without_noaug(runs, tmp_path, capsys):
+    scn, rr = runs
+    train = write_dataset(tmp_path / "train", [r.trace for r in rr[:2]])
+    test = write_dataset(tmp_path / "test", [rr[2].trace])
+    main(["study", "tracking", "--train", str(train), "--test", str(test), "--methods", "ls,ekf",
+          "--out", str(tmp_path / "out")])
+    out = capsys.readouterr().out
+    assert "Δ" not in out and "NOAUG" not in out and "errors in metres" in out
+
+
 def _cli(capsys, *args):
     with pytest.raises(SystemExit) as exc:
         main([*map(str, args)])
@@ -149,6 +188,8 @@ def test_cli_bad_input_exit_2_one_line(runs, tmp_path, capsys):
         (["--train", train, "--test", bad_test, "--methods", "ls"], "no ground truth"),
         (["--train", train, "--test", train, "--methods", "NOAUG,kalman"], "unknown method"),
         (["--train", train, "--methods", "ls"], "both --train and --test"),
+        (["--train", train, "--test", train, "--methods", "ls"],
+         "test run train[0] holds the same recording as training run train[0]"),
         (["--train", tmp_path / "missing", "--test", train, "--methods", "ls"], "does not exist"),
         (["--train", train, "--test", train, "--methods", "ls", "--finetune-synth-ratio", "-1"],
          "--finetune-synth-ratio must be in [0, 100]"),  # the option, not the parameter
@@ -238,7 +279,7 @@ def test_cli_route_frame_scores_a_turned_run_like_the_run(runs, tmp_path, capsys
           "--out", str(tmp_path / "default")])
     d = json.loads((tmp_path / "default" / "results.json").read_text())["config"]
     assert d["random_isometry"] and not d["route_frame"]
-    assert "(--frame turned)" in (tmp_path / "default" / "results.md").read_text()
+    assert "frame" not in (tmp_path / "default" / "results.md").read_text()  # no network ran: no frame to tell
     assert (tmp_path / "default" / "paths.png").stat().st_size > 1000  # one classical method alone is plotted
 
 

@@ -5,7 +5,9 @@
 - ``scaling_efficiency``: rate with ``workers`` worker processes on an embedded Dask cluster divided by
   ``workers`` times the one-worker rate of the same run (``n_scaling`` traces, shards of a quarter per
   worker), both end to end: the cluster's start is included;
-- ``peak_rss_mb``: the largest resident memory of this process or of any worker process it waited for.
+- ``peak_rss_mb``: the largest resident memory of this process or of any worker process it waited for;
+- ``scaling_caveat``: one line when the scaling run was too short to mean much (its one-worker half took
+  less than :data:`SCALING_MIN_RUN_S`: the cluster's start then dominates the rate with workers), else None.
 
 The figures depend on the machine and on what else runs on it: run on a quiet machine, and compare
 ratios measured side by side in one run.
@@ -25,6 +27,18 @@ from typing import Any
 from .generate import compile_scenario, generate_trace
 from .progress import ProgressCallback, no_progress
 from .scenario import Scenario
+
+SCALING_MIN_RUN_S = 10.0
+"""A scaling run whose one-worker half takes less than this [s] measures mostly the start of the worker
+processes (a few CPU seconds each: docs/scale.md): its ``scaling_efficiency`` comes with a caveat."""
+
+
+def scaling_caveat(one_worker_s: float, workers: int) -> str | None:
+    """The caveat of a scaling run whose one-worker half took ``one_worker_s`` [s] (None when long enough)."""
+    if one_worker_s >= SCALING_MIN_RUN_S:
+        return None
+    return (f"scaling_efficiency comes from a {one_worker_s:.2g} s run on one worker (under {SCALING_MIN_RUN_S:g} "
+            f"s), where starting the {workers} worker processes weighs in: longer runs scale better")
 
 
 def peak_rss_mb() -> float:
@@ -79,7 +93,7 @@ def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int =
             shutil.rmtree(path)
         out.update(traces_per_s_memory=round(best_mem, 1), traces_per_s_parquet=round(best_pq, 1),
                    mb_per_trace_on_disk=round(size / n / 1e6, 3))
-        eff = None
+        eff, caveat = None, None
         if workers > 1:
             ns = n_scaling or 10 * n
             shard = max(1, ns // (4 * workers))
@@ -92,8 +106,10 @@ def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int =
                 rates[w] = ns / (time.perf_counter() - t0)
                 shutil.rmtree(path)
             eff = rates[workers] / (workers * rates[1])
+            caveat = scaling_caveat(ns / rates[1], workers)
             out["traces_per_s_workers"] = {str(w): round(v, 1) for w, v in rates.items()}
         out["scaling_efficiency"] = None if eff is None else round(eff, 3)
+        out["scaling_caveat"] = caveat
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     out["peak_rss_mb"] = round(peak_rss_mb(), 1)

@@ -25,7 +25,8 @@ def bench_cmd(
     repeat: int = typer.Option(1, "--repeat", metavar="N", min=1,
                                help="Repetitions of the one-core measurements (best kept)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object (keys traces_per_s_memory, "
-                                                       "traces_per_s_parquet, scaling_efficiency, peak_rss_mb)."),
+                                                       "traces_per_s_parquet, scaling_efficiency, "
+                                                       "scaling_caveat, peak_rss_mb)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
     """Measure generation speed: traces/s in memory and to Parquet on one core, scaling, peak memory."""
@@ -38,6 +39,8 @@ def bench_cmd(
         require_dask()
     with progress_bar(not quiet and not as_json) as progress:
         res = run_bench(scn, n=n, n_scaling=n_scaling, workers=workers, repeat=repeat, progress=progress)
+    if res["scaling_caveat"]:  # one line on stderr, also with --json (where the key holds it too)
+        typer.echo(f"physynth: warning: {res['scaling_caveat']} (raise --n-scaling)", err=True)
     if as_json:
         typer.echo(json.dumps(res, indent=1))
         return

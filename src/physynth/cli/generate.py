@@ -67,12 +67,19 @@ def generate_cmd(
     if resume and overwrite:
         raise PhySynthError("--resume and --overwrite exclude each other: --resume completes an unfinished run "
                             "of --out, --overwrite discards it; give one")
+    if scheduler is not None and workers:
+        raise PhySynthError(f"--scheduler and --workers exclude each other: --scheduler runs on the workers of "
+                            f"an existing cluster, --workers {workers} starts its own; give one")
     scn = load_scenario(scenario)
     if regime is not None:
-        from ..studies.regimes import apply_regime
+        from ..studies.regimes import apply_regime, check_regime
 
+        if not scn.anchors:  # a regime changes the UWB channel and availability only: nothing to change
+            raise PhySynthError(f"--regime {check_regime(regime)}: scenario '{scn.name}' has no anchors, so a "
+                                "channel regime changes nothing; leave --regime out")
         scn = apply_regime(scn, regime)
-    if vary_site and scn.variation is None:  # the section's defaults, with the layouts a calibration recorded
+    added = vary_site and scn.variation is None  # the section's defaults, with the layouts a calibration recorded
+    if added:
         from ..models.variation import recorded_layouts
         from ..scenario import SiteVariationParams
 
@@ -86,6 +93,15 @@ def generate_cmd(
             typer.echo("physynth: Dask is not installed, generating on one core "
                        "(pip install -e '.[scale]' in the PhySynth clone for all cores)", err=True)
     resume_hint = f"complete shards are kept: run the same command with --resume to finish {out}"
+    if resume:
+        from ..io.safety import resolve_output
+        from ..io.shards import finished_run
+        from ..scenario import scenario_to_dict
+
+        done = finished_run(resolve_output(out), scenario_to_dict(scn), seed, n, shard_traces)
+        if done is not None:
+            typer.echo(f"{out} is already complete ({counted(n, 'trace')}, root seed {done}): nothing to resume")
+            return
     try:
         with progress_bar(not quiet) as progress:
             path, root = generate_dataset(scn, n, out, seed=seed, overwrite=overwrite, progress=progress,
@@ -106,11 +122,17 @@ def generate_cmd(
     if not quiet:
         where = f"on {scheduler}" if scheduler else counted(min(n_workers, -(-n // shard_traces)), "worker")
         typer.echo(f"wrote {counted(n, 'trace')} of '{scn.name}' to {path} (root seed {root}, {where})")
+        source = ("--vary-site defaults" + ("; the layouts the calibration recorded"
+                                            if scn.variation and scn.variation.layouts else "")
+                  if added else "the scenario's variation section")
+        line = None
         if scn.variation is not None and not scn.anchors:
-            typer.echo("  path varied per trace (variation section; no anchors)")
+            line = f"path varied per trace ({source}; no anchors)"
         elif scn.variation is not None:
             lays = counted(len(scn.variation.layouts), "anchor layout") if scn.variation.layouts else "its own layout"
-            typer.echo(f"  site varied per trace around {lays} (variation section)")
+            line = f"site varied per trace around {lays} ({source})"
+        if line:
+            typer.echo(textwrap.fill(line, 79, initial_indent="  ", subsequent_indent="    "))
 
 
 def scenarios_cmd() -> None:
@@ -141,6 +163,7 @@ def inspect_cmd(
 ) -> None:
     """Metrics of a dataset (docs/data-and-metrics.md), pooled over its traces; streamed, any size."""
     from .._json import jsonable
+    from ..io.dataset import recorded_grid_rate_hz
     from ..workflows import inspect_dataset
 
     with progress_bar(not quiet) as progress:
@@ -164,5 +187,6 @@ def inspect_cmd(
     heads = ("anchor", "ranges", "fresh", "AoI s", "std m", "med m", "p95 m")
     per = [(a, *(f"{d[c]:.4g}" if isinstance(d[c], float) else str(d[c]) for c in cols))
            for a, d in m.per_anchor.items()]
-    typer.echo("\nper anchor (fresh = fraction of 100 Hz bins with a range; |residual| P95)")
+    typer.echo(f"\nper anchor (fresh = fraction of {recorded_grid_rate_hz(meta):g} Hz bins with a range; "
+               "|residual| P95)")
     typer.echo(format_table(heads, per))

@@ -1,14 +1,18 @@
 """``physynth study``: deployment studies on the generator.
 
     physynth study anchors   --scenario S [--real DATASET] [-n 50] [--seed S] [--counts 1..6]
-                             [--regimes dense,sparse,degraded] [--order A,B,...] [--tracker-traces 50] --out DIR
-    physynth study placement --scenario S --candidates FILE -k K [--objective ge1|ge2|ge3|gdop|hdop] --out DIR
+                             [--regimes dense,sparse,degraded] [--order A,B,...] [--tracker-traces 50]
+                             [--force] --out DIR
+    physynth study placement --scenario S --candidates FILE -k K [--objective ge1|ge2|ge3|gdop|hdop]
+                             [--force] --out DIR
 
-Thin commands over :mod:`physynth.workflows`; bad input is one line on stderr and exit code 2.
+Thin commands over :mod:`physynth.workflows`; bad input is one line on stderr and exit code 2, and so is
+a study whose traces exceed the size budget (:func:`physynth.bounds.check_budget`) without ``--force``.
 """
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import typer
@@ -29,24 +33,49 @@ def register(app: typer.Typer) -> None:
     app.add_typer(study_app, name="study")
 
 
-def parse_counts(text: str) -> list[int]:
-    """``"1..6"``, ``"2,3,6"`` or ``"1..3,6"`` -> sorted unique ints; one-line error otherwise."""
+WIDTH = 79
+"""Summary lines are wrapped to this many characters (an 80-column terminal)."""
+
+FORCE_HELP = "Go ahead even when the size estimate exceeds the budget."
+
+
+def _shown(text: str, limit: int = 40) -> str:
+    """``text`` as quoted in a one-line error: at most ``limit`` characters."""
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def parse_counts(text: str, n_anchors: int) -> list[int]:
+    """``"1..6"``, ``"2,3,6"`` or ``"1..3,6"`` -> sorted unique ints; one-line error otherwise.
+
+    Every count must lie in 1..``n_anchors`` (the scenario's anchors), checked before a range is
+    expanded: ``1..99999999`` fails at once, in one short line.
+    """
     from ..errors import PhySynthError
 
-    out: set[int] = set()
+    spans = []
     try:
         for part in text.split(","):
-            part = part.strip()
-            if ".." in part:
-                lo, hi = (int(v) for v in part.split(".."))
-                if hi < lo:
-                    raise ValueError
-                out.update(range(lo, hi + 1))
-            else:
-                out.add(int(part))
+            lo, dots, hi = part.strip().partition("..")
+            spans.append((part.strip(), int(lo), int(hi) if dots else int(lo)))
     except ValueError:
-        raise PhySynthError(f"--counts: expected a range like 1..6 or a list like 2,3,6, got '{text}'") from None
-    return sorted(out)
+        spans = []
+    if not spans or any(hi < lo for _, lo, hi in spans):
+        raise PhySynthError(f"--counts: expected a range like 1..6 or a list like 2,3,6, got '{_shown(text)}'")
+    bad = next((part for part, lo, hi in spans if lo < 1 or hi > n_anchors), None)
+    if bad is not None:
+        raise PhySynthError(f"--counts: anchor counts must lie in 1..{n_anchors} (the scenario's anchors), "
+                            f"got {_shown(bad)}")
+    return sorted({k for _, lo, hi in spans for k in range(lo, hi + 1)})
+
+
+def _echo_wrapped(text: str) -> None:
+    """``text`` on stdout in lines of at most :data:`WIDTH` characters (words and paths kept whole)."""
+    typer.echo(textwrap.fill(text, WIDTH, subsequent_indent="  ", break_long_words=False, break_on_hyphens=False))
+
+
+ORDER_SOURCES = {"given": "as given", "real": "by real-run availability",
+                 "reference run": "by reference-run availability"}
+"""How the summary says where the anchor order came from (``AnchorStudy.reference["order_source"]``)."""
 
 
 def _ids(text: str | None) -> list[str] | None:
@@ -76,34 +105,37 @@ def anchors_cmd(
                              help="Output folder (table.json, table.md, anchors.png)."),
     figures: bool = typer.Option(True, "--figures/--no-figures", help="Draw the figure (needs matplotlib)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a study already in --out."),
+    force: bool = typer.Option(False, "--force", help=FORCE_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Anchor count x channel regime study (paper section IV.B: Table III, Figure 6)."""
     from ..io.safety import check_study_output
+    from ..io.scenario_file import load_scenario
     from ..studies.anchors import write_anchor_study
     from ..validate.render import require_matplotlib
     from ..workflows import anchor_study
 
     check_study_output(out, marker="table.json", what="an anchor study", overwrite=overwrite,  # before the work
                        inputs=[real] if real is not None else [])
+    scn = load_scenario(scenario)
+    chosen = None if counts is None else parse_counts(counts, len(scn.anchors))
     if figures:
         require_matplotlib()
     with progress_bar(not quiet) as progress:
-        study = anchor_study(scenario, real=real, n=n, seed=seed,
-                             counts=None if counts is None else parse_counts(counts),
+        study = anchor_study(scn, real=real, n=n, seed=seed, counts=chosen,
                              regimes=[r.strip() for r in regimes.split(",") if r.strip()],
                              order=_ids(order), workers=workers, tracker_traces=tracker_traces,
-                             progress=progress)
+                             progress=progress, force=force)
     written = write_anchor_study(study, out, figures=figures, overwrite=overwrite)
     if quiet:
         return
-    typer.echo(f"order: {', '.join(study.order)} (reference: {study.reference['kind']}); "
-               f"{study.timing_s['total']:.1f} s on {counted(study.inputs['workers'], 'process', 'processes')}")
+    _echo_wrapped(f"order: {', '.join(study.order)} ({ORDER_SOURCES[study.reference['order_source']]})")
     counts_ = sorted(study.counts, reverse=True)
     typer.echo("anchors " + " ".join(f"{r:>9s}" for r in study.scores))
     for k in counts_:
         typer.echo(f"{k:7d} " + " ".join(f"{study.scores[r][k]:9.3f}" for r in study.scores))
-    typer.echo(f"wrote {', '.join(written)} to {out}")
+    _echo_wrapped(f"wrote {', '.join(written)} to {out} (wall time {study.timing_s['total']:.1f} s on "
+                  f"{counted(study.inputs['workers'], 'process', 'processes')})")
 
 
 def placement_cmd(
@@ -127,6 +159,7 @@ def placement_cmd(
                              help="Output folder (placement.json, placement.md, placement.png, scenario.yaml)."),
     figures: bool = typer.Option(True, "--figures/--no-figures", help="Draw the figure (needs matplotlib)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a placement already in --out."),
+    force: bool = typer.Option(False, "--force", help=FORCE_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Greedy anchor placement: pick K of the candidate positions to maximise availability or minimise GDOP."""
@@ -141,10 +174,10 @@ def placement_cmd(
         require_matplotlib()
     with progress_bar(not quiet) as progress:
         result = placement_study(scenario, candidates, k=k, objective=objective, n=n, seed=seed, regime=regime,
-                                 workers=workers, progress=progress)
+                                 workers=workers, progress=progress, force=force)
     written = write_placement(result, out, figures=figures, overwrite=overwrite)
     if quiet:
         return
     for step in result.steps:
         typer.echo(f"K={step['k']}: + {step['added']:>10s}  {result.objective} = {step['objective']:.4f}")
-    typer.echo(f"wrote {', '.join(written)} to {out}")
+    _echo_wrapped(f"wrote {', '.join(written)} to {out}")

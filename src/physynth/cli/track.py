@@ -11,6 +11,7 @@ The command joins the ``study`` group of :mod:`physynth.cli.study`.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -20,6 +21,16 @@ FRAMES = {"route": {"route_frame": True, "random_isometry": False},
           "turned": {"route_frame": False, "random_isometry": True},
           "compass": {"route_frame": False, "random_isometry": False}}
 """``--frame`` choices and the study settings each one stands for."""
+
+_NETWORKS = ("NOAUG", "AUG_GAN", "SYNTH_PHY", "bilstm")  # studies.tracking.NETWORK_METHODS, not imported here
+_SYNTH = ("SYNTH_PHY",)
+METHOD_OPTIONS = {"epochs": ("--epochs", ("NOAUG", "AUG_GAN", "bilstm")), "scenario": ("--scenario", _SYNTH),
+                  "pretrain_epochs": ("--pretrain-epochs", _SYNTH), "finetune_epochs": ("--finetune-epochs", _SYNTH),
+                  "n_synth_traces": ("--n-synth", _SYNTH), "synth_windows_per_trace": ("--synth-windows", _SYNTH),
+                  "finetune_synth_ratio": ("--finetune-synth-ratio", _SYNTH), "ekf_prior": ("--ekf-prior", _NETWORKS),
+                  "lr_schedule": ("--lr-schedule", _NETWORKS), "weight_average": ("--weight-average", _NETWORKS)}
+"""Options (by the study setting they give) that set up some methods only, with those methods: given without
+any of them, an option is refused (as ``--jobs`` without ``--ensemble``), not silently ignored."""
 
 
 _ENSEMBLE_HELP = ("Run the study for K seeds from --seed on and score the mean of their estimates (a seed "
@@ -91,14 +102,7 @@ def tracking_cmd(
 ) -> None:
     """Train NOAUG, AUG_GAN, SYNTH_PHY, bilstm, ls and ekf on real runs; score them on a held-out run."""
     from ..io.safety import check_study_output
-    from ..studies.tracking import (
-        METHODS,
-        NETWORK_METHODS,
-        StudyConfig,
-        quick_config,
-        run_tracking_study,
-        write_results,
-    )
+    from ..studies.tracking import METHODS, NETWORK_METHODS, run_tracking_study, write_results
     from ..track import require_torch
 
     check_study_output(out, marker="results.json", what="a tracking study", overwrite=overwrite,  # before the work
@@ -115,7 +119,7 @@ def tracking_cmd(
                    ensemble=ensemble if ensemble > 1 else None, jobs=jobs if jobs > 1 else None)
     net = _given(lr_schedule=lr_schedule, weight_average=weight_average)
     over |= {"net": net} if net else {}
-    cfg = quick_config(**over) if quick else StudyConfig(**over)
+    cfg = _config(over, quick, scenario)
     if NETWORK_METHODS & set(cfg.methods):
         require_torch()
     train_runs, test_runs = _load_runs(train, test)
@@ -137,6 +141,22 @@ def tracking_cmd(
     _print_table(result, test_runs)
     typer.echo(f"wrote {', '.join(str(f) for f in files.values())} "
                f"(wall time {result.data['wall_time_s']:.0f} s)")
+
+
+def _config(over: dict[str, Any], quick: bool, scenario: str | None) -> Any:
+    """The study's configuration from the settings given (``over``; ``--quick``: its schedule for the others);
+    an option of :data:`METHOD_OPTIONS` given when none of the methods it sets up runs is refused."""
+    from ..studies.tracking import StudyConfig, quick_config
+
+    cfg = quick_config(**over) if quick else StudyConfig(**over)  # bad values first, then options without use
+    given = {**over, **over.get("net", {}), "scenario": scenario}
+    for name, (flag, users) in METHOD_OPTIONS.items():
+        if given.get(name) is not None and not set(users) & set(cfg.methods):
+            which = users[0] if len(users) == 1 else f"{', '.join(users[:-1])} or {users[-1]}"
+            raise PhySynthError(f"{flag} only matters for {which}, which --methods leaves out "
+                                f"({','.join(cfg.methods)}): add {'it' if len(users) == 1 else 'one'} or leave {flag} "
+                                "out")
+    return cfg
 
 
 def _scenario(name: str | None):
@@ -185,14 +205,18 @@ def _print_table(result, test_runs: list) -> None:
     from rich.console import Console
     from rich.table import Table
 
+    from ..studies.tracking import compared_with_noaug
+
+    delta = compared_with_noaug(result.rows)  # no Δ column without NOAUG, the row it is relative to
     table = Table(title=f"test run {', '.join(r.label for r in test_runs)}",
-                  caption="errors in metres; Δ RMSE: against NOAUG, in %")
+                  caption="errors in metres" + ("; Δ RMSE: against NOAUG, in %" if delta else ""))
     table.add_column("method", ratio=1)
-    for col in ("RMSE", "RMSE 2D", "MAE", "P50", "P95", "Δ RMSE"):
+    for col in ("RMSE", "RMSE 2D", "MAE", "P50", "P95", *(("Δ RMSE",) if delta else ())):
         table.add_column(col, justify="right", no_wrap=True)
     for r in result.rows:
-        delta = "-" if r["delta_rmse_pct"] is None else f"{r['delta_rmse_pct']:+.1f}"
+        shown = "-" if r["delta_rmse_pct"] is None else f"{r['delta_rmse_pct']:+.1f}"
         name, _, about = r["method"].partition(" (")
         label = name if not about else f"{name}\n[dim]{about.removesuffix(')')}[/dim]"
-        table.add_row(label, *(f"{r[k]:.3f}" for k in ("rmse_m", "rmse_2d_m", "mae_m", "p50_m", "p95_m")), delta)
+        table.add_row(label, *(f"{r[k]:.3f}" for k in ("rmse_m", "rmse_2d_m", "mae_m", "p50_m", "p95_m")),
+                      *((shown,) if delta else ()))
     Console().print(table)

@@ -43,6 +43,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from .._json import jsonable
+from ..bounds import check_budget
 from ..errors import PhySynthError
 from ..evaluate.metrics import Metrics, TraceSummary, fidelity_score, pool, summarize
 from ..generate import compile_scenario, generate_trace
@@ -302,7 +303,7 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
                      counts: Sequence[int] | None = None, regimes: Sequence[str] = DEFAULT_REGIMES,
                      order: Sequence[str] | None = None, workers: int | None = None,
                      columns: Sequence[CellColumn] = CELL_COLUMNS,
-                     progress: ProgressCallback | None = None) -> AnchorStudy:
+                     progress: ProgressCallback | None = None, force: bool = False) -> AnchorStudy:
     """Anchor count x regime study of ``scn``.
 
     Parameters
@@ -327,11 +328,17 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
         Per-cell columns beyond S and availability (default: GDOP).
     progress : callable, optional
         ``progress(message, done, total)`` per trace.
+    force : bool
+        Go ahead even when the traces the study generates (``n`` per regime, and ``n`` for the reference
+        run without ``real``) exceed the size budget (:func:`physynth.bounds.check_budget`, checked
+        before any work).
 
     Raises
     ------
     PhySynthError
         One line: n < 1, counts outside 1 .. number of anchors, an unknown regime or anchor id.
+    BudgetError
+        Unless ``force``: the study's traces exceed the size budget.
     """
     progress = progress or no_progress
     t_start = time.perf_counter()
@@ -341,7 +348,8 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
     counts = sorted(set(range(1, len(ids) + 1) if counts is None else (int(k) for k in counts)))
     bad = [k for k in counts if not 1 <= k <= len(ids)]
     if bad:
-        raise PhySynthError(f"anchor counts must lie in 1..{len(ids)} (the scenario's anchors), got {bad}")
+        shown = ", ".join(map(str, bad[:5])) + (f", ... ({len(bad)} in all)" if len(bad) > 5 else "")
+        raise PhySynthError(f"anchor counts must lie in 1..{len(ids)} (the scenario's anchors), got {shown}")
     regimes = [check_regime(r) for r in regimes]
     if not regimes:
         raise PhySynthError("no regime given")
@@ -359,6 +367,7 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
         order = check_subset(order, ids, "the anchor order")
         if len(order) < max(counts):
             raise PhySynthError(f"the order names {len(order)} anchor(s) but counts go up to {max(counts)}")
+    check_budget(scn, n * (len(regimes) + (real is None)), force=force)  # every trace the study generates
     workers = max(1, int(workers or os.cpu_count() or 1))
     n_chunks = 2 * workers
     with worker_pool(workers) as executor:  # one pool for the reference run and the cells

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from .._json import jsonable
+from ..bounds import check_budget
 from ..errors import PhySynthError
 from ..evaluate.grid import age_of_information, fresh_mask, grid_times
 from ..generate import compile_scenario, generate_trace
@@ -163,10 +164,12 @@ class Placement:
 
 def greedy_placement(scn: Scenario, candidates: Sequence[AnchorSpec], *, k: int, objective: str = "ge1",
                      n: int = 20, seed: int = 0, workers: int | None = None,
-                     progress: ProgressCallback | None = None) -> Placement:
+                     progress: ProgressCallback | None = None, force: bool = False) -> Placement:
     """Choose ``k`` of ``candidates`` greedily for ``objective`` (:data:`OBJECTIVES`).
 
-    Selection on traces 0 .. n-1 of root ``seed``; every step is also scored on traces n .. 2n-1.
+    Selection on traces 0 .. n-1 of root ``seed``; every step is also scored on traces n .. 2n-1. The
+    ``2 n`` traces with every candidate are checked against the size budget before any work
+    (:func:`physynth.bounds.check_budget`; ``force`` goes ahead anyway).
     """
     progress = progress or no_progress
     t0 = time.perf_counter()
@@ -178,6 +181,7 @@ def greedy_placement(scn: Scenario, candidates: Sequence[AnchorSpec], *, k: int,
     if n < 1:
         raise PhySynthError(f"the number of traces must be at least 1, got {n}")
     cscn = candidate_scenario(scn, candidates, same_slot=True)
+    check_budget(cscn, 2 * n, force=force)
     workers = max(1, int(workers or os.cpu_count() or 1))
     with worker_pool(workers) as pool:
         parts = _map([(cscn, seed, c) for c in _chunks(list(range(2 * n)), 2 * workers)], _reduce_chunk, pool,

@@ -257,6 +257,30 @@ def _check_runs(train: Sequence[StudyRun], test: Sequence[StudyRun]) -> None:
             raise PhySynthError(f"test run {r.label} has no ground truth to score against")
         if len(r.trace.uwb) == 0 or not bool(r.trace.uwb.valid.any()):
             raise PhySynthError(f"test run {r.label} has no UWB range")
+    _check_disjoint(train, test)
+
+
+def _check_disjoint(train: Sequence[StudyRun], test: Sequence[StudyRun]) -> None:
+    """Refuse a test run that is also a training run: the same samples (the calibration's test for one
+    recording given twice, :func:`physynth.calibrate.pipeline._fingerprint`), or the same source
+    recording (``meta["path"]`` of an import) over overlapping times, which also finds a test run that
+    was turned or cropped."""
+    from ..calibrate.pipeline import _fingerprint
+
+    def span(t: Trace) -> tuple[float, float]:  # truth time span in the recording's own time base [s]
+        t0 = float(t.meta.get("time_origin_s") or 0.0)
+        return t0 + float(t.truth.t_s[0]), t0 + float(t.truth.t_s[-1])
+
+    prints = {id(r): _fingerprint(r.trace) for r in (*train, *test)}
+    for r in test:
+        for q in train:
+            source = r.trace.meta.get("path")
+            same = prints[id(r)] == prints[id(q)] or (
+                isinstance(source, str) and source == q.trace.meta.get("path")
+                and span(r.trace)[0] <= span(q.trace)[1] and span(q.trace)[0] <= span(r.trace)[1])
+            if same:
+                raise PhySynthError(f"test run {r.label} holds the same recording as training run {q.label}: "
+                                    "a run may not be both trained on and scored")
 
 
 def _calibrate_training_runs(traces: Sequence[Trace], progress: ProgressFn) -> tuple[Scenario, dict[str, Any]]:
@@ -649,46 +673,67 @@ def _rows(estimates: dict[str, list[np.ndarray]], test_inputs: list[TrackInput],
 # --------------------------------------------------------------------------------------------------
 
 
-def results_markdown(result: StudyResult) -> str:
-    """``results.md``: Table IV layout (plus the horizontal RMSE), then what was run."""
-    d, c = result.data, result.config
+def compared_with_noaug(rows: Sequence[dict[str, Any]]) -> bool:
+    """Whether the table has a Δ RMSE column: NOAUG, the row every Δ is relative to, ran."""
+    return any(r["key"] == "NOAUG" for r in rows)
+
+
+def _schedule(c: dict[str, Any]) -> list[str]:
+    """``results.md``'s schedule line, of the training stages of the methods that ran (none: no line)."""
+    real_only = [m for m in ("NOAUG", "AUG_GAN", "bilstm") if m in c["methods"]]
+    parts = [f"{', '.join(real_only)} {c['epochs']} epochs at {c['lr']:g}"] if real_only else []
+    if "SYNTH_PHY" in c["methods"]:
+        parts.append(f"SYNTH_PHY {c['pretrain_epochs']} pre-training epochs at {c['pretrain_lr']:g} on "
+                     f"{c['n_synth_traces']} synthetic traces, then {c['finetune_epochs']} fine-tuning epochs at "
+                     f"{c['finetune_lr']:g}" + (f" with {c['finetune_synth_ratio']:g} synthetic windows per real "
+                                                "window" if c.get("finetune_synth_ratio") else ""))
+    return [f"- schedule: {'; '.join(parts)}" + (" (--quick)" if c["quick"] else "")] if parts else []
+
+
+def _network_lines(d: dict[str, Any], c: dict[str, Any]) -> list[str]:
+    """``results.md``'s lines on how the networks saw the runs (none when no network ran)."""
+    if not NETWORK_METHODS & set(c["methods"]):
+        return []
     weighted = d.get("inputs", {}).get("age_weighted_direction", True)
+    return ["- inputs: far-field direction " + ("weighted by the age of each range" if weighted else "unweighted"),
+            "- networks' frame: " + ("each run's route frame (--frame route)" if c.get("route_frame")
+                                     else "randomly turned windows, 8 turned test copies (--frame turned)"
+                                     if c.get("random_isometry") else "the recorded world (--frame compass)")]
+
+
+def results_markdown(result: StudyResult) -> str:
+    """``results.md``: Table IV layout (plus the horizontal RMSE), then what was run: only what applies to
+    the methods that ran (no Δ RMSE column without NOAUG, no training schedule without a network)."""
+    d, c = result.data, result.config
+    delta = compared_with_noaug(result.rows)
     lines = [
         f"# Tracking study (Table IV layout): test run {', '.join(t['label'] for t in d['test'])}",
         "",
-        "| Method | RMSE (m) | RMSE 2D (m) | MAE (m) | P50 (m) | P95 (m) | Δ RMSE (%) |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        "| Method | RMSE (m) | RMSE 2D (m) | MAE (m) | P50 (m) | P95 (m) |" + (" Δ RMSE (%) |" if delta else ""),
+        "|---|---:|---:|---:|---:|---:|" + ("---:|" if delta else ""),
     ]
     for r in result.rows:
-        delta = "-" if r["delta_rmse_pct"] is None else f"{r['delta_rmse_pct']:+.1f}"
+        shown = "-" if r["delta_rmse_pct"] is None else f"{r['delta_rmse_pct']:+.1f}"
         lines.append(f"| {r['method']} | {r['rmse_m']:.3f} | {r['rmse_2d_m']:.3f} | {r['mae_m']:.3f} | "
-                     f"{r['p50_m']:.3f} | {r['p95_m']:.3f} | {delta} |")
+                     f"{r['p50_m']:.3f} | {r['p95_m']:.3f} |" + (f" {shown} |" if delta else ""))
     trusted = [(r["method"], r["rmse_trusted_m"]) for r in result.rows if r.get("rmse_trusted_m") is not None]
     if trusted:
         lines += ["", "RMSE over the steps where the test run's truth is trusted (its recording flags the rest): "
                   + "; ".join(f"{m} {v:.3f} m" for m, v in trusted) + "."]
     lines += [
         "",
-        "Δ RMSE is relative to NOAUG. Errors on the 100 Hz grid against the test run's ground truth; "
-        "rows starting 'ref:' are the dataset authors' own estimates, scored the same way.",
+        ("Δ RMSE is relative to NOAUG. " if delta else "") + "Errors on the 100 Hz grid against the test run's "
+        "ground truth; rows starting 'ref:' are the dataset authors' own estimates, scored the same way.",
         "",
         f"- training runs: {', '.join(t['label'] for t in d['train'])}",
         f"- UWB time lag removed: {d['time_offset']['offset_s']:.3f} s (estimated on the training runs)",
         *([f"- seed ensemble: every row scores the mean of {d['ensemble']['members']} studies' estimates (seeds "
            f"{', '.join(map(str, d['ensemble']['seeds']))}; each member's own rows in results.json)"]
           if d.get("ensemble") else []),
-        f"- schedule: {c['epochs']} epochs at {c['lr']:g}; SYNTH_PHY {c['pretrain_epochs']} pre-training epochs "
-        f"at {c['pretrain_lr']:g} on {c['n_synth_traces']} synthetic traces, then {c['finetune_epochs']} "
-        f"fine-tuning epochs at {c['finetune_lr']:g}"
-        + (f" with {c['finetune_synth_ratio']:g} synthetic windows per real window"
-           if c.get("finetune_synth_ratio") else "")
-        + (" (--quick)" if c["quick"] else ""),
-        "- inputs: far-field direction " + ("weighted by the age of each range" if weighted else "unweighted"),
-        "- networks' frame: " + ("each run's route frame (--frame route)" if c.get("route_frame")
-                                 else "randomly turned windows, 8 turned test copies (--frame turned)"
-                                 if c.get("random_isometry") else "the recorded world (--frame compass)"),
-        f"- seed {c['seed']}, {c['threads']} thread(s), wall time {d['wall_time_s']:.0f} s, CPU time "
-        f"{d.get('cpu_time_s', float('nan')):.0f} s",
+        *_schedule(c),
+        *_network_lines(d, c),
+        f"- seed {c['seed']}, " + (f"{c['threads']} thread(s), " if NETWORK_METHODS & set(c["methods"]) else "")
+        + f"wall time {d['wall_time_s']:.0f} s, CPU time {d.get('cpu_time_s', float('nan')):.0f} s",
     ]
     return "\n".join(lines) + "\n"
 
