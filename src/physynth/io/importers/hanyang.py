@@ -54,7 +54,7 @@ BURST_GAP_S = 0.05
 ranged within ~35 ms (a retried anchor comes ~31 ms after the first), between bursts the gap is
 >= ~65 ms."""
 LAG_NOTE = ("UWB field.stamp lags the GNSS trajectory timestamps by about 0.15-0.20 s "
-            "(SOURCE.md); not corrected here, calibration estimates it")
+            "(measured on the published runs); not corrected here, calibration estimates it")
 CITATION = ("Hanyang University ADIP lab, Comprehensive outdoor UWB dataset, DOI 10.5281/zenodo.15226105 "
             "(Apache-2.0)")
 _ANCHOR_FILE = re.compile(r"^A(\d+)\.csv$")
