@@ -1655,6 +1655,19 @@ def build_scenario(name: str, inp: CalibrationInputs, geometry: GeometryFit, tim
 N_STEPS = 8
 
 
+def _check_options(static_sweeps: str | os.PathLike | None, range_bias: str, range_bias_law: str,
+                   link_budget: bool) -> None:
+    """The option mistakes :func:`calibrate` refuses before any fitting."""
+    if link_budget and static_sweeps is None:
+        raise CalibrationError("link_budget=True needs static_sweeps (the Static_measurements folder)")
+    if range_bias == "static" and static_sweeps is None:
+        raise CalibrationError("range_bias='static' needs static_sweeps (the Static_measurements folder)")
+    if range_bias_law not in RANGE_BIAS_LAWS:
+        raise CalibrationError(f"unknown range-bias law {range_bias_law!r} (choose from {', '.join(RANGE_BIAS_LAWS)})")
+    if static_sweeps is not None and not Path(static_sweeps).is_dir():
+        raise CalibrationError(f"static sweeps folder {static_sweeps} does not exist")
+
+
 def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path_kind: PathKind = "auto",
               anchor_policy: AnchorPolicy = "per-run", layout_from: int | str | None = None,
               static_sweeps: str | os.PathLike | None = None, range_bias: Literal["dynamic", "static"] = "dynamic",
@@ -1717,14 +1730,7 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
     def tick(message: str) -> None:
         say(message, next(step, N_STEPS - 1), N_STEPS)
 
-    if link_budget and static_sweeps is None:
-        raise CalibrationError("link_budget=True needs static_sweeps (the Static_measurements folder)")
-    if range_bias == "static" and static_sweeps is None:  # checked before any fitting, as the law
-        raise CalibrationError("range_bias='static' needs static_sweeps (the Static_measurements folder)")
-    if range_bias_law not in RANGE_BIAS_LAWS:
-        raise CalibrationError(f"unknown range-bias law {range_bias_law!r} (choose from {', '.join(RANGE_BIAS_LAWS)})")
-    if static_sweeps is not None and not Path(static_sweeps).is_dir():
-        raise CalibrationError(f"static sweeps folder {static_sweeps} does not exist")
+    _check_options(static_sweeps, range_bias, range_bias_law, link_budget)
     trs = as_trace_list(traces)
     if trs and all(_imu_only(t) for t in trs):  # IMU recordings only: IMU models, path and motion, no anchors
         from .imu_only import calibrate_imu_only

@@ -60,7 +60,6 @@ def generate_cmd(
 ) -> None:
     """Generate N synthetic traces from a scenario and write them as a Parquet dataset."""
     from ..errors import Interrupted, PhySynthError
-    from ..io.scenario_file import load_scenario
     from ..parallel import available_cores
     from ..workflows import generate_dataset
 
@@ -70,21 +69,7 @@ def generate_cmd(
     if scheduler is not None and workers:
         raise PhySynthError(f"--scheduler and --workers exclude each other: --scheduler runs on the workers of "
                             f"an existing cluster, --workers {workers} starts its own; give one")
-    scn = load_scenario(scenario)
-    if regime is not None:
-        from ..studies.regimes import apply_regime, check_regime
-
-        if not scn.anchors:  # a regime changes the UWB channel and availability only: nothing to change
-            raise PhySynthError(f"--regime {check_regime(regime)}: scenario '{scn.name}' has no anchors, so a "
-                                "channel regime changes nothing; leave --regime out")
-        scn = apply_regime(scn, regime)
-    added = vary_site and scn.variation is None  # the section's defaults, with the layouts a calibration recorded
-    if added:
-        from ..models.variation import recorded_layouts
-        from ..scenario import SiteVariationParams
-
-        scn = scn.model_copy(update={"variation": SiteVariationParams(
-            layouts=recorded_layouts(scn.provenance, scn.anchor_ids))})
+    scn, added = _prepared_scenario(scenario, regime, vary_site)
     inputs = [Path(scenario)] if Path(scenario).is_file() else []
     n_workers = workers or (available_cores() if n >= AUTO_CLUSTER_MIN_TRACES else 1)
     if not workers and scheduler is None and n_workers > 1 and importlib.util.find_spec("distributed") is None:
@@ -122,17 +107,45 @@ def generate_cmd(
     if not quiet:
         where = f"on {scheduler}" if scheduler else counted(min(n_workers, -(-n // shard_traces)), "worker")
         typer.echo(f"wrote {counted(n, 'trace')} of '{scn.name}' to {path} (root seed {root}, {where})")
-        source = ("--vary-site defaults" + ("; the layouts the calibration recorded"
-                                            if scn.variation and scn.variation.layouts else "")
-                  if added else "the scenario's variation section")
-        line = None
-        if scn.variation is not None and not scn.anchors:
-            line = f"path varied per trace ({source}; no anchors)"
-        elif scn.variation is not None:
-            lays = counted(len(scn.variation.layouts), "anchor layout") if scn.variation.layouts else "its own layout"
-            line = f"site varied per trace around {lays} ({source})"
-        if line:
-            typer.echo(textwrap.fill(line, 79, initial_indent="  ", subsequent_indent="    "))
+        _say_variation(scn, added)
+
+
+def _prepared_scenario(scenario: str, regime: str | None, vary_site: bool):
+    """The scenario to generate, after ``--regime`` and ``--vary-site``; and whether ``--vary-site`` added
+    the variation section (the scenario had none)."""
+    from ..errors import PhySynthError
+    from ..io.scenario_file import load_scenario
+
+    scn = load_scenario(scenario)
+    if regime is not None:
+        from ..studies.regimes import apply_regime, check_regime
+
+        if not scn.anchors:  # a regime changes the UWB channel and availability only: nothing to change
+            raise PhySynthError(f"--regime {check_regime(regime)}: scenario '{scn.name}' has no anchors, so a "
+                                "channel regime changes nothing; leave --regime out")
+        scn = apply_regime(scn, regime)
+    added = vary_site and scn.variation is None  # the section's defaults, with the layouts a calibration recorded
+    if added:
+        from ..models.variation import recorded_layouts
+        from ..scenario import SiteVariationParams
+
+        scn = scn.model_copy(update={"variation": SiteVariationParams(
+            layouts=recorded_layouts(scn.provenance, scn.anchor_ids))})
+    return scn, added
+
+
+def _say_variation(scn, added: bool) -> None:
+    """The summary's line on how the site varies per trace (nothing without a variation section)."""
+    if scn.variation is None:
+        return
+    source = ("--vary-site defaults" + ("; the layouts the calibration recorded" if scn.variation.layouts else "")
+              if added else "the scenario's variation section")
+    if not scn.anchors:
+        line = f"path varied per trace ({source}; no anchors)"
+    else:
+        lays = counted(len(scn.variation.layouts), "anchor layout") if scn.variation.layouts else "its own layout"
+        line = f"site varied per trace around {lays} ({source})"
+    typer.echo(textwrap.fill(line, 79, initial_indent="  ", subsequent_indent="    "))
 
 
 def scenarios_cmd() -> None:

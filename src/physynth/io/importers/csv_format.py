@@ -57,6 +57,14 @@ MAX_PLAUSIBLE_ACC_MEDIAN_MPS2 = 500.0
 """A median |acceleration| above this is taken as a unit mistake (mg, mm/s^2) [m/s^2]."""
 
 
+def _refuse_dataset(rec: Path) -> None:
+    """A PhySynth dataset, or the CSV export of one, is no recording (it has no recording's tables)."""
+    if (rec / "dataset.json").is_file():
+        raise RecordingError(f"{rec} is a PhySynth dataset{' (a CSV export)' if is_csv_export(rec) else ''}, not a "
+                             "recording: the other commands read a dataset as it is; import csv reads the "
+                             "tables of docs/recording-format.md")
+
+
 def import_csv(rec_dir: str | os.PathLike, *, velocity_window_s: float = 0.5,
                burst_gap_s: float | None = None) -> tuple[Trace, ImportReport]:
     """Import a recording in the generic PhySynth format (docs/recording-format.md).
@@ -92,10 +100,7 @@ def import_csv(rec_dir: str | os.PathLike, *, velocity_window_s: float = 0.5,
         raise RecordingError(f"recording folder {rec} does not exist")
     if not rec.is_dir():
         raise RecordingError(f"{rec} is not a folder (a recording is a folder of CSV/Parquet tables)")
-    if (rec / "dataset.json").is_file():  # a dataset, or the CSV export of one, has no recording's tables
-        raise RecordingError(f"{rec} is a PhySynth dataset{' (a CSV export)' if is_csv_export(rec) else ''}, not a "
-                             "recording: the other commands read a dataset as it is; import csv reads the "
-                             "tables of docs/recording-format.md")
+    _refuse_dataset(rec)
     rep = ReportBuilder("csv", rec)
 
     anchors = _read_anchors(find_table(rec, "anchors", required=True), rep)
