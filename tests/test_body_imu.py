@@ -365,3 +365,22 @@ def test_the_tumble_attitude_is_the_running_product_of_its_steps():
         expected.append(cur.as_matrix())
     assert len(got) == len(steps) + 1
     np.testing.assert_allclose(got.as_matrix(), np.array(expected), atol=1e-12)
+
+
+def test_a_walker_turns_about_at_a_bounded_rate_not_in_one_step():
+    from physynth.generate import generate_traces
+    from physynth.io.scenario_file import load_scenario
+    from physynth.models.attitude import limit_turn_rate
+
+    scn = load_scenario("walk-hanyang")
+    cap = scn.attitude.max_turn_rate_radps
+    for t in generate_traces(scn, 3, seed=4):  # each turned about at ~0.1 m/s in one step (-300 rad/s)
+        assert np.abs(t.truth.omega_body_radps).max() <= cap * (1 + 1e-9)
+    tt = np.arange(0.0, 10.0, 0.01)
+    yaw = np.where(tt < 3.0, 0.0, np.pi) + 0.2 * np.sin(tt)  # a turn about in one step, then a slow sway
+    out = limit_turn_rate(yaw, tt, 3.0)
+    assert np.abs(np.diff(out)).max() <= 3.0 * 0.01 * (1 + 1e-9)
+    np.testing.assert_allclose(out[tt > 5.0], yaw[tt > 5.0], atol=1e-12)  # caught up after ~1 s
+    assert out[np.searchsorted(tt, 3.5)] < 2.0  # still turning half a second in
+    smooth = np.sin(tt)  # never faster than the cap: returned as it was
+    assert limit_turn_rate(smooth, tt, 3.0) is smooth

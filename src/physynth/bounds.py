@@ -145,6 +145,7 @@ BOUNDS: dict[str, Bound] = {
     "channel.link_budget.wavelength_m": Bound(1e-3, 10.0, "m", "carrier wavelength"),
     "channel.link_budget.tag_height_m": Bound(0.01, 1000.0, "m", "tag antenna height above the ground plane"),
     "attitude.min_speed_mps": Bound(1e-4, 10.0, "m/s", "speed below which the heading is held"),
+    "attitude.max_turn_rate_radps": Bound(0.01, 1000.0, "rad/s", "fastest turn of the heading"),
     "attitude.pendulum_period_s": Bound(0.1, 600.0, "s", "pendulum period"),
     "attitude.pendulum_damping_ratio": Bound(0.0, 1.0, "", "damping ratio"),
     "attitude.tumble_rate_std_radps": Bound(0.0, 100.0, "rad/s", "tumble rate"),

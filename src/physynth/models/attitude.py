@@ -4,7 +4,11 @@ The body frame is FLU (x forward, y left, z up); the world frame ENU. The attitu
 ``R_wb`` (body to ENU), stored as a Hamilton quaternion scalar-first ``(w, x, y, z)``. Kinds:
 
 - ``tangent``: body x along the horizontal velocity, level (roll = pitch = 0): a vehicle, a walking
-  person's torso. The heading is held while the horizontal speed is below ``min_speed_mps``.
+  person's torso. The heading is held while the horizontal speed is below ``min_speed_mps``; where the
+  path's direction turns faster than ``max_turn_rate_radps`` (a walker who turned about while nearly
+  standing, a tight bend at walking pace), the body turns at that rate and catches up
+  (:func:`limit_turn_rate`), as a person or vehicle does, rather than in one truth step (a spike of
+  hundreds of rad/s in the truth rate and the gyroscope).
 - ``pendulum``: a cabin hanging from a cable: tangent heading, plus a damped swing of the hanger
   excited by the pivot's acceleration. Pitch ``theta`` (about body y) and roll ``phi`` (about body x)
   follow ``theta'' + 2 zeta w0 theta' + w0^2 theta = w0^2 a_fwd / g`` and
@@ -51,6 +55,7 @@ class AttitudeParams(ParamsModel):
 
     kind: Literal["tangent", "pendulum", "tumble", "fixed"] = "tangent"
     min_speed_mps: PositiveFloat = 0.05
+    max_turn_rate_radps: PositiveFloat = 3.0
     pendulum_period_s: PositiveFloat = 4.0
     pendulum_damping_ratio: Annotated[float, Field(ge=0, lt=1)] = 0.05
     tumble_rate_std_radps: NonNegFloat = 1.0
@@ -123,6 +128,30 @@ def _at_least(x: np.ndarray, y: np.ndarray, limit: float) -> np.ndarray:
     if unsure.size:
         above[unsure] = np.hypot(x.take(unsure), y.take(unsure)) >= limit
     return above
+
+
+def _lindley(excess: np.ndarray) -> np.ndarray:
+    """D_k = max(0, D_(k-1) + excess_k), D_(-1) = 0, in closed form (a running minimum of the cumulative
+    sum): how far a follower whose steps are capped lags behind, vectorised."""
+    w = np.cumsum(excess)
+    return w - np.minimum(np.minimum.accumulate(w), 0.0)
+
+
+def limit_turn_rate(yaw: np.ndarray, t_s: np.ndarray, max_rate_radps: float) -> np.ndarray:
+    """An unwrapped heading (T,) that turns no faster than ``max_rate_radps``: where it would turn faster,
+    it follows at that rate until it has caught up (a rate limiter, one pass per direction: the lag of
+    the turns to the left, then to the right, each in closed form by :func:`_lindley`). A heading that
+    never turns faster is returned as it was."""
+    if yaw.size < 2:
+        return yaw
+    cap = max_rate_radps * np.diff(t_s)
+    step = np.diff(yaw)
+    if not np.any(np.abs(step) > cap):
+        return yaw
+    out = yaw.copy()
+    out[1:] -= _lindley(step - cap)  # left turns (yaw increasing) capped
+    out[1:] += _lindley(-np.diff(out) - cap)  # then right turns
+    return out
 
 
 def _unwrap(p: np.ndarray) -> np.ndarray:
@@ -272,7 +301,7 @@ def simulate_attitude(t_s: np.ndarray, vel_enu_mps: np.ndarray, acc_enu_mps2: np
         rot = _cumulative_compose(first, Rotation.from_rotvec(omega[:-1] * np.diff(t)[:, None]))
         omega[-1] = omega[-2]
         return Attitude.from_rotation(rot, omega)
-    yaw = heading_rad(vel_enu_mps, params.min_speed_mps)
+    yaw = limit_turn_rate(heading_rad(vel_enu_mps, params.min_speed_mps), t, params.max_turn_rate_radps)
     if params.kind == "tangent":  # turns about the fixed world z axis add up: exact rates without logs
         half = 0.5 * yaw
         q = np.zeros((n, 4))
