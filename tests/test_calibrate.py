@@ -21,7 +21,7 @@ from physynth.io import write_dataset
 from physynth.io.scenario_file import load_scenario, save_scenario
 from physynth.models.uwb import los_error_mean, range_decades
 from physynth.records import Anchors, Trace, Truth, Uwb
-from physynth.scenario import scenario_from_dict
+from physynth.scenario import scenario_from_dict, scenario_to_dict
 
 K = 4.0  # standard errors allowed per check
 
@@ -354,19 +354,24 @@ def test_cli_calibrate_end_to_end(roundtrip, tmp_path, capsys):
     assert (tmp_path / "gen" / "dataset.json").is_file()
 
 
+def _imu_only_lab() -> Trace:
+    """A lab trial: truth and IMU samples (white densities 0.05 / 0.08 / 0.12), no UWB, no anchors."""
+    d = roundtrip_dict()
+    d["imu"] = {"white_noise_density_mps2_per_sqrt_hz": [0.05, 0.08, 0.12], "bias_rw_mps2_per_sqrt_s": 0.0,
+                "vibration": {"amplitude_mps2": 0.0}}
+    lab = generate_trace(compile_scenario(scenario_from_dict(d, "lab")), 0, 3)
+    return Trace(truth=lab.truth, imu=lab.imu, anchors=Anchors(ids=(), pos_enu_m=np.zeros((0, 3))),
+                 uwb=Uwb(t_s=np.array([]), anchor=np.array([], np.int16), range_m=np.array([])),
+                 meta={"run": "lab"})
+
+
 def test_imu_only_recording_joins_a_uwb_calibration(roundtrip):
     """A UWB recording without IMU plus an IMU-only recording (e.g. a lab trial): the IMU noise comes
     from the second, everything else from the first."""
     scn, traces, _ = roundtrip
     uwb_only = [Trace(truth=t.truth, uwb=t.uwb, anchors=t.anchors, meta={**t.meta, "run": f"uwb{i}"})
                 for i, t in enumerate(traces[:2])]
-    d = roundtrip_dict()
-    d["imu"] = {"white_noise_density_mps2_per_sqrt_hz": [0.05, 0.08, 0.12], "bias_rw_mps2_per_sqrt_s": 0.0,
-                "vibration": {"amplitude_mps2": 0.0}}
-    lab = generate_trace(compile_scenario(scenario_from_dict(d, "lab")), 0, 3)
-    imu_only = Trace(truth=lab.truth, imu=lab.imu, anchors=Anchors(ids=(), pos_enu_m=np.zeros((0, 3))),
-                     uwb=Uwb(t_s=np.array([]), anchor=np.array([], np.int16), range_m=np.array([])),
-                     meta={"run": "lab"})
+    imu_only = _imu_only_lab()
     res = calibrate([*uwb_only, imu_only])
     assert res.report["imu_only_recordings"] == ["lab"]
     assert res.scenario.anchor_ids == scn.anchor_ids
@@ -466,6 +471,20 @@ def test_the_summary_keeps_parameter_names_whole_in_80_columns(roundtrip, tmp_pa
         assert any(value in line for line in lines), value
 
 
+def test_the_summary_prints_fields_then_diagnostics_and_options_not_parameters(roundtrip, tmp_path, capsys):
+    from physynth.calibrate import CalibrationResult
+    from physynth.cli.calibrate import _print_summary
+
+    _, _, res = roundtrip
+    note = "availability.long_outage_* (fitted and reported; not generated unless long_outages=True)"
+    _print_summary(CalibrationResult(scenario=res.scenario, report={**res.report, "not_identifiable": [note]}),
+                   tmp_path / "cal.yaml", None)
+    out = " ".join(capsys.readouterr().out.split())  # lines wrapped at the terminal's width
+    assert "not generated unless --long-outages" in out and "long_outages=True" not in out
+    fields, diagnostics = out.split("fit diagnostics (not in the scenario)")
+    assert "path.rmse_m" in diagnostics and "path.rmse_m" not in fields and "path.kind" in fields
+
+
 def test_a_wide_terminal_keeps_the_table(roundtrip, tmp_path, capsys, monkeypatch):
     from physynth.cli.calibrate import _print_summary
 
@@ -505,3 +524,125 @@ def test_option_mistakes_are_refused_before_any_fitting(kwargs, match):
     with pytest.raises(CalibrationError, match=match):
         calibrate([trace], progress=lambda msg, *_: ticks.append(msg), **kwargs)
     assert ticks == []
+
+
+def _written(scn, key: str):
+    """The value of a dotted report key in the scenario as written to YAML (KeyError: not there)."""
+    node = scenario_to_dict(scn)
+    for part in key.split("."):
+        node = node[part]
+    if key.endswith("nlos_modes"):
+        node = [[m["weight"], m["mean_m"], m["std_m"]] for m in node]
+    return node
+
+
+def test_report_values_are_the_scenario_as_written(roundtrip):
+    """Every report entry is a scenario field whose value is the one written (the fit's own number kept as
+    ``fitted`` with ``why`` where they differ), or a diagnostic marked ``field: false``; the summary's first
+    table shows only fields, as written."""
+    _, _, res = roundtrip
+    fields = 0
+    for key, item in res.report["parameters"].items():
+        assert isinstance(item["field"], bool), key
+        if not item["field"]:  # not in the scenario, or a per-anchor override left unset
+            try:
+                value = _written(res.scenario, key)
+            except (KeyError, TypeError):
+                continue
+            assert value is None and key.startswith(("channel_per_anchor.", "availability_per_anchor.")), key
+            continue
+        fields += 1
+        assert item["value"] == _written(res.scenario, key), key
+        assert ("fitted" in item) == ("why" in item), key
+    assert fields > 30 and not res.report["parameters"]["path.rmse_m"]["field"]
+    shown = {k: v for k, v, _ in res.summary_rows()}
+    assert "path.rmse_m" not in shown and "path.rmse_m" in {k for k, _, _ in res.summary_rows(fields=False)}
+    los = res.report["parameters"]["channel_per_anchor.A1.los_std_m"]
+    assert shown["channel_per_anchor.A1.los_std_m"] == f"{los['value']:.4g}"  # the YAML's, not the fit's
+    # the pooled availability the scenario writes is reported
+    pooled = res.scenario.availability
+    assert res.report["parameters"]["availability.dropout_prob"]["value"] == pooled.dropout_prob
+
+
+def test_a_per_anchor_override_left_unset_is_no_field():
+    from physynth.calibrate.report_fields import reconcile_parameters
+
+    written = {"availability": {"dropout_prob": 0.01}, "availability_per_anchor": {"A1": {"dropout_prob": None}},
+               "path": {"length_m": None}}
+    report = {"parameters": {"availability_per_anchor.A1.dropout_prob": {"value": 0.02},
+                             "availability_per_anchor.A2.dropout_prob": {"value": 0.03},
+                             "availability.dropout_prob": {"value": 0.0100001},
+                             "path.length_m": {"value": 202.3}, "path.rmse_m": {"value": 0.03}}}
+    p = reconcile_parameters(report, written)["parameters"]
+    assert [p[k]["field"] for k in p] == [False, False, True, True, False]
+    assert p["availability.dropout_prob"] == {"value": 0.01, "field": True}  # rounding only: no fitted
+    assert p["path.length_m"]["value"] is None and p["path.length_m"]["fitted"] == 202.3
+    assert "along the path" in p["path.length_m"]["why"]
+    assert p["availability_per_anchor.A1.dropout_prob"]["value"] == 0.02  # a diagnostic keeps the fit's value
+
+
+def test_options_that_change_nothing_say_so_once_each(tmp_path):
+    from physynth.cli._common import cli_words
+
+    res = calibrate([_imu_only_lab()], static_sweeps=tmp_path, link_budget=True, trusted_truth=True, run_slopes=True,
+                    tag_pattern=True, long_outages=True)
+    warnings = res.report["warnings"]
+    for word, flag in (("static_sweeps", "--static-sweeps"), ("link_budget=True", "--link-budget"),
+                       ("trusted_truth=True", "--trusted-truth"), ("run_slopes=True", "--run-slopes"),
+                       ("tag_pattern=True", "--tag-pattern"), ("long_outages=True", "--long-outages")):
+        said = [w for w in warnings if w.startswith(f"{word} has no effect")]
+        assert len(said) == 1 and "IMU only" in said[0], word
+        assert cli_words(said[0]).startswith(f"{flag} has no effect")
+    assert not any("has no effect" in w for w in calibrate([_imu_only_lab()]).report.get("warnings", []))
+
+
+def test_one_run_says_run_slopes_need_runs_trusted_truth_needs_untrusted_truth_and_claims_no_deformation(roundtrip):
+    _, traces, _ = roundtrip
+    res = calibrate(traces[:1], run_slopes=True, trusted_truth=True, range_bias_law="linear")
+    notes = [w for w in res.report["warnings"] if "has no effect" in w]
+    assert len(notes) == 2
+    assert notes[0].startswith("run_slopes=True has no effect with one run")
+    assert notes[1].startswith("trusted_truth=True has no effect: no recording marks")
+    # one run of a polynomial (cable) path: no run-to-run deformation claimed, as for any path kind
+    assert res.scenario.path.kind == "polynomial"
+    assert res.scenario.path.perturbation.lateral_std_m == 0.0 and res.scenario.path.perturbation.sag_std_m == 0.0
+    assert "path.perturbation (one run; set to 0)" in res.report["not_identifiable"]
+
+
+def test_csv_recordings_are_named_by_their_recording_and_a_layout_chosen_by_that_name(tmp_path):
+    """CSV recordings carry their folder name as ``recording``: the runs are labelled by it, and
+    ``layout_from`` takes it with or without the dataset's name."""
+    from helpers import simple_scenario
+
+    from physynth.workflows import calibrate_datasets, read_recordings
+
+    a = simple_scenario()
+    b = simple_scenario(anchors=[{"id": "A1", "pos_enu_m": [60, -25, 2]}, {"id": "A2", "pos_enu_m": [140, 25, 4]},
+                                 {"id": "A3", "pos_enu_m": [240, -25, 2]}])
+    traces = [Trace(truth=t.truth, uwb=t.uwb, anchors=t.anchors, meta={"source": "csv", "recording": f"r{i}"})
+              for i, t in enumerate([generate_trace(a, 0, 5), generate_trace(b, 1, 5)])]
+    write_dataset(tmp_path / "lay", traces)
+    labels = [t.meta["label"] for t in read_recordings(tmp_path / "lay")[0]]
+    assert labels == ["lay/r0", "lay/r1"]
+    res = calibrate_datasets(tmp_path / "lay", layout_from="r1")
+    assert res.report["anchor_layout"]["generation_layout"] == "lay/r1"
+    assert res.scenario.anchors[0].pos_enu_m == [60.0, -25.0, 2.0]
+    with pytest.raises(CalibrationError, match="layout_from='r2' names no recording; the recordings are lay/r0"):
+        calibrate_datasets(tmp_path / "lay", layout_from="r2")
+
+
+def test_anchor_layout_first_is_per_run_with_the_first_layout_and_the_help_says_so(capsys):
+    from helpers import simple_scenario
+
+    from physynth.calibrate import anchor_layout
+
+    a = simple_scenario()
+    b = simple_scenario(anchors=[{"id": "A1", "pos_enu_m": [60, -25, 2]}, {"id": "A4", "pos_enu_m": [140, 25, 4]}])
+    traces = [generate_trace(a, 0, 5), generate_trace(b, 1, 5)]
+    first, d_first = anchor_layout(traces, policy="first")
+    per_run, d_per_run = anchor_layout(traces, policy="per-run")
+    assert first == per_run and d_first["conflicts"] == d_per_run["conflicts"] != []
+    assert cli_main(["calibrate", "--help"]) in (0, None)
+    text = " ".join(capsys.readouterr().out.split())
+    assert "first: the same as per-run with the first dataset's layout" in text
+    assert "former behaviour" not in text

@@ -129,3 +129,75 @@ def test_broad_imu_noise_reproduced_along_real_truth():
     # misalignment), which the generator's error model (white, bias walk, vibration comb) does not have.
     assert np.all(c["log_psd_corr"] > 0.88), c["log_psd_corr"]
     assert np.all(c["lsd_db"] < 5.0), c["lsd_db"]
+
+
+def _strings(x):
+    """Every string inside a JSON-like value."""
+    if isinstance(x, str):
+        yield x
+    elif isinstance(x, dict):
+        for v in x.values():
+            yield from _strings(v)
+    elif isinstance(x, (list, tuple)):
+        for v in x:
+            yield from _strings(v)
+
+
+@needs_hanyang
+def test_report_holds_the_values_the_scenario_writes(hanyang_los1):
+    """The report's fields are the scenario's values; what the fit found and the scenario does not hold
+    (the LOS std before the antenna sway took its part, a tag outage rate never generated, the path
+    length the generator measures) is kept beside, with why; diagnostics are marked; plain words only."""
+    from physynth.calibrate.pipeline import _fmt_value
+    from physynth.scenario import scenario_to_dict
+
+    _, res = hanyang_los1
+    p, written = res.report["parameters"], scenario_to_dict(res.scenario)
+    for a in res.scenario.anchor_ids:
+        item = p[f"channel_per_anchor.{a}.los_std_m"]
+        assert item["field"] and item["value"] == written["channel_per_anchor"][a]["los_std_m"]
+        assert item["fitted"] > 2.0 * item["value"] and "antenna sway" in item["why"]
+    tag = p["availability.tag_outage_onset_prob"]  # no dark run in this walk: not generated
+    assert tag["value"] == 0.0 == res.scenario.availability.tag_outage_onset_prob
+    assert tag["fitted"] > 0.0 and "not generated" in tag["why"]
+    length = p["path.length_m"]
+    assert length["value"] is None is res.scenario.path.length_m and length["fitted"] > 150.0
+    assert not p["path.rmse_m"]["field"] and not p["motion.speed_poly_r2"]["field"]
+    assert p["availability.dropout_prob"]["value"] == res.scenario.availability.dropout_prob
+    for key, value, _ in res.summary_rows():  # what the summary prints under a field's name is the YAML's
+        assert p[key]["field"] and value == _fmt_value(p[key]["value"]), key
+    assert [k for k, _, _ in res.summary_rows(fields=False)] == ["path.rmse_m"]
+    marked = [s for s in _strings(res.report) if ":data:`" in s or ":func:`" in s or "``" in s]
+    assert marked == []
+
+
+@needs_hanyang
+def test_a_polynomial_path_that_misses_the_walk_is_warned_about_and_not_deformed(hanyang_los1):
+    from physynth.calibrate.geometry import PATH_MISS_WARN_M
+    from physynth.cli._common import cli_words
+
+    trace, auto = hanyang_los1
+    assert not any("misses the recorded track" in w for w in auto.report.get("warnings", []))
+    res = calibrate(trace, name="poly", path_kind="polynomial")
+    assert res.report["path"]["rmse_m"] > 2.0 > PATH_MISS_WARN_M
+    missed = [w for w in res.report["warnings"] if "misses the recorded track" in w]
+    assert len(missed) == 1 and "--path-kind waypoints" in cli_words(missed[0])
+    # one run: no run-to-run deformation (a cable's 2 m lateral, 1 m sag put a walker below ground)
+    pert = res.scenario.path.perturbation
+    assert pert.lateral_std_m == 0.0 and pert.sag_std_m == 0.0
+
+
+@needs_hanyang
+def test_validate_transfer_onto_runs_of_different_layouts_says_what_validate_can_do(tmp_path, capsys):
+    from physynth.cli import main
+    from physynth.io import write_dataset
+
+    runs = [import_hanyang(LOS1.parent / case, crop_to_uwb=True)[0] for case in ("Case_1", "Case_2")]
+    write_dataset(tmp_path / "two", runs)
+    with pytest.raises(SystemExit) as exc:
+        main(["validate", "--real", str(tmp_path / "two"), "--scenario", "walk-hanyang", "--transfer", "-n", "2",
+              "--out", str(tmp_path / "rep"), "--quiet"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.count("\n") == 1
+    assert "conflicting anchors" in err and "validate one run at a time" in err
+    assert "policy" not in err and "per-run" not in err  # validate has no anchor layout policy

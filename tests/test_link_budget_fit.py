@@ -197,3 +197,14 @@ def test_calibrate_with_link_budget_puts_it_on_every_anchor_and_takes_its_losses
         left = lb["link_loss_not_compensated"][aid]
         assert left == pytest.approx(max(0.0, (1.0 - before) - m), abs=1e-6)
         assert (left > 0) == (after == 0.0 and m < 1.0 - before)
+    # the report says what the scenario holds, under the scenario's names: the lowered dropouts (the fit's
+    # own beside them, and why), the per-anchor outages the scenario pools (re-placed anchors) as diagnostics
+    p = res.report["parameters"]
+    assert not any(k.startswith("availability.per_anchor.") for k in p)
+    for aid in lb["dropout_prob_before"]:
+        item = p[f"availability_per_anchor.{aid}.dropout_prob"]
+        assert item["field"] and item["value"] == scn.availability_per_anchor[aid].dropout_prob
+        assert "fitted" not in item or "link budget" in item["why"]
+        assert not p[f"availability_per_anchor.{aid}.outage_onset_prob"]["field"]
+    assert any("link budget" in p[f"availability_per_anchor.{a}.dropout_prob"].get("why", "")
+               for a in lb["dropout_prob_before"])

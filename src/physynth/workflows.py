@@ -146,12 +146,13 @@ def generate_dataset(scn: ScenarioLike, n: int, out: str | Path, *, seed: int | 
 # ---------------------------------------------------------------- calibrate
 def read_recordings(paths: str | os.PathLike | Sequence[str | os.PathLike], *,
                     allow_mixed: bool = True) -> tuple[list[Trace], list[str]]:
-    """Traces of one or several dataset directories, labelled ``<dataset>/<run or trace index>``.
+    """Traces of one or several dataset directories, labelled ``<dataset>/<run>`` (the name the recording's
+    metadata gives it, :func:`physynth.calibrate._base.run_name`) or ``<dataset>/trace <index>``.
 
     ``paths`` is a sequence of directories or one directory. Unless ``allow_mixed``, datasets of
     different kinds of site are refused (:func:`physynth.calibrate.sites.check_same_site`).
     """
-    from .calibrate._base import CalibrationError
+    from .calibrate._base import CalibrationError, run_name
     from .calibrate.sites import check_same_site, site_of
 
     if isinstance(paths, (str, os.PathLike)):  # one dataset, not the characters of its path
@@ -163,7 +164,7 @@ def read_recordings(paths: str | os.PathLike | Sequence[str | os.PathLike], *,
         sources.append(str(Path(p)))
         these = []
         for i, t in enumerate(iter_traces(p)):  # streamed; calibration itself needs the traces together
-            lab = f"{Path(p).name}/{t.meta.get('run') or f'trace {i}'}"
+            lab = f"{Path(p).name}/{run_name(t.meta) or f'trace {i}'}"
             these.append(Trace(truth=t.truth, uwb=t.uwb, anchors=t.anchors, imu=t.imu,
                                meta={**t.meta, "label": lab}))
         sites.append(site_of(str(p), read_meta(p), these))
@@ -286,7 +287,7 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
         without truth, anchors or valid ranges, and anchor ids that differ (without ``transfer``).
     """
 
-    from .validate.compare import anchor_ids, check_real, compare
+    from .validate.compare import anchor_ids, check_real, compare, truth_past_uwb_s
 
     rate_hz = _check_validate_arguments(synthetic, scenario, transfer=transfer, n=n, rate_hz=rate_hz)
     real_ds = _read(read_dataset, real, "real")
@@ -294,13 +295,18 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
     from .validate.imu_report import is_imu_only
 
     if is_imu_only(real_traces):  # IMU recordings without UWB: IMU error statistics only
+        for given, what in ((anchors is not None, "an anchor subset"),
+                            (all_truth, "comparing the ranges also where the truth errs")):
+            if given:
+                raise PhySynthError(f"real dataset {real} is an IMU-only recording (no UWB): {what} does not apply")
         return _validate_imu(real, real_ds, synthetic=synthetic, scenario=scenario, n=n, seed=seed,
                              transfer=transfer, progress=progress)
     real_traces, truth = _real_truth(real_traces, all_truth)
     check_real(real_traces, f"real dataset {real}")
     real_ids = anchor_ids(real_traces)
     inputs: dict[str, Any] = {"real": {"path": str(real), "kind": real_ds.meta.get("kind"),
-                                       "source": real_ds.meta.get("source"), "anchors": real_ids, "truth": truth}}
+                                       "source": real_ds.meta.get("source"), "anchors": real_ids, "truth": truth,
+                                       "truth_past_last_uwb_s": truth_past_uwb_s(real_traces)}}
     transfer_info = None
 
     subset = None
@@ -404,7 +410,7 @@ def _synthetic_from_scenario(scenario: str | Path | Scenario, real: str | Path, 
     """The synthetic side generated from a scenario (transferred onto the real run when asked):
     (lazy traces, count, provenance, transfer record)."""
     from .studies.subset import check_subset, restrict_to_anchors
-    from .validate.compare import describe_anchor_mismatch, transfer_record
+    from .validate.compare import check_validate_budget, describe_anchor_mismatch, transfer_record
 
     scn = load_scenario(scenario)
     source = str(scenario) if isinstance(scenario, (str, os.PathLike)) else scn.name
@@ -414,8 +420,14 @@ def _synthetic_from_scenario(scenario: str | Path | Scenario, real: str | Path, 
             from .calibrate import transfer_scenario
         except ImportError as exc:
             raise PhySynthError(f"transfer is not available in this install ({exc})") from None
+        from .calibrate._base import AnchorLayoutError
+
         original = scn
-        scn = transfer_scenario(original, real_traces)
+        try:
+            scn = transfer_scenario(original, real_traces)
+        except AnchorLayoutError as exc:  # several runs, several layouts: a transfer takes one
+            raise AnchorLayoutError(exc.conflict, "a transferred scenario has one anchor layout: validate one "
+                                                  "run at a time (a real dataset per run)") from None
         transfer_info = transfer_record(original, scn, str(real), real_ids)
     elif subset is not None:
         check_subset(subset, list(scn.anchor_ids), f"anchor subset (scenario '{scn.name}')")
@@ -424,7 +436,7 @@ def _synthetic_from_scenario(scenario: str | Path | Scenario, real: str | Path, 
         if problem:
             raise AnchorMismatchError(
                 problem + "; transfer the scenario to take the anchor layout from the real dataset")
-    check_budget(scn, n, force=force)
+    check_validate_budget(scn, n, force=force)  # streamed, nothing written: memory of one trace, time of n
     root = new_root_seed() if seed is None else int(seed)
     provenance = {"scenario": source, "scenario_name": scn.name, "n_traces": int(n), "root_seed": root,
                   "transfer": bool(transfer), "scenario_config": scenario_to_dict(scn)}
@@ -454,12 +466,14 @@ def _validate_imu(real: str | Path, real_ds: Any, *, synthetic: str | Path | Non
     from .validate.imu_report import validate_imu
 
     inputs: dict[str, Any] = {"real": {"path": str(real), "kind": real_ds.meta.get("kind"),
+                                       "source": real_ds.meta.get("source"),
                                        "imu_frames": real_ds.meta.get("imu_frames")}}
     if synthetic is not None:
         synth_ds = _read(read_dataset, synthetic, "synthetic")
         inputs["synthetic"] = {"path": str(synthetic), "n_traces": len(synth_ds)}
         return validate_imu(real_ds.traces, synthetic=synth_ds.traces, inputs=inputs)
     scn = load_scenario(scenario)
+    inputs["synthetic"] = {"scenario": str(scenario) if isinstance(scenario, (str, os.PathLike)) else scn.name}
     return validate_imu(real_ds.traces, scenario=scn, n=n, seed=seed, transfer=transfer, inputs=inputs,
                         progress=progress)
 

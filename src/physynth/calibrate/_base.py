@@ -24,6 +24,15 @@ class CalibrationError(PhySynthError):
     """The recordings cannot be calibrated (no truth, no UWB rows, conflicting anchors, ...)."""
 
 
+class AnchorLayoutError(CalibrationError):
+    """Recordings that place an anchor id differently where one layout is asked for. ``conflict`` names
+    the anchor and both positions; the message adds ``remedy``, what the caller's user can do."""
+
+    def __init__(self, conflict: str, remedy: str) -> None:
+        self.conflict = conflict
+        super().__init__(f"conflicting anchors across the recordings: {conflict}; {remedy}")
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Fit(Generic[P]):
     """A fitted parameter object with what a user needs to trust it.
@@ -50,13 +59,23 @@ def as_trace_list(traces: Trace | Sequence[Trace]) -> list[Trace]:
     return out
 
 
-def trace_label(trace: Trace, index: int) -> str:
-    """A short name of a trace for messages and reports."""
-    m = trace.meta or {}
-    for key in ("label", "run", "path"):
+def run_name(meta: dict[str, Any] | None) -> str | None:
+    """The name a recording's metadata gives it: an importer's ``run`` (Hanyang, BROAD) or ``recording``
+    (the folder of a CSV recording); None when it has neither."""
+    m = meta or {}
+    for key in ("run", "recording"):
         if m.get(key):
             return str(m[key])
-    return f"trace {index}"
+    return None
+
+
+def trace_label(trace: Trace, index: int) -> str:
+    """A short name of a trace for messages and reports: its ``label``, its run or recording name, its
+    ``path``, or ``trace <index>``."""
+    m = trace.meta or {}
+    if m.get("label"):
+        return str(m["label"])
+    return run_name(m) or (str(m["path"]) if m.get("path") else f"trace {index}")
 
 
 def good_truth(trace: Trace) -> tuple[np.ndarray, np.ndarray]:

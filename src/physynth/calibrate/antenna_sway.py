@@ -8,9 +8,9 @@ spread gives trackers ranges whose errors average out, which the real ones do no
 antenna sway (:func:`physynth.models.uwb.antenna_sway`) is that slow part: a 3-D Ornstein-Uhlenbeck
 offset of the antenna, seen by every anchor along its line of sight.
 
-Fit: the LOS residuals of every (run, anchor) sequence are paired up to :data:`MAX_LAG_S` apart, and the
-pairs pooled in cells by time apart (bins of :data:`LAG_BIN_S`), distance the tag travelled between them
-(bins of :data:`LAG_BIN_M`, from the truth velocity) and angle it turned (edges :data:`TURN_EDGES_RAD`,
+Fit: the LOS residuals of every (run, anchor) sequence are paired up to :data:`MAX_LAG_S` s apart, and the
+pairs pooled in cells by time apart (bins of :data:`LAG_BIN_S` s), distance the tag travelled between them
+(bins of :data:`LAG_BIN_M` m, from the truth velocity) and angle it turned (edges :data:`TURN_EDGES_RAD` rad,
 from the truth body rate, or the direction of travel). The ``time`` clock: log C(dt) = log s^2 - dt / tau
 fitted to the autocovariance by least squares weighted by the pairs, over 0.1-:data:`FIT_MAX_LAG_S` s.
 The ``motion`` clock: the semivariogram gamma = E (x_i - x_j)^2 / 2 of the cells, var0 - gamma = s^2
@@ -34,6 +34,7 @@ pattern), not to the clock: on a carrier that stops, turns or moves faster, it f
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
@@ -171,6 +172,17 @@ def _motion_fit(cells: _Cells, var0: float) -> tuple[float, float, float, float]
     return best[True] if best[True][3] < (1.0 - MIN_TURN_GAIN) * best[False][3] else best[False]
 
 
+def _method() -> str:
+    """The module's "Fit:" paragraph in plain words: each constant it names by its value, no markup."""
+    text = __doc__.split("Fit: ", 1)[1].split("\n\n")[0].replace("\n", " ")
+
+    def value(m: re.Match) -> str:
+        v = globals()[m.group(1)]
+        return ", ".join(f"{x:g}" for x in np.ravel(v)) if np.ndim(v) else f"{v:g}"
+
+    return re.sub(r":data:`(\w+)`", value, text).replace("``", "")
+
+
 def fit_antenna_sway(seqs: Iterable[tuple[np.ndarray, ...]]) -> dict[str, Any]:
     """Sway std [m] and its clock from LOS residual sequences (residual [m], time [s][, distance
     travelled [m], angle turned [rad]]) of one anchor in one run, each with its range law removed.
@@ -179,7 +191,7 @@ def fit_antenna_sway(seqs: Iterable[tuple[np.ndarray, ...]]) -> dict[str, Any]:
     ``white_std_m``, the binned autocorrelation and each clock's fit."""
     cells = _cells(seqs)
     c0, n0 = cells.c0, cells.n0
-    out: dict[str, Any] = {"method": __doc__.split("Fit: ", 1)[1].split("\n\n")[0].replace("\n", " "),
+    out: dict[str, Any] = {"method": _method(),
                            "n_rows": n0, "lag_bin_s": LAG_BIN_S}
     if n0 < 100:
         return {**out, "identifiable": False, "std_m": 0.0, "tau_s": None, "why": "fewer than 100 LOS rows"}

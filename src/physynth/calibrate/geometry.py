@@ -26,6 +26,7 @@ from ..models.path import compile_path
 from ..records import Trace
 from ..scenario import AnchorSpec, MotionParams, PathParams, Scenario, SpeedProfileParams, scenario_from_dict
 from ._base import (
+    AnchorLayoutError,
     CalibrationError,
     Fit,
     as_trace_list,
@@ -483,6 +484,23 @@ MAX_RUN_SPREAD_FRAC = 0.9
 clipped to it and the report says so (``motion.spread_clipped``)."""
 
 
+PATH_MISS_WARN_M = 0.5
+"""Cross-track RMSE [m] of the fitted path to the recorded track above which calibration warns: such a
+path takes another route than the recording (its ranges are good to centimetres, a waypoint path follows
+the track to about :data:`WAYPOINT_TOL_M`)."""
+
+
+def path_miss_warnings(diag: dict[str, Any]) -> list[str]:
+    """A report warning when the fitted path misses the track by more than :data:`PATH_MISS_WARN_M` (RMS)."""
+    rmse = diag["rmse_m"]
+    if rmse <= PATH_MISS_WARN_M:
+        return []
+    hint = (f"; path_kind='waypoints' follows it (to about {WAYPOINT_TOL_M:g} m)" if diag["kind"] == "polynomial"
+            else "")
+    return [f"the fitted {diag['kind']} path misses the recorded track by {rmse:.2f} m RMS (more than "
+            f"{PATH_MISS_WARN_M:g} m){hint}"]
+
+
 def spread_clip_warnings(diag: dict[str, Any]) -> list[str]:
     """Report warnings for run-to-run spreads clipped to :data:`MAX_RUN_SPREAD_FRAC` (none if not clipped)."""
     clip = diag.get("spread_clipped")
@@ -559,6 +577,18 @@ def fit_path_perturbation(traces: Sequence[Trace], path: PathParams, *,
 AnchorPolicy = Literal["per-run", "strict", "first"]
 
 
+def _recording_index(name: str, labels: Sequence[str]) -> int:
+    """The recording ``name`` names: its whole label, or the end of one after a ``/`` (``r1`` for
+    ``lay/r1``, ``Case_2`` for ``all4/LOS/Trajectory_A/Case_2``) when only one label ends so."""
+    if name in labels:
+        return list(labels).index(name)
+    ends = [i for i, lab in enumerate(labels) if lab.endswith("/" + name)]
+    if len(ends) == 1:
+        return ends[0]
+    why = "names no recording" if not ends else f"names {len(ends)} recordings"
+    raise CalibrationError(f"layout_from={name!r} {why}; the recordings are {', '.join(labels)}")
+
+
 def anchor_layout(traces: Sequence[Trace], *, policy: AnchorPolicy = "strict",
                   tol_m: float = ANCHOR_TOL_M, labels: Sequence[str] | None = None,
                   layout_from: int | str | None = None) -> tuple[list[AnchorSpec], dict[str, Any]]:
@@ -586,11 +616,8 @@ def anchor_layout(traces: Sequence[Trace], *, policy: AnchorPolicy = "strict",
         if not 0 <= layout_from < len(trs):
             raise CalibrationError(f"layout_from={layout_from}: there are {len(trs)} recordings (0 .. {len(trs) - 1})")
         ref = layout_from
-    elif str(layout_from) in names:
-        ref = names.index(str(layout_from))
     else:
-        raise CalibrationError(f"layout_from={layout_from!r} names no recording; the recordings are "
-                               f"{', '.join(names)}")
+        ref = _recording_index(str(layout_from), names)
     if ref != 0 and policy != "per-run":
         raise CalibrationError("layout_from chooses a recording's layout only under the per-run anchor policy")
     order = [ref] + [i for i in range(len(trs)) if i != ref]
@@ -610,9 +637,8 @@ def anchor_layout(traces: Sequence[Trace], *, policy: AnchorPolicy = "strict",
                 msg = (f"anchor {aid} is at {np.round(pos[aid], 3).tolist()} in {where[aid]} but at "
                        f"{np.round(p, 3).tolist()} in {lab} ({dist:.2f} m apart)")
                 if policy == "strict":
-                    raise CalibrationError(f"conflicting anchors across the recordings: {msg}; calibrate them "
-                                           "separately, or use the anchor layout policy 'per-run' (each run "
-                                           "against its own layout) or 'first'")
+                    raise AnchorLayoutError(msg, "calibrate them separately, or use the anchor layout policy "
+                                                 "'per-run' (each run against its own layout)")
                 conflicts.append(msg)
     if not pos:
         raise CalibrationError("the recordings have no anchors (no UWB anchor layout to calibrate)")
@@ -643,11 +669,11 @@ def transfer_scenario(scn: Scenario, real_traces: Trace | Sequence[Trace], *, pa
     from .jitter_fit import fit_jitter  # imports this module
 
     trs = as_trace_list(real_traces)
+    anchors, layout = anchor_layout(trs, policy=anchor_policy)  # first: conflicting layouts stop it at once
     tracks = [summarize_track(t, trace_label(t, i)) for i, t in enumerate(trs)]
     path_fit = fit_path(trs, path_kind, tracks=tracks)
     motion_fit = fit_motion(trs, path_length_m=path_fit.diagnostics["length_m"], defaults=scn.motion, tracks=tracks)
     jitter, _ = fit_jitter(trs, tracks, path_fit.params, motion_fit.params, scn.truth_rate_hz)
-    anchors, layout = anchor_layout(trs, policy=anchor_policy)
     ids = [a.id for a in anchors]
     data = scn.model_dump(mode="json")
     data["name"] = name or f"{scn.name}-transfer"

@@ -377,7 +377,7 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
 
     Returns a :class:`physynth.calibrate.CalibrationResult`.
     """
-    from .geometry import spread_clip_warnings
+    from .geometry import path_miss_warnings, spread_clip_warnings
     from .pipeline import CalibrationResult
 
     say = progress or (lambda _msg: None)
@@ -464,7 +464,8 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
         + ([] if body is None else body.diagnostics["not_identifiable"]),
         "scenario": scn.model_dump(mode="json"),
     }
-    warnings = spread_clip_warnings(tm.motion_fit.diagnostics) if tm.in_place is None else []  # a folded path's spreads
+    warnings = ([*path_miss_warnings(tm.path_fit.diagnostics), *spread_clip_warnings(tm.motion_fit.diagnostics)]
+                if tm.in_place is None else [])  # a path's fit and spreads; a motion in place is a point
     if warnings:
         report["warnings"] = warnings
     return CalibrationResult(scenario=scn, report=report)

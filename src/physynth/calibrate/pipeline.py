@@ -18,7 +18,10 @@
 
 Every step writes what it fitted into one :class:`ReportBuilder`: every parameter with its standard
 error or the number of samples behind it, the diagnostics that support it and the list of what could
-not be identified. The scenario is in the generator's own format, so it feeds ``physynth generate``.
+not be identified. At the end the report's parameters are held to the scenario as written
+(:func:`~physynth.calibrate.report_fields.reconcile_parameters`: a field's value is the one written, the
+fit's own number beside it where they differ) and the options that changed nothing are noted. The
+scenario is in the generator's own format, so it feeds ``physynth generate``.
 """
 
 from __future__ import annotations
@@ -62,10 +65,12 @@ from .geometry import (
     fit_motion,
     fit_path,
     fit_path_perturbation,
+    path_miss_warnings,
     spread_clip_warnings,
     summarize_track,
 )
 from .jitter_fit import fit_jitter
+from .report_fields import reconcile_parameters, unused_option_notes
 from .run_lag import fit_run_lags
 from .run_spread import (
     RUN_OFFSET_BLOCK_ROWS,  # noqa: F401  (re-exported)
@@ -132,26 +137,34 @@ class CalibrationResult:
     scenario: Scenario
     report: dict[str, Any]
 
-    def summary_rows(self) -> list[tuple[str, str, str]]:
-        """(parameter, value, uncertainty or samples) rows for a short terminal table."""
+    def summary_rows(self, *, fields: bool = True) -> list[tuple[str, str, str]]:
+        """(parameter, value, uncertainty or samples) rows for a short terminal table: the scenario's fields
+        (``fields``; their values as written, the fit's own number beside where it differs) or the fit's
+        diagnostics that are no scenario field (``fields=False``)."""
         rows = []
         for key, item in self.report["parameters"].items():
-            if not item.get("summary"):
-                continue
-            v = item["value"]
-            value = (" / ".join(_fmt(x) for x in v) if isinstance(v, list) else _fmt(v))
-            if item.get("interval_90") is not None:
-                lo, hi = item["interval_90"]
-                unc = f"90 % [{_fmt(lo)}, {_fmt(hi)}]"
-            elif item.get("std_error") is not None:
-                se = item["std_error"]
-                unc = "+- " + (" / ".join(_fmt(x) for x in se) if isinstance(se, list) else _fmt(se))
-            elif item.get("n_samples") is not None:
-                unc = f"n = {item['n_samples']}"
-            else:
-                unc = item.get("note", "")
-            rows.append((key, value, unc))
+            if item.get("summary") and item.get("field", True) == fields:
+                rows.append((key, _fmt_value(item["value"]), _uncertainty(item)))
         return rows
+
+
+def _fmt_value(v: Any) -> str:
+    return " / ".join(_fmt(x) for x in v) if isinstance(v, list) else _fmt(v)
+
+
+def _uncertainty(item: dict[str, Any]) -> str:
+    """The uncertainty column of a summary row: the fit's own number and why the scenario differs, or
+    the 90 % interval, the standard error, the sample count or the note."""
+    if "fitted" in item:
+        return f"fitted {_fmt_value(item['fitted'])}: {item.get('why', '')}"
+    if item.get("interval_90") is not None:
+        lo, hi = item["interval_90"]
+        return f"90 % [{_fmt(lo)}, {_fmt(hi)}]"
+    if item.get("std_error") is not None:
+        return "+- " + _fmt_value(item["std_error"])
+    if item.get("n_samples") is not None:
+        return f"n = {item['n_samples']}"
+    return item.get("note", "")
 
 
 def _fmt(x: Any) -> str:
@@ -855,24 +868,20 @@ def fit_geometry(inp: CalibrationInputs, path_kind: PathKind, report: ReportBuil
     rep.param("path.length_m", pf.diagnostics["length_m"], n=pf.n_samples, summary=True)
     rep.param("path.rmse_m", pf.diagnostics["rmse_m"], n=pf.n_samples,
               note="cross-track RMSE of the truth to the fitted path", summary=True)
+    rep.warnings.extend(path_miss_warnings(pf.diagnostics))
     if len(trs) >= 2:
         pert = fit_path_perturbation(trs, pf.params, tracks=inp.tracks)
         perturbation = PerturbationParams(lateral_std_m=rounded(pert["lateral_std_m"], 4),
                                           sag_std_m=rounded(pert["sag_std_m"], 4))
         rep.sections["path_perturbation"] = pert
         note = "std over runs of the half-sine amplitudes"
-    elif pf.params.kind == "polynomial":  # a cable: the paper's deformation is the prior
-        perturbation = PerturbationParams()
-        rep.sections["path_perturbation"] = {"note": "one run: run-to-run deformation not identifiable, cable "
-                                                     "defaults kept (2 m lateral, 1 m sag; paper III.C)"}
-        rep.not_identifiable.append("path.perturbation (one run; cable defaults kept)")
-        note = "default (one run)"
-    else:  # a general path (a walk, a vehicle): a cable's sag has no meaning and nothing else is known
+    else:  # one run shows no deformation; a cable's prior (paper III.C: 2 m lateral, 1 m sag) is not claimed
         perturbation = PerturbationParams(lateral_std_m=0.0, sag_std_m=0.0)
-        rep.sections["path_perturbation"] = {"note": "one run of a general path: run-to-run deformation not "
-                                                     "identifiable; none claimed (set path.perturbation to add some)"}
-        rep.not_identifiable.append("path.perturbation (one run of a general path; set to 0)")
-        note = "0 (one run, general path)"
+        rep.sections["path_perturbation"] = {"note": "one run: run-to-run deformation not identifiable; none "
+                                                     "claimed (set path.perturbation to add some; the paper's "
+                                                     "cable: 2 m lateral, 1 m sag)"}
+        rep.not_identifiable.append("path.perturbation (one run; set to 0)")
+        note = "0 (one run)"
     rep.param("path.perturbation.lateral_std_m", perturbation.lateral_std_m, n=len(trs), note=note)
     rep.param("path.perturbation.sag_std_m", perturbation.sag_std_m, n=len(trs), note=note)
     path = pf.params.model_copy(update={"perturbation": perturbation})
@@ -1386,9 +1395,7 @@ def _link_losses_out_of_dropouts(availability: AvailabilitySet, rep: ReportBuild
         d = pooled_d if o.dropout_prob is None else o.dropout_prob
         d_new = max(0.0, 1.0 - (1.0 - d) / max(m, 1e-6))
         before[aid], left[aid] = d, max(0.0, (1.0 - d) - (1.0 - d_new) * m)  # survival lost beyond d
-        per[aid] = o.model_copy(update={"dropout_prob": rounded(d_new, 6)})
-        rep.param(f"availability.per_anchor.{aid}.dropout_prob", rounded(d_new, 6),
-                  note=f"{d:.5f} fitted on all losses, less the link budget's (mean detection {m:.4f})")
+        per[aid] = o.model_copy(update={"dropout_prob": rounded(d_new, 6)})  # the report: reconcile_parameters
     lb["dropout_prob_before"], lb["link_loss_not_compensated"] = before, left
     return replace(availability, per_anchor=per)
 
@@ -1490,6 +1497,17 @@ def _long_outage_params(fit: dict[str, Any], rep: ReportBuilder, *, use: bool) -
     return out
 
 
+def _report_pooled_availability(pooled: AvailabilityParams, n_attempts: int, rep: ReportBuilder, *,
+                                in_force: bool) -> None:
+    """The pooled dropout and outages in the report: the scenario's values for every anchor without an
+    override (``in_force``, in the summary: no anchor has one, as when the anchors were re-placed)."""
+    note = "the anchors' values weighted by their attempts"
+    rep.param("availability.dropout_prob", pooled.dropout_prob, n=n_attempts, note=note, summary=in_force)
+    rep.param("availability.outage_onset_prob", pooled.outage_onset_prob, n=n_attempts, note=note, summary=in_force)
+    rep.param("availability.outage_mean_s", pooled.outage_mean_s, n=n_attempts, summary=in_force,
+              note="median of the outage means of the anchors with outages")
+
+
 def assemble_availability(inp: CalibrationInputs, avail: AvailabilityFit, timing: TimingFit,
                           report: ReportBuilder, *, long_outages: bool = False) -> AvailabilitySet:
     """Availability parameters: dropout per anchor, outage and tag-outage rates with Gamma posteriors.
@@ -1532,8 +1550,8 @@ def assemble_availability(inp: CalibrationInputs, avail: AvailabilityFit, timing
         rep.param(f"{pre}.dropout_prob", p.dropout_prob, se=do.get("dropout_prob_se"), n=do["n_attempts"],
                   summary=True)
         per_anchor[aid] = p
-    weights = np.array([av[a]["dropout_outage"]["n_attempts"] for a in ids], dtype=float)
-    weights = weights / weights.sum() if weights.sum() > 0 else np.full(len(ids), 1.0 / len(ids))
+    attempts = np.array([av[a]["dropout_outage"]["n_attempts"] for a in ids], dtype=float)
+    weights = attempts / attempts.sum() if attempts.sum() > 0 else np.full(len(ids), 1.0 / len(ids))
     means = [p.outage_mean_s for p in per_anchor.values() if p.outage_onset_prob > 0]
     # tag outages: n events (the dark runs' tag probabilities summed) over the up bursts of every run
     n_tag = tag.get("events", tag["n_outages"] + tag["n_censored"])
@@ -1553,6 +1571,7 @@ def assemble_availability(inp: CalibrationInputs, avail: AvailabilityFit, timing
         tag_outage_onset_shape=tag_shape,
         **_long_outage_params(avail.long_outages, rep, use=long_outages),
     )
+    _report_pooled_availability(pooled, int(attempts.sum()), rep, in_force=bool(inp.layout.get("conflicts")))
     if up_s > 0:
         _rate_report(rep, "availability.tag_outage_onset_prob", tag_post, burst_rate,
                      "tag outages" + ("" if n_tag else " (none seen: not generated)"))
@@ -1689,7 +1708,8 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
         offsets become ``uwb.run_offset_std_m`` / ``uwb.run_anchor_offset_std_m``); the scenario
         generates with the layout of ``layout_from`` and records the others in its provenance.
         ``strict``: an anchor id placed differently by two recordings is an error. ``first``: the
-        first recording's layout is written (the former behaviour).
+        same as ``per-run`` without ``layout_from`` (the first recording's layout, each anchor it lacks
+        at its first position elsewhere); every policy fits each run against its own layout.
     layout_from
         Index or label of the recording whose anchor layout the scenario generates with (``per-run``).
     static_sweeps
@@ -1724,21 +1744,47 @@ def calibrate(traces: Trace | Sequence[Trace], *, name: str = "calibrated", path
     progress
         ``progress(message, done, total)`` before each step (:mod:`physynth.progress`).
     """
+    _check_options(static_sweeps, range_bias, range_bias_law, link_budget)
+    options = {"anchor_policy": anchor_policy, "layout_from": layout_from, "static_sweeps": static_sweeps,
+               "range_bias": range_bias, "range_bias_law": range_bias_law, "long_outages": long_outages,
+               "tag_pattern": tag_pattern, "run_slopes": run_slopes, "link_budget": link_budget,
+               "trusted_truth": trusted_truth}
+    trs = as_trace_list(traces)
+    if trs and all(_imu_only(t) for t in trs):  # IMU recordings only: IMU models, path and motion, no anchors
+        from .imu_only import calibrate_imu_only
+
+        res = calibrate_imu_only(trs, name=name, path_kind=path_kind, sources=sources, progress=progress)
+        return _held_to_scenario(res, unused_option_notes(options, uwb=False, n_runs=0, untrusted_truth=False))
+    res = _calibrate_uwb(trs, name=name, path_kind=path_kind, sources=sources, progress=progress, **options)
+    shares = res.report["truth_quality"]["untrusted_share_of_truth"].values()
+    return _held_to_scenario(res, unused_option_notes(options, uwb=True, n_runs=len(res.report["recordings"]),
+                                                      untrusted_truth=any(x > 0 for x in shares)))
+
+
+def _held_to_scenario(res: CalibrationResult, notes: Sequence[str]) -> CalibrationResult:
+    """``res`` with its report's parameters held to the scenario written
+    (:func:`~physynth.calibrate.report_fields.reconcile_parameters`) and ``notes`` among its warnings."""
+    reconcile_parameters(res.report, res.scenario.model_dump(mode="json"))
+    if notes:
+        res.report.setdefault("warnings", []).extend(notes)
+    return res
+
+
+def _calibrate_uwb(trs: list[Trace], *, name: str, path_kind: PathKind, anchor_policy: AnchorPolicy,
+                   layout_from: int | str | None, static_sweeps: str | os.PathLike | None,
+                   range_bias: Literal["dynamic", "static"], range_bias_law: Literal["log", "linear"],
+                   sources: Sequence[str] | None, long_outages: bool, tag_pattern: bool, run_slopes: bool,
+                   link_budget: bool, trusted_truth: bool, progress: ProgressCallback | None) -> CalibrationResult:
+    """:func:`calibrate`'s steps on recordings of which some have UWB ranges (its report as fitted)."""
     say = progress or no_progress
     step = iter(range(N_STEPS))
 
     def tick(message: str) -> None:
         say(message, next(step, N_STEPS - 1), N_STEPS)
 
-    _check_options(static_sweeps, range_bias, range_bias_law, link_budget)
-    trs = as_trace_list(traces)
-    if trs and all(_imu_only(t) for t in trs):  # IMU recordings only: IMU models, path and motion, no anchors
-        from .imu_only import calibrate_imu_only
-
-        return calibrate_imu_only(trs, name=name, path_kind=path_kind, sources=sources, progress=progress)
     rep = ReportBuilder()
     tick("checking the recordings")
-    inp = prepare_inputs(traces, anchor_policy=anchor_policy, layout_from=layout_from, report=rep)
+    inp = prepare_inputs(trs, anchor_policy=anchor_policy, layout_from=layout_from, report=rep)
     rep.sections["sources"] = list(sources or [])
     geometry = fit_geometry(inp, path_kind, rep, lambda msg, *_: tick(msg))
     timing = fit_timing(inp, rep, lambda msg, *_: tick(msg))

@@ -44,11 +44,13 @@ def calibrate_cmd(
         help="per-run: datasets may place the anchors differently (each run against its own layout, "
              "channels per anchor id pooled, run-to-run offsets fitted; the scenario generates with the "
              "--layout-from run's layout and records the others); strict: an anchor placed differently "
-             "by two datasets is an error; first: write the first dataset's layout (former behaviour)."),
+             "by two datasets is an error; first: the same as per-run with the first dataset's layout "
+             "(no --layout-from; kept for scripts that name it). Every policy fits each run against its "
+             "own layout."),
     layout_from: str | None = typer.Option(None, "--layout-from", metavar="RUN",
-                                           help="With --anchor-layout per-run: the recording (label or "
-                                                "0-based index) whose anchor layout the scenario uses "
-                                                "(default: the first)."),
+                                           help="With --anchor-layout per-run: the recording (label, its "
+                                                "last part such as r1, or 0-based index) whose anchor layout "
+                                                "the scenario uses (default: the first)."),
     static_sweeps: Path | None = typer.Option(None, "--static-sweeps", metavar="DIR",
                                               help="Hanyang Static_measurements folder: also fit the range "
                                                    "bias on the static sweeps."),
@@ -159,11 +161,26 @@ def _calibrate(datasets: list[Path], out: Path, report: Path | None, quiet: bool
 
 def _print_summary(result, out: Path, report: Path | None) -> None:
     from rich.console import Console
+
+    console = Console()
+    _print_rows(console, f"calibrated scenario '{result.scenario.name}'", result.summary_rows())
+    diagnostics = result.summary_rows(fields=False)
+    if diagnostics:  # goodness of fit, per-anchor fits the scenario pools, ...: no scenario field
+        _print_rows(console, "fit diagnostics (not in the scenario)", diagnostics)
+    missing = result.report.get("not_identifiable", [])
+    if missing:
+        console.print(cli_words(f"not identifiable ({len(missing)}): " + "; ".join(missing)), highlight=False)
+    for w in result.report.get("warnings", []):
+        console.print(f"warning: {cli_words(w)}", highlight=False)
+    console.print(f"wrote {out}" + (f" and {report}" if report else ""))
+
+
+def _print_rows(console, title: str, rows: list[tuple[str, str, str]]) -> None:
+    """A table of (parameter, value, uncertainty) rows under ``title``; where the key, value and uncertainty
+    do not fit side by side, each value goes on an indented line under its key."""
     from rich.table import Table
 
-    rows = result.summary_rows()
-    console = Console()
-    title = f"calibrated scenario '{result.scenario.name}'"
+    rows = [(key, value, cli_words(unc)) for key, value, unc in rows]
     # keys are kept whole (a key broken mid-word reads badly); where the key, value and uncertainty do not
     # fit side by side (an IMU's three-axis values beside 53-character keys in 80 columns), each value and
     # its uncertainty go on an indented line under the key instead of wrapping into columns 10 wide
@@ -181,9 +198,3 @@ def _print_summary(result, out: Path, report: Path | None) -> None:
         for key, value, unc in rows:
             table.add_row(key, value, unc)
         console.print(table)
-    missing = result.report.get("not_identifiable", [])
-    if missing:
-        console.print(f"not identifiable ({len(missing)}): " + "; ".join(missing))
-    for w in result.report.get("warnings", []):
-        console.print(f"warning: {cli_words(w)}")
-    console.print(f"wrote {out}" + (f" and {report}" if report else ""))
