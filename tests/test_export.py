@@ -298,3 +298,46 @@ def test_rosbag2_leaves_out_and_counts_messages_with_nan_fields(body_dataset, tm
     assert count["/truth"] == n_truth - 4 and count["/truth/orientation"] == n_truth - 5
     assert count["/imu"] == n_imu - 7 and count["/imu/body"] == n_imu
     assert "left out 16 message(s) with a NaN field: /imu 7, /truth 4, /truth/orientation 5" in said
+
+
+@pytest.mark.skipif(importlib.util.find_spec("rosbags") is None, reason="rosbags (physynth[export]) not installed")
+def test_rosbag2_leaves_out_and_counts_messages_stamped_before_zero(dataset, tmp_path):
+    """As a Hanyang run imported with --crop-to-uwb: a few UWB ranges before the first truth sample (time
+    0). A ROS time is never negative: those messages are left out and counted, the others keep their
+    stamps, and no header stamp or record time of the bag is negative."""
+    import dataclasses
+
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    from physynth.io.dataset import write_dataset
+
+    tr = dataset[1].traces[0]
+    t = tr.uwb.t_s - 0.2
+    early = np.isfinite(tr.uwb.range_m) & (np.round(t * 1e9) < 0)
+    assert early.any()
+    src = write_dataset(tmp_path / "early", [dataclasses.replace(tr, uwb=dataclasses.replace(tr.uwb, t_s=t))])
+    said = []
+    out = export_dataset(src, tmp_path / "bags", "rosbag2", progress=lambda m, done=None, total=None: said.append(m))
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    n_uwb = 0
+    with Reader(out / "trace_00000000") as r:
+        assert r.start_time >= 0
+        for conn, stamp, raw in r.messages():
+            msg = ts.deserialize_cdr(raw, conn.msgtype)
+            header = getattr(msg, "header", None) or msg.transforms[0].header
+            assert stamp >= 0 and header.stamp.sec >= 0
+            n_uwb += conn.topic.startswith("/uwb/")
+    assert n_uwb == int(np.isfinite(tr.uwb.range_m).sum() - early.sum())
+    line = [m for m in said if "stamped before 0 s" in m]
+    assert len(line) == 1 and line[0].startswith(f"left out {int(early.sum())} message(s) stamped before 0 s")
+
+
+def test_docs_say_unknown_nlos_is_written_false_in_hdf5():
+    from pathlib import Path
+
+    import physynth.io.export.hdf5 as hdf5
+
+    doc = " ".join((Path(__file__).resolve().parents[1] / "docs" / "export.md").read_text().split())
+    assert "**Unknown NLOS is written as `nlos = False`.**" in doc and 'attrs["nlos_known"] == False' in doc
+    assert "nlos_known = False" in " ".join(hdf5.__doc__.split())

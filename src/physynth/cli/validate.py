@@ -30,7 +30,8 @@ def validate_cmd(
                                              help="Dataset directory of synthetic traces to compare."),
     scenario: str | None = typer.Option(None, "--scenario", "-s", metavar="SCENARIO",
                                            help="Preset name or scenario YAML: generate the synthetic traces."),
-    n: int = typer.Option(50, "-n", "--n-traces", metavar="N", min=1, help="Traces to generate with --scenario."),
+    n: int | None = typer.Option(None, "-n", "--n-traces", metavar="N", min=1,
+                                 help="Traces to generate with --scenario (default 50)."),
     seed: int | None = typer.Option(None, "--seed", metavar="SEED", min=0,
                                     help="Root seed for --scenario (random when omitted; recorded in the report)."),
     transfer: bool = typer.Option(False, "--transfer",
@@ -65,7 +66,8 @@ def validate_cmd(
                   anchors, all_truth)
 
 
-def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, seed: int | None, transfer: bool,
+def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int | None, seed: int | None,
+              transfer: bool,
               out: Path, real_out: Path, figures: bool, overwrite: bool, force: bool, quiet: bool,
               anchors: str | None = None, all_truth: bool = False) -> None:
     from ..errors import AnchorMismatchError, PhySynthError
@@ -77,12 +79,17 @@ def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, 
                             f"({'both' if synthetic is not None else 'neither'} given)")
     if transfer and scenario is None:
         raise PhySynthError("--transfer needs --scenario (it builds a scenario for the real run's geometry)")
+    for given, option in ((n is not None, "-n"), (seed is not None, "--seed")):
+        if given and scenario is None:
+            raise PhySynthError(f"{option} needs --scenario (it applies to generated traces); --synthetic "
+                                "DATASET compares every trace of the dataset as it was generated")
     if figures:
         require_matplotlib()  # a missing matplotlib is reported before any work is done
     try:
         with progress_bar(not quiet) as progress:
-            report = validate_datasets(real, synthetic=synthetic, scenario=scenario, n=n, seed=seed,
-                                       transfer=transfer, progress=progress, force=force, all_truth=all_truth,
+            report = validate_datasets(real, synthetic=synthetic, scenario=scenario, n=50 if n is None else n,
+                                       seed=seed, transfer=transfer, progress=progress, force=force,
+                                       all_truth=all_truth,
                                        anchors=None if anchors is None else [a.strip() for a in anchors.split(",")])
     except AnchorMismatchError as exc:
         hint = "; use --transfer to take the anchor layout from the real dataset" if scenario else ""
@@ -105,12 +112,21 @@ def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int, 
                f"{counted(report.inputs['n_traces']['synthetic'], 'trace')}"
                + (f" (scenario '{syn.get('scenario_name')}', seed {syn.get('root_seed')}"
                   + (", transfer" if syn.get("transfer") else "") + ")" if "scenario" in syn else ""))
+    if report.inputs.get("anchor_subset") is not None:
+        from ..validate.tables import anchor_subset_line
+
+        typer.echo(textwrap.fill(anchor_subset_line(report.inputs), SUMMARY_WIDTH))
     truth = report.inputs.get("real", {}).get("truth") or {}
     if truth.get("untrusted_truth_ranges"):
         from ..validate.tables import truth_line
 
         hint = " (--all-truth compares them)" if truth.get("untrusted_left_out_of_residuals") else ""
         typer.echo(textwrap.fill(truth_line(truth) + hint, SUMMARY_WIDTH))
+    from ..validate.compare import truth_past_uwb_line
+
+    past = truth_past_uwb_line(report.inputs.get("real", {}).get("truth_past_last_uwb_s") or 0.0)
+    if past:
+        typer.echo(textwrap.fill(past[:-1] + " (physynth import hanyang --crop-to-uwb).", SUMMARY_WIDTH))
     typer.echo(f"KS {_f(report.ks_statistic)}  fidelity S {_f(report.fidelity_score)}  "
                f"W1 {_f(report.extended.get('residual_wasserstein_m'))} m")
     for line in _metric_lines(report):
@@ -140,11 +156,17 @@ def _metric_lines(report) -> list[str]:
         if c.get("typical") is not None:  # heavy-tailed: compared with the median synthetic run
             synth, pooled = c["typical"], report.synthetic[key]
         band = c.get("band_5_95")
-        inside = "" if band is None else (f"  band {_f(band[0])}-{_f(band[1])} "
-                                          + ("in" if c.get("real_in_band") else "OUT"))
+        inside = ("  band —" if c.get("n_traces_in_band") is not None else "") if band is None else (
+            f"  band {_f(band[0])}-{_f(band[1])} " + ("in" if c.get("real_in_band") else "OUT"))
         lines.append(f"  {key:18s} real {_f(report.real[key])}  synth {_f(synth)}  Δ {delta:>8s}{inside}")
     if pooled is not None:
         lines.append(f"  (mean_aoi_s synth: the median synthetic run's; pooled over the runs {_f(pooled)} s)")
+    from ..validate.compare import band_note
+    from ..validate.tables import few_band_traces
+
+    few = few_band_traces(report)
+    if few is not None:
+        lines += textwrap.wrap(band_note(few), SUMMARY_WIDTH, initial_indent="  ", subsequent_indent="  ")
     return lines
 
 

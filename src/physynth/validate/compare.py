@@ -261,10 +261,25 @@ def typical_value(per_trace: Sequence[Mapping[str, Any]], key: str, group: int) 
     return float(np.median(per_group)) if per_group.size else float("nan")
 
 
+MIN_BAND_TRACES = 3
+"""Fewest synthetic traces (with a finite value of the metric) behind a 5-95 % band: with one the band
+is that one value and with two the segment between them, so every real value would read as outside it.
+With fewer the band and ``real_in_band`` are null and :func:`band_note` says why."""
+
+
+def band_note(n_traces: int) -> str:
+    """Why a metric's synthetic 5-95 % band is not available (report.md, report.html, the CLI summary)."""
+    return (f"Synth 5–95 % band not available: {n_traces} synthetic trace(s) behind it, fewer than the "
+            f"{MIN_BAND_TRACES} a band needs (docs/validation.md); generate more traces to compare with a band.")
+
+
 def _compare_one(real: float, synth: float, values: np.ndarray, signed: bool,
                  typical: float | None = None) -> dict[str, Any]:
     vals = values[np.isfinite(values)]
-    band = [float(v) for v in np.percentile(vals, BAND_PERCENTILES)] if vals.size else [float("nan")] * 2
+    if vals.size < MIN_BAND_TRACES:  # one value, or the segment between two: no band to be inside of
+        band = None
+    else:
+        band = [float(v) for v in np.percentile(vals, BAND_PERCENTILES)]
     diff = synth - real
     ref = synth if typical is None else typical
     extra = {} if typical is None else {"typical": typical, "deviation_against": "typical"}
@@ -272,7 +287,7 @@ def _compare_one(real: float, synth: float, values: np.ndarray, signed: bool,
             "deviation": diff if signed else relative_deviation_pct(real, ref),
             "deviation_kind": "absolute" if signed else "relative_pct",
             "band_5_95": band, "n_traces_in_band": int(vals.size),
-            "real_in_band": bool(band[0] <= real <= band[1]) if np.isfinite(real) and vals.size else None}
+            "real_in_band": bool(band[0] <= real <= band[1]) if np.isfinite(real) and band is not None else None}
 
 
 def comparison_table(real: Mapping[str, Any], synth: Mapping[str, Any], per_trace: Sequence[Mapping[str, Any]],
@@ -504,6 +519,62 @@ def anchor_ids(traces: Sequence[Trace]) -> list[str]:
 
 MIN_VALID_RANGES = 30
 """Fewest valid real ranges a validation accepts (a KS statistic from 3 ranges says nothing)."""
+
+
+def check_validate_budget(scn: Any, n: int, *, force: bool = False) -> None:
+    """Refuse, before any work, a validation whose synthetic side is too big to generate and reduce.
+
+    Unlike a generation (:func:`physynth.bounds.check_budget`), a validation writes no trace: it
+    streams them, one in memory at a time. So the memory budget applies to one trace, and the volume of
+    samples of all ``n`` (against the output budget, which bounds what a generation may make) is a
+    bound on the time it takes, not on disk use. A scenario whose trip is too short is refused always.
+
+    Raises
+    ------
+    ScenarioError, BudgetError
+        As :func:`~physynth.bounds.check_budget`, with messages about memory and time.
+    """
+    from ..bounds import MEMORY_BUDGET_BYTES, OUTPUT_BUDGET_BYTES, check_trip, estimate_size
+    from ..errors import BudgetError
+
+    one, est = estimate_size(scn, 1), estimate_size(scn, n)
+    check_trip(scn, one)
+    if force:
+        return
+    if one.peak_memory_bytes > MEMORY_BUDGET_BYTES:
+        raise BudgetError(f"scenario '{scn.name}': one trace of up to {one.duration_s:.4g} s needs about "
+                          f"{one.peak_memory_bytes / 1e9:.3g} GB of memory (validate holds one trace at a time); "
+                          f"the memory budget is {MEMORY_BUDGET_BYTES / 1e9:.3g} GB (PHYSYNTH_MEMORY_BUDGET_GB)")
+    if est.output_bytes > OUTPUT_BUDGET_BYTES:
+        raise BudgetError(f"scenario '{scn.name}': {n} trace(s) of up to {est.duration_s:.4g} s are about "
+                          f"{est.output_bytes / 1e9:.3g} GB of samples to generate and reduce (validate writes "
+                          f"none of them, but it would take long), more than the "
+                          f"{OUTPUT_BUDGET_BYTES / 1e9:.3g} GB a generation may make (PHYSYNTH_OUTPUT_BUDGET_GB); "
+                          "compare with fewer traces")
+
+
+TRUTH_PAST_UWB_S = 5.0
+"""Seconds the real truth may run on past its trace's last UWB row before the report warns: the grid
+follows the truth, so every second after the last range counts as a UWB outage (availability, AoI)."""
+
+
+def truth_past_uwb_s(traces: Sequence[Trace]) -> float:
+    """The longest span [s] by which a trace's finite truth runs on past its last UWB row (0 without)."""
+    worst = 0.0
+    for tr in traces:
+        fin = np.all(np.isfinite(tr.truth.pos_enu_m), axis=1)
+        if fin.any() and tr.uwb.t_s.size:
+            worst = max(worst, float(tr.truth.t_s[fin][-1] - np.max(tr.uwb.t_s)))
+    return worst
+
+
+def truth_past_uwb_line(seconds: float) -> str | None:
+    """The one-line warning of the report and the CLI when the real truth runs on more than
+    :data:`TRUTH_PAST_UWB_S` past its last UWB row, else None."""
+    if not seconds > TRUTH_PAST_UWB_S:
+        return None
+    return (f"Warning: the real truth runs on {seconds:.1f} s past its last UWB row; that time counts as a UWB "
+            "outage (lower availability, larger mean AoI). Import the recording cropped to its UWB span.")
 
 
 def check_real(traces: Sequence[Trace], where: str) -> None:

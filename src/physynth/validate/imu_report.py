@@ -250,8 +250,8 @@ def validate_imu(real: Sequence[Trace], *, scenario: Scenario | None = None, syn
             synth.append(tr)
             if progress is not None:
                 progress("generating synthetic traces", i + 1, n)
-    inputs["synthetic"] = {"scenario_name": scenario.name, "n_traces": int(n), "root_seed": root,
-                           "transfer": bool(transfer), "scenario_config": scenario_to_dict(scenario)}
+    inputs["synthetic"] = {**(inputs.get("synthetic") or {}), "scenario_name": scenario.name, "n_traces": int(n),
+                           "root_seed": root, "transfer": bool(transfer), "scenario_config": scenario_to_dict(scenario)}
     tr_info = ({"what": "each synthetic trace runs the scenario's IMU models along a real trace's truth "
                         "(acceleration, attitude); trace i along real trace i mod R",
                 "model_truth_cutoff_hz": float(scenario.imu.truth_cutoff_hz or CUTOFF_HZ)} if transfer else None)
@@ -259,7 +259,16 @@ def validate_imu(real: Sequence[Trace], *, scenario: Scenario | None = None, syn
 
 
 def write_imu_report(report: ImuValidationReport, out: str | os.PathLike, *, overwrite: bool = False) -> list[Path]:
-    """report.json, report.md and report.html (tables) into folder ``out``; each file written atomically."""
+    """report.json, report.md and report.html (inputs, the real data's citation, the error and Allan
+    ratio tables, the transfer) and, when the synthetic side was generated from a scenario, that
+    scenario as ``scenario.yaml``, into folder ``out``; each file written atomically.
+
+    No figure: the IMU-only comparison keeps per-axis statistics, not the series the UWB report's
+    ``imu_spectrum.png`` and ``allan.png`` are drawn from (docs/validation.md)."""
+    import html as _html
+
+    from ..io.scenario_file import mapping_to_yaml
+
     out = Path(out)
     if (out / "report.json").exists() and not overwrite:
         raise OutputExistsError(out, "holds a report")
@@ -268,30 +277,73 @@ def write_imu_report(report: ImuValidationReport, out: str | os.PathLike, *, ove
     except OSError as exc:
         raise PhySynthError(f"cannot create {out}: {exc.strerror}") from None
     d = report.to_dict()
-    rows = []
-    for kind, unit in ERRORS.items():
-        key = f"{kind}_error_std_{unit}"
-        if d["real"].get(key) is None or d["synthetic"].get(key) is None:
-            continue
-        lsd = (d["extended"].get(f"{kind}_log_spectral_distance_db") or {}).get("per_axis")
-        rows.append((key, d["real"][key], d["synthetic"][key], d["relative_deviation_pct"][key], lsd))
-
-    def fmt(v: Any, digits: int = 4) -> str:
-        return " / ".join(f"{x:.{digits}g}" for x in v) if v is not None else "-"
-
-    md = ["# IMU validation", "", "| error std | real | synthetic | deviation [%] | log-spectral distance [dB] |",
-          "|---|---|---|---|---|"]
-    md += [f"| {k} | {fmt(r)} | {fmt(s)} | {fmt(dv, 3)} | {fmt(lsd, 3)} |" for k, r, s, dv, lsd in rows]
-    html = ["<!doctype html><meta charset='utf-8'><title>IMU validation</title><h1>IMU validation</h1>",
-            "<table border=1><tr><th>error std</th><th>real</th><th>synthetic</th><th>deviation [%]</th>"
-            "<th>log-spectral distance [dB]</th></tr>"]
-    html += [f"<tr><td>{k}</td><td>{fmt(r)}</td><td>{fmt(s)}</td><td>{fmt(dv, 3)}</td><td>{fmt(lsd, 3)}</td></tr>"
-             for k, r, s, dv, lsd in rows]
-    html.append("</table>")
-    files = {"report.json": json.dumps(d, indent=1), "report.md": "\n".join(md) + "\n",
-             "report.html": "\n".join(html) + "\n"}
+    lines, tables = imu_inputs_lines(d), _imu_tables(d)
+    md = ["# IMU validation", "", *[f"- {x}" for x in lines], ""]
+    page = ["<!doctype html><meta charset='utf-8'><title>IMU validation</title><h1>IMU validation</h1><ul>",
+            *[f"<li>{_html.escape(x)}</li>" for x in lines], "</ul>"]
+    for title, headers, rows in tables:
+        md += [f"## {title}", "", "| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
+        md += ["| " + " | ".join(r) + " |" for r in rows] + [""]
+        page += [f"<h2>{_html.escape(title)}</h2><table border=1><tr>"
+                 + "".join(f"<th>{_html.escape(h)}</th>" for h in headers) + "</tr>"]
+        page += ["<tr>" + "".join(f"<td>{_html.escape(c)}</td>" for c in r) + "</tr>" for r in rows] + ["</table>"]
+    files = {"report.json": json.dumps(d, indent=1), "report.md": "\n".join(md).rstrip() + "\n",
+             "report.html": "\n".join(page) + "\n"}
+    config = (d["inputs"].get("synthetic") or {}).get("scenario_config")
+    if config:
+        files["scenario.yaml"] = ("# scenario the synthetic traces of this report were generated from\n"
+                                  + mapping_to_yaml(config))
     written = []
     for name, text in files.items():
         atomic_write_text(out / name, text)
         written.append(out / name)
     return written
+
+
+def imu_inputs_lines(d: dict[str, Any]) -> list[str]:
+    """The provenance lines of an IMU-only report (``d`` its ``to_dict``): real and synthetic side,
+    version, the transfer and the real data's citation."""
+    inp = d.get("inputs", {})
+    real, syn, n = inp.get("real", {}), inp.get("synthetic") or {}, inp.get("n_traces", {})
+    lines = [f"Real: {real.get('path', '?')} ({n.get('real', '?')} trace(s), IMU-only; IMU frames "
+             f"{', '.join(real.get('imu_frames') or []) or '?'})"]
+    if "scenario_name" in syn:
+        lines.append(f"Synthetic: {n.get('synthetic', '?')} trace(s) from scenario '{syn['scenario_name']}'"
+                     + (f" ({syn['scenario']})" if syn.get("scenario") else "")
+                     + f", root seed {syn.get('root_seed')}"
+                     + (", transferred: along the real truth" if syn.get("transfer") else ""))
+    else:
+        lines.append(f"Synthetic: {syn.get('path', '?')} ({n.get('synthetic', '?')} trace(s))")
+    lines.append(f"Truth low-passed at {inp.get('truth_cutoff_hz', '?')} Hz; physynth "
+                 f"{inp.get('physynth_version', '?')}; created {inp.get('created_utc', '?')}")
+    if d.get("transfer"):
+        lines.append(f"Transfer: {d['transfer'].get('what')}.")
+    if "broad" in str(real.get("source") or "").lower():
+        from ..io.importers.broad import CITATION
+
+        lines.append(f"Real data: {CITATION}.")
+    return lines
+
+
+def _imu_tables(d: dict[str, Any]) -> list[tuple[str, tuple[str, ...], list[tuple[str, ...]]]]:
+    """(title, headers, rows) of the error std table and of one Allan ratio table per error kind."""
+    def fmt(v: Any, digits: int = 4) -> str:
+        return " / ".join("-" if x is None else f"{x:.{digits}g}" for x in v) if v is not None else "-"
+
+    rows, allan = [], []
+    for kind, unit in ERRORS.items():
+        key = f"{kind}_error_std_{unit}"
+        if d["real"].get(key) is None or d["synthetic"].get(key) is None:
+            continue
+        lsd = (d["extended"].get(f"{kind}_log_spectral_distance_db") or {}).get("per_axis")
+        rows.append((key, fmt(d["real"][key]), fmt(d["synthetic"][key]), fmt(d["relative_deviation_pct"][key], 3),
+                     fmt(lsd, 3)))
+        ar = d["extended"].get(f"{kind}_allan_ratio") or {}
+        allan += [(f"{kind}_allan_ratio", f"{tau:g}", fmt(r, 3))
+                  for tau, r in zip(ar.get("tau_s", []), ar.get("ratio", []), strict=False)]
+    tables = [("IMU error std, real vs synthetic", ("error std", "real", "synthetic", "deviation [%]",
+                                                    "log-spectral distance [dB]"), rows)]
+    if allan:
+        tables.append(("Allan deviation of the error, synthetic / real per axis",
+                       ("error", "tau [s]", "ratio"), allan))
+    return tables

@@ -42,7 +42,8 @@ def export_dataset(dataset: str | os.PathLike, out: str | os.PathLike, fmt: str,
     Every format reads the dataset as every reader does (:func:`~physynth.io.dataset.iter_indexed_traces`:
     files against ``dataset.json``, columns, valid traces) before its output appears; the CSV export,
     which copies the tables row group by row group, reads it trace by trace first to check it. The
-    ROS 2 export leaves out messages with a NaN field and says how many through ``progress``.
+    ROS 2 export leaves out messages with a NaN field or stamped before time 0 and says how many through
+    ``progress``.
     """
     if fmt not in FORMATS:
         raise PhySynthError(f"unknown export format '{fmt}' (choose one of {', '.join(FORMATS)})")
@@ -88,9 +89,7 @@ def _export(dataset: Path, meta: dict, out: Path, fmt: str, progress: ProgressCa
             writer(dataset, meta, tmp, progress)
         else:
             skipped = writer(_checked(dataset, meta, f"exporting to {fmt}", total, progress), meta, tmp)
-            if skipped:
-                progress(f"left out {sum(skipped.values())} message(s) with a NaN field: "
-                         + ", ".join(f"{topic} {n}" for topic, n in skipped.items()))
+            _say_skipped(skipped or {}, progress)
         swap_in(tmp, out)
     except BaseException:
         remove_tree(tmp)
@@ -98,3 +97,14 @@ def _export(dataset: Path, meta: dict, out: Path, fmt: str, progress: ProgressCa
     finally:
         unregister_temporary(tmp)
     return out
+
+
+def _say_skipped(skipped: dict[str, int], progress: ProgressCallback) -> None:
+    """One progress line for the ROS 2 messages left out with a NaN field and one for those stamped
+    before time 0 (counted as ``"<topic> (before 0 s)"``)."""
+    early = {k.removesuffix(" (before 0 s)"): n for k, n in skipped.items() if k.endswith(" (before 0 s)")}
+    nan = {k: n for k, n in skipped.items() if not k.endswith(" (before 0 s)")}
+    for what, counts in (("with a NaN field", nan), ("stamped before 0 s (a ROS time is never negative)", early)):
+        if counts:
+            progress(f"left out {sum(counts.values())} message(s) {what}: "
+                     + ", ".join(f"{topic} {n}" for topic, n in counts.items()))

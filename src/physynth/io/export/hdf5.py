@@ -7,7 +7,11 @@ Layout of the file::
         truth/t_s (T,) pos_enu_m (T, 3) vel_enu_mps (T, 3)
         imu/t_s (N,) acc_mps2 (N, 3)            (absent when the trace has no IMU)
         uwb/t_s anchor range_m true_range_m nlos burst reason (M,)   anchor indexes anchors/ids
+            attrs: nlos_known (bool)
         anchors/ids (A,) names (A,) pos_enu_m (A, 3)
+
+Unknown NLOS (an imported recording's) is written as ``nlos = False`` (HDF5 has no missing boolean): only
+the ``uwb`` group attribute ``nlos_known = False`` says the column is no label; read it before ``nlos``.
 
 Groups are named by the zero-padded trace index (``00000042``) so they sort in trace order. Units as in
 the dataset: seconds, metres, metres per second (squared), ENU world frame. Numeric arrays keep the

@@ -25,8 +25,11 @@ receive timestamp of the bag record equal to the header stamp:
   bag holds its own trace's layout (traces of a ``variation`` section each have their own).
 
 A row with a NaN (or infinite) value in a message's fields (an imported recording's optical dropouts,
-for instance) has no message: ROS messages cannot say "unknown". :func:`write_rosbag2` returns how many
-it left out per topic.
+for instance) has no message: ROS messages cannot say "unknown". Nor has a row stamped before time 0
+(an imported recording's few UWB ranges before its first truth sample, for instance): a ROS time is
+never negative (``rclcpp::Time`` throws), and the other rows keep their stamps rather than being
+shifted, so every bag keeps the dataset's time base. :func:`write_rosbag2` returns how many it left
+out per topic (``"<topic> (before 0 s)"`` for the early rows).
 """
 
 from __future__ import annotations
@@ -86,12 +89,17 @@ def _finite_rows(n: int, *arrays: np.ndarray | None) -> np.ndarray:
     return ok
 
 
-def _kept(skipped: dict[str, int], topic: str, n: int, *arrays: np.ndarray | None) -> np.ndarray:
+def _kept(skipped: dict[str, int], topic: str, t_s: np.ndarray, *arrays: np.ndarray | None) -> np.ndarray:
     """The rows of a topic's message fields to write; those with a NaN (or infinite) field are counted
-    in ``skipped`` (a message cannot say "unknown": e.g. an optical tracker's dropouts in a recording)."""
-    ok = _finite_rows(n, *arrays)
-    skipped[topic] = skipped.get(topic, 0) + int(n - ok.sum())
-    return ok
+    in ``skipped`` (a message cannot say "unknown": e.g. an optical tracker's dropouts in a recording),
+    and so, under ``"<topic> (before 0 s)"``, are the other rows stamped before time 0 (a ROS time is
+    never negative)."""
+    ok = _finite_rows(t_s.shape[0], *arrays)
+    skipped[topic] = skipped.get(topic, 0) + int(t_s.shape[0] - ok.sum())
+    early = ok & (_stamps_ns(t_s) < 0)
+    key = f"{topic} (before 0 s)"
+    skipped[key] = skipped.get(key, 0) + int(early.sum())
+    return ok & ~early
 
 
 def _imu_messages(w: Any, ts: Any, imu: Any, skipped: dict[str, int]) -> list[tuple[int, Any, bytes]]:
@@ -107,7 +115,7 @@ def _imu_messages(w: Any, ts: Any, imu: Any, skipped: dict[str, int]) -> list[tu
     for topic, frame, acc, gyro in channels:
         conn = w.add_connection(topic, Imu.__msgtype__, typestore=ts)
         n = imu.t_s.shape[0]
-        ok = _kept(skipped, topic, n, acc, gyro)
+        ok = _kept(skipped, topic, imu.t_s, acc, gyro)
         acc_l = np.zeros((n, 3))[ok].tolist() if acc is None else acc[ok].tolist()
         gyro_l = np.zeros((n, 3))[ok].tolist() if gyro is None else gyro[ok].tolist()
         for ns, a, g in zip(_stamps_ns(imu.t_s[ok]), acc_l, gyro_l, strict=True):
@@ -120,8 +128,8 @@ def _imu_messages(w: Any, ts: Any, imu: Any, skipped: dict[str, int]) -> list[tu
     return messages
 
 
-def _uwb_messages(w: Any, ts: Any, trace: Trace) -> list[tuple[int, Any, bytes]]:
-    """The ``/uwb/<anchor id>`` records: one per delivered range."""
+def _uwb_messages(w: Any, ts: Any, trace: Trace, skipped: dict[str, int]) -> list[tuple[int, Any, bytes]]:
+    """The ``/uwb/<anchor id>`` records: one per delivered range stamped at or after time 0."""
     Range = ts.types["sensor_msgs/msg/Range"]
     u = trace.uwb
     ok = np.isfinite(u.range_m)
@@ -131,6 +139,7 @@ def _uwb_messages(w: Any, ts: Any, trace: Trace) -> list[tuple[int, Any, bytes]]
         sel = ok & (u.anchor == a_idx)
         if not sel.any():
             continue
+        sel[sel] = _kept(skipped, f"/uwb/{a_id}", u.t_s[sel])
         conn = w.add_connection(f"/uwb/{a_id}", Range.__msgtype__, typestore=ts)
         for ns, r in zip(_stamps_ns(u.t_s[sel]), u.range_m[sel].tolist(), strict=True):
             msg = Range(header=_header(ts, int(ns), a_id), radiation_type=RADIO, field_of_view=float(2 * np.pi),
@@ -145,17 +154,16 @@ def _truth_messages(w: Any, ts: Any, trace: Trace, skipped: dict[str, int]) -> l
     Point, PointMsg = ts.types["geometry_msgs/msg/PointStamped"], ts.types["geometry_msgs/msg/Point"]
     QuatStamped, Quaternion = ts.types["geometry_msgs/msg/QuaternionStamped"], ts.types["geometry_msgs/msg/Quaternion"]
     truth = trace.truth
-    n = truth.t_s.shape[0]
     c_truth = w.add_connection("/truth", Point.__msgtype__, typestore=ts)
-    ok = _kept(skipped, "/truth", n, truth.pos_enu_m)
+    ok = _kept(skipped, "/truth", truth.t_s, truth.pos_enu_m)
     messages = [(int(ns), c_truth, ts.serialize_cdr(
         Point(header=_header(ts, int(ns), "enu"), point=PointMsg(x=p[0], y=p[1], z=p[2])), Point.__msgtype__))
         for ns, p in zip(_stamps_ns(truth.t_s[ok]), truth.pos_enu_m[ok].tolist(), strict=True)]
     if len(trace.anchors):
-        messages.append(_anchor_frames(w, ts, trace, _header(ts, int(_stamps_ns(truth.t_s[:1])[0]), "enu")))
+        messages.append(_anchor_frames(w, ts, trace, _header(ts, max(0, int(_stamps_ns(truth.t_s[:1])[0])), "enu")))
     if truth.quat_wxyz is not None:
         c_att = w.add_connection("/truth/orientation", QuatStamped.__msgtype__, typestore=ts)
-        ok = _kept(skipped, "/truth/orientation", n, truth.quat_wxyz)
+        ok = _kept(skipped, "/truth/orientation", truth.t_s, truth.quat_wxyz)
         for ns, q in zip(_stamps_ns(truth.t_s[ok]), truth.quat_wxyz[ok].tolist(), strict=True):
             quat = Quaternion(x=q[1], y=q[2], z=q[3], w=q[0])  # stored scalar-first (w, x, y, z)
             msg = QuatStamped(header=_header(ts, int(ns), "enu"), quaternion=quat)
@@ -168,7 +176,8 @@ def write_rosbag2(traces: Iterable[tuple[int, Trace]], meta: dict[str, Any], pat
 
     Returns the number of messages left out per topic (topics with none left out are not named): a
     row with a NaN (or infinite) value in a message's fields is not written, since a ROS message has
-    no way to say "unknown" (an imported recording's optical dropouts, for instance).
+    no way to say "unknown" (an imported recording's optical dropouts, for instance), nor is a row
+    stamped before time 0 (counted as ``"<topic> (before 0 s)"``), since a ROS time is never negative.
     """
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore
@@ -178,7 +187,7 @@ def write_rosbag2(traces: Iterable[tuple[int, Trace]], meta: dict[str, Any], pat
     path.mkdir(parents=True)
     for index, trace in traces:
         with Writer(path / f"trace_{index:08d}", version=8) as w:
-            messages = [*_imu_messages(w, ts, trace.imu, skipped), *_uwb_messages(w, ts, trace),
+            messages = [*_imu_messages(w, ts, trace.imu, skipped), *_uwb_messages(w, ts, trace, skipped),
                         *_truth_messages(w, ts, trace, skipped)]
             messages.sort(key=lambda m: m[0])  # a bag is written in time order
             for ns, conn, data in messages:
