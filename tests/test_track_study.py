@@ -450,3 +450,81 @@ def test_an_ensemble_member_that_dies_without_a_word_is_an_error():
     proc.join()
     with pytest.raises(PhySynthError, match=r"ensemble member 1 \(seed 7\) ended without a result \(exit code 3\)"):
         _next_message(ctx.Queue(), {0: proc}, [StudyConfig(**TINY, seed=7)])
+
+
+def test_every_test_run_is_saved_and_plotted_with_its_own_rmse(runs, tmp_path):
+    """Two test runs: estimates.npz holds both (``run`` tells them apart), so every row's pooled RMSE and
+    each run's own RMSE are recomputed from it; the figure has a column per run."""
+    from physynth.track.scoring import error_stats
+
+    scn, rr = runs
+    res = run_tracking_study(rr[:1], rr[1:], scenario=scn, config=StudyConfig(**{**TINY, "methods": ("ls", "ekf")}))
+    files = write_results(res, tmp_path)
+    rows = json.loads(files["json"].read_text())["rows"]
+    with np.load(files["estimates"]) as est:
+        assert list(est["run_labels"]) == ["run1", "run2"]
+        assert est["t_s"].size == sum(i.n_steps for i in res.test_inputs) == est["run"].size
+        for row in rows:
+            st = error_stats(est["estimate/" + row["key"]], est["truth_enu_m"], est["scored"])
+            assert st["rmse_m"] == pytest.approx(row["rmse_m"], rel=1e-9) and st["n_steps"] == row["n_steps"]
+            for j, inp in enumerate(res.test_inputs):
+                one = est["run"] == j
+                own = error_stats(est["estimate/" + row["key"]][one], est["truth_enu_m"][one], est["scored"][one])
+                assert own["rmse_m"] == pytest.approx(
+                    error_stats(res.estimates_per_test[row["key"]][j], inp.pos_enu_m, inp.eval_mask())["rmse_m"])
+    assert files["figure"].stat().st_size > 1000
+
+
+def test_missing_estimates_and_truth_after_the_last_range_are_reported(runs, tmp_path, capsys, monkeypatch):
+    """A test run whose ranges stop 6 s before its truth (an uncropped import): a warning line (stderr and
+    results.md); an ls without an estimate on its first 50 steps says how many steps its row leaves out,
+    in results.md and the printed table."""
+    import dataclasses
+
+    from physynth.track.trackers.ls import LsTracker
+
+    predict = LsTracker.predict
+
+    def gappy(self, inp):
+        est = predict(self, inp).copy()
+        est[np.flatnonzero(inp.eval_mask())[:50]] = np.nan
+        return est
+
+    monkeypatch.setattr(LsTracker, "predict", gappy)
+    scn, rr = runs
+    t = rr[2].trace
+    late = t.uwb.t_s > float(t.truth.t_s[-1]) - 6.0
+    cut = dataclasses.replace(t, uwb=dataclasses.replace(t.uwb, range_m=np.where(late, np.nan, t.uwb.range_m),
+                                                         reason=None))
+    train = write_dataset(tmp_path / "train", [r.trace for r in rr[:2]])
+    test = write_dataset(tmp_path / "test", [cut])
+    main(["study", "tracking", "--train", str(train), "--test", str(test), "--methods", "ls,ekf",
+          "--out", str(tmp_path / "out")])
+    out = capsys.readouterr()
+    res = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert len(res["data"]["warnings"]) == 1 and "after its last UWB range" in res["data"]["warnings"][0]
+    warned = [line for line in out.err.splitlines() if line.startswith("warning:")]
+    assert len(warned) == 1 and "after its last UWB range" in warned[0]
+    md = (tmp_path / "out" / "results.md").read_text()
+    assert "Warning: test run" in md
+    missing = [r for r in res["rows"] if r["n_missing"]]
+    assert [r["key"] for r in missing] == ["ls"] and missing[0]["n_missing"] == 50
+    for r in missing:
+        text = f"no estimate on {r['n_missing']} of {r['n_missing'] + r['n_steps']} scored steps"
+        assert text in md and text.split(" scored")[0] in out.out.replace("\n", " ")
+
+
+def test_cli_refuses_no_methods_and_options_without_effect(runs, tmp_path, capsys):
+    """``--methods ""`` is no method (not all of them); --frame and --ensemble set up the networks only."""
+    scn, rr = runs
+    train = write_dataset(tmp_path / "train", [r.trace for r in rr[:2]])
+    test = write_dataset(tmp_path / "test", [rr[2].trace])
+    cases = [(["--methods", ""], "no method to run"),
+             (["--methods", "ls,ekf", "--frame", "route"], "--frame only matters for NOAUG"),
+             (["--methods", "ls", "--ensemble", "2"], "--ensemble only matters for NOAUG")]
+    for args, needle in cases:
+        code, out = _cli(capsys, "study", "tracking", "--train", train, "--test", test, *args, "--quick",
+                         "--out", tmp_path / "o", "-q")
+        assert code == 2, (args, out.err)
+        assert needle in out.err and len(out.err.strip().splitlines()) == 1 and "Traceback" not in out.err
+    assert not (tmp_path / "o" / "results.json").exists()

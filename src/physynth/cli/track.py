@@ -28,9 +28,11 @@ METHOD_OPTIONS = {"epochs": ("--epochs", ("NOAUG", "AUG_GAN", "bilstm")), "scena
                   "pretrain_epochs": ("--pretrain-epochs", _SYNTH), "finetune_epochs": ("--finetune-epochs", _SYNTH),
                   "n_synth_traces": ("--n-synth", _SYNTH), "synth_windows_per_trace": ("--synth-windows", _SYNTH),
                   "finetune_synth_ratio": ("--finetune-synth-ratio", _SYNTH), "ekf_prior": ("--ekf-prior", _NETWORKS),
-                  "lr_schedule": ("--lr-schedule", _NETWORKS), "weight_average": ("--weight-average", _NETWORKS)}
+                  "lr_schedule": ("--lr-schedule", _NETWORKS), "weight_average": ("--weight-average", _NETWORKS),
+                  "frame": ("--frame", _NETWORKS), "ensemble": ("--ensemble", _NETWORKS)}
 """Options (by the study setting they give) that set up some methods only, with those methods: given without
-any of them, an option is refused (as ``--jobs`` without ``--ensemble``), not silently ignored."""
+any of them, an option is refused (as ``--jobs`` without ``--ensemble``), not silently ignored. ``--frame``
+sets up how the networks see direction; ``--ensemble`` averages seeds, and the classical trackers draw none."""
 
 
 _ENSEMBLE_HELP = ("Run the study for K seeds from --seed on and score the mean of their estimates (a seed "
@@ -88,7 +90,7 @@ def tracking_cmd(
                                          "direction."),
     mirror_test: bool = typer.Option(False, "--mirror-test", help="Mirror every test run (y -> -y about its "
                                      "anchor centroid) before the turn."),
-    frame: str = typer.Option("turned", "--frame", metavar="FRAME", help=_FRAME_HELP),
+    frame: str = typer.Option(None, "--frame", metavar="FRAME", help=_FRAME_HELP),
     ensemble: int = typer.Option(1, "--ensemble", metavar="K", min=1, help=_ENSEMBLE_HELP),
     jobs: int = typer.Option(1, "--jobs", metavar="N", min=1, help=_JOBS_HELP),
     train_trusted_truth: bool = typer.Option(False, "--train-trusted-truth", help=_TRUSTED_HELP),
@@ -107,19 +109,20 @@ def tracking_cmd(
 
     check_study_output(out, marker="results.json", what="a tracking study", overwrite=overwrite,  # before the work
                        inputs=[*(train or []), *(test or [])])
-    chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods else METHODS
-    if frame not in FRAMES:
+    # "" is no method, as "," is (StudyConfig refuses it); only leaving --methods out runs them all
+    chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods is not None else METHODS
+    if frame is not None and frame not in FRAMES:
         raise PhySynthError(f"--frame must be one of {', '.join(FRAMES)}, got '{frame}'")
     if jobs > 1 and ensemble == 1:
         raise PhySynthError(f"--jobs {jobs} trains the members of an ensemble at once: give --ensemble K (K >= 2)")
-    over = {"seed": seed, "methods": chosen, "threads": threads, **FRAMES[frame]}
+    over = {"seed": seed, "methods": chosen, "threads": threads, **FRAMES[frame or "turned"]}
     over |= _given(epochs=epochs, pretrain_epochs=pretrain_epochs, finetune_epochs=finetune_epochs,
                    n_synth_traces=n_synth, synth_windows_per_trace=synth_windows, ekf_prior=ekf_prior,
                    finetune_synth_ratio=finetune_synth_ratio, train_trusted_truth=train_trusted_truth or None,
                    ensemble=ensemble if ensemble > 1 else None, jobs=jobs if jobs > 1 else None)
     net = _given(lr_schedule=lr_schedule, weight_average=weight_average)
     over |= {"net": net} if net else {}
-    cfg = _config(over, quick, scenario)
+    cfg = _config(over, quick, scenario, frame)
     if NETWORK_METHODS & set(cfg.methods):
         require_torch()
     train_runs, test_runs = _load_runs(train, test)
@@ -136,6 +139,8 @@ def tracking_cmd(
             result = run_tracking_study(train_runs, test_runs, scenario=scn, config=cfg,
                                         progress=lambda m: status.update(m))
     files = write_results(result, out)
+    for warning in result.data.get("warnings", []):  # even with --quiet: these seconds are in every row
+        typer.echo(f"warning: {warning}", err=True)
     if quiet:
         return
     _print_table(result, test_runs)
@@ -143,13 +148,13 @@ def tracking_cmd(
                f"(wall time {result.data['wall_time_s']:.0f} s)")
 
 
-def _config(over: dict[str, Any], quick: bool, scenario: str | None) -> Any:
+def _config(over: dict[str, Any], quick: bool, scenario: str | None, frame: str | None = None) -> Any:
     """The study's configuration from the settings given (``over``; ``--quick``: its schedule for the others);
     an option of :data:`METHOD_OPTIONS` given when none of the methods it sets up runs is refused."""
     from ..studies.tracking import StudyConfig, quick_config
 
     cfg = quick_config(**over) if quick else StudyConfig(**over)  # bad values first, then options without use
-    given = {**over, **over.get("net", {}), "scenario": scenario}
+    given = {**over, **over.get("net", {}), "scenario": scenario, "frame": frame}
     for name, (flag, users) in METHOD_OPTIONS.items():
         if given.get(name) is not None and not set(users) & set(cfg.methods):
             which = users[0] if len(users) == 1 else f"{', '.join(users[:-1])} or {users[-1]}"
@@ -205,7 +210,7 @@ def _print_table(result, test_runs: list) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    from ..studies.tracking import compared_with_noaug
+    from ..studies.tracking import compared_with_noaug, missing_text
 
     delta = compared_with_noaug(result.rows)  # no Δ column without NOAUG, the row it is relative to
     table = Table(title=f"test run {', '.join(r.label for r in test_runs)}",
@@ -216,7 +221,8 @@ def _print_table(result, test_runs: list) -> None:
     for r in result.rows:
         shown = "-" if r["delta_rmse_pct"] is None else f"{r['delta_rmse_pct']:+.1f}"
         name, _, about = r["method"].partition(" (")
-        label = name if not about else f"{name}\n[dim]{about.removesuffix(')')}[/dim]"
+        notes = [n for n in (about.removesuffix(")"), missing_text(r)) if n]  # scored share when not whole
+        label = "\n".join([name, *(f"[dim]{n}[/dim]" for n in notes)])
         table.add_row(label, *(f"{r[k]:.3f}" for k in ("rmse_m", "rmse_2d_m", "mae_m", "p50_m", "p95_m")),
                       *((shown,) if delta else ()))
     Console().print(table)

@@ -195,6 +195,8 @@ class StudyResult:
     """Every method's estimates on every test run (``estimates`` holds the first test run's)."""
     test_inputs: list[TrackInput] = field(default_factory=list)
     """Every test run's inputs (``test_input`` is the first)."""
+    trusted_per_test: list[np.ndarray] = field(default_factory=list)
+    """Every test run's trusted steps (``test_trusted`` is the first's)."""
 
     def to_json(self) -> dict[str, Any]:
         return {"rows": self.rows, "config": self.config, "data": self.data}
@@ -432,6 +434,7 @@ def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | 
     data = {
         "train": [_describe(r) for r in train],
         "test": [_describe(r) for r in tests],
+        "warnings": late_truth_warnings(test_inputs),
         "time_offset": offset_info,
         "use_imu": use_imu,
         "inputs": _input_settings(cfg),
@@ -448,7 +451,29 @@ def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | 
         data["scenario"] = notes.pop("scenario")
     return StudyResult(rows=rows, config=cfg.to_dict(), data=data,
                        estimates={k: v[0] for k, v in estimates.items()}, test_input=test_inputs[0],
-                       test_trusted=trusted[0], estimates_per_test=estimates, test_inputs=test_inputs)
+                       test_trusted=trusted[0], estimates_per_test=estimates, test_inputs=test_inputs,
+                       trusted_per_test=trusted)
+
+
+LATE_TRUTH_S = 2.0
+"""Scored truth that goes on longer than this after a test run's last UWB range is warned about."""
+
+
+def late_truth_warnings(test_inputs: Sequence[TrackInput]) -> list[str]:
+    """One line per test run whose scored truth goes on more than :data:`LATE_TRUTH_S` after its last
+    range (an import not cropped to its UWB span): those seconds are scored, every tracker coasting."""
+    out = []
+    for inp in test_inputs:
+        heard = np.asarray(inp.fresh, bool).reshape(inp.n_steps, -1).any(axis=1)
+        if not heard.any():
+            continue
+        last = float(inp.t_s[heard][-1])
+        late = inp.eval_mask() & (inp.t_s > last + LATE_TRUTH_S)
+        if late.any():
+            out.append(f"test run {inp.label}: {late.sum() / inp.rate_hz:.1f} s of its scored truth come after its "
+                       f"last UWB range (t = {last:.1f} s); every row is scored there too (import it cropped to "
+                       "its UWB span, e.g. --crop-to-uwb)")
+    return out
 
 
 def _score(estimates: dict[str, list[np.ndarray]], tests: Sequence[StudyRun], test_inputs: list[TrackInput],
@@ -487,7 +512,7 @@ def _run_ensemble(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Sc
             "child_cpu_time_s": child_cpu_s}
     return StudyResult(rows=rows, config=cfg.to_dict(), data=data, estimates={k: v[0] for k, v in mean.items()},
                        test_input=test_inputs[0], test_trusted=trusted[0], estimates_per_test=mean,
-                       test_inputs=test_inputs)
+                       test_inputs=test_inputs, trusted_per_test=trusted)
 
 
 def _member_main(j: int, train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | None,
@@ -701,6 +726,16 @@ def _network_lines(d: dict[str, Any], c: dict[str, Any]) -> list[str]:
                                      if c.get("random_isometry") else "the recorded world (--frame compass)")]
 
 
+def missing_text(row: dict[str, Any]) -> str | None:
+    """``"no estimate on M of N scored steps (P %)"`` for a row with ``n_missing`` steps, else None."""
+    n_miss = int(row.get("n_missing") or 0)
+    if n_miss == 0:
+        return None
+    total = n_miss + int(row.get("n_steps") or 0)
+    pct = 100.0 * n_miss / total
+    return f"no estimate on {n_miss} of {total} scored steps ({'< 0.1' if pct < 0.1 else f'{pct:.1f}'} %)"
+
+
 def results_markdown(result: StudyResult) -> str:
     """``results.md``: Table IV layout (plus the horizontal RMSE), then what was run: only what applies to
     the methods that ran (no Δ RMSE column without NOAUG, no training schedule without a network)."""
@@ -716,6 +751,11 @@ def results_markdown(result: StudyResult) -> str:
         shown = "-" if r["delta_rmse_pct"] is None else f"{r['delta_rmse_pct']:+.1f}"
         lines.append(f"| {r['method']} | {r['rmse_m']:.3f} | {r['rmse_2d_m']:.3f} | {r['mae_m']:.3f} | "
                      f"{r['p50_m']:.3f} | {r['p95_m']:.3f} |" + (f" {shown} |" if delta else ""))
+    missing = [f"{r['method']}: {missing_text(r)}" for r in result.rows if missing_text(r)]
+    if missing:
+        lines += ["", "Rows without an estimate on some scored steps are scored on the steps they have only: "
+                  + "; ".join(missing) + "."]
+    lines += [f"\nWarning: {w}" for w in d.get("warnings", [])]
     trusted = [(r["method"], r["rmse_trusted_m"]) for r in result.rows if r.get("rmse_trusted_m") is not None]
     if trusted:
         lines += ["", "RMSE over the steps where the test run's truth is trusted (its recording flags the rest): "
@@ -742,16 +782,34 @@ ESTIMATE_PREFIX = "estimate/"
 """Key prefix of each method's estimate in ``estimates.npz`` (``estimate/SYNTH_PHY``, ...)."""
 
 
+def _per_test(result: StudyResult) -> tuple[list[TrackInput], list[np.ndarray], dict[str, list[np.ndarray]]]:
+    """Every test run's inputs, trusted steps and estimates per method (a result built with the first
+    test run only still works)."""
+    inputs = result.test_inputs or [result.test_input]
+    trusted = result.trusted_per_test or [np.ones(inputs[0].n_steps, dtype=bool) if result.test_trusted is None
+                                          else result.test_trusted]
+    per = result.estimates_per_test or {k: [v] for k, v in result.estimates.items()}
+    return inputs, trusted, per
+
+
 def estimates_npz(result: StudyResult) -> bytes:
-    """``estimates.npz`` of the (first) test run: ``t_s`` (K,) grid times [s, truth time], ``truth_enu_m``
-    (K, 3) (NaN where unknown), ``scored`` (K,) the steps every row is scored on, ``trusted`` (K,) those
-    whose truth the recording trusts, and ``estimate/<method>`` (K, 3) ENU [m] per row of the table."""
+    """``estimates.npz``: every test run's grid, one after the other (run order of the table's title).
+
+    ``t_s`` (K,) grid times [s, each run's own truth time], ``run`` (K,) the index of each step's test
+    run in ``run_labels``, ``truth_enu_m`` (K, 3) (NaN where unknown), ``scored`` (K,) the steps every
+    row is scored on, ``trusted`` (K,) those whose truth the recording trusts, and ``estimate/<method>``
+    (K, 3) ENU [m] per row of the table, so that a row's RMSE (pooled over the test runs, as the table
+    scores it) is ``error_stats(estimate, truth_enu_m, scored)``; one run's: the same on ``run == i``."""
     import io
 
-    inp = result.test_input
-    trusted = np.ones(inp.n_steps, dtype=bool) if result.test_trusted is None else result.test_trusted
-    arrays = {"t_s": inp.t_s, "truth_enu_m": inp.pos_enu_m, "scored": inp.eval_mask(), "trusted": trusted}
-    arrays |= {ESTIMATE_PREFIX + name: np.asarray(est, dtype=np.float64) for name, est in result.estimates.items()}
+    inputs, trusted, per = _per_test(result)
+    arrays = {"t_s": np.concatenate([i.t_s for i in inputs]),
+              "run": np.concatenate([np.full(i.n_steps, j, dtype=np.int64) for j, i in enumerate(inputs)]),
+              "run_labels": np.array([i.label for i in inputs], dtype=str),
+              "truth_enu_m": np.concatenate([i.pos_enu_m for i in inputs]),
+              "scored": np.concatenate([i.eval_mask() for i in inputs]), "trusted": np.concatenate(trusted)}
+    arrays |= {ESTIMATE_PREFIX + name: np.concatenate([np.asarray(e, dtype=np.float64) for e in ests])
+               for name, ests in per.items()}
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)
     return buf.getvalue()
@@ -777,7 +835,8 @@ def write_results(result: StudyResult, out_dir: str | os.PathLike) -> dict[str, 
 
 
 def plot_paths(result: StudyResult, path: Path) -> Path | None:
-    """Estimated against true horizontal paths on the test run (None without matplotlib)."""
+    """Estimated against true horizontal paths: one column per test run, one row per method, each panel
+    titled with the RMSE on its own run (None without matplotlib)."""
     try:
         import matplotlib
 
@@ -785,28 +844,29 @@ def plot_paths(result: StudyResult, path: Path) -> Path | None:
         import matplotlib.pyplot as plt
     except ImportError:
         return None
-    inp = result.test_input
-    m = inp.eval_mask()
-    keys = ([k for k in ("NOAUG", "AUG_GAN", "SYNTH_PHY", "ekf", "ref: authors' ESKF") if k in result.estimates]
-            or list(result.estimates)[:5])  # e.g. --methods ls: plot what there is
+    inputs, _, per = _per_test(result)
+    keys = ([k for k in ("NOAUG", "AUG_GAN", "SYNTH_PHY", "ekf", "ref: authors' ESKF") if k in per]
+            or list(per)[:5])  # e.g. --methods ls: plot what there is
     if not keys:
         return None
-    fig, axes = plt.subplots(len(keys), 1, figsize=(9.0, 2.4 * len(keys)), sharex=True, sharey=True,
-                             squeeze=False)
-    truth = inp.pos_enu_m
-    anchors = inp.anchor_pos_enu_m
-    by_key = {r["key"]: r for r in result.rows}
-    for ax, k in zip(axes[:, 0], keys, strict=True):
-        est = result.estimates[k]
-        ax.plot(truth[m, 0], truth[m, 1], color="0.2", lw=1.2, label="truth")
-        ax.plot(est[m, 0], est[m, 1], lw=0.8, alpha=0.8, label="estimate")
-        ax.scatter(anchors[:, 0], anchors[:, 1], marker="^", color="tab:red", s=25, label="anchors", zorder=3)
-        ax.set_title(f"{k}: RMSE {by_key[k]['rmse_m']:.2f} m", fontsize=9)
+    fig, axes = plt.subplots(len(keys), len(inputs), figsize=(max(9.0, 6.0 * len(inputs)), 2.4 * len(keys)),
+                             sharex="col", sharey="col", squeeze=False)
+    for col, inp in enumerate(inputs):
+        m, truth, anchors = inp.eval_mask(), inp.pos_enu_m, inp.anchor_pos_enu_m
+        for ax, k in zip(axes[:, col], keys, strict=True):
+            est = per[k][col]
+            ax.plot(truth[m, 0], truth[m, 1], color="0.2", lw=1.2, label="truth")
+            ax.plot(est[m, 0], est[m, 1], lw=0.8, alpha=0.8, label="estimate")
+            ax.scatter(anchors[:, 0], anchors[:, 1], marker="^", color="tab:red", s=25, label="anchors", zorder=3)
+            rmse = error_stats(est, truth, m)["rmse_m"]
+            ax.set_title(f"{inp.label}\n{k}: RMSE on this run {rmse:.2f} m", fontsize=9)
+            ax.set_aspect("equal", adjustable="box")
+        axes[-1][col].set_xlabel("east [m]")
+    for ax in axes[:, 0]:
         ax.set_ylabel("north [m]")
-        ax.set_aspect("equal", adjustable="box")
-    axes[-1][0].set_xlabel("east [m]")
     axes[0][0].legend(fontsize=7, loc="best")
-    fig.suptitle(f"test run {inp.label}", fontsize=10)
+    fig.suptitle("test run" + ("s" if len(inputs) > 1 else "") + ": " + ", ".join(i.label for i in inputs),
+                 fontsize=10)
     fig.tight_layout()
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}.png")
     fig.savefig(tmp, dpi=120)
