@@ -97,8 +97,10 @@ def test_each_runs_lag_is_estimated_and_the_spread_tested(three):
     assert sp["identifiable"] and len(sp["per_run_s"]) == len(CALIBRATION_RUNS)
     lags = np.array(list(sp["per_run_s"].values()))
     se = np.array(list(sp["per_run_std_error_s"].values()))
-    # SOURCE.md: the stamps lag the RTK track by 0.15 to 0.20 s in every run; a few ms of error each
-    assert np.all((lags > 0.15) & (lags < 0.21)) and np.all(se < 0.02)
+    # SOURCE.md: the stamps lag the RTK track by 0.15 to 0.20 s in every run. Each run's error comes from a
+    # jackknife over blocks in time: the antenna sway (a slow ranging error) moves a run's lag by ~17 ms,
+    # which the independent-rows error (~5 ms, the former estimate) did not see (docs/calibration.md)
+    assert np.all((lags > 0.15) & (lags < 0.21)) and np.all((se > 0.008) & (se < 0.03))
     # the runs' lags agree within their errors: no spread, none written
     assert not sp["significant"] and three.scenario.uwb.time_offset_std_s == 0.0
 

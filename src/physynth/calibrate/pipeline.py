@@ -932,7 +932,8 @@ def fit_timing(inp: CalibrationInputs, report: ReportBuilder, progress: Progress
     report.param("uwb.burst_jitter_s", bf.params["burst_jitter_s"], n=bf.n_samples)
     report.param("uwb.slot_s", bf.params["slot_s"], n=bf.n_samples, note=bf.diagnostics["slot_method"])
     report.param("uwb.burst_phase_s", bf.params["burst_phase_s"], n=bf.n_samples,
-                 note="clock alignment of the single run" if bf.params["burst_phase_s"] is not None
+                 note=("clock alignment " + ("of the single run" if len(inp.traces) == 1 else "shared by the runs"))
+                 if bf.params["burst_phase_s"] is not None
                  else "several runs: drawn per trace")
     return timing
 
@@ -982,7 +983,8 @@ def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, 
         se_off = float(of.diagnostics["std_error_s"])
     lags: float | list[float] = offset
     lag_std = 0.0
-    spread = fit_run_lags(chan.per_anchor_rows, chan.los_masks(), chan.per_anchor_run, len(trs))
+    spread = fit_run_lags(chan.per_anchor_rows, chan.los_masks(), chan.per_anchor_run, len(trs),
+                          t_of_row=chan.per_anchor_t)
     tsec["run_spread"] = _lag_spread_section(spread, labels, timing.offset_s)
     if spread is not None and spread["significant"] and of.diagnostics["identifiable"]:
         # the centre stays the pooled estimate above; each run is taken at it plus its own deviation
@@ -1096,10 +1098,12 @@ def _lag_spread_section(spread: dict[str, Any] | None, labels: Sequence[str], gr
             "spread_s": spread["spread_s"], "mean_s": grid_offset_s + spread["mean_correction_s"],
             "mean_std_error_s": float(1.0 / np.sqrt(np.sum(w[ok]))),
             "cochran_q": spread["q"], "dof": spread["dof"], "p_value": spread["p_value"],
-            "significant": spread["significant"], "lag1_autocorrelation": spread["lag1_autocorrelation"],
+            "significant": spread["significant"], "variance_inflation": spread.get("variance_inflation"),
+            "variance_dof": spread.get("variance_dof"),
             "method": ("per-run lag corrections regressed on -range rate over the LOS rows ((run, anchor) means "
-                       "and per-anchor range terms removed), errors inflated for lag-1 autocorrelation; "
-                       "DerSimonian-Laird spread, Cochran's Q test at 1 %")}
+                       "and per-anchor range terms removed); each run's error from a delete-one-block jackknife "
+                       "over blocks in time, its ratio to the independent-rows error pooled over the runs; "
+                       "DerSimonian-Laird spread, Cochran's Q against an F distribution at 1 %")}
 
 
 def fit_link_availability(inp: CalibrationInputs, ranging: RangingFit, timing: TimingFit,
