@@ -241,6 +241,14 @@ def _read(reader: Callable[[str | Path], Any], path: str | Path, role: str) -> A
         raise PhySynthError(f"{role} dataset {path}: invalid content: {exc}") from None
 
 
+def _refuse_uwb_options(real: str | Path, *, anchors: Any, all_truth: bool) -> None:
+    """Options about ranges given for an IMU-only real dataset: one line naming the first."""
+    for given, what in ((anchors is not None, "an anchor subset"),
+                        (all_truth, "comparing the ranges also where the truth errs")):
+        if given:
+            raise PhySynthError(f"real dataset {real} is an IMU-only recording (no UWB): {what} does not apply")
+
+
 def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
                       scenario: ScenarioLike | None = None,
                       n: int = 50, seed: int | None = None, transfer: bool = False,
@@ -295,10 +303,7 @@ def validate_datasets(real: str | Path, *, synthetic: str | Path | None = None,
     from .validate.imu_report import is_imu_only
 
     if is_imu_only(real_traces):  # IMU recordings without UWB: IMU error statistics only
-        for given, what in ((anchors is not None, "an anchor subset"),
-                            (all_truth, "comparing the ranges also where the truth errs")):
-            if given:
-                raise PhySynthError(f"real dataset {real} is an IMU-only recording (no UWB): {what} does not apply")
+        _refuse_uwb_options(real, anchors=anchors, all_truth=all_truth)
         return _validate_imu(real, real_ds, synthetic=synthetic, scenario=scenario, n=n, seed=seed,
                              transfer=transfer, progress=progress)
     real_traces, truth = _real_truth(real_traces, all_truth)
