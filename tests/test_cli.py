@@ -299,3 +299,14 @@ def test_bench_warns_when_the_scaling_run_is_too_short(capsys):
     res = json.loads(out)
     assert res["scaling_caveat"] and "scaling_efficiency" in res["scaling_caveat"]
     assert err.count("\n") == 1 and err.startswith("physynth: warning: ") and "--n-scaling" in err
+
+
+def test_inspect_of_a_dataset_without_anchors_shows_no_uwb_nans(tmp_path, capsys):
+    from physynth.cli.generate import UWB_METRICS
+    from physynth.evaluate.metrics import METRIC_KEYS
+
+    assert set(UWB_METRICS) <= set(METRIC_KEYS)
+    assert run(capsys, "generate", "-s", "handheld-broad", "-n", 1, "--seed", 1, "--out", tmp_path / "ds", "-q")[0] == 0
+    code, out, err = run(capsys, "inspect", tmp_path / "ds", "-q")
+    assert code == 0 and err == "" and "nan" not in out and "imu_std_mps2" in out
+    assert "no anchors (IMU only): the UWB metrics do not apply" in out and "uwb_ge1_frac" not in out

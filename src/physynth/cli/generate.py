@@ -169,6 +169,11 @@ def scenario_show_cmd(name: str = typer.Argument(..., metavar="SCENARIO",
     typer.echo(scenario_to_yaml(load_scenario(name)), nl=False)
 
 
+UWB_METRICS = ("uwb_ge1_frac", "uwb_ge2_frac", "residual_std_m", "residual_median_m", "abs_residual_p95_m",
+               "abs_residual_p99_m", "mean_aoi_s")
+"""The metrics that describe ranging: left out of ``inspect``'s table for a dataset without anchors."""
+
+
 def inspect_cmd(
     dataset: Path = typer.Argument(..., metavar="DATASET", help="Dataset directory."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
@@ -190,12 +195,16 @@ def inspect_cmd(
         typer.echo(textwrap.fill(f"({counted(flagged, 'trace')} {'flags' if flagged == 1 else 'flag'} spans where "
                                  "the truth errs (truth_untrusted_s): the ranges there are left out of the "
                                  "residuals; docs/validation.md)", 79))
+    no_uwb = not m.per_anchor  # no anchors (an IMU-only recording): the UWB metrics are no numbers
     rows = []
     for key, value in m.to_dict().items():
-        if key == "per_anchor":
+        if key == "per_anchor" or (no_uwb and key in UWB_METRICS):
             continue
         rows.append((key, " / ".join(f"{v:.3f}" for v in value) if isinstance(value, list) else f"{value:.4g}"))
     typer.echo(format_table(("metric", "value"), rows))
+    if no_uwb:
+        typer.echo("no anchors (IMU only): the UWB metrics do not apply")
+        return
     cols = ("n_ranges", "fresh_frac", "mean_aoi_s", "residual_std_m", "residual_median_m", "abs_residual_p95_m")
     heads = ("anchor", "ranges", "fresh", "AoI s", "std m", "med m", "p95 m")
     per = [(a, *(f"{d[c]:.4g}" if isinstance(d[c], float) else str(d[c]) for c in cols))
