@@ -646,3 +646,11 @@ def test_anchor_layout_first_is_per_run_with_the_first_layout_and_the_help_says_
     text = " ".join(capsys.readouterr().out.split())
     assert "first: the same as per-run with the first dataset's layout" in text
     assert "former behaviour" not in text
+
+
+def test_a_body_frame_imu_beside_uwb_is_said_to_keep_its_defaults():
+    scn = load_scenario("walk-hanyang")  # ENU and body-frame IMU, with UWB
+    res = calibrate([generate_trace(scn, 0, 2)])
+    notes = [n for n in res.report["not_identifiable"] if n.startswith("body_imu")]
+    assert len(notes) == 1 and "only when every recording is IMU-only" in notes[0]
+    assert res.scenario.body_imu == type(res.scenario.body_imu)()  # the defaults, as the note says

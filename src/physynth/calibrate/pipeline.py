@@ -1606,6 +1606,11 @@ def fit_imu_step(inp: CalibrationInputs, report: ReportBuilder, progress: Progre
 
     imf = fit_imu(imu_traces)
     p = imf.params
+    from .imu_only import has_body_imu
+
+    if any(has_body_imu(t) for t in imu_traces):  # fitted by the IMU-only calibration alone
+        report.not_identifiable.append("body_imu (the body-frame accelerometer and gyroscope are fitted only when "
+                                       "every recording is IMU-only; defaults kept)")
     report.sections["imu"] = imf.diagnostics
     report.param("imu.white_noise_density_mps2_per_sqrt_hz", list(p.white_noise_density_mps2_per_sqrt_hz),
                  n=imf.n_samples, summary=True)
