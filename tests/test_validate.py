@@ -309,8 +309,7 @@ def test_bad_input_mismatched_anchors(data, tmp_path, capsys):
 
 
 def test_bad_input_empty_datasets(data, tmp_path, capsys):
-    with DatasetWriter(tmp_path / "empty", meta=_real_meta()):  # write_dataset refuses to write no traces
-        pass
+    DatasetWriter(tmp_path / "empty", meta=_real_meta()).close()  # a dataset of no traces (write_dataset refuses)
     out = ["--out", str(tmp_path / "r"), "-q"]
     _bad(["validate", "--real", str(tmp_path / "empty"), "--synthetic", str(data / "synth")] + out, capsys,
          "real dataset", "no traces")
