@@ -310,6 +310,13 @@ def test_study_config_refuses_counts_below_one_naming_them(name, value):
         StudyConfig(**{name: value})
 
 
+def test_an_ensemble_of_classical_trackers_only_is_refused():
+    """The classical trackers draw no seed: an ensemble of them would run the same study K times."""
+    with pytest.raises(PhySynthError, match=r"^ensemble 3 averages the networks .* methods ls, ekf train none"):
+        StudyConfig(methods=("ls", "ekf"), ensemble=3)
+    assert StudyConfig(methods=("ekf", "NOAUG"), ensemble=2).ensemble == 2
+
+
 def test_default_runs_follow_physynth_shared_data(tmp_path, monkeypatch):
     from physynth.studies.tracking import default_data_root, hanyang_default_runs
 

@@ -132,6 +132,10 @@ class StudyConfig:
                 raise PhySynthError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.jobs > 1 and self.ensemble == 1:
             raise PhySynthError(f"jobs {self.jobs} runs the members of an ensemble at once: it needs ensemble >= 2")
+        if self.ensemble > 1 and not NETWORK_METHODS & set(self.methods):
+            raise PhySynthError(f"ensemble {self.ensemble} averages the networks of several seeds, and methods "
+                                f"{', '.join(self.methods)} train none (the classical trackers draw no seed): "
+                                "add a network or leave ensemble at 1")
         if not 0.0 <= self.finetune_synth_ratio <= 100.0:
             raise PhySynthError(f"finetune_synth_ratio must be in [0, 100], got {self.finetune_synth_ratio}")
         if self.net and NETWORK_METHODS & set(self.methods):
