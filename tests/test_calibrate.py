@@ -379,6 +379,12 @@ def test_imu_only_recording_joins_a_uwb_calibration(roundtrip):
     np.testing.assert_allclose(res.scenario.imu.white_noise_density_mps2_per_sqrt_hz, [0.05, 0.08, 0.12], rtol=0.1)
     alone = calibrate([imu_only])  # IMU recordings alone: an IMU-only scenario (no anchors)
     assert alone.scenario.anchors == [] and alone.report["imu_only_recordings"] == ["lab"]
+    # one recording along a path shows no run-to-run deformation: none is written, as for UWB runs (the
+    # path fit's cable default, 2 m lateral and 1 m sag, used to be)
+    assert alone.report["parameters"]["motion.in_place"]["value"] is False
+    assert (alone.scenario.path.perturbation.lateral_std_m, alone.scenario.path.perturbation.sag_std_m) == (0.0, 0.0)
+    assert alone.report["parameters"]["path.perturbation.sag_std_m"]["value"] == 0.0
+    assert "path.perturbation (one run; set to 0)" in alone.report["not_identifiable"]
 
 
 def test_runs_with_moved_anchors_and_the_progress_protocol():

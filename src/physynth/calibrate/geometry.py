@@ -24,7 +24,15 @@ from scipy.spatial import cKDTree
 from ..models.motion import SpeedShape, compile_speed_shape
 from ..models.path import compile_path
 from ..records import Trace
-from ..scenario import AnchorSpec, MotionParams, PathParams, Scenario, SpeedProfileParams, scenario_from_dict
+from ..scenario import (
+    AnchorSpec,
+    MotionParams,
+    PathParams,
+    PerturbationParams,
+    Scenario,
+    SpeedProfileParams,
+    scenario_from_dict,
+)
 from ._base import (
     AnchorLayoutError,
     CalibrationError,
@@ -531,6 +539,35 @@ def _run_to_run_spreads(tracks: Sequence[TrackSummary], v_runs: np.ndarray, leng
         diag["spread_method"] = (f"one run: run-to-run spread not identifiable, defaults kept "
                                  f"(cruise {speed_spread}, length {length_spread})")
     return speed_spread, length_spread
+
+
+@dataclass(frozen=True)
+class PathDeformation:
+    """The path with its run-to-run deformation (:func:`path_with_deformation`)."""
+
+    path: PathParams
+    section: dict[str, Any]  # the report's ``path_perturbation`` section
+    note: str  # how the two stds came about, for the report's parameter rows
+    not_identifiable: str | None  # a line for the report's not-identifiable list, or None
+
+
+def path_with_deformation(traces: Sequence[Trace], path: PathParams, *,
+                          tracks: Sequence[TrackSummary] | None = None) -> PathDeformation:
+    """``path`` with ``perturbation`` fitted over several runs (:func:`fit_path_perturbation`), or none with
+    one run: one run shows no deformation, and a cable's prior (paper III.C: 2 m lateral, 1 m sag) is not
+    claimed for a recording that never showed one."""
+    trs = as_trace_list(traces)
+    if len(trs) >= 2:
+        pert = fit_path_perturbation(trs, path, tracks=tracks)
+        params = PerturbationParams(lateral_std_m=rounded(pert["lateral_std_m"], 4),
+                                    sag_std_m=rounded(pert["sag_std_m"], 4))
+        return PathDeformation(path.model_copy(update={"perturbation": params}), pert,
+                               "std over runs of the half-sine amplitudes", None)
+    none = PerturbationParams(lateral_std_m=0.0, sag_std_m=0.0)
+    section = {"note": "one run: run-to-run deformation not identifiable; none claimed (set path.perturbation to "
+                       "add some; the paper's cable: 2 m lateral, 1 m sag)"}
+    return PathDeformation(path.model_copy(update={"perturbation": none}), section, "0 (one run)",
+                           "path.perturbation (one run; set to 0)")
 
 
 def fit_path_perturbation(traces: Sequence[Trace], path: PathParams, *,

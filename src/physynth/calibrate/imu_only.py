@@ -346,12 +346,13 @@ class _TruthMotion:
     jitter: Any
     jitter_diag: dict[str, Any]
     rate_hz: float
+    deformation: Any = None  # geometry.PathDeformation of a mover along a path, None for a motion in place
 
 
 def _truth_motion(trs: list[Trace], labels: list[str], path_kind: str) -> _TruthMotion:
     """Path, motion and jitter of the truth: a fitted path and speed profile, or, for a motion in place
     (:func:`~physynth.calibrate.jitter_fit.in_place_motion`), a point; the jitter fitted on top."""
-    from .geometry import fit_motion, fit_path, summarize_track
+    from .geometry import fit_motion, fit_path, path_with_deformation, summarize_track
     from .jitter_fit import IN_PLACE_BANDS_HZ, fit_jitter, in_place_motion
 
     tracks = [summarize_track(t, lab) for t, lab in zip(trs, labels, strict=True)]
@@ -360,14 +361,18 @@ def _truth_motion(trs: list[Trace], labels: list[str], path_kind: str) -> _Truth
     rate = 1.0 / median_step_s(trs[0].truth.t_s)
     path_p, motion_p, bands = path_fit.params, motion_fit.params, None
     place = in_place_motion(tracks, motion_p)
+    deformation = None
     if place is not None:  # a device shaken on a bench: a point and its jitter, not a folded path
         path_p, motion_p, _ = place
         bands = IN_PLACE_BANDS_HZ
+    else:  # a mover along a path: its run-to-run deformation from the runs, none from one
+        deformation = path_with_deformation(trs, path_p, tracks=tracks)
+        path_p = deformation.path
     jitter, jitter_diag = fit_jitter(trs, tracks, path_p, motion_p, rate, bands_hz=bands)
     if place is not None:
         jitter_diag["in_place"] = place[2]
     return _TruthMotion(path_fit=path_fit, motion_fit=motion_fit, tracks=tracks, in_place=place, path=path_p,
-                        motion=motion_p, jitter=jitter, jitter_diag=jitter_diag, rate_hz=rate)
+                        motion=motion_p, jitter=jitter, jitter_diag=jitter_diag, rate_hz=rate, deformation=deformation)
 
 
 def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", path_kind: str = "auto",
@@ -434,6 +439,9 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
 
     n_truth = int(sum(tr.i_end - tr.i_start + 1 for tr in tm.tracks))
     put("motion.in_place", tm.in_place is not None, n_truth)
+    if tm.deformation is not None:
+        for key in ("lateral_std_m", "sag_std_m"):
+            put(f"path.perturbation.{key}", getattr(tm.path.perturbation, key), len(trs), summary=False)
     put("motion.jitter.acc_rms_mps2", tm.jitter.acc_rms_mps2, n_truth, summary=False)  # a table: in the report
     put("motion.jitter.intensity_log_std", tm.jitter.intensity_log_std, len(tm.tracks))
     p = imf.params
@@ -457,9 +465,11 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
         "sources": list(sources or []),
         "parameters": params,
         "path": tm.path_fit.diagnostics, "motion": tm.motion_fit.diagnostics, "motion_jitter": tm.jitter_diag,
+        **({} if tm.deformation is None else {"path_perturbation": tm.deformation.section}),
         "imu": imf.diagnostics,
         "body_imu": None if body is None else body.diagnostics,
         "not_identifiable": ["uwb, channel, availability, anchors (IMU-only recordings: the scenario has no anchors)"]
+        + ([tm.deformation.not_identifiable] if tm.deformation is not None and tm.deformation.not_identifiable else [])
         + list(imf.diagnostics.get("not_identifiable", []))
         + ([] if body is None else body.diagnostics["not_identifiable"]),
         "scenario": scn.model_dump(mode="json"),

@@ -51,7 +51,6 @@ from ..scenario import (
     MotionParams,
     NlosMode,
     PathParams,
-    PerturbationParams,
     Scenario,
     UwbParams,
 )
@@ -64,8 +63,8 @@ from .geometry import (
     anchor_layout,
     fit_motion,
     fit_path,
-    fit_path_perturbation,
     path_miss_warnings,
+    path_with_deformation,
     spread_clip_warnings,
     summarize_track,
 )
@@ -869,22 +868,13 @@ def fit_geometry(inp: CalibrationInputs, path_kind: PathKind, report: ReportBuil
     rep.param("path.rmse_m", pf.diagnostics["rmse_m"], n=pf.n_samples,
               note="cross-track RMSE of the truth to the fitted path", summary=True)
     rep.warnings.extend(path_miss_warnings(pf.diagnostics))
-    if len(trs) >= 2:
-        pert = fit_path_perturbation(trs, pf.params, tracks=inp.tracks)
-        perturbation = PerturbationParams(lateral_std_m=rounded(pert["lateral_std_m"], 4),
-                                          sag_std_m=rounded(pert["sag_std_m"], 4))
-        rep.sections["path_perturbation"] = pert
-        note = "std over runs of the half-sine amplitudes"
-    else:  # one run shows no deformation; a cable's prior (paper III.C: 2 m lateral, 1 m sag) is not claimed
-        perturbation = PerturbationParams(lateral_std_m=0.0, sag_std_m=0.0)
-        rep.sections["path_perturbation"] = {"note": "one run: run-to-run deformation not identifiable; none "
-                                                     "claimed (set path.perturbation to add some; the paper's "
-                                                     "cable: 2 m lateral, 1 m sag)"}
-        rep.not_identifiable.append("path.perturbation (one run; set to 0)")
-        note = "0 (one run)"
-    rep.param("path.perturbation.lateral_std_m", perturbation.lateral_std_m, n=len(trs), note=note)
-    rep.param("path.perturbation.sag_std_m", perturbation.sag_std_m, n=len(trs), note=note)
-    path = pf.params.model_copy(update={"perturbation": perturbation})
+    deformed = path_with_deformation(trs, pf.params, tracks=inp.tracks)
+    path = deformed.path
+    rep.sections["path_perturbation"] = deformed.section
+    if deformed.not_identifiable:
+        rep.not_identifiable.append(deformed.not_identifiable)
+    rep.param("path.perturbation.lateral_std_m", path.perturbation.lateral_std_m, n=len(trs), note=deformed.note)
+    rep.param("path.perturbation.sag_std_m", path.perturbation.sag_std_m, n=len(trs), note=deformed.note)
 
     progress("fitting the motion")
     mf = fit_motion(trs, path_length_m=pf.diagnostics["length_m"], defaults=MotionParams(cruise_speed_mps=1.0),
