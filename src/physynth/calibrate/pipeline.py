@@ -70,7 +70,7 @@ from .geometry import (
 )
 from .jitter_fit import fit_jitter
 from .report_fields import reconcile_parameters, unused_option_notes
-from .run_lag import fit_run_lags
+from .run_lag import fit_run_lags, los_row_blocks
 from .run_spread import (
     RUN_OFFSET_BLOCK_ROWS,  # noqa: F401  (re-exported)
     RUN_OFFSET_LR_MIN,  # noqa: F401
@@ -558,13 +558,19 @@ def _fit_channels(trs: Sequence[Trace], offset: float | Sequence[float], ids: Se
                      per_anchor_trusted=trusted)
 
 
-def refine_time_offset(rows: dict[str, AnchorRows], los: dict[str, np.ndarray]) -> dict[str, Any] | None:
+def refine_time_offset(rows: dict[str, AnchorRows], los: dict[str, np.ndarray],
+                       run_of_row: dict[str, np.ndarray] | None = None,
+                       t_of_row: dict[str, list[np.ndarray]] | None = None) -> dict[str, Any] | None:
     """Least-squares correction of the time offset from the LOS rows.
 
     With r(offset) = range - g(t - offset), r(offset0 + d) ~ r(offset0) + g'(t) d; regressing r(offset0)
-    on per-anchor intercepts and range slopes and on -g' gives d with its standard error (LOS errors
-    independent and Gaussian), a far more efficient estimate than the robust grid search.
-    Also returns, per anchor, the sensitivity of the LOS mean and slope to the offset.
+    on per-anchor intercepts and range slopes and on -g' gives d, a far more efficient estimate than
+    the robust grid search. Its standard error: with ``run_of_row`` (per anchor, each row's run), a
+    delete-one-block jackknife over blocks in time of each run, every anchor's rows together
+    (:func:`~physynth.calibrate.run_lag.los_row_blocks`; the antenna sway is slow and common to the
+    anchors, so rows taken as independent make it 3-5 times too small), at least that independent-rows
+    error (``white_std_error_s``); without, the independent-rows error. Also returns, per anchor, the
+    sensitivity of the LOS mean and slope to the offset.
     """
     keys = [a for a in rows if los[a].sum() > 10]
     if not keys:
@@ -586,7 +592,14 @@ def refine_time_offset(rows: dict[str, AnchorRows], los: dict[str, np.ndarray]) 
     coef, *_ = np.linalg.lstsq(x, y, rcond=None)
     resid = y - x @ coef
     s2 = float(resid @ resid / max(y.size - x.shape[1], 1))
-    cov = np.linalg.pinv(x.T @ x) * s2
+    white = float(np.sqrt((np.linalg.pinv(x.T @ x) * s2)[-1, -1]))
+    se, n_blocks = white, 0
+    if run_of_row is not None:
+        block = los_row_blocks(los, run_of_row, t_of_row, keys)
+        n_blocks = int(block.max()) + 1
+        jack = np.array([np.linalg.lstsq(x[block != b], y[block != b], rcond=None)[0][-1]
+                         for b in range(n_blocks)])  # a few blocks per run
+        se = max(float(np.sqrt((n_blocks - 1) / n_blocks * np.sum((jack - jack.mean()) ** 2))), white)
     sens = {}
     for a in keys:
         r, g, gd = (v[los[a]] for v in rows[a])
@@ -595,8 +608,8 @@ def refine_time_offset(rows: dict[str, AnchorRows], los: dict[str, np.ndarray]) 
         bd = np.polyfit(h, gd, 1)[0] if np.ptp(h) > 0 else 0.0
         sens[a] = {"d_los_mean_per_s": float(m), "d_range_bias_per_s": float(b),
                    "d_range_bias_per_decade_per_s": float(bd)}
-    return {"correction_s": float(coef[-1]), "std_error_s": float(np.sqrt(cov[-1, -1])), "n_los_rows": int(y.size),
-            "sensitivity": sens}
+    return {"correction_s": float(coef[-1]), "std_error_s": se, "white_std_error_s": white,
+            "jackknife_blocks": n_blocks, "n_los_rows": int(y.size), "sensitivity": sens}
 
 
 def _los_cells(trs: Sequence[Trace], labels: Sequence[str], chan: _Channels):
@@ -957,7 +970,7 @@ def fit_ranging(inp: CalibrationInputs, timing: TimingFit, *, static: dict[str, 
                                f"{GROSS_RESIDUAL_M[1]:g} m of the truth's distance (a radio's error code, a "
                                "corrupt value): left out of every ranging fit")
     chan = _fit_channels(trs, offset, ids, fixed_slope, labels, law=law, trusted_truth=trusted_truth)
-    ref = refine_time_offset(chan.per_anchor_rows, chan.los_masks())
+    ref = refine_time_offset(chan.per_anchor_rows, chan.los_masks(), chan.per_anchor_run, chan.per_anchor_t)
     tsec = report.sections["time_offset"]
     tsec["grid_offset_s"] = offset
     tsec["refinement"] = ref

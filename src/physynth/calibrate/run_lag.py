@@ -95,6 +95,19 @@ def _time_blocks(run: np.ndarray, clock: np.ndarray, n_runs: int) -> tuple[np.nd
     return block, n_blocks
 
 
+def los_row_blocks(los: Mapping[str, np.ndarray], run_of_row: Mapping[str, np.ndarray],
+                   t_of_row: Mapping[str, np.ndarray | Sequence[np.ndarray]] | None, keys: Sequence[str]) -> np.ndarray:
+    """The block in time (numbered over every run) of each LOS row of the anchors ``keys``, stacked in
+    that order: each run's rows, every anchor together, cut by time as for the per-run lags
+    (:func:`_time_blocks`), so that a jackknife over them sees the slow error the anchors share."""
+    run = np.concatenate([run_of_row[a][los[a]] for a in keys]).astype(np.int64)
+    clock = np.concatenate([_row_clock(run_of_row[a], None if t_of_row is None else t_of_row.get(a))[los[a]]
+                            for a in keys])
+    n_runs = int(run.max()) + 1 if run.size else 0
+    block, n_blocks = _time_blocks(run, clock, n_runs)
+    return block + np.concatenate([[0], np.cumsum(n_blocks)[:-1]])[run]
+
+
 def _random_effects(d: np.ndarray, se: np.ndarray, variance_dof: int) -> dict[str, Any]:
     """DerSimonian-Laird spread of the runs' lags, 0 unless Cochran's Q rejects one lag at
     :data:`LAG_SPREAD_ALPHA`, and the random-effects mean. The variances carry ``variance_dof``
