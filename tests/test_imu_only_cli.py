@@ -62,10 +62,20 @@ def test_calibrate_and_validate_imu_only_datasets(tmp_path, capsys):
     assert lines[i + 1].split()[1:] == [f"{x:.3f}" for x in real]
     assert lines[i + 2].split()[1:4] == [f"{x:.3f}" for x in synth]
     assert lines[i + 2].split()[-3:] == [f"{x:+.1f}" for x in dev]
-    # the report folder is PhySynth's own: --overwrite replaces it (it was refused before it was marked)
+    assert not list((tmp_path / "rep").glob("*.png"))  # --no-figures
+    # the report folder is PhySynth's own: --overwrite replaces it (it was refused before it was marked);
+    # with figures: the error spectra and Allan deviations, real against synthetic, also in the pages
+    code, _, err = run(capsys, "validate", "--real", tmp_path / "b21", "--scenario", tmp_path / "s.yaml",
+                       "--transfer", "-n", 2, "--seed", 3, "--out", tmp_path / "rep", "--overwrite")
+    assert code == 0, err
+    for name in ("imu_error_psd.png", "imu_error_allan.png"):
+        assert (tmp_path / "rep" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert f"]({name})" in (tmp_path / "rep" / "report.md").read_text(encoding="utf-8")
+    assert (tmp_path / "rep" / "report.html").read_text(encoding="utf-8").count("data:image/png;base64,") == 2
     code, _, err = run(capsys, "validate", "--real", tmp_path / "b21", "--scenario", tmp_path / "s.yaml",
                        "--transfer", "-n", 2, "--seed", 3, "--out", tmp_path / "rep", "--no-figures", "--overwrite")
     assert code == 0, err
+    assert not list((tmp_path / "rep").glob("*.png"))  # the earlier report's figures do not stay behind
     # generation from the IMU-only scenario (no anchors): traces without UWB rows
     code, _, err = run(capsys, "generate", "--scenario", tmp_path / "s.yaml", "-n", 1, "--seed", 1,
                        "--out", tmp_path / "g", "--quiet")

@@ -97,7 +97,7 @@ def _validate(real: Path, synthetic: Path | None, scenario: str | None, n: int |
     from ..validate.imu_report import ImuValidationReport, write_imu_report
 
     if isinstance(report, ImuValidationReport):  # an IMU-only real dataset: IMU error tables
-        written = write_imu_report(report, real_out, overwrite=True)
+        written = write_imu_report(report, real_out, overwrite=True, figures=figures)
         if not quiet:
             _print_imu_summary(report, out, len(written))
         return

@@ -415,3 +415,71 @@ def render_figures(report: ValidationReport, names: Sequence[str] | None = None)
     return {name: figure_png(_DRAW[name](Figure, ev, report), Canvas) for name in wanted}
 
 
+
+
+# ---------------------------------------------------------------- IMU-only reports
+IMU_FIGURES: dict[str, str] = {
+    "imu_error_psd": "IMU error power spectral density per axis (Welch, pooled over traces), real (black) against "
+                     "synthetic (blue); one row per error compared (ENU accelerometer, body-frame accelerometer, "
+                     "gyroscope).",
+    "imu_error_allan": "Overlapping Allan deviation of the IMU error per axis at the report's averaging times, real "
+                       "(black) against synthetic (blue, dashed), mean over traces.",
+}
+"""Figure file stem -> caption of an IMU-only report (:func:`physynth.validate.imu_report.write_imu_report`)."""
+
+_ENU, _XYZ = ("East", "North", "Up"), ("x", "y", "z")
+_IMU_ROWS = {"imu": ("ENU accelerometer error", "(m/s²)²/Hz", "m/s²", _ENU),
+             "acc_body": ("body accelerometer error", "(m/s²)²/Hz", "m/s²", _XYZ),
+             "gyro": ("gyroscope error", "(rad/s)²/Hz", "rad/s", _XYZ)}
+
+
+def _imu_grid(Figure, kinds: Sequence[str]) -> tuple[Any, np.ndarray]:
+    fig = Figure(figsize=(13, 3.2 * len(kinds) + 0.4), layout="constrained")
+    return fig, np.asarray(fig.subplots(len(kinds), 3, squeeze=False))
+
+
+def _imu_psd_figure(Figure, series: dict[str, dict[str, Any]]) -> Any:
+    fig, axes = _imu_grid(Figure, list(series))
+    for row, (kind, sides) in zip(axes, series.items(), strict=True):
+        title, unit, _, names = _IMU_ROWS[kind]
+        for c, ax in enumerate(row):
+            for side, color in (("real", REAL_COLOR), ("synthetic", SYNTH_COLOR)):
+                f, p = sides[side]["f"], sides[side]["psd"]
+                ax.loglog(f[1:], p[1:, c], color=color, lw=0.9, label=side)
+            ax.set_title(f"{title}, {names[c]}")
+            ax.grid(alpha=0.3, which="both")
+        row[0].set_ylabel(f"PSD [{unit}]")
+    for ax in axes[-1]:
+        ax.set_xlabel("frequency [Hz]")
+    axes[0, 0].legend(fontsize=8)
+    return fig
+
+
+def _imu_allan_figure(Figure, series: dict[str, dict[str, Any]], taus: Sequence[float]) -> Any:
+    kinds = [k for k, v in series.items() if v["real"]["adev"] is not None and v["synthetic"]["adev"] is not None]
+    fig, axes = _imu_grid(Figure, kinds)
+    for row, kind in zip(axes, kinds, strict=True):
+        title, _, unit, names = _IMU_ROWS[kind]
+        for c, ax in enumerate(row):
+            for side, color, ls in (("real", REAL_COLOR, "o-"), ("synthetic", SYNTH_COLOR, "s--")):
+                ax.loglog(taus, series[kind][side]["adev"][:, c], ls, color=color, ms=4, label=side)
+            ax.set_title(f"{title}, {names[c]}")
+            ax.grid(alpha=0.3, which="both")
+        row[0].set_ylabel(f"Allan deviation [{unit}]")
+    for ax in axes[-1]:
+        ax.set_xlabel("tau [s]")
+    axes[0, 0].legend(fontsize=8)
+    return fig
+
+
+def render_imu_figures(series: dict[str, dict[str, Any]]) -> dict[str, bytes]:
+    """The figures of an IMU-only report (:data:`IMU_FIGURES`) as PNG bytes, from its ``series`` (per error
+    kind, the real and synthetic pooled PSD and Allan deviation); the Allan figure only where both sides
+    have an Allan deviation. Raises PhySynthError without matplotlib."""
+    from .imu_report import ALLAN_TAUS_S
+
+    Figure, Canvas = require_matplotlib()
+    out = {"imu_error_psd": figure_png(_imu_psd_figure(Figure, series), Canvas)}
+    if any(v["real"]["adev"] is not None and v["synthetic"]["adev"] is not None for v in series.values()):
+        out["imu_error_allan"] = figure_png(_imu_allan_figure(Figure, series, ALLAN_TAUS_S), Canvas)
+    return out

@@ -23,6 +23,7 @@ without it, synthetic traces are generated from the scenario (its own path, moti
 
 from __future__ import annotations
 
+import base64
 import datetime as _dt
 import json
 import os
@@ -49,7 +50,7 @@ from ..calibrate.imu_only import body_truth, has_body_imu
 from ..errors import OutputExistsError, PhySynthError
 from ..evaluate.stats import allan_deviation
 from ..generate import compile_scenario, generate_traces
-from ..io.atomic import atomic_write_text
+from ..io.atomic import atomic_write_bytes, atomic_write_text
 from ..models.imu import simulate_body_imu
 from ..records import Imu, Trace
 from ..rng import component_rng, new_root_seed
@@ -204,6 +205,10 @@ class ImuValidationReport:
     extended: dict[str, Any]
     inputs: dict[str, Any] = field(default_factory=dict)
     transfer: dict[str, Any] | None = None
+    series: dict[str, dict[str, Any]] | None = None
+    """Per error kind and side (``real``, ``synthetic``): the pooled Welch PSD (``f`` (F,), ``psd`` (F, 3)) and
+    the Allan deviation at :data:`ALLAN_TAUS_S` (``adev`` (4, 3) or None), which the figures are drawn from;
+    not in report.json (a report read back has no figures)."""
 
     def to_dict(self) -> dict[str, Any]:
         return jsonable({"kind": "imu", "generator": {"name": "physynth", "version": __version__},  # io.safety marker
@@ -226,7 +231,8 @@ def compare_imu(real: Sequence[Trace], synthetic: Sequence[Trace], *, inputs: di
                                inputs={**(inputs or {}), "n_traces": {"real": len(real), "synthetic": len(synthetic)},
                                        "truth_cutoff_hz": CUTOFF_HZ, "physynth_version": __version__,
                                        "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")},
-                               transfer=transfer)
+                               transfer=transfer,
+                               series={k: {"real": rs[k], "synthetic": ss[k]} for k in ERRORS if k in rs and k in ss})
 
 
 def validate_imu(real: Sequence[Trace], *, scenario: Scenario | None = None, synthetic: Sequence[Trace] | None = None,
@@ -258,20 +264,24 @@ def validate_imu(real: Sequence[Trace], *, scenario: Scenario | None = None, syn
     return compare_imu(real, synth, inputs=inputs, transfer=tr_info)
 
 
-def write_imu_report(report: ImuValidationReport, out: str | os.PathLike, *, overwrite: bool = False) -> list[Path]:
+def write_imu_report(report: ImuValidationReport, out: str | os.PathLike, *, overwrite: bool = False,
+                     figures: bool = True) -> list[Path]:
     """report.json, report.md and report.html (inputs, the real data's citation, the error and Allan
-    ratio tables, the transfer) and, when the synthetic side was generated from a scenario, that
-    scenario as ``scenario.yaml``, into folder ``out``; each file written atomically.
+    ratio tables, the transfer, the figures) and, when the synthetic side was generated from a scenario,
+    that scenario as ``scenario.yaml``, into folder ``out``; each file written atomically.
 
-    No figure: the IMU-only comparison keeps per-axis statistics, not the series the UWB report's
-    ``imu_spectrum.png`` and ``allan.png`` are drawn from (docs/validation.md)."""
+    ``figures``: ``imu_error_psd.png`` and ``imu_error_allan.png``, real against synthetic per error kind
+    and axis (:func:`physynth.validate.figures.render_imu_figures`; needs matplotlib), also embedded in
+    report.html. A report without its series (read back from report.json) gets none."""
     import html as _html
 
     from ..io.scenario_file import mapping_to_yaml
+    from .figures import IMU_FIGURES, render_imu_figures
 
     out = Path(out)
     if (out / "report.json").exists() and not overwrite:
         raise OutputExistsError(out, "holds a report")
+    pngs = render_imu_figures(report.series) if figures and report.series else {}  # before touching the folder
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -287,6 +297,12 @@ def write_imu_report(report: ImuValidationReport, out: str | os.PathLike, *, ove
         page += [f"<h2>{_html.escape(title)}</h2><table border=1><tr>"
                  + "".join(f"<th>{_html.escape(h)}</th>" for h in headers) + "</tr>"]
         page += ["<tr>" + "".join(f"<td>{_html.escape(c)}</td>" for c in r) + "</tr>" for r in rows] + ["</table>"]
+    if pngs:
+        md += ["## Figures", ""] + [f"![{name}]({name}.png)\n\n{IMU_FIGURES[name]}\n" for name in pngs]
+        page += ["<h2>Figures</h2>"] + [
+            f'<figure id="fig-{name}"><img alt="{name}" src="data:image/png;base64,'
+            f'{base64.b64encode(png).decode("ascii")}"><figcaption>{_html.escape(IMU_FIGURES[name])}</figcaption>'
+            "</figure>" for name, png in pngs.items()]
     files = {"report.json": json.dumps(d, indent=1), "report.md": "\n".join(md).rstrip() + "\n",
              "report.html": "\n".join(page) + "\n"}
     config = (d["inputs"].get("synthetic") or {}).get("scenario_config")
@@ -294,6 +310,12 @@ def write_imu_report(report: ImuValidationReport, out: str | os.PathLike, *, ove
         files["scenario.yaml"] = ("# scenario the synthetic traces of this report were generated from\n"
                                   + mapping_to_yaml(config))
     written = []
+    for stale in IMU_FIGURES:  # a figure of an earlier report that this one does not have
+        if stale not in pngs and (out / f"{stale}.png").exists():
+            (out / f"{stale}.png").unlink()
+    for name, png in pngs.items():
+        atomic_write_bytes(out / f"{name}.png", png)
+        written.append(out / f"{name}.png")
     for name, text in files.items():
         atomic_write_text(out / name, text)
         written.append(out / name)
