@@ -82,6 +82,14 @@ def white_twin(scn: Scenario, slow_share: float) -> Scenario:
     return scenario_from_dict(d, "white twin")
 
 
+def _scale(fit: dict) -> str:
+    """The fitted sway's scale on its clock: tau on the time clock, length (and turn) on the walker's motion."""
+    if fit.get("tau_s") is not None:
+        return f"tau {fit['tau_s']:.2f} s"
+    turn = f", turn {fit['turn_rad']:.2f} rad" if fit.get("turn_rad") is not None else ""
+    return f"length {fit['length_m']:.1f} m{turn}"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DEFAULT, help="hanyang-uwb folder")
@@ -91,7 +99,7 @@ def main() -> None:
     runs = {r: import_hanyang(args.data / "Dynamic_measurements" / r, crop_to_uwb=True)[0] for r in RUNS}
     head = " / ".join(f"{k}" for k in LAGS)
     print(f"autocorrelation at {head} attempts apart; cross-anchor correlation")
-    print("| left-out run | sway fitted (std, tau) | real | with the sway | white (before) |")
+    print("| left-out run | sway fitted (std; tau, or length and turn) | real | with the sway | white (before) |")
     print("|---|---|---|---|---|")
     for left, real in runs.items():
         res = calibrate([t for r, t in runs.items() if r != left], name="sway-check")
@@ -102,7 +110,7 @@ def main() -> None:
             syn = list(generate_traces(s, args.n, seed=args.seed))
             cells.append(structure(syn, [t.meta.get("uwb_time_offset_s", s.uwb.time_offset_s) for t in syn]))
         text = [" / ".join(f"{x:.2f}" for x in acf) + f"; {cross:.2f}" for acf, cross in cells]
-        sway = f"{fit['std_m']:.3f} m, {fit['tau_s']:.2f} s" if fit["identifiable"] else "none"
+        sway = f"{fit['std_m']:.3f} m, {_scale(fit)}" if fit["identifiable"] else "none"
         print(f"| {left.replace('/Trajectory_A/', ' ')} | {sway} | " + " | ".join(text) + " |")
 
 
