@@ -375,6 +375,36 @@ def _truth_motion(trs: list[Trace], labels: list[str], path_kind: str) -> _Truth
                         motion=motion_p, jitter=jitter, jitter_diag=jitter_diag, rate_hz=rate, deformation=deformation)
 
 
+def _imu_only_parameters(tm: _TruthMotion, imf: Fit, body: Any, n_runs: int) -> dict[str, Any]:
+    """The report's ``parameters`` of an IMU-only calibration: each fitted value with its sample count."""
+    params: dict[str, Any] = {}
+
+    def put(key: str, value: Any, n: int, summary: bool = True) -> None:
+        params[key] = {"value": value, "n_samples": int(n), **({"summary": True} if summary else {})}
+
+    n_truth = int(sum(tr.i_end - tr.i_start + 1 for tr in tm.tracks))
+    put("motion.in_place", tm.in_place is not None, n_truth)
+    if tm.deformation is not None:
+        for key in ("lateral_std_m", "sag_std_m"):
+            put(f"path.perturbation.{key}", getattr(tm.path.perturbation, key), n_runs, summary=False)
+    put("motion.jitter.acc_rms_mps2", tm.jitter.acc_rms_mps2, n_truth, summary=False)  # a table: in the report
+    put("motion.jitter.intensity_log_std", tm.jitter.intensity_log_std, len(tm.tracks))
+    p = imf.params
+    put("imu.white_noise_density_mps2_per_sqrt_hz", list(p.white_noise_density_mps2_per_sqrt_hz), imf.n_samples)
+    put("imu.time_offset_s", p.time_offset_s, imf.n_samples)
+    put("imu.motion_noise.acc_var_gain_mps2", list(p.motion_noise.acc_var_gain_mps2), imf.n_samples)
+    put("imu.vibration.amplitude_mps2", p.vibration.amplitude_mps2, imf.n_samples)
+    if body is not None:
+        b = body.params
+        put("body_imu.accelerometer.noise_density_mps2_per_sqrt_hz", b.accelerometer.noise_density_mps2_per_sqrt_hz,
+            body.n_samples)
+        put("body_imu.gyroscope.noise_density_radps_per_sqrt_hz", b.gyroscope.noise_density_radps_per_sqrt_hz,
+            body.n_samples)
+        put("body_imu.accelerometer.scale_factor_std", b.accelerometer.scale_factor_std, body.n_samples)
+        put("body_imu.gyroscope.scale_factor_std", b.gyroscope.scale_factor_std, body.n_samples)
+    return params
+
+
 def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", path_kind: str = "auto",
                        sources: Sequence[str] | None = None,
                        progress: Callable[[str], None] | None = None) -> Any:
@@ -432,31 +462,7 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
             (imf.params.vibration.amplitude_mps2 * np.asarray(imf.params.vibration.axis_gain)) ** 2))), 5)
         data["body_imu"]["vibration"] = {**imf.params.vibration.model_dump(mode="json"), "axis_gain": [1.0, 1.0, 1.0]}
     scn: Scenario = scenario_from_dict(data, "calibrated IMU-only")
-    params: dict[str, Any] = {}
-
-    def put(key: str, value: Any, n: int, summary: bool = True) -> None:
-        params[key] = {"value": value, "n_samples": int(n), **({"summary": True} if summary else {})}
-
-    n_truth = int(sum(tr.i_end - tr.i_start + 1 for tr in tm.tracks))
-    put("motion.in_place", tm.in_place is not None, n_truth)
-    if tm.deformation is not None:
-        for key in ("lateral_std_m", "sag_std_m"):
-            put(f"path.perturbation.{key}", getattr(tm.path.perturbation, key), len(trs), summary=False)
-    put("motion.jitter.acc_rms_mps2", tm.jitter.acc_rms_mps2, n_truth, summary=False)  # a table: in the report
-    put("motion.jitter.intensity_log_std", tm.jitter.intensity_log_std, len(tm.tracks))
-    p = imf.params
-    put("imu.white_noise_density_mps2_per_sqrt_hz", list(p.white_noise_density_mps2_per_sqrt_hz), imf.n_samples)
-    put("imu.time_offset_s", p.time_offset_s, imf.n_samples)
-    put("imu.motion_noise.acc_var_gain_mps2", list(p.motion_noise.acc_var_gain_mps2), imf.n_samples)
-    put("imu.vibration.amplitude_mps2", p.vibration.amplitude_mps2, imf.n_samples)
-    if body is not None:
-        b = body.params
-        put("body_imu.accelerometer.noise_density_mps2_per_sqrt_hz", b.accelerometer.noise_density_mps2_per_sqrt_hz,
-            body.n_samples)
-        put("body_imu.gyroscope.noise_density_radps_per_sqrt_hz", b.gyroscope.noise_density_radps_per_sqrt_hz,
-            body.n_samples)
-        put("body_imu.accelerometer.scale_factor_std", b.accelerometer.scale_factor_std, body.n_samples)
-        put("body_imu.gyroscope.scale_factor_std", b.gyroscope.scale_factor_std, body.n_samples)
+    params = _imu_only_parameters(tm, imf, body, len(trs))
     report: dict[str, Any] = {
         "physynth_version": __version__,
         "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
