@@ -114,12 +114,24 @@ def _white_noise_cf(n: int, density: np.ndarray, rate_hz: float, *, rng: np.rand
 
 
 def _sample_times(t0_s: float, n: int, rate_hz: float) -> np.ndarray:
-    """``t0_s + numpy.arange(n) / rate_hz``, bit for bit: the integers made as floats (no int64 pass) and
-    t0 added only when non-zero (0 + x is x for the x >= +0 of ``arange(n) / rate_hz``, rate > 0)."""
-    t = np.arange(n, dtype=np.float64)
-    t /= rate_hz
+    """``t0_s + numpy.arange(n) / rate_hz``, bit for bit: a copy of the first n of :func:`_time_grid` (each
+    k / rate_hz is the same division whatever the grid's length), t0 added only when non-zero (0 + x is
+    x for the x >= +0 of ``arange(n) / rate_hz``, rate > 0)."""
+    if n <= 0:
+        return np.zeros(0)
+    t = _time_grid(float(rate_hz), 1 << (n - 1).bit_length())[:n].copy()  # a copy: cheaper than the division
     if t0_s != 0.0:
         t += t0_s
+    return t
+
+
+@lru_cache(maxsize=8)
+def _time_grid(rate_hz: float, n: int) -> np.ndarray:
+    """``numpy.arange(n) / rate_hz`` (the integers made as floats: no int64 pass), read-only, kept for the
+    next traces (n a power of two: a handful of lengths per rate)."""
+    t = np.arange(n, dtype=np.float64)
+    t /= rate_hz
+    t.setflags(write=False)
     return t
 
 
