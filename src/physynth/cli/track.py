@@ -153,7 +153,11 @@ def _config(over: dict[str, Any], quick: bool, scenario: str | None, frame: str 
     an option of :data:`METHOD_OPTIONS` given when none of the methods it sets up runs is refused."""
     from ..studies.tracking import StudyConfig, quick_config
 
-    cfg = quick_config(**over) if quick else StudyConfig(**over)  # bad values first, then options without use
+    def make(settings: dict[str, Any]) -> Any:
+        return quick_config(**settings) if quick else StudyConfig(**settings)
+
+    # bad values first, then options without use (named by their flag), then the ensemble's own settings
+    cfg = make({k: v for k, v in over.items() if k not in ("ensemble", "jobs")})
     given = {**over, **over.get("net", {}), "scenario": scenario, "frame": frame}
     for name, (flag, users) in METHOD_OPTIONS.items():
         if given.get(name) is not None and not set(users) & set(cfg.methods):
@@ -161,7 +165,7 @@ def _config(over: dict[str, Any], quick: bool, scenario: str | None, frame: str 
             raise PhySynthError(f"{flag} only matters for {which}, which --methods leaves out "
                                 f"({','.join(cfg.methods)}): add {'it' if len(users) == 1 else 'one'} or leave {flag} "
                                 "out")
-    return cfg
+    return make(over)
 
 
 def _scenario(name: str | None):
