@@ -310,3 +310,17 @@ def test_inspect_of_a_dataset_without_anchors_shows_no_uwb_nans(tmp_path, capsys
     code, out, err = run(capsys, "inspect", tmp_path / "ds", "-q")
     assert code == 0 and err == "" and "nan" not in out and "imu_std_mps2" in out
     assert "no anchors (IMU only): the UWB metrics do not apply" in out and "uwb_ge1_frac" not in out
+
+
+def test_python_dash_m_physynth_is_the_command(tmp_path):
+    """``python -m physynth`` runs the command line (there was only ``python -m physynth.cli``), workers
+    included: a child process that re-imports the main module must not run the command again."""
+    run = subprocess.run([sys.executable, "-m", "physynth", "--version"], capture_output=True, text=True, check=False)
+    assert run.returncode == 0 and run.stdout.startswith("physynth ")
+    run = subprocess.run([sys.executable, "-m", "physynth", "generate", "-n", "4", "--shard-traces", "2", "-w", "2",
+                          "--seed", "1", "--out", str(tmp_path / "d"), "-q"],
+                         capture_output=True, text=True, check=False)
+    assert run.returncode == 0, run.stderr
+    from physynth.io import read_meta
+
+    assert read_meta(tmp_path / "d")["n_traces"] == 4
