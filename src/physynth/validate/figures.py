@@ -433,43 +433,39 @@ _IMU_ROWS = {"imu": ("ENU accelerometer error", "(m/s²)²/Hz", "m/s²", _ENU),
              "gyro": ("gyroscope error", "(rad/s)²/Hz", "rad/s", _XYZ)}
 
 
-def _imu_grid(Figure, kinds: Sequence[str]) -> tuple[Any, np.ndarray]:
+def _imu_figure(Figure, series: dict[str, dict[str, Any]], kinds: Sequence[str], ylabel: str, per_hz: bool,
+                xlabel: str, draw: Callable[[Any, dict[str, Any], int, str, str], None]) -> Any:
+    """A row per error kind, a column per axis; ``draw(ax, side's series, axis, side name, colour)`` plots one
+    side in one cell. ``ylabel`` gets the row's unit (:data:`_IMU_ROWS`; its PSD unit with ``per_hz``)."""
     fig = Figure(figsize=(13, 3.2 * len(kinds) + 0.4), layout="constrained")
-    return fig, np.asarray(fig.subplots(len(kinds), 3, squeeze=False))
+    axes = np.asarray(fig.subplots(len(kinds), 3, squeeze=False))
+    for row, kind in zip(axes, kinds, strict=True):
+        title, psd_unit, unit, names = _IMU_ROWS[kind]
+        for c, ax in enumerate(row):
+            for side, color in (("real", REAL_COLOR), ("synthetic", SYNTH_COLOR)):
+                draw(ax, series[kind][side], c, side, color)
+            ax.set_title(f"{title}, {names[c]}")
+            ax.grid(alpha=0.3, which="both")
+        row[0].set_ylabel(f"{ylabel} [{psd_unit if per_hz else unit}]")
+    for ax in axes[-1]:
+        ax.set_xlabel(xlabel)
+    axes[0, 0].legend(fontsize=8)
+    return fig
 
 
 def _imu_psd_figure(Figure, series: dict[str, dict[str, Any]]) -> Any:
-    fig, axes = _imu_grid(Figure, list(series))
-    for row, (kind, sides) in zip(axes, series.items(), strict=True):
-        title, unit, _, names = _IMU_ROWS[kind]
-        for c, ax in enumerate(row):
-            for side, color in (("real", REAL_COLOR), ("synthetic", SYNTH_COLOR)):
-                f, p = sides[side]["f"], sides[side]["psd"]
-                ax.loglog(f[1:], p[1:, c], color=color, lw=0.9, label=side)
-            ax.set_title(f"{title}, {names[c]}")
-            ax.grid(alpha=0.3, which="both")
-        row[0].set_ylabel(f"PSD [{unit}]")
-    for ax in axes[-1]:
-        ax.set_xlabel("frequency [Hz]")
-    axes[0, 0].legend(fontsize=8)
-    return fig
+    def draw(ax: Any, sd: dict[str, Any], c: int, side: str, color: str) -> None:
+        ax.loglog(sd["f"][1:], sd["psd"][1:, c], color=color, lw=0.9, label=side)
+
+    return _imu_figure(Figure, series, list(series), "PSD", True, "frequency [Hz]", draw)
 
 
 def _imu_allan_figure(Figure, series: dict[str, dict[str, Any]], taus: Sequence[float]) -> Any:
+    def draw(ax: Any, sd: dict[str, Any], c: int, side: str, color: str) -> None:
+        ax.loglog(taus, sd["adev"][:, c], "o-" if side == "real" else "s--", color=color, ms=4, label=side)
+
     kinds = [k for k, v in series.items() if v["real"]["adev"] is not None and v["synthetic"]["adev"] is not None]
-    fig, axes = _imu_grid(Figure, kinds)
-    for row, kind in zip(axes, kinds, strict=True):
-        title, _, unit, names = _IMU_ROWS[kind]
-        for c, ax in enumerate(row):
-            for side, color, ls in (("real", REAL_COLOR, "o-"), ("synthetic", SYNTH_COLOR, "s--")):
-                ax.loglog(taus, series[kind][side]["adev"][:, c], ls, color=color, ms=4, label=side)
-            ax.set_title(f"{title}, {names[c]}")
-            ax.grid(alpha=0.3, which="both")
-        row[0].set_ylabel(f"Allan deviation [{unit}]")
-    for ax in axes[-1]:
-        ax.set_xlabel("tau [s]")
-    axes[0, 0].legend(fontsize=8)
-    return fig
+    return _imu_figure(Figure, series, kinds, "Allan deviation", False, "tau [s]", draw)
 
 
 def render_imu_figures(series: dict[str, dict[str, Any]]) -> dict[str, bytes]:
