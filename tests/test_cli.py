@@ -301,6 +301,26 @@ def test_bench_warns_when_the_scaling_run_is_too_short(capsys):
     assert err.count("\n") == 1 and err.startswith("physynth: warning: ") and "--n-scaling" in err
 
 
+def test_bench_alternates_the_scaling_runs_and_keeps_the_best():
+    """With ``repeat`` the one-worker and two-worker scaling runs alternate (a slower spell of the machine
+    reaches both sides of the ratio), and the rates reported are the best of each."""
+    pytest.importorskip("distributed")
+    from physynth.bench import run_bench
+    from physynth.io.scenario_file import load_scenario
+
+    phases: list[str] = []
+
+    def progress(message, done=None, total=None):
+        if message.startswith("scaling") and (not phases or phases[-1] != message):
+            phases.append(message)
+
+    res = run_bench(load_scenario("cablecar-descending"), n=1, n_scaling=4, workers=2, repeat=2, progress=progress)
+    assert phases == ["scaling, 1 worker(s)", "scaling, 2 worker(s)"] * 2
+    rates = res["traces_per_s_workers"]
+    assert set(rates) == {"1", "2"} and all(v > 0 for v in rates.values())
+    assert res["scaling_efficiency"] == pytest.approx(rates["2"] / (2 * rates["1"]), rel=0.03, abs=1e-3)  # both rounded
+
+
 def test_inspect_of_a_dataset_without_anchors_shows_no_uwb_nans(tmp_path, capsys):
     from physynth.cli.generate import UWB_METRICS
     from physynth.evaluate.metrics import METRIC_KEYS

@@ -23,7 +23,7 @@ def bench_cmd(
     n_scaling: int = typer.Option(0, "--n-scaling", metavar="N", min=0,
                                   help="Traces of the scaling measurement (0 = ten times -n)."),
     repeat: int = typer.Option(1, "--repeat", metavar="N", min=1,
-                               help="Repetitions of the one-core measurements (best kept)."),
+                               help="Repetitions of every measurement, best kept (the scaling runs alternate)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object (keys traces_per_s_memory, "
                                                        "traces_per_s_parquet, scaling_efficiency, "
                                                        "scaling_caveat, peak_rss_mb)."),
