@@ -75,6 +75,8 @@ BOUNDS: dict[str, Bound] = {
     "uwb.antenna_sway_turn_rad": Bound(0.001, 1e3, "rad", "angle turned over which the antenna sway decorrelates"),
     "uwb.tag_pattern_m[]": Bound(-1.0, 1.0, "m", "tag antenna delay per harmonic of the anchor's bearing"),
     "uwb.tag_nlos_prob": Bound(0.0, 1.0, "-", "fraction of the time the tag side is obstructed (all anchors at once)"),
+    "uwb.late_stamp_prob": _PROB,
+    "uwb.late_stamp_delay_s": Bound(0.0, 10.0, "s", "how much later a late row is stamped than its attempt"),
     "imu.rate_hz": Bound(1.0, 10_000.0, "Hz", "MEMS accelerometer output rates"),
     "imu.white_noise_density_mps2_per_sqrt_hz[]": Bound(0.0, 10.0, "m/s^2/sqrt(Hz)", "accelerometer noise density"),
     "imu.bias_rw_mps2_per_sqrt_s": Bound(0.0, 10.0, "m/s^2/sqrt(s)", "bias random walk"),

@@ -26,7 +26,7 @@ from .models.imu import simulate_body_imu, simulate_imu
 from .models.jitter import add_jitter
 from .models.motion import SpeedShape, compile_speed_shape, draw_run, kinematics
 from .models.path import PathGeometry, PathParams, compile_path, draw_perturbation
-from .models.uwb import ChannelArrays, channel_arrays, simulate_uwb, uwb_record
+from .models.uwb import ChannelArrays, channel_arrays, late_stamps, simulate_uwb, uwb_record
 from .models.variation import draw_site
 from .records import Anchors, Imu, Trace, Truth, Uwb
 from .rng import component_rng, new_root_seed
@@ -145,6 +145,9 @@ def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int)
                                                 rng=component_rng(root_seed, index, "availability"),
                                                 rows_of=tries.anchor_rows)
         uwb = uwb_record(tries, outage=outage, dropped=dropped)
+        if s.uwb.late_stamp_prob > 0:  # stamps delivered late (own stream: nothing else changes)
+            uwb = late_stamps(uwb, s.uwb.late_stamp_prob, s.uwb.late_stamp_delay_s,
+                              rng=component_rng(root_seed, index, "uwb_late"), t_max_s=float(kin.t_s[-1]))
     meta = {
         "source": "physynth",
         "root_seed": int(root_seed),
@@ -205,7 +208,7 @@ def dataset_meta(scn: Scenario, root_seed: int) -> dict:
         "root_seed": int(root_seed),
         "seeding": "trace i uses numpy SeedSequence(root_seed, spawn_key=(i, component)), "
                    "components path=0 motion=1 imu=2 uwb=3 availability=4 attitude=5 imu_body=6 jitter=7 uwb_sway=8 "
-                   "uwb_tag=9 site=100",
+                   "uwb_tag=9 uwb_late=10 site=100",
         "imu_frame": IMU_FRAME,
         "imu_frames": list(scn.imu_frames),
         "provenance": {"generator": f"physynth {__version__}", "pid": os.getpid()},

@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 COMPONENT_ID = {"path": 0, "motion": 1, "imu": 2, "uwb": 3, "availability": 4, "attitude": 5, "imu_body": 6,
-                "jitter": 7, "uwb_sway": 8, "uwb_tag": 9, "site": 100}
+                "jitter": 7, "uwb_sway": 8, "uwb_tag": 9, "uwb_late": 10,
+                "site": 100}
 """``site`` (the scenario's ``variation``: anchor layout and path per trace) is 100, the component the
 tracking study's site variation has always drawn from, so its traces are those of the same section."""
 

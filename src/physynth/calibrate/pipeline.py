@@ -938,6 +938,11 @@ def fit_timing(inp: CalibrationInputs, report: ReportBuilder, progress: Progress
                  note=("clock alignment " + ("of the single run" if len(inp.traces) == 1 else "shared by the runs"))
                  if bf.params["burst_phase_s"] is not None
                  else "several runs: drawn per trace")
+    late = bf.diagnostics["late_stamps"]
+    if late["applied"]:
+        report.param("uwb.late_stamp_prob", late["prob"], n=late["n_rows"],
+                     note=f"{late['n_late']} rows stamped over {late['min_delay_s'] * 1e3:g} ms after their slot")
+        report.param("uwb.late_stamp_delay_s", late["delay_s"], n=late["n_late"], note="median")
     return timing
 
 
@@ -1634,6 +1639,14 @@ def _sway_params(sway: dict[str, Any]) -> dict[str, float]:
     return {"antenna_sway_std_m": rounded(sway["std_m"], 4), "antenna_sway_tau_s": rounded(sway["tau_s"], 3)}
 
 
+def _late_stamp_params(bf: dict[str, Any]) -> dict[str, float]:
+    """The scenario's late-stamp fields (none when calibration kept no late stamps: the defaults)."""
+    if not bf["late_stamp_prob"]:
+        return {}
+    return {"late_stamp_prob": rounded(bf["late_stamp_prob"], 5),
+            "late_stamp_delay_s": rounded(bf["late_stamp_delay_s"], 4)}
+
+
 def build_scenario(name: str, inp: CalibrationInputs, geometry: GeometryFit, timing: TimingFit,
                    ranging: RangingFit, channels: ChannelSet, availability: AvailabilitySet, imu: ImuParams,
                    *, sources: Sequence[str], created_utc: str, report: ReportBuilder) -> Scenario:
@@ -1651,7 +1664,8 @@ def build_scenario(name: str, inp: CalibrationInputs, geometry: GeometryFit, tim
                     run_anchor_slope_std_m=rounded(ranging.run_anchor_slope_std_m, 4),
                     run_slope_ref_range_m=rounded(ranging.run_slope_ref_range_m, 3),
                     **_sway_params(channels.sway), tag_pattern_m=list(ranging.tag_pattern_m),
-                    tag_nlos_prob=rounded(channels.tag_nlos["prob"], 4) if channels.tag_nlos["applied"] else 0.0)
+                    tag_nlos_prob=rounded(channels.tag_nlos["prob"], 4) if channels.tag_nlos["applied"] else 0.0,
+                    **_late_stamp_params(bf))
     report.not_identifiable.append("uwb.zones (NLOS zones along the path are not fitted)")
     provenance = {
         "calibrated_by": f"physynth {__version__}",

@@ -566,6 +566,39 @@ def shared_burst_phase(phases_s: Sequence[float], n_bursts: Sequence[int], perio
             "limit_s": [float(x) for x in limit]}
 
 
+LATE_STAMP_MIN_S = 0.010
+"""A row stamped more than this [s] (one 10 ms grid bin) after its anchor's usual place in its burst is a late
+stamp (:class:`~physynth.models.uwb.UwbParams`, ``late_stamp_prob``): within-burst offsets of the other rows
+spread by a millisecond or two (the slots and their jitter)."""
+LATE_STAMP_MIN_ROWS = 10
+"""Late stamps become a process of the scenario only when at least this many are seen (one stray row is no
+rate: 10 rows give it to about +-30 %)."""
+
+
+def late_stamp_fit(scheds: Sequence[BurstSchedule], traces: Sequence[Trace]) -> dict[str, Any]:
+    """The share of rows stamped late (:data:`LATE_STAMP_MIN_S` past their anchor's median offset in the
+    burst, per run) and their median delay; ``applied`` when at least :data:`LATE_STAMP_MIN_ROWS` are."""
+    late, excess, n_rows, per_run = 0, [], 0, []
+    for s, t in zip(scheds, traces, strict=True):
+        a = t.uwb.anchor
+        med = np.zeros(int(a.max()) + 1 if a.size else 0)
+        for k in np.unique(a):  # a handful of anchors
+            med[k] = np.median(s.within_offset_s[a == k])
+        e = s.within_offset_s - med[a] if a.size else np.zeros(0)
+        is_late = e > LATE_STAMP_MIN_S
+        late += int(np.count_nonzero(is_late))
+        excess.append(e[is_late])
+        n_rows += int(a.size)
+        per_run.append(float(np.mean(is_late)) if a.size else None)
+    excess_all = np.concatenate(excess) if excess else np.zeros(0)
+    applied = late >= LATE_STAMP_MIN_ROWS
+    return {"applied": applied, "prob": late / n_rows if n_rows else 0.0, "n_late": late, "n_rows": n_rows,
+            "delay_s": float(np.median(excess_all)) if excess_all.size else None,
+            "delay_p5_p95_s": [float(np.percentile(excess_all, 5)), float(np.percentile(excess_all, 95))]
+            if excess_all.size else None,
+            "prob_per_run": per_run, "min_delay_s": LATE_STAMP_MIN_S, "min_rows": LATE_STAMP_MIN_ROWS}
+
+
 def fit_burst_schedule(traces: Sequence[Trace]) -> Fit[dict[str, float]]:
     """Burst rate, period jitter, slot spacing and clock phase pooled over runs.
 
@@ -619,9 +652,13 @@ def fit_burst_schedule(traces: Sequence[Trace]) -> Fit[dict[str, float]]:
                                         "n_bursts": int(s.starts_s.size)}
                     for i, (t, s) in enumerate(zip(traces, scheds, strict=True))},
         "n_bursts": int(sum(s.starts_s.size for s in scheds)),
+        "late_stamps": late_stamp_fit(scheds, traces),
     }
+    late = diag["late_stamps"]
     return Fit(params={"burst_rate_hz": 1.0 / period, "burst_jitter_s": jitter, "slot_s": slot_direct,
-                       "burst_phase_s": phase},
+                       "burst_phase_s": phase,
+                       "late_stamp_prob": late["prob"] if late["applied"] else 0.0,
+                       "late_stamp_delay_s": late["delay_s"] if late["applied"] else None},
                n_samples=diag["n_bursts"], diagnostics=diag)
 
 

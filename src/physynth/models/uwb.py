@@ -207,6 +207,14 @@ class UwbParams(ParamsModel):
     range differences, which carry the direction to the tag, stay clean). Each anchor's own episodes
     are thinned so that its NLOS fraction and mode mixture stay what its channel says
     (:func:`channel_arrays`). Draws from its own stream (``uwb_tag``); 0 (the default) draws nothing.
+
+    Late stamps: with ``late_stamp_prob`` > 0 each row's stamp is, with that probability, ``late_stamp_delay_s``
+    later than its attempt (the range is measured in its slot and delivered late by the receiving chain;
+    the rows are then sorted by stamp). The real walks' ranges have ~1 % such rows, stamped ~31 ms after
+    their burst, from every anchor alike, and their residuals follow the range rate times that delay, so
+    the delay is on the stamp, not on the measurement (docs/calibration.md). A late row falls in a later
+    10 ms grid bin than its burst, which the grid availability metrics count. Draws from its own stream
+    (``uwb_late``, :func:`late_stamps`); 0 (the default) draws nothing.
     """
 
     burst_rate_hz: PositiveFloat = 23.0
@@ -231,6 +239,8 @@ class UwbParams(ParamsModel):
     antenna_sway_turn_rad: PositiveFloat = 1.0
     tag_nlos_prob: Probability = 0.0
     tag_pattern_m: Annotated[list[FiniteFloat], Field(min_length=4, max_length=4)] = [0.0, 0.0, 0.0, 0.0]
+    late_stamp_prob: Probability = 0.0
+    late_stamp_delay_s: NonNegFloat = 0.03
 
 
 class AnchorSpec(ParamsModel):
@@ -1172,3 +1182,22 @@ def uwb_record(att: UwbAttempts, *, outage: np.ndarray, dropped: np.ndarray) -> 
     range_m = np.where(reason == np.int8(Reason.OK), att.measured_m, np.nan)  # an enum operand: 7x slower
     return Uwb(t_s=att.t_true_s + att.time_offset_s, anchor=att.anchor, range_m=range_m,
                true_range_m=att.true_range_m, nlos=att.nlos, burst=att.burst, reason=reason, nlos_known=True)
+
+
+def late_stamps(rec: Uwb, prob: float, delay_s: float, *, rng: np.random.Generator, t_max_s: float = np.inf) -> Uwb:
+    """``rec`` with each row's stamp, with probability ``prob``, ``delay_s`` later, rows sorted by stamp
+    (stable: rows of equal stamps keep their order). Every other column travels with its row: the range
+    stays the one measured at the attempt (:class:`UwbParams`, late stamps). A row whose late stamp would
+    pass ``t_max_s`` (the end of the truth) keeps its own, so that every stamp stays inside the truth span
+    and the trace's other draws stay those without late stamps."""
+    n = rec.t_s.shape[0]
+    late = rng.random(n) < prob
+    late &= rec.t_s + delay_s <= t_max_s
+    if not late.any():
+        return rec
+    t = rec.t_s.copy()
+    t[late] += delay_s
+    order = np.argsort(t, kind="stable")
+    return Uwb(t_s=t.take(order), anchor=rec.anchor.take(order), range_m=rec.range_m.take(order),
+               true_range_m=rec.true_range_m.take(order), nlos=rec.nlos.take(order), burst=rec.burst.take(order),
+               reason=rec.reason.take(order), nlos_known=rec.nlos_known)

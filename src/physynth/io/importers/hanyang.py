@@ -51,7 +51,7 @@ TAG_HEIGHT_OFFSET_M = 1.0
 """Height of the tag antenna above the trajectory ``z`` [m] (SOURCE.md; the authors' evaluation)."""
 BURST_GAP_S = 0.05
 """Gap that starts a new ranging burst [s]: half the 10 Hz period. Within a burst the four anchors are
-ranged within ~35 ms (a retried anchor comes ~31 ms after the first), between bursts the gap is
+ranged within ~35 ms (a late-stamped row comes ~31 ms after its slot: `uwb.late_stamp_prob`), between bursts the gap is
 >= ~65 ms."""
 LAG_NOTE = ("UWB field.stamp lags the GNSS trajectory timestamps by about 0.15-0.20 s "
             "(measured on the published runs); not corrected here, calibration estimates it")
