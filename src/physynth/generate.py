@@ -145,8 +145,8 @@ def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int)
                                                 rng=component_rng(root_seed, index, "availability"),
                                                 rows_of=tries.anchor_rows)
         uwb = uwb_record(tries, outage=outage, dropped=dropped)
-        if s.uwb.late_stamp_prob > 0:  # stamps delivered late (own stream: nothing else changes)
-            uwb = late_stamps(uwb, s.uwb.late_stamp_prob, s.uwb.late_stamp_delay_s,
+        if s.uwb.late_burst_prob > 0:  # stamps delivered late (own stream: nothing else changes)
+            uwb = late_stamps(uwb, s.uwb.late_burst_prob, s.uwb.late_burst_delay_s,
                               rng=component_rng(root_seed, index, "uwb_late"), t_max_s=float(kin.t_s[-1]))
     meta = {
         "source": "physynth",

@@ -938,11 +938,12 @@ def fit_timing(inp: CalibrationInputs, report: ReportBuilder, progress: Progress
                  note=("clock alignment " + ("of the single run" if len(inp.traces) == 1 else "shared by the runs"))
                  if bf.params["burst_phase_s"] is not None
                  else "several runs: drawn per trace")
-    late = bf.diagnostics["late_stamps"]
+    late = bf.diagnostics["late_bursts"]
     if late["applied"]:
-        report.param("uwb.late_stamp_prob", late["prob"], n=late["n_rows"],
-                     note=f"{late['n_late']} rows stamped over {late['min_delay_s'] * 1e3:g} ms after their slot")
-        report.param("uwb.late_stamp_delay_s", late["delay_s"], n=late["n_late"], note="median")
+        report.param("uwb.late_burst_prob", late["prob"], n=late["n_bursts_two_or_more"],
+                     note=f"{late['n_late_bursts']} bursts with ranges stamped over {late['min_delay_s'] * 1e3:g} ms "
+                          "after their slot")
+        report.param("uwb.late_burst_delay_s", late["delay_s"], n=late["n_late_rows"], note="median")
     return timing
 
 
@@ -1639,12 +1640,12 @@ def _sway_params(sway: dict[str, Any]) -> dict[str, float]:
     return {"antenna_sway_std_m": rounded(sway["std_m"], 4), "antenna_sway_tau_s": rounded(sway["tau_s"], 3)}
 
 
-def _late_stamp_params(bf: dict[str, Any]) -> dict[str, float]:
+def _late_burst_params(bf: dict[str, Any]) -> dict[str, float]:
     """The scenario's late-stamp fields (none when calibration kept no late stamps: the defaults)."""
-    if not bf["late_stamp_prob"]:
+    if not bf["late_burst_prob"]:
         return {}
-    return {"late_stamp_prob": rounded(bf["late_stamp_prob"], 5),
-            "late_stamp_delay_s": rounded(bf["late_stamp_delay_s"], 4)}
+    return {"late_burst_prob": rounded(bf["late_burst_prob"], 5),
+            "late_burst_delay_s": rounded(bf["late_burst_delay_s"], 4)}
 
 
 def build_scenario(name: str, inp: CalibrationInputs, geometry: GeometryFit, timing: TimingFit,
@@ -1665,7 +1666,7 @@ def build_scenario(name: str, inp: CalibrationInputs, geometry: GeometryFit, tim
                     run_slope_ref_range_m=rounded(ranging.run_slope_ref_range_m, 3),
                     **_sway_params(channels.sway), tag_pattern_m=list(ranging.tag_pattern_m),
                     tag_nlos_prob=rounded(channels.tag_nlos["prob"], 4) if channels.tag_nlos["applied"] else 0.0,
-                    **_late_stamp_params(bf))
+                    **_late_burst_params(bf))
     report.not_identifiable.append("uwb.zones (NLOS zones along the path are not fitted)")
     provenance = {
         "calibrated_by": f"physynth {__version__}",

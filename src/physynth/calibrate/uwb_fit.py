@@ -567,36 +567,47 @@ def shared_burst_phase(phases_s: Sequence[float], n_bursts: Sequence[int], perio
 
 
 LATE_STAMP_MIN_S = 0.010
-"""A row stamped more than this [s] (one 10 ms grid bin) after its anchor's usual place in its burst is a late
-stamp (:class:`~physynth.models.uwb.UwbParams`, ``late_stamp_prob``): within-burst offsets of the other rows
-spread by a millisecond or two (the slots and their jitter)."""
-LATE_STAMP_MIN_ROWS = 10
-"""Late stamps become a process of the scenario only when at least this many are seen (one stray row is no
-rate: 10 rows give it to about +-30 %)."""
+"""A delivered range stamped more than this [s] (one 10 ms grid bin) after its anchor's usual place in its
+burst is a late stamp (:class:`~physynth.models.uwb.UwbParams`, ``late_burst_prob``): within-burst offsets
+of the other rows spread by a millisecond or two (the slots and their jitter)."""
+LATE_BURST_MIN = 10
+"""Late bursts become a process of the scenario only when at least this many are seen (one stray burst is
+no rate: 10 give it to about +-30 %)."""
 
 
-def late_stamp_fit(scheds: Sequence[BurstSchedule], traces: Sequence[Trace]) -> dict[str, Any]:
-    """The share of rows stamped late (:data:`LATE_STAMP_MIN_S` past their anchor's median offset in the
-    burst, per run) and their median delay; ``applied`` when at least :data:`LATE_STAMP_MIN_ROWS` are."""
-    late, excess, n_rows, per_run = 0, [], 0, []
+def late_burst_fit(scheds: Sequence[BurstSchedule], traces: Sequence[Trace]) -> dict[str, Any]:
+    """Late bursts: those with a delivered range stamped late (:data:`LATE_STAMP_MIN_S` past its anchor's
+    median offset in the burst, per run), as a share of the bursts with two delivered ranges or more (a
+    burst's first range is never late, so only those can show it); the late rows' median delay; and
+    how many late bursts have every range but the first late (the generator's late burst).
+    ``applied`` when at least :data:`LATE_BURST_MIN` late bursts are seen."""
+    n_multi, n_late_b, n_rest, excess, per_run, n_late = 0, 0, 0, [], [], 0
     for s, t in zip(scheds, traces, strict=True):
-        a = t.uwb.anchor
+        ok = t.uwb.valid
+        a, w = t.uwb.anchor[ok], s.within_offset_s[ok]
+        _, b = np.unique(burst_ids(t)[ok], return_inverse=True)
         med = np.zeros(int(a.max()) + 1 if a.size else 0)
         for k in np.unique(a):  # a handful of anchors
-            med[k] = np.median(s.within_offset_s[a == k])
-        e = s.within_offset_s - med[a] if a.size else np.zeros(0)
-        is_late = e > LATE_STAMP_MIN_S
-        late += int(np.count_nonzero(is_late))
-        excess.append(e[is_late])
-        n_rows += int(a.size)
-        per_run.append(float(np.mean(is_late)) if a.size else None)
-    excess_all = np.concatenate(excess) if excess else np.zeros(0)
-    applied = late >= LATE_STAMP_MIN_ROWS
-    return {"applied": applied, "prob": late / n_rows if n_rows else 0.0, "n_late": late, "n_rows": n_rows,
-            "delay_s": float(np.median(excess_all)) if excess_all.size else None,
-            "delay_p5_p95_s": [float(np.percentile(excess_all, 5)), float(np.percentile(excess_all, 95))]
-            if excess_all.size else None,
-            "prob_per_run": per_run, "min_delay_s": LATE_STAMP_MIN_S, "min_rows": LATE_STAMP_MIN_ROWS}
+            med[k] = np.median(w[a == k])
+        e = w - med[a] if a.size else np.zeros(0)
+        late = e > LATE_STAMP_MIN_S
+        rows = np.bincount(b, minlength=int(b.max()) + 1 if b.size else 0)
+        late_rows = np.bincount(b[late], minlength=rows.size)
+        multi = int(np.count_nonzero(rows >= 2))
+        hit = late_rows > 0
+        n_multi += multi
+        n_late_b += int(np.count_nonzero(hit))
+        n_rest += int(np.count_nonzero(hit & (late_rows == rows - 1)))
+        n_late += int(np.count_nonzero(late))
+        excess.append(e[late])
+        per_run.append(float(np.count_nonzero(hit) / multi) if multi else None)
+    ex = np.concatenate(excess) if excess else np.zeros(0)
+    return {"applied": n_late_b >= LATE_BURST_MIN, "prob": n_late_b / n_multi if n_multi else 0.0,
+            "n_late_bursts": n_late_b, "n_bursts_two_or_more": n_multi, "n_late_rows": n_late,
+            "all_but_first_late_frac": n_rest / n_late_b if n_late_b else None,
+            "delay_s": float(np.median(ex)) if ex.size else None,
+            "delay_p5_p95_s": [float(np.percentile(ex, 5)), float(np.percentile(ex, 95))] if ex.size else None,
+            "prob_per_run": per_run, "min_delay_s": LATE_STAMP_MIN_S, "min_bursts": LATE_BURST_MIN}
 
 
 def fit_burst_schedule(traces: Sequence[Trace]) -> Fit[dict[str, float]]:
@@ -652,13 +663,13 @@ def fit_burst_schedule(traces: Sequence[Trace]) -> Fit[dict[str, float]]:
                                         "n_bursts": int(s.starts_s.size)}
                     for i, (t, s) in enumerate(zip(traces, scheds, strict=True))},
         "n_bursts": int(sum(s.starts_s.size for s in scheds)),
-        "late_stamps": late_stamp_fit(scheds, traces),
+        "late_bursts": late_burst_fit(scheds, traces),
     }
-    late = diag["late_stamps"]
+    late = diag["late_bursts"]
     return Fit(params={"burst_rate_hz": 1.0 / period, "burst_jitter_s": jitter, "slot_s": slot_direct,
                        "burst_phase_s": phase,
-                       "late_stamp_prob": late["prob"] if late["applied"] else 0.0,
-                       "late_stamp_delay_s": late["delay_s"] if late["applied"] else None},
+                       "late_burst_prob": late["prob"] if late["applied"] else 0.0,
+                       "late_burst_delay_s": late["delay_s"] if late["applied"] else None},
                n_samples=diag["n_bursts"], diagnostics=diag)
 
 

@@ -208,13 +208,14 @@ class UwbParams(ParamsModel):
     are thinned so that its NLOS fraction and mode mixture stay what its channel says
     (:func:`channel_arrays`). Draws from its own stream (``uwb_tag``); 0 (the default) draws nothing.
 
-    Late stamps: with ``late_stamp_prob`` > 0 each row's stamp is, with that probability, ``late_stamp_delay_s``
-    later than its attempt (the range is measured in its slot and delivered late by the receiving chain;
-    the rows are then sorted by stamp). The real walks' ranges have ~1 % such rows, stamped ~31 ms after
-    their burst, from every anchor alike, and their residuals follow the range rate times that delay, so
-    the delay is on the stamp, not on the measurement (docs/calibration.md). A late row falls in a later
-    10 ms grid bin than its burst, which the grid availability metrics count. Draws from its own stream
-    (``uwb_late``, :func:`late_stamps`); 0 (the default) draws nothing.
+    Late stamps: with ``late_burst_prob`` > 0 each burst is, with that probability, a late one: every
+    range it delivers after its first is stamped ``late_burst_delay_s`` later than its attempt (measured
+    in its slot, delivered late by the receiving chain; the rows are then sorted by stamp). About 1.5 %
+    of the real walks' bursts are such, their rows after the first stamped ~31 ms late, from every anchor
+    alike, and the late rows' residuals follow the range rate times that delay, so the delay is on the
+    stamp, not on the measurement (docs/calibration.md). A late row falls in a later 10 ms grid bin than
+    its burst, which the grid availability metrics count. Draws from its own stream (``uwb_late``,
+    :func:`late_stamps`); 0 (the default) draws nothing.
     """
 
     burst_rate_hz: PositiveFloat = 23.0
@@ -239,8 +240,8 @@ class UwbParams(ParamsModel):
     antenna_sway_turn_rad: PositiveFloat = 1.0
     tag_nlos_prob: Probability = 0.0
     tag_pattern_m: Annotated[list[FiniteFloat], Field(min_length=4, max_length=4)] = [0.0, 0.0, 0.0, 0.0]
-    late_stamp_prob: Probability = 0.0
-    late_stamp_delay_s: NonNegFloat = 0.03
+    late_burst_prob: Probability = 0.0
+    late_burst_delay_s: NonNegFloat = 0.03
 
 
 class AnchorSpec(ParamsModel):
@@ -1185,18 +1186,24 @@ def uwb_record(att: UwbAttempts, *, outage: np.ndarray, dropped: np.ndarray) -> 
 
 
 def late_stamps(rec: Uwb, prob: float, delay_s: float, *, rng: np.random.Generator, t_max_s: float = np.inf) -> Uwb:
-    """``rec`` with each row's stamp, with probability ``prob``, ``delay_s`` later, rows sorted by stamp
-    (stable: rows of equal stamps keep their order). Every other column travels with its row: the range
-    stays the one measured at the attempt (:class:`UwbParams`, late stamps). A row whose late stamp would
-    pass ``t_max_s`` (the end of the truth) keeps its own, so that every stamp stays inside the truth span
-    and the trace's other draws stay those without late stamps."""
-    n = rec.t_s.shape[0]
-    late = rng.random(n) < prob
-    late &= rec.t_s + delay_s <= t_max_s
-    if not late.any():
+    """``rec`` (rows in burst order, as :func:`uwb_record` writes them) with each burst, with probability
+    ``prob``, a late one: its delivered ranges after the first stamped ``delay_s`` later, then every row
+    sorted by stamp (stable). Every other column travels with its row: a range stays the one measured at
+    its attempt (:class:`UwbParams`, late stamps). A row whose late stamp would pass ``t_max_s`` (the end
+    of the truth) keeps its own, so that every stamp stays inside the truth span; one draw per burst from
+    ``rng``, so the trace's other draws stay those without late stamps."""
+    if rec.t_s.shape[0] == 0:
+        return rec
+    late_burst = rng.random(int(rec.burst.max()) + 1) < prob
+    rows = np.flatnonzero((rec.reason == np.int8(Reason.OK)) & late_burst.take(rec.burst))
+    if rows.size:
+        b = rec.burst.take(rows)
+        rows = rows[1:][b[1:] == b[:-1]]  # each late burst's first delivered range keeps its stamp
+        rows = rows[rec.t_s.take(rows) + delay_s <= t_max_s]
+    if rows.size == 0:
         return rec
     t = rec.t_s.copy()
-    t[late] += delay_s
+    t[rows] += delay_s
     order = np.argsort(t, kind="stable")
     return Uwb(t_s=t.take(order), anchor=rec.anchor.take(order), range_m=rec.range_m.take(order),
                true_range_m=rec.true_range_m.take(order), nlos=rec.nlos.take(order), burst=rec.burst.take(order),

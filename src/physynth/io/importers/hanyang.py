@@ -51,8 +51,8 @@ TAG_HEIGHT_OFFSET_M = 1.0
 """Height of the tag antenna above the trajectory ``z`` [m] (SOURCE.md; the authors' evaluation)."""
 BURST_GAP_S = 0.05
 """Gap that starts a new ranging burst [s]: half the 10 Hz period. Within a burst the four anchors are
-ranged within ~35 ms (a late-stamped row comes ~31 ms after its slot: `uwb.late_stamp_prob`), between bursts the gap is
->= ~65 ms."""
+ranged within ~35 ms (the late rows of a late burst ~31 ms after their slot: `uwb.late_burst_prob`),
+between bursts the gap is >= ~65 ms."""
 LAG_NOTE = ("UWB field.stamp lags the GNSS trajectory timestamps by about 0.15-0.20 s "
             "(measured on the published runs); not corrected here, calibration estimates it")
 CITATION = ("Hanyang University ADIP lab, Comprehensive outdoor UWB dataset, DOI 10.5281/zenodo.15226105 "
