@@ -315,10 +315,14 @@ def test_bench_alternates_the_scaling_runs_and_keeps_the_best():
             phases.append(message)
 
     res = run_bench(load_scenario("cablecar-descending"), n=1, n_scaling=4, workers=2, repeat=2, progress=progress)
-    assert phases == ["scaling, 1 worker(s)", "scaling, 2 worker(s)"] * 2
+    assert phases == ["scaling, 1 worker(s)", "scaling, 2 worker(s)"] * 2  # the start-stop run reports nothing
     rates = res["traces_per_s_workers"]
     assert set(rates) == {"1", "2"} and all(v > 0 for v in rates.values())
     assert res["scaling_efficiency"] == pytest.approx(rates["2"] / (2 * rates["1"]), rel=0.03, abs=1e-3)  # both rounded
+    # the steady state takes the cluster's start and stop off the run with workers: never below end to end
+    assert res["cluster_start_stop_s"] > 0
+    steady = res["scaling_efficiency_steady"]
+    assert steady is None or steady >= res["scaling_efficiency"] - 1e-3
 
 
 def test_inspect_of_a_dataset_without_anchors_shows_no_uwb_nans(tmp_path, capsys):

@@ -26,7 +26,8 @@ def bench_cmd(
                                help="Repetitions of every measurement, best kept (the scaling runs alternate)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object (keys traces_per_s_memory, "
                                                        "traces_per_s_parquet, scaling_efficiency, "
-                                                       "scaling_caveat, peak_rss_mb)."),
+                                                       "scaling_efficiency_steady, scaling_caveat, "
+                                                       "peak_rss_mb)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
     """Measure generation speed: traces/s in memory and to Parquet on one core, scaling, peak memory."""
@@ -52,6 +53,8 @@ def bench_cmd(
         ("on disk", f"{res['mb_per_trace_on_disk']:.2f} MB/trace"),
         (f"scaling, {m['workers']} worker{'s' if m['workers'] != 1 else ''}",
          "-" if eff is None else f"{100 * eff:.0f} %"),
+        ("  without the cluster's start", "-" if res["scaling_efficiency_steady"] is None
+         else f"{100 * res['scaling_efficiency_steady']:.0f} % (start and stop {res['cluster_start_stop_s']:.1f} s)"),
         ("peak memory", f"{res['peak_rss_mb']:.0f} MB"),
     ]
     typer.echo(format_table(("measure", "value"), rows))
