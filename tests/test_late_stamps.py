@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from physynth.calibrate import calibrate, fit_burst_schedule
-from physynth.calibrate.uwb_fit import LATE_BURST_MIN, LATE_STAMP_MIN_S
+from physynth.calibrate.uwb_fit import LATE_BURST_MIN, LATE_STAMP_MIN_S, burst_schedule
 from physynth.generate import generate_trace, generate_traces
 from physynth.io.scenario_file import load_scenario
 from physynth.scenario import scenario_from_dict, scenario_to_dict
@@ -74,6 +74,32 @@ def test_calibration_recovers_late_bursts_and_finds_none_where_there_are_none():
     # a delay under a grid bin is no late stamp
     short = fit_burst_schedule(list(generate_traces(_scenario(prob, 0.5 * LATE_STAMP_MIN_S), 2, seed=5)))
     assert short.diagnostics["late_bursts"]["n_late_bursts"] < LATE_BURST_MIN
+
+
+def test_a_random_ranging_order_at_wide_slots_is_no_late_stamp():
+    """Anchors ranged in a random order 12 ms apart put rows up to 36 ms from their anchor's median place
+    in the burst: more than a grid bin, but no late stamp (the threshold is also five slots)."""
+    d = scenario_to_dict(_scenario(0.0))
+    d["uwb"]["slot_s"] = 0.012
+    traces = []
+    rng = np.random.default_rng(3)
+    for tr in generate_traces(scenario_from_dict(d, "wide"), 2, seed=5):
+        u = tr.uwb
+        t = u.t_s.copy()
+        for b in np.unique(u.burst):  # the burst's slot times dealt to its rows in a random order
+            rows = np.flatnonzero(u.burst == b)
+            t[rows] = t[rows][rng.permutation(rows.size)]
+        o = np.argsort(t, kind="stable")
+        uwb = type(u)(t_s=t[o], anchor=u.anchor[o], range_m=u.range_m[o], true_range_m=u.true_range_m[o],
+                      nlos=u.nlos[o], burst=u.burst[o], reason=u.reason[o], nlos_known=True)
+        traces.append(type(tr)(truth=tr.truth, imu=tr.imu, uwb=uwb, anchors=tr.anchors, meta=tr.meta))
+    fit = fit_burst_schedule(traces)
+    late = fit.diagnostics["late_bursts"]
+    assert late["n_late_bursts"] == 0 and not late["applied"], late
+    assert late["min_delay_s"] == pytest.approx(5 * fit.params["slot_s"], rel=0.05)
+    # the rule alone (one grid bin) would have called many of them late
+    e = np.concatenate([burst_schedule(t).within_offset_s for t in traces])
+    assert np.count_nonzero(e - np.median(e) > LATE_STAMP_MIN_S) > 100
 
 
 @pytest.mark.skipif(not HANYANG.is_dir(), reason="needs ../shared/data/hanyang-uwb")

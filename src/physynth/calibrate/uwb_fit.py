@@ -570,17 +570,22 @@ LATE_STAMP_MIN_S = 0.010
 """A delivered range stamped more than this [s] (one 10 ms grid bin) after its anchor's usual place in its
 burst is a late stamp (:class:`~physynth.models.uwb.UwbParams`, ``late_burst_prob``): within-burst offsets
 of the other rows spread by a millisecond or two (the slots and their jitter)."""
+LATE_STAMP_SLOTS = 5.0
+"""... and more than this many slots (``slot_s``, the median spacing of a burst's rows): a system that
+ranges its anchors in a random order at wide slots moves a row by several slots from its anchor's
+median place without any late stamp (the Hanyang tag ranges in a random order at ~1 ms slots)."""
 LATE_BURST_MIN = 10
 """Late bursts become a process of the scenario only when at least this many are seen (one stray burst is
 no rate: 10 give it to about +-30 %)."""
 
 
-def late_burst_fit(scheds: Sequence[BurstSchedule], traces: Sequence[Trace]) -> dict[str, Any]:
-    """Late bursts: those with a delivered range stamped late (:data:`LATE_STAMP_MIN_S` past its anchor's
-    median offset in the burst, per run), as a share of the bursts with two delivered ranges or more (a
-    burst's first range is never late, so only those can show it); the late rows' median delay; and
-    how many late bursts have every range but the first late (the generator's late burst).
-    ``applied`` when at least :data:`LATE_BURST_MIN` late bursts are seen."""
+def late_burst_fit(scheds: Sequence[BurstSchedule], traces: Sequence[Trace], slot_s: float = 0.0) -> dict[str, Any]:
+    """Late bursts: those with a delivered range stamped late (:data:`LATE_STAMP_MIN_S` and
+    :data:`LATE_STAMP_SLOTS` slots past its anchor's median offset in the burst, per run), as a share of
+    the bursts with two delivered ranges or more (a burst's first range is never late, so only those
+    can show it); the late rows' median delay; and how many late bursts have every range but the first
+    late (the generator's late burst). ``applied`` when at least :data:`LATE_BURST_MIN` late bursts are seen."""
+    threshold = max(LATE_STAMP_MIN_S, LATE_STAMP_SLOTS * slot_s)
     n_multi, n_late_b, n_rest, excess, per_run, n_late = 0, 0, 0, [], [], 0
     for s, t in zip(scheds, traces, strict=True):
         ok = t.uwb.valid
@@ -590,7 +595,7 @@ def late_burst_fit(scheds: Sequence[BurstSchedule], traces: Sequence[Trace]) -> 
         for k in np.unique(a):  # a handful of anchors
             med[k] = np.median(w[a == k])
         e = w - med[a] if a.size else np.zeros(0)
-        late = e > LATE_STAMP_MIN_S
+        late = e > threshold
         rows = np.bincount(b, minlength=int(b.max()) + 1 if b.size else 0)
         late_rows = np.bincount(b[late], minlength=rows.size)
         multi = int(np.count_nonzero(rows >= 2))
@@ -607,7 +612,7 @@ def late_burst_fit(scheds: Sequence[BurstSchedule], traces: Sequence[Trace]) -> 
             "all_but_first_late_frac": n_rest / n_late_b if n_late_b else None,
             "delay_s": float(np.median(ex)) if ex.size else None,
             "delay_p5_p95_s": [float(np.percentile(ex, 5)), float(np.percentile(ex, 95))] if ex.size else None,
-            "prob_per_run": per_run, "min_delay_s": LATE_STAMP_MIN_S, "min_bursts": LATE_BURST_MIN}
+            "prob_per_run": per_run, "min_delay_s": threshold, "min_bursts": LATE_BURST_MIN}
 
 
 def fit_burst_schedule(traces: Sequence[Trace]) -> Fit[dict[str, float]]:
@@ -663,7 +668,7 @@ def fit_burst_schedule(traces: Sequence[Trace]) -> Fit[dict[str, float]]:
                                         "n_bursts": int(s.starts_s.size)}
                     for i, (t, s) in enumerate(zip(traces, scheds, strict=True))},
         "n_bursts": int(sum(s.starts_s.size for s in scheds)),
-        "late_bursts": late_burst_fit(scheds, traces),
+        "late_bursts": late_burst_fit(scheds, traces, slot_direct),
     }
     late = diag["late_bursts"]
     return Fit(params={"burst_rate_hz": 1.0 / period, "burst_jitter_s": jitter, "slot_s": slot_direct,
