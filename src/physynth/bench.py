@@ -33,7 +33,7 @@ from .generate import compile_scenario, generate_trace
 from .progress import ProgressCallback, no_progress
 from .scenario import Scenario
 
-SCALING_MIN_RUN_S = 10.0
+SCALING_MIN_RUN_S = 20.0
 """A scaling run whose one-worker half takes less than this [s] measures mostly the start of the worker
 processes (a few CPU seconds each: docs/scale.md): its ``scaling_efficiency`` comes with a caveat."""
 
@@ -62,7 +62,8 @@ def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int =
     n : int
         Traces per one-core measurement.
     n_scaling : int
-        Traces of the scaling measurement (0: ten times ``n``). Starting the cluster's worker processes
+        Traces of the scaling measurement (0: twenty times ``n``, a run of 20 s or more on one worker of
+        this machine). Starting the cluster's worker processes
         costs a few CPU seconds once (each imports NumPy, pyarrow and Dask), so small runs understate
         the scaling of long ones.
     workers : int
@@ -101,7 +102,7 @@ def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int =
         out.update(traces_per_s_memory=round(best_mem, 1), traces_per_s_parquet=round(best_pq, 1),
                    mb_per_trace_on_disk=round(size / n / 1e6, 3))
         if workers > 1:
-            out.update(_scaling(scn, n_scaling or 10 * n, workers, repeat, tmp, progress))
+            out.update(_scaling(scn, n_scaling or 20 * n, workers, repeat, tmp, progress))
         else:
             out.update(scaling_efficiency=None, scaling_efficiency_steady=None, scaling_caveat=None)
     finally:

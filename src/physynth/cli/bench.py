@@ -21,7 +21,7 @@ def bench_cmd(
     workers: int = typer.Option(0, "--workers", "-w", metavar="N", min=0,
                                 help="Workers of the scaling measurement (0 = all cores, 1 = skip it)."),
     n_scaling: int = typer.Option(0, "--n-scaling", metavar="N", min=0,
-                                  help="Traces of the scaling measurement (0 = ten times -n)."),
+                                  help="Traces of the scaling measurement (0 = twenty times -n)."),
     repeat: int = typer.Option(1, "--repeat", metavar="N", min=1,
                                help="Repetitions of every measurement, best kept (the scaling runs alternate)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object (keys traces_per_s_memory, "
