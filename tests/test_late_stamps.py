@@ -13,6 +13,7 @@ from physynth.calibrate import calibrate, fit_burst_schedule
 from physynth.calibrate.uwb_fit import LATE_BURST_MIN, LATE_STAMP_MIN_S, burst_schedule
 from physynth.generate import generate_trace, generate_traces
 from physynth.io.scenario_file import load_scenario
+from physynth.models.uwb import late_stamps
 from physynth.scenario import scenario_from_dict, scenario_to_dict
 
 HANYANG = Path(__file__).resolve().parents[2] / "shared" / "data" / "hanyang-uwb"
@@ -76,11 +77,17 @@ def test_calibration_recovers_late_bursts_and_finds_none_where_there_are_none():
     assert short.diagnostics["late_bursts"]["n_late_bursts"] < LATE_BURST_MIN
 
 
-def test_a_random_ranging_order_at_wide_slots_is_no_late_stamp():
-    """Anchors ranged in a random order 12 ms apart put rows up to 36 ms from their anchor's median place
-    in the burst: more than a grid bin, but no late stamp (the threshold is also five slots)."""
-    d = scenario_to_dict(_scenario(0.0))
-    d["uwb"]["slot_s"] = 0.012
+@pytest.mark.parametrize(("preset", "slot_s", "extra", "naive_slots"),
+                         [("walk-hanyang", 0.012, 0, 0), ("cablecar-descending", 0.0025, 8, 5)])
+def test_a_random_ranging_order_at_wide_slots_is_no_late_stamp(preset, slot_s, extra, naive_slots):
+    """Anchors ranged in a random order put rows up to one slot less than there are anchors from their
+    place in the burst (four anchors 12 ms apart: 36 ms; fourteen 2.5 ms apart: 32.5 ms): more than a grid
+    bin, and for fourteen anchors more than five slots from their median place, but no late stamp (the
+    threshold is also five slots, or one per anchor if more)."""
+    d = scenario_to_dict(load_scenario(preset))
+    d["uwb"].update(slot_s=slot_s, late_burst_prob=0.0)
+    d["anchors"] += [{**a, "id": f"X{i}", "pos_enu_m": [a["pos_enu_m"][0] + 5.0, *a["pos_enu_m"][1:]]}
+                     for i, a in enumerate(d["anchors"][:extra])]
     traces = []
     rng = np.random.default_rng(3)
     for tr in generate_traces(scenario_from_dict(d, "wide"), 2, seed=5):
@@ -96,10 +103,20 @@ def test_a_random_ranging_order_at_wide_slots_is_no_late_stamp():
     fit = fit_burst_schedule(traces)
     late = fit.diagnostics["late_bursts"]
     assert late["n_late_bursts"] == 0 and not late["applied"], late
-    assert late["min_delay_s"] == pytest.approx(5 * fit.params["slot_s"], rel=0.05)
-    # the rule alone (one grid bin) would have called many of them late
+    n_anchors = len(traces[0].anchors)
+    assert late["min_delay_s"] == pytest.approx(max(5, n_anchors) * fit.params["slot_s"], rel=0.05)
+    # one grid bin alone (four anchors), or with five slots (fourteen), would have called many of them late
     e = np.concatenate([burst_schedule(t).within_offset_s for t in traces])
-    assert np.count_nonzero(e - np.median(e) > LATE_STAMP_MIN_S) > 100
+    assert np.count_nonzero(e - np.median(e) > max(LATE_STAMP_MIN_S, naive_slots * slot_s)) > 100
+
+
+def test_late_stamps_refuse_rows_out_of_burst_order():
+    rec = generate_trace(_scenario(0.0), 0, 1).uwb
+    rng = np.random.default_rng(0)
+    no_ids = type(rec)(t_s=rec.t_s, anchor=rec.anchor, range_m=rec.range_m)  # burst -1: a real record
+    with pytest.raises(ValueError, match="burst order"):
+        late_stamps(no_ids, 0.5, DELAY_S, rng=rng)
+    assert late_stamps(rec, 0.0, DELAY_S, rng=rng) is rec  # none late: the record itself
 
 
 @pytest.mark.skipif(not HANYANG.is_dir(), reason="needs ../shared/data/hanyang-uwb")

@@ -33,17 +33,19 @@ from .generate import compile_scenario, generate_trace
 from .progress import ProgressCallback, no_progress
 from .scenario import Scenario
 
-SCALING_MIN_RUN_S = 20.0
-"""A scaling run whose one-worker half takes less than this [s] measures mostly the start of the worker
-processes (a few CPU seconds each: docs/scale.md): its ``scaling_efficiency`` comes with a caveat."""
+SCALING_MIN_RUN_S = 15.0
+"""A scaling run whose one-worker half takes less than this [s] is short enough for the start and stop of
+the worker processes (0.7-1 s for two here, 2026-11-27: docs/scale.md) to weigh in: its
+``scaling_efficiency`` and ``scaling_efficiency_steady`` come with a caveat."""
 
 
 def scaling_caveat(one_worker_s: float, workers: int) -> str | None:
     """The caveat of a scaling run whose one-worker half took ``one_worker_s`` [s] (None when long enough)."""
     if one_worker_s >= SCALING_MIN_RUN_S:
         return None
-    return (f"scaling_efficiency comes from a {one_worker_s:.2g} s run on one worker (under {SCALING_MIN_RUN_S:g} "
-            f"s), where starting the {workers} worker processes weighs in: longer runs scale better")
+    return (f"scaling_efficiency and scaling_efficiency_steady come from a {one_worker_s:.2g} s run on one worker "
+            f"(under {SCALING_MIN_RUN_S:g} s), where starting the {workers} worker processes weighs in: longer runs "
+            "scale better")
 
 
 def peak_rss_mb() -> float:
@@ -62,10 +64,9 @@ def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int =
     n : int
         Traces per one-core measurement.
     n_scaling : int
-        Traces of the scaling measurement (0: twenty times ``n``, a run of 20 s or more on one worker of
-        this machine). Starting the cluster's worker processes
-        costs a few CPU seconds once (each imports NumPy, pyarrow and Dask), so small runs understate
-        the scaling of long ones.
+        Traces of the scaling measurement (0: twenty times ``n``, a run of about 20 s on one worker of
+        this machine). Starting the cluster's worker processes costs about a second once (each imports
+        NumPy, pyarrow and Dask), so small runs understate the scaling of long ones.
     workers : int
         Workers of the scaling measurement (0: all cores; 1 skips it).
     repeat : int
@@ -73,9 +74,14 @@ def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int =
         (one worker, ``workers``, one worker, ...), so that the machine's slower and faster spells
         (10-30 % on a shared 2-core machine, docs/scale.md) reach both sides of the ratio alike.
     """
+    from .errors import ArgumentError
     from .parallel import available_cores
     from .workflows import generate_dataset
 
+    for name, value, least in (("n", n, 1), ("repeat", repeat, 1), ("n_scaling", n_scaling, 0),
+                               ("workers", workers, 0)):
+        if not isinstance(value, int) or isinstance(value, bool) or value < least:
+            raise ArgumentError(f"{name} must be an integer of at least {least}, got {value!r}")
     cores = available_cores()
     workers = workers or cores
     cs = compile_scenario(scn)
@@ -104,7 +110,8 @@ def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int =
         if workers > 1:
             out.update(_scaling(scn, n_scaling or 20 * n, workers, repeat, tmp, progress))
         else:
-            out.update(scaling_efficiency=None, scaling_efficiency_steady=None, scaling_caveat=None)
+            out.update(traces_per_s_workers=None, scaling_efficiency=None, cluster_start_stop_s=None,
+                       scaling_efficiency_steady=None, scaling_caveat=None)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     out["peak_rss_mb"] = round(peak_rss_mb(), 1)

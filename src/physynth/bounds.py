@@ -220,10 +220,10 @@ MIN_TRUTH_SAMPLES = 10
 _WORK_BYTES = {"truth": 150, "imu": 80, "uwb": 100}
 _TABLE_BYTES = {"truth": 64, "imu": 40, "uwb": 60}
 ROW_GROUP_TRACES = 64
-# bytes per row on disk, as the Parquet writer stores them, with ~30 % to spare: measured 34-38 B per truth
-# row, 12 B per IMU row and triad (ENU, body accelerometer, body gyroscope), 16-19 B per UWB row
-# (cablecar-descending, walk-hanyang; tests/test_budget_estimate.py keeps the estimate above what is
-# written and within twice of it)
+# bytes per row on disk, as the Parquet writer stores them: measured 36-44 B per truth row, 12-13 B per IMU
+# row and triad (ENU, body accelerometer, body gyroscope), 18-21 B per UWB row (cablecar-descending,
+# walk-hanyang, handheld-broad), 8-30 % under these; the estimate also takes the longest trip the spreads
+# allow (tests/test_budget_estimate.py keeps it above what is written and within twice of it)
 _DISK_BYTES = {"truth": 48, "imu_triad": 16, "uwb": 24}
 
 
@@ -273,7 +273,8 @@ class SizeEstimate:
     imu_samples: int
     uwb_rows: int
     peak_memory_bytes: float
-    output_bytes: float
+    output_bytes: float  # on disk, as the Parquet writer stores the traces
+    sample_bytes: float = 0.0  # the traces' tables in memory: what generating and reducing them handles
 
     def describe(self) -> str:
         return (f"{self.n_traces} trace(s) of up to {self.duration_s:.4g} s: {self.truth_samples:,} truth, "
@@ -307,7 +308,7 @@ def estimate_size(scn: Scenario, n_traces: int) -> SizeEstimate:
     return SizeEstimate(n_traces=n_traces, duration_s=duration, min_trip_s=trip_min, truth_samples=truth,
                         imu_samples=imu, uwb_rows=uwb,
                         peak_memory_bytes=work + min(n_traces, ROW_GROUP_TRACES) * table,
-                        output_bytes=n_traces * disk)
+                        output_bytes=n_traces * disk, sample_bytes=n_traces * table)
 
 
 def _random_route_bound_m(scn: Scenario) -> float:
@@ -354,8 +355,11 @@ def check_trip(scn: Scenario, est: SizeEstimate | None = None, *, min_trip_s: fl
                             f"{MIN_TRUTH_SAMPLES}): check path length and cruise speed")
 
 
-def check_budget(scn: Scenario, n_traces: int, *, force: bool = False) -> SizeEstimate:
+def check_budget(scn: Scenario, n_traces: int, *, force: bool = False, writes: bool = True) -> SizeEstimate:
     """Refuse, before any work, a generation that is too short to make traces or over budget.
+
+    ``writes``: the traces are written (a dataset: their size on disk is held against the output budget);
+    False for work that only reduces them (the studies: their samples in memory, a bound on the time).
 
     Raises
     ------
@@ -372,7 +376,12 @@ def check_budget(scn: Scenario, n_traces: int, *, force: bool = False) -> SizeEs
     if est.peak_memory_bytes > MEMORY_BUDGET_BYTES:
         raise BudgetError(f"scenario '{scn.name}': {est.describe()}; the memory budget is "
                           f"{MEMORY_BUDGET_BYTES / 1e9:.3g} GB (PHYSYNTH_MEMORY_BUDGET_GB)")
-    if est.output_bytes > OUTPUT_BUDGET_BYTES:
+    if writes and est.output_bytes > OUTPUT_BUDGET_BYTES:
         raise BudgetError(f"scenario '{scn.name}': {est.describe()}; the output budget is "
                           f"{OUTPUT_BUDGET_BYTES / 1e9:.3g} GB (PHYSYNTH_OUTPUT_BUDGET_GB)")
+    if not writes and est.sample_bytes > OUTPUT_BUDGET_BYTES:
+        raise BudgetError(f"scenario '{scn.name}': {est.n_traces} trace(s) of up to {est.duration_s:.4g} s are "
+                          f"about {est.sample_bytes / 1e9:.3g} GB of samples to generate and reduce (nothing is "
+                          f"written, but it would take long); the output budget is {OUTPUT_BUDGET_BYTES / 1e9:.3g} GB "
+                          "(PHYSYNTH_OUTPUT_BUDGET_GB)")
     return est

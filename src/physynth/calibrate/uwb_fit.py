@@ -571,9 +571,10 @@ LATE_STAMP_MIN_S = 0.010
 burst is a late stamp (:class:`~physynth.models.uwb.UwbParams`, ``late_burst_prob``): within-burst offsets
 of the other rows spread by a millisecond or two (the slots and their jitter)."""
 LATE_STAMP_SLOTS = 5.0
-"""... and more than this many slots (``slot_s``, the median spacing of a burst's rows): a system that
-ranges its anchors in a random order at wide slots moves a row by several slots from its anchor's
-median place without any late stamp (the Hanyang tag ranges in a random order at ~1 ms slots)."""
+"""... and more than this many slots (``slot_s``, the median spacing of a burst's rows), or as many slots as
+there are anchors if more: a system that ranges its N anchors in a random order moves a row by up to N - 1
+slots from its place without any late stamp (the Hanyang tag ranges its four in a random order at ~1 ms
+slots)."""
 LATE_BURST_MIN = 10
 """Late bursts become a process of the scenario only when at least this many are seen (one stray burst is
 no rate: 10 give it to about +-30 %)."""
@@ -581,11 +582,13 @@ no rate: 10 give it to about +-30 %)."""
 
 def late_burst_fit(scheds: Sequence[BurstSchedule], traces: Sequence[Trace], slot_s: float = 0.0) -> dict[str, Any]:
     """Late bursts: those with a delivered range stamped late (:data:`LATE_STAMP_MIN_S` and
-    :data:`LATE_STAMP_SLOTS` slots past its anchor's median offset in the burst, per run), as a share of
+    :data:`LATE_STAMP_SLOTS` slots, or one slot per anchor if more, past its anchor's median offset in
+    the burst, per run), as a share of
     the bursts with two delivered ranges or more (a burst's first range is never late, so only those
     can show it); the late rows' median delay; and how many late bursts have every range but the first
     late (the generator's late burst). ``applied`` when at least :data:`LATE_BURST_MIN` late bursts are seen."""
-    threshold = max(LATE_STAMP_MIN_S, LATE_STAMP_SLOTS * slot_s)
+    n_anchors = max((len(t.anchors) for t in traces), default=0)
+    threshold = max(LATE_STAMP_MIN_S, max(LATE_STAMP_SLOTS, n_anchors) * slot_s)
     n_multi, n_late_b, n_rest, excess, per_run, n_late = 0, 0, 0, [], [], 0
     for s, t in zip(scheds, traces, strict=True):
         ok = t.uwb.valid

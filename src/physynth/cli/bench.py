@@ -26,8 +26,8 @@ def bench_cmd(
                                help="Repetitions of every measurement, best kept (the scaling runs alternate)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object (keys traces_per_s_memory, "
                                                        "traces_per_s_parquet, scaling_efficiency, "
-                                                       "scaling_efficiency_steady, scaling_caveat, "
-                                                       "peak_rss_mb)."),
+                                                       "scaling_efficiency_steady, cluster_start_stop_s, "
+                                                       "scaling_caveat, peak_rss_mb)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
     """Measure generation speed: traces/s in memory and to Parquet on one core, scaling, peak memory."""

@@ -1194,7 +1194,9 @@ def late_stamps(rec: Uwb, prob: float, delay_s: float, *, rng: np.random.Generat
     ``rng``, so the trace's other draws stay those without late stamps."""
     if rec.t_s.shape[0] == 0:
         return rec
-    late_burst = rng.random(int(rec.burst.max()) + 1) < prob
+    if rec.burst[0] < 0 or (rec.burst[1:] < rec.burst[:-1]).any():
+        raise ValueError("late_stamps needs the rows of uwb_record: burst ids (no -1), in burst order")
+    late_burst = rng.random(int(rec.burst[-1]) + 1) < prob
     rows = np.flatnonzero((rec.reason == np.int8(Reason.OK)) & late_burst.take(rec.burst))
     if rows.size:
         b = rec.burst.take(rows)

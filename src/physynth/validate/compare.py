@@ -545,9 +545,9 @@ def check_validate_budget(scn: Any, n: int, *, force: bool = False) -> None:
         raise BudgetError(f"scenario '{scn.name}': one trace of up to {one.duration_s:.4g} s needs about "
                           f"{one.peak_memory_bytes / 1e9:.3g} GB of memory (validate holds one trace at a time); "
                           f"the memory budget is {MEMORY_BUDGET_BYTES / 1e9:.3g} GB (PHYSYNTH_MEMORY_BUDGET_GB)")
-    if est.output_bytes > OUTPUT_BUDGET_BYTES:
+    if est.sample_bytes > OUTPUT_BUDGET_BYTES:
         raise BudgetError(f"scenario '{scn.name}': {n} trace(s) of up to {est.duration_s:.4g} s are about "
-                          f"{est.output_bytes / 1e9:.3g} GB of samples to generate and reduce (validate writes "
+                          f"{est.sample_bytes / 1e9:.3g} GB of samples to generate and reduce (validate writes "
                           f"none of them, but it would take long), more than the "
                           f"{OUTPUT_BUDGET_BYTES / 1e9:.3g} GB a generation may make (PHYSYNTH_OUTPUT_BUDGET_GB); "
                           "compare with fewer traces")
