@@ -226,6 +226,14 @@ class Uwb:
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
 
+    def rows(self, index: np.ndarray, *, t_s: np.ndarray | None = None, anchor: np.ndarray | None = None) -> Uwb:
+        """The rows ``index`` (integer positions or a boolean mask), every column alike; ``t_s`` and
+        ``anchor`` replace those columns of the result when given (already indexed)."""
+        return Uwb(t_s=self.t_s[index] if t_s is None else t_s,
+                   anchor=self.anchor[index] if anchor is None else anchor, range_m=self.range_m[index],
+                   true_range_m=self.true_range_m[index], nlos=self.nlos[index], burst=self.burst[index],
+                   reason=self.reason[index], nlos_known=self.nlos_known)
+
 
 TRUTH_UNTRUSTED_KEY = "truth_untrusted_s"
 """``trace.meta`` key of the spans [[start, end), ...] [s, trace time] where the recording's own truth system

@@ -1207,6 +1207,4 @@ def late_stamps(rec: Uwb, prob: float, delay_s: float, *, rng: np.random.Generat
     t = rec.t_s.copy()
     t[rows] += delay_s
     order = np.argsort(t, kind="stable")
-    return Uwb(t_s=t.take(order), anchor=rec.anchor.take(order), range_m=rec.range_m.take(order),
-               true_range_m=rec.true_range_m.take(order), nlos=rec.nlos.take(order), burst=rec.burst.take(order),
-               reason=rec.reason.take(order), nlos_known=rec.nlos_known)
+    return rec.rows(order, t_s=t.take(order))

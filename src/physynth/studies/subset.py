@@ -7,7 +7,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..errors import PhySynthError
-from ..records import Anchors, Trace, Uwb
+from ..records import Anchors, Trace
 from ..scenario import Scenario, scenario_from_dict, scenario_to_dict
 
 
@@ -50,8 +50,7 @@ def restrict_to_anchors(trace: Trace, ids: Sequence[str]) -> Trace:
     u = trace.uwb
     new_idx = remap[u.anchor.astype(np.int64)]
     keep = new_idx >= 0
-    uwb = Uwb(t_s=u.t_s[keep], anchor=new_idx[keep], range_m=u.range_m[keep], true_range_m=u.true_range_m[keep],
-              nlos=u.nlos[keep], burst=u.burst[keep], reason=u.reason[keep], nlos_known=u.nlos_known)
+    uwb = u.rows(keep, anchor=new_idx[keep])
     anchors = Anchors(ids=tuple(ids), pos_enu_m=trace.anchors.pos_enu_m[pos],
                       names=tuple(trace.anchors.names[p] for p in pos))
     return Trace(truth=trace.truth, uwb=uwb, anchors=anchors, imu=trace.imu, meta=dict(trace.meta))
