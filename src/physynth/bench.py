@@ -74,14 +74,12 @@ def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int =
         (one worker, ``workers``, one worker, ...), so that the machine's slower and faster spells
         (10-30 % on a shared 2-core machine, docs/scale.md) reach both sides of the ratio alike.
     """
-    from .errors import ArgumentError
+    from ._args import check_int
     from .parallel import available_cores
     from .workflows import generate_dataset
 
-    for name, value, least in (("n", n, 1), ("repeat", repeat, 1), ("n_scaling", n_scaling, 0),
-                               ("workers", workers, 0)):
-        if not isinstance(value, int) or isinstance(value, bool) or value < least:
-            raise ArgumentError(f"{name} must be an integer of at least {least}, got {value!r}")
+    n, repeat = check_int(n, "n", minimum=1), check_int(repeat, "repeat", minimum=1)
+    n_scaling, workers = check_int(n_scaling, "n_scaling"), check_int(workers, "workers")
     cores = available_cores()
     workers = workers or cores
     cs = compile_scenario(scn)
