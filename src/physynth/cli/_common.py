@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import re
 import sys
-from collections.abc import Iterator, Sequence
+import time
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 
 import typer
@@ -20,6 +21,9 @@ EXIT_INTERRUPTED = 130
 """Exit code after Ctrl-C (SIGINT); SIGTERM gives 143 and SIGHUP 129 (``128 + signal``)."""
 EXIT_BUG = 3
 """Exit code of a bug in PhySynth (an exception that is not a user mistake nor the machine)."""
+LOG_INTERVAL_S = 60.0
+"""Without a terminal (a log file, a pipe, a batch job) a counted step that runs longer than this
+prints its count at most once per interval [s], and its end, instead of drawing a bar."""
 
 
 @contextmanager
@@ -37,13 +41,16 @@ def progress_bar(enabled: bool = True) -> Iterator[ProgressCallback]:
     console = Console(stderr=True)
     tasks: dict[str, int] = {}
     bar: Progress | None = None  # started on the first counted call: nothing is drawn for a failed command
+    started: dict[str, float] = {}  # without a terminal: when each counted step began
+    logged: dict[str, float] = {}  # and when it was last written to the log
 
     def update(message: str, done: int | None = None, total: int | None = None) -> None:
         nonlocal bar
         if done is None:
             console.print(f"  - {message}", highlight=False)
             return
-        if not console.is_terminal:  # a log file or a pipe: no bar (and nothing left on stderr by one)
+        if not console.is_terminal:  # a log file or a pipe: no bar, a line now and then on long work
+            _log_line(message, done, total)
             return
         if bar is None:
             bar = Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
@@ -53,11 +60,49 @@ def progress_bar(enabled: bool = True) -> Iterator[ProgressCallback]:
             tasks[message] = bar.add_task(message, total=total)
         bar.update(tasks[message], completed=done, total=total)
 
+    def _log_line(message: str, done: int, total: int | None) -> None:
+        now = time.monotonic()
+        began = started.setdefault(message, now)
+        finished = total is not None and done >= total
+        if not (now - logged.get(message, began) >= LOG_INTERVAL_S or (finished and message in logged)):
+            return  # a step done within one interval leaves nothing in the log
+        logged[message] = now
+        count = f"{done}/{total} ({100.0 * done / total:.0f} %)" if total else f"{done}"
+        console.print(f"  - {message}: {count} after {now - began:.0f} s", highlight=False)
+
     try:
         yield update
     finally:
         if bar is not None:
             bar.stop()
+
+
+@contextmanager
+def status_lines(label: str) -> Iterator[Callable[[str], None]]:
+    """A spinner on stderr showing the library's latest step (``progress(message)``) on a terminal.
+
+    Without one (a log file, a pipe, a batch job) each step prints a line when it begins: the first message
+    of a stage (the text before its first colon, e.g. ``SYNTH_PHY pre-train (synthetic)`` of ``...: epoch
+    3/300``), then at most one per stage every :data:`LOG_INTERVAL_S`, so an hour of epochs leaves a
+    readable log instead of nothing.
+    """
+    from rich.console import Console
+
+    console = Console(stderr=True)
+    if console.is_terminal:
+        with console.status(label) as status:
+            yield status.update
+        return
+    last: dict[str, float] = {}
+
+    def update(message: str) -> None:
+        stage, now = message.split(":", 1)[0], time.monotonic()
+        if stage in last and now - last[stage] < LOG_INTERVAL_S:
+            return
+        last[stage] = now
+        console.print(f"  - {message}", highlight=False)
+
+    yield update
 
 
 class Command(TyperCommand):

@@ -132,12 +132,10 @@ def tracking_cmd(
     if quiet:
         result = run_tracking_study(train_runs, test_runs, scenario=scn, config=cfg)
     else:
-        from rich.console import Console
+        from ._common import status_lines
 
-        console = Console(stderr=True)
-        with console.status("tracking study") as status:
-            result = run_tracking_study(train_runs, test_runs, scenario=scn, config=cfg,
-                                        progress=lambda m: status.update(m))
+        with status_lines("tracking study") as say:
+            result = run_tracking_study(train_runs, test_runs, scenario=scn, config=cfg, progress=say)
     files = write_results(result, out)
     for warning in result.data.get("warnings", []):  # even with --quiet: these seconds are in every row
         typer.echo(f"warning: {warning}", err=True)
