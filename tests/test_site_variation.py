@@ -206,3 +206,42 @@ def test_the_study_variation_replaces_a_section_of_the_scenario(base):
     a, b = synthetic_trace(with_section, 1, SEED, study), synthetic_trace(base, 1, SEED, study)
     assert np.array_equal(a.anchors.pos_enu_m, b.anchors.pos_enu_m)  # drawn once, by the study's variation
     assert np.array_equal(a.truth.pos_enu_m, b.truth.pos_enu_m)
+
+
+def test_nlos_frequency_varies_per_trace(base):
+    """``nlos_log_std``: every trace's NLOS probabilities (each anchor's channel and the tag side) are its
+    own draw exp(N(0, s)) times the scenario's; drawn last, so the other draws stay as they were; the
+    tracking study's variation gives the scenario section's traces bit for bit."""
+    from physynth.models.variation import NLOS_PROB_MAX, nlos_scaled
+
+    study = SynthVariation(nlos_log_std=1.0)
+    cs = compile_scenario(with_variation(base, **study.to_dict()))
+    plain = compile_scenario(with_variation(base, **SynthVariation().to_dict()))
+    scales, changed = [], []
+    for i in range(12):
+        a, b = synthetic_trace(base, i, SEED, study), generate_trace(cs, i, SEED)
+        assert np.array_equal(a.uwb.range_m, b.uwb.range_m, equal_nan=True)
+        c = generate_trace(plain, i, SEED)
+        assert np.array_equal(b.truth.pos_enu_m, c.truth.pos_enu_m)  # the site's draws did not move
+        scales.append(b.meta["site_variation"]["nlos_scale"])
+        # the same trace as one of the scenario with its NLOS scaled by that draw and no draw of its own
+        scaled = base.model_copy(update=nlos_scaled(base, scales[-1]))
+        d = generate_trace(compile_scenario(with_variation(scaled, **SynthVariation().to_dict())), i, SEED)
+        assert np.array_equal(b.uwb.range_m, d.uwb.range_m, equal_nan=True)
+        changed.append(not np.array_equal(b.uwb.range_m, c.uwb.range_m, equal_nan=True))
+    scales = np.array(scales)
+    assert scales.min() < 0.7 and scales.max() > 1.4  # both ways over 12 draws at s = 1
+    assert all(changed)  # and the ranges follow it
+    assert all("nlos_scale" not in generate_trace(plain, i, SEED).meta["site_variation"] for i in range(2))
+    upd = nlos_scaled(base, 3.0)
+    assert upd["channel"].nlos_prob == pytest.approx(min(3.0 * base.channel.nlos_prob, NLOS_PROB_MAX))
+    assert upd["uwb"].tag_nlos_prob == pytest.approx(min(3.0 * base.uwb.tag_nlos_prob, NLOS_PROB_MAX))
+    assert all(upd["channel_per_anchor"][k].nlos_prob == (None if ch.nlos_prob is None else
+               pytest.approx(min(3.0 * ch.nlos_prob, NLOS_PROB_MAX))) for k, ch in base.channel_per_anchor.items())
+    rng = np.random.default_rng(5)
+    v = SiteVariationParams(nlos_log_std=0.8)
+    path = {"kind": "waypoints", "waypoints_enu_m": [[0, 0, 1], [20, 0, 1]], "perturbation": {}}
+    n = 600
+    logs = np.log([draw_site(v, np.zeros((3, 3)), path, lambda: np.zeros((2, 3)), rng)[2]["nlos_scale"]
+                   for _ in range(n)])
+    assert np.std(logs) == pytest.approx(0.8, rel=4.0 / np.sqrt(2 * n)) and abs(np.mean(logs)) < 4 * 0.8 / np.sqrt(n)

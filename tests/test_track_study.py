@@ -535,3 +535,23 @@ def test_cli_refuses_no_methods_and_options_without_effect(runs, tmp_path, capsy
         assert code == 2, (args, out.err)
         assert needle in out.err and len(out.err.strip().splitlines()) == 1 and "Traceback" not in out.err
     assert not (tmp_path / "o" / "results.json").exists()
+
+
+def test_cli_synth_nlos_spread_sets_the_pretraining_variation(runs, tmp_path, capsys):
+    """``--synth-nlos-spread S``: SYNTH_PHY's synthetic traces each get their own NLOS frequency; refused
+    (one line, exit 2) without SYNTH_PHY and when negative."""
+    pytest.importorskip("torch")
+    scn, rr = runs
+    train = write_dataset(tmp_path / "train", [r.trace for r in rr[:2]])
+    test = write_dataset(tmp_path / "test", [rr[2].trace])
+    main(["study", "tracking", "--train", str(train), "--test", str(test), "--methods", "SYNTH_PHY",
+          "--scenario", str(save_scenario(scn, tmp_path / "s.yaml")), "--pretrain-epochs", "1",
+          "--finetune-epochs", "1", "--n-synth", "2", "--synth-windows", "2", "--synth-nlos-spread", "0.7",
+          "--out", str(tmp_path / "out"), "-q"])
+    cfg = json.loads((tmp_path / "out" / "results.json").read_text())["config"]
+    assert cfg["variation"]["nlos_log_std"] == 0.7 and cfg["variation"]["random_route_prob"] == 0.5
+    for args, needle in ((["--methods", "ls", "--synth-nlos-spread", "0.5"], "--synth-nlos-spread only matters"),
+                         (["--methods", "SYNTH_PHY", "--synth-nlos-spread", "-1"], "--synth-nlos-spread")):
+        code, out = _cli(capsys, "study", "tracking", "--train", train, "--test", test, *args,
+                         "--out", tmp_path / "o", "-q")
+        assert code == 2 and needle in out.err and "Traceback" not in out.err

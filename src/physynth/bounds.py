@@ -70,6 +70,7 @@ BOUNDS: dict[str, Bound] = {
     "variation.path_sag_std_m": Bound(0.0, 100.0, "m", "run-to-run sag of the varied path"),
     "variation.random_route_prob": _PROB,
     "variation.random_route_points": Bound(2.0, 1000.0, "", "waypoints of a random route"),
+    "variation.nlos_log_std": Bound(0.0, 3.0, "", "per-trace log-normal spread of the NLOS probabilities"),
     "uwb.antenna_sway_std_m": Bound(0.0, 10.0, "m", "UWB antenna offset from the truth point, per axis"),
     "uwb.antenna_sway_tau_s": Bound(0.01, 3600.0, "s", "correlation time of the antenna sway"),
     "uwb.antenna_sway_length_m": Bound(0.01, 1e5, "m", "correlation length of the antenna sway along the path"),

@@ -27,7 +27,7 @@ from .models.jitter import add_jitter
 from .models.motion import SpeedShape, compile_speed_shape, draw_run, kinematics
 from .models.path import PathGeometry, PathParams, compile_path, draw_perturbation
 from .models.uwb import ChannelArrays, channel_arrays, late_stamps, simulate_uwb, uwb_record
-from .models.variation import draw_site
+from .models.variation import draw_site, nlos_scaled
 from .records import Anchors, Imu, Trace, Truth, Uwb
 from .rng import component_rng, new_root_seed
 from .scenario import Scenario, scenario_to_dict
@@ -102,9 +102,12 @@ def _vary_site(cs: CompiledScenario, index: int, root_seed: int) -> tuple[Compil
     geometry = compile_path(path_p)
     anchors = [a.model_copy(update={"pos_enu_m": [float(x) for x in p]}) for a, p in zip(s.anchors, pos, strict=True)]
     varied = s.model_copy(update={"path": path_p, "anchors": anchors, "variation": None})
+    channel = None if cs.channel is None else replace(cs.channel, anchor_pos_enu_m=pos)
+    if "nlos_scale" in record and channel is not None:  # this trace's own NLOS frequency: tables rebuilt
+        varied = varied.model_copy(update=nlos_scaled(varied, record["nlos_scale"]))
+        channel = channel_arrays(varied.uwb, varied.anchors, [varied.channel_for(a) for a in varied.anchor_ids])
     return replace(cs, scenario=varied, geometry=geometry, lateral_dir=geometry.lateral_direction(),
-                   channel=None if cs.channel is None else replace(cs.channel, anchor_pos_enu_m=pos),
-                   anchors=Anchors(ids=cs.anchors.ids, names=cs.anchors.names, pos_enu_m=pos)), record
+                   channel=channel, anchors=Anchors(ids=cs.anchors.ids, names=cs.anchors.names, pos_enu_m=pos)), record
 
 
 def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int) -> Trace:

@@ -29,7 +29,8 @@ METHOD_OPTIONS = {"epochs": ("--epochs", ("NOAUG", "AUG_GAN", "bilstm")), "scena
                   "n_synth_traces": ("--n-synth", _SYNTH), "synth_windows_per_trace": ("--synth-windows", _SYNTH),
                   "finetune_synth_ratio": ("--finetune-synth-ratio", _SYNTH), "ekf_prior": ("--ekf-prior", _NETWORKS),
                   "lr_schedule": ("--lr-schedule", _NETWORKS), "weight_average": ("--weight-average", _NETWORKS),
-                  "frame": ("--frame", _NETWORKS), "ensemble": ("--ensemble", _NETWORKS)}
+                  "frame": ("--frame", _NETWORKS), "ensemble": ("--ensemble", _NETWORKS),
+                  "variation": ("--synth-nlos-spread", _SYNTH)}
 """Options (by the study setting they give) that set up some methods only, with those methods: given without
 any of them, an option is refused (as ``--jobs`` without ``--ensemble``), not silently ignored. ``--frame``
 sets up how the networks see direction; ``--ensemble`` averages seeds, and the classical trackers draw none."""
@@ -94,6 +95,10 @@ def tracking_cmd(
     ensemble: int = typer.Option(1, "--ensemble", metavar="K", min=1, help=_ENSEMBLE_HELP),
     jobs: int = typer.Option(1, "--jobs", metavar="N", min=1, help=_JOBS_HELP),
     train_trusted_truth: bool = typer.Option(False, "--train-trusted-truth", help=_TRUSTED_HELP),
+    synth_nlos_spread: float = typer.Option(None, "--synth-nlos-spread", metavar="S", min=0.0, max=3.0,
+                                            help="Give each synthetic pre-training trace its own NLOS frequency: the "
+                                                 "calibrated NLOS probabilities times exp(N(0, S)) (default 0: the "
+                                                 "calibrated ones in every trace)."),
     threads: int = typer.Option(1, "--threads", metavar="N", min=1,
                                 help="CPU threads for PyTorch (1: small recurrent nets gain nothing from more, and "
                                      "lose a lot on a shared machine)."),
@@ -120,6 +125,12 @@ def tracking_cmd(
                    n_synth_traces=n_synth, synth_windows_per_trace=synth_windows, ekf_prior=ekf_prior,
                    finetune_synth_ratio=finetune_synth_ratio, train_trusted_truth=train_trusted_truth or None,
                    ensemble=ensemble if ensemble > 1 else None, jobs=jobs if jobs > 1 else None)
+    if synth_nlos_spread is not None:
+        import dataclasses
+
+        from ..studies.tracking import StudyConfig
+
+        over["variation"] = dataclasses.replace(StudyConfig().variation, nlos_log_std=synth_nlos_spread)
     net = _given(lr_schedule=lr_schedule, weight_average=weight_average)
     over |= {"net": net} if net else {}
     cfg = _config(over, quick, scenario, frame)

@@ -15,9 +15,12 @@ and in any order):
   ``path_sag_std_m`` when they are set;
 - with probability ``random_route_prob``, a route of another shape instead (:func:`random_route`): a
   smooth path through ``random_route_points`` waypoints of a random walk that starts near the centre and
-  stays within the path's horizontal reach of it, at the path's mean height.
+  stays within the path's horizontal reach of it, at the path's mean height;
+- with ``nlos_log_std`` > 0, how often the tag is out of line of sight: every anchor's ``nlos_prob`` and
+  ``uwb.tag_nlos_prob`` times exp(N(0, ``nlos_log_std``)) (at most :data:`NLOS_PROB_MAX`), as one site
+  has more obstacles than another; drawn last.
 
-Everything else (motion, channel, availability, IMU) is the scenario's. The draws happen in this order,
+Everything else (motion, the rest of the channel, availability, IMU) is the scenario's. The draws happen in this order,
 which :class:`physynth.track.synth.SynthVariation` (the tracking study's) shares.
 """
 
@@ -45,6 +48,7 @@ class SiteVariationParams(ParamsModel):
     anchor order (e.g. the layouts of the runs a scenario was calibrated on); empty: the scenario's own.
     ``path_lateral_std_m`` / ``path_sag_std_m``: None (the default) keeps ``path.perturbation``, the
     run-to-run deformation a calibration fitted; the tracking study sets 1.0 / 0.1 m.
+    ``nlos_log_std``: log-normal spread of each trace's NLOS probabilities (0: the scenario's in every trace).
     """
 
     layouts: list[list[Vec3]] = []
@@ -57,6 +61,7 @@ class SiteVariationParams(ParamsModel):
     path_sag_std_m: NonNegFloat | None = None
     random_route_prob: Probability = 0.0
     random_route_points: Annotated[int, Field(ge=2)] = 8
+    nlos_log_std: NonNegFloat = 0.0
 
 
 def random_route(centre_enu_m: np.ndarray, reach_m: float, height_m: float, n_points: int,
@@ -137,7 +142,26 @@ def draw_site(v: Any, base_pos_m: np.ndarray, path: dict[str, Any], path_points:
         out = {"kind": "waypoints", "waypoints_enu_m": waypoints, "perturbation": pert}
         route = True
     record = {"layout": k, "yaw_rad": yaw, "shift_m": [float(x) for x in shift], "random_route": route}
+    if getattr(v, "nlos_log_std", 0.0) > 0:  # drawn after everything else: without it the draws are as before
+        record["nlos_scale"] = float(np.exp(rng.normal(0.0, v.nlos_log_std)))
     return pos, out, record
+
+
+NLOS_PROB_MAX = 0.9
+"""Upper limit of a scaled NLOS probability (a site where the tag is never in line of sight is another site)."""
+
+
+def nlos_scaled(scn: Any, factor: float) -> dict[str, Any]:
+    """``model_copy`` updates of a :class:`~physynth.scenario.Scenario` whose NLOS is ``factor`` times as
+    frequent: every channel's ``nlos_prob`` and the tag-side ``uwb.tag_nlos_prob`` scaled (at most
+    :data:`NLOS_PROB_MAX`); the modes, their dwell and every LOS parameter unchanged."""
+    def scaled(p: float | None) -> float | None:  # None: an anchor that inherits the scenario's channel
+        return p if p is None or p >= NLOS_PROB_MAX else float(min(p * factor, NLOS_PROB_MAX))
+
+    return {"channel": scn.channel.model_copy(update={"nlos_prob": scaled(scn.channel.nlos_prob)}),
+            "channel_per_anchor": {a: c.model_copy(update={"nlos_prob": scaled(c.nlos_prob)})
+                                   for a, c in scn.channel_per_anchor.items()},
+            "uwb": scn.uwb.model_copy(update={"tag_nlos_prob": scaled(scn.uwb.tag_nlos_prob)})}
 
 
 def max_route_length_m(v: SiteVariationParams, path_points: np.ndarray, centre: np.ndarray) -> float:

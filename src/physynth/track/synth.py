@@ -18,8 +18,11 @@ A calibrated scenario reproduces one site; a network pre-trained only on it lear
   (:func:`random_route`): a smooth path through ``random_route_points`` waypoints of a random walk that
   starts near the anchors and stays within the scenario path's horizontal reach of them, at the path's
   mean height. A network then sees routes the training runs never took (loops, turns, other headings).
+- with ``nlos_log_std`` > 0, its own NLOS frequency: every anchor's ``nlos_prob`` and the tag-side
+  ``uwb.tag_nlos_prob`` times exp(N(0, ``nlos_log_std``)), drawn last (a site with more or fewer
+  obstacles than the calibration runs had).
 
-Everything else (motion, channel, availability, IMU) is the scenario's, drawn by the generator from the
+Everything else (motion, the rest of the channel, availability, IMU) is the scenario's, drawn by the generator from the
 usual per-component streams, so a trace is identical in every process and DataLoader worker.
 """
 
@@ -31,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from ..generate import CompiledScenario, generate_trace
-from ..models.variation import draw_site, random_route
+from ..models.variation import draw_site, nlos_scaled, random_route
 from ..records import Trace
 from ..rng import COMPONENT_ID
 from ..scenario import Scenario
@@ -56,9 +59,11 @@ class SynthVariation:
     path_sag_std_m: float | None = 0.1
     random_route_prob: float = 0.0
     random_route_points: int = 8
+    nlos_log_std: float = 0.0
 
     def __post_init__(self) -> None:
-        stds = (self.layout_jitter_m, self.layout_jitter_up_m, self.path_yaw_std_rad, self.path_shift_std_m)
+        stds = (self.layout_jitter_m, self.layout_jitter_up_m, self.path_yaw_std_rad, self.path_shift_std_m,
+                self.nlos_log_std)
         if min(stds) < 0 or min(self.path_lateral_std_m or 0.0, self.path_sag_std_m or 0.0) < 0:
             raise ValueError(f"invalid SynthVariation (negative spread): {self!r}")
         if not 0.0 <= self.random_route_prob <= 1.0 or self.random_route_points < 2:
@@ -70,7 +75,8 @@ class SynthVariation:
                 "layout_jitter_m": self.layout_jitter_m, "layout_jitter_up_m": self.layout_jitter_up_m,
                 "path_yaw_std_rad": self.path_yaw_std_rad, "path_shift_std_m": self.path_shift_std_m,
                 "path_lateral_std_m": self.path_lateral_std_m, "path_sag_std_m": self.path_sag_std_m,
-                "random_route_prob": self.random_route_prob, "random_route_points": self.random_route_points}
+                "random_route_prob": self.random_route_prob, "random_route_points": self.random_route_points,
+                "nlos_log_std": self.nlos_log_std}
 
 
 def _path_points(scn: Scenario, n: int = 200) -> np.ndarray:
@@ -86,11 +92,14 @@ def varied_scenario(scn: Scenario, variation: SynthVariation, rng: np.random.Gen
     without a ``variation`` section of its own: ``variation`` takes its place."""
     base = np.array([a.pos_enu_m for a in scn.anchors], dtype=float)
     data = scn.model_dump(mode="python")
-    pos, path, _ = draw_site(variation, base, data["path"], lambda: _path_points(scn), rng)
+    pos, path, record = draw_site(variation, base, data["path"], lambda: _path_points(scn), rng)
     data["anchors"] = [{**a, "pos_enu_m": [float(v) for v in p]} for a, p in zip(data["anchors"], pos, strict=True)]
     data["path"] = path
     data["variation"] = None  # this draw replaces a section of the scenario's own (drawn from the same stream)
-    return Scenario.model_validate(data)
+    varied = Scenario.model_validate(data)
+    if "nlos_scale" in record:
+        varied = varied.model_copy(update=nlos_scaled(varied, record["nlos_scale"]))
+    return varied
 
 
 def synthetic_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int,
