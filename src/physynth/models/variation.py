@@ -20,8 +20,8 @@ and in any order):
   ``uwb.tag_nlos_prob`` times exp(N(0, ``nlos_log_std``)) (at most :data:`NLOS_PROB_MAX`), as one site
   has more obstacles than another; drawn last.
 
-Everything else (motion, the rest of the channel, availability, IMU) is the scenario's. The draws happen in this order,
-which :class:`physynth.track.synth.SynthVariation` (the tracking study's) shares.
+Everything else (motion, the rest of the channel, availability, IMU) is the scenario's. The draws happen
+in this order, which :class:`physynth.track.synth.SynthVariation` (the tracking study's) shares.
 """
 
 from __future__ import annotations
@@ -142,7 +142,7 @@ def draw_site(v: Any, base_pos_m: np.ndarray, path: dict[str, Any], path_points:
         out = {"kind": "waypoints", "waypoints_enu_m": waypoints, "perturbation": pert}
         route = True
     record = {"layout": k, "yaw_rad": yaw, "shift_m": [float(x) for x in shift], "random_route": route}
-    if getattr(v, "nlos_log_std", 0.0) > 0:  # drawn after everything else: without it the draws are as before
+    if v.nlos_log_std > 0:  # drawn after everything else: without it the draws are as before
         record["nlos_scale"] = float(np.exp(rng.normal(0.0, v.nlos_log_std)))
     return pos, out, record
 

@@ -22,8 +22,8 @@ A calibrated scenario reproduces one site; a network pre-trained only on it lear
   ``uwb.tag_nlos_prob`` times exp(N(0, ``nlos_log_std``)), drawn last (a site with more or fewer
   obstacles than the calibration runs had).
 
-Everything else (motion, the rest of the channel, availability, IMU) is the scenario's, drawn by the generator from the
-usual per-component streams, so a trace is identical in every process and DataLoader worker.
+Everything else (motion, the rest of the channel, availability, IMU) is the scenario's, drawn by the
+generator from the usual per-component streams, so a trace is identical in every process and DataLoader worker.
 """
 
 from __future__ import annotations
