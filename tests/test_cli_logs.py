@@ -18,10 +18,11 @@ def test_status_lines_print_each_stage_once_per_interval(capsys, monkeypatch):
             say(m)
     assert _lines(capsys) == ["  - SYNTH_PHY pre-train: epoch 1/3", "  - ls: running on the test run"]
     monkeypatch.setattr(_common, "LOG_INTERVAL_S", 0.0)  # every message is due
+    long = "A: epoch 2/2, " + "training RMSE 0.618 m " * 6  # past 80 columns: one line all the same
     with status_lines("study") as say:
         say("A: epoch 1/2")
-        say("A: epoch 2/2")
-    assert _lines(capsys) == ["  - A: epoch 1/2", "  - A: epoch 2/2"]
+        say(long)
+    assert _lines(capsys) == ["  - A: epoch 1/2", "  - " + long]
 
 
 def test_progress_bar_logs_only_steps_longer_than_the_interval(capsys, monkeypatch):

@@ -46,8 +46,8 @@ def progress_bar(enabled: bool = True) -> Iterator[ProgressCallback]:
 
     def update(message: str, done: int | None = None, total: int | None = None) -> None:
         nonlocal bar
-        if done is None:
-            console.print(f"  - {message}", highlight=False)
+        if done is None:  # a log gets whole lines (rich would wrap them at 80 columns)
+            console.print(f"  - {message}", highlight=False, soft_wrap=not console.is_terminal)
             return
         if not console.is_terminal:  # a log file or a pipe: no bar, a line now and then on long work
             _log_line(message, done, total)
@@ -68,7 +68,7 @@ def progress_bar(enabled: bool = True) -> Iterator[ProgressCallback]:
             return  # a step done within one interval leaves nothing in the log
         logged[message] = now
         count = f"{done}/{total} ({100.0 * done / total:.0f} %)" if total else f"{done}"
-        console.print(f"  - {message}: {count} after {now - began:.0f} s", highlight=False)
+        console.print(f"  - {message}: {count} after {now - began:.0f} s", highlight=False, soft_wrap=True)
 
     try:
         yield update
@@ -100,7 +100,7 @@ def status_lines(label: str) -> Iterator[Callable[[str], None]]:
         if stage in last and now - last[stage] < LOG_INTERVAL_S:
             return
         last[stage] = now
-        console.print(f"  - {message}", highlight=False)
+        console.print(f"  - {message}", highlight=False, soft_wrap=True)  # whole lines, not cut at 80 columns
 
     yield update
 
