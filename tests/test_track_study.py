@@ -201,6 +201,10 @@ def test_cli_bad_input_exit_2_one_line(runs, tmp_path, capsys):
          "--weight-average must be none or swa"),
         (["--train", train, "--test", train, "--methods", "NOAUG", "--ekf-prior", "kalman"],
          "--ekf-prior must be one of none, input, residual"),
+        (["--train", train, "--test", train, "--methods", "ls", "--synth-nlos-spread", "0.5"],
+         "--synth-nlos-spread only matters for SYNTH_PHY"),
+        (["--train", train, "--test", train, "--methods", "SYNTH_PHY", "--synth-nlos-spread", "-1"],
+         "Invalid value for '--synth-nlos-spread'"),
     ]
     for args, needle in cases:
         code, out = _cli(capsys, "study", "tracking", *args, "--out", tmp_path / "o", "-q")
@@ -216,10 +220,11 @@ def test_cli_passes_the_pretraining_options_to_the_study(runs, tmp_path, capsys)
     main(["study", "tracking", "--train", str(train), "--test", str(test), "--methods", "SYNTH_PHY",
           "--scenario", str(save_scenario(scn, tmp_path / "s.yaml")), "--pretrain-epochs", "2",
           "--finetune-epochs", "2", "--n-synth", "2", "--synth-windows", "3", "--weight-average", "swa",
-          "--ekf-prior", "input", "--out", str(tmp_path / "out"), "-q"])
+          "--ekf-prior", "input", "--synth-nlos-spread", "0.7", "--out", str(tmp_path / "out"), "-q"])
     res = json.loads((tmp_path / "out" / "results.json").read_text())
     cfg = res["config"]
     assert cfg["synth_windows_per_trace"] == 3 and cfg["n_synth_traces"] == 2
+    assert cfg["variation"]["nlos_log_std"] == 0.7 and cfg["variation"]["random_route_prob"] == 0.5
     assert cfg["net"] == {"weight_average": "swa"} and cfg["ekf_prior"] == "input"
     stages = res["data"]["notes"]["SYNTH_PHY.training"]
     assert stages[0]["windows"] == 6  # 2 traces x 3 windows
@@ -535,23 +540,3 @@ def test_cli_refuses_no_methods_and_options_without_effect(runs, tmp_path, capsy
         assert code == 2, (args, out.err)
         assert needle in out.err and len(out.err.strip().splitlines()) == 1 and "Traceback" not in out.err
     assert not (tmp_path / "o" / "results.json").exists()
-
-
-def test_cli_synth_nlos_spread_sets_the_pretraining_variation(runs, tmp_path, capsys):
-    """``--synth-nlos-spread S``: SYNTH_PHY's synthetic traces each get their own NLOS frequency; refused
-    (one line, exit 2) without SYNTH_PHY and when negative."""
-    pytest.importorskip("torch")
-    scn, rr = runs
-    train = write_dataset(tmp_path / "train", [r.trace for r in rr[:2]])
-    test = write_dataset(tmp_path / "test", [rr[2].trace])
-    main(["study", "tracking", "--train", str(train), "--test", str(test), "--methods", "SYNTH_PHY",
-          "--scenario", str(save_scenario(scn, tmp_path / "s.yaml")), "--pretrain-epochs", "1",
-          "--finetune-epochs", "1", "--n-synth", "2", "--synth-windows", "2", "--synth-nlos-spread", "0.7",
-          "--out", str(tmp_path / "out"), "-q"])
-    cfg = json.loads((tmp_path / "out" / "results.json").read_text())["config"]
-    assert cfg["variation"]["nlos_log_std"] == 0.7 and cfg["variation"]["random_route_prob"] == 0.5
-    for args, needle in ((["--methods", "ls", "--synth-nlos-spread", "0.5"], "--synth-nlos-spread only matters"),
-                         (["--methods", "SYNTH_PHY", "--synth-nlos-spread", "-1"], "--synth-nlos-spread")):
-        code, out = _cli(capsys, "study", "tracking", "--train", train, "--test", test, *args,
-                         "--out", tmp_path / "o", "-q")
-        assert code == 2 and needle in out.err and len(out.err.strip().splitlines()) == 1, out.err

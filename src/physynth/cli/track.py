@@ -125,12 +125,7 @@ def tracking_cmd(
                    n_synth_traces=n_synth, synth_windows_per_trace=synth_windows, ekf_prior=ekf_prior,
                    finetune_synth_ratio=finetune_synth_ratio, train_trusted_truth=train_trusted_truth or None,
                    ensemble=ensemble if ensemble > 1 else None, jobs=jobs if jobs > 1 else None)
-    if synth_nlos_spread is not None:
-        import dataclasses
-
-        from ..studies.tracking import StudyConfig
-
-        over["variation"] = dataclasses.replace(StudyConfig().variation, nlos_log_std=synth_nlos_spread)
+    over |= _synth_variation(synth_nlos_spread)
     net = _given(lr_schedule=lr_schedule, weight_average=weight_average)
     over |= {"net": net} if net else {}
     cfg = _config(over, quick, scenario, frame)
@@ -184,6 +179,17 @@ def _scenario(name: str | None):
     from ..io.scenario_file import load_scenario
 
     return load_scenario(name)
+
+
+def _synth_variation(nlos_spread: float | None) -> dict[str, Any]:
+    """``--synth-nlos-spread``: the study's pre-training variation with that NLOS spread ({} when not given)."""
+    if nlos_spread is None:
+        return {}
+    import dataclasses
+
+    from ..studies.tracking import StudyConfig
+
+    return {"variation": dataclasses.replace(StudyConfig().variation, nlos_log_std=nlos_spread)}
 
 
 def _given(**options: object) -> dict[str, object]:
