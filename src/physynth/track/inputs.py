@@ -30,6 +30,7 @@ import numpy as np
 from ..constants import DEFAULT_GRID_RATE_HZ
 from ..evaluate.grid import age_of_information, fresh_mask, grid_times, imu_on_grid
 from ..records import Trace, Uwb, untrusted_truth
+from .height import HeightPrior
 
 N_ANCHOR_FEATURES = 9
 """Per-anchor network features: range, anchor position (3), fresh, AoI, has-range, mean range, range - mean."""
@@ -91,6 +92,14 @@ class TrackInput:
     first_range_s: float
     rate_hz: float
     label: str = ""
+    height: HeightPrior | None = None
+    """What is known of the tag's height without the ranges (the carrier's height above the ground), or
+    None: the trackers then take the vertical from the ranges alone."""
+
+    @property
+    def height_rel_m(self) -> float | None:
+        """The height prior's mean relative to ``ref_enu_m`` [m] (None without a prior)."""
+        return None if self.height is None else self.height.mean_m - float(self.ref_enu_m[2])
 
     @property
     def n_steps(self) -> int:
@@ -144,13 +153,14 @@ def latest_range(trace: Trace, t_s: np.ndarray) -> np.ndarray:
 
 
 def track_input(trace: Trace, *, time_offset_s: float = 0.0, rate_hz: float = DEFAULT_GRID_RATE_HZ,
-                label: str = "", trusted_truth_only: bool = False) -> TrackInput:
+                label: str = "", trusted_truth_only: bool = False, height: HeightPrior | None = None) -> TrackInput:
     """The grid inputs of one trace (real or synthetic) after removing the UWB lag ``time_offset_s`` [s].
 
     ``trusted_truth_only``: the truth is NaN (unknown) at the grid steps inside the recording's untrusted
     truth spans (``meta["truth_untrusted_s"]``, :func:`physynth.records.untrusted_truth`; the grid steps
     are truth times), so that a network is not trained on positions the truth system itself flags, and
-    a score leaves them out. A trace without spans is unchanged.
+    a score leaves them out. A trace without spans is unchanged. ``height``: the tag's height prior,
+    handed to every tracker with the input (:class:`~physynth.track.height.HeightPrior`).
     """
     tr = shift_uwb(trace, time_offset_s)
     t_s = grid_times(tr.t0_s, tr.duration_s, rate_hz)
@@ -171,6 +181,7 @@ def track_input(trace: Trace, *, time_offset_s: float = 0.0, rate_hz: float = DE
         first_range_s=float(valid_t[0]) if valid_t.size else float("inf"),
         rate_hz=float(rate_hz),
         label=label or str(trace.meta.get("run") or trace.meta.get("label") or ""),
+        height=height,
     )
 
 
