@@ -36,6 +36,11 @@ any of them, an option is refused (as ``--jobs`` without ``--ensemble``), not si
 sets up how the networks see direction; ``--ensemble`` averages seeds, and the classical trackers draw none."""
 
 
+_PROTOCOL_HELP = ("How runs are held out: leave-one-layout-out (the default where the runs hold two or more anchor "
+                  "layouts: each layout in turn is tested, trained on the others), leave-one-run-out (the default "
+                  "for one layout), split (--train against --test; the default when --test is given) or "
+                  "survey-only (no real training run: SYNTH_PHY pre-trained on --scenario, ls and ekf, scored on "
+                  "the runs).")
 _ENSEMBLE_HELP = ("Run the study for K seeds from --seed on and score the mean of their estimates (a seed "
                   "ensemble; K times the compute).")
 _JOBS_HELP = ("With --ensemble: train this many members at once, each in a process of its own (on a machine "
@@ -99,6 +104,17 @@ def tracking_cmd(
                                             help="Give each synthetic pre-training trace its own NLOS frequency: the "
                                                  "calibrated NLOS probabilities times exp(N(0, S)) (default 0: the "
                                                  "calibrated ones in every trace)."),
+    protocol: str = typer.Option(None, "--protocol", metavar="PROTOCOL", help=_PROTOCOL_HELP),
+    seeds: int = typer.Option(3, "--seeds", metavar="N", min=1,
+                              help="Run every fold for N seeds from --seed on; the tables give the mean and spread "
+                                   "over seeds and paired tests between methods."),
+    tag_height: float = typer.Option(None, "--tag-height", metavar="METRES",
+                                     help="The tag's height in the site's frame, known without the ranges (a walker's "
+                                          "tag: about 1 m above the ground); default: from the training runs' truth."),
+    tag_height_std: float = typer.Option(0.2, "--tag-height-std", metavar="METRES",
+                                         help="Spread of --tag-height."),
+    no_height: bool = typer.Option(False, "--no-height", help="Give the trackers no tag height: the vertical from the "
+                                   "ranges alone."),
     threads: int = typer.Option(1, "--threads", metavar="N", min=1,
                                 help="CPU threads for PyTorch (1: small recurrent nets gain nothing from more, and "
                                      "lose a lot on a shared machine)."),
@@ -107,9 +123,11 @@ def tracking_cmd(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a tracking study already in --out."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress and no table."),
 ) -> None:
-    """Train NOAUG, AUG_GAN, SYNTH_PHY, bilstm, ls and ekf on real runs; score them on a held-out run."""
+    """Train NOAUG, AUG_GAN, SYNTH_PHY, bilstm, ls and ekf on real runs; score them on held-out runs."""
     from ..io.safety import check_study_output
-    from ..studies.tracking import METHODS, NETWORK_METHODS, run_tracking_study, write_results
+    from ..studies.protocol import PROTOCOLS, run_protocol
+    from ..studies.protocol_report import write_protocol_results
+    from ..studies.tracking import METHODS, NETWORK_METHODS
     from ..track import require_torch
 
     check_study_output(out, marker="results.json", what="a tracking study", overwrite=overwrite,  # before the work
@@ -126,30 +144,43 @@ def tracking_cmd(
                    finetune_synth_ratio=finetune_synth_ratio, train_trusted_truth=train_trusted_truth or None,
                    ensemble=ensemble if ensemble > 1 else None, jobs=jobs if jobs > 1 else None)
     over |= _synth_variation(synth_nlos_spread)
+    over |= _height(tag_height, tag_height_std, no_height)
     net = _given(lr_schedule=lr_schedule, weight_average=weight_average)
     over |= {"net": net} if net else {}
     cfg = _config(over, quick, scenario, frame)
     if NETWORK_METHODS & set(cfg.methods):
         require_torch()
-    train_runs, test_runs = _load_runs(train, test)
+    if protocol is not None and protocol not in PROTOCOLS:
+        raise PhySynthError(f"--protocol must be one of {', '.join(PROTOCOLS)}, got '{protocol}'")
+    if protocol == "survey-only" and scenario is None:
+        raise PhySynthError("--protocol survey-only needs --scenario: the site's scenario (its anchors, route and "
+                            "channel) is all it trains on")
+    train_runs, test_runs = _load_runs(train, test, protocol)
     scn = _scenario(scenario)
     if turn_test or mirror_test:
+        if not test_runs:
+            raise PhySynthError("--turn-test and --mirror-test turn the --test runs: give --test")
         test_runs = _turned(test_runs, turn_test, mirror_test)
+    seed_list = list(range(seed, seed + seeds))
     if quiet:
-        result = run_tracking_study(train_runs, test_runs, scenario=scn, config=cfg)
+        res = run_protocol(train_runs, test_runs, protocol=protocol, seeds=seed_list, scenario=scn, config=cfg)
     else:
         from ._common import status_lines
 
         with status_lines("tracking study") as say:
-            result = run_tracking_study(train_runs, test_runs, scenario=scn, config=cfg, progress=say)
-    files = write_results(result, out)
-    for warning in result.data.get("warnings", []):  # even with --quiet: these seconds are in every row
+            res = run_protocol(train_runs, test_runs, protocol=protocol, seeds=seed_list, scenario=scn, config=cfg,
+                               progress=say)
+    single = len(res.studies) == 1
+    files = write_single(res, out) if single else write_protocol_results(res, out)
+    warnings = dict.fromkeys(w for s in res.studies for w in s.data.get("warnings", []))
+    for warning in warnings:  # even with --quiet: these seconds are in every row
         typer.echo(f"warning: {warning}", err=True)
     if quiet:
         return
-    _print_table(result, test_runs)
-    typer.echo(f"wrote {', '.join(str(f) for f in files.values())} "
-               f"(wall time {result.data['wall_time_s']:.0f} s)")
+    if single:
+        _print_table(res.studies[0], [i.label for i in res.studies[0].test_inputs])
+    _print_runs(res)
+    typer.echo(f"wrote {', '.join(str(f) for f in files.values())} (wall time {res.wall_time_s:.0f} s)")
 
 
 def _config(over: dict[str, Any], quick: bool, scenario: str | None, frame: str | None = None) -> Any:
@@ -197,16 +228,31 @@ def _given(**options: object) -> dict[str, object]:
     return {k: v for k, v in options.items() if v is not None}
 
 
-def _load_runs(train: list[Path] | None, test: list[Path] | None) -> tuple[list, list]:
-    """The training and test runs: the datasets given, or the default Hanyang runs."""
+def _load_runs(train: list[Path] | None, test: list[Path] | None, protocol: str | None) -> tuple[list, list]:
+    """The runs and the test runs: the datasets given, or the default Hanyang runs (all four, held out by
+    the protocol; the split protocol trains on the first three and tests on the last)."""
     from ..studies.tracking import hanyang_default_runs, runs_from_dataset
 
-    if bool(train) != bool(test):
-        raise PhySynthError("give both --train and --test, or neither (default Hanyang runs)")
+    def runs(paths: list[Path] | None) -> list:
+        return [r for p in paths or [] for r in runs_from_dataset(p)]
+
+    if protocol == "survey-only":
+        if train:
+            raise PhySynthError("--protocol survey-only trains on no real run: leave --train out")
+        if test:
+            return [], runs(test)
+        train_runs, test_run = hanyang_default_runs()
+        return [], [*train_runs, test_run]
+    if test and not train:
+        raise PhySynthError("--test needs --train (or --protocol survey-only with --scenario)")
     if train:
-        return [r for p in train for r in runs_from_dataset(p)], [r for p in test for r in runs_from_dataset(p)]
+        if protocol == "split" and not test:
+            raise PhySynthError("--protocol split trains on --train and scores --test: give --test")
+        return runs(train), runs(test)
     train_runs, test_run = hanyang_default_runs()
-    return train_runs, [test_run]
+    if protocol == "split":
+        return train_runs, [test_run]
+    return [*train_runs, test_run], []
 
 
 def _turned(runs: list, turn_deg: float, mirror: bool) -> list:
@@ -223,6 +269,59 @@ def _turned(runs: list, turn_deg: float, mirror: bool) -> list:
                                 trace=turn_trace(r.trace, math.radians(turn_deg), mirror=mirror)) for r in runs]
 
 
+def _height(tag_height: float | None, tag_height_std: float, no_height: bool) -> dict[str, Any]:
+    """The study's height settings of ``--tag-height`` / ``--tag-height-std`` / ``--no-height``."""
+    if no_height and tag_height is not None:
+        raise PhySynthError("--no-height and --tag-height exclude each other")
+    if no_height:
+        return {"height": "none"}
+    if tag_height is None:
+        return {}
+    return {"height": "given", "tag_height_m": tag_height, "tag_height_std_m": tag_height_std}
+
+
+def write_single(res, out: Path) -> dict[str, Path]:
+    """One study's files (:func:`physynth.studies.tracking.write_results`) with the per-run table in
+    ``results.json`` (``per_run``) and ``results.md``."""
+    import json
+
+    from ..io.atomic import atomic_write_text
+    from ..studies.protocol_report import protocol_markdown
+    from ..studies.tracking import write_results
+
+    files = write_results(res.studies[0], out)
+    data = json.loads(files["json"].read_text())
+    data["protocol"] = {k: v for k, v in res.to_json().items() if k != "config"}
+    atomic_write_text(files["json"], json.dumps(data, indent=1, allow_nan=True) + "\n")
+    atomic_write_text(files["md"], files["md"].read_text() + "\n" + protocol_markdown(res))
+    return files
+
+
+def _print_runs(res) -> None:
+    """Per test run and method: 3-D, horizontal and vertical RMSE (mean ± spread over seeds)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    spread = len(res.seeds) > 1
+    table = Table(title=f"{res.protocol}: per test run" + (f", mean ± std over {len(res.seeds)} seeds" if spread
+                                                           else ""), caption="errors in metres")
+    table.add_column("test run", ratio=1)
+    table.add_column("method", ratio=1)
+    for col in ("RMSE", "2D", "vertical", "P95"):
+        table.add_column(col, justify="right", no_wrap=True)
+    for r in res.summary:
+        if r["method"].startswith("ref:"):
+            continue
+        cells = [f"{r[k]:.3f}" + (f"±{r[k + '_std']:.2f}" if spread else "")
+                 for k in ("rmse_m", "rmse_2d_m", "rmse_v_m", "p95_m")]
+        table.add_row(r["run"], r["method"], *cells)
+    Console().print(table)
+    for c in res.comparisons:
+        p = c["p_wilcoxon"] if c["p_wilcoxon"] is not None else c["p_ttest"]
+        typer.echo(f"{c['method']} against {c['against']}: {c['mean_diff_m']:+.3f} m ({c['rel_diff_pct']:+.1f} %), "
+                   f"better in {c['wins']} of {c['n_pairs']}" + ("" if p is None else f", p = {p:.3g}"))
+
+
 def _print_table(result, test_runs: list) -> None:
     """The study's rows as a table on stdout, readable in 80 columns: short number columns that never
     wrap, and each method's description in its cell under its name."""
@@ -232,7 +331,7 @@ def _print_table(result, test_runs: list) -> None:
     from ..studies.tracking import compared_with_noaug, missing_text
 
     delta = compared_with_noaug(result.rows)  # no Δ column without NOAUG, the row it is relative to
-    table = Table(title=f"test run {', '.join(r.label for r in test_runs)}",
+    table = Table(title=f"test run {', '.join(test_runs)}",
                   caption="errors in metres" + ("; Δ RMSE: against NOAUG, in %" if delta else ""))
     table.add_column("method", ratio=1)
     for col in ("RMSE", "RMSE 2D", "MAE", "P50", "P95", *(("Δ RMSE",) if delta else ())):

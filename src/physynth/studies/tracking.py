@@ -39,6 +39,7 @@ from .. import __version__
 from ..errors import PhySynthError
 from ..records import TRUTH_UNTRUSTED_KEY, Trace, untrusted_truth
 from ..scenario import Scenario, scenario_to_dict
+from ..track.height import HeightPrior, height_from_scenario, height_from_truth
 from ..track.inputs import EKF_PRIOR_COAST_S, TrackInput, check_ekf_prior, track_input
 from ..track.reference import reference_estimates
 from ..track.scoring import error_stats
@@ -47,10 +48,15 @@ from ..transform import ISOMETRY_META_KEY, apply_isometry
 
 ProgressFn = Callable[[str], None]
 
+HEIGHT_SOURCES = ("training", "scenario", "given", "none")
+"""Where the study's tag height prior comes from (``StudyConfig.height``)."""
+
 METHODS = ("NOAUG", "AUG_GAN", "SYNTH_PHY", "bilstm", "ls", "ekf")
+"""Methods of the study, in table order (reference rows come last)."""
 NETWORK_METHODS = frozenset({"NOAUG", "AUG_GAN", "SYNTH_PHY", "bilstm"})
 """The methods that train a network (they need PyTorch and take ``StudyConfig.net``)."""
-"""Methods of the study, in table order (reference rows come last)."""
+REAL_TRAINED = ("NOAUG", "AUG_GAN", "bilstm")
+"""The methods that need real training runs (SYNTH_PHY can do without: pre-training alone)."""
 HANYANG_RUNS = ("LOS/Trajectory_A/Case_1", "LOS/Trajectory_A/Case_2", "NLOS/Trajectory_A/Case_1",
                 "NLOS/Trajectory_A/Case_2")
 """The default runs (under ``hanyang-uwb/Dynamic_measurements``): train on the first three, test on the last."""
@@ -115,6 +121,13 @@ class StudyConfig:
     on a machine with cores to spare an ensemble then takes about ``ensemble / jobs`` times one study's
     wall time. The members' results do not depend on it (each is deterministic from its seed)."""
     threads: int = 1
+    height: str = "training"
+    """What every tracker knows of the tag's height without the ranges (:mod:`physynth.track.height`):
+    ``training`` the mean and spread of the training runs' truth heights (the scenario's path without
+    training runs), ``scenario`` the scenario's path, ``given`` ``tag_height_m`` +- ``tag_height_std_m``,
+    ``none`` nothing (the vertical from the ranges alone)."""
+    tag_height_m: float | None = None
+    tag_height_std_m: float = 0.2
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.methods if m not in METHODS]
@@ -140,6 +153,12 @@ class StudyConfig:
             raise PhySynthError(f"finetune_synth_ratio must be in [0, 100], got {self.finetune_synth_ratio}")
         if self.net and NETWORK_METHODS & set(self.methods):
             _check_net_overrides(self.net)
+        if self.height not in HEIGHT_SOURCES:
+            raise PhySynthError(f"height must be one of {', '.join(HEIGHT_SOURCES)}, got '{self.height}'")
+        if (self.height == "given") != (self.tag_height_m is not None):
+            raise PhySynthError("a tag height is given exactly when height is 'given'")
+        if self.height == "given":
+            HeightPrior(float(self.tag_height_m), float(self.tag_height_std_m))  # refuses bad numbers
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -248,9 +267,14 @@ def runs_from_dataset(path: str | os.PathLike) -> list[StudyRun]:
     return out
 
 
-def _check_runs(train: Sequence[StudyRun], test: Sequence[StudyRun]) -> None:
+def _check_runs(train: Sequence[StudyRun], test: Sequence[StudyRun], cfg: StudyConfig | None = None,
+                scenario: Scenario | None = None) -> None:
     if not train:
-        raise PhySynthError("no training run")
+        real = [m for m in (cfg.methods if cfg else METHODS) if m in REAL_TRAINED]
+        if cfg is None or real or scenario is None:
+            raise PhySynthError("no training run" + (f": {', '.join(real)} train on real runs" if real else "")
+                                + ("" if scenario is not None else
+                                   " (without training runs, give the site's scenario for SYNTH_PHY)"))
     if not test:
         raise PhySynthError("no test run")
     for r in train:
@@ -316,6 +340,19 @@ def _trusted_ranges(trace: Trace) -> Trace:
     return replace(trace, uwb=uwb)
 
 
+def study_height(cfg: StudyConfig, train_traces: Sequence[Trace], scenario: Scenario | None) -> HeightPrior | None:
+    """The tag height prior every tracker of the study is given (``cfg.height``); None for ``none``."""
+    if cfg.height == "none":
+        return None
+    if cfg.height == "given":
+        return HeightPrior(float(cfg.tag_height_m), float(cfg.tag_height_std_m))
+    if cfg.height == "training" and train_traces:
+        return height_from_truth(train_traces)
+    if scenario is None:
+        raise PhySynthError("the tag height comes from the scenario's path, and no scenario was given")
+    return height_from_scenario(scenario)
+
+
 def _time_offset(traces: Sequence[Trace], trusted_only: bool = False) -> tuple[float, dict[str, Any]]:
     from ..calibrate.uwb_fit import fit_time_offset
 
@@ -338,7 +375,7 @@ def run_tracking_study(train: Sequence[StudyRun], test: StudyRun | Sequence[Stud
     cfg = config or StudyConfig()
     say = progress or (lambda _m: None)
     tests = [test] if isinstance(test, StudyRun) else list(test)
-    _check_runs(train, tests)
+    _check_runs(train, tests, cfg, scenario)
     torch = require_torch() if NETWORK_METHODS & set(cfg.methods) else None
     t_start = time.perf_counter()
     cpu_start = time.process_time()
@@ -368,12 +405,17 @@ def _net(cfg: StudyConfig, arch: str = "aoi-fusion", **extra: Any) -> Any:
 def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | None, cfg: StudyConfig,
          say: ProgressFn, t_start: float) -> StudyResult:
     train_traces = [r.trace for r in train]
-    say("estimating the UWB time lag on the training runs")
     trusted_only = cfg.train_trusted_truth
-    offset, offset_info = _time_offset(train_traces, trusted_only)
-    train_inputs = [track_input(r.trace, time_offset_s=offset, label=r.label, trusted_truth_only=trusted_only)
-                    for r in train]
-    test_inputs = [track_input(r.trace, time_offset_s=offset, label=r.label) for r in tests]
+    if train:
+        say("estimating the UWB time lag on the training runs")
+        offset, offset_info = _time_offset(train_traces, trusted_only)
+    else:  # a site without training runs: the scenario's lag
+        offset = float(scenario.uwb.time_offset_s) if scenario is not None else 0.0
+        offset_info = {"offset_s": offset, "source": "scenario (no training run)"}
+    height = study_height(cfg, train_traces, scenario)
+    train_inputs = [track_input(r.trace, time_offset_s=offset, label=r.label, trusted_truth_only=trusted_only,
+                                height=height) for r in train]
+    test_inputs = [track_input(r.trace, time_offset_s=offset, label=r.label, height=height) for r in tests]
     use_imu = all(i.acc_mps2 is not None for i in train_inputs + test_inputs)
     net_extra = {"use_imu": use_imu}
     estimates: dict[str, list[np.ndarray]] = {}
@@ -405,13 +447,16 @@ def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | 
             gan = ResidualGan(GanConfig(steps=cfg.gan_steps, seed=cfg.seed)).fit(train_traces, offset, progress=say)
             aug = [track_input(augment_trace(r.trace, gan, offset, seed=cfg.seed * 7919 + 31 * c + j),
                                time_offset_s=offset, label=f"{r.label} (GAN copy {c})",
-                               trusted_truth_only=trusted_only)
+                               trusted_truth_only=trusted_only, height=height)
                    for c in range(cfg.gan_copies) for j, r in enumerate(train)]
             notes["gan_final_losses"] = {k: float(np.mean(v[-100:])) for k, v in gan.history.items()}
             tr = _net(cfg, **net_extra).fit(train_inputs + aug, progress=say)
         elif method == "SYNTH_PHY":
             tr = _synth_phy(train, train_traces, train_inputs, scenario, cfg, net_extra, say, notes,
-                            lambda name, t: predict_all(name, t))
+                            lambda name, t: predict_all(name, t), height)
+            if tr is None:  # no training run: scored before fine-tuning only
+                timing[f"{method}.fit_s"] = time.perf_counter() - t0
+                continue
         else:  # pragma: no cover - checked by StudyConfig
             raise PhySynthError(f"unknown method {method}")
         timing[f"{method}.fit_s"] = time.perf_counter() - t0
@@ -441,6 +486,7 @@ def _run(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | 
         "warnings": late_truth_warnings(test_inputs),
         "time_offset": offset_info,
         "use_imu": use_imu,
+        "height_prior": None if height is None else height.to_dict(),
         "inputs": _input_settings(cfg),
         "grid_rate_hz": test_inputs[0].rate_hz,
         "error_definition": "||p_hat(t_k) - p(t_k)|| on the 100 Hz grid steps with truth, from the first valid "
@@ -601,7 +647,11 @@ def _input_settings(cfg: StudyConfig) -> dict[str, Any]:
 
 def _synth_phy(train: Sequence[StudyRun], train_traces: list[Trace], train_inputs: list[TrackInput],
                scenario: Scenario | None, cfg: StudyConfig, net_extra: dict[str, Any], say: ProgressFn,
-               notes: dict[str, Any], score_pretrained: Callable[[str, Any], None]) -> Any:
+               notes: dict[str, Any], score_pretrained: Callable[[str, Any], None],
+               height: HeightPrior | None = None) -> Any:
+    """Pre-train on PhySynth traces, score, fine-tune on the real runs; without training runs (a site known
+    from its survey only) the pre-trained network is the result, scored as ``SYNTH_PHY (survey only)``
+    (returns None)."""
     from ..track.torch_data import SyntheticWindows, TraceWindows
 
     if scenario is None:
@@ -619,11 +669,14 @@ def _synth_phy(train: Sequence[StudyRun], train_traces: list[Trace], train_input
     net = _net(cfg, **net_extra)
     synth = SyntheticWindows(scenario, cfg.n_synth_traces, cfg.seed, net.window_spec(),
                              windows_per_trace=cfg.synth_windows_per_trace, variation=variation,
-                             cache_size=cfg.n_synth_traces)
+                             cache_size=cfg.n_synth_traces, height=height)
     say(f"SYNTH_PHY: generating {cfg.n_synth_traces} synthetic traces")
     for i in range(cfg.n_synth_traces):
         synth.arrays(i)  # fill the cache once; every epoch then reads the same traces
     net.train(synth, epochs=cfg.pretrain_epochs, lr=cfg.pretrain_lr, stage="pre-train (synthetic)", progress=say)
+    if not train:
+        score_pretrained(SURVEY_ONLY, net)
+        return None
     score_pretrained("SYNTH_PHY (synthetic only)", net)
     real = TraceWindows(train_inputs, net.window_spec())
     data, n_synth = finetune_windows(real, synth, cfg.finetune_synth_ratio, cfg.seed)
@@ -632,6 +685,10 @@ def _synth_phy(train: Sequence[StudyRun], train_traces: list[Trace], train_input
               stage="fine-tune (real)" if n_synth == 0 else "fine-tune (real + synthetic)", progress=say)
     return net
 
+
+SURVEY_ONLY = "SYNTH_PHY (survey only)"
+"""The row of a study without training runs: the network pre-trained on PhySynth data of a scenario built
+from the site's anchor survey and route, never fine-tuned (it has seen no real range)."""
 
 FINETUNE_MIX_KEY = 7
 """spawn_key of the draw of the synthetic windows kept for fine-tuning (``SeedSequence(seed, (key,))``)."""
@@ -669,6 +726,7 @@ ROW_NAMES = {
     "AUG_GAN": "AUG_GAN (aoi-fusion, real + GAN residuals)",
     "SYNTH_PHY": "SYNTH_PHY (aoi-fusion, PhySynth pre-train + real fine-tune)",
     "SYNTH_PHY (synthetic only)": "SYNTH_PHY before fine-tuning (no real data)",
+    SURVEY_ONLY: "SYNTH_PHY, no real training run (the site's survey and PhySynth only)",
     "bilstm": "bilstm (real only)",
     "ls": "ls (robust multilateration)",
     "ekf": "ekf (constant velocity)",

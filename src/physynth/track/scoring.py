@@ -2,18 +2,19 @@
 
 The error of an estimate at grid step ``k`` is the Euclidean distance ``||p_hat(t_k) - p(t_k)||`` [m] to
 the truth interpolated at ``t_k``, over the scored steps (:meth:`TrackInput.eval_mask`: truth known, at
-or after the first valid range). ``rmse_2d_m`` uses the east and north components only.
+or after the first valid range). ``rmse_2d_m`` uses the east and north components only, ``rmse_v_m``
+the vertical one only.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-STAT_KEYS = ("rmse_m", "rmse_2d_m", "mae_m", "p50_m", "p95_m")
+STAT_KEYS = ("rmse_m", "rmse_2d_m", "rmse_v_m", "mae_m", "p50_m", "p95_m")
 
 
 def error_stats(est_enu_m: np.ndarray, truth_enu_m: np.ndarray, mask: np.ndarray | None = None) -> dict[str, float]:
-    """RMSE, horizontal RMSE, MAE, median and 95th percentile [m] of the position error.
+    """RMSE, horizontal and vertical RMSE, MAE, median and 95th percentile [m] of the position error.
 
     ``est_enu_m`` and ``truth_enu_m`` are (K, 3) [m]; ``mask`` (K,) selects the scored steps. Steps
     where either is NaN are not scored; an estimate that is NaN on a scored step counts as missing
@@ -33,6 +34,7 @@ def error_stats(est_enu_m: np.ndarray, truth_enu_m: np.ndarray, mask: np.ndarray
     return {
         "rmse_m": float(np.sqrt(np.mean(e**2))),
         "rmse_2d_m": float(np.sqrt(np.mean(e2**2))),
+        "rmse_v_m": float(np.sqrt(np.mean(d[:, 2] ** 2))),
         "mae_m": float(np.mean(e)),
         "p50_m": float(np.percentile(e, 50)),
         "p95_m": float(np.percentile(e, 95)),

@@ -150,16 +150,18 @@ class IsometryWindows(torch.utils.data.Dataset):
 class TraceWindows(torch.utils.data.Dataset):
     """Windows over stored traces: a dataset directory, Trace records or ready :class:`TrackInput` s.
 
-    ``time_offset_s`` is the UWB lag removed before the grid is built (:func:`track_input`).
+    ``time_offset_s`` is the UWB lag removed before the grid is built (:func:`track_input`); ``height``
+    the tag's :class:`~physynth.track.height.HeightPrior` given to traces (TrackInputs keep their own).
     """
 
     def __init__(self, source: str | os.PathLike | Sequence[Any], spec: WindowSpec = WindowSpec(), *,
-                 time_offset_s: float = 0.0) -> None:
+                 time_offset_s: float = 0.0, height: Any = None) -> None:
         if isinstance(source, (str, os.PathLike)):
             from ..io.dataset import read_dataset
 
             source = read_dataset(source).traces
-        inputs = [s if isinstance(s, TrackInput) else track_input(s, time_offset_s=time_offset_s) for s in source]
+        inputs = [s if isinstance(s, TrackInput) else track_input(s, time_offset_s=time_offset_s, height=height)
+                  for s in source]
         self.spec = spec
         self.arrays = [spec.arrays(i) for i in inputs]
         self.index = [(t, int(s)) for t, a in enumerate(self.arrays)
@@ -178,11 +180,13 @@ class SyntheticWindows(torch.utils.data.Dataset):
 
     Item ``j`` is window ``j % windows_per_trace`` of trace ``j // windows_per_trace``; the windows of a
     trace are evenly spaced over it. Trace ``i`` depends only on ``(scenario, root_seed, i, variation)``.
-    ``cache_size`` traces are kept per process (items of one trace are usually requested together).
+    ``cache_size`` traces are kept per process (items of one trace are usually requested together);
+    ``height``: the tag's :class:`~physynth.track.height.HeightPrior` every trace's input carries.
     """
 
     def __init__(self, scenario: Any, n_traces: int, root_seed: int, spec: WindowSpec = WindowSpec(), *,
-                 windows_per_trace: int = 16, variation: Any = None, cache_size: int = 4) -> None:
+                 windows_per_trace: int = 16, variation: Any = None, cache_size: int = 4,
+                 height: Any = None) -> None:
         from ..generate import compile_scenario
 
         if n_traces < 1 or windows_per_trace < 1:
@@ -193,6 +197,7 @@ class SyntheticWindows(torch.utils.data.Dataset):
         self.spec, self.windows_per_trace, self.variation = spec, int(windows_per_trace), variation
         self.time_offset_s = float(scenario.uwb.time_offset_s)
         self.cache_size = int(cache_size)
+        self.height = height
         self._cache: OrderedDict[int, NetArrays] = OrderedDict()
 
     def __len__(self) -> int:
@@ -209,7 +214,7 @@ class SyntheticWindows(torch.utils.data.Dataset):
         if i in self._cache:
             self._cache.move_to_end(i)
             return self._cache[i]
-        inp = track_input(self.trace(i), time_offset_s=self.time_offset_s)
+        inp = track_input(self.trace(i), time_offset_s=self.time_offset_s, height=self.height)
         arr = self.spec.arrays(inp)
         self._cache[i] = arr
         while len(self._cache) > self.cache_size:

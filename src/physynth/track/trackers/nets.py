@@ -15,6 +15,10 @@ first ``burn_in_steps`` (the recurrent state has warmed up) where the truth is k
 - an IMU branch (MLP of the bin-mean acceleration, multiplied by the has-IMU flag, so it can be absent);
 - a recurrent temporal model (``rnn="gru"`` or ``"lstm"``) and an MLP position head.
 
+With ``likelihood`` (the default) the head also gives a log-variance per axis and the loss is the
+beta-NLL (:func:`masked_loss`); prediction floors the vertical variance by what the geometry allows and
+combines the vertical with what is known without the ranges (:mod:`physynth.track.fallback`).
+
 ``bilstm``: the anchors' features concatenated in their order (padded to the anchor count seen in
 training) and the acceleration, a linear layer, a bidirectional LSTM and a linear head.
 
@@ -36,6 +40,7 @@ import numpy as np
 from ...errors import PhySynthError
 from .. import require_torch
 from ..inputs import (
+    EKF_PRIOR_COAST_S,
     N_ANCHOR_FEATURES,
     N_EKF_FEATURES,
     N_GLOBAL_FEATURES,
@@ -104,6 +109,12 @@ class NetConfig:
     random_isometry: bool = False
     test_isometries: int = 8
     route_frame: bool = False
+    likelihood: bool = True
+    """The head gives a mean and a log-variance per axis, trained with the beta-NLL (Gaussian negative
+    log-likelihood weighted by the detached variance to the power ``nll_beta``, so the mean learns as
+    with squared error); prediction then floors the vertical variance by the geometry's and falls back to
+    the known height or the ``ekf`` (:mod:`physynth.track.fallback`). False: the mean alone, squared error."""
+    nll_beta: float = 0.5
     seed: int = 0
     device: str = "auto"
 
@@ -118,6 +129,8 @@ class NetConfig:
         check_ekf_prior(self.ekf_prior)
         if self.weight_average not in ("none", "swa"):
             raise PhySynthError(f"weight_average must be none or swa, got '{self.weight_average}'")
+        if not 0.0 <= self.nll_beta <= 1.0:
+            raise PhySynthError(f"nll_beta must be in [0, 1], got {self.nll_beta}")
         if self.rnn not in ("gru", "lstm"):
             raise PhySynthError(f"unknown recurrent model '{self.rnn}' (gru or lstm)")
         if self.burn_in_steps >= self.window_steps:
@@ -135,9 +148,23 @@ class NetConfig:
         return N_GLOBAL_FEATURES + (N_EKF_FEATURES if self.ekf_prior != "none" else 0)
 
 
+LOG_VAR_RANGE = (-12.0, 6.0)
+"""Clamp of the predicted log-variance (in units of ``length_scale_m``^2: about 2.5 mm to 200 m of spread
+at 10 m)."""
+
+
+def _n_out(cfg: NetConfig) -> int:
+    """Head outputs: the position (3), and its log-variance per axis (3) with ``likelihood``."""
+    return 6 if cfg.likelihood else 3
+
+
 def _with_prior(out: Any, g: Any, cfg: NetConfig) -> Any:
-    """The network output, plus the ``ekf`` position (the last three columns of ``g``) for ``residual``."""
-    return out + g[..., -N_EKF_FEATURES:] if cfg.ekf_prior == "residual" else out
+    """The network output, plus the ``ekf`` position (the last three columns of ``g``) for ``residual``
+    (the position part only; a log-variance part is clamped to :data:`LOG_VAR_RANGE`)."""
+    mean = out[..., :3] + g[..., -N_EKF_FEATURES:] if cfg.ekf_prior == "residual" else out[..., :3]
+    if not cfg.likelihood:
+        return mean
+    return torch.cat([mean, out[..., 3:].clamp(*LOG_VAR_RANGE)], dim=-1)
 
 
 def _mlp(n_in: int, hidden: int, n_out: int) -> nn.Module:
@@ -160,7 +187,7 @@ class AoIFusionNet(nn.Module):
         self.fuse = nn.Sequential(nn.Linear(2 * h + h // 2 + cfg.n_global, h), nn.GELU())
         rnn = nn.GRU if cfg.rnn == "gru" else nn.LSTM
         self.rnn = rnn(h, h, num_layers=cfg.layers, batch_first=True)
-        self.head = _mlp(h, h, 3)
+        self.head = _mlp(h, h, _n_out(cfg))
 
     def forward(self, x: Any, anchor_ok: Any, acc: Any, has_imu: Any, g: Any) -> Any:
         """x (B, T, A, 9), anchor_ok (B, A), acc (B, T, 3), has_imu (B,), g (B, T, 6) -> positions (B, T, 3)."""
@@ -191,7 +218,7 @@ class BiLstmNet(nn.Module):
         n_in = n_anchors * N_ANCHOR_FEATURES + 3 + cfg.n_global
         self.inp = nn.Sequential(nn.Linear(n_in, cfg.hidden), nn.GELU())
         self.rnn = nn.LSTM(cfg.hidden, cfg.hidden, num_layers=cfg.layers, batch_first=True, bidirectional=True)
-        self.head = nn.Linear(2 * cfg.hidden, 3)
+        self.head = nn.Linear(2 * cfg.hidden, _n_out(cfg))
 
     def forward(self, x: Any, anchor_ok: Any, acc: Any, has_imu: Any, g: Any) -> Any:
         b, t, a, f = x.shape
@@ -205,12 +232,28 @@ class BiLstmNet(nn.Module):
         return _with_prior(self.head(out), g, self.cfg)
 
 
-def masked_loss(pred: Any, batch: dict[str, Any], burn_in: int) -> Any:
-    """Mean squared position error over the steps after ``burn_in`` where the truth is known."""
+def masked_loss(pred: Any, batch: dict[str, Any], burn_in: int, nll_beta: float | None = None) -> Any:
+    """Mean loss over the steps after ``burn_in`` where the truth is known: the squared position error for
+    a (B, T, 3) prediction; for a (B, T, 6) one (mean, log-variance) the beta-NLL
+    ``sum_axes (log v + (y - m)^2 / v) / 2 * v.detach()^beta`` (Seitzer et al., ICLR 2022: beta 0 is the
+    Gaussian NLL, beta 1 trains the mean as squared error does)."""
     ok = batch["y_ok"].clone()
     ok[:, :burn_in] = False
-    se = ((pred - batch["y"]) ** 2).sum(dim=-1)
-    return (se * ok).sum() / ok.sum().clamp(min=1)
+    err2 = (pred[..., :3] - batch["y"]) ** 2
+    if pred.shape[-1] == 3:
+        per = err2.sum(dim=-1)
+    else:
+        log_v = pred[..., 3:]
+        var = log_v.exp()
+        per = (0.5 * (log_v + err2 / var) * var.detach() ** float(nll_beta or 0.0)).sum(dim=-1)
+    return (per * ok).sum() / ok.sum().clamp(min=1)
+
+
+def mean_sq_error(pred: Any, batch: dict[str, Any], burn_in: int) -> Any:
+    """The mean squared position error of the same steps as :func:`masked_loss` (for the training log)."""
+    ok = batch["y_ok"].clone()
+    ok[:, :burn_in] = False
+    return ((((pred[..., :3] - batch["y"]) ** 2).sum(dim=-1)) * ok).sum() / ok.sum().clamp(min=1)
 
 
 class NetTracker:
@@ -290,7 +333,7 @@ class NetTracker:
             for batch in loader:
                 batch = {k: v.to(dev) for k, v in batch.items()}
                 pred = self.model(batch["x"], batch["anchor_ok"], batch["acc"], batch["has_imu"], batch["g"])
-                loss = masked_loss(pred, batch, c.burn_in_steps)
+                loss = masked_loss(pred, batch, c.burn_in_steps, c.nll_beta)
                 opt.zero_grad()
                 loss.backward()
                 if c.grad_clip > 0:
@@ -298,7 +341,7 @@ class NetTracker:
                 opt.step()
                 if sched is not None:
                     sched.step()
-                total += float(loss.detach()) * len(batch["x"])
+                total += float(mean_sq_error(pred.detach(), batch, c.burn_in_steps)) * len(batch["x"])
                 n += len(batch["x"])
             losses.append(total / max(n, 1))
             if swa is not None and ep >= epochs // 2:
@@ -318,7 +361,18 @@ class NetTracker:
 
     # ------------------------------------------------------------------ prediction
     def predict(self, inp: TrackInput) -> np.ndarray:
-        """(K, 3) ENU [m]: overlapping windows, their steps after the burn-in, interpolated to the grid."""
+        """(K, 3) ENU [m]: overlapping windows, their steps after the burn-in, interpolated to the grid
+        (with ``likelihood``, the vertical after the fallback of :meth:`predict_dist`)."""
+        return self.predict_dist(inp)[0]
+
+    def predict_dist(self, inp: TrackInput) -> tuple[np.ndarray, np.ndarray]:
+        """(K, 3) ENU positions [m] and (K, 3) their variance per axis [m^2] (NaN without ``likelihood``).
+
+        With ``likelihood`` the vertical variance is floored by the geometry's (one set of ranges at the
+        estimate, :func:`~physynth.track.fallback.geometry_vertical_var`) and the vertical combined with
+        what is known without the ranges (:func:`~physynth.track.fallback.fuse_vertical`): the input's
+        height prior, or else the ``ekf``'s vertical and its variance.
+        """
         if self.model is None:
             raise PhySynthError(f"{self.name}: predict before fit")
         c = self.config
@@ -337,13 +391,39 @@ class NetTracker:
         g = torch.from_numpy(arr.g[idx]).to(dev)
         with torch.no_grad():
             pred = self._predict_windows(x, ok, acc, imu, g)
-        out = np.full((n, 3), np.nan)
+        out = np.full((n, pred.shape[-1]), np.nan)
         for j, s in enumerate(starts):  # each window's warm steps (all of the first window)
             keep = np.arange(w) >= (0 if s == 0 else burn)
             out[idx[j][keep]] = pred[j][keep]
-        out = upsample(inp, arr.step, (out @ frame) * c.length_scale_m)  # back from the route frame
-        out[inp.t_s < inp.first_range_s] = np.nan
-        return out
+        mean = (out[:, :3] @ frame) * c.length_scale_m  # back from the route frame
+        var = np.full_like(mean, np.nan)
+        if c.likelihood:
+            var = (out[:, 3:] @ (frame * frame)) * c.length_scale_m**2
+            mean, var = self._fallback(inp, arr, mean, var)
+        pos = upsample(inp, arr.step, mean)
+        var_k = upsample(inp, arr.step, var) - inp.ref_enu_m if c.likelihood else np.full_like(pos, np.nan)
+        pos[inp.t_s < inp.first_range_s] = np.nan
+        return pos, var_k
+
+    def _fallback(self, inp: TrackInput, arr: Any, mean: np.ndarray, var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The vertical of ``mean``/``var`` (T, 3) [m, m^2] at the network steps ``arr.step`` after the
+        geometry floor and the fallback (:meth:`predict_dist`)."""
+        from ..fallback import fuse_vertical, geometry_vertical_var
+
+        has = arr.x[:, :, 6] > 0.5
+        var = var.copy()
+        var[:, 2] = np.maximum(var[:, 2], geometry_vertical_var(mean, inp.anchor_pos_rel_m, has))
+        if inp.height is not None:
+            known_z, known_var = inp.height_rel_m, inp.height.std_m**2
+        else:
+            from .ekf import EkfTracker
+
+            ekf = EkfTracker(use_imu=arr.has_imu, fit_range_std=False, max_coast_s=EKF_PRIOR_COAST_S)
+            pos, vz = ekf.predict_rel_var(inp)
+            known_z, known_var = pos[arr.step, 2], vz[arr.step]
+        mean = mean.copy()
+        mean[:, 2], var[:, 2] = fuse_vertical(mean[:, 2], var[:, 2], known_z, known_var)
+        return mean, var
 
     def _isometries(self) -> list[np.ndarray]:
         from ...transform import isometry_matrix
@@ -354,19 +434,26 @@ class NetTracker:
         return [isometry_matrix(2.0 * np.pi * i / turns, m) for m in mirrors for i in range(turns)]
 
     def _predict_windows(self, x: Any, ok: Any, acc: Any, imu: Any, g: Any) -> np.ndarray:
-        """Network outputs (B, W, 3) in the test frame, averaged over the test-time isometries."""
+        """Network outputs (B, W, 3) in the test frame, averaged over the test-time isometries; with
+        ``likelihood`` (B, W, 6): the mean and the variance per axis of the mixture of the turned copies
+        (in units of ``length_scale_m``)."""
         from ..torch_data import turn_window
 
         mats = self._isometries()
-        if len(mats) == 1:
-            return self.model(x, ok, acc, imu, g).cpu().numpy().astype(np.float64)
         n = x.shape[0]
-        moved = [turn_window({"x": x, "g": g, "acc": acc}, m) for m in mats]
-        out = self.model(torch.cat([d["x"] for d in moved]), ok.repeat(len(mats), 1),
-                         torch.cat([d["acc"] for d in moved]), imu.repeat(len(mats)),
-                         torch.cat([d["g"] for d in moved])).cpu().numpy().astype(np.float64)
-        back = [out[i * n:(i + 1) * n] @ m for i, m in enumerate(mats)]  # y = y' M for y' = y M^T
-        return np.mean(back, axis=0)
+        if len(mats) == 1:
+            outs = [self.model(x, ok, acc, imu, g).cpu().numpy().astype(np.float64)]
+        else:
+            moved = [turn_window({"x": x, "g": g, "acc": acc}, m) for m in mats]
+            out = self.model(torch.cat([d["x"] for d in moved]), ok.repeat(len(mats), 1),
+                             torch.cat([d["acc"] for d in moved]), imu.repeat(len(mats)),
+                             torch.cat([d["g"] for d in moved])).cpu().numpy().astype(np.float64)
+            outs = [out[i * n:(i + 1) * n] for i in range(len(mats))]
+        means = np.stack([o[..., :3] @ m for o, m in zip(outs, mats, strict=True)])  # y = y' M for y' = y M^T
+        if not self.config.likelihood:
+            return means.mean(axis=0)
+        var = np.mean([np.exp(o[..., 3:]) @ (m * m) for o, m in zip(outs, mats, strict=True)], axis=0)
+        return np.concatenate([means.mean(axis=0), var + means.var(axis=0)], axis=-1)
 
     # ------------------------------------------------------------------ persistence
     def state(self) -> dict[str, Any]:
@@ -376,7 +463,8 @@ class NetTracker:
 
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> NetTracker:
-        tr = cls(state["arch"], NetConfig(**state["config"]))
+        # a state saved before the likelihood head has none: its config leaves the field out
+        tr = cls(state["arch"], NetConfig(**{"likelihood": False, **state["config"]}))
         tr._build(state["n_anchors"])
         try:
             tr.model.load_state_dict(state["weights"])
