@@ -23,8 +23,8 @@ from physynth.studies.tracking import (  # noqa: E402
     StudyRun,
     finetune_windows,
     run_tracking_study,
-    write_results,
 )
+from physynth.studies.tracking_report import write_results  # noqa: E402
 
 TINY = {"epochs": 2, "pretrain_epochs": 1, "finetune_epochs": 1, "n_synth_traces": 2, "synth_windows_per_trace": 4,
         "gan_steps": 50, "gan_copies": 1, "threads": 1,
@@ -137,7 +137,7 @@ def test_a_run_that_is_trained_on_and_scored_is_refused(runs):
     times (a test run turned, or imported again); one recording's other times may be scored."""
     import dataclasses
 
-    from physynth.studies.tracking import results_markdown
+    from physynth.studies.tracking_report import results_markdown
     from physynth.transform import turn_trace
 
     scn, rr = runs
@@ -187,7 +187,15 @@ def test_cli_bad_input_exit_2_one_line(runs, tmp_path, capsys):
     cases = [
         (["--train", train, "--test", bad_test, "--methods", "ls"], "no ground truth"),
         (["--train", train, "--test", train, "--methods", "NOAUG,kalman"], "unknown method"),
-        (["--train", train, "--methods", "ls"], "both --train and --test"),
+        (["--test", train, "--methods", "ls"], "--test needs --train"),
+        (["--train", train, "--methods", "ls", "--protocol", "split"], "give --test"),
+        (["--train", train, "--methods", "ls", "--protocol", "leave-one-layout-out"], "two or more anchor layouts"),
+        (["--train", train, "--methods", "ls", "--protocol", "k-fold"], "--protocol must be one of"),
+        (["--test", train, "--methods", "ls", "--protocol", "survey-only"], "needs --scenario"),
+        (["--train", train, "--methods", "ls", "--tag-height", "nan"], "tag height must be a finite"),
+        (["--train", train, "--methods", "ls", "--tag-height", "1", "--tag-height-std", "0"], "spread must be"),
+        (["--train", train, "--methods", "ls", "--tag-height", "1", "--no-height"], "exclude each other"),
+        (["--train", train, "--test", train, "--methods", "ls", "--seeds", "0"], "Invalid value for '--seeds'"),
         (["--train", train, "--test", train, "--methods", "ls"],
          "test run train[0] holds the same recording as training run train[0]"),
         (["--train", tmp_path / "missing", "--test", train, "--methods", "ls"], "does not exist"),
@@ -217,7 +225,7 @@ def test_cli_passes_the_pretraining_options_to_the_study(runs, tmp_path, capsys)
     scn, rr = runs
     train = write_dataset(tmp_path / "train", [r.trace for r in rr[:2]])
     test = write_dataset(tmp_path / "test", [rr[2].trace])
-    main(["study", "tracking", "--train", str(train), "--test", str(test), "--methods", "SYNTH_PHY",
+    main(["study", "tracking", "--seeds", "1", "--train", str(train), "--test", str(test), "--methods", "SYNTH_PHY",
           "--scenario", str(save_scenario(scn, tmp_path / "s.yaml")), "--pretrain-epochs", "2",
           "--finetune-epochs", "2", "--n-synth", "2", "--synth-windows", "3", "--weight-average", "swa",
           "--ekf-prior", "input", "--synth-nlos-spread", "0.7", "--out", str(tmp_path / "out"), "-q"])
@@ -272,7 +280,8 @@ def test_cli_route_frame_scores_a_turned_run_like_the_run(runs, tmp_path, capsys
     scn, rr = runs
     train = write_dataset(tmp_path / "train", [r.trace for r in rr[:2]])
     test = write_dataset(tmp_path / "test", [rr[2].trace])
-    base = ["study", "tracking", "--train", str(train), "--test", str(test), "--methods", "NOAUG", "--epochs", "1",
+    base = ["study", "tracking", "--seeds", "1", "--train", str(train), "--test", str(test), "--methods", "NOAUG",
+            "--epochs", "1",
             "-q"]
     main([*base, "--frame", "route", "--out", str(tmp_path / "plain")])
     main([*base, "--frame", "route", "--turn-test", "75", "--out", str(tmp_path / "turned")])
@@ -535,8 +544,8 @@ def test_cli_refuses_no_methods_and_options_without_effect(runs, tmp_path, capsy
              (["--methods", "ls,ekf", "--frame", "route"], "--frame only matters for NOAUG"),
              (["--methods", "ls", "--ensemble", "2"], "--ensemble only matters for NOAUG")]
     for args, needle in cases:
-        code, out = _cli(capsys, "study", "tracking", "--train", train, "--test", test, *args, "--quick",
-                         "--out", tmp_path / "o", "-q")
+        code, out = _cli(capsys, "study", "tracking", "--seeds", "1", "--train", train, "--test", test, *args,
+                         "--quick", "--out", tmp_path / "o", "-q")
         assert code == 2, (args, out.err)
         assert needle in out.err and len(out.err.strip().splitlines()) == 1 and "Traceback" not in out.err
     assert not (tmp_path / "o" / "results.json").exists()

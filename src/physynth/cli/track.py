@@ -281,13 +281,13 @@ def _height(tag_height: float | None, tag_height_std: float, no_height: bool) ->
 
 
 def write_single(res, out: Path) -> dict[str, Path]:
-    """One study's files (:func:`physynth.studies.tracking.write_results`) with the per-run table in
+    """One study's files (:func:`physynth.studies.tracking_report.write_results`) with the per-run table in
     ``results.json`` (``per_run``) and ``results.md``."""
     import json
 
     from ..io.atomic import atomic_write_text
     from ..studies.protocol_report import protocol_markdown
-    from ..studies.tracking import write_results
+    from ..studies.tracking_report import write_results
 
     files = write_results(res.studies[0], out)
     data = json.loads(files["json"].read_text())
@@ -328,7 +328,7 @@ def _print_table(result, test_runs: list) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    from ..studies.tracking import compared_with_noaug, missing_text
+    from ..studies.tracking_report import compared_with_noaug, missing_text
 
     delta = compared_with_noaug(result.rows)  # no Δ column without NOAUG, the row it is relative to
     table = Table(title=f"test run {', '.join(test_runs)}",

@@ -32,7 +32,7 @@ import numpy as np
 from ..errors import PhySynthError
 from ..scenario import Scenario
 from ..track.scoring import error_stats
-from .tracking import StudyConfig, StudyResult, StudyRun, run_tracking_study
+from .tracking import NETWORK_METHODS, StudyConfig, StudyResult, StudyRun, run_tracking_study
 
 PROTOCOLS = ("leave-one-layout-out", "leave-one-run-out", "split", "survey-only")
 """The study's protocols (module docstring)."""
@@ -157,12 +157,15 @@ def _pooled(result: StudyResult, fold: str, seed: int) -> list[dict[str, Any]]:
 def run_protocol(runs: Sequence[StudyRun], tests: Sequence[StudyRun] = (), *, protocol: str | None = None,
                  seeds: Sequence[int] = (0, 1, 2), scenario: Scenario | None = None,
                  config: StudyConfig | None = None, progress: ProgressFn | None = None) -> ProtocolResult:
-    """Every fold of ``protocol`` (default :func:`default_protocol`) once per seed of ``seeds``."""
+    """Every fold of ``protocol`` (default :func:`default_protocol`) once per seed of ``seeds`` (once only
+    when no method trains a network: the classical trackers draw no seed)."""
     cfg = config or StudyConfig()
     say = progress or (lambda _m: None)
     seeds = [int(s) for s in seeds]
     if not seeds or len(set(seeds)) != len(seeds):
         raise PhySynthError(f"seeds must be one or more distinct integers, got {seeds}")
+    if not NETWORK_METHODS & set(cfg.methods):
+        seeds = seeds[:1]  # the classical trackers draw no seed: every seed would give the same numbers
     proto = protocol or default_protocol(runs, bool(tests))
     if proto == "survey-only" and scenario is None:
         raise PhySynthError("the survey-only protocol needs the site's scenario (its anchors, route and channel)")

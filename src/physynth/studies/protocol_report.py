@@ -1,6 +1,6 @@
 """The tracking study's results over folds and seeds: ``results.json``, ``results.md`` and a figure.
 
-One study (one fold, one seed) is written as before (:func:`physynth.studies.tracking.write_results`)
+One study (one fold, one seed) is written as before (:func:`physynth.studies.tracking_report.write_results`)
 with the per-run table added; several are written as their summary (:class:`ProtocolResult`) with every
 study's own files in ``studies/<fold>-seed<seed>/``.
 """
@@ -15,7 +15,8 @@ from typing import Any
 import numpy as np
 
 from .protocol import RUN_STATS, ProtocolResult
-from .tracking import ROW_NAMES, write_results
+from .tracking import ROW_NAMES
+from .tracking_report import write_results
 
 STAT_TITLES = {"rmse_m": "RMSE 3-D", "rmse_2d_m": "RMSE 2-D", "rmse_v_m": "RMSE vertical", "p95_m": "P95 3-D"}
 
