@@ -88,7 +88,8 @@ def test_the_hanyang_runs_hold_two_layouts():
     train, test = hanyang_default_runs()
     runs = [*train, test]
     assert [[runs[i].label for i in g] for g in layout_groups(runs)] == [
-        ["LOS/Trajectory_A/Case_1", "NLOS/Trajectory_A/Case_1"], ["LOS/Trajectory_A/Case_2", "NLOS/Trajectory_A/Case_2"]]
+        ["LOS/Trajectory_A/Case_1", "NLOS/Trajectory_A/Case_1"],
+        ["LOS/Trajectory_A/Case_2", "NLOS/Trajectory_A/Case_2"]]
 
 
 def test_compare_methods_pairs_runs_and_seeds():
