@@ -42,3 +42,27 @@ def test_one_trace_is_pinned_sample_by_sample(traces):
     assert int(t.uwb.nlos.sum()) == 3330
     assert float(t.imu.acc_mps2[1234, 0]) == pytest.approx(-0.1520036428603011, rel=1e-9)
     assert float(np.nansum(t.uwb.range_m)) == pytest.approx(619755.3811563826, rel=1e-12)
+
+
+def test_a_variation_section_without_a_layout_distribution_is_pinned():
+    """A ``variation`` section's traces (layouts, shuffle, random routes, NLOS spread) as the code before
+    ``layout_distribution`` drew them (recorded at commit bb26961): the new field, None, changes no draw."""
+    from physynth.scenario import scenario_from_dict, scenario_to_dict
+
+    base = load_scenario("walk-hanyang")
+    d = scenario_to_dict(base)
+    d["variation"] = {"layouts": [[[a.pos_enu_m[0] + de, a.pos_enu_m[1], a.pos_enu_m[2]] for a in base.anchors]
+                                  for de in (0.0, 2.0)],
+                      "shuffle_anchors": True, "random_route_prob": 0.5, "nlos_log_std": 0.5,
+                      "path_lateral_std_m": 1.0, "path_sag_std_m": 0.1}
+    cs = compile_scenario(scenario_from_dict(d, "pinned variation"))
+    t1, t2 = generate_trace(cs, 1, 5), generate_trace(cs, 2, 5)
+    assert t1.meta["site_variation"] == {
+        "layout": 1, "yaw_rad": pytest.approx(0.05441324928078726, rel=1e-12),
+        "shift_m": pytest.approx([0.6911895461547867, 0.323345957430108], rel=1e-12),
+        "random_route": False, "nlos_scale": pytest.approx(0.5515197811301469, rel=1e-12)}
+    assert float(t1.anchors.pos_enu_m.sum()) == pytest.approx(21.768243210381765, rel=1e-12)
+    assert t1.uwb.t_s.size == 9180 and float(np.nansum(t1.uwb.range_m)) == pytest.approx(177821.7540359924, rel=1e-12)
+    assert t2.meta["site_variation"]["random_route"] and t2.uwb.t_s.size == 6508
+    assert float(np.nansum(t2.uwb.range_m)) == pytest.approx(188908.82952832268, rel=1e-12)
+    assert float(t2.anchors.pos_enu_m.sum()) == pytest.approx(21.64610776443081, rel=1e-12)
