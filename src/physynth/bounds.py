@@ -71,6 +71,17 @@ BOUNDS: dict[str, Bound] = {
     "variation.random_route_prob": _PROB,
     "variation.random_route_points": Bound(2.0, 1000.0, "", "waypoints of a random route"),
     "variation.nlos_log_std": Bound(0.0, 3.0, "", "per-trace log-normal spread of the NLOS probabilities"),
+    "variation.layout_distribution.anchor_count[]": Bound(3.0, 8.0, "", "anchors of a drawn layout"),
+    "variation.layout_distribution.footprint_m[]": Bound(0.0, 1000.0, "m",
+                                                         "long side of a drawn layout (a desk to a 1 km site)"),
+    "variation.layout_distribution.aspect[]": Bound(0.0, 1.0, "", "short side / long side of a drawn layout"),
+    "variation.layout_distribution.height_m[]": _COORD,
+    "variation.layout_distribution.coplanar_prob": _PROB,
+    "variation.layout_distribution.coplanar_std_m": Bound(0.0, 100.0, "m",
+                                                          "height spread of a drawn layout's anchors at one height"),
+    "variation.layout_distribution.min_spacing_m": Bound(0.0, 1000.0, "m", "least distance of two drawn anchors"),
+    "variation.layout_distribution.route_offset_m[]": Bound(0.0, 10_000.0, "m",
+                                                            "drawn layout's centroid from the scenario's anchors'"),
     "uwb.antenna_sway_std_m": Bound(0.0, 10.0, "m", "UWB antenna offset from the truth point, per axis"),
     "uwb.antenna_sway_tau_s": Bound(0.01, 3600.0, "s", "correlation time of the antenna sway"),
     "uwb.antenna_sway_length_m": Bound(0.01, 1e5, "m", "correlation length of the antenna sway along the path"),
@@ -300,7 +311,10 @@ def estimate_size(scn: Scenario, n_traces: int) -> SizeEstimate:
     duration = m.dwell_start_s + trip_max + m.dwell_end_s
     truth = math.floor(duration * scn.truth_rate_hz) + 1
     imu = math.floor(duration * scn.imu.rate_hz) + 1
-    uwb = math.ceil(duration * scn.uwb.burst_rate_hz * (1 + 1e-3)) * len(scn.anchors)
+    n_anchors = len(scn.anchors)
+    if scn.variation is not None and scn.variation.layout_distribution is not None:  # drawn layouts: the largest
+        n_anchors = max(n_anchors, scn.variation.layout_distribution.anchor_count[1])
+    uwb = math.ceil(duration * scn.uwb.burst_rate_hz * (1 + 1e-3)) * n_anchors
     counts = {"truth": truth, "imu": imu, "uwb": uwb}
     work = sum(_WORK_BYTES[k] * v for k, v in counts.items())
     table = sum(_TABLE_BYTES[k] * v for k, v in counts.items())

@@ -27,7 +27,7 @@ from .models.jitter import add_jitter
 from .models.motion import SpeedShape, compile_speed_shape, draw_run, kinematics
 from .models.path import PathGeometry, PathParams, compile_path, draw_perturbation
 from .models.uwb import ChannelArrays, channel_arrays, late_stamps, simulate_uwb, uwb_record
-from .models.variation import draw_site, nlos_scaled
+from .models.variation import draw_site, layout_anchors, nlos_scaled
 from .records import Anchors, Imu, Trace, Truth, Uwb
 from .rng import component_rng, new_root_seed
 from .scenario import Scenario, scenario_to_dict
@@ -87,8 +87,11 @@ def _vary_site(cs: CompiledScenario, index: int, root_seed: int) -> tuple[Compil
     ``variation``, :func:`physynth.models.variation.draw_site`), and the record of the draw.
 
     Only what the site changes is rebuilt: the path's geometry and the anchor positions (the channel's
-    tables do not depend on them); the scenario is updated without a second validation (the draws are
-    positions and spreads of the validated section).
+    tables do not depend on them); a drawn layout (``variation.layout_distribution``) brings anchors of its
+    own (:func:`physynth.models.variation.layout_anchors`: new ids, each with a pool anchor's channel and
+    availability), whose channel and availability tables are built anew. The scenario is updated without a
+    second validation (the draws are positions and spreads of the validated section, the channels and
+    availabilities those of its anchors).
     """
     s = cs.scenario
     geo = cs.geometry
@@ -100,14 +103,25 @@ def _vary_site(cs: CompiledScenario, index: int, root_seed: int) -> tuple[Compil
                                   component_rng(root_seed, index, "site"))
     path_p = PathParams.model_validate(path)
     geometry = compile_path(path_p)
-    anchors = [a.model_copy(update={"pos_enu_m": [float(x) for x in p]}) for a, p in zip(s.anchors, pos, strict=True)]
-    varied = s.model_copy(update={"path": path_p, "anchors": anchors, "variation": None})
-    channel = None if cs.channel is None else replace(cs.channel, anchor_pos_enu_m=pos)
+    if "layout_drawn" in record:  # a whole layout of its own: new anchors, their tables rebuilt
+        varied = s.model_copy(update={"path": path_p, "variation": None,
+                                      **layout_anchors(s, pos, record["layout_drawn"])})
+        channel = channel_arrays(varied.uwb, varied.anchors, [varied.channel_for(a) for a in varied.anchor_ids])
+        availability = availability_arrays(varied.availability,
+                                           [varied.availability_for(a) for a in varied.anchor_ids])
+        anchors = Anchors(ids=varied.anchor_ids, names=varied.anchor_ids, pos_enu_m=pos)
+    else:
+        anchors_p = [a.model_copy(update={"pos_enu_m": [float(x) for x in p]}) for a, p in zip(s.anchors, pos,
+                                                                                                strict=True)]
+        varied = s.model_copy(update={"path": path_p, "anchors": anchors_p, "variation": None})
+        channel = None if cs.channel is None else replace(cs.channel, anchor_pos_enu_m=pos)
+        availability = cs.availability
+        anchors = Anchors(ids=cs.anchors.ids, names=cs.anchors.names, pos_enu_m=pos)
     if "nlos_scale" in record and channel is not None:  # this trace's own NLOS frequency: tables rebuilt
         varied = varied.model_copy(update=nlos_scaled(varied, record["nlos_scale"]))
         channel = channel_arrays(varied.uwb, varied.anchors, [varied.channel_for(a) for a in varied.anchor_ids])
     return replace(cs, scenario=varied, geometry=geometry, lateral_dir=geometry.lateral_direction(),
-                   channel=channel, anchors=Anchors(ids=cs.anchors.ids, names=cs.anchors.names, pos_enu_m=pos)), record
+                   channel=channel, availability=availability, anchors=anchors), record
 
 
 def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int) -> Trace:

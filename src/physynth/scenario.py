@@ -78,6 +78,9 @@ class Scenario(ParamsModel):
             raise ValueError(f"both IMU frames share one time base: imu.rate_hz ({self.imu.rate_hz}) and "
                              f"body_imu.rate_hz ({self.body_imu.rate_hz}) must be equal")
         if self.variation is not None:
+            if self.variation.layout_distribution is not None and not self.anchors:
+                raise ValueError("variation.layout_distribution needs anchors: each drawn anchor takes the channel "
+                                 "and availability of one of the scenario's anchors")
             for k, lay in enumerate(self.variation.layouts):
                 if len(lay) != len(self.anchors):
                     raise ValueError(f"variation.layouts[{k}] holds {len(lay)} position(s) for "

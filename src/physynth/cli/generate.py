@@ -140,8 +140,13 @@ def _say_variation(scn, added: bool) -> None:
         return
     source = ("--vary-site defaults" + ("; the layouts the calibration recorded" if scn.variation.layouts else "")
               if added else "the scenario's variation section")
+    dist = scn.variation.layout_distribution
     if not scn.anchors:
         line = f"path varied per trace ({source}; no anchors)"
+    elif dist is not None:
+        lo, hi = dist.anchor_count
+        line = (f"site varied per trace: a layout of {lo}-{hi} anchors drawn from variation.layout_distribution, "
+                f"each with the channel of one of the scenario's {len(scn.anchors)} ({source})")
     else:
         lays = counted(len(scn.variation.layouts), "anchor layout") if scn.variation.layouts else "its own layout"
         line = f"site varied per trace around {lays} ({source})"

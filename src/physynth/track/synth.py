@@ -22,6 +22,12 @@ A calibrated scenario reproduces one site; a network pre-trained only on it lear
   ``uwb.tag_nlos_prob`` times exp(N(0, ``nlos_log_std``)), drawn last (a site with more or fewer
   obstacles than the calibration runs had).
 
+With ``layout_distribution`` (:class:`~physynth.models.variation.LayoutDistribution`), the layout is a whole
+one drawn per trace instead of one of ``layouts`` jittered: its own anchor count, footprint, aspect, heights,
+yaw and offset from the scenario's anchors, each anchor with the channel and availability of one of the
+scenario's anchors (drawn with replacement) and a new id ``L1`` .. ``Ln``, so that a network learns no
+anchor's id, count or place (:func:`physynth.models.variation.draw_layout`, ``layout_anchors``).
+
 Everything else (motion, the rest of the channel, availability, IMU) is the scenario's, drawn by the
 generator from the usual per-component streams, so a trace is identical in every process and DataLoader worker.
 """
@@ -34,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from ..generate import CompiledScenario, generate_trace
-from ..models.variation import draw_site, nlos_scaled, random_route
+from ..models.variation import LayoutDistribution, draw_site, layout_anchors, nlos_scaled, random_route
 from ..records import Trace
 from ..rng import COMPONENT_ID
 from ..scenario import Scenario
@@ -47,7 +53,11 @@ VARIATION_COMPONENT = COMPONENT_ID["site"]
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SynthVariation:
-    """Per-trace variation of anchor layout and path (see the module docstring). Metres, radians."""
+    """Per-trace variation of anchor layout and path (see the module docstring). Metres, radians.
+
+    ``layout_distribution``: a :class:`~physynth.models.variation.LayoutDistribution` (or its fields as a
+    mapping, validated here); None: the layouts and their jitter.
+    """
 
     layouts: tuple[tuple[tuple[float, float, float], ...], ...] = ()
     shuffle_anchors: bool = False
@@ -60,8 +70,14 @@ class SynthVariation:
     random_route_prob: float = 0.0
     random_route_points: int = 8
     nlos_log_std: float = 0.0
+    layout_distribution: LayoutDistribution | None = None
 
     def __post_init__(self) -> None:
+        if isinstance(self.layout_distribution, dict):  # the fields of a scenario's section
+            object.__setattr__(self, "layout_distribution", LayoutDistribution.model_validate(self.layout_distribution))
+        elif self.layout_distribution is not None and not isinstance(self.layout_distribution, LayoutDistribution):
+            raise ValueError(f"invalid SynthVariation (layout_distribution is a LayoutDistribution, a mapping of its "
+                             f"fields or None): {self!r}")
         stds = (self.layout_jitter_m, self.layout_jitter_up_m, self.path_yaw_std_rad, self.path_shift_std_m,
                 self.nlos_log_std)
         if min(stds) < 0 or min(self.path_lateral_std_m or 0.0, self.path_sag_std_m or 0.0) < 0:
@@ -76,7 +92,9 @@ class SynthVariation:
                 "path_yaw_std_rad": self.path_yaw_std_rad, "path_shift_std_m": self.path_shift_std_m,
                 "path_lateral_std_m": self.path_lateral_std_m, "path_sag_std_m": self.path_sag_std_m,
                 "random_route_prob": self.random_route_prob, "random_route_points": self.random_route_points,
-                "nlos_log_std": self.nlos_log_std}
+                "nlos_log_std": self.nlos_log_std,
+                "layout_distribution": (None if self.layout_distribution is None
+                                        else self.layout_distribution.model_dump(mode="python"))}
 
 
 def _path_points(scn: Scenario, n: int = 200) -> np.ndarray:
@@ -93,7 +111,14 @@ def varied_scenario(scn: Scenario, variation: SynthVariation, rng: np.random.Gen
     base = np.array([a.pos_enu_m for a in scn.anchors], dtype=float)
     data = scn.model_dump(mode="python")
     pos, path, record = draw_site(variation, base, data["path"], lambda: _path_points(scn), rng)
-    data["anchors"] = [{**a, "pos_enu_m": [float(v) for v in p]} for a, p in zip(data["anchors"], pos, strict=True)]
+    if "layout_drawn" in record:  # a whole layout: new anchors, each with a pool anchor's channel
+        drawn = layout_anchors(scn, pos, record["layout_drawn"])
+        data["anchors"] = [a.model_dump(mode="python") for a in drawn["anchors"]]
+        for key in ("channel_per_anchor", "availability_per_anchor"):
+            data[key] = {k: o.model_dump(mode="python") for k, o in drawn[key].items()}
+    else:
+        data["anchors"] = [{**a, "pos_enu_m": [float(v) for v in p]}
+                           for a, p in zip(data["anchors"], pos, strict=True)]
     data["path"] = path
     data["variation"] = None  # this draw replaces a section of the scenario's own (drawn from the same stream)
     varied = Scenario.model_validate(data)
