@@ -36,20 +36,26 @@ def shifted_layout(scn: Scenario, de: float) -> list[list[float]]:
     return [[a.pos_enu_m[0] + de, a.pos_enu_m[1], a.pos_enu_m[2]] for a in scn.anchors]
 
 
-def test_section_gives_the_tracking_study_traces_bit_for_bit(base):
+@pytest.mark.parametrize("layout_distribution", [None, {"anchor_count": [3, 8], "route_offset_m": [0.0, 3.0]}],
+                         ids=["layouts", "layout-distribution"])
+def test_section_gives_the_tracking_study_traces_bit_for_bit(base, layout_distribution):
     lay = (tuple(map(tuple, shifted_layout(base, 0.0))), tuple(map(tuple, shifted_layout(base, 3.0))))
-    study = SynthVariation(layouts=lay, shuffle_anchors=True, random_route_prob=0.5)
+    study = SynthVariation(layouts=lay, shuffle_anchors=True, random_route_prob=0.5,
+                           layout_distribution=layout_distribution)
     scn = with_variation(base, **study.to_dict())
     cs = compile_scenario(scn)
-    routes = set()
+    routes, counts = set(), set()
     for i in range(6):
         a, b = synthetic_trace(base, i, SEED, study), generate_trace(cs, i, SEED)
         routes.add(b.meta["site_variation"]["random_route"])
+        counts.add(len(b.anchors))
+        assert a.anchors.ids == b.anchors.ids
         assert np.array_equal(a.anchors.pos_enu_m, b.anchors.pos_enu_m)
         assert np.array_equal(a.truth.pos_enu_m, b.truth.pos_enu_m)
         assert np.array_equal(a.uwb.range_m, b.uwb.range_m, equal_nan=True)
         assert np.array_equal(a.imu.acc_mps2, b.imu.acc_mps2)
     assert routes == {True, False}  # both kinds of trace were compared
+    assert (len(counts) > 1) == (layout_distribution is not None)  # drawn layouts of several anchor counts
 
 
 def test_each_trace_has_its_own_site_the_same_in_any_order(base):
