@@ -2,9 +2,10 @@
 
     python benchmarks/bench_variation.py [-n 60] [--rounds 3]
 
-Three scenarios, alternated ``--rounds`` times, ``-n`` traces each: the preset (one site), the preset
+Four scenarios, alternated ``--rounds`` times, ``-n`` traces each: the preset (one site), the preset
 with a ``variation`` section of default values (anchor layout and path drawn per trace: the path's
-geometry is rebuilt for every trace) and with ``random_route_prob: 1.0`` (every trace on a random route).
+geometry is rebuilt for every trace), with ``random_route_prob: 1.0`` (every trace on a random route) and
+with ``layout_distribution: {}`` (a whole layout of 3-6 anchors per trace, its channel tables rebuilt).
 Prints the best and every round's CPU milliseconds per trace (process time: less sensitive to the
 machine's other load than wall time).
 """
@@ -26,7 +27,8 @@ def main() -> None:
     args = ap.parse_args()
     base = load_scenario("cablecar-descending")
     variants = {"one site": base}
-    for label, section in (("variation (defaults)", {}), ("variation, random routes", {"random_route_prob": 1.0})):
+    for label, section in (("variation (defaults)", {}), ("variation, random routes", {"random_route_prob": 1.0}),
+                           ("variation, drawn layouts", {"layout_distribution": {}})):
         d = scenario_to_dict(base)
         d["variation"] = section
         variants[label] = scenario_from_dict(d, label)
