@@ -211,6 +211,10 @@ def test_cli_bad_input_exit_2_one_line(runs, tmp_path, capsys):
          "--ekf-prior must be one of none, input, residual"),
         (["--train", train, "--test", train, "--methods", "ls", "--synth-nlos-spread", "0.5"],
          "--synth-nlos-spread only matters for SYNTH_PHY"),
+        (["--train", train, "--test", train, "--methods", "ls", "--synth-layouts", "training"],
+         "--synth-layouts only matters for SYNTH_PHY"),
+        (["--train", train, "--test", train, "--methods", "SYNTH_PHY", "--synth-layouts", "random"],
+         "--synth-layouts must be one of drawn, training"),
         (["--train", train, "--test", train, "--methods", "SYNTH_PHY", "--synth-nlos-spread", "-1"],
          "Invalid value for '--synth-nlos-spread'"),
     ]

@@ -30,12 +30,14 @@ METHOD_OPTIONS = {"epochs": ("--epochs", ("NOAUG", "AUG_GAN", "bilstm")), "scena
                   "finetune_synth_ratio": ("--finetune-synth-ratio", _SYNTH), "ekf_prior": ("--ekf-prior", _NETWORKS),
                   "lr_schedule": ("--lr-schedule", _NETWORKS), "weight_average": ("--weight-average", _NETWORKS),
                   "frame": ("--frame", _NETWORKS), "ensemble": ("--ensemble", _NETWORKS),
-                  "variation": ("--synth-nlos-spread", _SYNTH)}
+                  "synth_nlos_spread": ("--synth-nlos-spread", _SYNTH), "synth_layouts": ("--synth-layouts", _SYNTH)}
 """Options (by the study setting they give) that set up some methods only, with those methods: given without
 any of them, an option is refused (as ``--jobs`` without ``--ensemble``), not silently ignored. ``--frame``
 sets up how the networks see direction; ``--ensemble`` averages seeds, and the classical trackers draw none."""
 
 
+SYNTH_LAYOUTS = ("drawn", "training")
+"""``--synth-layouts`` choices."""
 _PROTOCOL_HELP = ("How runs are held out: leave-one-layout-out (the default where the runs hold two or more anchor "
                   "layouts: each layout in turn is tested, trained on the others), leave-one-run-out (the default "
                   "for one layout), split (--train against --test; the default when --test is given) or "
@@ -104,6 +106,10 @@ def tracking_cmd(
                                             help="Give each synthetic pre-training trace its own NLOS frequency: the "
                                                  "calibrated NLOS probabilities times exp(N(0, S)) (default 0: the "
                                                  "calibrated ones in every trace)."),
+    synth_layouts: str = typer.Option(None, "--synth-layouts", metavar="HOW",
+                                      help="Anchor layouts of the synthetic pre-training traces: drawn (default: each "
+                                           "trace a whole layout of its own, 3-6 anchors, 1.5-10 m, heights 0.2-3 m) "
+                                           "or training (the training runs' layouts, jittered)."),
     protocol: str = typer.Option(None, "--protocol", metavar="PROTOCOL", help=_PROTOCOL_HELP),
     seeds: int = typer.Option(3, "--seeds", metavar="N", min=1,
                               help="Run every fold for N seeds from --seed on; the tables give the mean and spread "
@@ -143,11 +149,12 @@ def tracking_cmd(
                    n_synth_traces=n_synth, synth_windows_per_trace=synth_windows, ekf_prior=ekf_prior,
                    finetune_synth_ratio=finetune_synth_ratio, train_trusted_truth=train_trusted_truth or None,
                    ensemble=ensemble if ensemble > 1 else None, jobs=jobs if jobs > 1 else None)
-    over |= _synth_variation(synth_nlos_spread)
+    over |= _synth_variation(synth_nlos_spread, synth_layouts)
     over |= _height(tag_height, tag_height_std, no_height)
     net = _given(lr_schedule=lr_schedule, weight_average=weight_average)
     over |= {"net": net} if net else {}
-    cfg = _config(over, quick, scenario, frame)
+    cfg = _config(over, quick, None if protocol == "survey-only" else scenario, frame,  # survey-only: every method's
+                  flags={"synth_nlos_spread": synth_nlos_spread, "synth_layouts": synth_layouts})
     if NETWORK_METHODS & set(cfg.methods):
         require_torch()
     if protocol is not None and protocol not in PROTOCOLS:
@@ -183,9 +190,11 @@ def tracking_cmd(
     typer.echo(f"wrote {', '.join(str(f) for f in files.values())} (wall time {res.wall_time_s:.0f} s)")
 
 
-def _config(over: dict[str, Any], quick: bool, scenario: str | None, frame: str | None = None) -> Any:
+def _config(over: dict[str, Any], quick: bool, scenario: str | None, frame: str | None = None,
+            flags: dict[str, Any] | None = None) -> Any:
     """The study's configuration from the settings given (``over``; ``--quick``: its schedule for the others);
-    an option of :data:`METHOD_OPTIONS` given when none of the methods it sets up runs is refused."""
+    an option of :data:`METHOD_OPTIONS` given when none of the methods it sets up runs is refused (``flags``:
+    options given that are not settings of their own, such as the parts of ``variation``)."""
     from ..studies.tracking import StudyConfig, quick_config
 
     def make(settings: dict[str, Any]) -> Any:
@@ -193,7 +202,7 @@ def _config(over: dict[str, Any], quick: bool, scenario: str | None, frame: str 
 
     # bad values first, then options without use (named by their flag), then the ensemble's own settings
     cfg = make({k: v for k, v in over.items() if k not in ("ensemble", "jobs")})
-    given = {**over, **over.get("net", {}), "scenario": scenario, "frame": frame}
+    given = {**over, **over.get("net", {}), "scenario": scenario, "frame": frame, **(flags or {})}
     for name, (flag, users) in METHOD_OPTIONS.items():
         if given.get(name) is not None and not set(users) & set(cfg.methods):
             which = users[0] if len(users) == 1 else f"{', '.join(users[:-1])} or {users[-1]}"
@@ -212,15 +221,23 @@ def _scenario(name: str | None):
     return load_scenario(name)
 
 
-def _synth_variation(nlos_spread: float | None) -> dict[str, Any]:
-    """``--synth-nlos-spread``: the study's pre-training variation with that NLOS spread ({} when not given)."""
-    if nlos_spread is None:
+def _synth_variation(nlos_spread: float | None, layouts: str | None = None) -> dict[str, Any]:
+    """``--synth-nlos-spread`` and ``--synth-layouts``: the study's pre-training variation with that NLOS
+    spread and those layouts ({} when neither is given)."""
+    if nlos_spread is None and layouts is None:
         return {}
     import dataclasses
 
     from ..studies.tracking import StudyConfig
 
-    return {"variation": dataclasses.replace(StudyConfig().variation, nlos_log_std=nlos_spread)}
+    if layouts not in (None, *SYNTH_LAYOUTS):
+        raise PhySynthError(f"--synth-layouts must be one of {', '.join(SYNTH_LAYOUTS)}, got '{layouts}'")
+    v = StudyConfig().variation
+    if nlos_spread is not None:
+        v = dataclasses.replace(v, nlos_log_std=nlos_spread)
+    if layouts == "training":
+        v = dataclasses.replace(v, layout_distribution=None)
+    return {"variation": v}
 
 
 def _given(**options: object) -> dict[str, object]:

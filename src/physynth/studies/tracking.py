@@ -42,6 +42,7 @@ from ..track.height import HeightPrior, height_from_scenario, height_from_truth
 from ..track.inputs import EKF_PRIOR_COAST_S, TrackInput, check_ekf_prior, track_input
 from ..track.reference import reference_estimates
 from ..track.scoring import error_stats
+from ..models.variation import LayoutDistribution
 from ..track.synth import SynthVariation
 from ..transform import ISOMETRY_META_KEY, apply_isometry
 
@@ -84,9 +85,12 @@ class StudyConfig:
     net: dict[str, Any] = field(default_factory=dict)
     """Overrides of :class:`~physynth.track.trackers.nets.NetConfig` for every network (e.g.
     ``{"age_weighted_direction": False}``)."""
-    variation: SynthVariation = SynthVariation(random_route_prob=0.5)
-    """How the synthetic pre-training traces vary around the calibrated site: anchor layouts of the
-    training runs, path jitter, and half of them on random routes of other shapes (:mod:`physynth.track.synth`)."""
+    variation: SynthVariation = SynthVariation(random_route_prob=0.5, layout_distribution=LayoutDistribution())
+    """How the synthetic pre-training traces vary around the calibrated site: every trace its own whole anchor
+    layout drawn from :class:`~physynth.models.variation.LayoutDistribution` (3-6 anchors, 1.5-10 m footprints,
+    heights 0.2-3 m, a share at one height; each anchor the channel of one of the calibrated anchors), path
+    jitter, and half of them on random routes of other shapes (:mod:`physynth.track.synth`). Without
+    ``layout_distribution``: the training runs' layouts, jittered."""
     random_isometry: bool = True
     """Every network (NOAUG, AUG_GAN, SYNTH_PHY, bilstm) trains on windows turned by a random angle
     about the vertical and mirrored at random, and predicts on 8 turned copies of the test run
