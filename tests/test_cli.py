@@ -147,7 +147,8 @@ def test_study_tracking_refuses_counts_below_one(tmp_path, capsys, option, value
 
 
 def test_study_tracking_jobs_without_an_ensemble_is_one_line(tmp_path, capsys):
-    code, _, err = run(capsys, "study", "tracking", "--jobs", "2", "--methods", "ls", "--out", tmp_path / "o")
+    code, _, err = run(capsys, "study", "tracking", "--jobs", "2", "--methods", "ls", "--protocol", "split",
+                       "--out", tmp_path / "o")
     assert code == 2 and err.count("\n") == 1 and "--jobs 2" in err and "--ensemble" in err
     assert not (tmp_path / "o").exists()
 

@@ -168,3 +168,13 @@ def test_cli_writes_the_summary_over_seeds(two_layouts, tmp_path, capsys):
     assert "## Per test run (mean ± std over seeds)" in md and "Paired comparisons" in md
     assert (tmp_path / "out" / "rmse_by_run.png").stat().st_size > 1000
     assert (tmp_path / "out" / "studies" / "2-seed1" / "estimates.npz").is_file()
+
+
+def test_studies_at_once_give_the_same_numbers(two_layouts):
+    pytest.importorskip("torch")
+    scn, runs = two_layouts
+    cfg = StudyConfig(methods=("NOAUG",), **TINY)
+    one = run_protocol(runs, seeds=(0,), scenario=scn, config=cfg)
+    two = run_protocol(runs, seeds=(0,), scenario=scn, config=cfg, jobs=2)  # the two folds in two processes
+    assert [r["rmse_m"] for r in one.per_run] == [r["rmse_m"] for r in two.per_run]
+    assert len(two.per_run) == 8  # four test runs, NOAUG and the ekf prior it was given

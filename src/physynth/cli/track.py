@@ -32,7 +32,7 @@ METHOD_OPTIONS = {"epochs": ("--epochs", ("NOAUG", "AUG_GAN", "bilstm")), "scena
                   "frame": ("--frame", _NETWORKS), "ensemble": ("--ensemble", _NETWORKS),
                   "synth_nlos_spread": ("--synth-nlos-spread", _SYNTH), "synth_layouts": ("--synth-layouts", _SYNTH)}
 """Options (by the study setting they give) that set up some methods only, with those methods: given without
-any of them, an option is refused (as ``--jobs`` without ``--ensemble``), not silently ignored. ``--frame``
+any of them, an option is refused, not silently ignored. ``--frame``
 sets up how the networks see direction; ``--ensemble`` averages seeds, and the classical trackers draw none."""
 
 
@@ -45,8 +45,8 @@ _PROTOCOL_HELP = ("How runs are held out: leave-one-layout-out (the default wher
                   "the runs).")
 _ENSEMBLE_HELP = ("Run the study for K seeds from --seed on and score the mean of their estimates (a seed "
                   "ensemble; K times the compute).")
-_JOBS_HELP = ("With --ensemble: train this many members at once, each in a process of its own (on a machine "
-              "with cores to spare; the results do not depend on it).")
+_JOBS_HELP = ("Run this many studies (folds and seeds) at once, or with --ensemble train this many members at once, "
+              "each in a process of its own (on a machine with cores to spare; the results do not depend on it).")
 _TRUSTED_HELP = ("Train the networks only on the steps where the training runs' truth is trusted (their "
                  "recording flags the rest).")
 _FRAME_HELP = ("How the networks see direction. turned (default): training windows turned and "
@@ -131,7 +131,7 @@ def tracking_cmd(
 ) -> None:
     """Train NOAUG, AUG_GAN, SYNTH_PHY, bilstm, ls and ekf on real runs; score them on held-out runs."""
     from ..io.safety import check_study_output
-    from ..studies.protocol import PROTOCOLS, run_protocol
+    from ..studies.protocol import PROTOCOLS, plan, run_protocol
     from ..studies.protocol_report import write_protocol_results
     from ..studies.tracking import METHODS, NETWORK_METHODS
     from ..track import require_torch
@@ -142,13 +142,11 @@ def tracking_cmd(
     chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods is not None else METHODS
     if frame is not None and frame not in FRAMES:
         raise PhySynthError(f"--frame must be one of {', '.join(FRAMES)}, got '{frame}'")
-    if jobs > 1 and ensemble == 1:
-        raise PhySynthError(f"--jobs {jobs} trains the members of an ensemble at once: give --ensemble K (K >= 2)")
     over = {"seed": seed, "methods": chosen, "threads": threads, **FRAMES[frame or "turned"]}
     over |= _given(epochs=epochs, pretrain_epochs=pretrain_epochs, finetune_epochs=finetune_epochs,
                    n_synth_traces=n_synth, synth_windows_per_trace=synth_windows, ekf_prior=ekf_prior,
                    finetune_synth_ratio=finetune_synth_ratio, train_trusted_truth=train_trusted_truth or None,
-                   ensemble=ensemble if ensemble > 1 else None, jobs=jobs if jobs > 1 else None)
+                   ensemble=ensemble if ensemble > 1 else None, jobs=jobs if jobs > 1 and ensemble > 1 else None)
     over |= _synth_variation(synth_nlos_spread, synth_layouts)
     over |= _height(tag_height, tag_height_std, no_height)
     net = _given(lr_schedule=lr_schedule, weight_average=weight_average)
@@ -169,14 +167,21 @@ def tracking_cmd(
             raise PhySynthError("--turn-test and --mirror-test turn the --test runs: give --test")
         test_runs = _turned(test_runs, turn_test, mirror_test)
     seed_list = list(range(seed, seed + seeds))
+    study_jobs = 1 if ensemble > 1 else jobs  # with an ensemble, --jobs trains its members at once
+    if study_jobs > 1:
+        _, folds, used = plan(train_runs, test_runs, protocol, seed_list, cfg)
+        if len(folds) * len(used) == 1:
+            raise PhySynthError(f"--jobs {jobs} runs several studies at once, and this is one study (one fold, one "
+                                "seed): give --seeds N, or --ensemble K to train K members at once")
     if quiet:
-        res = run_protocol(train_runs, test_runs, protocol=protocol, seeds=seed_list, scenario=scn, config=cfg)
+        res = run_protocol(train_runs, test_runs, protocol=protocol, seeds=seed_list, scenario=scn, config=cfg,
+                           jobs=study_jobs)
     else:
         from ._common import status_lines
 
         with status_lines("tracking study") as say:
             res = run_protocol(train_runs, test_runs, protocol=protocol, seeds=seed_list, scenario=scn, config=cfg,
-                               progress=say)
+                               jobs=study_jobs, progress=say)
     single = len(res.studies) == 1
     files = write_single(res, out) if single else write_protocol_results(res, out)
     warnings = dict.fromkeys(w for s in res.studies for w in s.data.get("warnings", []))

@@ -32,7 +32,15 @@ import numpy as np
 from ..errors import PhySynthError
 from ..scenario import Scenario
 from ..track.scoring import error_stats
-from .tracking import NETWORK_METHODS, StudyConfig, StudyResult, StudyRun, run_tracking_study
+from .tracking import (
+    NETWORK_METHODS,
+    StudyConfig,
+    StudyResult,
+    StudyRun,
+    check_runs,
+    run_tracking_study,
+    studies_at_once,
+)
 
 PROTOCOLS = ("leave-one-layout-out", "leave-one-run-out", "split", "survey-only")
 """The study's protocols (module docstring)."""
@@ -154,36 +162,51 @@ def _pooled(result: StudyResult, fold: str, seed: int) -> list[dict[str, Any]]:
             for r in result.rows]
 
 
-def run_protocol(runs: Sequence[StudyRun], tests: Sequence[StudyRun] = (), *, protocol: str | None = None,
-                 seeds: Sequence[int] = (0, 1, 2), scenario: Scenario | None = None,
-                 config: StudyConfig | None = None, progress: ProgressFn | None = None) -> ProtocolResult:
-    """Every fold of ``protocol`` (default :func:`default_protocol`) once per seed of ``seeds`` (once only
-    when no method trains a network: the classical trackers draw no seed)."""
-    cfg = config or StudyConfig()
-    say = progress or (lambda _m: None)
+def plan(runs: Sequence[StudyRun], tests: Sequence[StudyRun], protocol: str | None, seeds: Sequence[int],
+         config: StudyConfig) -> tuple[str, list[Fold], list[int]]:
+    """The protocol, its folds and the seeds each fold runs with (one seed when no method trains a
+    network: the classical trackers draw no seed); errors about them before any work."""
     seeds = [int(s) for s in seeds]
     if not seeds or len(set(seeds)) != len(seeds):
         raise PhySynthError(f"seeds must be one or more distinct integers, got {seeds}")
-    if not NETWORK_METHODS & set(cfg.methods):
-        seeds = seeds[:1]  # the classical trackers draw no seed: every seed would give the same numbers
+    if not NETWORK_METHODS & set(config.methods):
+        seeds = seeds[:1]
     proto = protocol or default_protocol(runs, bool(tests))
+    return proto, make_folds(proto, runs, tests), seeds
+
+
+def run_protocol(runs: Sequence[StudyRun], tests: Sequence[StudyRun] = (), *, protocol: str | None = None,
+                 seeds: Sequence[int] = (0, 1, 2), scenario: Scenario | None = None,
+                 config: StudyConfig | None = None, jobs: int = 1,
+                 progress: ProgressFn | None = None) -> ProtocolResult:
+    """Every fold of ``protocol`` (default :func:`default_protocol`) once per seed of ``seeds`` (once only
+    when no method trains a network, :func:`plan`); ``jobs`` studies at once, each in a process of its own
+    (the results do not depend on it)."""
+    cfg = config or StudyConfig()
+    say = progress or (lambda _m: None)
+    proto, folds, seeds = plan(runs, tests, protocol, seeds, cfg)
     if proto == "survey-only" and scenario is None:
         raise PhySynthError("the survey-only protocol needs the site's scenario (its anchors, route and channel)")
-    folds = make_folds(proto, runs, tests)
+    if jobs < 1:
+        raise PhySynthError(f"jobs must be at least 1, got {jobs}")
     t0 = time.perf_counter()
+    specs = [(fold, seed) for fold in folds for seed in seeds]
+    n = len(specs)
+    prefixes = [f"[{k + 1}/{n}] {fold.name}, seed {seed}: " if n > 1 else "" for k, (fold, seed) in enumerate(specs)]
+    if jobs > 1 and n > 1:
+        for fold in folds:
+            check_runs(fold.train, fold.test, cfg, scenario)
+        studies, _ = studies_at_once([(f.train, f.test, scenario, replace(cfg, seed=s)) for f, s in specs],
+                                     prefixes, jobs, say)
+    else:
+        studies = [run_tracking_study(f.train, f.test, scenario=scenario, config=replace(cfg, seed=s),
+                                      progress=lambda m, p=p: say(p + m))
+                   for (f, s), p in zip(specs, prefixes, strict=True)]
     per_run: list[dict[str, Any]] = []
     pooled: list[dict[str, Any]] = []
-    studies: list[StudyResult] = []
-    n = len(folds) * len(seeds)
-    for f_i, fold in enumerate(folds):
-        for s_i, seed in enumerate(seeds):
-            k = f_i * len(seeds) + s_i + 1
-            prefix = f"[{k}/{n}] {fold.name}, seed {seed}: " if n > 1 else ""
-            res = run_tracking_study(fold.train, fold.test, scenario=scenario, config=replace(cfg, seed=seed),
-                                     progress=lambda m, p=prefix: say(p + m))
-            per_run += per_run_records(res, fold.name, seed)
-            pooled += _pooled(res, fold.name, seed)
-            studies.append(res)
+    for (fold, seed), res in zip(specs, studies, strict=True):
+        per_run += per_run_records(res, fold.name, seed)
+        pooled += _pooled(res, fold.name, seed)
     out = ProtocolResult(protocol=proto, seeds=seeds, per_run=per_run, studies=studies,
                          folds=[{"name": f.name, "train": [r.label for r in f.train], "test": [r.label for r in f.test]}
                                 for f in folds], config=cfg.to_dict())

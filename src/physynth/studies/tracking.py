@@ -36,13 +36,13 @@ import numpy as np
 
 from .. import __version__
 from ..errors import PhySynthError
+from ..models.variation import LayoutDistribution
 from ..records import TRUTH_UNTRUSTED_KEY, Trace, untrusted_truth
 from ..scenario import Scenario, scenario_to_dict
 from ..track.height import HeightPrior, height_from_scenario, height_from_truth
 from ..track.inputs import EKF_PRIOR_COAST_S, TrackInput, check_ekf_prior, track_input
 from ..track.reference import reference_estimates
 from ..track.scoring import error_stats
-from ..models.variation import LayoutDistribution
 from ..track.synth import SynthVariation
 from ..transform import ISOMETRY_META_KEY, apply_isometry
 
@@ -270,7 +270,7 @@ def runs_from_dataset(path: str | os.PathLike) -> list[StudyRun]:
     return out
 
 
-def _check_runs(train: Sequence[StudyRun], test: Sequence[StudyRun], cfg: StudyConfig | None = None,
+def check_runs(train: Sequence[StudyRun], test: Sequence[StudyRun], cfg: StudyConfig | None = None,
                 scenario: Scenario | None = None) -> None:
     if not train:
         real = [m for m in (cfg.methods if cfg else METHODS) if m in REAL_TRAINED]
@@ -378,7 +378,7 @@ def run_tracking_study(train: Sequence[StudyRun], test: StudyRun | Sequence[Stud
     cfg = config or StudyConfig()
     say = progress or (lambda _m: None)
     tests = [test] if isinstance(test, StudyRun) else list(test)
-    _check_runs(train, tests, cfg, scenario)
+    check_runs(train, tests, cfg, scenario)
     torch = require_torch() if NETWORK_METHODS & set(cfg.methods) else None
     t_start = time.perf_counter()
     cpu_start = time.process_time()
@@ -545,7 +545,7 @@ def _run_ensemble(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Sc
     prefixes = [f"ensemble member {j + 1}/{cfg.ensemble} (seed {c.seed}): " for j, c in enumerate(configs)]
     child_cpu_s = 0.0
     if cfg.jobs > 1:
-        members, child_cpu_s = _members_at_once(train, tests, scenario, configs, prefixes, cfg.jobs, say)
+        members, child_cpu_s = studies_at_once([(train, tests, scenario, c) for c in configs], prefixes, cfg.jobs, say)
     else:
         members = [_run(train, tests, scenario, c, lambda m, prefix=prefix: say(prefix + m), t_start)
                    for c, prefix in zip(configs, prefixes, strict=True)]
@@ -570,8 +570,8 @@ def _run_ensemble(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Sc
 
 def _member_main(j: int, train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | None,
                  cfg: StudyConfig, messages: Any) -> None:
-    """One ensemble member in a process of its own: its progress, then its result and CPU time (or its
-    error), as ``(kind, j, payload)`` on ``messages``."""
+    """One study in a process of its own: its progress, then its result and CPU time (or its error), as
+    ``(kind, j, payload)`` on ``messages``."""
     try:
         from ..track import require_torch
 
@@ -585,23 +585,28 @@ def _member_main(j: int, train: Sequence[StudyRun], tests: list[StudyRun], scena
         messages.put(("error", j, exc))
 
 
-def _members_at_once(train: Sequence[StudyRun], tests: list[StudyRun], scenario: Scenario | None,
-                     configs: list[StudyConfig], prefixes: list[str], jobs: int,
-                     say: ProgressFn) -> tuple[list[StudyResult], float]:
-    """The members of an ensemble, ``jobs`` at a time, each in a spawned process (no state shared with
-    this one); their progress is relayed to ``say`` as it comes. A member's error is raised here; on any
-    error or interruption the members still running are terminated."""
+StudySpec = tuple[Sequence[StudyRun], list[StudyRun], Scenario | None, StudyConfig]
+"""One study to run: training runs, test runs, scenario (or None) and configuration."""
+
+
+def studies_at_once(specs: Sequence[StudySpec], prefixes: list[str], jobs: int,
+                    say: ProgressFn) -> tuple[list[StudyResult], float]:
+    """Whole studies (the members of an ensemble, the folds and seeds of a protocol), ``jobs`` at a time,
+    each in a spawned process (no state shared with this one); their progress is relayed to ``say`` with
+    their prefix as it comes. A study's error is raised here; on any error or interruption the studies still
+    running are terminated. Returns the results in the order of ``specs`` and their processes' CPU time."""
     import multiprocessing as mp
 
     ctx = mp.get_context("spawn")
     messages = ctx.Queue()
-    todo, running, done = list(range(len(configs))), {}, {}
+    configs = [spec[3] for spec in specs]
+    todo, running, done = list(range(len(specs))), {}, {}
     try:
         while todo or running:
             while todo and len(running) < jobs:
                 j = todo.pop(0)
-                running[j] = ctx.Process(target=_member_main, name=f"physynth-ensemble-member-{j + 1}",
-                                         args=(j, train, tests, scenario, configs[j], messages))
+                running[j] = ctx.Process(target=_member_main, name=f"physynth-study-{j + 1}",
+                                         args=(j, *specs[j], messages))
                 running[j].start()
             kind, j, payload = _next_message(messages, running, configs)
             if kind == "say":
