@@ -10,6 +10,7 @@ The command joins the ``study`` group of :mod:`physynth.cli.study`.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
@@ -45,8 +46,9 @@ _PROTOCOL_HELP = ("How runs are held out: leave-one-layout-out (the default wher
                   "the runs).")
 _ENSEMBLE_HELP = ("Run the study for K seeds from --seed on and score the mean of their estimates (a seed "
                   "ensemble; K times the compute).")
-_JOBS_HELP = ("Run this many studies (folds and seeds) at once, or with --ensemble train this many members at once, "
-              "each in a process of its own (on a machine with cores to spare; the results do not depend on it).")
+_JOBS_HELP = ("Run this many studies (folds and seeds) at once, each in a process of its own (default: one per "
+              "CPU core), or with --ensemble train this many members at once (default 1); the results do not "
+              "depend on it.")
 _TRUSTED_HELP = ("Train the networks only on the steps where the training runs' truth is trusted (their "
                  "recording flags the rest).")
 _FRAME_HELP = ("How the networks see direction. turned (default): training windows turned and "
@@ -100,7 +102,7 @@ def tracking_cmd(
                                      "anchor centroid) before the turn."),
     frame: str = typer.Option(None, "--frame", metavar="FRAME", help=_FRAME_HELP),
     ensemble: int = typer.Option(1, "--ensemble", metavar="K", min=1, help=_ENSEMBLE_HELP),
-    jobs: int = typer.Option(1, "--jobs", metavar="N", min=1, help=_JOBS_HELP),
+    jobs: int = typer.Option(None, "--jobs", metavar="N", min=1, help=_JOBS_HELP),
     train_trusted_truth: bool = typer.Option(False, "--train-trusted-truth", help=_TRUSTED_HELP),
     synth_nlos_spread: float = typer.Option(None, "--synth-nlos-spread", metavar="S", min=0.0, max=3.0,
                                             help="Give each synthetic pre-training trace its own NLOS frequency: the "
@@ -146,7 +148,8 @@ def tracking_cmd(
     over |= _given(epochs=epochs, pretrain_epochs=pretrain_epochs, finetune_epochs=finetune_epochs,
                    n_synth_traces=n_synth, synth_windows_per_trace=synth_windows, ekf_prior=ekf_prior,
                    finetune_synth_ratio=finetune_synth_ratio, train_trusted_truth=train_trusted_truth or None,
-                   ensemble=ensemble if ensemble > 1 else None, jobs=jobs if jobs > 1 and ensemble > 1 else None)
+                   ensemble=ensemble if ensemble > 1 else None,
+                   jobs=jobs if jobs is not None and jobs > 1 and ensemble > 1 else None)
     over |= _synth_variation(synth_nlos_spread, synth_layouts)
     over |= _height(tag_height, tag_height_std, no_height)
     net = _given(lr_schedule=lr_schedule, weight_average=weight_average)
@@ -167,12 +170,13 @@ def tracking_cmd(
             raise PhySynthError("--turn-test and --mirror-test turn the --test runs: give --test")
         test_runs = _turned(test_runs, turn_test, mirror_test)
     seed_list = list(range(seed, seed + seeds))
-    study_jobs = 1 if ensemble > 1 else jobs  # with an ensemble, --jobs trains its members at once
-    if study_jobs > 1:
-        _, folds, used = plan(train_runs, test_runs, protocol, seed_list, cfg)
-        if len(folds) * len(used) == 1:
-            raise PhySynthError(f"--jobs {jobs} runs several studies at once, and this is one study (one fold, one "
-                                "seed): give --seeds N, or --ensemble K to train K members at once")
+    _, folds, used = plan(train_runs, test_runs, protocol, seed_list, cfg)
+    n_studies = len(folds) * len(used)
+    if jobs is not None and jobs > 1 and ensemble == 1 and n_studies == 1:
+        raise PhySynthError(f"--jobs {jobs} runs several studies at once, and this is one study (one fold, one "
+                            "seed): give --seeds N, or --ensemble K to train K members at once")
+    # with an ensemble, --jobs trains its members at once; else the studies, by default one per core
+    study_jobs = 1 if ensemble > 1 else jobs or min(n_studies, len(os.sched_getaffinity(0)))
     if quiet:
         res = run_protocol(train_runs, test_runs, protocol=protocol, seeds=seed_list, scenario=scn, config=cfg,
                            jobs=study_jobs)
