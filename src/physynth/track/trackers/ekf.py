@@ -9,7 +9,10 @@ State ``[p (3), v (3)]`` in the trace's relative ENU frame [m, m/s]. Between gri
 Every fresh range of a step is one scalar update ``r = ||p - age_i v - a_i|| + e``, ``e ~ N(0,
 range_std_m^2)``, where ``age_i`` (the AoI at the step, < one grid step) dates the range within its bin;
 an update whose normalised innovation squared exceeds the ``gate_prob`` quantile of chi-square(1) is
-rejected. After ``reset_after`` consecutive rejections the position covariance is re-inflated (the
+rejected. With a height prior (``TrackInput.height``, :mod:`physynth.track.height`) every update step ends
+with one linear update of the vertical position towards the known height (variance ``height.std_m^2``,
+never gated): anchors at nearly one height, or far away, leave the vertical to it. After ``reset_after``
+consecutive rejections the position covariance is re-inflated (the
 filter has lost track). The filter starts at the first multilateration fix (:mod:`.ls`).
 
 Between two steps with a fresh range nothing but the prediction happens, so the filter jumps from one
@@ -74,16 +77,26 @@ class EkfTracker:
 
     def predict_rel(self, inp: TrackInput) -> np.ndarray:
         """(K, 3) [m] filtered positions relative to ``inp.ref_enu_m`` (NaN before the first fix)."""
+        return self.predict_rel_var(inp)[0]
+
+    def predict_rel_var(self, inp: TrackInput) -> tuple[np.ndarray, np.ndarray]:
+        """(K, 3) [m] filtered positions relative to ``inp.ref_enu_m`` and (K,) the variance [m^2] of their
+        vertical (NaN before the first fix).
+
+        Between update steps the vertical variance grows as the prediction does, from the last update's
+        ``P_zz + 2 T P_zv + T^2 P_vv + q T^3 / 3`` (T the time since it; held, like the position, past
+        ``max_coast_s``)."""
         out = np.full((inp.n_steps, 3), np.nan)
+        var = np.full(inp.n_steps, np.nan)
         fresh_any = inp.fresh.any(axis=1)
         started = np.flatnonzero((inp.t_s >= inp.first_range_s) & fresh_any
                                  & (np.isfinite(inp.range_m).sum(axis=1) >= 3))
         if started.size == 0:
-            return out
+            return out, var
         k0 = int(started[0])
         x0 = LsTracker(block_steps=32).solve_step(inp, k0)
         upd = k0 + np.flatnonzero(fresh_any[k0:])  # steps with a fresh range; upd[0] == k0
-        states = self._filter(inp, k0, x0, upd)
+        states, pz = self._filter(inp, k0, x0, upd)
         # every step from the last update step's state, propagated without noise (vectorised)
         steps = np.arange(k0, inp.n_steps)
         j = np.searchsorted(upd, steps, side="right") - 1
@@ -91,8 +104,14 @@ class EkfTracker:
         if math.isfinite(self.max_coast_s):
             steps = np.minimum(steps, upd[j] + int(round(self.max_coast_s * inp.rate_hz)))
         pos_c, _ = self._control(inp, upd[j], steps)
-        out[k0:] = states[j, :3] + ((steps - upd[j]) * dt)[:, None] * states[j, 3:] + pos_c
-        return out
+        t = (steps - upd[j]) * dt
+        out[k0:] = states[j, :3] + t[:, None] * states[j, 3:] + pos_c
+        var[k0:] = pz[j, 0] + 2.0 * t * pz[j, 1] + t * t * pz[j, 2] + self._q(inp) * t**3 / 3.0
+        return out, var
+
+    def _q(self, inp: TrackInput) -> float:
+        """The process noise density [m^2 s^-3] of this input (the IMU's when it drives the filter)."""
+        return self.imu_accel_psd_m2ps3 if (self.use_imu and inp.acc_mps2 is not None) else self.accel_psd_m2ps3
 
     def _control(self, inp: TrackInput, m: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Effect on position and velocity (each (N, 3)) of the IMU control between steps ``m`` and ``k``.
@@ -110,8 +129,9 @@ class EkfTracker:
         dp = dt * dt * (d_cum[k] - d_cum[m] - (k - m)[:, None] * s_cum[m] - 0.5 * ds)
         return dp, dt * ds
 
-    def _filter(self, inp: TrackInput, k0: int, x0: np.ndarray, upd: np.ndarray) -> np.ndarray:
-        """States (len(upd), 6) after the range updates of each step of ``upd``.
+    def _filter(self, inp: TrackInput, k0: int, x0: np.ndarray, upd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """States (len(upd), 6) after the range updates (and the height update, with a height prior) of
+        each step of ``upd``, and (len(upd), 3) their ``P_zz, P_zv, P_vv`` of the vertical.
 
         Between two update steps T = n dt apart the filter is linear: one jump with F(T) = [[I, T I],
         [0, I]], Q(T) = q [[T^3/3 I, T^2/2 I], [T^2/2 I, T I]] (the exact composition of n grid steps)
@@ -120,8 +140,9 @@ class EkfTracker:
         float is faster than a NumPy call, and nothing is allocated per update but the 6-vector P h.
         """
         dt = 1.0 / inp.rate_hz
-        imu = self.use_imu and inp.acc_mps2 is not None
-        q = self.imu_accel_psd_m2ps3 if imu else self.accel_psd_m2ps3
+        q = self._q(inp)
+        height = inp.height_rel_m
+        var_h = None if inp.height is None else inp.height.std_m ** 2
         gate = float(chi2.ppf(self.gate_prob, df=1))
         var_r = self.range_std_m**2
         reset = self.init_pos_std_m**2
@@ -139,6 +160,7 @@ class EkfTracker:
         x = [float(v) for v in x0] + [0.0, 0.0, 0.0]
         p = np.diag([self.init_pos_std_m**2] * 3 + [self.init_vel_std_mps**2] * 3).tolist()
         states = np.empty((n_upd, 6))
+        pz = np.empty((n_upd, 3))
         rejected = 0
         gaps_l, dp_l, dv_l = gaps.tolist(), dp.tolist(), dv.tolist()
         rng3, rng6 = range(3), range(6)
@@ -185,8 +207,19 @@ class EkfTracker:
                     row = p[i]
                     for k in rng6:
                         row[k] -= gi * ph[k]
+            if var_h is not None:  # the known height: a linear update of p_z (h = e_z), never gated
+                pzr = [r[2] for r in p]  # P e_z
+                s = pzr[2] + var_h
+                nu = height - x[2]
+                for i in rng6:
+                    gi = pzr[i] / s
+                    x[i] += gi * nu
+                    row = p[i]
+                    for k in rng6:
+                        row[k] -= gi * pzr[k]
             states[j] = x
-        return states
+            pz[j] = (p[2][2], p[2][5], p[5][5])
+        return states, pz
 
 
 def _acc_sums(inp: TrackInput) -> tuple[np.ndarray, np.ndarray]:

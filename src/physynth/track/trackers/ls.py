@@ -4,7 +4,9 @@ At each grid step the position minimises the robust sum over the anchors whose n
 than ``max_aoi_s`` of ``f_scale^2 rho((||p - a_i|| - r_i)^2 / f_scale^2)`` (``rho`` the ``loss``:
 ``soft_l1`` by default, as in ``scipy.optimize.least_squares``) plus the same robust cost of a weak pull
 ``prior_weight * (p - p_warm)`` towards the warm start (the solution of the previous block of steps),
-which keeps a step with fewer than three usable ranges where it was.
+which keeps a step with fewer than three usable ranges where it was. With a height prior
+(``TrackInput.height``) the vertical's pull is towards the known height, with weight ``range_std_m /
+height.std_m`` (a height measurement as good as its spread, against ranges of ``range_std_m``).
 
 Steps whose usable ranges are identical to the previous step's (ranges change at ~10 Hz, the grid runs
 at 100 Hz) share its solution. The distinct steps are taken in blocks of ``block_steps``; every step of
@@ -61,7 +63,7 @@ def _loss(z: np.ndarray, loss: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 def _cost_terms(p: np.ndarray, ranges: np.ndarray, use: np.ndarray, anchors: np.ndarray, warm: np.ndarray,
-                fs: float, w: float, loss: str) -> tuple[np.ndarray, ...]:
+                fs: float, w: np.ndarray, loss: str) -> tuple[np.ndarray, ...]:
     """Per-step robust cost (N,) at positions ``p`` (N, 3) and what the Newton step needs there: unit
     vectors u (N, A, 3), the weights of u u^T (N, A) and of I (N,) in the Hessian of the ranges, the
     gradient weights of u (N, A), and the prior's gradient (N, 3) and Hessian diagonal (N, 3)."""
@@ -106,11 +108,13 @@ def _newton_step(h: np.ndarray, g: np.ndarray, floor: float) -> np.ndarray:
 
 
 def multilaterate(ranges_m: np.ndarray, use: np.ndarray, anchor_pos_m: np.ndarray, x0_m: np.ndarray, *,
-                  loss: str = "soft_l1", f_scale_m: float = 0.3, prior_weight: float = 1e-2) -> np.ndarray:
+                  loss: str = "soft_l1", f_scale_m: float = 0.3,
+                  prior_weight: float | np.ndarray = 1e-2) -> np.ndarray:
     """Positions (N, 3) [m] from ranges (N, A) [m] (``use`` (N, A) selects them) to anchors (A, 3) [m].
 
-    Each step minimises its own robust cost (module docstring), pulled weakly towards ``x0_m`` ((3,) or
-    (N, 3) [m]), which is also the initial guess. Newton steps batched over the steps: the Hessian
+    Each step minimises its own robust cost (module docstring), pulled towards ``x0_m`` ((3,) or (N, 3)
+    [m]), which is also the initial guess, with ``prior_weight`` (one weight, or one per axis: a known
+    height is a strong pull of the vertical). Newton steps batched over the steps: the Hessian
     includes the curvature of the ranges (a tag in line with its anchors sits in a flat valley that
     Gauss-Newton crosses only slowly), its eigenvalues floored at half the prior's curvature; every step
     keeps its own trust radius (:data:`INITIAL_RADIUS_M`), accepts a step only when its cost does not
@@ -122,8 +126,9 @@ def multilaterate(ranges_m: np.ndarray, use: np.ndarray, anchor_pos_m: np.ndarra
     n = ranges.shape[0]
     warm_all = np.array(np.broadcast_to(np.asarray(x0_m, float), (n, 3)))
     p_all = warm_all.copy()
-    fs, w = float(f_scale_m), float(prior_weight)
-    floor = 0.5 * w * w  # eigenvalues of the Hessian at least half the prior's curvature
+    fs = float(f_scale_m)
+    w = np.broadcast_to(np.asarray(prior_weight, float), (3,)).copy()
+    floor = 0.5 * float(w.min()) ** 2  # eigenvalues of the Hessian at least half the prior's weakest curvature
     todo = np.arange(n)  # the working set: steps not yet converged, compressed as they finish
     p, warm, r, us = p_all, warm_all, ranges, use
     cost, *terms = _cost_terms(p, r, us, anchors, warm, fs, w, loss)
@@ -178,8 +183,8 @@ def _loss_one(z: float, loss: str) -> tuple[float, float, float]:
     raise PhySynthError(f"unknown loss '{loss}' (choose from {', '.join(LOSSES)})")
 
 
-def _terms_one(p: list[float], rs: list[float], an: list[list[float]], warm: list[float], fs: float, w: float,
-               loss: str) -> tuple[float, list[tuple[float, ...]], list[tuple[float, float, float]]]:
+def _terms_one(p: list[float], rs: list[float], an: list[list[float]], warm: list[float], fs: float,
+               w: list[float], loss: str) -> tuple[float, list[tuple[float, ...]], list[tuple[float, float, float]]]:
     """:func:`_cost_terms` of one step in plain floats: cost, per range (f, d, ux, uy, uz, rho', weight)
     and per axis of the prior (fp, rho', weight)."""
     cost = 0.0
@@ -193,18 +198,18 @@ def _terms_one(p: list[float], rs: list[float], an: list[list[float]], warm: lis
         rows.append((f, d, ex / d, ey / d, ez / d, rho1, wgn))
     prior = []
     for c in range(3):
-        fp = w * (p[c] - warm[c])
+        fp = w[c] * (p[c] - warm[c])
         rho, rho1, wgn = _loss_one(fp * fp / (fs * fs), loss)
         cost += rho
         prior.append((fp, rho1, wgn))
     return 0.5 * fs * fs * cost, rows, prior
 
 
-def _solve_one(rs: list[float], an: list[list[float]], warm: list[float], fs: float, w: float,
+def _solve_one(rs: list[float], an: list[list[float]], warm: list[float], fs: float, w: list[float],
                loss: str) -> list[float]:
     """:func:`multilaterate` of one step (the same iteration in plain floats: no array overhead for the
     chain of block ends, which is solved one step after the other)."""
-    floor = 0.5 * w * w
+    floor = 0.5 * min(w) ** 2
     p = list(warm)
     cost, rows, prior = _terms_one(p, rs, an, warm, fs, w, loss)
     radius = INITIAL_RADIUS_M
@@ -222,8 +227,8 @@ def _solve_one(rs: list[float], an: list[list[float]], warm: list[float], fs: fl
                 for j in range(3):
                     h[i][j] += c * u[i] * u[j]
         for i, (fp, rho1p, wgnp) in enumerate(prior):
-            h[i][i] += csum + w * w * wgnp
-            g[i] += w * rho1p * fp
+            h[i][i] += csum + w[i] * w[i] * wgnp
+            g[i] += w[i] * rho1p * fp
         m1 = h[0][0] - floor
         m2 = m1 * (h[1][1] - floor) - h[0][1] * h[1][0]
         m = [[h[i][j] - (floor if i == j else 0.0) for j in range(3)] for i in range(3)]
@@ -265,6 +270,9 @@ class LsTracker:
     f_scale_m: float = 0.3
     prior_weight: float = 1e-2
     block_steps: int = 64
+    range_std_m: float = 0.15
+    """Ranging noise [m] the height pseudo-measurement is weighed against (its weight ``range_std_m /
+    height.std_m``, a range's being 1)."""
     name: str = "ls"
 
     def fit(self, inputs: Sequence[TrackInput], *, progress: ProgressFn | None = None) -> LsTracker:
@@ -284,7 +292,7 @@ class LsTracker:
         n_steps = inp.n_steps if n_steps is None else int(n_steps)
         r_d, use_d, idx, change, warms = self._blocks(inp, n_steps)
         sol = multilaterate(r_d, use_d, inp.anchor_pos_rel_m, warms[np.arange(idx.size) // self.block_steps],
-                            loss=self.loss, f_scale_m=self.f_scale_m, prior_weight=self.prior_weight)
+                            loss=self.loss, f_scale_m=self.f_scale_m, prior_weight=self.weights(inp))
         out = sol[np.cumsum(change) - 1]
         out[inp.t_s[:n_steps] < inp.first_range_s] = np.nan
         return out
@@ -295,7 +303,15 @@ class LsTracker:
         r_d, use_d, idx, _, warms = self._blocks(inp, k + 1)
         j = idx.size - 1  # step k's distinct step, solved as in the batch of predict_rel
         return multilaterate(r_d[j:], use_d[j:], inp.anchor_pos_rel_m, warms[j // self.block_steps], loss=self.loss,
-                             f_scale_m=self.f_scale_m, prior_weight=self.prior_weight)[0]
+                             f_scale_m=self.f_scale_m, prior_weight=self.weights(inp))[0]
+
+    def weights(self, inp: TrackInput) -> np.ndarray:
+        """(3,) the pull of each axis towards its warm start: ``prior_weight``, and for the vertical with a
+        height prior ``range_std_m / height.std_m`` (towards the prior's height)."""
+        w = np.full(3, float(self.prior_weight))
+        if inp.height is not None:
+            w[2] = self.range_std_m / inp.height.std_m
+        return w
 
     def _blocks(self, inp: TrackInput, n_steps: int):
         """The distinct steps of the first ``n_steps`` (ranges (D, A), use (D, A), their grid indices
@@ -311,32 +327,42 @@ class LsTracker:
         r_d, use_d = r[idx], use[idx]
         # the chain of block ends: block b starts from the last solution of block b - 1
         warms = np.empty((-(-idx.size // self.block_steps), 3))
-        warms[0] = _initial_guess(r_all, use_all, anchors)  # from the first step with three ranges, wherever
+        height = inp.height_rel_m
+        warms[0] = _initial_guess(r_all, use_all, anchors, height)  # from the first step with 3 ranges, wherever
+        w = self.weights(inp).tolist()
         for b, e in enumerate(np.arange(self.block_steps - 1, idx.size, self.block_steps)[: warms.shape[0] - 1]):
-            warms[b + 1] = _solve_step(r_d[e], use_d[e], anchors, warms[b], self)
+            warms[b + 1] = _solve_step(r_d[e], use_d[e], anchors, warms[b], self, w)
+            if height is not None:  # every block is pulled towards the known height, not the last one's
+                warms[b + 1, 2] = height
         return r_d, use_d, idx, change, warms
 
 
-def _solve_step(r: np.ndarray, use: np.ndarray, anchors: np.ndarray, warm: np.ndarray, tr: LsTracker) -> np.ndarray:
-    """One step (ranges (A,), use (A,)) from ``warm`` (3,) with the options of ``tr`` (plain floats)."""
+def _solve_step(r: np.ndarray, use: np.ndarray, anchors: np.ndarray, warm: np.ndarray, tr: LsTracker,
+                w: list[float]) -> np.ndarray:
+    """One step (ranges (A,), use (A,)) from ``warm`` (3,) with the options of ``tr`` and the per-axis
+    pulls ``w`` (plain floats)."""
     return np.array(_solve_one(r[use].tolist(), anchors[use].tolist(), warm.tolist(), float(tr.f_scale_m),
-                               float(tr.prior_weight), tr.loss))
+                               w, tr.loss))
 
 
-def _initial_guess(r: np.ndarray, use: np.ndarray, anchors: np.ndarray) -> np.ndarray:
-    """A start for the first block: the best of eight horizontal starts at the mean first range."""
+def _initial_guess(r: np.ndarray, use: np.ndarray, anchors: np.ndarray, height: float | None = None) -> np.ndarray:
+    """A start for the first block: the best of eight horizontal starts at the mean first range (at the
+    known ``height`` relative to the anchors' centroid when given, which the start then keeps)."""
+    z = 0.0 if height is None else float(height)
     full = np.flatnonzero(use.sum(axis=1) >= 3)
     if full.size == 0:
-        return np.array([3.0, 0.0, 0.0])
+        return np.array([3.0, 0.0, z])
     k = full[0]
     rr, uu = r[k], use[k]
     dist = float(np.mean(rr[uu]))
     ang = np.arange(8) * np.pi / 4  # eight starts, solved as one batch
-    guess = np.stack([dist * np.cos(ang), dist * np.sin(ang), np.zeros(8)], axis=1)
+    guess = np.stack([dist * np.cos(ang), dist * np.sin(ang), np.full(8, z)], axis=1)
     p = multilaterate(np.tile(rr, (8, 1)), np.tile(uu, (8, 1)), anchors, guess, prior_weight=1e-4)
     cost = np.sum((np.linalg.norm(p[:, None, :] - anchors[uu][None], axis=2) - rr[uu]) ** 2, axis=1)
     best, best_cost = np.zeros(3), np.inf
     for j in range(8):  # the first of the best, as one after the other
         if cost[j] < best_cost - 1e-9:
             best, best_cost = p[j], float(cost[j])
+    if height is not None:
+        best = np.array([best[0], best[1], z])
     return best
