@@ -6,6 +6,7 @@ import importlib.util
 import json
 import textwrap
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -14,7 +15,7 @@ from ._common import counted, format_table, progress_bar
 AUTO_CLUSTER_MIN_TRACES = 1000
 """With the default ``--workers 0``, runs of fewer traces stay in this process (no cluster to start)."""
 
-scenario_app = typer.Typer(help="Show built-in scenarios.", no_args_is_help=True)
+scenario_app = typer.Typer(help="Show built-in scenarios; make one for a surveyed site.", no_args_is_help=True)
 
 
 def register(app: typer.Typer) -> None:
@@ -23,6 +24,7 @@ def register(app: typer.Typer) -> None:
     app.command("scenarios")(scenarios_cmd)
     app.command("inspect")(inspect_cmd)
     scenario_app.command("show")(scenario_show_cmd)
+    scenario_app.command("survey")(scenario_survey_cmd)
     app.add_typer(scenario_app, name="scenario")
 
 
@@ -172,6 +174,59 @@ def scenario_show_cmd(name: str = typer.Argument(..., metavar="SCENARIO",
     from ..io.scenario_file import load_scenario, scenario_to_yaml
 
     typer.echo(scenario_to_yaml(load_scenario(name)), nl=False)
+
+
+def scenario_survey_cmd(
+    base: str = typer.Argument(..., metavar="SCENARIO", help="The scenario whose channel, availability, motion and "
+                               "IMU the site takes (a preset, or one calibrated at a similar site)."),
+    anchors: Path = typer.Option(..., "--anchors", metavar="CSV", help="The site's anchor survey: columns id, e, n, u "
+                                 "[m], one row per anchor."),
+    route: Path = typer.Option(None, "--route", metavar="CSV", help="A route sketch: columns e, n, u [m], one row per "
+                               "waypoint (default: the scenario's path, moved with the anchors)."),
+    out: Path = typer.Option(..., "--out", "-o", metavar="YAML", help="The site's scenario file."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a scenario file already there."),
+) -> None:
+    """A scenario for a site known from its anchor survey and a route sketch only (docs/tracking.md)."""
+    from ..io.safety import check_output, guarded_outputs
+    from ..io.scenario_file import load_scenario, save_scenario
+    from ..survey import survey_scenario
+
+    check_output(out, kind="scenario", overwrite=overwrite, inputs=[anchors, *([route] if route else [])])
+    ids, pos = _read_points(anchors, ("id", "e", "n", "u"), "--anchors")
+    way = _read_points(route, ("e", "n", "u"), "--route")[1] if route is not None else None
+    scn = survey_scenario(load_scenario(base), ids, pos, way, name=out.stem)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with guarded_outputs([out]) as real:
+        check_output(out, kind="scenario", overwrite=overwrite)
+        save_scenario(scn, real[0], header=f"{out.name}: {base} at the site surveyed in {anchors.name}"
+                      + (f", route {route.name}" if route else ""))
+    typer.echo(f"wrote {out} ({len(ids)} anchors, " + ("the route sketched" if route else "the scenario's path moved "
+               "with the anchors") + ")")
+
+
+def _read_points(path: Path, columns: tuple[str, ...], flag: str) -> tuple[list[str], Any]:
+    """(ids, (N, 3) positions) of a CSV with ``columns`` (case and spaces ignored); one clear line when not."""
+    import numpy as np
+    import pandas as pd
+
+    from ..errors import PhySynthError
+
+    try:
+        df = pd.read_csv(path, skipinitialspace=True)
+    except FileNotFoundError:
+        raise PhySynthError(f"{flag}: {path} does not exist") from None
+    except (OSError, ValueError, pd.errors.ParserError) as exc:
+        raise PhySynthError(f"{flag}: {path} is not a readable CSV file ({str(exc).splitlines()[0]})") from None
+    df.columns = [str(c).strip().lower() for c in df.columns]
+    missing = [c for c in columns if c not in df.columns]
+    if missing:
+        raise PhySynthError(f"{flag}: {path} lacks the column(s) {', '.join(missing)} (it needs {', '.join(columns)})")
+    xyz = df[["e", "n", "u"]].apply(pd.to_numeric, errors="coerce").to_numpy(float)
+    bad = np.flatnonzero(~np.isfinite(xyz).all(axis=1))
+    if bad.size:
+        raise PhySynthError(f"{flag}: {path} row {int(bad[0]) + 2} has no number in e, n or u")
+    ids = [str(v).strip() for v in df["id"]] if "id" in columns else []
+    return ids, xyz
 
 
 UWB_METRICS = ("uwb_ge1_frac", "uwb_ge2_frac", "residual_std_m", "residual_median_m", "abs_residual_p95_m",
