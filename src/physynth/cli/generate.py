@@ -187,7 +187,7 @@ def scenario_survey_cmd(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a scenario file already there."),
 ) -> None:
     """A scenario for a site known from its anchor survey and a route sketch only (docs/tracking.md)."""
-    from ..io.safety import check_output, guarded_outputs
+    from ..io.safety import SURVEY_MARKER, check_output, guarded_outputs
     from ..io.scenario_file import load_scenario, save_scenario
     from ..survey import survey_scenario
 
@@ -198,7 +198,7 @@ def scenario_survey_cmd(
     out.parent.mkdir(parents=True, exist_ok=True)
     with guarded_outputs([out]) as real:
         check_output(out, kind="scenario", overwrite=overwrite)
-        save_scenario(scn, real[0], header=f"{out.name}: {base} at the site surveyed in {anchors.name}"
+        save_scenario(scn, real[0], header=f"{SURVEY_MARKER[2:]}: {base} at the site surveyed in {anchors.name}"
                       + (f", route {route.name}" if route else ""))
     typer.echo(f"wrote {out} ({len(ids)} anchors, " + ("the route sketched" if route else "the scenario's path moved "
                "with the anchors") + ")")

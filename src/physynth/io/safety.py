@@ -50,6 +50,8 @@ REPORT_FILE_PATTERN = re.compile(r"^(report\.(json|md|html)|scenario\.yaml|[a-z0
 
 SCENARIO_MARKER = "# Calibrated by physynth"
 """First line of a scenario file written by ``physynth calibrate``."""
+SURVEY_MARKER = "# Surveyed by physynth"
+"""First line of a scenario file written by ``physynth scenario survey``."""
 
 _TEMP = re.compile(r"^\.(?P<name>.+)\.(?P<kind>tmp|old)-(?P<pid>\d+)$")
 
@@ -150,7 +152,8 @@ def why_not_replaceable(path: Path, kind: str) -> str | None:
                 first = f.readline()
         except (OSError, UnicodeDecodeError):
             first = ""
-        return None if first.startswith(SCENARIO_MARKER) else "it is not a scenario file written by physynth calibrate"
+        return None if first.startswith((SCENARIO_MARKER, SURVEY_MARKER)) else (
+            "it is not a scenario file written by physynth calibrate or physynth scenario survey")
     return None if _marked(_physynth_json(path)) else "it is not a report written by physynth"
 
 
