@@ -123,3 +123,20 @@ def test_ekf_vertical_variance(flat_site):
     far = ok & (np.linalg.norm(blind.pos_rel_m[:, :2], axis=1) > 30)  # tens of metres from flat anchors
     assert np.median(var_blind[far]) > 1.0  # metres of vertical spread the ranges leave
     assert np.all(var_known[ok] < 2 * 0.1 ** 2)  # the prior's 0.1 m, and the growth between updates
+
+
+def test_ekf_restarts_where_it_lost_the_path_and_the_ranges_say_so(flat_site):
+    from physynth.track.trackers.ekf import EkfTracker
+
+    _, traces = flat_site
+    inp = track_input(traces[2], height=HeightPrior(1.0, 0.1))
+    ekf = EkfTracker(fit_range_std=False)
+    upd = np.flatnonzero(inp.fresh.any(axis=1) & (inp.t_s >= inp.first_range_s))
+    truth = inp.pos_rel_m[upd]
+    start = truth[0] * [-1.0, -1.0, 1.0]  # the mirror image of the start through the anchors' centroid
+    lost, _ = ekf._filter(inp, int(upd[0]), start, upd)
+    kept, _ = ekf._filter(inp, int(upd[0]), start, upd, ls=truth)  # a multilateration that is right
+    tail = slice(len(upd) // 2, None)
+    err_lost = np.linalg.norm(lost[tail, :3] - truth[tail], axis=1).mean()
+    err_kept = np.linalg.norm(kept[tail, :3] - truth[tail], axis=1).mean()
+    assert err_kept < 0.5 and err_lost > 2.0, (err_kept, err_lost)

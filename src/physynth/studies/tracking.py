@@ -62,6 +62,16 @@ HANYANG_RUNS = ("LOS/Trajectory_A/Case_1", "LOS/Trajectory_A/Case_2", "NLOS/Traj
 """The default runs (under ``hanyang-uwb/Dynamic_measurements``): train on the first three, test on the last."""
 
 
+STUDY_LAYOUTS = LayoutDistribution(anchor_count=[4, 6], footprint_m=[2.0, 8.0], aspect=[0.25, 1.0],
+                                   height_m=[0.3, 2.5], coplanar_prob=0.2, min_spacing_m=0.5, route_offset_m=[0.0, 2.0])
+"""The anchor layouts of the study's pre-training traces: deployments that fix a walking tag's position, around
+every layout of the Hanyang campaign (4 anchors over 1.9-5 m, aspect 0.35-0.9, heights 0.5-2 m): 4-6 anchors
+(three leave the mirror image across their plane, which no tracker can tell apart), footprints of 2-8 m no
+thinner than a quarter of their length (a compact or straight cluster seen from 50 m leaves the direction to
+the ranges' centimetres), heights 0.3-2.5 m with a fifth of the layouts at one height (the vertical left to
+the known tag height)."""
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class StudyConfig:
     """Every number of the study (recorded in ``results.json``). Epochs are passes over the windows."""
@@ -85,10 +95,9 @@ class StudyConfig:
     net: dict[str, Any] = field(default_factory=dict)
     """Overrides of :class:`~physynth.track.trackers.nets.NetConfig` for every network (e.g.
     ``{"age_weighted_direction": False}``)."""
-    variation: SynthVariation = SynthVariation(random_route_prob=0.5, layout_distribution=LayoutDistribution())
+    variation: SynthVariation = SynthVariation(random_route_prob=0.5, layout_distribution=STUDY_LAYOUTS)
     """How the synthetic pre-training traces vary around the calibrated site: every trace its own whole anchor
-    layout drawn from :class:`~physynth.models.variation.LayoutDistribution` (3-6 anchors, 1.5-10 m footprints,
-    heights 0.2-3 m, a share at one height; each anchor the channel of one of the calibrated anchors), path
+    layout drawn from :data:`STUDY_LAYOUTS` (each anchor the channel of one of the calibrated anchors), path
     jitter, and half of them on random routes of other shapes (:mod:`physynth.track.synth`). Without
     ``layout_distribution``: the training runs' layouts, jittered."""
     random_isometry: bool = True

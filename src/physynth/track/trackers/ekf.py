@@ -54,6 +54,14 @@ class EkfTracker:
     """Longest time [s] the output is extrapolated past the last range update; after it the position is
     held (the filter's own state still propagates in full). ``inf``: the constant-velocity (or IMU) path
     all the way, which carries the filter far off in a long outage of a tag that stopped."""
+    reinit_m: float = 3.0
+    """The filter restarts at the ``ls`` position when, for ``reinit_steps`` update steps in a row, it has been
+    more than this far [m] from it (and more than three of its own position standard deviations), its
+    position misfits the step's ranges (rms residual over two ``range_std_m``) and the multilateration's
+    fits them at least twice as well: far from a compact or flat anchor layout a filter can lose the path
+    and settle where its gate rejects every range. Where the ranges cannot tell the two apart (three
+    anchors: the mirror image across their plane) it keeps its own. ``inf``: never."""
+    reinit_steps: int = 10
     name: str = "ekf"
 
     def fit(self, inputs: Sequence[TrackInput], *, progress: ProgressFn | None = None) -> EkfTracker:
@@ -96,7 +104,8 @@ class EkfTracker:
         k0 = int(started[0])
         x0 = LsTracker(block_steps=32).solve_step(inp, k0)
         upd = k0 + np.flatnonzero(fresh_any[k0:])  # steps with a fresh range; upd[0] == k0
-        states, pz = self._filter(inp, k0, x0, upd)
+        ls = LsTracker().predict_rel(inp)[upd] if math.isfinite(self.reinit_m) else None
+        states, pz = self._filter(inp, k0, x0, upd, ls)
         # every step from the last update step's state, propagated without noise (vectorised)
         steps = np.arange(k0, inp.n_steps)
         j = np.searchsorted(upd, steps, side="right") - 1
@@ -129,7 +138,8 @@ class EkfTracker:
         dp = dt * dt * (d_cum[k] - d_cum[m] - (k - m)[:, None] * s_cum[m] - 0.5 * ds)
         return dp, dt * ds
 
-    def _filter(self, inp: TrackInput, k0: int, x0: np.ndarray, upd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _filter(self, inp: TrackInput, k0: int, x0: np.ndarray, upd: np.ndarray,
+                ls: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """States (len(upd), 6) after the range updates (and the height update, with a height prior) of
         each step of ``upd``, and (len(upd), 3) their ``P_zz, P_zv, P_vv`` of the vertical.
 
@@ -158,10 +168,14 @@ class EkfTracker:
         a_rows = [anchors[c] for c in cols.tolist()]
 
         x = [float(v) for v in x0] + [0.0, 0.0, 0.0]
-        p = np.diag([self.init_pos_std_m**2] * 3 + [self.init_vel_std_mps**2] * 3).tolist()
+        p0 = np.diag([self.init_pos_std_m**2] * 3 + [self.init_vel_std_mps**2] * 3).tolist()
+        p = [row[:] for row in p0]
         states = np.empty((n_upd, 6))
         pz = np.empty((n_upd, 3))
         rejected = 0
+        apart = 0  # update steps in a row far from the multilateration ``ls``
+        ls_l = ls.tolist() if ls is not None else None
+        reinit2 = self.reinit_m ** 2
         gaps_l, dp_l, dv_l = gaps.tolist(), dp.tolist(), dv.tolist()
         rng3, rng6 = range(3), range(6)
         for j in range(n_upd):  # sequential by nature: one jump, then the scalar updates of the step
@@ -217,6 +231,23 @@ class EkfTracker:
                     row = p[i]
                     for k in rng6:
                         row[k] -= gi * pzr[k]
+            if ls_l is not None:
+                lj = ls_l[j]
+                d2 = (x[0] - lj[0]) ** 2 + (x[1] - lj[1]) ** 2 + (x[2] - lj[2]) ** 2
+                far = d2 > reinit2 and d2 > 9.0 * (p[0][0] + p[1][1] + p[2][2])
+                if far:  # and the ranges of this step say the multilateration is right, not only elsewhere
+                    se_x = se_l = 0.0
+                    for u in range(first[j], first[j + 1]):
+                        an, r = a_rows[u], r_list[u]
+                        se_x += (math.dist(x[:3], an) - r) ** 2
+                        se_l += (math.dist(lj, an) - r) ** 2
+                    n_r = max(first[j + 1] - first[j], 1)
+                    far = se_x > 4.0 * var_r * n_r and se_l < 0.25 * se_x
+                apart = apart + 1 if far else 0
+                if apart >= self.reinit_steps and lj[0] == lj[0]:  # not NaN: restart there
+                    x = [lj[0], lj[1], lj[2], 0.0, 0.0, 0.0]
+                    p = [row[:] for row in p0]
+                    apart = 0
             states[j] = x
             pz[j] = (p[2][2], p[2][5], p[5][5])
         return states, pz

@@ -5,8 +5,9 @@ than ``max_aoi_s`` of ``f_scale^2 rho((||p - a_i|| - r_i)^2 / f_scale^2)`` (``rh
 ``soft_l1`` by default, as in ``scipy.optimize.least_squares``) plus the same robust cost of a weak pull
 ``prior_weight * (p - p_warm)`` towards the warm start (the solution of the previous block of steps),
 which keeps a step with fewer than three usable ranges where it was. With a height prior
-(``TrackInput.height``) the vertical's pull is towards the known height, with weight ``range_std_m /
-height.std_m`` (a height measurement as good as its spread, against ranges of ``range_std_m``).
+(``TrackInput.height``) every step is solved a second time from its solution of the ranges alone, with the
+vertical pulled towards the known height with weight ``range_std_m / height.std_m`` (a height measurement
+as good as its spread, against ranges of ``range_std_m``).
 
 Steps whose usable ranges are identical to the previous step's (ranges change at ~10 Hz, the grid runs
 at 100 Hz) share its solution. The distinct steps are taken in blocks of ``block_steps``; every step of
@@ -291,8 +292,9 @@ class LsTracker:
         """
         n_steps = inp.n_steps if n_steps is None else int(n_steps)
         r_d, use_d, idx, change, warms = self._blocks(inp, n_steps)
-        sol = multilaterate(r_d, use_d, inp.anchor_pos_rel_m, warms[np.arange(idx.size) // self.block_steps],
-                            loss=self.loss, f_scale_m=self.f_scale_m, prior_weight=self.weights(inp))
+        sol = self._with_height(inp, r_d, use_d, multilaterate(
+            r_d, use_d, inp.anchor_pos_rel_m, warms[np.arange(idx.size) // self.block_steps], loss=self.loss,
+            f_scale_m=self.f_scale_m, prior_weight=self.prior_weight))
         out = sol[np.cumsum(change) - 1]
         out[inp.t_s[:n_steps] < inp.first_range_s] = np.nan
         return out
@@ -302,8 +304,21 @@ class LsTracker:
         solve), for a step at or after the first range."""
         r_d, use_d, idx, _, warms = self._blocks(inp, k + 1)
         j = idx.size - 1  # step k's distinct step, solved as in the batch of predict_rel
-        return multilaterate(r_d[j:], use_d[j:], inp.anchor_pos_rel_m, warms[j // self.block_steps], loss=self.loss,
-                             f_scale_m=self.f_scale_m, prior_weight=self.weights(inp))[0]
+        first = multilaterate(r_d[j:], use_d[j:], inp.anchor_pos_rel_m, warms[j // self.block_steps], loss=self.loss,
+                              f_scale_m=self.f_scale_m, prior_weight=self.prior_weight)
+        return self._with_height(inp, r_d[j:], use_d[j:], first)[0]
+
+    def _with_height(self, inp: TrackInput, r_d: np.ndarray, use_d: np.ndarray, sol: np.ndarray) -> np.ndarray:
+        """The solutions ``sol`` (D, 3) of the ranges alone, each solved again with the height term from
+        itself at the known height (:meth:`weights`); unchanged without a height prior. In two stages
+        because a height held from the start takes a dimension from the solver's way out of a wrong basin
+        (the warm start of a block lies where the previous block ended)."""
+        if inp.height is None:
+            return sol
+        start = sol.copy()
+        start[:, 2] = inp.height_rel_m
+        return multilaterate(r_d, use_d, inp.anchor_pos_rel_m, start, loss=self.loss, f_scale_m=self.f_scale_m,
+                             prior_weight=self.weights(inp))
 
     def weights(self, inp: TrackInput) -> np.ndarray:
         """(3,) the pull of each axis towards its warm start: ``prior_weight``, and for the vertical with a
@@ -327,13 +342,10 @@ class LsTracker:
         r_d, use_d = r[idx], use[idx]
         # the chain of block ends: block b starts from the last solution of block b - 1
         warms = np.empty((-(-idx.size // self.block_steps), 3))
-        height = inp.height_rel_m
-        warms[0] = _initial_guess(r_all, use_all, anchors, height)  # from the first step with 3 ranges, wherever
-        w = self.weights(inp).tolist()
+        warms[0] = _initial_guess(r_all, use_all, anchors)  # from the first step with three ranges, wherever
+        w = [float(self.prior_weight)] * 3
         for b, e in enumerate(np.arange(self.block_steps - 1, idx.size, self.block_steps)[: warms.shape[0] - 1]):
             warms[b + 1] = _solve_step(r_d[e], use_d[e], anchors, warms[b], self, w)
-            if height is not None:  # every block is pulled towards the known height, not the last one's
-                warms[b + 1, 2] = height
         return r_d, use_d, idx, change, warms
 
 
@@ -345,24 +357,20 @@ def _solve_step(r: np.ndarray, use: np.ndarray, anchors: np.ndarray, warm: np.nd
                                w, tr.loss))
 
 
-def _initial_guess(r: np.ndarray, use: np.ndarray, anchors: np.ndarray, height: float | None = None) -> np.ndarray:
-    """A start for the first block: the best of eight horizontal starts at the mean first range (at the
-    known ``height`` relative to the anchors' centroid when given, which the start then keeps)."""
-    z = 0.0 if height is None else float(height)
+def _initial_guess(r: np.ndarray, use: np.ndarray, anchors: np.ndarray) -> np.ndarray:
+    """A start for the first block: the best of eight horizontal starts at the mean first range."""
     full = np.flatnonzero(use.sum(axis=1) >= 3)
     if full.size == 0:
-        return np.array([3.0, 0.0, z])
+        return np.array([3.0, 0.0, 0.0])
     k = full[0]
     rr, uu = r[k], use[k]
     dist = float(np.mean(rr[uu]))
     ang = np.arange(8) * np.pi / 4  # eight starts, solved as one batch
-    guess = np.stack([dist * np.cos(ang), dist * np.sin(ang), np.full(8, z)], axis=1)
+    guess = np.stack([dist * np.cos(ang), dist * np.sin(ang), np.zeros(8)], axis=1)
     p = multilaterate(np.tile(rr, (8, 1)), np.tile(uu, (8, 1)), anchors, guess, prior_weight=1e-4)
     cost = np.sum((np.linalg.norm(p[:, None, :] - anchors[uu][None], axis=2) - rr[uu]) ** 2, axis=1)
     best, best_cost = np.zeros(3), np.inf
     for j in range(8):  # the first of the best, as one after the other
         if cost[j] < best_cost - 1e-9:
             best, best_cost = p[j], float(cost[j])
-    if height is not None:
-        best = np.array([best[0], best[1], z])
     return best
