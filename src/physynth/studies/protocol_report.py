@@ -119,13 +119,14 @@ def plot_runs(res: ProtocolResult, path: Path) -> Path | None:
     for ax, k in zip(axes, ("rmse_m", "rmse_v_m"), strict=True):
         for j, m in enumerate(methods):
             vals = [idx.get((r, m), {}).get(k, np.nan) for r in runs]
-            errs = [idx.get((r, m), {}).get(f"{k}_std", 0.0) for r in runs]
+            errs = [idx.get((r, m), {}).get(f"{k}_std", 0.0) for r in runs] if len(res.seeds) > 1 else None
             ax.bar(x + (j - (len(methods) - 1) / 2) * width, vals, width, yerr=errs, capsize=2, label=m)
         ax.set_ylabel(f"{STAT_TITLES[k]} [m]")
         ax.grid(axis="y", alpha=0.3)
     axes[0].legend(fontsize=7, ncol=min(len(methods), 4))
     axes[-1].set_xticks(x, runs, rotation=15, fontsize=8)
-    fig.suptitle(f"{res.protocol}: mean over seeds {', '.join(map(str, res.seeds))} (bars: std)", fontsize=10)
+    fig.suptitle(f"{res.protocol}: " + (f"mean over seeds {', '.join(map(str, res.seeds))} (error bars: std)"
+                                        if len(res.seeds) > 1 else f"seed {res.seeds[0]}"), fontsize=10)
     fig.tight_layout()
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}.png")
     fig.savefig(tmp, dpi=110)
