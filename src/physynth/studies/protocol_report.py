@@ -16,7 +16,7 @@ import numpy as np
 
 from .protocol import RUN_STATS, ProtocolResult
 from .tracking import ROW_NAMES
-from .tracking_report import write_results
+from .tracking_report import pyplot, save_figure, write_results
 
 STAT_TITLES = {"rmse_m": "RMSE 3-D", "rmse_2d_m": "RMSE 2-D", "rmse_v_m": "RMSE vertical", "p95_m": "P95 3-D"}
 
@@ -101,12 +101,8 @@ def write_protocol_results(res: ProtocolResult, out_dir: str | os.PathLike) -> d
 def plot_runs(res: ProtocolResult, path: Path) -> Path | None:
     """3-D and vertical RMSE per test run and method, mean over seeds with the seeds' spread (None
     without matplotlib)."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
+    plt = pyplot()
+    if plt is None:
         return None
     runs = list(dict.fromkeys(r["run"] for r in res.summary))
     methods = [m for m in dict.fromkeys(r["method"] for r in res.summary) if not m.startswith("ref:")]
@@ -127,9 +123,4 @@ def plot_runs(res: ProtocolResult, path: Path) -> Path | None:
     axes[-1].set_xticks(x, runs, rotation=15, fontsize=8)
     fig.suptitle(f"{res.protocol}: " + (f"mean over seeds {', '.join(map(str, res.seeds))} (error bars: std)"
                                         if len(res.seeds) > 1 else f"seed {res.seeds[0]}"), fontsize=10)
-    fig.tight_layout()
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    return save_figure(fig, path, dpi=110)

@@ -155,12 +155,8 @@ def write_results(result: StudyResult, out_dir: str | os.PathLike) -> dict[str, 
 def plot_paths(result: StudyResult, path: Path) -> Path | None:
     """Estimated against true horizontal paths: one column per test run, one row per method, each panel
     titled with the RMSE on its own run (None without matplotlib)."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
+    plt = pyplot()
+    if plt is None:
         return None
     inputs, _, per = _per_test(result)
     keys = ([k for k in ("NOAUG", "AUG_GAN", "SYNTH_PHY", "ekf", "ref: authors' ESKF") if k in per]
@@ -185,9 +181,31 @@ def plot_paths(result: StudyResult, path: Path) -> Path | None:
     axes[0][0].legend(fontsize=7, loc="best")
     fig.suptitle("test run" + ("s" if len(inputs) > 1 else "") + ": " + ", ".join(i.label for i in inputs),
                  fontsize=10)
+    return save_figure(fig, path, dpi=120)
+
+
+def pyplot():
+    """matplotlib's pyplot on the Agg backend, or None without matplotlib (the figures are optional)."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    return plt
+
+
+def save_figure(fig, path: Path, *, dpi: int) -> Path:
+    """``fig`` laid out, written to ``path`` as PNG atomically (:mod:`physynth.io.atomic`) and closed."""
+    import io
+
+    from ..io.atomic import atomic_write_bytes
+
+    plt = pyplot()
     fig.tight_layout()
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}.png")
-    fig.savefig(tmp, dpi=120)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
     plt.close(fig)
-    os.replace(tmp, path)
+    atomic_write_bytes(path, buf.getvalue())
     return path
