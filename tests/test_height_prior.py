@@ -19,8 +19,9 @@ from physynth.errors import PhySynthError
 from physynth.generate import generate_trace
 from physynth.records import Uwb
 from physynth.scenario import scenario_from_dict, scenario_to_dict
+from physynth.track.features import ekf_prior_rel_m
 from physynth.track.height import MIN_HEIGHT_STD_M, HeightPrior, height_from_heights, height_from_truth
-from physynth.track.inputs import ekf_prior_rel_m, track_input
+from physynth.track.inputs import track_input
 from physynth.track.scoring import error_stats
 from physynth.track.trackers import make_tracker
 from physynth.track.trackers.ekf import EkfTracker

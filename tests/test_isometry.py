@@ -112,7 +112,8 @@ def test_a_mirrored_tumbling_body_stays_right_handed_and_consistent(mirror):
 
 def test_a_turned_window_is_the_window_of_the_turned_trace():
     pytest.importorskip("torch")
-    from physynth.track.inputs import network_arrays, track_input
+    from physynth.track.features import network_arrays
+    from physynth.track.inputs import track_input
     from physynth.track.torch_data import turn_window, window_item
     from physynth.transform import isometry_matrix
 
@@ -205,7 +206,8 @@ def test_test_time_isometries_make_predictions_exactly_equivariant():
 
 # ---------------------------------------------------------------- the route frame
 def test_route_heading_turns_with_the_run_and_route_frame_undoes_any_turn():
-    from physynth.track.inputs import network_arrays, route_frame, route_heading_rad, track_input, turn_arrays
+    from physynth.track.features import network_arrays, route_frame, route_heading_rad, turn_arrays
+    from physynth.track.inputs import track_input
     from physynth.transform import isometry_matrix
 
     tr = generate_trace(site_scenario(noise_m=0.05), 3, 21)

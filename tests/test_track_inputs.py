@@ -10,7 +10,8 @@ from track_helpers import site_scenario
 
 from physynth.generate import generate_trace
 from physynth.records import Trace, Uwb
-from physynth.track.inputs import far_field_direction, network_arrays, shift_uwb, track_input, window_starts
+from physynth.track.features import far_field_direction, network_arrays, window_starts
+from physynth.track.inputs import shift_uwb, track_input
 from physynth.track.reference import read_reference_csv, reference_estimates
 from physynth.track.scoring import error_stats
 

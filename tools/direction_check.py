@@ -14,7 +14,8 @@ import numpy as np
 
 from physynth.io.importers import import_hanyang
 from physynth.studies.tracking import default_data_root
-from physynth.track.inputs import far_field_direction, track_input
+from physynth.track.features import far_field_direction
+from physynth.track.inputs import track_input
 
 RUNS = ("LOS/Trajectory_A/Case_1", "LOS/Trajectory_A/Case_2", "NLOS/Trajectory_A/Case_1",
         "NLOS/Trajectory_A/Case_2")

@@ -39,8 +39,9 @@ from ..errors import PhySynthError
 from ..models.variation import LayoutDistribution
 from ..records import TRUTH_UNTRUSTED_KEY, Trace, untrusted_truth
 from ..scenario import Scenario, scenario_to_dict
+from ..track.features import EKF_PRIOR_COAST_S, check_ekf_prior
 from ..track.height import HeightPrior, height_from_scenario, height_from_truth
-from ..track.inputs import EKF_PRIOR_COAST_S, TrackInput, check_ekf_prior, track_input
+from ..track.inputs import TrackInput, track_input
 from ..track.reference import reference_estimates
 from ..track.scoring import error_stats
 from ..track.synth import SynthVariation
@@ -653,7 +654,7 @@ def _next_message(messages: Any, running: dict[int, Any], configs: list[StudyCon
 
 def _input_settings(cfg: StudyConfig) -> dict[str, Any]:
     """How the network inputs were built (recorded in ``results.json``)."""
-    from ..track import inputs as ti
+    from ..track import features as ti
 
     weighted = bool(cfg.net.get("age_weighted_direction", True))
     return {"age_weighted_direction": weighted,

@@ -1,6 +1,6 @@
 """Map-style ``torch.utils.data.Dataset`` s of network windows, over stored and over generated traces.
 
-Every item is one window of :func:`~physynth.track.inputs.network_arrays` as a dict of tensors:
+Every item is one window of :func:`~physynth.track.features.network_arrays` as a dict of tensors:
 ``x`` (W, A, 9) float32 per-anchor features, ``anchor_ok`` (A,) bool, ``acc`` (W, 3) float32, ``g``
 (W, 12) float32 per-step features (15 with the ``ekf`` prior), ``has_imu`` () bool, ``y`` (W, 3) float32
 relative truth / length scale, ``y_ok`` (W,) bool. :func:`collate_windows` pads the anchor axis of a batch
@@ -30,7 +30,8 @@ import numpy as np
 
 from ..transform import isometry_matrix
 from . import require_torch
-from .inputs import NetArrays, TrackInput, network_arrays, route_frame, track_input, window_starts
+from .features import NetArrays, network_arrays, route_frame, window_starts
+from .inputs import TrackInput, track_input
 
 torch = require_torch()
 
@@ -46,8 +47,8 @@ class WindowSpec:
     anchor_scale_m: float = 2.0
     use_imu: bool = False
     age_weighted_direction: bool = True
-    route_frame: bool = False  # every trace turned into its own route frame (inputs.route_frame)
-    ekf_prior: bool = False  # the ekf position appended to g (inputs.network_arrays)
+    route_frame: bool = False  # every trace turned into its own route frame (features.route_frame)
+    ekf_prior: bool = False  # the ekf position appended to g (features.network_arrays)
 
     def arrays(self, inp: TrackInput, *, turn: bool = True) -> NetArrays:
         """The network arrays of ``inp`` under this spec (``turn=False``: not turned into the route frame)."""

@@ -39,17 +39,17 @@ import numpy as np
 
 from ...errors import PhySynthError
 from .. import require_torch
-from ..inputs import (
+from ..features import (
     EKF_PRIOR_COAST_S,
     N_ANCHOR_FEATURES,
     N_EKF_FEATURES,
     N_GLOBAL_FEATURES,
-    TrackInput,
     check_ekf_prior,
     route_frame,
     upsample,
     window_starts,
 )
+from ..inputs import TrackInput
 from .base import ProgressFn
 
 torch = require_torch()
@@ -62,7 +62,7 @@ class NetConfig:
     """Architecture, windows and schedule of a learned tracker (lengths in network steps).
 
     ``age_weighted_direction``: the far-field direction input weights each range by its age
-    (:func:`~physynth.track.inputs.network_arrays`); False restores the unweighted solve.
+    (:func:`~physynth.track.features.network_arrays`); False restores the unweighted solve.
     ``random_isometry``: every training window is turned about the vertical through the anchor
     centroid by a uniform angle and mirrored with probability 1/2
     (:class:`~physynth.track.torch_data.IsometryWindows`), so the network learns the geometry of
@@ -71,7 +71,7 @@ class NetConfig:
     ``test_isometries`` copies of the test run (1, 2, 4 or 8: the turns by multiples of 90 deg, with their
     mirror images from 2 on) and averages the predictions moved back (test-time augmentation; 1: none).
     ``route_frame``: every run, for training and for prediction, is turned so that its route heading,
-    estimated from its own ranges, points east (:func:`~physynth.track.inputs.route_frame`): the network
+    estimated from its own ranges, points east (:func:`~physynth.track.features.route_frame`): the network
     learns the shape of the routes relative to their heading, not their compass heading, and is lost on
     a route of another shape (docs/tracking.md, the synthetic loop). Excludes ``random_isometry``.
     """
@@ -101,7 +101,7 @@ class NetConfig:
     ``torch.optim.swa_utils.AveragedModel``; the nets have no batch statistics to recompute)."""
     ekf_prior: str = "none"
     """``none``; ``input``: the position of the classical ``ekf`` tracker run on the same inputs is one more
-    per-step input (:func:`~physynth.track.inputs.ekf_prior_rel_m`); ``residual``: that input, and the
+    per-step input (:func:`~physynth.track.features.ekf_prior_rel_m`); ``residual``: that input, and the
     network's output is added to it, so the network learns a correction of the filter (where it coasts
     through an outage or follows a wrong range) instead of the position itself."""
     use_imu: bool = False
