@@ -32,11 +32,12 @@ def _require(module: str) -> None:
 
 
 def export_dataset(dataset: str | os.PathLike, out: str | os.PathLike, fmt: str, *, overwrite: bool = False,
-                   progress: ProgressCallback = no_progress) -> Path:
+                   progress: ProgressCallback = no_progress, bag_storage: str = "mcap") -> Path:
     """Export ``dataset`` to ``out`` in format ``fmt`` (one of :data:`FORMATS`); returns ``out``.
 
     - ``hdf5``: one file, one group ``/traces/<index>`` per trace (:mod:`.hdf5`);
-    - ``rosbag2``: a folder with one ROS 2 bag per trace (:mod:`.rosbag2`);
+    - ``rosbag2``: a folder with one ROS 2 bag per trace (:mod:`.rosbag2`), MCAP storage or, with
+      ``bag_storage="sqlite3"``, SQLite3;
     - ``csv``: a folder with one CSV file per table (:mod:`.csv`).
 
     Every format reads the dataset as every reader does (:func:`~physynth.io.dataset.iter_indexed_traces`:
@@ -47,6 +48,10 @@ def export_dataset(dataset: str | os.PathLike, out: str | os.PathLike, fmt: str,
     """
     if fmt not in FORMATS:
         raise PhySynthError(f"unknown export format '{fmt}' (choose one of {', '.join(FORMATS)})")
+    from .rosbag2 import STORAGES
+
+    if bag_storage not in STORAGES:
+        raise PhySynthError(f"unknown bag storage '{bag_storage}' (choose one of {', '.join(STORAGES)})")
     if fmt == "hdf5":
         _require("h5py")
     elif fmt == "rosbag2":
@@ -57,7 +62,7 @@ def export_dataset(dataset: str | os.PathLike, out: str | os.PathLike, fmt: str,
     # files of an interrupted export removed with a warning
     out, lock = prepare_output(out, kind=f"export-{fmt}", overwrite=overwrite, inputs=[dataset])
     try:
-        return _export(Path(dataset), meta, out, fmt, progress)
+        return _export(Path(dataset), meta, out, fmt, progress, bag_storage)
     finally:
         lock.release()
 
@@ -71,7 +76,7 @@ def _checked(dataset: Path, meta: dict, message: str, total: int | None,
         progress(message, done, total)
 
 
-def _export(dataset: Path, meta: dict, out: Path, fmt: str, progress: ProgressCallback) -> Path:
+def _export(dataset: Path, meta: dict, out: Path, fmt: str, progress: ProgressCallback, storage: str) -> Path:
     total = n_traces(meta)
     tmp = temp_sibling(out)
     remove_tree(tmp)
@@ -88,7 +93,8 @@ def _export(dataset: Path, meta: dict, out: Path, fmt: str, progress: ProgressCa
             deque(_checked(dataset, meta, "checking the dataset", total, progress), maxlen=0)
             writer(dataset, meta, tmp, progress)
         else:
-            skipped = writer(_checked(dataset, meta, f"exporting to {fmt}", total, progress), meta, tmp)
+            args = (storage,) if fmt == "rosbag2" else ()
+            skipped = writer(_checked(dataset, meta, f"exporting to {fmt}", total, progress), meta, tmp, *args)
             _say_skipped(skipped or {}, progress)
         swap_in(tmp, out)
     except BaseException:

@@ -1,7 +1,13 @@
 """ROS 2 bag export (the ``rosbags`` library; no ROS installation needed).
 
 The output is a folder with one bag per trace, ``trace_<index>/`` (a rosbag2 folder: ``metadata.yaml``
-and an SQLite3 file), because traces of a dataset share one time base and would overlap in one bag.
+and an MCAP file ``trace_<index>.mcap``, or with ``storage="sqlite3"`` an SQLite3 file), because traces
+of a dataset share one time base and would overlap in one bag. MCAP is what ROS 2 writes by default since
+Iron and what Foxglove opens natively.
+
+The messages of a topic are serialised all at once (:mod:`.cdr`: one NumPy structured array per topic,
+no Python object per message) and the MCAP file is laid out with NumPy too (:mod:`.mcap`); the SQLite3
+storage takes the same bytes through ``rosbags``' writer, one call per message (about 4 us each).
 Topics, all with header stamps equal to the sample time (``t_s`` in nanoseconds, rounded) and the
 receive timestamp of the bag record equal to the header stamp:
 
@@ -34,13 +40,17 @@ out per topic (``"<topic> (before 0 s)"`` for the early rows).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ...records import Trace
+from . import cdr
+from .mcap import MESSAGE_HEAD
 
 RADIO = 2
 """``radiation_type`` used for UWB (sensor_msgs/Range defines ULTRASOUND=0 and INFRARED=1 only)."""
@@ -61,23 +71,31 @@ def _latched_qos() -> Any:
                avoid_ros_namespace_conventions=False)
 
 
-def _anchor_frames(w: Any, ts: Any, trace: Trace, hdr: Any) -> tuple[int, Any, bytes]:
-    """The ``/tf_static`` record of a trace's anchor layout: (stamp, connection, CDR bytes)."""
-    tf_type = "tf2_msgs/msg/TFMessage"
-    TFMessage, TransformStamped = ts.types[tf_type], ts.types["geometry_msgs/msg/TransformStamped"]
-    Transform, Vector3 = ts.types["geometry_msgs/msg/Transform"], ts.types["geometry_msgs/msg/Vector3"]
-    Quaternion = ts.types["geometry_msgs/msg/Quaternion"]
-    conn = w.add_connection("/tf_static", tf_type, typestore=ts, offered_qos_profiles=[_latched_qos()])
-    transforms = [TransformStamped(header=hdr, child_frame_id=a_id, transform=Transform(
-        translation=Vector3(x=p[0], y=p[1], z=p[2]), rotation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)))
-        for a_id, p in zip(trace.anchors.ids, trace.anchors.pos_enu_m.tolist(), strict=True)]
-    ns = hdr.stamp.sec * 1_000_000_000 + hdr.stamp.nanosec
-    return int(ns), conn, ts.serialize_cdr(TFMessage(transforms=transforms), tf_type)
+
+STORAGES = ("mcap", "sqlite3")
+"""Storage formats of the bags; the first is the default."""
+
+BAG_VERSION = 8
+"""rosbag2 metadata version written (as ``rosbags``' writer: ROS 2 Iron and later)."""
+
+HEAD = MESSAGE_HEAD
+"""Bytes reserved in front of each message's CDR bytes: an MCAP message record's head, filled in place
+by the MCAP writer (:mod:`.mcap`)."""
+
+ZERO_COV, NO_COV = np.zeros(9), np.array([-1.0] + [0.0] * 8)
 
 
-def _header(ts: Any, ns: int, frame: str) -> Any:
-    Header, Time = ts.types["std_msgs/msg/Header"], ts.types["builtin_interfaces/msg/Time"]
-    return Header(stamp=Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000)), frame_id=frame)
+@dataclass(frozen=True)
+class Topic:
+    """One topic of a bag: name, message type, offered QoS profiles, and its messages (stamps in ns,
+    rows of an ``(n, HEAD + size)`` uint8 array: :data:`HEAD` bytes reserved for the MCAP record head,
+    then the message's CDR bytes)."""
+
+    name: str
+    msgtype: str
+    qos: tuple[Any, ...]
+    stamps: np.ndarray
+    data: np.ndarray
 
 
 def _finite_rows(n: int, *arrays: np.ndarray | None) -> np.ndarray:
@@ -102,94 +120,182 @@ def _kept(skipped: dict[str, int], topic: str, t_s: np.ndarray, *arrays: np.ndar
     return ok & ~early
 
 
-def _imu_messages(w: Any, ts: Any, imu: Any, skipped: dict[str, int]) -> list[tuple[int, Any, bytes]]:
-    """The ``/imu`` (ENU) and ``/imu/body`` (body-frame sensor) records of a trace's IMU."""
-    Imu, Vector3 = ts.types["sensor_msgs/msg/Imu"], ts.types["geometry_msgs/msg/Vector3"]
-    identity = ts.types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
-    no_cov, zero_cov = np.array([-1.0] + [0.0] * 8), np.zeros(9)
-    messages = []
+def _imu_topics(imu: Any, skipped: dict[str, int]) -> list[Topic]:
+    """``/imu`` (ENU) and ``/imu/body`` (body-frame sensor) of a trace's IMU."""
+    out = []
     channels = [] if imu is None else [
         (topic, frame, acc, gyro) for topic, frame, acc, gyro in (
             ("/imu", "enu", imu.acc_mps2, None), ("/imu/body", "body", imu.acc_body_mps2, imu.gyro_body_radps))
         if acc is not None or gyro is not None]
     for topic, frame, acc, gyro in channels:
-        conn = w.add_connection(topic, Imu.__msgtype__, typestore=ts)
-        n = imu.t_s.shape[0]
         ok = _kept(skipped, topic, imu.t_s, acc, gyro)
-        acc_l = np.zeros((n, 3))[ok].tolist() if acc is None else acc[ok].tolist()
-        gyro_l = np.zeros((n, 3))[ok].tolist() if gyro is None else gyro[ok].tolist()
-        for ns, a, g in zip(_stamps_ns(imu.t_s[ok]), acc_l, gyro_l, strict=True):
-            msg = Imu(header=_header(ts, int(ns), frame), orientation=identity, orientation_covariance=no_cov,
-                      angular_velocity=Vector3(x=g[0], y=g[1], z=g[2]),
-                      angular_velocity_covariance=no_cov if gyro is None else zero_cov,
-                      linear_acceleration=Vector3(x=a[0], y=a[1], z=a[2]),
-                      linear_acceleration_covariance=no_cov if acc is None else zero_cov)
-            messages.append((int(ns), conn, ts.serialize_cdr(msg, Imu.__msgtype__)))
-    return messages
+        ns = _stamps_ns(imu.t_s[ok])
+        values: dict[str, Any] = {"orientation_w": 1.0, "orientation_covariance": NO_COV,
+                                  "angular_velocity_covariance": NO_COV if gyro is None else ZERO_COV,
+                                  "linear_acceleration_covariance": NO_COV if acc is None else ZERO_COV}
+        for name, arr in (("linear_acceleration", acc), ("angular_velocity", gyro)):
+            if arr is not None:
+                kept = arr[ok]
+                values.update({f"{name}_{c}": kept[:, k] for k, c in enumerate("xyz")})
+        f = frame.encode()
+        rows = cdr.records(cdr.imu_fields(f), ns, f, reserve=HEAD, **values)
+        out.append(Topic(topic, "sensor_msgs/msg/Imu", (), ns, rows))
+    return out
 
 
-def _uwb_messages(w: Any, ts: Any, trace: Trace, skipped: dict[str, int]) -> list[tuple[int, Any, bytes]]:
-    """The ``/uwb/<anchor id>`` records: one per delivered range stamped at or after time 0."""
-    Range = ts.types["sensor_msgs/msg/Range"]
+def _uwb_topics(trace: Trace, skipped: dict[str, int]) -> list[Topic]:
+    """``/uwb/<anchor id>``: one message per delivered range stamped at or after time 0."""
     u = trace.uwb
     ok = np.isfinite(u.range_m)
     max_range = float(np.max(u.range_m[ok])) if ok.any() else 0.0
-    messages = []
+    out = []
     for a_idx, a_id in enumerate(trace.anchors.ids):
         sel = ok & (u.anchor == a_idx)
         if not sel.any():
             continue
         sel[sel] = _kept(skipped, f"/uwb/{a_id}", u.t_s[sel])
-        conn = w.add_connection(f"/uwb/{a_id}", Range.__msgtype__, typestore=ts)
-        for ns, r in zip(_stamps_ns(u.t_s[sel]), u.range_m[sel].tolist(), strict=True):
-            msg = Range(header=_header(ts, int(ns), a_id), radiation_type=RADIO, field_of_view=float(2 * np.pi),
-                        min_range=0.0, max_range=max_range, range=r)
-            messages.append((int(ns), conn, ts.serialize_cdr(msg, Range.__msgtype__)))
-    return messages
+        ns, f = _stamps_ns(u.t_s[sel]), a_id.encode()
+        out.append(Topic(f"/uwb/{a_id}", "sensor_msgs/msg/Range", (), ns, cdr.records(
+            cdr.range_fields(f), ns, f, reserve=HEAD, radiation_type=RADIO, field_of_view=2 * np.pi,
+            max_range=max_range, range=u.range_m[sel])))
+    return out
 
 
-def _truth_messages(w: Any, ts: Any, trace: Trace, skipped: dict[str, int]) -> list[tuple[int, Any, bytes]]:
-    """The ``/truth`` position records, the ``/tf_static`` anchor layout and the ``/truth/orientation``
-    records of a trace (in this order of their connections)."""
-    Point, PointMsg = ts.types["geometry_msgs/msg/PointStamped"], ts.types["geometry_msgs/msg/Point"]
-    QuatStamped, Quaternion = ts.types["geometry_msgs/msg/QuaternionStamped"], ts.types["geometry_msgs/msg/Quaternion"]
+def _anchor_frames(ts: Any, trace: Trace, ns: int) -> Topic:
+    """``/tf_static``: one message with a transform ``enu`` -> ``<anchor id>`` per anchor (one message per
+    trace, so serialised by ``rosbags``)."""
+    tf_type = "tf2_msgs/msg/TFMessage"
+    TFMessage, TransformStamped = ts.types[tf_type], ts.types["geometry_msgs/msg/TransformStamped"]
+    Transform, Vector3 = ts.types["geometry_msgs/msg/Transform"], ts.types["geometry_msgs/msg/Vector3"]
+    Quaternion, Header = ts.types["geometry_msgs/msg/Quaternion"], ts.types["std_msgs/msg/Header"]
+    hdr = Header(stamp=ts.types["builtin_interfaces/msg/Time"](sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000),
+                 frame_id="enu")
+    transforms = [TransformStamped(header=hdr, child_frame_id=a_id, transform=Transform(
+        translation=Vector3(x=p[0], y=p[1], z=p[2]), rotation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)))
+        for a_id, p in zip(trace.anchors.ids, trace.anchors.pos_enu_m.tolist(), strict=True)]
+    data = np.frombuffer(bytes(HEAD) + bytes(ts.serialize_cdr(TFMessage(transforms=transforms), tf_type)), np.uint8)
+    return Topic("/tf_static", tf_type, (_latched_qos(),), np.array([ns], np.int64), data[None, :].copy())
+
+
+def _truth_topics(ts: Any, trace: Trace, skipped: dict[str, int]) -> list[Topic]:
+    """``/truth`` positions, the ``/tf_static`` anchor layout and ``/truth/orientation`` (in this order)."""
     truth = trace.truth
-    c_truth = w.add_connection("/truth", Point.__msgtype__, typestore=ts)
     ok = _kept(skipped, "/truth", truth.t_s, truth.pos_enu_m)
-    messages = [(int(ns), c_truth, ts.serialize_cdr(
-        Point(header=_header(ts, int(ns), "enu"), point=PointMsg(x=p[0], y=p[1], z=p[2])), Point.__msgtype__))
-        for ns, p in zip(_stamps_ns(truth.t_s[ok]), truth.pos_enu_m[ok].tolist(), strict=True)]
+    ns = _stamps_ns(truth.t_s[ok])
+    pos = truth.pos_enu_m[ok]
+    out = [Topic("/truth", "geometry_msgs/msg/PointStamped", (), ns, cdr.records(
+        cdr.point_stamped_fields(b"enu"), ns, b"enu", reserve=HEAD,
+        **{f"point_{c}": pos[:, k] for k, c in enumerate("xyz")}))]
     if len(trace.anchors):
-        messages.append(_anchor_frames(w, ts, trace, _header(ts, max(0, int(_stamps_ns(truth.t_s[:1])[0])), "enu")))
+        out.append(_anchor_frames(ts, trace, max(0, int(_stamps_ns(truth.t_s[:1])[0]))))
     if truth.quat_wxyz is not None:
-        c_att = w.add_connection("/truth/orientation", QuatStamped.__msgtype__, typestore=ts)
         ok = _kept(skipped, "/truth/orientation", truth.t_s, truth.quat_wxyz)
-        for ns, q in zip(_stamps_ns(truth.t_s[ok]), truth.quat_wxyz[ok].tolist(), strict=True):
-            quat = Quaternion(x=q[1], y=q[2], z=q[3], w=q[0])  # stored scalar-first (w, x, y, z)
-            msg = QuatStamped(header=_header(ts, int(ns), "enu"), quaternion=quat)
-            messages.append((int(ns), c_att, ts.serialize_cdr(msg, QuatStamped.__msgtype__)))
-    return messages
+        ns, q = _stamps_ns(truth.t_s[ok]), truth.quat_wxyz[ok]  # stored scalar-first (w, x, y, z)
+        out.append(Topic("/truth/orientation", "geometry_msgs/msg/QuaternionStamped", (), ns, cdr.records(
+            cdr.quaternion_stamped_fields(b"enu"), ns, b"enu", reserve=HEAD,
+            **{f"quaternion_{c}": q[:, k] for k, c in enumerate("wxyz")})))
+    return out
 
 
-def write_rosbag2(traces: Iterable[tuple[int, Trace]], meta: dict[str, Any], path: Path) -> dict[str, int]:
-    """Write one ROS 2 bag per trace into the new folder ``path``.
+def trace_topics(ts: Any, trace: Trace, skipped: dict[str, int]) -> list[Topic]:
+    """Every topic of a trace's bag, in the order of their connections; rows left out are counted in
+    ``skipped``."""
+    return [*_imu_topics(trace.imu, skipped), *_uwb_topics(trace, skipped), *_truth_topics(ts, trace, skipped)]
+
+
+def _bag_metadata(name: str, storage: str, topics: list[Topic]) -> dict[str, Any]:
+    """The ``rosbag2_bagfile_information`` of a bag (what ``rosbags``' writer puts in ``metadata.yaml``)."""
+    stamps = [t.stamps for t in topics if t.stamps.size]
+    start = int(min(s[0] for s in stamps)) if stamps else 0
+    duration = max(0, int(max(s.max() for s in stamps)) - start) if stamps else 0
+    count = sum(int(t.stamps.size) for t in topics)
+    fname = f"{name}.{'mcap' if storage == 'mcap' else 'db3'}"
+    return {"version": BAG_VERSION, "storage_identifier": storage, "relative_file_paths": [fname],
+            "duration": {"nanoseconds": duration}, "starting_time": {"nanoseconds_since_epoch": start},
+            "message_count": count,
+            "topics_with_message_count": [
+                {"topic_metadata": {"name": t.name, "type": t.msgtype, "serialization_format": "cdr",
+                                    "offered_qos_profiles": _qos_text(t.qos),
+                                    "type_description_hash": _type_info(t.msgtype)[1]},
+                 "message_count": int(t.stamps.size)} for t in topics],
+            "compression_format": "", "compression_mode": "",
+            "files": [{"path": fname, "starting_time": {"nanoseconds_since_epoch": start},
+                       "duration": {"nanoseconds": duration}, "message_count": count}],
+            "custom_data": None, "ros_distro": "rosbags"}
+
+
+def _yaml(data: Any) -> str:
+    import yaml
+
+    return yaml.dump(data, Dumper=getattr(yaml, "CSafeDumper", yaml.SafeDumper), default_flow_style=False)
+
+
+@functools.lru_cache(maxsize=64)
+def _type_info(msgtype: str) -> tuple[str, str]:
+    """(message definition text, RIHS01 hash) of a message type of the Humble type store, once per type."""
+    ts = _typestore()
+    return ts.generate_msgdef(msgtype, ros_version=2)[0], ts.hash_rihs01(msgtype)
+
+
+@functools.lru_cache(maxsize=8)
+def _qos_text(qos: tuple[Any, ...]) -> str:
+    from rosbags.rosbag2.metadata import dump_qos_v8
+
+    return dump_qos_v8(list(qos))
+
+
+@functools.cache
+def _typestore() -> Any:
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_HUMBLE)
+
+
+def _write_mcap_bag(folder: Path, topics: list[Topic]) -> None:
+    from .mcap import Channel, write_mcap
+
+    info = _bag_metadata(folder.name, "mcap", topics)
+    channels = [Channel(t.name, t.msgtype, _type_info(t.msgtype)[0], "ros2msg",
+                        {"offered_qos_profiles": _qos_text(t.qos)}, t.stamps, t.data) for t in topics]
+    folder.mkdir()
+    with open(folder / f"{folder.name}.mcap", "xb") as f:
+        write_mcap(f, channels, library="physynth",
+                   metadata={"rosbag2": {"serialized_metadata": _yaml(info).strip()}})
+    (folder / "metadata.yaml").write_text(_yaml({"rosbag2_bagfile_information": info}), encoding="utf-8")
+
+
+def _write_sqlite3_bag(folder: Path, topics: list[Topic]) -> None:
+    """The same bytes through ``rosbags``' writer (SQLite3 storage), one call per message in time order."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    with Writer(folder, version=BAG_VERSION, storage_plugin=StoragePlugin.SQLITE3) as w:
+        conns = [w.add_connection(t.name, t.msgtype, typestore=_typestore(),
+                                  offered_qos_profiles=list(t.qos)) for t in topics]
+        stamps = np.concatenate([t.stamps for t in topics])
+        which = np.repeat(np.arange(len(topics)), [t.stamps.size for t in topics])
+        row = np.concatenate([np.arange(t.stamps.size) for t in topics])
+        for k in np.argsort(stamps, kind="stable").tolist():  # a bag is written in time order
+            w.write(conns[which[k]], int(stamps[k]), topics[which[k]].data[row[k], HEAD:].tobytes())
+
+
+def write_bag(folder: Path, trace: Trace, storage: str, skipped: dict[str, int]) -> None:
+    """Write the bag of one trace as the new folder ``folder`` (``storage``: one of :data:`STORAGES`);
+    messages left out are counted in ``skipped``."""
+    topics = trace_topics(_typestore(), trace, skipped)
+    (_write_mcap_bag if storage == "mcap" else _write_sqlite3_bag)(folder, topics)
+
+
+def write_rosbag2(traces: Iterable[tuple[int, Trace]], meta: dict[str, Any], path: Path,
+                  storage: str = "mcap") -> dict[str, int]:
+    """Write one ROS 2 bag per trace into the folder ``path`` (created when absent).
 
     Returns the number of messages left out per topic (topics with none left out are not named): a
     row with a NaN (or infinite) value in a message's fields is not written, since a ROS message has
     no way to say "unknown" (an imported recording's optical dropouts, for instance), nor is a row
     stamped before time 0 (counted as ``"<topic> (before 0 s)"``), since a ROS time is never negative.
     """
-    from rosbags.rosbag2 import Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    ts = get_typestore(Stores.ROS2_HUMBLE)
     skipped: dict[str, int] = {}
-    path.mkdir(parents=True)
+    path.mkdir(parents=True, exist_ok=True)
     for index, trace in traces:
-        with Writer(path / f"trace_{index:08d}", version=8) as w:
-            messages = [*_imu_messages(w, ts, trace.imu, skipped), *_uwb_messages(w, ts, trace, skipped),
-                        *_truth_messages(w, ts, trace, skipped)]
-            messages.sort(key=lambda m: m[0])  # a bag is written in time order
-            for ns, conn, data in messages:
-                w.write(conn, ns, data)
+        write_bag(path / f"trace_{index:08d}", trace, storage, skipped)
     return {topic: n for topic, n in skipped.items() if n}

@@ -1,0 +1,97 @@
+"""CDR bytes of fixed-layout ROS 2 messages, a whole topic of a trace at once (NumPy, no object per message).
+
+A message whose fields are numbers and one string of known length (the header's frame id, the same in
+every message of a topic) has one byte layout for all its messages: a NumPy structured dtype with
+explicit offsets. :func:`layout` computes those offsets by the rules of CDR (XCDR1, little endian, as
+ROS 2 writes it): a 4-byte encapsulation header ``00 01 00 00``, then every primitive aligned to its own
+size counted from the end of the encapsulation header, a string as a uint32 length (with the NUL) and
+its bytes with the NUL, no padding after the last field. :func:`records` fills one row per message and
+returns them as an ``(n, size)`` uint8 array.
+
+Every layout here is checked byte for byte against ``rosbags``' own serialiser (``Typestore.serialize_cdr``)
+in ``tests/test_export_cdr.py``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+ENCAPSULATION = np.frombuffer(b"\x00\x01\x00\x00", dtype=np.uint8)
+"""CDR little-endian encapsulation header of every ROS 2 message."""
+
+Field = tuple[str, str, int]
+"""(name, NumPy base type like ``<f8``, count) of a message's flattened fields, in message order."""
+
+
+def _header_fields(frame: bytes) -> list[Field]:
+    """``std_msgs/Header``: stamp (sec int32, nanosec uint32) and the frame id string."""
+    return [("sec", "<i4", 1), ("nanosec", "<u4", 1), ("frame_len", "<u4", 1), ("frame", f"S{len(frame) + 1}", 1)]
+
+
+def _vec(name: str, comps: str = "xyz") -> list[Field]:
+    return [(f"{name}_{c}", "<f8", 1) for c in comps]
+
+
+def imu_fields(frame: bytes) -> list[Field]:
+    """``sensor_msgs/msg/Imu``."""
+    return [*_header_fields(frame), *_vec("orientation", "xyzw"), ("orientation_covariance", "<f8", 9),
+            *_vec("angular_velocity"), ("angular_velocity_covariance", "<f8", 9),
+            *_vec("linear_acceleration"), ("linear_acceleration_covariance", "<f8", 9)]
+
+
+def range_fields(frame: bytes) -> list[Field]:
+    """``sensor_msgs/msg/Range`` (as in Humble: no ``variance`` field)."""
+    return [*_header_fields(frame), ("radiation_type", "u1", 1), ("field_of_view", "<f4", 1),
+            ("min_range", "<f4", 1), ("max_range", "<f4", 1), ("range", "<f4", 1)]
+
+
+def point_stamped_fields(frame: bytes) -> list[Field]:
+    """``geometry_msgs/msg/PointStamped``."""
+    return [*_header_fields(frame), *_vec("point")]
+
+
+def quaternion_stamped_fields(frame: bytes) -> list[Field]:
+    """``geometry_msgs/msg/QuaternionStamped``."""
+    return [*_header_fields(frame), *_vec("quaternion", "xyzw")]
+
+
+def layout(fields: Sequence[Field], reserve: int = 0) -> np.dtype:
+    """The structured dtype of a message's CDR bytes (encapsulation header included): each field at its
+    CDR offset (aligned to its primitive size, counted from byte 4), itemsize the end of the last field;
+    with ``reserve`` bytes in front of the message (left for a container's record head)."""
+    names, formats, offsets = ["encapsulation"], [("u1", (4,))], [reserve]
+    pos = 0  # relative to the end of the encapsulation header
+    for name, base, count in fields:
+        dt = np.dtype(base)
+        align = 1 if dt.kind == "S" else dt.itemsize
+        pos += -pos % align
+        names.append(name)
+        formats.append(base if count == 1 else (base, (count,)))
+        offsets.append(reserve + 4 + pos)
+        pos += dt.itemsize * count
+    return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": reserve + 4 + pos})
+
+
+def records(fields: Sequence[Field], stamps_ns: np.ndarray, frame: bytes, *, reserve: int = 0,
+            **values: object) -> np.ndarray:
+    """The CDR bytes of ``len(stamps_ns)`` messages of one layout, as an ``(n, size)`` uint8 array.
+
+    ``stamps_ns`` (int64, >= 0) fill the header stamp; ``frame`` is the header's frame id (ASCII or UTF-8,
+    no NUL); every other field takes ``values[name]`` (a scalar or an array broadcast to its rows);
+    fields not given are zero. ``reserve``: zero bytes in front of every row (a container's record head,
+    e.g. :data:`physynth.io.export.mcap.MESSAGE_HEAD`), which fills them in place.
+    """
+    dt = layout(fields, reserve)
+    n = int(stamps_ns.shape[0])
+    out = np.zeros(n, dtype=dt)
+    out["encapsulation"] = ENCAPSULATION
+    ns = np.asarray(stamps_ns, dtype=np.int64)
+    out["sec"] = ns // 1_000_000_000
+    out["nanosec"] = ns % 1_000_000_000
+    out["frame_len"] = len(frame) + 1
+    out["frame"] = frame
+    for name, value in values.items():
+        out[name] = value
+    return out.view(np.uint8).reshape(n, dt.itemsize)

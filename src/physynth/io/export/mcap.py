@@ -1,0 +1,166 @@
+"""An MCAP file written from whole topics at once (NumPy): every message record built in one array.
+
+The Python MCAP writers (``mcap``'s and the one inside ``rosbags``) take one call per message, 4 us
+each here (2026-12-05, 2-core machine): with ~66,000 messages in a default trace that alone is 5x the time
+of generating the trace. :func:`write_mcap` takes each channel's messages as one ``(n, size)`` uint8
+array of CDR bytes (:mod:`.cdr`) and one int64 array of stamps and lays out the records with NumPy:
+
+- the header, then the schemas and channels (in the data section, before the first chunk);
+- chunks of about :data:`CHUNK_BYTES` of one channel's message records each (a slice of that channel's
+  records, in time order), uncompressed, each followed by its message index; chunks in the order of their
+  first stamps (they overlap in time: readers merge them by the indexes);
+- a ``rosbag2`` metadata record (the bag's ``metadata.yaml`` text, as ROS 2's MCAP storage writes it);
+- the summary: schemas, channels, statistics, chunk indexes, metadata index and summary offsets, then
+  the footer. CRCs are 0 ("not computed", allowed by the specification).
+
+The file is read back by the ``mcap`` library and by ``rosbags`` in ``tests/test_export_rosbag2.py``.
+Format: https://mcap.dev/spec (version 0).
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import BinaryIO
+
+import numpy as np
+
+MAGIC = b"\x89MCAP0\r\n"
+CHUNK_BYTES = 1 << 20
+"""Message bytes per chunk (as rosbags and ROS 2 write: readers load one chunk at a time)."""
+
+_MSG_HEAD = np.dtype([("op", "u1"), ("length", "<u8"), ("channel", "<u2"), ("sequence", "<u4"),
+                      ("log_time", "<u8"), ("publish_time", "<u8")])  # packed: 31 bytes
+MESSAGE_HEAD = _MSG_HEAD.itemsize
+"""Bytes of a message record before the message itself: :class:`Channel` rows reserve them."""
+
+
+@dataclass(frozen=True)
+class Channel:
+    """One topic: its name, message type (schema), schema text and encoding, its metadata, and its
+    messages (``stamps`` int64 ns, sorted; ``data`` an ``(n, MESSAGE_HEAD + size)`` C-contiguous uint8
+    array, one row per message: :data:`MESSAGE_HEAD` bytes that :func:`write_mcap` fills in place, then
+    the message's bytes)."""
+
+    topic: str
+    schema_name: str
+    schema_text: str
+    schema_encoding: str
+    metadata: dict[str, str]
+    stamps: np.ndarray
+    data: np.ndarray
+
+
+def _s(text: str | bytes) -> bytes:
+    b = text.encode("utf-8") if isinstance(text, str) else text
+    return struct.pack("<I", len(b)) + b
+
+
+def _map(entries: dict[str, str]) -> bytes:
+    body = b"".join(_s(k) + _s(v) for k, v in entries.items())
+    return struct.pack("<I", len(body)) + body
+
+
+def _record(op: int, body: bytes) -> bytes:
+    return struct.pack("<BQ", op, len(body)) + body
+
+
+def _message_rows(ch: Channel, cid: int) -> np.ndarray:
+    """The channel's message records: its rows (:data:`MESSAGE_HEAD` bytes reserved in front of each
+    message's bytes) with the record heads filled in place."""
+    n, width = ch.data.shape
+    dt = np.dtype(_MSG_HEAD.descr + [("data", f"V{width - MESSAGE_HEAD}")])
+    rec = ch.data.view(dt).reshape(n)
+    rec["op"] = 0x05
+    rec["length"] = width - 9
+    rec["channel"] = cid
+    rec["sequence"] = 0
+    rec["log_time"] = ch.stamps
+    rec["publish_time"] = ch.stamps
+    return ch.data
+
+
+def write_mcap(f: BinaryIO, channels: Sequence[Channel], *, profile: str = "ros2", library: str = "physynth",
+               metadata: dict[str, dict[str, str]] | None = None) -> dict[int, int]:
+    """Write an MCAP file of ``channels`` (ids 1, 2, ... in order) to the open binary file ``f``;
+    returns the message count of each channel id. ``metadata``: named metadata records (name -> map).
+
+    Each chunk holds consecutive messages of one channel (in time order, about :data:`CHUNK_BYTES`), so
+    that its bytes are a slice of the channel's records; the chunks are written in the order of their
+    first stamps. Chunks of different channels overlap in time, as the format allows: readers in log-time
+    order (``ros2 bag play``, Foxglove, ``rosbags``, ``mcap``) merge them through the chunk and message
+    indexes.
+    """
+    schemas: dict[str, int] = {}
+    schema_recs, channel_recs = [], []
+    for cid, ch in enumerate(channels, 1):
+        if ch.schema_name not in schemas:
+            schemas[ch.schema_name] = len(schemas) + 1
+            schema_recs.append(_record(0x03, struct.pack("<H", schemas[ch.schema_name]) + _s(ch.schema_name)
+                                       + _s(ch.schema_encoding) + _s(ch.schema_text)))
+        channel_recs.append(_record(0x04, struct.pack("<HH", cid, schemas[ch.schema_name]) + _s(ch.topic)
+                                    + _s("cdr") + _map(ch.metadata)))
+    pos = 0
+
+    def put(b: bytes | memoryview) -> None:
+        nonlocal pos
+        f.write(b)
+        pos += b.nbytes if isinstance(b, memoryview) else len(b)
+
+    put(MAGIC)
+    put(_record(0x01, _s(profile) + _s(library)))
+    for r in (*schema_recs, *channel_recs):
+        put(r)
+    rows = [_message_rows(ch, cid) for cid, ch in enumerate(channels, 1)]
+    stamps = [np.asarray(ch.stamps, dtype=np.int64) for ch in channels]
+    pieces = []  # (first stamp, channel index, first row, end row)
+    for k, r in enumerate(rows):
+        step = max(1, CHUNK_BYTES // r.shape[1])
+        pieces += [(int(stamps[k][a]), k, a, min(a + step, r.shape[0])) for a in range(0, r.shape[0], step)]
+    chunk_indexes = []
+    for t0, k, a, b in sorted(pieces):
+        body = rows[k][a:b]
+        size = body.size
+        t1 = int(stamps[k][b - 1])
+        chunk_start = pos
+        put(struct.pack("<BQ", 0x06, 8 * 3 + 4 + 4 + 8 + size))
+        put(struct.pack("<QQQI", t0, t1, size, 0) + _s("") + struct.pack("<Q", size))
+        put(body.data)
+        chunk_end = pos
+        pairs = np.empty((b - a, 2), dtype="<u8")
+        pairs[:, 0] = stamps[k][a:b]
+        pairs[:, 1] = np.arange(b - a, dtype=np.uint64) * np.uint64(rows[k].shape[1])
+        put(_record(0x07, struct.pack("<HI", k + 1, pairs.nbytes) + pairs.tobytes()))
+        chunk_indexes.append(_record(0x08, struct.pack("<QQQQ", t0, t1, chunk_start, chunk_end - chunk_start)
+                                     + struct.pack("<I", 10) + struct.pack("<HQ", k + 1, chunk_end)
+                                     + struct.pack("<Q", pos - chunk_end) + _s("") + struct.pack("<QQ", size, size)))
+    meta_index = []
+    for name, entries in (metadata or {}).items():
+        start = pos
+        put(_record(0x0C, _s(name) + _map(entries)))
+        meta_index.append(_record(0x0D, struct.pack("<QQ", start, pos - start) + _s(name)))
+    put(_record(0x0F, struct.pack("<I", 0)))  # data end
+    summary_start = pos
+    groups = []
+    for op, recs in ((0x03, schema_recs), (0x04, channel_recs), (0x08, chunk_indexes), (0x0D, meta_index)):
+        if recs:
+            start = pos
+            for r in recs:
+                put(r)
+            groups.append((op, start, pos - start))
+    counts = {cid: int(s.size) for cid, s in enumerate(stamps, 1)}
+    nonempty = [s for s in stamps if s.size]
+    t_min = min(int(s[0]) for s in nonempty) if nonempty else 0
+    t_max = max(int(s[-1]) for s in nonempty) if nonempty else 0
+    cnt = b"".join(struct.pack("<HQ", cid, n) for cid, n in counts.items())
+    start = pos
+    put(_record(0x0B, struct.pack("<QHIIII", sum(counts.values()), len(schemas), len(channels), 0, len(meta_index),
+                                  len(chunk_indexes)) + struct.pack("<QQI", t_min, t_max, len(cnt)) + cnt))
+    groups.append((0x0B, start, pos - start))
+    offset_start = pos
+    for op, start, length in groups:
+        put(_record(0x0E, struct.pack("<BQQ", op, start, length)))
+    put(_record(0x02, struct.pack("<QQI", summary_start, offset_start, 0)))
+    put(MAGIC)
+    return counts
