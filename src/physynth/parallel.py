@@ -22,6 +22,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+from ._children import TERMINAL_SIGNALS, apart
 from .errors import PhySynthError
 from .generate import CompiledScenario, compile_scenario, generate_trace
 from .io.shards import ShardPlan, write_shard
@@ -60,13 +61,15 @@ WORKER_CONFIG = {
     "distributed.worker.profile.enabled": False,
     "distributed.admin.tick.interval": "500ms",
     "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.worker.multiprocessing-method": "spawn",
 }
 """Dask settings of the embedded cluster's workers: no statistical profiler (it samples every worker
 thread's stack every 10 ms), a 500 ms event-loop tick and a 1 s memory monitor, for a dashboard nobody
 looks at during a batch run. Measured side by side on the idle 2-core machine
 (``benchmarks/bench_dask_overhead.py``): CPU per trace in a worker is 1.14-1.26x that of a plain
 process with Dask's defaults and 1.16-1.26x with these, so they change nothing measurable; the
-remaining overhead is the worker's own event loop and communication."""
+remaining overhead is the worker's own event loop and communication. The workers are started by
+``spawn`` (a new interpreter), the start :func:`physynth._children.apart` keeps apart from the terminal."""
 
 
 @contextlib.contextmanager
@@ -78,23 +81,37 @@ def _quiet_workers() -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def _children_ignore_terminal_signals() -> Iterator[None]:
-    """Start worker processes that ignore SIGINT and SIGHUP (an ignored signal is inherited).
+def _signals_held() -> Iterator[None]:
+    """SIGINT, SIGTERM and SIGHUP that arrive inside the block are held and raised at its end.
 
-    A Ctrl-C in a terminal reaches the whole process group: this process turns it into
-    :class:`~physynth.errors.Interrupted` and closes the cluster, so the workers must not print
-    tracebacks of their own. While the workers start, this process ignores the two signals too.
+    Starting and closing a cluster cannot be cut short without leaving worker processes no one closes;
+    a signal there is delivered (to whatever handler this process has) once the cluster is started or
+    closed, inside the ``try`` that closes it. A second signal is delivered at once.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    sigs = [getattr(signal, n) for n in ("SIGINT", "SIGHUP") if hasattr(signal, n)]
-    previous = {s: signal.signal(s, signal.SIG_IGN) for s in sigs}
+    held: list[int] = []
+    previous: dict[int, Any] = {}
+
+    def hold(signum: int, frame: Any) -> None:
+        if not held:
+            held.append(signum)
+            return
+        handler = previous.get(signum)
+        if callable(handler):
+            handler(signum, frame)
+
+    for s in TERMINAL_SIGNALS:
+        if signal.getsignal(s) not in (signal.SIG_IGN, None):
+            previous[s] = signal.signal(s, hold)
     try:
         yield
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
+        if held:
+            signal.raise_signal(held[0])
 
 
 def require_dask() -> Any:
@@ -137,7 +154,7 @@ def _local_cluster(distributed: Any, n_workers: int) -> Any:
 
     check_not_bootstrapping()
     try:
-        with _children_ignore_terminal_signals(), _quiet_workers():
+        with _quiet_workers():
             return distributed.LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
                                             dashboard_address=":0", silence_logs=logging.ERROR)
     except Exception as exc:  # noqa: BLE001 - any failure to start ("Nanny failed to start") is reported so
@@ -176,17 +193,26 @@ def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, to
         return
 
     distributed = require_dask()
-    if scheduler is not None:
-        try:
-            client = distributed.Client(scheduler, timeout="10s")
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise PhySynthError(f"cannot connect to the Dask scheduler {scheduler}: {exc}") from None
-        cluster = None
-    else:
-        cluster = _local_cluster(distributed, min(workers, len(todo)))
-        client = distributed.Client(cluster)
+    with apart():  # workers in a session of their own, their output to the log (physynth._children)
+        _run_on_cluster(distributed, scenario_json, root_seed, partial, plan, todo, meta, workers, scheduler, count)
+
+
+def _run_on_cluster(distributed: Any, scenario_json: str, root_seed: int, partial: Path, plan: ShardPlan,
+                    todo: Sequence[int], meta: dict[str, Any], workers: int, scheduler: str | None,
+                    count: Callable[[int], None]) -> None:
+    """:func:`run_shards` on a cluster: started and closed with signals held, stopped at once when interrupted."""
+    cluster = client = None
+    futures: dict[Any, int] = {}
     try:
-        futures = {}
+        with _signals_held():
+            if scheduler is not None:
+                try:
+                    client = distributed.Client(scheduler, timeout="10s")
+                except (OSError, TimeoutError, ValueError) as exc:
+                    raise PhySynthError(f"cannot connect to the Dask scheduler {scheduler}: {exc}") from None
+            else:
+                cluster = _local_cluster(distributed, min(workers, len(todo)))
+                client = distributed.Client(cluster)
         for k in todo:
             start, stop = plan.bounds(k)
             fut = client.submit(shard_task, scenario_json, root_seed, str(partial), k, start, stop, meta,
@@ -195,7 +221,54 @@ def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, to
         for fut in distributed.as_completed(futures):
             fut.result()  # re-raises a worker's error here
             count(futures[fut])
+    except BaseException:
+        if cluster is not None:  # interrupted or failed: the shards being written will not be finished
+            _stop_workers_now(cluster, partial)
+        elif client is not None and futures:
+            with contextlib.suppress(Exception):  # a remote worker finishes the shard it writes (atomically)
+                client.cancel(list(futures), force=True)
+        raise
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        with _signals_held():
+            if client is not None:
+                client.close()
+            if cluster is not None:
+                cluster.close()
+
+
+def _stop_workers_now(cluster: Any, partial: Path, wait_s: float = 5.0) -> None:
+    """Kill the embedded cluster's worker processes and remove the shards they were writing.
+
+    Their nannies are told first not to start them again. Complete shards stay (for a resumed run)."""
+    import shutil
+    import time
+
+    nannies = list(getattr(cluster, "workers", {}).values())
+    pids = []
+    for nanny in nannies:
+        with contextlib.suppress(Exception):
+            nanny.close_gracefully(reason="physynth-stopped")
+        pid = getattr(nanny, "pid", None)
+        if pid:
+            pids.append(pid)
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+    deadline = time.monotonic() + wait_s
+    while any(_running(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    for tmp in Path(partial).glob(".shard-*.tmp-*"):
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _running(pid: int) -> bool:
+    """The process exists and has not ended (a zombie, ended but not yet reaped, has)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            state = f.read().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        try:
+            os.kill(pid, 0)
+        except OSError:
+            return False
+        return True  # no /proc (not Linux): alive as far as can be told
+    return state not in ("Z", "X")

@@ -12,7 +12,9 @@ draws progress bars, names options and chooses exit codes:
 - 129, 130, 143: interrupted by SIGHUP, SIGINT (Ctrl-C), SIGTERM (``128 + signal``); temporary
   files are removed and nothing that looks complete is left.
 
-No traceback reaches the user (docs/reliability.md). Heavy imports happen inside the commands.
+No traceback reaches the user, and nothing but PhySynth's own lines reaches stderr: the libraries'
+logs and the worker processes' output go to ``PHYSYNTH_LOG`` or nowhere (:mod:`physynth.cli._logs`,
+:mod:`physynth._children`; docs/reliability.md). Heavy imports happen inside the commands.
 """
 
 from __future__ import annotations
@@ -27,8 +29,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import typer  # noqa: E402
 
+from .._children import apart
 from ..errors import BudgetError, Interrupted, MixedSitesError, OutputExistsError, PhySynthError
 from ._common import EXIT_BUG, EXIT_INTERRUPTED, EXIT_SYSTEM, fail, use_command_class
+from ._logs import capture_library_logs
 from ._signals import handling_signals, signal_name
 
 app = typer.Typer(
@@ -77,9 +81,10 @@ def _register_commands() -> None:
 def main(argv: list[str] | None = None) -> None:
     """Entry point: run the app, turning user mistakes into one line on stderr and exit code 2."""
     _register_commands()
+    capture_library_logs()  # the libraries' logs, warnings and thread tracebacks: not on stderr
     argv = sys.argv[1:] if argv is None else argv
     try:
-        with handling_signals():
+        with handling_signals(), apart():  # worker processes: apart from the terminal's signals and stderr
             rc = app(args=argv, standalone_mode=False)
         if isinstance(rc, int) and rc != 0:  # typer returns 130 for a KeyboardInterrupt it caught
             print("physynth: interrupted" if rc == EXIT_INTERRUPTED else f"physynth: exit {rc}", file=sys.stderr)

@@ -7,7 +7,8 @@ second signal during that clean-up, or a clean-up that takes longer than :data:`
 exception can be swallowed when the signal lands inside a finaliser; writers also check a flag at
 every trace), removes the registered temporary files and exits at once (the next run on the same
 output removes anything left, :mod:`physynth.io.safety`). :class:`~physynth.errors.PhySynthWarning`
-is printed as one line; numpy's ``RuntimeWarning`` notes (divide by zero, overflow) are not shown to command-line users.
+is printed as one line; numpy's ``RuntimeWarning`` notes (divide by zero, overflow) are not shown to command-line users,
+and the other libraries' warnings go to their log (:mod:`physynth.cli._logs`).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from contextlib import contextmanager
 
 from ..errors import Interrupted, PhySynthWarning
 from ..io.safety import clear_interrupted, remove_registered, set_interrupted
+from ._logs import log_warning
 
 SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
 
@@ -51,8 +53,8 @@ def handling_signals() -> Iterator[None]:
             from ._common import cli_words
 
             print(f"physynth: warning: {cli_words(str(message).splitlines()[0])}", file=sys.stderr)
-        else:
-            show(message, category, filename, lineno, file, line)
+        else:  # a library's warning (torch, matplotlib, ...): to the log, not to stderr (physynth.cli._logs)
+            log_warning(message, category, filename, lineno)
 
     warnings.showwarning = showwarning
     try:
