@@ -221,3 +221,17 @@ def test_an_empty_output_is_used_and_a_foreign_one_is_refused_at_once(dataset, t
         assert e.value.code == 2 and needle in err and err.count("\n") == 1, err
         assert "--overwrite" not in err and "already exists" not in err
     assert [p.name for p in mine.iterdir()] == ["thesis.txt"]
+
+
+@pytest.mark.parametrize("study", [["anchors", "-n", "2", "--no-figures"],
+                                   ["placement", "--candidates", "c.csv", "-k", "1", "--no-figures"],
+                                   ["tracking", "--methods", "ls"]])
+def test_studies_take_the_output_lock_generate_takes(tmp_path, capsys, study):
+    """Issue 44: a study writing into a folder another run is writing is refused at once, as generate is."""
+    from physynth.io.safety import OutputLock, lock_path
+
+    out = tmp_path / "study"
+    with OutputLock(out):
+        _refused(["study", *study, "--seed", "1", "--out", str(out), "-q"], capsys,
+                 "is being written by another physynth process")
+    assert not out.exists() and not lock_path(out).exists()

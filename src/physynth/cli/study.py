@@ -12,8 +12,11 @@ a study whose traces exceed the size budget (:func:`physynth.bounds.check_budget
 
 from __future__ import annotations
 
+import functools
 import textwrap
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -25,12 +28,27 @@ study_app = typer.Typer(help="Studies: anchor count x channel regime, anchor pla
 
 def register(app: typer.Typer) -> None:
     """Add the ``study`` command group to the main app."""
-    study_app.command("anchors")(anchors_cmd)
-    study_app.command("placement")(placement_cmd)
+    study_app.command("anchors")(holding_output_lock(anchors_cmd))
+    study_app.command("placement")(holding_output_lock(placement_cmd))
     from .track import tracking_cmd  # torch is imported only when the study runs
 
-    study_app.command("tracking")(tracking_cmd)
+    study_app.command("tracking")(holding_output_lock(tracking_cmd))
     app.add_typer(study_app, name="study")
+
+
+def holding_output_lock(cmd: Callable[..., None]) -> Callable[..., None]:
+    """``cmd`` holding the lock of its ``--out`` folder from before its checks to its last file, as
+    ``generate`` holds its dataset's (:func:`physynth.io.safety.output_locked`): a second study writing the
+    same folder is refused at once (exit 2) instead of interleaving its files with the first one's."""
+
+    @functools.wraps(cmd)
+    def locked(*args: Any, **kwargs: Any) -> None:
+        from ..io.safety import output_locked
+
+        with output_locked(kwargs["out"]):
+            cmd(*args, **kwargs)
+
+    return locked
 
 
 WIDTH = 79

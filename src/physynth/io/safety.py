@@ -464,6 +464,24 @@ def guarded_outputs(outputs: Sequence[str | os.PathLike]) -> Iterator[list[Path]
         yield paths
 
 
+@contextmanager
+def output_locked(out: str | os.PathLike) -> Iterator[Path]:
+    """Hold the lock of the output ``out`` (a study's folder) while the block works and writes.
+
+    The lock ``generate`` takes on its dataset (:class:`OutputLock`): a second run writing the same
+    output is refused at once (:class:`~physynth.errors.OutputLockedError`); orphaned temporary
+    siblings of a killed run are removed (and reported). The parent folders are created.
+    """
+    real = resolve_output(out)
+    try:
+        real.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise PhySynthError(f"cannot create the output folder {real.parent}: {exc.strerror}") from None
+    with OutputLock(real):
+        remove_orphans(real)
+        yield real
+
+
 def prepare_output(out: str | os.PathLike, *, kind: str, overwrite: bool,
                    inputs: Sequence[str | os.PathLike] = (), remove_orphaned: bool = True) -> tuple[Path, OutputLock]:
     """Everything a writer does before writing ``out``: check it may be written (:func:`check_output`),
