@@ -19,7 +19,7 @@ from physynth.models.variation import (
 )
 from physynth.rng import COMPONENT_ID
 from physynth.scenario import Scenario, scenario_from_dict, scenario_to_dict
-from physynth.track.synth import SynthVariation, synthetic_trace, varied_scenario
+from physynth.track.synth import synthetic_trace
 
 SEED = 23
 WIDE = {"anchor_count": [3, 8], "footprint_m": [2.0, 12.0], "aspect": [0.2, 0.9], "height_m": [0.3, 2.5],
@@ -168,26 +168,22 @@ def test_per_trace_seeding_is_unchanged(cablecar):
 
 
 def test_each_drawn_anchor_takes_a_pool_anchors_channel_and_availability(cablecar):
-    """Both paths (the study's validated Scenario, the generator's compiled one) give every drawn anchor
-    the resolved channel and availability of its pool anchor; over traces each pool anchor is used."""
-    study = SynthVariation(layout_distribution=WIDE)
-    scn = with_variation(cablecar, **study.to_dict())
-    cs, plain = compile_scenario(scn), compile_scenario(cablecar)
+    """Every drawn anchor gets the resolved channel and availability of its pool anchor, in the compiled
+    scenario and in its tables; over traces each pool anchor is used."""
+    cs = compile_scenario(with_variation(cablecar, layout_distribution=WIDE))
+    plain = compile_scenario(cablecar)
     pool_channels = [cablecar.channel_for(a) for a in cablecar.anchor_ids]
     assert len({c.model_dump_json() for c in pool_channels}) == 6  # distinct: a mix-up would show
     used = set()
     for i in range(8):
-        rng = np.random.default_rng(np.random.SeedSequence(SEED, spawn_key=(i, COMPONENT_ID["site"])))
-        varied = varied_scenario(cablecar, study, rng)
         compiled, rec = _vary_site(cs, i, SEED)
         pool = rec["layout_drawn"]["pool"]
         used |= set(pool)
-        assert varied.anchor_ids == compiled.anchors.ids == compiled.scenario.anchor_ids
-        for j, aid in enumerate(varied.anchor_ids):
+        assert compiled.anchors.ids == compiled.scenario.anchor_ids
+        for j, aid in enumerate(compiled.scenario.anchor_ids):
             src = cablecar.anchor_ids[pool[j]]
-            assert varied.channel_for(aid) == cablecar.channel_for(src) in pool_channels
-            assert varied.availability_for(aid) == cablecar.availability_for(src)
-            assert compiled.scenario.channel_for(aid) == cablecar.channel_for(src)
+            assert compiled.scenario.channel_for(aid) == cablecar.channel_for(src) in pool_channels
+            assert compiled.scenario.availability_for(aid) == cablecar.availability_for(src)
         rows = np.asarray(pool)
         for f in ("los_mean_m", "los_std_m", "nlos_prob", "attempt_prob", "mode_mean_m", "mode_cumw", "max_range_m"):
             assert np.array_equal(getattr(compiled.channel, f), getattr(plain.channel, f)[rows]), f
@@ -206,8 +202,8 @@ def test_per_anchor_arrays_follow_the_drawn_count():
         a["boresight_enu"], a["front_back_db"] = [1.0, float(k), 0.0], 6.0
     d["uwb"]["run_anchor_offset_std_m"], d["uwb"]["run_anchor_slope_std_m"] = 0.05, 0.02
     base = scenario_from_dict(d, "walk with antennas")
-    study = SynthVariation(layout_distribution={**WIDE, "anchor_count": [5, 8]})
-    cs = compile_scenario(with_variation(base, **study.to_dict()))
+    study = SiteVariationParams(layout_distribution={**WIDE, "anchor_count": [5, 8]})
+    cs = compile_scenario(with_variation(base, **study.model_dump()))
     for i in range(3):
         compiled, rec = _vary_site(cs, i, SEED)
         n = rec["layout_drawn"]["anchor_count"]
@@ -224,10 +220,10 @@ def test_per_anchor_arrays_follow_the_drawn_count():
 
 
 def test_without_a_distribution_nothing_changes(cablecar):
-    assert SynthVariation().to_dict()["layout_distribution"] is None
-    assert SynthVariation(layout_distribution={"anchor_count": [4, 4]}).layout_distribution == \
+    assert SiteVariationParams().layout_distribution is None
+    assert SiteVariationParams(layout_distribution={"anchor_count": [4, 4]}).layout_distribution == \
         LayoutDistribution(anchor_count=[4, 4])
-    with pytest.raises(ValueError, match="layout_distribution is a LayoutDistribution"):
-        SynthVariation(layout_distribution=[3, 4])
+    with pytest.raises(ValidationError, match="layout_distribution"):
+        SiteVariationParams(layout_distribution=[3, 4])
     t = generate_trace(with_variation(cablecar, layout_jitter_m=0.2), 1, SEED)
     assert "layout_drawn" not in t.meta["site_variation"] and t.anchors.ids == cablecar.anchor_ids

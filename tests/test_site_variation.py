@@ -16,7 +16,7 @@ from physynth.io.scenario_file import load_scenario
 from physynth.models.variation import SiteVariationParams, draw_site, recorded_layouts
 from physynth.scenario import Scenario, scenario_from_dict, scenario_to_dict
 from physynth.studies.subset import subset_scenario
-from physynth.track.synth import SynthVariation, synthetic_trace
+from physynth.track.synth import synthetic_trace
 
 SEED = 11
 
@@ -39,10 +39,10 @@ def shifted_layout(scn: Scenario, de: float) -> list[list[float]]:
 @pytest.mark.parametrize("layout_distribution", [None, {"anchor_count": [3, 8], "route_offset_m": [0.0, 3.0]}],
                          ids=["layouts", "layout-distribution"])
 def test_section_gives_the_tracking_study_traces_bit_for_bit(base, layout_distribution):
-    lay = (tuple(map(tuple, shifted_layout(base, 0.0))), tuple(map(tuple, shifted_layout(base, 3.0))))
-    study = SynthVariation(layouts=lay, shuffle_anchors=True, random_route_prob=0.5,
+    lay = [shifted_layout(base, 0.0), shifted_layout(base, 3.0)]
+    study = SiteVariationParams(layouts=lay, shuffle_anchors=True, random_route_prob=0.5,
                            layout_distribution=layout_distribution)
-    scn = with_variation(base, **study.to_dict())
+    scn = with_variation(base, **study.model_dump())
     cs = compile_scenario(scn)
     routes, counts = set(), set()
     for i in range(6):
@@ -207,7 +207,7 @@ def test_workers_on_a_local_cluster_give_the_same_varied_files(base, tmp_path):
 
 
 def test_the_study_variation_replaces_a_section_of_the_scenario(base):
-    study = SynthVariation(layout_jitter_m=0.5)
+    study = SiteVariationParams(layout_jitter_m=0.5)
     with_section = with_variation(base, layout_jitter_m=5.0, path_shift_std_m=20.0)
     a, b = synthetic_trace(with_section, 1, SEED, study), synthetic_trace(base, 1, SEED, study)
     assert np.array_equal(a.anchors.pos_enu_m, b.anchors.pos_enu_m)  # drawn once, by the study's variation
@@ -220,9 +220,9 @@ def test_nlos_frequency_varies_per_trace(base):
     tracking study's variation gives the scenario section's traces bit for bit."""
     from physynth.models.variation import NLOS_PROB_MAX, nlos_scaled
 
-    study = SynthVariation(nlos_log_std=1.0)
-    cs = compile_scenario(with_variation(base, **study.to_dict()))
-    plain = compile_scenario(with_variation(base, **SynthVariation().to_dict()))
+    study = SiteVariationParams(nlos_log_std=1.0)
+    cs = compile_scenario(with_variation(base, **study.model_dump()))
+    plain = compile_scenario(with_variation(base, **SiteVariationParams().model_dump()))
     scales, changed = [], []
     for i in range(12):
         a, b = synthetic_trace(base, i, SEED, study), generate_trace(cs, i, SEED)
@@ -232,7 +232,7 @@ def test_nlos_frequency_varies_per_trace(base):
         scales.append(b.meta["site_variation"]["nlos_scale"])
         # the same trace as one of the scenario with its NLOS scaled by that draw and no draw of its own
         scaled = base.model_copy(update=nlos_scaled(base, scales[-1]))
-        d = generate_trace(compile_scenario(with_variation(scaled, **SynthVariation().to_dict())), i, SEED)
+        d = generate_trace(compile_scenario(with_variation(scaled, **SiteVariationParams().model_dump())), i, SEED)
         assert np.array_equal(b.uwb.range_m, d.uwb.range_m, equal_nan=True)
         changed.append(not np.array_equal(b.uwb.range_m, c.uwb.range_m, equal_nan=True))
     scales = np.array(scales)

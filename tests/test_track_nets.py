@@ -11,9 +11,10 @@ from track_helpers import site_scenario  # noqa: E402
 
 from physynth.errors import PhySynthError  # noqa: E402
 from physynth.generate import generate_trace  # noqa: E402
+from physynth.models.variation import SiteVariationParams, draw_site  # noqa: E402
 from physynth.track.gan import GanConfig, ResidualGan, augment_trace, range_residuals  # noqa: E402
 from physynth.track.inputs import track_input  # noqa: E402
-from physynth.track.synth import SynthVariation, synthetic_trace  # noqa: E402
+from physynth.track.synth import synthetic_trace  # noqa: E402
 from physynth.track.torch_data import SyntheticWindows, TraceWindows, WindowSpec, collate_windows  # noqa: E402
 from physynth.track.trackers import make_tracker  # noqa: E402
 from physynth.track.trackers.nets import NetTracker  # noqa: E402
@@ -126,7 +127,7 @@ def _all_items(ds, workers):
 
 def test_on_the_fly_windows_identical_across_workers_and_epochs():
     scn = site_scenario(noise_m=0.1, **{"channel.nlos_prob": 0.1, "availability.dropout_prob": 0.1})
-    var = SynthVariation(layout_jitter_m=0.5, path_yaw_std_rad=0.1, path_shift_std_m=0.5, path_lateral_std_m=0.5,
+    var = SiteVariationParams(layout_jitter_m=0.5, path_yaw_std_rad=0.1, path_shift_std_m=0.5, path_lateral_std_m=0.5,
                          shuffle_anchors=True)
     spec = WindowSpec(length=8, stride=4, decimation=10)
     ds = SyntheticWindows(scn, 3, 1234, spec, windows_per_trace=4, variation=var, cache_size=1)
@@ -144,15 +145,15 @@ def test_on_the_fly_windows_identical_across_workers_and_epochs():
 def test_variation_moves_layout_and_path_but_not_the_seeded_rest():
     scn = site_scenario()
     plain = synthetic_trace(scn, 0, 5)
-    varied = synthetic_trace(scn, 0, 5, SynthVariation(layout_jitter_m=0.5, path_shift_std_m=1.0))
+    varied = synthetic_trace(scn, 0, 5, SiteVariationParams(layout_jitter_m=0.5, path_shift_std_m=1.0))
     assert not np.allclose(plain.anchors.pos_enu_m, varied.anchors.pos_enu_m)
     assert not np.allclose(plain.truth.pos_enu_m[:10], varied.truth.pos_enu_m[:10])
-    np.testing.assert_array_equal(synthetic_trace(scn, 0, 5, SynthVariation()).uwb.range_m,
-                                  synthetic_trace(scn, 0, 5, SynthVariation()).uwb.range_m)
+    np.testing.assert_array_equal(synthetic_trace(scn, 0, 5, SiteVariationParams()).uwb.range_m,
+                                  synthetic_trace(scn, 0, 5, SiteVariationParams()).uwb.range_m)
 
 
 def test_random_routes_stay_on_the_site_and_leave_other_draws_alone():
-    from physynth.track.synth import random_route, varied_scenario
+    from physynth.track.synth import random_route
 
     rng = np.random.default_rng(3)
     centre = np.array([10.0, -5.0, 1.0])
@@ -165,18 +166,23 @@ def test_random_routes_stay_on_the_site_and_leave_other_draws_alone():
         assert np.all(np.linalg.norm(np.diff(w[:, :2], axis=0), axis=1) >= 0.2 * 40.0 - 1e-9)
     scn = site_scenario()
     n = 400
-    routed = [varied_scenario(scn, SynthVariation(random_route_prob=0.5), np.random.default_rng(i)).path
-              != varied_scenario(scn, SynthVariation(), np.random.default_rng(i)).path for i in range(n)]
+    base, path = np.array([a.pos_enu_m for a in scn.anchors]), scn.path.model_dump(mode="python")
+
+    def site(v, seed):
+        return draw_site(v, base, path, lambda: np.asarray(path["waypoints_enu_m"], float), np.random.default_rng(seed))
+
+    routed = [site(SiteVariationParams(random_route_prob=0.5), i)[1] != site(SiteVariationParams(), i)[1]
+              for i in range(n)]
     share = np.mean(routed)
     assert abs(share - 0.5) < 5 * np.sqrt(0.25 / n)  # 5 standard errors of a fair coin
     # the other draws come first: without random routes the scenario is the same as before
-    a = varied_scenario(scn, SynthVariation(), np.random.default_rng(9))
-    b = varied_scenario(scn, SynthVariation(random_route_prob=1e-12), np.random.default_rng(9))
-    assert a.anchors == b.anchors and a.path == b.path
-    tr = synthetic_trace(scn, 0, 5, SynthVariation(random_route_prob=1.0))
+    a = site(SiteVariationParams(), 9)
+    b = site(SiteVariationParams(random_route_prob=1e-12), 9)
+    assert np.array_equal(a[0], b[0]) and a[1] == b[1]
+    tr = synthetic_trace(scn, 0, 5, SiteVariationParams(random_route_prob=1.0))
     assert tr.duration_s > 10 and np.isfinite(tr.uwb.range_m).sum() > 100
     with pytest.raises(ValueError, match="random_route_prob"):
-        SynthVariation(random_route_prob=1.5)
+        SiteVariationParams(random_route_prob=1.5)
 
 
 def test_gan_learns_the_residual_scale_and_augments_only_ranges():

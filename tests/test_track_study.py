@@ -451,7 +451,9 @@ def test_a_seed_ensemble_scores_the_mean_of_the_seeds_studies(runs, tmp_path):
     for row in ens.rows:
         np.testing.assert_array_equal(par.estimates[row["key"]], ens.estimates[row["key"]])
     assert {m.split(":")[0] for m in said} == {"ensemble member 1/2 (seed 3)", "ensemble member 2/2 (seed 4)"}
-    assert par.data["cpu_time_s"] > 0.5 * sum(par.data["timing_s"].values())  # the members' CPU time counted
+    # the members' CPU time counted: about the work of the members trained one after the other (CPU time,
+    # not wall time, so a loaded machine does not change it; this process alone does a small part of it)
+    assert par.data["cpu_time_s"] > 0.5 * ens.data["cpu_time_s"]
     noaug = [next(r["rmse_m"] for r in s.rows if r["key"] == "NOAUG") for s in single]
     assert noaug[0] != noaug[1]  # the members differ: an ensemble of one network twice would prove nothing
     md = write_results(ens, tmp_path)["md"].read_text()

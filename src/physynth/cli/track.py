@@ -235,17 +235,15 @@ def _synth_variation(nlos_spread: float | None, layouts: str | None = None) -> d
     spread and those layouts ({} when neither is given)."""
     if nlos_spread is None and layouts is None:
         return {}
-    import dataclasses
-
     from ..studies.tracking import StudyConfig
 
     if layouts not in (None, *SYNTH_LAYOUTS):
         raise PhySynthError(f"--synth-layouts must be one of {', '.join(SYNTH_LAYOUTS)}, got '{layouts}'")
     v = StudyConfig().variation
     if nlos_spread is not None:
-        v = dataclasses.replace(v, nlos_log_std=nlos_spread)
+        v = v.model_copy(update={"nlos_log_std": nlos_spread})
     if layouts == "training":
-        v = dataclasses.replace(v, layout_distribution=None)
+        v = v.model_copy(update={"layout_distribution": None})
     return {"variation": v}
 
 

@@ -28,7 +28,7 @@ and in any order):
   has more obstacles than another; drawn last.
 
 Everything else (motion, the rest of the channel, availability, IMU) is the scenario's. The draws happen
-in this order, which :class:`physynth.track.synth.SynthVariation` (the tracking study's) shares:
+in this order (the tracking study's pre-training traces are such traces, :mod:`physynth.track.synth`):
 
 1. the layout: either the choice among ``layouts``, the permutation (``shuffle_anchors``), the horizontal
    and the vertical jitter; or (``layout_distribution``) :func:`draw_layout`'s draws (rounds of
@@ -325,8 +325,7 @@ def draw_site(v: Any, base_pos_m: np.ndarray, path: dict[str, Any], path_points:
               rng: np.random.Generator) -> tuple[np.ndarray, dict[str, Any], dict[str, Any]]:
     """One draw of the site: (anchor positions (A, 3) [m], path mapping, record of what was drawn).
 
-    ``v`` holds the fields of :class:`SiteVariationParams` (or of the tracking study's
-    ``SynthVariation``, whose layouts of another anchor count the caller has left out); ``base_pos_m``
+    ``v`` holds the fields of :class:`SiteVariationParams`; ``base_pos_m``
     the scenario's anchor positions; ``path`` its ``PathParams`` as a mapping; ``path_points()`` (N, 3)
     points along its path [m], called only for a random route or without anchors.
 

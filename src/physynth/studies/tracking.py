@@ -8,7 +8,7 @@ calibration sees. Rows of the table:
   small GAN trained on the real training residuals (:mod:`physynth.track.gan`);
 - ``SYNTH_PHY``: ``aoi-fusion`` pre-trained on PhySynth traces only (paper: 300 epochs at 1e-3) of the
   scenario calibrated on the training runs (or ``scenario``), with path and anchor layout varied around
-  the calibrated site (:class:`~physynth.track.synth.SynthVariation`), then fine-tuned on the real
+  the calibrated site (:data:`STUDY_VARIATION`, :mod:`physynth.track.synth`), then fine-tuned on the real
   training runs at a lower learning rate (paper: 200 epochs at 5e-5), optionally keeping a fixed subset
   of synthetic windows in the fine-tuning set (``finetune_synth_ratio``). The pre-trained network is also
   scored before fine-tuning (``SYNTH_PHY (synthetic only)``): it has seen no real range at all;
@@ -36,7 +36,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import PhySynthError
-from ..models.variation import LayoutDistribution
+from ..models.variation import LayoutDistribution, SiteVariationParams
 from ..records import TRUTH_UNTRUSTED_KEY, Trace, untrusted_truth
 from ..scenario import Scenario, scenario_to_dict
 from ..track.features import EKF_PRIOR_COAST_S, check_ekf_prior
@@ -44,7 +44,6 @@ from ..track.height import HeightPrior, height_from_scenario, height_from_truth
 from ..track.inputs import TrackInput, track_input
 from ..track.reference import reference_estimates
 from ..track.scoring import error_stats
-from ..track.synth import SynthVariation
 from ..transform import ISOMETRY_META_KEY, apply_isometry
 
 ProgressFn = Callable[[str], None]
@@ -73,6 +72,13 @@ the ranges' centimetres), heights 0.3-2.5 m with a fifth of the layouts at one h
 the known tag height)."""
 
 
+STUDY_VARIATION = SiteVariationParams(layout_distribution=STUDY_LAYOUTS, random_route_prob=0.5,
+                                      path_lateral_std_m=1.0, path_sag_std_m=0.1)
+"""How the study's pre-training traces vary around the calibrated site (a scenario's ``variation`` section,
+:mod:`physynth.models.variation`): every trace a whole layout of :data:`STUDY_LAYOUTS`, half of them on a
+random route, the run-to-run path deformation of a walker (1 m sideways, 0.1 m up and down)."""
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class StudyConfig:
     """Every number of the study (recorded in ``results.json``). Epochs are passes over the windows."""
@@ -96,7 +102,7 @@ class StudyConfig:
     net: dict[str, Any] = field(default_factory=dict)
     """Overrides of :class:`~physynth.track.trackers.nets.NetConfig` for every network (e.g.
     ``{"age_weighted_direction": False}``)."""
-    variation: SynthVariation = SynthVariation(random_route_prob=0.5, layout_distribution=STUDY_LAYOUTS)
+    variation: SiteVariationParams = STUDY_VARIATION
     """How the synthetic pre-training traces vary around the calibrated site: every trace its own whole anchor
     layout drawn from :data:`STUDY_LAYOUTS` (each anchor the channel of one of the calibrated anchors), path
     jitter, and half of them on random routes of other shapes (:mod:`physynth.track.synth`). Without
@@ -175,7 +181,7 @@ class StudyConfig:
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
-        d["variation"] = self.variation.to_dict()
+        d["variation"] = self.variation.model_dump(mode="python")
         d["methods"] = list(self.methods)
         return d
 
@@ -332,7 +338,7 @@ def _calibrate_training_runs(traces: Sequence[Trace], progress: ProgressFn) -> t
     The runs may place the anchors differently: each run is taken against its own layout, channels are
     pooled per anchor id and the run-to-run ranging offsets are fitted (``anchor_policy="per-run"``);
     the scenario generates with the first run's layout. The layouts of all runs still reach the
-    synthetic traces through :class:`SynthVariation` (``training_layouts``).
+    synthetic traces through the study's ``variation`` (``training_layouts``).
     """
     from ..calibrate import calibrate
 
@@ -681,9 +687,9 @@ def _synth_phy(train: Sequence[StudyRun], train_traces: list[Trace], train_input
         n = len(scenario.anchors)
         layouts = tuple(tuple(tuple(round(float(v), 4) for v in p) for p in t.anchors.pos_enu_m)
                         for t in train_traces if len(t.anchors) == n)
-        variation = replace(variation, layouts=layouts)
+        variation = variation.model_copy(update={"layouts": [list(map(list, lay)) for lay in layouts]})
     notes["scenario"] = {"name": scenario.name, "scenario": scenario_to_dict(scenario),
-                         "variation": variation.to_dict(), "root_seed": cfg.seed}
+                         "variation": variation.model_dump(mode="python"), "root_seed": cfg.seed}
     net = _net(cfg, **net_extra)
     synth = SyntheticWindows(scenario, cfg.n_synth_traces, cfg.seed, net.window_spec(),
                              windows_per_trace=cfg.synth_windows_per_trace, variation=variation,

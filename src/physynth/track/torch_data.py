@@ -10,7 +10,7 @@ in one batch.
 - :class:`TraceWindows`: windows of stored traces (a dataset directory, Trace records or TrackInputs).
 - :class:`SyntheticWindows`: trace ``i`` is generated on the fly from its own seed
   (``SeedSequence(root_seed, spawn_key=(i, component))``, DESIGN section 3) with an optional
-  :class:`~physynth.track.synth.SynthVariation` of path and anchor layout, so item ``j`` is the same in
+  variation of path (:mod:`physynth.track.synth`) and anchor layout, so item ``j`` is the same in
   every DataLoader worker, epoch and process; a small per-process LRU cache keeps the last few traces.
 - :class:`IsometryWindows`: the windows of another dataset, each turned about the vertical axis through
   the anchor centroid by a uniform angle and mirrored with probability 1/2 (a fixed draw per item). A
@@ -189,11 +189,12 @@ class SyntheticWindows(torch.utils.data.Dataset):
                  windows_per_trace: int = 16, variation: Any = None, cache_size: int = 4,
                  height: Any = None) -> None:
         from ..generate import compile_scenario
+        from .synth import with_variation
 
         if n_traces < 1 or windows_per_trace < 1:
             raise ValueError("n_traces and windows_per_trace must be >= 1")
         self.scenario = scenario
-        self.compiled = compile_scenario(scenario) if variation is None else None
+        self.compiled = compile_scenario(scenario if variation is None else with_variation(scenario, variation))
         self.n_traces, self.root_seed = int(n_traces), int(root_seed)
         self.spec, self.windows_per_trace, self.variation = spec, int(windows_per_trace), variation
         self.time_offset_s = float(scenario.uwb.time_offset_s)
@@ -206,9 +207,9 @@ class SyntheticWindows(torch.utils.data.Dataset):
 
     def trace(self, i: int) -> Any:
         """Trace ``i`` (a :class:`~physynth.records.Trace`)."""
-        from .synth import synthetic_trace
+        from ..generate import generate_trace
 
-        return synthetic_trace(self.compiled or self.scenario, i, self.root_seed, self.variation)
+        return generate_trace(self.compiled, i, self.root_seed)
 
     def arrays(self, i: int) -> NetArrays:
         """Network arrays of trace ``i`` (cached)."""
