@@ -669,3 +669,20 @@ def test_an_empty_or_partial_integrity_record_is_damage(dataset, capsys, record)
     assert ("is empty" if record == "empty" else "lacks the table(s) imu") in err
     with pytest.raises(IntegrityError, match="integrity record"):
         read_dataset(dataset)
+
+
+def test_the_memory_budget_holds_for_the_workers_together(tmp_path, capsys, monkeypatch):
+    """Issue 44: W worker processes each hold their own traces; the budget is for the run, not per process."""
+    from physynth import bounds
+    from physynth.io.scenario_file import load_scenario
+
+    f = write_yaml(tmp_path / "s.yaml", simple_scenario_dict())
+    one = bounds.estimate_size(load_scenario(str(f)), 8)
+    monkeypatch.setattr(bounds, "MEMORY_BUDGET_BYTES", 1.5 * one.peak_memory_bytes)  # one process fits, two do not
+    code, _, err = run(capsys, "generate", "-s", f, "-n", 8, "--workers", 2, "--shard-traces", 4,
+                       "--out", tmp_path / "o", "-q")
+    assert code == 2 and one_line(err) and "GB of memory over 2 processes" in err and "--force" in err
+    assert not (tmp_path / "o").exists() and not any(tmp_path.glob(".o*"))
+    code, _, err = run(capsys, "generate", "-s", f, "-n", 8, "--workers", 1, "--shard-traces", 4,
+                       "--out", tmp_path / "o", "-q")
+    assert code == 0, err

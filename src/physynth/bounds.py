@@ -287,15 +287,20 @@ class SizeEstimate:
     peak_memory_bytes: float
     output_bytes: float  # on disk, as the Parquet writer stores the traces
     sample_bytes: float = 0.0  # the traces' tables in memory: what generating and reducing them handles
+    processes: int = 1  # processes generating at once on this machine, each holding its own traces
 
     def describe(self) -> str:
+        over = f" over {self.processes} processes" if self.processes > 1 else ""
         return (f"{self.n_traces} trace(s) of up to {self.duration_s:.4g} s: {self.truth_samples:,} truth, "
                 f"{self.imu_samples:,} IMU and {self.uwb_rows:,} UWB rows per trace, up to about "
-                f"{self.peak_memory_bytes / 1e9:.3g} GB of memory and {self.output_bytes / 1e9:.3g} GB on disk")
+                f"{self.peak_memory_bytes / 1e9:.3g} GB of memory{over} and {self.output_bytes / 1e9:.3g} GB on disk")
 
 
-def estimate_size(scn: Scenario, n_traces: int) -> SizeEstimate:
-    """Samples, peak memory and output size of ``n_traces`` traces of ``scn``, before any work."""
+def estimate_size(scn: Scenario, n_traces: int, processes: int = 1) -> SizeEstimate:
+    """Samples, peak memory and output size of ``n_traces`` traces of ``scn``, before any work.
+
+    ``processes`` generate at once on this machine (worker processes), each holding its own traces: the
+    peak memory is theirs together, for the run as a whole."""
     from .models.motion import compile_speed_shape
     from .models.path import compile_path
 
@@ -322,8 +327,8 @@ def estimate_size(scn: Scenario, n_traces: int) -> SizeEstimate:
     disk = _DISK_BYTES["truth"] * truth + _DISK_BYTES["imu_triad"] * triads * imu + _DISK_BYTES["uwb"] * uwb
     return SizeEstimate(n_traces=n_traces, duration_s=duration, min_trip_s=trip_min, truth_samples=truth,
                         imu_samples=imu, uwb_rows=uwb,
-                        peak_memory_bytes=work + min(n_traces, ROW_GROUP_TRACES) * table,
-                        output_bytes=n_traces * disk, sample_bytes=n_traces * table)
+                        peak_memory_bytes=max(1, processes) * (work + min(n_traces, ROW_GROUP_TRACES) * table),
+                        output_bytes=n_traces * disk, sample_bytes=n_traces * table, processes=max(1, processes))
 
 
 def _random_route_bound_m(scn: Scenario) -> float:
@@ -370,8 +375,12 @@ def check_trip(scn: Scenario, est: SizeEstimate | None = None, *, min_trip_s: fl
                             f"{MIN_TRUTH_SAMPLES}): check path length and cruise speed")
 
 
-def check_budget(scn: Scenario, n_traces: int, *, force: bool = False, writes: bool = True) -> SizeEstimate:
+def check_budget(scn: Scenario, n_traces: int, *, force: bool = False, writes: bool = True,
+                 processes: int = 1) -> SizeEstimate:
     """Refuse, before any work, a generation that is too short to make traces or over budget.
+
+    ``processes``: worker processes generating at once on this machine; the memory budget holds for
+    them together (the run as a whole), not for each (:func:`estimate_size`).
 
     ``writes``: the traces are written (a dataset: their size on disk is held against the output budget);
     False for work that only reduces them (the studies: their samples in memory, a bound on the time).
@@ -384,7 +393,7 @@ def check_budget(scn: Scenario, n_traces: int, *, force: bool = False, writes: b
         Unless ``force``: the peak memory or the output size exceeds its budget; the message holds
         the estimate.
     """
-    est = estimate_size(scn, n_traces)
+    est = estimate_size(scn, n_traces, processes)
     check_trip(scn, est)
     if force:
         return est

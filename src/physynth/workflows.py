@@ -104,7 +104,8 @@ def generate_dataset(scn: ScenarioLike, n: int, out: str | Path, *, seed: int | 
     if scheduler is None and workers > 1:
         check_not_bootstrapping()  # a worker re-running an unguarded script: fail before the output is touched
     scn = load_scenario(scn)
-    check_budget(scn, n, force=force)
+    local = 1 if scheduler is not None else min(workers, -(-n // shard_traces))  # processes on this machine
+    check_budget(scn, n, force=force, processes=local)  # the budget holds for the workers together
     if resume:  # an output that is already complete: nothing to resume, or another run's (docs/scale.md)
         done = shards.finished_run(safety.resolve_output(out), scenario_to_dict(scn), seed, n, shard_traces)
         if done is not None:

@@ -367,8 +367,9 @@ def run_anchor_study(scn: Scenario, *, real: Sequence[Trace] | None = None, n: i
         order = check_subset(order, ids, "the anchor order")
         if len(order) < max(counts):
             raise PhySynthError(f"the order names {len(order)} anchor(s) but counts go up to {max(counts)}")
-    check_budget(scn, n * (len(regimes) + (real is None)), force=force, writes=False)  # every trace it generates
     workers = max(1, int(workers or os.cpu_count() or 1))
+    check_budget(scn, n * (len(regimes) + (real is None)), force=force, writes=False,  # every trace it generates,
+                 processes=workers)  # on all its processes together
     n_chunks = 2 * workers
     with worker_pool(workers) as executor:  # one pool for the reference run and the cells
         return _run(scn, real=real, n=n, seed=seed, counts=counts, regimes=regimes, order=order, workers=workers,

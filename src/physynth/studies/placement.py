@@ -181,8 +181,8 @@ def greedy_placement(scn: Scenario, candidates: Sequence[AnchorSpec], *, k: int,
     if n < 1:
         raise PhySynthError(f"the number of traces must be at least 1, got {n}")
     cscn = candidate_scenario(scn, candidates, same_slot=True)
-    check_budget(cscn, 2 * n, force=force, writes=False)
     workers = max(1, int(workers or os.cpu_count() or 1))
+    check_budget(cscn, 2 * n, force=force, writes=False, processes=workers)  # all its processes together
     with worker_pool(workers) as pool:
         parts = _map([(cscn, seed, c) for c in _chunks(list(range(2 * n)), 2 * workers)], _reduce_chunk, pool,
                      progress, "placement: generating", 2 * n)
