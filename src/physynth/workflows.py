@@ -145,6 +145,28 @@ def generate_dataset(scn: ScenarioLike, n: int, out: str | Path, *, seed: int | 
 
 
 # ---------------------------------------------------------------- calibrate
+def export_dataset(dataset: str | os.PathLike, out: str | os.PathLike, fmt: str, *, overwrite: bool = False,
+                   progress: ProgressCallback | None = None, bag_storage: str = "mcap", resume: bool = False,
+                   workers: int = 1, scheduler: str | None = None) -> Path:
+    """Export a dataset (:func:`physynth.io.export.export_dataset`) with its parts (one per shard of the
+    dataset) on ``workers`` processes (an embedded Dask cluster when > 1) or on the Dask ``scheduler``, as
+    :func:`generate_dataset` runs its shards; the output is the same for any number of workers.
+    ``resume`` completes a killed export to ``out``."""
+    from .io.export import export_dataset as export
+    from .tasks import run_tasks
+
+    workers = check_int(workers, "workers", minimum=1, what="the number of worker processes")
+    if scheduler is None and workers > 1:
+        check_not_bootstrapping()
+
+    def run(fn, tasks, sizes, prog):
+        return run_tasks(fn, tasks, sizes, workers=workers, scheduler=scheduler, progress=prog,
+                         name="physynth-export")
+
+    return export(dataset, out, fmt, overwrite=overwrite, progress=progress or (lambda *a, **k: None),
+                  bag_storage=bag_storage, resume=resume, run=run)
+
+
 def read_recordings(paths: str | os.PathLike | Sequence[str | os.PathLike], *,
                     allow_mixed: bool = True) -> tuple[list[Trace], list[str]]:
     """Traces of one or several dataset directories, labelled ``<dataset>/<run>`` (the name the recording's

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 from typing import Literal
 
 import typer
 
 from ._common import progress_bar
+from .generate import AUTO_CLUSTER_MIN_TRACES
 
 
 def register(app: typer.Typer) -> None:
@@ -24,14 +26,52 @@ def export_cmd(
     bag_storage: Literal["mcap", "sqlite3"] = typer.Option(
         "mcap", "--bag-storage", help="Storage of the ROS 2 bags: mcap (ROS 2 default since Iron, opened natively by "
                                       "Foxglove) or sqlite3."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output."),
+    workers: int = typer.Option(0, "--workers", "-w", metavar="N", min=0,
+                                help=f"Worker processes, one part (a shard of the dataset) at a time each. 0 (the "
+                                     f"default) picks for you: all cores for {AUTO_CLUSTER_MIN_TRACES} traces or "
+                                     "more, one process below that. More than one runs an embedded Dask cluster "
+                                     "(needs physynth[scale]); the output is the same for any number of workers."),
+    scheduler: str | None = typer.Option(None, "--scheduler", metavar="ADDRESS",
+                                         help="Run on an existing Dask cluster (e.g. tcp://host:8786) whose "
+                                              "workers see DATASET and --out at the same paths."),
+    resume: bool = typer.Option(False, "--resume", help="Complete a killed export to --out: keep its complete "
+                                                        "parts, write the others."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output or discard an unfinished "
+                                                              "export to it."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
-    """Export a dataset to HDF5, ROS 2 bags (sensor_msgs/Imu, sensor_msgs/Range) or CSV (docs/export.md)."""
-    from ..io.export import export_dataset
+    """Export a dataset to HDF5, ROS 2 bags (MCAP; sensor_msgs/Imu, sensor_msgs/Range) or CSV (docs/export.md)."""
+    from ..errors import Interrupted, PhySynthError
+    from ..io.dataset import n_traces, read_meta
+    from ..parallel import available_cores
+    from ..workflows import export_dataset
 
-    with progress_bar(not quiet) as progress:
-        path = export_dataset(dataset, out, fmt.lower(), overwrite=overwrite, progress=progress,
-                              bag_storage=bag_storage)
+    if resume and overwrite:
+        raise PhySynthError("--resume and --overwrite exclude each other: --resume completes an unfinished export "
+                            "to --out, --overwrite discards it; give one")
+    if scheduler is not None and workers:
+        raise PhySynthError(f"--scheduler and --workers exclude each other: --scheduler runs on the workers of "
+                            f"an existing cluster, --workers {workers} starts its own; give one")
+    n = n_traces(read_meta(dataset)) or 0
+    n_workers = workers or (available_cores() if n >= AUTO_CLUSTER_MIN_TRACES else 1)
+    if not workers and n_workers > 1 and importlib.util.find_spec("distributed") is None:
+        n_workers = 1  # the default (all cores) without the optional Dask: one core
+    resume_hint = f"complete parts are kept: run the same command with --resume to finish {out}"
+    try:
+        with progress_bar(not quiet) as progress:
+            path = export_dataset(dataset, out, fmt.lower(), overwrite=overwrite, progress=progress,
+                                  bag_storage=bag_storage, resume=resume, workers=n_workers, scheduler=scheduler)
+    except PhySynthError as exc:
+        hint = "; resume it or overwrite to start over"
+        if hint in str(exc):
+            raise PhySynthError(str(exc).replace(hint, "; add --resume to complete it or --overwrite to start "
+                                                 "over")) from None
+        raise
+    except Interrupted as exc:  # physynth.cli.main prints one line and exits 128 + signal
+        exc.note = resume_hint
+        raise
+    except KeyboardInterrupt:
+        typer.echo(f"physynth: interrupted; {resume_hint}", err=True)
+        raise typer.Exit(130) from None
     if not quiet:
-        typer.echo(f"wrote {path} ({fmt})")
+        typer.echo(f"wrote {path} ({fmt}{', ' + bag_storage if fmt.lower() == 'rosbag2' else ''})")

@@ -1,26 +1,33 @@
 """Exports of a dataset to the formats other tools read: HDF5, ROS 2 bags, plain CSV.
 
-Each exporter streams the dataset trace by trace (:func:`physynth.io.dataset.iter_traces`), writes to
-a hidden temporary sibling of the output and renames it into place when complete, so an interrupted
-export leaves nothing that looks finished. HDF5 needs ``h5py`` and ROS 2 bags need ``rosbags``
-(the extra ``physynth[export]``); CSV needs nothing beyond PhySynth.
+Each export is cut into parts, one per shard of the dataset (:mod:`.parts`), written into a hidden
+sibling of the output that is renamed into place when every part is complete, so an interrupted export
+leaves nothing that looks finished and can be resumed; the parts may run on several workers (``run``:
+:func:`physynth.workflows.export_dataset` passes the workers of ``generate``), with the same bytes for any
+number of workers. HDF5 needs ``h5py`` and ROS 2 bags need ``rosbags`` (the extra ``physynth[export]``);
+CSV needs nothing beyond PhySynth.
 """
 
 from __future__ import annotations
 
+import json
 import os
-from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 from ...errors import PhySynthError
 from ...progress import ProgressCallback, no_progress
-from ..atomic import temp_sibling
-from ..dataset import iter_indexed_traces, n_traces, read_meta
+from ..atomic import atomic_write_text, temp_sibling
+from ..dataset import n_traces, read_meta
 from ..safety import prepare_output, register_temporary, remove_tree, swap_in, unregister_temporary
+from .parts import Part, assemble, dataset_parts, export_part, marker, run_record
 
 FORMATS = ("hdf5", "rosbag2", "csv")
+
+Runner = Callable[..., list[Any]]
+"""``run(fn, tasks, sizes, progress)``: ``[fn(*task) for task in tasks]`` in task order, somewhere
+(:func:`physynth.tasks.run_tasks`); ``progress(done)`` with the units (traces) done so far."""
 
 
 def _require(module: str) -> None:
@@ -31,8 +38,26 @@ def _require(module: str) -> None:
                            "(pip install -e '.[export]' in the PhySynth clone)") from None
 
 
+def _in_process(fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]], sizes: Sequence[int],
+                progress: Callable[[int], None]) -> list[Any]:
+    done = 0
+
+    def unit() -> None:
+        nonlocal done
+        done += 1
+        progress(done)
+
+    return [fn(*task, on_unit=unit) for task in tasks]
+
+
+def partial_dir(out: Path) -> Path:
+    """The hidden folder of an unfinished export to ``out``."""
+    return out.with_name(f".{out.name}.partial")
+
+
 def export_dataset(dataset: str | os.PathLike, out: str | os.PathLike, fmt: str, *, overwrite: bool = False,
-                   progress: ProgressCallback = no_progress, bag_storage: str = "mcap") -> Path:
+                   progress: ProgressCallback = no_progress, bag_storage: str = "mcap", resume: bool = False,
+                   run: Runner | None = None) -> Path:
     """Export ``dataset`` to ``out`` in format ``fmt`` (one of :data:`FORMATS`); returns ``out``.
 
     - ``hdf5``: one file, one group ``/traces/<index>`` per trace (:mod:`.hdf5`);
@@ -41,10 +66,10 @@ def export_dataset(dataset: str | os.PathLike, out: str | os.PathLike, fmt: str,
     - ``csv``: a folder with one CSV file per table (:mod:`.csv`).
 
     Every format reads the dataset as every reader does (:func:`~physynth.io.dataset.iter_indexed_traces`:
-    files against ``dataset.json``, columns, valid traces) before its output appears; the CSV export,
-    which copies the tables row group by row group, reads it trace by trace first to check it. The
-    ROS 2 export leaves out messages with a NaN field or stamped before time 0 and says how many through
-    ``progress``.
+    files against ``dataset.json``, columns, valid traces) before its output appears. The ROS 2 export
+    leaves out messages with a NaN field or stamped before time 0 and says how many through ``progress``.
+    ``resume``: complete an unfinished (killed) export of the same dataset to ``out``, keeping its complete
+    parts. ``run``: where the parts run (:data:`Runner`; default: one after the other in this process).
     """
     if fmt not in FORMATS:
         raise PhySynthError(f"unknown export format '{fmt}' (choose one of {', '.join(FORMATS)})")
@@ -52,56 +77,88 @@ def export_dataset(dataset: str | os.PathLike, out: str | os.PathLike, fmt: str,
 
     if bag_storage not in STORAGES:
         raise PhySynthError(f"unknown bag storage '{bag_storage}' (choose one of {', '.join(STORAGES)})")
+    if resume and overwrite:
+        raise PhySynthError("resume and overwrite exclude each other: resume completes an unfinished export, "
+                            "overwrite discards it; ask for one")
     if fmt == "hdf5":
         _require("h5py")
     elif fmt == "rosbag2":
         _require("rosbags")
     meta = read_meta(dataset)
     # the same rules as every writer (docs/reliability.md): never the input, the current folder or a
-    # parent of it; replaced only when it is an export PhySynth wrote (--overwrite); locked; temporary
+    # parent of it; replaced only when it is an export PhySynth wrote (overwrite); locked; temporary
     # files of an interrupted export removed with a warning
     out, lock = prepare_output(out, kind=f"export-{fmt}", overwrite=overwrite, inputs=[dataset])
     try:
-        return _export(Path(dataset), meta, out, fmt, progress, bag_storage)
+        return _export(Path(dataset).resolve(), meta, out, fmt, progress, bag_storage, resume, overwrite,
+                       run or _in_process)
     finally:
         lock.release()
 
 
-def _checked(dataset: Path, meta: dict, message: str, total: int | None,
-             progress: ProgressCallback) -> Iterator[tuple[int, Any]]:
-    """The dataset's ``(index, Trace)`` pairs, read and checked as every reader does (files against
-    ``dataset.json``, columns, valid records), with ``progress(message, done, total)`` after each."""
-    for done, item in enumerate(iter_indexed_traces(dataset, meta), 1):
-        yield item
-        progress(message, done, total)
+def _prepare_partial(out: Path, record: dict[str, Any], resume: bool, overwrite: bool) -> Path:
+    partial = partial_dir(out)
+    if partial.exists() and not resume:
+        if not overwrite:
+            raise PhySynthError(f"an unfinished export to {out} exists ({partial}); resume it or overwrite to "
+                                "start over")
+        remove_tree(partial)
+    if partial.exists():
+        try:
+            old = json.loads((partial / "run.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            old = None
+        if old != record:
+            diff = sorted(k for k in record if not isinstance(old, dict) or old.get(k) != record[k])
+            raise PhySynthError(f"cannot resume the export to {out}: the unfinished one differs in "
+                                f"{', '.join(diff) or 'run.json'}")
+        for junk in partial.glob(".*.tmp-*"):  # a part or bag being written when the export was stopped
+            remove_tree(junk)
+    else:
+        partial.mkdir()
+        atomic_write_text(partial / "run.json", json.dumps(record, indent=1))
+    return partial
 
 
-def _export(dataset: Path, meta: dict, out: Path, fmt: str, progress: ProgressCallback, storage: str) -> Path:
+def _export(dataset: Path, meta: dict, out: Path, fmt: str, progress: ProgressCallback, storage: str,
+            resume: bool, overwrite: bool, run: Runner) -> Path:
     total = n_traces(meta)
+    parts = dataset_parts(meta)
+    partial = _prepare_partial(out, run_record(dataset, fmt, storage), resume, overwrite)
+    complete = {p.k for p in parts if marker(partial, p.k).is_file()}
+    if complete:
+        progress(f"resuming: {len(complete)} of {len(parts)} part(s) already complete")
+    todo: list[Part] = [p for p in parts if p.k not in complete]
+    already = sum(p.n_traces for p in parts if p.k in complete)
+    message = f"exporting to {fmt}"
+    progress(message, already, total)
+    light = {k: v for k, v in meta.items() if k != "traces"} if len(parts) > 1 else meta
+    try:
+        run(export_part, [(str(dataset), light, p, fmt, str(partial), storage) for p in todo],
+            [p.n_traces for p in todo], lambda done: progress(message, already + done, total))
+    except Exception:  # not an interruption: an interrupted export stays resumable
+        if not any(marker(partial, p.k).is_file() for p in parts):
+            remove_tree(partial)
+        raise
+    skipped: dict[str, int] = {}
+    for p in parts:
+        for topic, n in json.loads(marker(partial, p.k).read_text(encoding="utf-8")).items():
+            skipped[topic] = skipped.get(topic, 0) + n
     tmp = temp_sibling(out)
     remove_tree(tmp)
-    writer: Callable
-    if fmt == "hdf5":
-        from .hdf5 import write_hdf5 as writer
-    elif fmt == "rosbag2":
-        from .rosbag2 import write_rosbag2 as writer
-    else:
-        from .csv import write_csv as writer
     register_temporary(tmp)
     try:
-        if fmt == "csv":  # copied table by table: first read trace by trace, checked as by the other formats
-            deque(_checked(dataset, meta, "checking the dataset", total, progress), maxlen=0)
-            writer(dataset, meta, tmp, progress)
-        else:
-            args = (storage,) if fmt == "rosbag2" else ()
-            skipped = writer(_checked(dataset, meta, f"exporting to {fmt}", total, progress), meta, tmp, *args)
-            _say_skipped(skipped or {}, progress)
+        if len(parts) > 1 and fmt != "rosbag2":
+            progress(f"assembling the {len(parts)} parts")
+        assemble(fmt, dataset, meta, partial, parts, tmp)
         swap_in(tmp, out)
     except BaseException:
         remove_tree(tmp)
         raise
     finally:
         unregister_temporary(tmp)
+    remove_tree(partial)
+    _say_skipped(skipped, progress)
     return out
 
 

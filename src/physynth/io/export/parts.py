@@ -1,0 +1,182 @@
+"""An export cut into parts, one per shard of the dataset: written apart (on any worker), resumable, assembled.
+
+A dataset generated in several shards keeps each shard's rows in its own Parquet part
+(``truth/part-00003.parquet`` ...) and its traces' metadata in ``traces/part-00003.jsonl``; each such part is
+one part of the export. Any other dataset (one shard, or written by ``write_dataset`` or an importer) is
+one part.
+
+While an export runs, everything lives in a hidden sibling of the output, ``.<name>.partial/``:
+
+- ``run.json``: what is exported (format, bag storage, the dataset and its ``dataset.json``'s SHA-256,
+  PhySynth's version); a resumed export refuses a run that differs;
+- per part ``k``, its output, renamed into place when complete: the bags ``trace_<index>/`` (rosbag2;
+  each bag renamed into place as it is finished), ``part-<k>.h5`` (hdf5) or the folder ``part-<k>/``
+  (csv); then ``part-<k>.json`` (the messages left out, see :mod:`.rosbag2`), which marks the part
+  complete.
+
+:func:`assemble` turns the complete parts into the output: the bag folders as they are, the HDF5 parts'
+groups copied in trace order into one file (the one part renamed when there is one), the CSV parts
+concatenated table by table. The bytes do not depend on which worker wrote which part.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ... import __version__
+from ...errors import PhySynthError
+from ..atomic import atomic_write_text, temp_sibling
+from ..dataset import iter_indexed_traces
+from ..safety import remove_tree
+
+
+@dataclass(frozen=True)
+class Part:
+    """Part ``k`` of a dataset: its number of traces and the names of its files (``None``: every file)."""
+
+    k: int
+    n_traces: int
+    files: tuple[str, ...] | None
+
+
+def dataset_parts(meta: dict[str, Any]) -> list[Part]:
+    """The parts of a dataset (its shards when it was assembled from several; else the whole of it)."""
+    shards = meta.get("shards") if isinstance(meta.get("shards"), dict) else {}
+    files = meta.get("files") if isinstance(meta.get("files"), dict) else None
+    n = meta.get("n_traces")
+    if shards.get("layout") != "parts" or files is None or not isinstance(n, int):
+        return [Part(0, n if isinstance(n, int) else 0, None)]
+    step = int(shards["shard_traces"])
+    out = []
+    for k in range(int(shards["n_shards"])):
+        names = tuple(f for f in files if f.endswith(f"/part-{k:05d}.parquet"))
+        out.append(Part(k, min(step, n - k * step), names))
+    return out
+
+
+def part_meta(dataset: Path, meta: dict[str, Any], part: Part) -> dict[str, Any]:
+    """``dataset.json`` of the part alone: its files and its traces (what every reader checks and reads)."""
+    if part.files is None:
+        return meta
+    traces = _part_traces(dataset, part)
+    sub = {k: v for k, v in meta.items() if k != "traces_meta"}
+    sub.update(files={f: meta["files"][f] for f in part.files}, traces=traces, n_traces=len(traces))
+    return sub
+
+
+def _part_traces(dataset: Path, part: Part) -> list[dict[str, Any]]:
+    f = dataset / "traces" / f"part-{part.k:05d}.jsonl"
+    try:
+        return [json.loads(line) for line in f.read_text(encoding="utf-8").splitlines() if line.strip()]
+    except (OSError, ValueError) as exc:
+        raise PhySynthError(f"dataset {dataset} is damaged: cannot read {f.relative_to(dataset)} ({exc})") from None
+
+
+def run_record(dataset: Path, fmt: str, storage: str) -> dict[str, Any]:
+    """What a resumed export must agree on."""
+    digest = hashlib.sha256((dataset / "dataset.json").read_bytes()).hexdigest()
+    return {"format": fmt, "bag_storage": storage if fmt == "rosbag2" else None, "dataset": str(dataset),
+            "dataset_json_sha256": digest, "generator": f"physynth {__version__}"}
+
+
+def marker(partial: Path, k: int) -> Path:
+    return partial / f"part-{k:05d}.json"
+
+
+def export_part(dataset: str, meta: dict[str, Any], part: Part, fmt: str, partial: str, storage: str,
+                on_unit: Any = None) -> dict[str, int]:
+    """Write part ``part`` of the export into ``partial`` (what a worker runs); returns the ROS 2 messages
+    left out per topic. A part already complete is left alone. ``on_unit()`` after each trace."""
+    dataset_p, partial_p = Path(dataset), Path(partial)
+    done = marker(partial_p, part.k)
+    if done.is_file():
+        return json.loads(done.read_text(encoding="utf-8"))
+    sub = part_meta(dataset_p, meta, part)
+
+    def traces():
+        for item in iter_indexed_traces(dataset_p, sub):
+            yield item
+            if on_unit is not None:
+                on_unit()
+
+    skipped: dict[str, int] = {}
+    if fmt == "rosbag2":
+        from .rosbag2 import write_bag
+
+        for index, trace in traces():
+            dest = partial_p / f"trace_{index:08d}"
+            if dest.is_dir():  # written before the run was stopped
+                continue
+            tmp = temp_sibling(dest)
+            remove_tree(tmp)
+            tmp.mkdir()
+            write_bag(tmp / dest.name, trace, storage, skipped)
+            os.replace(tmp / dest.name, dest)
+            tmp.rmdir()
+    elif fmt == "hdf5":
+        from .hdf5 import write_hdf5
+
+        dest = partial_p / f"part-{part.k:05d}.h5"
+        tmp = temp_sibling(dest)
+        tmp.unlink(missing_ok=True)
+        write_hdf5(traces(), {k: v for k, v in meta.items() if k != "traces"}, tmp)
+        os.replace(tmp, dest)
+    else:
+        from .csv import write_csv_tables
+
+        dest = partial_p / f"part-{part.k:05d}"
+        tmp = temp_sibling(dest)
+        remove_tree(tmp)
+        deque(traces(), maxlen=0)  # read and checked as by every reader, then copied row group by row group
+        write_csv_tables(dataset_p, sub, tmp, header=part.k == 0)
+        os.replace(tmp, dest)
+    skipped = {t: n for t, n in skipped.items() if n}
+    atomic_write_text(done, json.dumps(skipped))
+    return skipped
+
+
+def assemble(fmt: str, dataset: Path, meta: dict[str, Any], partial: Path, parts: list[Part], tmp: Path) -> None:
+    """Build the finished output at ``tmp`` (a new path) from the complete parts in ``partial``."""
+    if fmt == "rosbag2":
+        for k in range(len(parts)):
+            marker(partial, k).unlink()
+        (partial / "run.json").unlink()
+        os.replace(partial, tmp)
+        return
+    if fmt == "hdf5":
+        files = [partial / f"part-{p.k:05d}.h5" for p in parts]
+        if len(files) == 1:
+            os.replace(files[0], tmp)
+            return
+        import h5py
+
+        with h5py.File(tmp, "w") as out:
+            with h5py.File(files[0], "r") as first:
+                for key, value in first.attrs.items():
+                    out.attrs[key] = value
+            root = out.create_group("traces")
+            for f in files:
+                with h5py.File(f, "r") as src:
+                    for name in src["traces"]:
+                        src.copy(src["traces"][name], root, name=name)
+        return
+    from .csv import finish_csv
+
+    folders = [partial / f"part-{p.k:05d}" for p in parts]
+    if len(folders) == 1:
+        os.replace(folders[0], tmp)
+    else:
+        tmp.mkdir()
+        for table in sorted(p.name for p in folders[0].iterdir()):
+            with open(tmp / table, "wb") as out:
+                for folder in folders:
+                    with open(folder / table, "rb") as src:
+                        shutil.copyfileobj(src, out, 1 << 20)
+    finish_csv(dataset, meta, tmp)

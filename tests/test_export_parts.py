@@ -1,0 +1,116 @@
+"""Exports in parts (one per shard of the dataset): the same bytes whatever order or worker the parts run on,
+resumed after a kill, progress per trace, and the command's options."""
+
+from __future__ import annotations
+
+import filecmp
+import importlib.util
+
+import pytest
+
+from physynth.cli import main
+from physynth.io.export import export_dataset, partial_dir
+from physynth.io.scenario_file import load_scenario
+from physynth.workflows import export_dataset as export_on_workers
+from physynth.workflows import generate_dataset
+
+FORMATS = [f for f, mod in (("csv", None), ("hdf5", "h5py"), ("rosbag2", "rosbags"))
+           if mod is None or importlib.util.find_spec(mod) is not None]
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    path, _ = generate_dataset(load_scenario("cablecar-descending"), 5, tmp_path_factory.mktemp("parts") / "ds",
+                               seed=3, shard_traces=2)  # three parts: 2, 2 and 1 traces
+    return path
+
+
+def _same(a, b) -> bool:
+    if a.is_file():
+        return a.read_bytes() == b.read_bytes()
+    cmp = filecmp.dircmp(a, b)
+    if cmp.left_only or cmp.right_only or cmp.funny_files:
+        return False
+    _, mismatch, errors = filecmp.cmpfiles(a, b, cmp.common_files, shallow=False)
+    return not mismatch and not errors and all(_same(a / d, b / d) for d in cmp.common_dirs)
+
+
+def _reversed_runner(fn, tasks, sizes, progress):
+    """The parts in reverse order, as workers finishing in any order would."""
+    results = [fn(*task) for task in reversed(tasks)]
+    progress(sum(sizes))
+    return results[::-1]
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_parts_in_any_order_give_the_same_bytes(dataset, tmp_path, fmt):
+    suffix = ".h5" if fmt == "hdf5" else ""
+    said = []
+    a = export_dataset(dataset, tmp_path / f"a{suffix}", fmt,
+                       progress=lambda m, done=None, total=None: said.append((m, done, total)))
+    b = export_dataset(dataset, tmp_path / f"b{suffix}", fmt, run=_reversed_runner)
+    assert _same(a, b)
+    assert ("exporting to " + fmt, 5, 5) in said and [d for m, d, t in said if m.startswith("exporting")] == \
+        [0, 1, 2, 3, 4, 5]  # one step per trace in this process
+    assert not partial_dir(a).exists() and not partial_dir(b).exists()
+
+
+@pytest.mark.skipif(importlib.util.find_spec("distributed") is None or "hdf5" not in FORMATS,
+                    reason="needs dask (physynth[scale]) and h5py")
+def test_two_workers_write_the_same_file_as_one(dataset, tmp_path):
+    one = export_on_workers(dataset, tmp_path / "one.h5", "hdf5", workers=1)
+    two = export_on_workers(dataset, tmp_path / "two.h5", "hdf5", workers=2)
+    assert one.read_bytes() == two.read_bytes()
+
+
+class _Killed(KeyboardInterrupt):
+    pass
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_resume_after_a_kill_keeps_the_complete_parts(dataset, tmp_path, fmt):
+    suffix = ".h5" if fmt == "hdf5" else ""
+    out = tmp_path / f"out{suffix}"
+
+    def killed_after_first(fn, tasks, sizes, progress):
+        fn(*tasks[0])
+        raise _Killed
+
+    with pytest.raises(_Killed):
+        export_dataset(dataset, out, fmt, run=killed_after_first)
+    partial = partial_dir(out)
+    assert not out.exists() and (partial / "part-00000.json").is_file()
+    first = (partial / "part-00000.json").stat().st_mtime_ns
+    with pytest.raises(Exception, match="unfinished export"):
+        export_dataset(dataset, out, fmt)
+    said = []
+    export_dataset(dataset, out, fmt, resume=True, run=lambda fn, tasks, sizes, progress: [
+        said.append(task[2].k) or fn(*task) for task in tasks])
+    assert said == [1, 2]  # the complete part was kept, not written again
+    assert first > 0 and not partial.exists()
+    assert _same(out, export_dataset(dataset, tmp_path / f"clean{suffix}", fmt))
+
+
+def test_resume_refuses_another_run(dataset, tmp_path):
+    out = tmp_path / "csv"
+
+    def killed(fn, tasks, sizes, progress):
+        fn(*tasks[0])
+        raise _Killed
+
+    with pytest.raises(_Killed):
+        export_dataset(dataset, out, "csv", run=killed)
+    with pytest.raises(Exception, match="differs in bag_storage, format"):
+        export_dataset(dataset, out, "rosbag2", resume=True)
+
+
+def test_export_cli_options_are_checked_in_one_line(dataset, tmp_path, capsys):
+    for argv, needle in (
+            (["--resume", "--overwrite"], "--resume and --overwrite exclude each other"),
+            (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "--scheduler and --workers exclude each other"),
+            (["--bag-storage", "zip"], "'zip' is not one of")):
+        with pytest.raises(SystemExit) as e:
+            main(["export", str(dataset), "-f", "rosbag2", "-o", str(tmp_path / "x"), *argv])
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and needle in err and err.count("\n") == 1, err
+    assert not (tmp_path / "x").exists()
