@@ -20,7 +20,22 @@ logs and the worker processes' output go to ``PHYSYNTH_LOG`` or nowhere (:mod:`p
 from __future__ import annotations
 
 import os
+import signal
 import sys
+
+
+def _interrupted_before_main(signum: int, frame: object) -> None:
+    """A signal while the command line is still being imported: nothing was written; one line, 128 + signal."""
+    os.write(2, f"physynth: interrupted by {signal.Signals(signum).name}; nothing was written\n".encode())
+    os._exit(128 + signum)
+
+
+# Run as the program (`physynth ...`, `python -m physynth.cli`): a Ctrl-C while the imports run is one line
+# too, not a KeyboardInterrupt traceback; main() puts its own handlers in place (physynth.cli._signals).
+if os.path.basename(sys.argv[0]) in ("physynth", "-m") and __name__ == "physynth.cli":
+    for _s in ("SIGINT", "SIGTERM", "SIGHUP"):
+        if hasattr(signal, _s) and signal.getsignal(getattr(signal, _s)) is not signal.SIG_IGN:
+            signal.signal(getattr(signal, _s), _interrupted_before_main)
 
 # One BLAS thread per process unless the user says otherwise (set before NumPy loads OpenBLAS): the
 # parallelism is the workers' (Dask's worker processes get the same from their nanny), so a run with
@@ -29,11 +44,11 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import typer  # noqa: E402
 
-from .._children import apart
-from ..errors import BudgetError, Interrupted, MixedSitesError, OutputExistsError, PhySynthError
-from ._common import EXIT_BUG, EXIT_INTERRUPTED, EXIT_SYSTEM, fail, use_command_class
-from ._logs import capture_library_logs
-from ._signals import handling_signals, signal_name
+from .._children import apart  # noqa: E402
+from ..errors import BudgetError, Interrupted, MixedSitesError, OutputExistsError, PhySynthError  # noqa: E402
+from ._common import EXIT_BUG, EXIT_INTERRUPTED, EXIT_SYSTEM, fail, use_command_class  # noqa: E402
+from ._logs import capture_library_logs  # noqa: E402
+from ._signals import handling_signals, signal_name  # noqa: E402
 
 app = typer.Typer(
     name="physynth",

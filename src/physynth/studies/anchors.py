@@ -251,7 +251,8 @@ def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor | None]:
 
     Workers are forked when this process runs a single thread; otherwise (a progress-bar thread, say:
     fork() of a multi-threaded process can deadlock) they start from a clean ``forkserver`` process
-    that has imported the generator once; ``spawn`` where neither exists.
+    that has imported the generator once; ``spawn`` where neither exists. On an error or a signal the
+    workers are terminated at once, their chunks unfinished (a study writes nothing until it is done).
     """
     if workers <= 1:
         yield None
@@ -264,8 +265,18 @@ def worker_pool(workers: int) -> Iterator[ProcessPoolExecutor | None]:
     ctx = mp.get_context(method)
     if method == "forkserver":  # the server imports the generator once; every worker forks from it
         ctx.set_forkserver_preload(["physynth.studies.anchors", "physynth.studies.placement"])
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as ex:
+    ex = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+    try:
         yield ex
+    except BaseException:  # an error or a signal: the chunks under way are not waited for
+        processes = list((getattr(ex, "_processes", None) or {}).values())
+        ex.shutdown(wait=False, cancel_futures=True)
+        for proc in processes:
+            proc.terminate()
+        for proc in processes:
+            proc.join(5)
+        raise
+    ex.shutdown(wait=True)
 
 
 def _map(tasks: list[tuple[Any, ...]], fn: Any, pool: ProcessPoolExecutor | None, progress: ProgressCallback,
