@@ -46,7 +46,8 @@ def one(args: list[str], sig: int, delay: float, work: Path) -> dict:
         t0 = time.monotonic()
         proc = subprocess.Popen([sys.executable, "-m", "physynth.cli", *argv], stdout=subprocess.DEVNULL,
                                 stderr=err, cwd=work, start_new_session=True)
-        time.sleep(delay)
+        while proc.poll() is None and time.monotonic() < t0 + delay:
+            time.sleep(0.01)
         sent = time.monotonic()
         if proc.poll() is None:
             os.killpg(proc.pid, sig)
@@ -90,13 +91,13 @@ def main() -> None:
     a = ap.parse_args()
     cmd = [c for c in a.command if c != "--"]
     sig = getattr(signal, "SIG" + a.signal)
-    print("| delay s | exit | exit after s | stderr lines | foreign lines | traceback | output | temp files left "
-          "| processes left |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| delay s | exit | run s | exit after s | stderr lines | foreign lines | traceback | output "
+          "| temp files left | processes left |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         for d in (float(x) for x in a.delays.split(",")):
             r = one(cmd, sig, d, Path(tmp))
-            print(f"| {d:g} | {r['exit']} | {r['after_s']} | {r['lines']} | {r['foreign']} | "
+            print(f"| {d:g} | {r['exit']} | {r['total_s']} | {r['after_s']} | {r['lines']} | {r['foreign']} | "
                   f"{'yes' if r['traceback'] else 'no'} | {'yes' if r['output'] else 'no'} | {r['tmp']} | "
                   f"{r['left']} |", flush=True)
             for n in r["left_names"]:
