@@ -19,6 +19,7 @@ pyarrow is imported by the functions that read Parquet footers or tables, not wi
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 import re
@@ -43,12 +44,54 @@ def file_sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def file_records(folder: Path, rows: Mapping[str, int]) -> dict[str, dict[str, Any]]:
-    """``{file name: {"rows", "bytes", "sha256"}}`` for the files named in ``rows`` (name -> row count)."""
+class HashingFile(io.RawIOBase):
+    """A new file, written through this object, whose SHA-256 and size are taken as the bytes go by (a
+    writer hands it to pyarrow as its sink): the record of a file written once, without reading it again.
+    Only sequential writes are allowed (pyarrow's Parquet writer makes no others)."""
+
+    def __init__(self, path: Path) -> None:
+        super().__init__()
+        self._f = open(path, "xb")  # noqa: SIM115 - closed by close()
+        self._h = hashlib.sha256()
+        self.size = 0
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, b: Any) -> int:
+        view = memoryview(b).cast("B")
+        self._h.update(view)
+        n = self._f.write(view)
+        self.size += n
+        return n
+
+    def tell(self) -> int:
+        return self.size
+
+    def flush(self) -> None:
+        if not self._f.closed:
+            self._f.flush()
+
+    def close(self) -> None:  # pyarrow closes its sink when its writer closes
+        self._f.close()
+        super().close()
+
+    def hexdigest(self) -> str:
+        return self._h.hexdigest()
+
+
+def file_records(folder: Path, rows: Mapping[str, int],
+                 written: Mapping[str, HashingFile] | None = None) -> dict[str, dict[str, Any]]:
+    """``{file name: {"rows", "bytes", "sha256"}}`` for the files named in ``rows`` (name -> row count);
+    a file in ``written`` takes the size and hash taken while it was written (checked against its size on
+    disk), the others are read."""
     out = {}
     for name, n in rows.items():
         p = folder / name
-        out[name] = {"rows": int(n), "bytes": p.stat().st_size, HASH: file_sha256(p)}
+        size = p.stat().st_size
+        sink = (written or {}).get(name)
+        digest = sink.hexdigest() if sink is not None and sink.size == size else file_sha256(p)
+        out[name] = {"rows": int(n), "bytes": size, HASH: digest}
     return out
 
 

@@ -45,8 +45,10 @@ from .safety import is_vacant, remove_tree, swap_in
 DEFAULT_SHARD_TRACES = 128
 """Traces per shard: small enough that a killed run loses little, large enough to keep files few."""
 
-ROW_GROUP_TRACES = 16
-"""Traces per Parquet row group inside a shard (what a streaming reader holds at a time)."""
+ROW_GROUP_TRACES = 64
+"""Traces per Parquet row group inside a shard (what a streaming reader holds at a time): two row groups
+per shard of the default 128 traces (16 before 2026-12-05; ``benchmarks/bench_parquet_write.py``); Arrow
+cuts a group of more than 1 Mi rows further (the IMU table of 64 default traces: 2.6 M rows)."""
 
 _SHARD_RE = re.compile(r"^shard-(\d{5,})$")
 

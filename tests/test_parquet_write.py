@@ -1,0 +1,42 @@
+"""Generated Parquet tables: their SHA-256 taken while they are written (no second read), row groups of
+io.shards.ROW_GROUP_TRACES traces, and the same files with and without the writer thread."""
+
+from __future__ import annotations
+
+import pyarrow.parquet as pq
+
+from physynth.io import integrity
+from physynth.io.dataset import DatasetWriter, read_meta
+from physynth.io.shards import ROW_GROUP_TRACES
+from physynth.workflows import generate_dataset
+
+
+def test_hashes_taken_while_writing_match_the_files(tmp_path, monkeypatch):
+    def no_reading(path):
+        raise AssertionError(f"{path} was read again to hash it")
+
+    monkeypatch.setattr(integrity, "file_sha256", no_reading)
+    path, _ = generate_dataset("cablecar-descending", 3, tmp_path / "ds", seed=2)
+    monkeypatch.undo()
+    files = read_meta(path)["files"]
+    assert set(files) == {"truth.parquet", "imu.parquet", "uwb.parquet", "anchors.parquet"}
+    for name, rec in files.items():
+        assert rec["sha256"] == integrity.file_sha256(path / name)
+        assert rec["bytes"] == (path / name).stat().st_size
+    integrity.check_dataset(path, read_meta(path), hashes=True)
+
+
+def test_row_groups_and_the_writer_thread(tmp_path, monkeypatch):
+    n = ROW_GROUP_TRACES + 3
+    path, _ = generate_dataset("cablecar-descending", n, tmp_path / "ds", seed=2, shard_traces=n)
+    md = pq.ParquetFile(path / "truth.parquet").metadata
+    assert md.num_row_groups == 2  # ROW_GROUP_TRACES traces, then the 3 others
+    traces = pq.ParquetFile(path / "truth.parquet").read_row_group(0).column("trace").to_pylist()
+    assert sorted(set(traces)) == list(range(ROW_GROUP_TRACES))
+    imu = pq.ParquetFile(path / "imu.parquet").metadata  # cut by Arrow at 1 Mi rows per group as well
+    assert imu.num_row_groups == -(-imu.num_rows // (1 << 20)) + 1
+    monkeypatch.setattr(DatasetWriter, "write_in_thread", False)  # the same bytes written in the caller's thread
+    other, _ = generate_dataset("cablecar-descending", n, tmp_path / "other", seed=2, shard_traces=n)
+    records = [{k: {f: r[f] for f in ("rows", "bytes", "sha256")} for k, r in read_meta(p)["files"].items()}
+               for p in (path, other)]
+    assert records[0] == records[1]
