@@ -135,12 +135,16 @@ def test_mcap_bags_read_by_mcap_and_rosbags_and_same_messages_as_sqlite3(body_da
     from rosbags.highlevel import AnyReader
 
     path, ds = body_dataset
-    mc = export_dataset(path, tmp_path / "mcap", "rosbag2")
+    mc = export_dataset(path, tmp_path / "mcap", "rosbag2")  # zstd-compressed chunks
+    raw = export_dataset(path, tmp_path / "raw", "rosbag2", bag_storage="mcap-uncompressed")
     sq = export_dataset(path, tmp_path / "sqlite", "rosbag2", bag_storage="sqlite3")
     for i, tr in enumerate(ds.traces):
         bag = f"trace_{i:08d}"
         assert (mc / bag / f"{bag}.mcap").is_file() and (sq / bag / f"{bag}.db3").is_file()
         summary, msgs = _mcap_messages(mc / bag / f"{bag}.mcap")
+        assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
+        raw_summary, raw_msgs = _mcap_messages(raw / bag / f"{bag}.mcap")
+        assert {c.compression for c in raw_summary.chunk_indexes} == {""} and raw_msgs == msgs
         stamps = [m[2] for m in msgs]
         assert stamps == sorted(stamps) and stamps[0] >= 0
         assert summary.statistics.message_count == len(msgs)

@@ -12,7 +12,11 @@
   stopped, timed alone): what a long run (a million traces) scales by, where a start of a second or two
   does not count;
 - ``scaling_caveat``: one line when the scaling run was too short to mean much (its one-worker half took
-  less than :data:`SCALING_MIN_RUN_S`: the cluster's start then dominates the rate with workers), else None.
+  less than :data:`SCALING_MIN_RUN_S`: the cluster's start then dominates the rate with workers), else None;
+- ``export_vs_parquet`` (with ``exports``): per export format (``hdf5``, ``csv``, ``rosbag2`` in MCAP,
+  those whose libraries are installed), the time to export the ``n`` traces in this process divided by the
+  time to generate the same traces to Parquet in this process, measured alternately in the same run
+  (best of ``repeat`` each); ``export_s`` and ``parquet_s`` hold the times.
 
 The figures depend on the machine and on what else runs on it: run on a quiet machine, and compare
 ratios measured side by side in one run.
@@ -56,7 +60,7 @@ def peak_rss_mb() -> float:
 
 
 def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int = 0, repeat: int = 1,
-              progress: ProgressCallback = no_progress) -> dict[str, Any]:
+              exports: bool = False, progress: ProgressCallback = no_progress) -> dict[str, Any]:
     """Measure the generator; returns the figures of the module docstring plus the machine.
 
     Parameters
@@ -105,6 +109,7 @@ def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int =
             shutil.rmtree(path)
         out.update(traces_per_s_memory=round(best_mem, 1), traces_per_s_parquet=round(best_pq, 1),
                    mb_per_trace_on_disk=round(size / n / 1e6, 3))
+        out["export_vs_parquet"] = _exports(scn, n, repeat, tmp, progress) if exports else None
         if workers > 1:
             out.update(_scaling(scn, n_scaling or 20 * n, workers, repeat, tmp, progress))
         else:
@@ -153,6 +158,39 @@ def _scaling(scn: Scenario, ns: int, workers: int, repeat: int, tmp: Path,
             "cluster_start_stop_s": round(overhead, 2),
             "scaling_efficiency_steady": None if steady is None else round(steady, 3),
             "scaling_caveat": scaling_caveat(best_s[1], workers)}
+
+
+def export_formats() -> list[str]:
+    """The export formats whose libraries are installed (CSV always)."""
+    import importlib.util
+
+    return [fmt for fmt, module in (("hdf5", "h5py"), ("csv", None), ("rosbag2", "rosbags"))
+            if module is None or importlib.util.find_spec(module) is not None]
+
+
+def _exports(scn: Scenario, n: int, repeat: int, tmp: Path, progress: ProgressCallback) -> dict[str, Any]:
+    """Each export of ``n`` traces against generating them to Parquet, alternated ``repeat`` times in this
+    process (best time of each); outputs are removed as soon as they are timed."""
+    from .io.export import export_dataset
+    from .workflows import generate_dataset
+
+    formats = export_formats()
+    best = {k: float("inf") for k in ("parquet", *formats)}
+    for r in range(repeat):
+        t0 = time.perf_counter()
+        src, _ = generate_dataset(scn, n, tmp / "src", seed=r, workers=1, overwrite=True,
+                                  progress=lambda m, d=None, t=None: progress("to Parquet (exports)", d, t))
+        best["parquet"] = min(best["parquet"], time.perf_counter() - t0)
+        for fmt in formats:
+            dest = tmp / f"export.{fmt}"
+            t0 = time.perf_counter()
+            export_dataset(src, dest, fmt, progress=lambda m, d=None, t=None, fmt=fmt: progress(
+                f"export to {fmt}", d, t) if d is not None else None)
+            best[fmt] = min(best[fmt], time.perf_counter() - t0)
+            shutil.rmtree(dest) if dest.is_dir() else dest.unlink()
+    return {"ratios": {fmt: round(best[fmt] / best["parquet"], 2) for fmt in formats},
+            "export_s": {fmt: round(best[fmt], 2) for fmt in formats}, "parquet_s": round(best["parquet"], 2),
+            "rosbag2_storage": "mcap"}
 
 
 def _cpu_name() -> str:

@@ -24,13 +24,17 @@ def bench_cmd(
                                   help="Traces of the scaling measurement (0 = twenty times -n)."),
     repeat: int = typer.Option(1, "--repeat", metavar="N", min=1,
                                help="Repetitions of every measurement, best kept (the scaling runs alternate)."),
+    exports: bool = typer.Option(False, "--exports", help="Also time each export (hdf5, csv, rosbag2 in MCAP) of the "
+                                                          "-n traces against generating them to Parquet, "
+                                                          "side by side (ratios)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object (keys traces_per_s_memory, "
                                                        "traces_per_s_parquet, scaling_efficiency, "
                                                        "scaling_efficiency_steady, cluster_start_stop_s, "
-                                                       "scaling_caveat, peak_rss_mb)."),
+                                                       "scaling_caveat, peak_rss_mb, export_vs_parquet)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
-    """Measure generation speed: traces/s in memory and to Parquet on one core, scaling, peak memory."""
+    """Measure generation speed: traces/s in memory and to Parquet on one core, scaling, peak memory, and
+    with --exports each export's time against generating the same traces to Parquet."""
     from ..bench import run_bench
     from ..io.scenario_file import load_scenario
     from ..parallel import available_cores, require_dask
@@ -39,7 +43,8 @@ def bench_cmd(
     if (workers or available_cores()) > 1:
         require_dask()
     with progress_bar(not quiet and not as_json) as progress:
-        res = run_bench(scn, n=n, n_scaling=n_scaling, workers=workers, repeat=repeat, progress=progress)
+        res = run_bench(scn, n=n, n_scaling=n_scaling, workers=workers, repeat=repeat, exports=exports,
+                        progress=progress)
     if res["scaling_caveat"]:  # one line on stderr, also with --json (where the key holds it too)
         typer.echo(f"physynth: warning: {res['scaling_caveat']} (raise --n-scaling)", err=True)
     if as_json:
@@ -57,6 +62,11 @@ def bench_cmd(
          else f"{100 * res['scaling_efficiency_steady']:.0f} % (start and stop {res['cluster_start_stop_s']:.1f} s)"),
         ("peak memory", f"{res['peak_rss_mb']:.0f} MB"),
     ]
+    ex = res["export_vs_parquet"]
+    if ex is not None:
+        rows.append(("to Parquet, same traces", f"{ex['parquet_s']:.2f} s (1.00)"))
+        rows += [(f"export {fmt}{' (mcap)' if fmt == 'rosbag2' else ''}", f"{ex['export_s'][fmt]:.2f} s "
+                  f"({ratio:.2f}x to Parquet)") for fmt, ratio in ex["ratios"].items()]
     typer.echo(format_table(("measure", "value"), rows))
     typer.echo(f"{scn.name}, n={n}; {counted(m['cores'], 'core')} {m['cpu']}, load {m['load_average_1min']}")
     typer.echo("(a busy machine lowers every figure)")

@@ -23,9 +23,9 @@ def export_cmd(
                             help="hdf5 (one file, a group per trace), rosbag2 (a folder, a bag per trace) or csv (a "
                                  "folder, a file per table)."),
     out: Path = typer.Option(..., "--out", "-o", metavar="PATH", help="Output file (hdf5) or folder (rosbag2, csv)."),
-    bag_storage: Literal["mcap", "sqlite3"] = typer.Option(
-        "mcap", "--bag-storage", help="Storage of the ROS 2 bags: mcap (ROS 2 default since Iron, opened natively by "
-                                      "Foxglove) or sqlite3."),
+    bag_storage: Literal["mcap", "mcap-uncompressed", "sqlite3"] = typer.Option(
+        "mcap", "--bag-storage", help="Storage of the ROS 2 bags: mcap (ROS 2's default since Iron, opened natively "
+                                      "by Foxglove; zstd-compressed chunks), mcap-uncompressed or sqlite3."),
     workers: int = typer.Option(0, "--workers", "-w", metavar="N", min=0,
                                 help=f"Worker processes, one part (a shard of the dataset) at a time each. 0 (the "
                                      f"default) picks for you: all cores for {AUTO_CLUSTER_MIN_TRACES} traces or "

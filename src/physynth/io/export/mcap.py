@@ -7,8 +7,8 @@ array of CDR bytes (:mod:`.cdr`) and one int64 array of stamps and lays out the 
 
 - the header, then the schemas and channels (in the data section, before the first chunk);
 - chunks of about :data:`CHUNK_BYTES` of one channel's message records each (a slice of that channel's
-  records, in time order), uncompressed, each followed by its message index; chunks in the order of their
-  first stamps (they overlap in time: readers merge them by the indexes);
+  records, in time order), compressed or not (zstd, lz4), each followed by its message index; chunks in
+  the order of their first stamps (they overlap in time: readers merge them by the indexes);
 - a ``rosbag2`` metadata record (the bag's ``metadata.yaml`` text, as ROS 2's MCAP storage writes it);
 - the summary: schemas, channels, statistics, chunk indexes, metadata index and summary offsets, then
   the footer. CRCs are 0 ("not computed", allowed by the specification).
@@ -20,7 +20,7 @@ Format: https://mcap.dev/spec (version 0).
 from __future__ import annotations
 
 import struct
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import BinaryIO
 
@@ -81,10 +81,28 @@ def _message_rows(ch: Channel, cid: int) -> np.ndarray:
     return ch.data
 
 
+def _compressor(compression: str) -> Callable[[bytes], bytes]:
+    """The chunk compressor of ``compression`` ("", "zstd" at level 1, or "lz4")."""
+    if compression == "":
+        return bytes
+    if compression == "zstd":
+        try:
+            from compression import zstd  # Python 3.14
+        except ImportError:
+            from backports import zstd  # what rosbags installs before 3.14
+        return lambda data: zstd.compress(data, 1)
+    if compression == "lz4":
+        import lz4.frame
+
+        return lz4.frame.compress
+    raise ValueError(f"unknown MCAP chunk compression '{compression}' (choose '', 'zstd' or 'lz4')")
+
+
 def write_mcap(f: BinaryIO, channels: Sequence[Channel], *, profile: str = "ros2", library: str = "physynth",
-               metadata: dict[str, dict[str, str]] | None = None) -> dict[int, int]:
+               metadata: dict[str, dict[str, str]] | None = None, compression: str = "") -> dict[int, int]:
     """Write an MCAP file of ``channels`` (ids 1, 2, ... in order) to the open binary file ``f``;
-    returns the message count of each channel id. ``metadata``: named metadata records (name -> map).
+    returns the message count of each channel id. ``metadata``: named metadata records (name -> map);
+    ``compression``: of every chunk ("" none, "zstd" at level 1, "lz4").
 
     Each chunk holds consecutive messages of one channel (in time order, about :data:`CHUNK_BYTES`), so
     that its bytes are a slice of the channel's records; the chunks are written in the order of their
@@ -119,14 +137,17 @@ def write_mcap(f: BinaryIO, channels: Sequence[Channel], *, profile: str = "ros2
         step = max(1, CHUNK_BYTES // r.shape[1])
         pieces += [(int(stamps[k][a]), k, a, min(a + step, r.shape[0])) for a in range(0, r.shape[0], step)]
     chunk_indexes = []
+    compress = _compressor(compression)
     for t0, k, a, b in sorted(pieces):
         body = rows[k][a:b]
         size = body.size
+        packed = compress(body.data) if compression else body.data
+        n_packed = packed.nbytes if isinstance(packed, memoryview) else len(packed)
         t1 = int(stamps[k][b - 1])
         chunk_start = pos
-        put(struct.pack("<BQ", 0x06, 8 * 3 + 4 + 4 + 8 + size))
-        put(struct.pack("<QQQI", t0, t1, size, 0) + _s("") + struct.pack("<Q", size))
-        put(body.data)
+        put(struct.pack("<BQ", 0x06, 8 * 3 + 4 + 4 + len(compression) + 8 + n_packed))
+        put(struct.pack("<QQQI", t0, t1, size, 0) + _s(compression) + struct.pack("<Q", n_packed))
+        put(packed)
         chunk_end = pos
         pairs = np.empty((b - a, 2), dtype="<u8")
         pairs[:, 0] = stamps[k][a:b]
@@ -134,7 +155,8 @@ def write_mcap(f: BinaryIO, channels: Sequence[Channel], *, profile: str = "ros2
         put(_record(0x07, struct.pack("<HI", k + 1, pairs.nbytes) + pairs.tobytes()))
         chunk_indexes.append(_record(0x08, struct.pack("<QQQQ", t0, t1, chunk_start, chunk_end - chunk_start)
                                      + struct.pack("<I", 10) + struct.pack("<HQ", k + 1, chunk_end)
-                                     + struct.pack("<Q", pos - chunk_end) + _s("") + struct.pack("<QQ", size, size)))
+                                     + struct.pack("<Q", pos - chunk_end) + _s(compression)
+                                     + struct.pack("<QQ", n_packed, size)))
     meta_index = []
     for name, entries in (metadata or {}).items():
         start = pos

@@ -72,8 +72,12 @@ def _latched_qos() -> Any:
 
 
 
-STORAGES = ("mcap", "sqlite3")
-"""Storage formats of the bags; the first is the default."""
+STORAGES = ("mcap", "mcap-uncompressed", "sqlite3")
+"""Storage formats of the bags; the first is the default: MCAP with zstd-compressed chunks (level 1; a
+default trace's bag 2 MB instead of 17 MB, and faster to write than the bytes it saves), MCAP without
+compression, SQLite3."""
+
+MCAP_COMPRESSION = {"mcap": "zstd", "mcap-uncompressed": ""}
 
 BAG_VERSION = 8
 """rosbag2 metadata version written (as ``rosbags``' writer: ROS 2 Iron and later)."""
@@ -209,8 +213,9 @@ def _bag_metadata(name: str, storage: str, topics: list[Topic]) -> dict[str, Any
     start = int(min(s[0] for s in stamps)) if stamps else 0
     duration = max(0, int(max(s.max() for s in stamps)) - start) if stamps else 0
     count = sum(int(t.stamps.size) for t in topics)
-    fname = f"{name}.{'mcap' if storage == 'mcap' else 'db3'}"
-    return {"version": BAG_VERSION, "storage_identifier": storage, "relative_file_paths": [fname],
+    fname = f"{name}.{'db3' if storage == 'sqlite3' else 'mcap'}"
+    return {"version": BAG_VERSION, "storage_identifier": "sqlite3" if storage == "sqlite3" else "mcap",
+            "relative_file_paths": [fname],
             "duration": {"nanoseconds": duration}, "starting_time": {"nanoseconds_since_epoch": start},
             "message_count": count,
             "topics_with_message_count": [
@@ -251,7 +256,7 @@ def _typestore() -> Any:
     return get_typestore(Stores.ROS2_HUMBLE)
 
 
-def _write_mcap_bag(folder: Path, topics: list[Topic]) -> None:
+def _write_mcap_bag(folder: Path, topics: list[Topic], compression: str) -> None:
     from .mcap import Channel, write_mcap
 
     info = _bag_metadata(folder.name, "mcap", topics)
@@ -259,7 +264,7 @@ def _write_mcap_bag(folder: Path, topics: list[Topic]) -> None:
                         {"offered_qos_profiles": _qos_text(t.qos)}, t.stamps, t.data) for t in topics]
     folder.mkdir()
     with open(folder / f"{folder.name}.mcap", "xb") as f:
-        write_mcap(f, channels, library="physynth",
+        write_mcap(f, channels, library="physynth", compression=compression,
                    metadata={"rosbag2": {"serialized_metadata": _yaml(info).strip()}})
     (folder / "metadata.yaml").write_text(_yaml({"rosbag2_bagfile_information": info}), encoding="utf-8")
 
@@ -282,7 +287,10 @@ def write_bag(folder: Path, trace: Trace, storage: str, skipped: dict[str, int])
     """Write the bag of one trace as the new folder ``folder`` (``storage``: one of :data:`STORAGES`);
     messages left out are counted in ``skipped``."""
     topics = trace_topics(_typestore(), trace, skipped)
-    (_write_mcap_bag if storage == "mcap" else _write_sqlite3_bag)(folder, topics)
+    if storage == "sqlite3":
+        _write_sqlite3_bag(folder, topics)
+    else:
+        _write_mcap_bag(folder, topics, MCAP_COMPRESSION[storage])
 
 
 def write_rosbag2(traces: Iterable[tuple[int, Trace]], meta: dict[str, Any], path: Path,
