@@ -47,8 +47,8 @@ _PROTOCOL_HELP = ("How runs are held out: leave-one-layout-out (the default wher
 _ENSEMBLE_HELP = ("Run the study for K seeds from --seed on and score the mean of their estimates (a seed "
                   "ensemble; K times the compute).")
 _JOBS_HELP = ("Run this many studies (folds and seeds) at once, each in a process of its own (default: one per "
-              "CPU core), or with --ensemble train this many members at once (default 1); the results do not "
-              "depend on it.")
+              "CPU core), or train this many members of a seed ensemble at once (default 1); the results do "
+              "not depend on it.")
 _TRUSTED_HELP = ("Train the networks only on the steps where the training runs' truth is trusted (their "
                  "recording flags the rest).")
 _FRAME_HELP = ("How the networks see direction. turned (default): training windows turned and "
@@ -68,50 +68,52 @@ def tracking_cmd(
     scenario: str = typer.Option(None, "--scenario", "-s", metavar="SCENARIO",
                                  help="Scenario (preset or YAML) for SYNTH_PHY pre-training instead of calibrating one "
                                       "on the training runs."),
-    quick: bool = typer.Option(False, "--quick", help="Short schedule (< 10 min on 2 CPU cores)."),
+    quick: bool = typer.Option(False, "--quick", help="Short schedule (a few minutes per study on one CPU core)."),
     seed: int = typer.Option(0, "--seed", metavar="SEED", min=0,
                              help="Seed of every random choice (deterministic on CPU)."),
     methods: str = typer.Option(None, "--methods", metavar="METHODS",
                                 help="Comma-separated subset of NOAUG,AUG_GAN,SYNTH_PHY,bilstm,ls,ekf (default: all)."),
     epochs: int = typer.Option(None, "--epochs", metavar="N", min=1,
-                               help="Epochs of NOAUG, AUG_GAN and bilstm (paper: 200)."),
+                               help="Epochs of NOAUG, AUG_GAN and bilstm (paper: 200).", hidden=True),
     pretrain_epochs: int = typer.Option(None, "--pretrain-epochs", metavar="N", min=1,
-                                        help="SYNTH_PHY pre-training epochs (300)."),
+                                        help="SYNTH_PHY pre-training epochs (300).", hidden=True),
     finetune_epochs: int = typer.Option(None, "--finetune-epochs", metavar="N", min=1,
-                                        help="SYNTH_PHY fine-tuning epochs (200)."),
-    n_synth: int = typer.Option(None, "--n-synth", metavar="N", min=1, help="Number of synthetic pre-training traces."),
+                                        help="SYNTH_PHY fine-tuning epochs (200).", hidden=True),
+    n_synth: int = typer.Option(None, "--n-synth", metavar="N", min=1, help="Number of synthetic pre-training traces.",
+                                hidden=True),
     synth_windows: int = typer.Option(None, "--synth-windows", metavar="N", min=1,
                                       help="Windows taken from each synthetic trace, evenly spaced over it (quick: "
-                                           "48; full: 64)."),
+                                           "48; full: 64).", hidden=True),
     finetune_synth_ratio: float = typer.Option(None, "--finetune-synth-ratio", metavar="RATIO",
                                                help="Synthetic windows kept per real window while SYNTH_PHY fine-tunes "
-                                                    "(0: real only)."),
+                                                    "(0: real only).", hidden=True),
     lr_schedule: str = typer.Option(None, "--lr-schedule", metavar="SCHEDULE",
                                     help="Learning rate within each training stage: constant (default) or cosine "
-                                         "(falls to 0 over the stage)."),
+                                         "(falls to 0 over the stage).", hidden=True),
     weight_average: str = typer.Option(None, "--weight-average", metavar="HOW",
                                        help="Weights each training stage ends on: none (its last, default) or swa "
-                                            "(the average over the epochs of its second half)."),
+                                            "(the average over the epochs of its second half).", hidden=True),
     ekf_prior: str = typer.Option(None, "--ekf-prior", metavar="HOW", help="How the networks use the classical ekf's "
-                                  "position: residual (default: they correct it), input (one more input) or none."),
+                                  "position: residual (default: they correct it), input (one more input) or none.",
+                                  hidden=True),
     turn_test: float = typer.Option(0.0, "--turn-test", metavar="DEGREES",
                                     help="Turn every test run by this many degrees (counter-clockwise) about the "
                                          "vertical through its anchor centroid: the same ranges along another "
-                                         "direction."),
+                                         "direction.", hidden=True),
     mirror_test: bool = typer.Option(False, "--mirror-test", help="Mirror every test run (y -> -y about its "
-                                     "anchor centroid) before the turn."),
-    frame: str = typer.Option(None, "--frame", metavar="FRAME", help=_FRAME_HELP),
-    ensemble: int = typer.Option(1, "--ensemble", metavar="K", min=1, help=_ENSEMBLE_HELP),
+                                     "anchor centroid) before the turn.", hidden=True),
+    frame: str = typer.Option(None, "--frame", metavar="FRAME", help=_FRAME_HELP, hidden=True),
+    ensemble: int = typer.Option(1, "--ensemble", metavar="K", min=1, help=_ENSEMBLE_HELP, hidden=True),
     jobs: int = typer.Option(None, "--jobs", metavar="N", min=1, help=_JOBS_HELP),
-    train_trusted_truth: bool = typer.Option(False, "--train-trusted-truth", help=_TRUSTED_HELP),
+    train_trusted_truth: bool = typer.Option(False, "--train-trusted-truth", help=_TRUSTED_HELP, hidden=True),
     synth_nlos_spread: float = typer.Option(None, "--synth-nlos-spread", metavar="S", min=0.0, max=3.0,
                                             help="Give each synthetic pre-training trace its own NLOS frequency: the "
                                                  "calibrated NLOS probabilities times exp(N(0, S)) (default 0: the "
-                                                 "calibrated ones in every trace)."),
+                                                 "calibrated ones in every trace).", hidden=True),
     synth_layouts: str = typer.Option(None, "--synth-layouts", metavar="HOW",
                                       help="Anchor layouts of the synthetic pre-training traces: drawn (default: each "
                                            "trace a whole layout of its own, 3-6 anchors, 1.5-10 m, heights 0.2-3 m) "
-                                           "or training (the training runs' layouts, jittered)."),
+                                           "or training (the training runs' layouts, jittered).", hidden=True),
     protocol: str = typer.Option(None, "--protocol", metavar="PROTOCOL", help=_PROTOCOL_HELP),
     seeds: int = typer.Option(3, "--seeds", metavar="N", min=1,
                               help="Run every fold for N seeds from --seed on; the tables give the mean and spread "
@@ -123,39 +125,51 @@ def tracking_cmd(
                                          help="Spread of --tag-height."),
     no_height: bool = typer.Option(False, "--no-height", help="Give the trackers no tag height: the vertical from the "
                                    "ranges alone."),
-    threads: int = typer.Option(1, "--threads", metavar="N", min=1,
+    threads: int = typer.Option(None, "--threads", metavar="N", min=1,
                                 help="CPU threads for PyTorch (1: small recurrent nets gain nothing from more, and "
-                                     "lose a lot on a shared machine)."),
+                                     "lose a lot on a shared machine).", hidden=True),
+    config: Path = typer.Option(None, "--config", metavar="YAML",
+                                help="Study configuration file: the study's settings beyond these options (schedules, "
+                                     "network settings, pre-training variation; docs/tracking.md, \"Study "
+                                     "configuration file\"); the options given here win."),
     out: Path = typer.Option(..., "--out", "-o", metavar="DIR",
                              help="Output folder (results.json, results.md, paths.png)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a tracking study already in --out."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress and no table."),
 ) -> None:
-    """Train NOAUG, AUG_GAN, SYNTH_PHY, bilstm, ls and ekf on real runs; score them on held-out runs."""
+    """Train NOAUG, AUG_GAN, SYNTH_PHY, bilstm, ls and ekf on real runs; score them on held-out runs.
+
+    Research settings (schedules, network and pre-training options) go in a --config file; their older
+    options still work and are listed in docs/tracking.md.
+    """
     from ..io.safety import check_study_output
     from ..studies.protocol import PROTOCOLS, plan, run_protocol
     from ..studies.protocol_report import write_protocol_results
-    from ..studies.tracking import METHODS, NETWORK_METHODS
+    from ..studies.tracking import NETWORK_METHODS
     from ..track import require_torch
 
     check_study_output(out, marker="results.json", what="a tracking study", overwrite=overwrite,  # before the work
                        inputs=[*(train or []), *(test or [])])
-    # "" is no method, as "," is (StudyConfig refuses it); only leaving --methods out runs them all
-    chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods is not None else METHODS
+    from ..studies.tracking_config import read_study_settings
+
+    file_settings = read_study_settings(config) if config is not None else {}
+    # "" is no method, as "," is (StudyConfig refuses it); leaving --methods out runs the file's or all
+    chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods is not None else None
     if frame is not None and frame not in FRAMES:
         raise PhySynthError(f"--frame must be one of {', '.join(FRAMES)}, got '{frame}'")
-    over = {"seed": seed, "methods": chosen, "threads": threads, **FRAMES[frame or "turned"]}
-    over |= _given(epochs=epochs, pretrain_epochs=pretrain_epochs, finetune_epochs=finetune_epochs,
+    over = {"seed": seed, **FRAMES.get(frame, {})}
+    over |= _given(methods=chosen, threads=threads, epochs=epochs, pretrain_epochs=pretrain_epochs,
+                   finetune_epochs=finetune_epochs,
                    n_synth_traces=n_synth, synth_windows_per_trace=synth_windows, ekf_prior=ekf_prior,
                    finetune_synth_ratio=finetune_synth_ratio, train_trusted_truth=train_trusted_truth or None,
                    ensemble=ensemble if ensemble > 1 else None,
                    jobs=jobs if jobs is not None and jobs > 1 and ensemble > 1 else None)
-    over |= _synth_variation(synth_nlos_spread, synth_layouts)
+    over |= _synth_variation(synth_nlos_spread, synth_layouts, file_settings.get("variation"))
     over |= _height(tag_height, tag_height_std, no_height)
-    net = _given(lr_schedule=lr_schedule, weight_average=weight_average)
+    net = {**file_settings.get("net", {}), **_given(lr_schedule=lr_schedule, weight_average=weight_average)}
     over |= {"net": net} if net else {}
     cfg = _config(over, quick, None if protocol == "survey-only" else scenario, frame,  # survey-only: every method's
-                  flags={"synth_nlos_spread": synth_nlos_spread, "synth_layouts": synth_layouts})
+                  flags={"synth_nlos_spread": synth_nlos_spread, "synth_layouts": synth_layouts}, base=file_settings)
     if NETWORK_METHODS & set(cfg.methods):
         require_torch()
     if protocol is not None and protocol not in PROTOCOLS:
@@ -200,14 +214,16 @@ def tracking_cmd(
 
 
 def _config(over: dict[str, Any], quick: bool, scenario: str | None, frame: str | None = None,
-            flags: dict[str, Any] | None = None) -> Any:
-    """The study's configuration from the settings given (``over``; ``--quick``: its schedule for the others);
-    an option of :data:`METHOD_OPTIONS` given when none of the methods it sets up runs is refused (``flags``:
-    options given that are not settings of their own, such as the parts of ``variation``)."""
+            flags: dict[str, Any] | None = None, base: dict[str, Any] | None = None) -> Any:
+    """The study's configuration from the settings of the options given (``over``), over those of a
+    configuration file (``base``; ``--quick``: its schedule for the rest); an option of :data:`METHOD_OPTIONS`
+    given when none of the methods it sets up runs is refused (``flags``: options given that are not settings
+    of their own, such as the parts of ``variation``); a file's settings are not options, and not refused."""
     from ..studies.tracking import StudyConfig, quick_config
 
     def make(settings: dict[str, Any]) -> Any:
-        return quick_config(**settings) if quick else StudyConfig(**settings)
+        merged = {**(base or {}), **settings}
+        return quick_config(**merged) if quick else StudyConfig(**merged)
 
     # bad values first, then options without use (named by their flag), then the ensemble's own settings
     cfg = make({k: v for k, v in over.items() if k not in ("ensemble", "jobs")})
@@ -230,16 +246,16 @@ def _scenario(name: str | None):
     return load_scenario(name)
 
 
-def _synth_variation(nlos_spread: float | None, layouts: str | None = None) -> dict[str, Any]:
-    """``--synth-nlos-spread`` and ``--synth-layouts``: the study's pre-training variation with that NLOS
-    spread and those layouts ({} when neither is given)."""
+def _synth_variation(nlos_spread: float | None, layouts: str | None = None, base: Any = None) -> dict[str, Any]:
+    """``--synth-nlos-spread`` and ``--synth-layouts``: the study's pre-training variation (``base``, a
+    configuration file's, else the default) with that NLOS spread and those layouts ({} when neither is given)."""
     if nlos_spread is None and layouts is None:
         return {}
     from ..studies.tracking import StudyConfig
 
     if layouts not in (None, *SYNTH_LAYOUTS):
         raise PhySynthError(f"--synth-layouts must be one of {', '.join(SYNTH_LAYOUTS)}, got '{layouts}'")
-    v = StudyConfig().variation
+    v = base if base is not None else StudyConfig().variation
     if nlos_spread is not None:
         v = v.model_copy(update={"nlos_log_std": nlos_spread})
     if layouts == "training":
