@@ -316,8 +316,9 @@ def test_without_torch_the_command_names_the_extra(tmp_path):
             f"main(['study', 'tracking', '--methods', 'NOAUG', '--out', {str(tmp_path / 'o')!r}])\n")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2, proc.stderr
-    assert proc.stderr.strip() == ("physynth: error: this needs PyTorch: install the extra physynth[ml] "
-                                   "(pip install -e '.[ml]' in the PhySynth clone)")
+    assert proc.stderr.strip() == ("physynth: error: a learned tracker needs torch, which is not installed: install "
+                                   "the extra physynth[ml] (pip install 'physynth[ml]', or pip install -e '.[ml]' in "
+                                   "a PhySynth clone)")
 
 
 @pytest.mark.parametrize("name", ["epochs", "pretrain_epochs", "finetune_epochs", "n_synth_traces", "threads"])

@@ -116,12 +116,9 @@ def _signals_held() -> Iterator[None]:
 
 def require_dask() -> Any:
     """The ``distributed`` module, or a one-line error naming the extra to install."""
-    try:
-        import distributed
-    except ImportError:
-        raise PhySynthError("several workers or a scheduler need Dask: install the extra physynth[scale] "
-                            "(pip install -e '.[scale]' in the PhySynth clone)") from None
-    return distributed
+    from .extras import require
+
+    return require("distributed", "scale", "more than one worker, or a scheduler,")
 
 
 MAIN_GUARD_HINT = ('a script that starts worker processes (workers > 1) must make its calls under '

@@ -77,8 +77,10 @@ def generate_cmd(
     if not workers and scheduler is None and n_workers > 1 and importlib.util.find_spec("distributed") is None:
         n_workers = 1  # the default (all cores) without the optional Dask: one core, said once
         if not quiet and n > shard_traces:
-            typer.echo("physynth: Dask is not installed, generating on one core "
-                       "(pip install -e '.[scale]' in the PhySynth clone for all cores)", err=True)
+            from ..extras import install_hint
+
+            typer.echo(f"physynth: Dask is not installed, generating on one core ({install_hint('scale')} "
+                       "for all cores)", err=True)
     resume_hint = f"complete shards are kept: run the same command with --resume to finish {out}"
     if resume:
         from ..io.safety import resolve_output

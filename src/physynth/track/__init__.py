@@ -15,16 +15,9 @@ Importing this package does not import torch; the modules that need it say which
 
 from typing import Any
 
-TORCH_HINT = "this needs PyTorch: install the extra physynth[ml] (pip install -e '.[ml]' in the PhySynth clone)"
-"""The one line shown when torch is missing."""
-
 
 def require_torch() -> Any:
     """The torch module, or :class:`~physynth.errors.PhySynthError` naming the extra to install."""
-    try:
-        import torch
-    except ImportError:  # pragma: no cover - depends on the environment
-        from ..errors import PhySynthError
+    from ..extras import require
 
-        raise PhySynthError(TORCH_HINT) from None
-    return torch
+    return require("torch", "ml", "a learned tracker")

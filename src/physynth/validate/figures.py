@@ -55,14 +55,11 @@ REPORT_FILES = ("report.json", "report.md", "report.html")
 # ---------------------------------------------------------------- matplotlib, lazily
 def require_matplotlib() -> tuple[Any, Any]:
     """(Figure, FigureCanvasAgg) classes; a clear PhySynthError when matplotlib is missing."""
-    try:
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
-        from matplotlib.figure import Figure
-    except ImportError:
-        raise PhySynthError("figures need matplotlib, which is not installed: install the extra physynth[report] "
-                            "(pip install -e '.[report]' in the PhySynth clone) or ask for no figures "
-                            "(figures=False)") from None
-    return Figure, FigureCanvasAgg
+    from ..extras import require
+
+    agg = require("matplotlib.backends.backend_agg", "report", "a figure",
+                  otherwise="ask for no figures (figures=False)")
+    return require("matplotlib.figure", "report", "a figure").Figure, agg.FigureCanvasAgg
 
 
 def figure_png(fig: Any, canvas_cls: Any) -> bytes:
