@@ -85,13 +85,22 @@ def records(fields: Sequence[Field], stamps_ns: np.ndarray, frame: bytes, *, res
     """
     dt = layout(fields, reserve)
     n = int(stamps_ns.shape[0])
-    out = np.zeros(n, dtype=dt)
-    out["encapsulation"] = ENCAPSULATION
+    # the fields that are the same in every message (encapsulation, frame id, constants such as covariances)
+    # go into one template row, repeated with one contiguous copy; then only the varying fields are written
+    template = np.zeros(1, dtype=dt)
+    template["encapsulation"] = ENCAPSULATION
+    template["frame_len"] = len(frame) + 1
+    template["frame"] = frame
+    varying = {}
+    for name, value in values.items():
+        if np.ndim(value) > len(dt[name].shape):
+            varying[name] = value
+        else:
+            template[name] = value
+    out = np.repeat(template, n)
     ns = np.asarray(stamps_ns, dtype=np.int64)
     out["sec"] = ns // 1_000_000_000
     out["nanosec"] = ns % 1_000_000_000
-    out["frame_len"] = len(frame) + 1
-    out["frame"] = frame
-    for name, value in values.items():
+    for name, value in varying.items():
         out[name] = value
     return out.view(np.uint8).reshape(n, dt.itemsize)

@@ -68,16 +68,15 @@ def _record(op: int, body: bytes) -> bytes:
 
 def _message_rows(ch: Channel, cid: int) -> np.ndarray:
     """The channel's message records: its rows (:data:`MESSAGE_HEAD` bytes reserved in front of each
-    message's bytes) with the record heads filled in place."""
+    message's bytes) with the record heads filled in place (the constant part in one 2-D copy, then the
+    log and publish times)."""
     n, width = ch.data.shape
-    dt = np.dtype(_MSG_HEAD.descr + [("data", f"V{width - MESSAGE_HEAD}")])
-    rec = ch.data.view(dt).reshape(n)
-    rec["op"] = 0x05
-    rec["length"] = width - 9
-    rec["channel"] = cid
-    rec["sequence"] = 0
-    rec["log_time"] = ch.stamps
-    rec["publish_time"] = ch.stamps
+    head = np.zeros(1, dtype=_MSG_HEAD)
+    head["op"], head["length"], head["channel"] = 0x05, width - 9, cid
+    const = _MSG_HEAD.fields["log_time"][1]  # op, length, channel and sequence: the bytes before the times
+    ch.data[:, :const] = head.view(np.uint8)[:const]
+    times = np.repeat(np.asarray(ch.stamps, dtype="<u8"), 2).view(np.uint8).reshape(n, 16)
+    ch.data[:, const:MESSAGE_HEAD] = times
     return ch.data
 
 
