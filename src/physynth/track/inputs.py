@@ -1,14 +1,14 @@
 """Model inputs on the evaluation grid, one function for real and synthetic traces.
 
-For every grid step ``t_k`` (100 Hz, :mod:`physynth.grid`) and anchor ``i``:
+For every grid step ``t_k`` (100 Hz, :mod:`physynth.evaluate.grid`) and anchor ``i``:
 
 - ``range_m[k, i]``: the newest valid range of anchor ``i`` measured at or before ``t_k`` (NaN before
   the first one, i.e. masked);
-- ``fresh[k, i]``: anchor ``i`` delivered a range in bin ``k`` (:func:`physynth.grid.fresh_mask`);
-- ``aoi_s[k, i]``: age of information [s] (:func:`physynth.grid.age_of_information`);
+- ``fresh[k, i]``: anchor ``i`` delivered a range in bin ``k`` (:func:`physynth.evaluate.grid.fresh_mask`);
+- ``aoi_s[k, i]``: age of information [s] (:func:`physynth.evaluate.grid.age_of_information`);
 - ``anchor_pos_rel_m[i]``: the anchor position relative to the trace's reference point;
 
-plus the IMU acceleration as the mean of the samples in each bin (:func:`physynth.grid.imu_on_grid`,
+plus the IMU acceleration as the mean of the samples in each bin (:func:`physynth.evaluate.grid.imu_on_grid`,
 NaN without IMU) and the truth position relative to the reference (NaN where unknown). The reference
 point is the anchor centroid, so a model sees the geometry of the site, not its coordinates.
 

@@ -133,7 +133,7 @@ class ValidationReport:
     Attributes
     ----------
     real, synthetic : dict
-        ``physynth.metrics.Metrics.to_dict()`` of each side (keys :data:`~physynth.metrics.METRIC_KEYS`
+        ``physynth.evaluate.metrics.Metrics.to_dict()`` of each side (keys :data:`~physynth.evaluate.metrics.METRIC_KEYS`
         plus ``per_anchor``).
     relative_deviation_pct : dict
         |synth - real| / |real| * 100 per metric key; ``imu_std_mps2`` gives one value per axis. For the
@@ -444,7 +444,7 @@ def compare(real: Iterable[Trace], synthetic: Iterable[Trace], *, rate_hz: float
     Returns
     -------
     ValidationReport
-        With :class:`Evidence` attached for :func:`physynth.report.write_report`.
+        With :class:`Evidence` attached for :func:`physynth.validate.render.write_report`.
 
     Raises
     ------

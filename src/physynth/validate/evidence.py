@@ -128,7 +128,7 @@ class SideEvidence:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Evidence:
-    """The arrays behind a report (for :mod:`physynth.report`); never serialised."""
+    """The arrays behind a report (for :mod:`physynth.validate.render`); never serialised."""
 
     real: SideEvidence
     synthetic: SideEvidence
@@ -171,7 +171,7 @@ class _SideAccumulator:
         rate = self.rate_hz
         if self.sample is None:
             self.sample, self.anchors = trace, trace.anchors
-        s = summarize(trace, rate)  # the section-5 ingredients, from physynth.metrics
+        s = summarize(trace, rate)  # the section-5 ingredients, from physynth.evaluate.metrics
         self.metrics.add(s)
         # the trace's own metrics (a few numbers, for the ensemble's 5-95 % band), not its arrays
         own = pool([s]).to_dict()
@@ -186,7 +186,7 @@ class _SideAccumulator:
         for j, a in enumerate(trace.anchors.ids):
             self.residuals[a].add(s.residual_m[s.residual_anchor_index == j])
 
-        # grid: fresh anchors per step and AoI (physynth.grid, the one definition)
+        # grid: fresh anchors per step and AoI (physynth.evaluate.grid, the one definition)
         t = grid_times(trace.t0_s, trace.duration_s, rate)
         fresh = fresh_mask(trace, t, rate)
         aoi = age_of_information(trace, t)
