@@ -133,8 +133,8 @@ class ValidationReport:
     Attributes
     ----------
     real, synthetic : dict
-        ``physynth.evaluate.metrics.Metrics.to_dict()`` of each side (keys :data:`~physynth.evaluate.metrics.METRIC_KEYS`
-        plus ``per_anchor``).
+        ``physynth.evaluate.metrics.Metrics.to_dict()`` of each side (keys
+        :data:`~physynth.evaluate.metrics.METRIC_KEYS` plus ``per_anchor``).
     relative_deviation_pct : dict
         |synth - real| / |real| * 100 per metric key; ``imu_std_mps2`` gives one value per axis. For the
         :data:`TYPICAL_METRICS` (the mean AoI), synth is the ensemble's typical value
