@@ -40,3 +40,30 @@ def test_row_groups_and_the_writer_thread(tmp_path, monkeypatch):
     records = [{k: {f: r[f] for f in ("rows", "bytes", "sha256")} for k, r in read_meta(p)["files"].items()}
                for p in (path, other)]
     assert records[0] == records[1]
+
+
+def test_to_numpy_reads_buffers_with_offsets_and_nulls():
+    import numpy as np
+    import pyarrow as pa
+
+    from physynth.io.tables import to_numpy
+
+    f = pa.chunked_array([pa.array([1.5, None, 3.0], pa.float32()), pa.array([4.0, 5.0], pa.float32())])
+    np.testing.assert_array_equal(to_numpy(f, np.float64), [1.5, np.nan, 3.0, 4.0, 5.0])
+    b = pa.array([True, None, False, True, True, False, True, False, True, True])[3:]  # an offset inside a byte
+    assert to_numpy(b).tolist() == [True, True, False, True, False, True, True]
+    assert to_numpy(pa.array([True, None, True]).is_null()).tolist() == [False, True, False]
+    i = pa.array(np.arange(10, dtype=np.int16))[4:7]
+    assert to_numpy(i).tolist() == [4, 5, 6] and to_numpy(i).dtype == np.int16
+
+
+def test_reading_a_dataset_does_not_import_pandas(tmp_path):
+    """pyarrow's to_numpy would import pandas, half a second of every reader's start."""
+    import subprocess
+    import sys
+
+    path, _ = generate_dataset("cablecar-descending", 1, tmp_path / "ds", seed=2)
+    code = ("import sys; from physynth.io.dataset import read_dataset; read_dataset(sys.argv[1]); "
+            "print('pandas' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

@@ -43,6 +43,7 @@ from .tables import (  # the tables' Arrow side, named here as before
     _schema,
     _tables_of,
     arrow_schemas,
+    to_numpy,
 )
 from .tables import NULLABLE_COLUMNS as NULLABLE_COLUMNS
 from .tables import SENSOR_COLUMNS as SENSOR_COLUMNS
@@ -403,17 +404,14 @@ def _columns(table: pa.Table, name: str, f: Path) -> dict[str, np.ndarray]:
             continue
         col = table.column(c)
         if c == "nlos":
-            cols["nlos_known"] = ~np.asarray(col.is_null().to_numpy(zero_copy_only=False))
-            cols[c] = np.asarray(col.fill_null(False).to_numpy(zero_copy_only=False), dtype=bool)
+            cols["nlos_known"] = ~to_numpy(col.is_null())
+            cols[c] = to_numpy(col)  # unknown (null) reads False
         elif c in ("anchor_id", "name"):
             enc = col.combine_chunks().dictionary_encode() if len(col) else None
-            cols[c] = (np.asarray(enc.dictionary.to_pylist(), dtype=object)[enc.indices.to_numpy()]
+            cols[c] = (np.asarray(enc.dictionary.to_pylist(), dtype=object)[to_numpy(enc.indices)]
                        if enc is not None else np.array([], dtype=object))
-        else:
-            if col.null_count:  # an optional group this trace does not have
-                cols[c] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
-            else:
-                cols[c] = col.to_numpy().astype(np.float64) if pa.types.is_float32(col.type) else col.to_numpy()
+        else:  # float32 and null (an optional group this trace does not have) read as float64
+            cols[c] = to_numpy(col, np.float64 if col.null_count or pa.types.is_float32(col.type) else None)
     return cols
 
 
