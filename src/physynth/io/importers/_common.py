@@ -25,6 +25,7 @@ import pandas as pd
 from scipy.signal import savgol_filter
 
 from ..._args import check_number
+from ...constants import G0_MPS2
 from ...errors import RecordingError
 
 #: Unit suffixes that are recognised in column names and the unit PhySynth expects instead.
@@ -354,9 +355,10 @@ RANGE_SCALE_LIMITS = (0.05, 20.0)
 
 
 def check_range_scale(path: Path, t_uwb: np.ndarray, anchor: np.ndarray, range_m: np.ndarray,
-                      t_truth: np.ndarray, pos_m: np.ndarray, anchor_pos_m: np.ndarray) -> None:
+                      t_truth: np.ndarray, pos_m: np.ndarray, anchor_pos_m: np.ndarray, *,
+                      limits: tuple[float, float] = RANGE_SCALE_LIMITS) -> None:
     """Error when the ranges are far from the distances between truth and anchors (a unit mistake in
-    the ranges, the truth or the anchor coordinates)."""
+    the ranges, the truth or the anchor coordinates): their median ratio outside ``limits``."""
     ok = np.isfinite(range_m) & (t_uwb >= t_truth[0]) & (t_uwb <= t_truth[-1])
     if np.count_nonzero(ok) < 10:
         return
@@ -366,7 +368,7 @@ def check_range_scale(path: Path, t_uwb: np.ndarray, anchor: np.ndarray, range_m
     if np.count_nonzero(good) < 10:
         return
     ratio = float(np.median(range_m[ok][good] / dist[good]))
-    lo, hi = RANGE_SCALE_LIMITS
+    lo, hi = limits
     if not lo <= ratio <= hi:
         guess = ("the ranges in millimetres or centimetres, or the positions in kilometres" if ratio > hi
                  else "the ranges in kilometres, or the positions in millimetres or centimetres")
@@ -396,9 +398,7 @@ def integer_column(values: pd.Series, file: str, col: str, report: ReportBuilder
                    missing: int = -1) -> np.ndarray:
     """An integer column: empty cells become ``missing``; text and non-integers become ``missing`` too,
     each counted as repaired (``<col>_not_a_number``, ``<col>_not_an_integer``)."""
-    num = pd.to_numeric(values, errors="coerce").astype(np.float64).to_numpy()
-    raw_empty = values.isna().to_numpy() | (values.astype("string").str.strip() == "").fillna(True).to_numpy()
-    text = np.isnan(num) & ~raw_empty
+    num, text, raw_empty = _text_and_empty(values)
     report.repair(file, f"{col}_not_a_number", int(np.count_nonzero(text)))
     frac = np.isfinite(num) & (num != np.round(num))
     report.repair(file, f"{col}_not_an_integer", int(np.count_nonzero(frac)))
@@ -406,6 +406,87 @@ def integer_column(values: pd.Series, file: str, col: str, report: ReportBuilder
     bad = ~np.isfinite(num) | frac | (np.abs(num) > 2**62)
     out = np.where(bad, missing, num)
     return out.astype(np.int64)
+
+
+def _text_and_empty(values: pd.Series) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(numbers, text, empty)`` of a column: its values as float64 (NaN where not a number) and the masks of
+    the cells that hold text that is not a number (or an infinity) and of the empty cells."""
+    num = pd.to_numeric(values, errors="coerce").astype(np.float64).to_numpy()
+    raw_empty = values.isna().to_numpy() | (values.astype("string").str.strip() == "").fillna(True).to_numpy()
+    text = ~np.isfinite(num) & ~raw_empty
+    return np.where(np.isinf(num), np.nan, num), text, raw_empty
+
+
+def count_coerced_cells(df: pd.DataFrame, cols: Sequence[str], file: str, report: ReportBuilder,
+                        label: str) -> None:
+    """Count the rows whose ``cols`` hold a cell that is not a number (text, an infinity) or is empty, where
+    the importer reads those cells as NaN and keeps the row (e.g. the anchor coordinates a UWB file repeats
+    on every row): repaired ``<label>_not_a_number`` and ``<label>_empty``."""
+    text = np.zeros(len(df), dtype=bool)
+    empty = np.zeros(len(df), dtype=bool)
+    for c in cols:
+        _, t, e = _text_and_empty(df[c])
+        text |= t
+        empty |= e
+    report.repair(file, f"{label}_not_a_number", int(np.count_nonzero(text)))
+    report.repair(file, f"{label}_empty", int(np.count_nonzero(empty & ~text)))
+
+
+MAX_PLAUSIBLE_ACC_MEDIAN_MPS2 = 500.0
+"""A median |acceleration| above this is taken as a unit mistake (mg, mm/s^2) [m/s^2]."""
+MAX_PLAUSIBLE_GYRO_MEDIAN_RADPS = 30.0
+"""A median |angular rate| above this is taken as degrees per second [rad/s]."""
+GYRO_SCALE_LIMITS = (0.5, 2.0)
+"""Median ratio of |gyro| to the reference body rate (e.g. from an optical attitude) outside which the gyro
+is in another unit (deg/s reads 57 times the rad/s rate)."""
+QUAT_NORM_TOLERANCE = 0.01
+"""Largest relative deviation of an attitude quaternion's norm from 1."""
+
+
+def check_specific_force(f_body: np.ndarray, path: Path, what: str) -> None:
+    """Error when an accelerometer's specific force (N, 3), gravity included, is evidently not in m/s^2: its
+    median magnitude must lie between half of g (g units read ~1) and 500 m/s^2 (milli-g, mm/s^2)."""
+    f = f_body[np.all(np.isfinite(f_body), axis=1)]
+    if not f.size:
+        return
+    med = float(np.median(np.linalg.norm(f, axis=1)))
+    if not 0.5 * G0_MPS2 < med < MAX_PLAUSIBLE_ACC_MEDIAN_MPS2:
+        raise RecordingError(f"{path}: median |{what}| {med:.4g} m/s^2 is implausible: an accelerometer reads "
+                             "about 9.81 at rest (gravity included; m/s^2, not g)")
+
+
+def check_gyro_radps(gyro: np.ndarray, path: Path, what: str, omega_ref: np.ndarray | None = None) -> None:
+    """Error when angular rates (N, 3) are evidently not in rad/s: a median magnitude above 30 rad/s, or
+    (given a reference body rate ``omega_ref`` (N, 3) [rad/s], e.g. from an optical attitude) a median ratio
+    of the magnitudes outside :data:`GYRO_SCALE_LIMITS` over the samples where the reference turns."""
+    g = np.linalg.norm(gyro, axis=1)
+    ok = np.isfinite(g)
+    if ok.any() and float(np.median(g[ok])) > MAX_PLAUSIBLE_GYRO_MEDIAN_RADPS:
+        raise RecordingError(f"{path}: median |{what}| above {MAX_PLAUSIBLE_GYRO_MEDIAN_RADPS:g} rad/s is "
+                             "implausible; convert deg/s to rad/s")
+    if omega_ref is None:
+        return
+    w = np.linalg.norm(omega_ref, axis=1)
+    turning = ok & np.isfinite(w) & (w > 0.1)  # slower turns are lost in the gyro's noise and bias
+    if np.count_nonzero(turning) < 100:
+        return
+    ratio = float(np.median(g[turning] / w[turning]))
+    lo, hi = GYRO_SCALE_LIMITS
+    if not lo <= ratio <= hi:
+        guess = "in deg/s? convert to rad/s" if 30 < ratio < 100 else "in another unit than rad/s?"
+        raise RecordingError(f"{path}: |{what}| is {ratio:.3g} times the body rate of the reference attitude "
+                             f"(median); is it {guess}")
+
+
+def check_unit_quaternions(quat: np.ndarray, path: Path, hint: str) -> np.ndarray:
+    """Attitude quaternions (N, 4) normalised; an error when a finite one's norm is off 1 by more than 1 %
+    (``hint`` says what is expected). Rows with a NaN stay NaN."""
+    norm = np.linalg.norm(quat, axis=1)
+    off = np.abs(norm - 1.0) > QUAT_NORM_TOLERANCE  # NaN compares False
+    if off.any():
+        raise RecordingError(f"{path}: {int(np.count_nonzero(off))} attitude quaternion(s) are not unit (|q| off "
+                             f"by more than {QUAT_NORM_TOLERANCE:.0%}, e.g. {norm[off][0]:.4g}); {hint}")
+    return quat / norm[:, None]
 
 
 def check_range_metres(range_m: np.ndarray, path: Path, col: str) -> None:

@@ -22,20 +22,23 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ...constants import G0_MPS2
 from ...errors import RecordingError
 from ...models.attitude import body_rates_from_quat
 from ...records import Anchors, Imu, Trace, Truth, Uwb
 from ..dataset import is_csv_export
 from ._common import (
+    MAX_PLAUSIBLE_ACC_MEDIAN_MPS2,
     ImportReport,
     ReportBuilder,
     auto_burst_gap_s,
+    check_gyro_radps,
     check_range_metres,
     check_range_scale,
     check_seconds,
+    check_specific_force,
     check_time_spans,
     check_time_steps,
+    check_unit_quaternions,
     checked_window_and_gap,
     drop_nan_rows,
     find_table,
@@ -53,8 +56,6 @@ from ._common import (
 ENU = ("e", "n", "u")
 MAX_GRAVITY_LEFT_MPS2 = 5.0
 """A mean vertical acceleration above this over a whole recording means gravity was not removed."""
-MAX_PLAUSIBLE_ACC_MEDIAN_MPS2 = 500.0
-"""A median |acceleration| above this is taken as a unit mistake (mg, mm/s^2) [m/s^2]."""
 
 
 def _refuse_dataset(rec: Path) -> None:
@@ -239,13 +240,8 @@ def _read_truth(path: Path, rep: ReportBuilder
     vel = df[vel_cols].to_numpy() if all(has_vel) else None
     quat = omega = None
     if has_quat:
-        quat = df[QUAT_COLS].to_numpy()
-        norm = np.linalg.norm(quat, axis=1)
-        if np.any(np.abs(norm - 1.0) > 0.01):
-            bad = int(np.count_nonzero(np.abs(norm - 1.0) > 0.01))
-            raise RecordingError(f"{path}: {bad} attitude quaternion(s) are not unit (|q| off by more than 1 %); "
-                                 "give quat_w, quat_x, quat_y, quat_z of the body-to-ENU rotation")
-        quat = quat / norm[:, None]
+        quat = check_unit_quaternions(df[QUAT_COLS].to_numpy(), path,
+                                      "give quat_w, quat_x, quat_y, quat_z of the body-to-ENU rotation")
         omega = df[OMEGA_COLS].to_numpy() if has_omega else body_rates_from_quat(df["t_s"].to_numpy(), quat)
     return df["t_s"].to_numpy(), df[pos_cols].to_numpy(), vel, quat, omega
 
@@ -306,12 +302,9 @@ def _read_imu(path: Path, rep: ReportBuilder) -> tuple[np.ndarray, np.ndarray | 
     body = df[BODY_ACC_COLS].to_numpy() if has_body else None
     gyro = df[GYRO_COLS].to_numpy() if has_gyro else None
     if body is not None:
-        med = float(np.median(np.linalg.norm(body, axis=1)))
-        if not 0.5 * G0_MPS2 < med < MAX_PLAUSIBLE_ACC_MEDIAN_MPS2:
-            raise RecordingError(f"{path}: median |body specific force| {med:.4g} m/s^2 is implausible: an "
-                                 "accelerometer reads about 9.81 at rest (gravity included; m/s^2, not g)")
-    if gyro is not None and float(np.median(np.linalg.norm(gyro, axis=1))) > 30.0:
-        raise RecordingError(f"{path}: median |gyro| above 30 rad/s is implausible; convert deg/s to rad/s")
+        check_specific_force(body, path, "body specific force")
+    if gyro is not None:
+        check_gyro_radps(gyro, path, "gyro")
     if not has_enu:
         rep.kept(path.name, len(df))
         return df["t_s"].to_numpy(), None, body, gyro

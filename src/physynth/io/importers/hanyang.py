@@ -34,8 +34,11 @@ from ._common import (
     ImportReport,
     ReportBuilder,
     check_range_metres,
+    check_range_scale,
     checked_window_and_gap,
+    count_coerced_cells,
     drop_nan_rows,
+    flag_implausible_ranges,
     flag_ranges,
     gap_bursts,
     max_gap_per_anchor_s,
@@ -65,6 +68,10 @@ TRUSTED_POSITION_VAR_M2 = 1e-3
 """Largest horizontal position variance [m^2] of ``gnss.csv`` (``field.position_covariance0`` and ``4``) at
 which the truth is trusted: a 3.2 cm std. Fixed solutions report 2e-4 m^2 (1.4 cm); without the fix it
 reaches 0.01-6 m^2."""
+RANGE_SCALE_LIMITS_HANYANG = (0.5, 2.0)
+"""Median ratio of an anchor's ranges to its distances from the RTK truth outside which a unit is wrong (the
+published runs: 1.001-1.006 per anchor; anchor coordinates in cm put an anchor near the origin 100 times
+farther, which the generic limits of the CSV format do not see)."""
 _GNSS_COLS = ("field.header.stamp", "field.status.status", "field.position_covariance0",
               "field.position_covariance4")
 _STATIC_HEIGHT_TAG_M = 1.0
@@ -118,6 +125,7 @@ def import_hanyang(run_dir: str | os.PathLike, *, tag_height_offset_m: float = T
     ids, anchor_pos, t_uwb, anchor, range_m = _read_uwb(run, files, origin_ns, rep)
     if not np.any((t_uwb >= t_truth[0]) & (t_uwb <= t_truth[-1])):
         raise RecordingError(f"{run}: UWB stamps do not overlap the trajectory.csv time span")
+    range_m = _check_ranges_against_truth(files, t_uwb, anchor, range_m, t_truth, pos, np.array(anchor_pos), rep)
 
     if crop_to_uwb:
         after = t_truth > t_uwb[-1]
@@ -176,6 +184,21 @@ def _read_uwb(run: Path, files: list[Path], origin_ns: int, rep: ReportBuilder
     if t_uwb.size == 0:
         raise RecordingError(f"{run}: no UWB measurements in any A<id>.csv")
     return ids, anchor_pos, t_uwb, anchor, range_m
+
+
+def _check_ranges_against_truth(files: list[Path], t_uwb: np.ndarray, anchor: np.ndarray, range_m: np.ndarray,
+                                t_truth: np.ndarray, pos: np.ndarray, anchor_pos: np.ndarray,
+                                rep: ReportBuilder) -> np.ndarray:
+    """Per anchor file: an error when its ranges are far from the truth-to-anchor distances (ranges, anchor
+    coordinates or trajectory in cm/mm/km), and its ranges that no geometry explains (error codes such as
+    65535) flagged NaN with a count (``implausible_range``)."""
+    out = range_m.copy()
+    for k, f in enumerate(files):  # one pass per anchor file
+        sel = anchor == k
+        check_range_scale(f, t_uwb[sel], anchor[sel], range_m[sel], t_truth, pos, anchor_pos,
+                          limits=RANGE_SCALE_LIMITS_HANYANG)
+        out[sel] = flag_implausible_ranges(range_m[sel], anchor[sel], pos, anchor_pos, f.name, rep)
+    return out
 
 
 def _note_uwb_coverage(rep: ReportBuilder, t_truth: np.ndarray, t_uwb: np.ndarray, anchor: np.ndarray,
@@ -266,6 +289,8 @@ def _read_trajectory(path: Path, rep: ReportBuilder) -> tuple[np.ndarray, np.nda
     cols = ["timestamp", "x", "y", "z"]
     require_columns(df, path, cols)
     df = to_float(df, cols)
+    if df.empty:
+        raise RecordingError(f"{path}: no data rows (header only)")
     ts = df["timestamp"].to_numpy()
     med = float(np.nanmedian(ts)) if np.isfinite(ts).any() else float("nan")
     if not 1e17 < med < 1e19:
@@ -283,6 +308,9 @@ def _read_anchor_file(path: Path, aid: int, origin_ns: int, rep: ReportBuilder
     df = read_table(path, rep)
     require_columns(df, path, _UWB_COLS)
     stamp_raw = pd.to_numeric(df["field.stamp"], errors="coerce")
+    # the anchor's id and coordinates repeat on every row: a cell that is not a number is counted, the row kept
+    count_coerced_cells(df, ["field.id"], path.name, rep, "field.id")
+    count_coerced_cells(df, ["field.x", "field.y", "field.z"], path.name, rep, "anchor_xyz")
     df = to_float(df, [c for c in _UWB_COLS if c != "field.stamp"])
     ids = df["field.id"].dropna().unique()
     if ids.size and not np.all(ids == aid):
