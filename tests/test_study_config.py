@@ -31,16 +31,16 @@ def _file(tmp_path, text: str):
 
 
 def test_settings_are_read_and_the_variation_changes_the_study_default(tmp_path):
-    s = read_study_settings(_file(tmp_path, "finetune_lr: 1.0e-4\nmethods: [ls, ekf]\nnet: {lr_schedule: cosine}\n"
+    s = read_study_settings(_file(tmp_path, "finetune_lr: 2.0e-4\nmethods: [ls, ekf]\nnet: {lr_schedule: cosine}\n"
                                             "variation: {random_route_prob: 0.25, "
                                             "layout_distribution: {anchor_count: [4, 8]}}\n"))
-    assert s["finetune_lr"] == 1e-4 and s["methods"] == ("ls", "ekf") and s["net"] == {"lr_schedule": "cosine"}
+    assert s["finetune_lr"] == 2e-4 and s["methods"] == ("ls", "ekf") and s["net"] == {"lr_schedule": "cosine"}
     v = s["variation"]
     assert v.random_route_prob == 0.25 and v.path_lateral_std_m == STUDY_VARIATION.path_lateral_std_m
     assert v.layout_distribution.anchor_count == [4, 8]
     assert v.layout_distribution.footprint_m == STUDY_LAYOUTS.footprint_m  # the rest of the study's layouts
     cfg = quick_config(**s)
-    assert cfg.finetune_lr == 1e-4 and cfg.epochs == quick_config().epochs  # the file's, then the schedule's
+    assert cfg.finetune_lr == 2e-4 and cfg.epochs == quick_config().epochs  # the file's, then the schedule's
     assert StudyConfig(**read_study_settings(_file(tmp_path, "variation: {layout_distribution: null}\n"))
                        ).variation.layout_distribution is None  # the training layouts, jittered
     assert read_study_settings(_file(tmp_path, "")) == {}
