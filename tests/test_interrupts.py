@@ -181,7 +181,7 @@ OTHERS = {
                  "-o", "{out}"],
     "calibrate": ["calibrate", "{ds}", "-o", "{out}.yaml"],
     "study anchors": ["study", "anchors", "-n", "30", "--seed", "1", "--workers", "2", "--no-figures", "-o", "{out}"],
-    "study placement": ["study", "placement", "--candidates", "{cands}", "-k", "3", "-n", "80", "--seed", "1",
+    "study placement": ["study", "placement", "--candidates", "{cands}", "-k", "3", "-n", "1000", "--seed", "1",
                         "--workers", "2", "--no-figures", "-o", "{out}"],
     "study tracking": ["study", "tracking", "--train", "{ds}", "--test", "{ds}", "--methods", "ls,ekf", "--seed", "1",
                        "-o", "{out}"],
