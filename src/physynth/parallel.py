@@ -44,15 +44,15 @@ def _compiled(scenario_json: str) -> CompiledScenario:
 
 
 def shard_task(scenario_json: str, root_seed: int, partial: str, k: int, start: int, stop: int,
-               meta: dict[str, Any], on_trace: Callable[[], None] | None = None) -> int:
+               meta: dict[str, Any], on_unit: Callable[[], None] | None = None) -> int:
     """Generate traces ``start .. stop - 1`` and write them as shard ``k`` (what a worker runs)."""
     cs = _compiled(scenario_json)
 
     def traces():
         for i in range(start, stop):
             yield i, generate_trace(cs, i, root_seed)
-            if on_trace is not None:
-                on_trace()
+            if on_unit is not None:
+                on_unit()
 
     return write_shard(partial, k, traces(), meta)
 
@@ -175,6 +175,22 @@ def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, to
     """
     scenario_json = json.dumps(scenario_to_dict(scn))
     partial = Path(partial).absolute()  # workers of a remote cluster may run in another directory
+    tasks = [(scenario_json, root_seed, str(partial), k, *plan.bounds(k), meta) for k in todo]
+    run_tasks(shard_task, tasks, [t[5] - t[4] for t in tasks], workers=workers, scheduler=scheduler,
+              progress=progress, name="physynth-shard", unfinished=(partial, ".shard-*.tmp-*"))
+
+
+def run_tasks(fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]], sizes: Sequence[int], *, workers: int = 1,
+              scheduler: str | None = None, progress: Callable[[int], None] | None = None,
+              name: str = "physynth-task", unfinished: tuple[Path, str] | None = None) -> list[Any]:
+    """``[fn(*task) for task in tasks]``, in task order, in this process or on ``workers`` processes of an
+    embedded cluster or the Dask ``scheduler`` (the shards of ``generate``, the parts of an export).
+
+    ``sizes``: the units of work (traces) of each task; ``progress(done)`` with the units done so far, after
+    each unit in this process (``fn`` is given ``on_unit=``, a callable it calls after each unit) or after
+    each task on a cluster. ``fn`` must be importable by name. ``unfinished``: (folder, glob) of what a task
+    leaves behind when its worker is killed, removed when an embedded cluster is stopped at once.
+    """
     done = 0
 
     def count(n: int = 1) -> None:
@@ -183,23 +199,20 @@ def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, to
         if progress is not None:
             progress(done)
 
-    if scheduler is None and (workers <= 1 or len(todo) <= 1):
-        for k in todo:
-            start, stop = plan.bounds(k)
-            shard_task(scenario_json, root_seed, str(partial), k, start, stop, meta, on_trace=count)
-        return
-
+    if scheduler is None and (workers <= 1 or len(tasks) <= 1):
+        return [fn(*task, on_unit=count) for task in tasks]
     distributed = require_dask()
     with apart():  # workers in a session of their own, their output to the log (physynth._children)
-        _run_on_cluster(distributed, scenario_json, root_seed, partial, plan, todo, meta, workers, scheduler, count)
+        return _run_on_cluster(distributed, fn, tasks, sizes, workers, scheduler, count, name, unfinished)
 
 
-def _run_on_cluster(distributed: Any, scenario_json: str, root_seed: int, partial: Path, plan: ShardPlan,
-                    todo: Sequence[int], meta: dict[str, Any], workers: int, scheduler: str | None,
-                    count: Callable[[int], None]) -> None:
-    """:func:`run_shards` on a cluster: started and closed with signals held, stopped at once when interrupted."""
+def _run_on_cluster(distributed: Any, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ...]],
+                    sizes: Sequence[int], workers: int, scheduler: str | None, count: Callable[[int], None],
+                    name: str, unfinished: tuple[Path, str] | None) -> list[Any]:
+    """:func:`run_tasks` on a cluster: started and closed with signals held, stopped at once when interrupted."""
     cluster = client = None
     futures: dict[Any, int] = {}
+    results: list[Any] = [None] * len(tasks)
     try:
         with _signals_held():
             if scheduler is not None:
@@ -208,21 +221,18 @@ def _run_on_cluster(distributed: Any, scenario_json: str, root_seed: int, partia
                 except (OSError, TimeoutError, ValueError) as exc:
                     raise PhySynthError(f"cannot connect to the Dask scheduler {scheduler}: {exc}") from None
             else:
-                cluster = _local_cluster(distributed, min(workers, len(todo)))
+                cluster = _local_cluster(distributed, min(workers, len(tasks)))
                 client = distributed.Client(cluster)
-        for k in todo:
-            start, stop = plan.bounds(k)
-            fut = client.submit(shard_task, scenario_json, root_seed, str(partial), k, start, stop, meta,
-                                key=f"physynth-shard-{os.getpid()}-{k}", pure=False)
-            futures[fut] = stop - start
+        for i, task in enumerate(tasks):
+            futures[client.submit(fn, *task, key=f"{name}-{os.getpid()}-{i}", pure=False)] = i
         for fut in distributed.as_completed(futures):
-            fut.result()  # re-raises a worker's error here
-            count(futures[fut])
+            results[futures[fut]] = fut.result()  # re-raises a worker's error here
+            count(sizes[futures[fut]])
     except BaseException:
-        if cluster is not None:  # interrupted or failed: the shards being written will not be finished
-            _stop_workers_now(cluster, partial)
+        if cluster is not None:  # interrupted or failed: the tasks being run will not be finished
+            _stop_workers_now(cluster, unfinished)
         elif client is not None and futures:
-            with contextlib.suppress(Exception):  # a remote worker finishes the shard it writes (atomically)
+            with contextlib.suppress(Exception):  # a remote worker finishes the task it runs (atomically)
                 client.cancel(list(futures), force=True)
         raise
     finally:
@@ -231,10 +241,12 @@ def _run_on_cluster(distributed: Any, scenario_json: str, root_seed: int, partia
                 client.close()
             if cluster is not None:
                 cluster.close()
+    return results
 
 
-def _stop_workers_now(cluster: Any, partial: Path, wait_s: float = 5.0) -> None:
-    """Kill the embedded cluster's worker processes and remove the shards they were writing.
+def _stop_workers_now(cluster: Any, unfinished: tuple[Path, str] | None, wait_s: float = 5.0) -> None:
+    """Kill the embedded cluster's worker processes and remove what they were writing (``unfinished``: a
+    folder and a glob, e.g. the hidden temporary shards).
 
     Their nannies are told first not to start them again. Complete shards stay (for a resumed run)."""
     import shutil
@@ -253,8 +265,8 @@ def _stop_workers_now(cluster: Any, partial: Path, wait_s: float = 5.0) -> None:
     deadline = time.monotonic() + wait_s
     while any(_running(p) for p in pids) and time.monotonic() < deadline:
         time.sleep(0.02)
-    for tmp in Path(partial).glob(".shard-*.tmp-*"):
-        shutil.rmtree(tmp, ignore_errors=True)
+    for tmp in Path(unfinished[0]).glob(unfinished[1]) if unfinished else ():
+        shutil.rmtree(tmp, ignore_errors=True) if tmp.is_dir() else tmp.unlink(missing_ok=True)
 
 
 def _running(pid: int) -> bool:

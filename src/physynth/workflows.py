@@ -153,15 +153,17 @@ def export_dataset(dataset: str | os.PathLike, out: str | os.PathLike, fmt: str,
     :func:`generate_dataset` runs its shards; the output is the same for any number of workers.
     ``resume`` completes a killed export to ``out``."""
     from .io.export import export_dataset as export
-    from .tasks import run_tasks
+    from .io.export import partial_dir
+    from .parallel import run_tasks
 
     workers = check_int(workers, "workers", minimum=1, what="the number of worker processes")
     if scheduler is None and workers > 1:
         check_not_bootstrapping()
 
     def run(fn, tasks, sizes, prog):
+        unfinished = (partial_dir(safety.resolve_output(out)), ".*.tmp-*")  # a bag or part being written
         return run_tasks(fn, tasks, sizes, workers=workers, scheduler=scheduler, progress=prog,
-                         name="physynth-export")
+                         name="physynth-export", unfinished=unfinished)
 
     return export(dataset, out, fmt, overwrite=overwrite, progress=progress or (lambda *a, **k: None),
                   bag_storage=bag_storage, resume=resume, run=run)

@@ -27,7 +27,7 @@ FORMATS = ("hdf5", "rosbag2", "csv")
 
 Runner = Callable[..., list[Any]]
 """``run(fn, tasks, sizes, progress)``: ``[fn(*task) for task in tasks]`` in task order, somewhere
-(:func:`physynth.tasks.run_tasks`); ``progress(done)`` with the units (traces) done so far."""
+(:func:`physynth.parallel.run_tasks`); ``progress(done)`` with the units (traces) done so far."""
 
 
 def _require(module: str) -> None:
