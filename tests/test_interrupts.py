@@ -189,7 +189,7 @@ OTHERS = {
 }
 DELAY_S = 2.5
 """Seconds after the start: the interpreter and the command's imports are done, its work is not."""
-KNOWN = {"export": "a killed export's temporary part stays in .<out>.partial (io/export, being rewritten)"}
+KNOWN: dict[str, str] = {}  # commands whose interrupt is known to misbehave (xfail, strict)
 
 
 @pytest.mark.parametrize("command", [pytest.param(c, marks=pytest.mark.xfail(reason=KNOWN[c], strict=True))

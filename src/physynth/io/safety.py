@@ -287,6 +287,29 @@ def unregister_temporary(path: Path) -> None:
     _active.discard(path)
 
 
+@contextmanager
+def replacing(dest: Path, *, nested: bool = False) -> Iterator[Path]:
+    """Write ``dest`` through its hidden temporary sibling (:func:`~physynth.io.atomic.temp_sibling`, emptied
+    first): the block writes the temporary, which is moved onto ``dest`` when the block ends; any exception
+    (an interrupt included) removes it. Registered meanwhile, so a forced exit removes it too.
+
+    ``nested``: the temporary is a new folder and the block writes ``<temporary>/<dest's name>`` in it (for
+    writers whose files are named after their folder, such as a ROS 2 bag's), which becomes ``dest``."""
+    from .atomic import temp_sibling
+
+    tmp = temp_sibling(dest)
+    remove_tree(tmp)
+    register_temporary(tmp)
+    try:
+        if nested:
+            tmp.mkdir()
+        yield tmp
+        os.replace(tmp / dest.name if nested else tmp, dest)
+    finally:
+        remove_tree(tmp)  # what is left of it: all of it after an exception, the empty folder when nested
+        unregister_temporary(tmp)
+
+
 def remove_registered() -> None:
     """Remove every registered temporary path (the last resort before a forced exit)."""
     for p in list(_active):

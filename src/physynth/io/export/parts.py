@@ -32,9 +32,9 @@ from typing import Any
 
 from ... import __version__
 from ...errors import PhySynthError
-from ..atomic import atomic_write_text, temp_sibling
+from ..atomic import atomic_write_text
 from ..dataset import iter_indexed_traces
-from ..safety import remove_tree
+from ..safety import replacing
 
 
 @dataclass(frozen=True)
@@ -114,29 +114,21 @@ def export_part(dataset: str, meta: dict[str, Any], part: Part, fmt: str, partia
             dest = partial_p / f"trace_{index:08d}"
             if dest.is_dir():  # written before the run was stopped
                 continue
-            tmp = temp_sibling(dest)
-            remove_tree(tmp)
-            tmp.mkdir()
-            write_bag(tmp / dest.name, trace, storage, skipped)
-            os.replace(tmp / dest.name, dest)
-            tmp.rmdir()
+            with replacing(dest, nested=True) as tmp:  # the bag's files are named after its folder
+                write_bag(tmp / dest.name, trace, storage, skipped)
     elif fmt == "hdf5":
         from .hdf5 import write_hdf5
 
         dest = partial_p / f"part-{part.k:05d}.h5"
-        tmp = temp_sibling(dest)
-        tmp.unlink(missing_ok=True)
-        write_hdf5(traces(), {k: v for k, v in meta.items() if k != "traces"}, tmp)
-        os.replace(tmp, dest)
+        with replacing(dest) as tmp:
+            write_hdf5(traces(), {k: v for k, v in meta.items() if k != "traces"}, tmp)
     else:
         from .csv import write_csv_tables
 
         dest = partial_p / f"part-{part.k:05d}"
-        tmp = temp_sibling(dest)
-        remove_tree(tmp)
         deque(traces(), maxlen=0)  # read and checked as by every reader, then copied row group by row group
-        write_csv_tables(dataset_p, sub, tmp, header=part.k == 0)
-        os.replace(tmp, dest)
+        with replacing(dest) as tmp:
+            write_csv_tables(dataset_p, sub, tmp, header=part.k == 0)
     skipped = {t: n for t, n in skipped.items() if n}
     atomic_write_text(done, json.dumps(skipped))
     return skipped
