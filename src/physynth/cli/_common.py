@@ -204,3 +204,25 @@ def fail_each(messages: Sequence[str], code: int = EXIT_BAD_INPUT) -> None:
         first = message.strip().splitlines()[0] if message.strip() else "invalid input"
         print(f"physynth: error: {cli_words(first)}", file=sys.stderr)
     sys.exit(code)
+
+
+@contextmanager
+def resumable(resume_hint: str) -> Iterator[None]:
+    """Around a resumable run (generate, export): the library's "resume it or overwrite" said with the
+    flags, and an interruption's line ends with ``resume_hint`` (how to finish the run)."""
+    from ..errors import Interrupted, PhySynthError
+
+    try:
+        yield
+    except PhySynthError as exc:
+        hint = "; resume it or overwrite to start over"
+        if hint in str(exc):
+            raise PhySynthError(str(exc).replace(hint, "; add --resume to complete it or --overwrite to start "
+                                                 "over")) from None
+        raise
+    except Interrupted as exc:  # physynth.cli.main prints one line and exits 128 + signal
+        exc.note = resume_hint
+        raise
+    except KeyboardInterrupt:
+        typer.echo(f"physynth: interrupted; {resume_hint}", err=True)
+        raise typer.Exit(130) from None

@@ -8,7 +8,7 @@ from typing import Literal
 
 import typer
 
-from ._common import progress_bar
+from ._common import progress_bar, resumable
 from .generate import AUTO_CLUSTER_MIN_TRACES
 
 
@@ -41,7 +41,7 @@ def export_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Export a dataset to HDF5, ROS 2 bags (MCAP; sensor_msgs/Imu, sensor_msgs/Range) or CSV (docs/export.md)."""
-    from ..errors import Interrupted, PhySynthError
+    from ..errors import PhySynthError
     from ..io.dataset import n_traces, read_meta
     from ..parallel import available_cores
     from ..workflows import export_dataset
@@ -57,21 +57,8 @@ def export_cmd(
     if not workers and n_workers > 1 and importlib.util.find_spec("distributed") is None:
         n_workers = 1  # the default (all cores) without the optional Dask: one core
     resume_hint = f"complete parts are kept: run the same command with --resume to finish {out}"
-    try:
-        with progress_bar(not quiet) as progress:
-            path = export_dataset(dataset, out, fmt.lower(), overwrite=overwrite, progress=progress,
-                                  bag_storage=bag_storage, resume=resume, workers=n_workers, scheduler=scheduler)
-    except PhySynthError as exc:
-        hint = "; resume it or overwrite to start over"
-        if hint in str(exc):
-            raise PhySynthError(str(exc).replace(hint, "; add --resume to complete it or --overwrite to start "
-                                                 "over")) from None
-        raise
-    except Interrupted as exc:  # physynth.cli.main prints one line and exits 128 + signal
-        exc.note = resume_hint
-        raise
-    except KeyboardInterrupt:
-        typer.echo(f"physynth: interrupted; {resume_hint}", err=True)
-        raise typer.Exit(130) from None
+    with resumable(resume_hint), progress_bar(not quiet) as progress:
+        path = export_dataset(dataset, out, fmt.lower(), overwrite=overwrite, progress=progress,
+                              bag_storage=bag_storage, resume=resume, workers=n_workers, scheduler=scheduler)
     if not quiet:
         typer.echo(f"wrote {path} ({fmt}{', ' + bag_storage if fmt.lower() == 'rosbag2' else ''})")

@@ -10,7 +10,7 @@ from typing import Any
 
 import typer
 
-from ._common import counted, format_table, progress_bar
+from ._common import counted, format_table, progress_bar, resumable
 
 AUTO_CLUSTER_MIN_TRACES = 1000
 """With the default ``--workers 0``, runs of fewer traces stay in this process (no cluster to start)."""
@@ -61,7 +61,7 @@ def generate_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Generate N synthetic traces from a scenario and write them as a Parquet dataset."""
-    from ..errors import Interrupted, PhySynthError
+    from ..errors import PhySynthError
     from ..parallel import available_cores
     from ..workflows import generate_dataset
 
@@ -91,23 +91,10 @@ def generate_cmd(
         if done is not None:
             typer.echo(f"{out} is already complete ({counted(n, 'trace')}, root seed {done}): nothing to resume")
             return
-    try:
-        with progress_bar(not quiet) as progress:
-            path, root = generate_dataset(scn, n, out, seed=seed, overwrite=overwrite, progress=progress,
-                                          workers=n_workers, scheduler=scheduler, resume=resume,
-                                          shard_traces=shard_traces, force=force, inputs=inputs)
-    except PhySynthError as exc:
-        hint = "; resume it or overwrite to start over"
-        if hint in str(exc):
-            raise PhySynthError(str(exc).replace(hint, "; add --resume to complete it or --overwrite to start "
-                                                 "over")) from None
-        raise
-    except Interrupted as exc:  # physynth.cli.main prints one line and exits 128 + signal
-        exc.note = resume_hint
-        raise
-    except KeyboardInterrupt:
-        typer.echo(f"physynth: interrupted; {resume_hint}", err=True)
-        raise typer.Exit(130) from None
+    with resumable(resume_hint), progress_bar(not quiet) as progress:
+        path, root = generate_dataset(scn, n, out, seed=seed, overwrite=overwrite, progress=progress,
+                                      workers=n_workers, scheduler=scheduler, resume=resume,
+                                      shard_traces=shard_traces, force=force, inputs=inputs)
     if not quiet:
         where = f"on {scheduler}" if scheduler else counted(min(n_workers, -(-n // shard_traces)), "worker")
         typer.echo(f"wrote {counted(n, 'trace')} of '{scn.name}' to {path} (root seed {root}, {where})")
