@@ -148,7 +148,7 @@ def test_report_holds_the_values_the_scenario_writes(hanyang_los1):
     """The report's fields are the scenario's values; what the fit found and the scenario does not hold
     (the LOS std before the antenna sway took its part, a tag outage rate never generated, the path
     length the generator measures) is kept beside, with why; diagnostics are marked; plain words only."""
-    from physynth.calibrate.pipeline import _fmt_value
+    from physynth.calibrate.report import format_value
     from physynth.scenario import scenario_to_dict
 
     _, res = hanyang_los1
@@ -165,7 +165,7 @@ def test_report_holds_the_values_the_scenario_writes(hanyang_los1):
     assert not p["path.rmse_m"]["field"] and not p["motion.speed_poly_r2"]["field"]
     assert p["availability.dropout_prob"]["value"] == res.scenario.availability.dropout_prob
     for key, value, _ in res.summary_rows():  # what the summary prints under a field's name is the YAML's
-        assert p[key]["field"] and value == _fmt_value(p[key]["value"]), key
+        assert p[key]["field"] and value == format_value(p[key]["value"]), key
     assert [k for k, _, _ in res.summary_rows(fields=False)] == ["path.rmse_m"]
     marked = [s for s in _strings(res.report) if ":data:`" in s or ":func:`" in s or "``" in s]
     assert marked == []

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from physynth.bounds import BOUNDS
-from physynth.calibrate.availability_fit import RunStats, add_runs, fit_dropout_outage
-from physynth.calibrate.pipeline import _fit_channels
+from physynth.calibrate.anchor_channels import fit_channels
+from physynth.calibrate.dropout_outage import RunStats, add_runs, fit_dropout_outage
 from physynth.generate import generate_traces
 from physynth.io.scenario_file import load_scenario
 
@@ -46,7 +46,7 @@ def test_an_anchor_seen_over_a_narrow_span_gets_the_pooled_slope():
     scn = load_scenario("cablecar-descending")
     traces = list(generate_traces(scn, 2, seed=5))  # A108: dark for all of run 0, heard near one range in run 1
     ids = list(scn.anchor_ids)
-    chan = _fit_channels(traces, scn.uwb.time_offset_s, ids, None, ["r0", "r1"])
+    chan = fit_channels(traces, scn.uwb.time_offset_s, ids, None, ["r0", "r1"])
     b = BOUNDS["channel.range_bias_per_decade_m"]
     for aid in ids:
         assert b.lo <= chan.mix[aid].range_bias_per_decade_m <= b.hi, aid

@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from physynth.calibrate.imu_fit import fit_imu, fit_lever_arm, lever_arm_design
+from physynth.calibrate.imu_fit import fit_imu
+from physynth.calibrate.lever_arm import fit_lever_arm, lever_arm_design
 from physynth.models.attitude import body_rates
 from physynth.models.imu import ImuParams, VibrationParams, simulate_imu
 from physynth.models.motion import Kinematics

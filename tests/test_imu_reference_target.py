@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from physynth.calibrate.imu_fit import calm_white_density, imu_error, reference_noise_target, truth_acceleration
+from physynth.calibrate.imu_fit import calm_white_density, imu_error, reference_noise_target
+from physynth.calibrate.imu_truth import truth_acceleration
 from physynth.records import Anchors, Imu, Trace, Truth, Uwb
 
 FS, DURATION_S = 200.0, 150.0

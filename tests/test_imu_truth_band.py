@@ -12,13 +12,9 @@ import numpy as np
 import pytest
 
 from physynth.calibrate._base import CalibrationError
-from physynth.calibrate.imu_fit import (
-    COHERENCE_MIN,
-    coherent_bandwidth_hz,
-    compare_imu_along_truth,
-    fit_imu,
-    fit_lever_arm,
-)
+from physynth.calibrate.imu_fit import compare_imu_along_truth, fit_imu
+from physynth.calibrate.imu_motion_noise import COHERENCE_MIN, coherent_bandwidth_hz
+from physynth.calibrate.lever_arm import fit_lever_arm
 from physynth.records import Anchors, Imu, Trace, Truth, Uwb
 
 FS = 400.0

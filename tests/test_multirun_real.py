@@ -15,8 +15,8 @@ import pytest
 
 from physynth.calibrate import calibrate
 from physynth.calibrate._base import CalibrationError
+from physynth.calibrate.components.run_offsets import run_offset_table
 from physynth.calibrate.geometry import anchor_layout, transfer_scenario
-from physynth.calibrate.pipeline import run_offset_table
 from physynth.generate import generate_traces
 from physynth.io.importers import import_hanyang
 from physynth.models.uwb import los_error_mean
@@ -106,9 +106,9 @@ def test_each_runs_lag_is_estimated_and_the_spread_tested(three):
 
 
 def _channels_of(trace):
-    from physynth.calibrate.pipeline import _fit_channels
+    from physynth.calibrate.anchor_channels import fit_channels
 
-    return _fit_channels([trace], 0.17, list(trace.anchors.ids), None, ["LOS-1"])
+    return fit_channels([trace], 0.17, list(trace.anchors.ids), None, ["LOS-1"])
 
 
 def test_rare_events_have_intervals(three):

@@ -179,7 +179,7 @@ def test_the_pooled_lag_refinement_error_holds_for_a_slow_ranging_error():
     the anchors its error was 3 times too small (the interval held the true lag in 44 % of the draws).
     With the blocks in time it holds it about as often as a jackknife on 5 blocks can (t on 4 degrees of
     freedom: 88 %). 100 draws: binomial standard error 3-5 %, so the bounds lie 4 of them away."""
-    from physynth.calibrate.pipeline import refine_time_offset
+    from physynth.calibrate.run_lag import refine_time_offset
 
     rng = np.random.default_rng(7)
     z_jack, z_white = [], []

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from physynth.calibrate.pipeline import RUN_OFFSET_LR_MIN, _reml_two_way
+from physynth.calibrate.run_spread import RUN_OFFSET_LR_MIN, reml_two_way
 
 N_RUNS, N_ANCHORS = 20, 6
 V_ANCHOR = np.array([30.0, 1.0, 1.0, 1.0, 1.0, 1.0]) * 1e-4  # sampling variance of a cell [m^2], per anchor
@@ -32,7 +32,7 @@ def table(seed: int, s_run: float, s_anchor: float) -> tuple[np.ndarray, ...]:
 def test_spreads_are_recovered():
     s_run, s_anchor = 0.03, 0.02
     y, anchor, run, v = table(1, s_run, s_anchor)
-    var_r, var_e, blup, prof = _reml_two_way(y, anchor, run, v)
+    var_r, var_e, blup, prof = reml_two_way(y, anchor, run, v)
     # s.e. of a variance from k degrees of freedom: sqrt(2 / k) x (variance + the noise it is seen through)
     se_r = np.sqrt(2.0 / (N_RUNS - 1)) * (s_run**2 + (s_anchor**2 + np.mean(v)) / N_ANCHORS)
     se_e = np.sqrt(2.0 / ((N_RUNS - 1) * (N_ANCHORS - 1))) * (s_anchor**2 + np.mean(v))
@@ -45,6 +45,6 @@ def test_spreads_are_recovered():
 @pytest.mark.parametrize("seed", [2, 3, 4])
 def test_no_spread_found_where_there_is_none(seed):
     y, anchor, run, v = table(seed, 0.0, 0.0)
-    var_r, var_e, _, prof = _reml_two_way(y, anchor, run, v)
+    var_r, var_e, _, prof = reml_two_way(y, anchor, run, v)
     assert 2.0 * (prof[0] - prof[3]) < RUN_OFFSET_LR_MIN
     assert np.sqrt(var_e) < 0.01 and np.sqrt(var_r) < 0.01

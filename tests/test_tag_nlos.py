@@ -12,7 +12,7 @@ from helpers import simple_scenario
 from physynth.calibrate import calibrate
 from physynth.calibrate.tag_nlos import fit_tag_nlos
 from physynth.generate import compile_scenario, generate_trace, generate_traces
-from physynth.models.uwb import _tag_thinning, tag_mode_index
+from physynth.models.uwb.tag_nlos import tag_mode_index, tag_thinning
 
 HANYANG = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hanyang-uwb" / "Dynamic_measurements"
 MODES = [{"weight": 0.2, "mean_m": -6.0, "std_m": 2.0}, {"weight": 0.8, "mean_m": 0.3, "std_m": 0.15}]
@@ -35,7 +35,7 @@ def test_thinning_keeps_each_anchors_nlos_fraction_and_mode_shares():
     w = np.array([[0.2, 0.8], [0.5, 0.5], [0.1, 0.9], [0.2, 0.8]])
     mean = np.array([[-6.0, 0.3]] * 4)
     std = np.array([[2.0, 0.15]] * 4)
-    out = _tag_thinning(0.03, p, np.cumsum(w, axis=1), mean, std)
+    out = tag_thinning(0.03, p, np.cumsum(w, axis=1), mean, std)
     t = 0.03 * out["join"]
     near_own = p * w[:, 1] * (1 - out["drop"])  # own near-LOS time left after the drops
     q = p * w[:, 0] + near_own  # own NLOS time: the other mode untouched

@@ -314,7 +314,7 @@ def test_zone_prob_near_the_zones_equals_the_full_interpolation():
     of the path or beyond it, overlapping zones, a non-monotone path coordinate, unsorted times."""
     from dataclasses import replace
 
-    from physynth.models.uwb import _zone_nlos_prob, zone_nlos_prob_at
+    from physynth.models.uwb.nlos import _zone_nlos_prob, zone_nlos_prob_at
 
     ch0 = compile_scenario(simple_scenario()).channel
     rng = np.random.default_rng(11)

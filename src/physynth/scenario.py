@@ -12,9 +12,9 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationError, field_validator, model_validator
 
-from .bounds import check_bounds
 from .constants import IMU_BODY_FRAME, IMU_FRAME
 from .errors import ScenarioError
+from .field_bounds import check_bounds
 from .models._params import ParamsModel, PositiveFloat
 from .models.attitude import AttitudeParams
 from .models.availability import AvailabilityOverride, AvailabilityParams

@@ -17,7 +17,8 @@ Each model has its own fit returning a :class:`Fit` (fitted parameters, sample c
 from ._base import CalibrationError, Fit
 from .availability_fit import fit_availability
 from .geometry import anchor_layout, fit_motion, fit_path, fit_path_perturbation, transfer_scenario
-from .pipeline import CalibrationResult, calibrate
+from .pipeline import calibrate
+from .report import CalibrationResult
 from .static_bias import fit_static_range_bias
 from .uwb_fit import corrected_residuals, fit_burst_schedule, fit_time_offset, select_mixture
 

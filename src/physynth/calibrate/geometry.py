@@ -39,11 +39,11 @@ from ._base import (
     Fit,
     as_trace_list,
     good_truth,
-    require_truth,
     rounded,
-    smooth_track,
     trace_label,
 )
+from .jitter_fit import fit_jitter
+from .tracks import STOP_SPEED_FRAC, TrackSummary, summarize_track
 
 PathKind = Literal["auto", "polynomial", "waypoints"]
 
@@ -58,86 +58,10 @@ SPEED_POLY_DEGREE = 4
 """Degree of the accelerate-cruise-decelerate speed polynomial (paper section III.D)."""
 SPEED_POLY_MIN_R2 = 0.9
 """Below this R^2 of the degree-4 fit of g(u), an ``empirical`` speed profile is used instead."""
-STOP_SPEED_FRAC = 0.1
-"""A tag is taken as moving while its speed exceeds this fraction of its peak speed (dwell detection)."""
 ANCHOR_TOL_M = 0.05
 """Two datasets disagree about an anchor when its positions differ by more than this [m]."""
 EMPIRICAL_CUTOFF_HZ = 0.25
 """Cut-off of the generator's smoothing of an empirical speed profile, in trip time [Hz]."""
-SMOOTH_WINDOW_S = 1.0
-"""Savitzky-Golay window used to smooth the truth track before differentiation [s]."""
-
-
-# --------------------------------------------------------------------------------------------------
-# Track analysis shared by path and motion
-# --------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class TrackSummary:
-    """A truth track reduced to what path and motion fitting need."""
-
-    label: str
-    t_s: np.ndarray  # uniform grid (K,)
-    pos_m: np.ndarray  # smoothed (K, 3)
-    speed_mps: np.ndarray  # smoothed (K,)
-    i_start: int  # first index of the trip
-    i_end: int  # last index of the trip
-    t0_s: float  # first truth time
-    t1_s: float  # last truth time
-    s_m: np.ndarray  # travelled distance along the smoothed track (K,), dead-banded at rest
-    peak_speed_mps: float
-    stop_speed_mps: float
-
-    @property
-    def trip_s(self) -> float:
-        return float(self.t_s[self.i_end] - self.t_s[self.i_start])
-
-    @property
-    def trip_length_m(self) -> float:
-        return float(self.s_m[self.i_end] - self.s_m[self.i_start])
-
-    @property
-    def dwell_start_s(self) -> float:
-        return float(self.t_s[self.i_start] - self.t0_s)
-
-    @property
-    def dwell_end_s(self) -> float:
-        return float(self.t1_s - self.t_s[self.i_end])
-
-
-def summarize_track(trace: Trace, label: str, *, stop_speed_frac: float = STOP_SPEED_FRAC,
-                    window_s: float = SMOOTH_WINDOW_S) -> TrackSummary:
-    """Smooth a truth track and find the trip (first to last movement) and the dwells around it.
-
-    The trip starts where the speed last stood at the rest level (twice the median speed of the
-    rest-level samples outside the movement, at least 0.1 % of the peak) before it first exceeds
-    ``stop_speed_frac`` of the peak speed (P99.5); it ends symmetrically.
-    """
-    require_truth(trace, label)
-    t, p = good_truth(trace)
-    tg, ps, vs = smooth_track(t, p, window_s=window_s)
-    speed = np.linalg.norm(vs, axis=1)
-    peak = float(np.percentile(speed, 99.5))
-    if not peak > 0:
-        raise CalibrationError(f"{label}: the ground truth never moves; no path or motion to fit")
-    hi = stop_speed_frac * peak
-    moving = np.flatnonzero(speed > hi)
-    i1, i2 = int(moving[0]), int(moving[-1])
-    outside = np.concatenate([speed[:i1], speed[i2 + 1:]])
-    rest = outside[outside < 0.25 * hi]  # rest-level samples (not the ramp towards the threshold)
-    noise = float(np.median(rest)) if rest.size else 0.0
-    lo = float(np.clip(2.0 * noise, 1e-3 * peak, hi))
-    before = np.flatnonzero(speed[: i1 + 1] <= lo)
-    after = np.flatnonzero(speed[i2:] <= lo)
-    i_start = int(before[-1]) if before.size else 0
-    i_end = i2 + int(after[0]) if after.size else speed.size - 1
-    step = np.linalg.norm(np.diff(ps, axis=0), axis=1)
-    mid_speed = 0.5 * (speed[1:] + speed[:-1])
-    step = np.where(mid_speed > lo, step, 0.0)  # GNSS jitter at rest adds no path length
-    s = np.concatenate([[0.0], np.cumsum(step)])
-    return TrackSummary(label=label, t_s=tg, pos_m=ps, speed_mps=speed, i_start=i_start, i_end=i_end,
-                        t0_s=float(t[0]), t1_s=float(t[-1]), s_m=s, peak_speed_mps=peak, stop_speed_mps=lo)
 
 
 def _dense_by_arc_length(track: TrackSummary, ds_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -703,8 +627,6 @@ def transfer_scenario(scn: Scenario, real_traces: Trace | Sequence[Trace], *, pa
     with its own time base) is taken from the real run too. Anchors of the real data without a channel or availability
     override in ``scn`` use its defaults; overrides for anchors the real data lacks are dropped.
     """
-    from .jitter_fit import fit_jitter  # imports this module
-
     trs = as_trace_list(real_traces)
     anchors, layout = anchor_layout(trs, policy=anchor_policy)  # first: conflicting layouts stop it at once
     tracks = [summarize_track(t, trace_label(t, i)) for i, t in enumerate(trs)]

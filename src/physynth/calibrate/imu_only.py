@@ -33,7 +33,9 @@ from ..models.imu import AccelerometerParams, BodyImuParams, GyroscopeParams
 from ..records import Trace
 from ..scenario import Scenario, scenario_from_dict
 from ._base import CalibrationError, Fit, median_step_s, rounded, segments, trace_label
-from .imu_fit import CALM_ACC_MPS2, CALM_RATE_RADPS, _intensity, fit_imu, sensor_truth_acceleration, smoothed_body_rate
+from .imu_fit import fit_imu
+from .imu_motion_noise import CALM_ACC_MPS2, CALM_RATE_RADPS, motion_intensity
+from .imu_truth import sensor_truth_acceleration, smoothed_body_rate
 
 ALLAN_WHITE_TAU_S = 0.05
 """Averaging time at which the white noise is read off the Allan deviation, N = adev * sqrt(tau) [s]."""
@@ -413,7 +415,7 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
     Returns a :class:`physynth.calibrate.CalibrationResult`.
     """
     from .geometry import path_miss_warnings, spread_clip_warnings
-    from .pipeline import CalibrationResult
+    from .report import CalibrationResult
 
     say = progress or (lambda _msg: None)
     trs = list(traces)
@@ -452,7 +454,7 @@ def calibrate_imu_only(traces: Sequence[Trace], *, name: str = "calibrated", pat
         mot = imf.params.motion_noise
         acc_sec = data["body_imu"]["accelerometer"]
         # per axis the ENU model scales with |a_k|; the body model with |a|: match the mean variance
-        a_k = np.concatenate([_intensity(t, fc, imf.params.time_offset_s)[0] for t in trs])
+        a_k = np.concatenate([motion_intensity(t, fc, imf.params.time_offset_s)[0] for t in trs])
         a_k = a_k[np.all(np.isfinite(a_k), axis=1)]
         share = float(np.mean(a_k @ np.asarray(mot.acc_var_gain_mps2)) / 3.0
                       / max(float(np.mean(np.linalg.norm(a_k, axis=1))), 1e-12))

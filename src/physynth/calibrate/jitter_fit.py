@@ -20,8 +20,8 @@ from ..models.motion import MotionParams, RunDraw, SpeedProfileParams, compile_s
 from ..models.path import PathParams, PathPerturbation, PerturbationParams, compile_path
 from ..records import Trace
 from ._base import CalibrationError, rounded, segments
-from .geometry import TrackSummary
-from .imu_fit import truth_acceleration
+from .imu_truth import truth_acceleration
+from .tracks import TrackSummary
 
 JITTER_CUTOFF_HZ = 10.0
 """The truth is low-passed here before it is differentiated (above the top band edge, 8 Hz)."""

@@ -246,3 +246,57 @@ def fit_run_lags(rows: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]], 
     return {"correction_s": corr, "std_error_s": se_all, **_random_effects(d, se, int(np.sum(n_blocks - 1))),
             "own_std_error_s": own_all, "white_std_error_s": white_all, "variance_inflation": inflation,
             "n_blocks": n_blocks, "lag1_autocorrelation": rho, "n_los_rows": int(y.size)}
+
+
+def refine_time_offset(rows: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], los: dict[str, np.ndarray],
+                       run_of_row: dict[str, np.ndarray] | None = None,
+                       t_of_row: dict[str, list[np.ndarray]] | None = None) -> dict[str, Any] | None:
+    """Least-squares correction of the time offset from the LOS rows.
+
+    With r(offset) = range - g(t - offset), r(offset0 + d) ~ r(offset0) + g'(t) d; regressing r(offset0)
+    on per-anchor intercepts and range slopes and on -g' gives d, a far more efficient estimate than
+    the robust grid search. Its standard error: with ``run_of_row`` (per anchor, each row's run), a
+    delete-one-block jackknife over blocks in time of each run, every anchor's rows together
+    (:func:`los_row_blocks`; the antenna sway is slow and common to the
+    anchors, so rows taken as independent make it 3-5 times too small), at least that independent-rows
+    error (``white_std_error_s``); without, the independent-rows error. Also returns, per anchor, the
+    sensitivity of the LOS mean and slope to the offset.
+    """
+    keys = [a for a in rows if los[a].sum() > 10]
+    if not keys:
+        return None
+    blocks_r, blocks_x = [], []
+    n_a = len(keys)
+    for j, a in enumerate(keys):
+        r, g, gd = (x[los[a]] for x in rows[a])
+        x = np.zeros((r.size, 2 * n_a + 1))
+        x[:, 2 * j] = 1.0
+        x[:, 2 * j + 1] = g
+        x[:, -1] = -gd
+        blocks_r.append(r)
+        blocks_x.append(x)
+    y = np.concatenate(blocks_r)
+    x = np.concatenate(blocks_x)
+    if np.ptp(x[:, -1]) == 0:
+        return None
+    coef, *_ = np.linalg.lstsq(x, y, rcond=None)
+    resid = y - x @ coef
+    s2 = float(resid @ resid / max(y.size - x.shape[1], 1))
+    white = float(np.sqrt((np.linalg.pinv(x.T @ x) * s2)[-1, -1]))
+    se, n_blocks = white, 0
+    if run_of_row is not None:
+        block = los_row_blocks(los, run_of_row, t_of_row, keys)
+        n_blocks = int(block.max()) + 1
+        jack = np.array([np.linalg.lstsq(x[block != b], y[block != b], rcond=None)[0][-1]
+                         for b in range(n_blocks)])  # a few blocks per run
+        se = max(float(np.sqrt((n_blocks - 1) / n_blocks * np.sum((jack - jack.mean()) ** 2))), white)
+    sens = {}
+    for a in keys:
+        r, g, gd = (v[los[a]] for v in rows[a])
+        b, m = np.polyfit(g, gd, 1) if np.ptp(g) > 0 else (0.0, float(np.mean(gd)))
+        h = range_decades(g)
+        bd = np.polyfit(h, gd, 1)[0] if np.ptp(h) > 0 else 0.0
+        sens[a] = {"d_los_mean_per_s": float(m), "d_range_bias_per_s": float(b),
+                   "d_range_bias_per_decade_per_s": float(bd)}
+    return {"correction_s": float(coef[-1]), "std_error_s": se, "white_std_error_s": white,
+            "jackknife_blocks": n_blocks, "n_los_rows": int(y.size), "sensitivity": sens}

@@ -26,7 +26,7 @@ RUN_OFFSET_LR_MIN = 10.0
 """REML likelihood-ratio statistic (spreads vs none) below which both run-to-run spreads are 0."""
 
 
-def _batch_mean_var(x: np.ndarray, floor: float) -> float:
+def batch_mean_var(x: np.ndarray, floor: float) -> float:
     """Variance of the mean of ``x`` (rows in time order) from the scatter of its block means.
 
     Slow error components (NLOS episodes, misclassified rows) make it larger than sigma^2 / n; the
@@ -37,7 +37,7 @@ def _batch_mean_var(x: np.ndarray, floor: float) -> float:
     return max(float(means.var(ddof=1)) / b, floor)
 
 
-def _reml_two_way(y: np.ndarray, anchor: np.ndarray, run: np.ndarray,
+def reml_two_way(y: np.ndarray, anchor: np.ndarray, run: np.ndarray,
                   v: np.ndarray) -> tuple[float, float, np.ndarray, np.ndarray]:
     """REML of y = mu_anchor + u_run + e_cell + eps, u ~ N(0, s_r), e ~ N(0, s_e), eps ~ N(0, v) known.
 
@@ -115,7 +115,7 @@ def two_way_spread(raw: Mapping[tuple[str, str], tuple[float, float]], n_rows: M
     n = np.array([n_rows[k] for k in cells], dtype=float)
     infl = {a: float(np.mean([raw[k][1] * n_rows[k] for k in cells if k[1] == a])) for a in shared}
     v = np.array([infl[a] for _, a in cells]) / n
-    s_r, s_e, blup, prof = _reml_two_way(y, np.array([shared.index(a) for _, a in cells]),
+    s_r, s_e, blup, prof = reml_two_way(y, np.array([shared.index(a) for _, a in cells]),
                                          np.array([runs.index(lab) for lab, _ in cells]), v)
     lr = float(2.0 * (prof[0] - prof[3]))
     significant = lr >= RUN_OFFSET_LR_MIN

@@ -17,15 +17,13 @@ station or on a table stays still. It moves the position only; the attitude foll
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING, Annotated
+from typing import Annotated
 
 import numpy as np
 from pydantic import Field, model_validator
 
 from ._params import NonNegFloat, ParamsModel, PositiveFloat
-
-if TYPE_CHECKING:
-    from .motion import Kinematics
+from .kinematics import Kinematics
 
 Vec3NonNeg = Annotated[list[NonNegFloat], Field(min_length=3, max_length=3)]
 

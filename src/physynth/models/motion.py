@@ -17,6 +17,7 @@ from pydantic import Field, model_validator
 
 from ._params import FiniteFloat, NonNegFloat, ParamsModel, PositiveFloat, Probability
 from .jitter import JitterParams
+from .kinematics import Kinematics
 from .path import PathGeometry, PathPerturbation, perturbed_cf
 
 
@@ -144,17 +145,6 @@ def trip_duration_s(length_m: float, params: MotionParams, shape: SpeedShape, ru
     """Travel time between the stations [s], without the dwells."""
     v_c = params.cruise_speed_mps * run.speed_factor
     return length_m * run.length_factor / (v_c * shape.mean)
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Kinematics:
-    """Truth at a fixed rate: t (T,), path coordinate s (T,) [m], pos/vel/acc (T, 3) ENU."""
-
-    t_s: np.ndarray
-    s_m: np.ndarray
-    pos_enu_m: np.ndarray
-    vel_enu_mps: np.ndarray
-    acc_enu_mps2: np.ndarray
 
 
 def kinematics(geometry: PathGeometry, pert: PathPerturbation, params: MotionParams, shape: SpeedShape,
