@@ -27,7 +27,6 @@ the band.
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -37,14 +36,24 @@ import numpy as np
 from physynth.calibrate import calibrate
 from physynth.io import write_dataset
 from physynth.io.importers import import_hanyang
+from physynth.scenario import Scenario, scenario_from_dict, scenario_to_dict
 from physynth.validate.render import write_report
 from physynth.workflows import validate_datasets
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from sway_check import white_twin  # noqa: E402
-
 RUNS = (("LOS", "Case_1"), ("LOS", "Case_2"), ("NLOS", "Case_1"), ("NLOS", "Case_2"))
 DEFAULT_DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hanyang-uwb"
+
+
+def white_twin(scn: Scenario, slow_share: float) -> Scenario:
+    """The scenario without the sway, each LOS std given back the swaying part (the model before the sway)."""
+    d = scenario_to_dict(scn)
+    f = 1.0 / np.sqrt(1.0 - slow_share)
+    d["uwb"]["antenna_sway_std_m"] = 0.0
+    d["channel"]["los_std_m"] *= f
+    for over in d["channel_per_anchor"].values():
+        if over.get("los_std_m"):
+            over["los_std_m"] *= f
+    return scenario_from_dict(d, "white twin")
 
 
 def main() -> None:

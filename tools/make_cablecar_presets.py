@@ -5,7 +5,7 @@ The paper (Nordkettenbahn, AvaRange) publishes the route length (710.2 m), the e
 per-anchor channel values. This script states the choices made for them and writes the YAML files,
 so the presets can be rebuilt and re-tuned reproducibly:
 
-    python tools/make_cablecar_presets.py
+    python tools/make_cablecar_presets.py [--out DIR]    # DIR: src/physynth/presets unless given
 
 Geometry: a straight chord from the mountain station (E=0, N=0, U=342) to the valley station,
 620 m apart horizontally (bearing ~77 deg, mostly east, as in the paper's dominant East-Up motion),
@@ -17,6 +17,7 @@ Anchors stand on the ground below and beside the route; their channel values wer
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -168,6 +169,10 @@ Availability: p_d = 0.04, p_o = 0.003 per burst, outages ~ Exp(mean 16 s) as in 
 
 
 def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, default=ROOT / "src" / "physynth" / "presets",
+                    help="folder the two YAML files are written to (default: the shipped presets)")
+    args = ap.parse_args()
     coeffs, sag = cable_polynomial()
     positions = anchor_positions(coeffs)
     for build in (descending, ascending):
@@ -176,7 +181,7 @@ def main() -> None:
         text = "".join(f"# {line}\n" for line in HEADER.format(name=data["name"]).splitlines())
         text += f"# Cable sag at mid-span: {sag:.1f} m perpendicular to the chord.\n"
         text += yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=110)
-        out = ROOT / "src" / "physynth" / "presets" / f"{data['name']}.yaml"
+        out = args.out / f"{data['name']}.yaml"
         out.write_text(text, encoding="utf-8")
         print(f"wrote {out}")
 
