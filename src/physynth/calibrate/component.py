@@ -2,11 +2,12 @@
 
 A component is one physical effect (or one part of the scenario) the calibration fits: the path and
 motion, the UWB timing, the ranging errors, the antenna sway, the link budget, the IMU noise, ... It
-declares the components whose results it reads (``needs``), fits on a :class:`CalibrationContext`
-(the checked inputs, the options, the report and the results of the components before it) and
-returns its result (a record of parameters); it writes its own section and parameters into the
-report. :data:`physynth.calibrate.pipeline.COMPONENTS` lists them in dependency order; the report's
-``components`` section says, per component, whether it was fitted and, when not, why.
+says what of the recordings it reads (``data``), declares the components whose results it reads
+(``needs``), fits on a :class:`CalibrationContext` (the checked inputs, the options, the report and
+the results of the components before it) and returns its result (a record of parameters); it writes
+its own section and parameters into the report. :data:`physynth.calibrate.pipeline.COMPONENTS` lists
+them in dependency order; the report's ``components`` section says, per component, what it fits, what
+it reads and whether it was fitted (when not, why).
 """
 
 from __future__ import annotations
@@ -65,7 +66,8 @@ class Component:
     """One component of the calibration.
 
     ``name``: its key in the results and in the report's ``components`` section; ``fits``: the
-    scenario fields (or the effect) it fits, one line; ``needs``: the components whose results it reads
+    scenario fields (or the effect) it fits, one line; ``data``: what of the recordings it reads, one
+    line; ``needs``: the components whose results it reads
     (they come before it in the list); ``fit(ctx)`` -> its result, its report section and parameters
     written into ``ctx.report``; ``step``: the progress message said before it runs (None: it says its
     own); ``off(ctx)`` -> why it does not run for these options (None: it runs).
@@ -73,6 +75,7 @@ class Component:
 
     name: str
     fits: str
+    data: str
     fit: Callable[[CalibrationContext], Any]
     needs: tuple[str, ...] = ()
     step: str | None = None
@@ -92,7 +95,8 @@ def run_components(components: tuple[Component, ...], ctx: CalibrationContext) -
                 ctx.progress(comp.step)
             ctx.fitted[comp.name] = comp.fit(ctx)
             why = ctx.not_fitted.get(comp.name)
-        section[comp.name] = {"fits": comp.fits, "fitted": why is None, **({"why": why} if why else {})}
+        section[comp.name] = {"fits": comp.fits, "data": comp.data, "fitted": why is None,
+                              **({"why": why} if why else {})}
     return section
 
 

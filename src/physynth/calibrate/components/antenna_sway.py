@@ -66,5 +66,7 @@ def sway_params(sway: dict[str, Any]) -> dict[str, float]:
 
 
 COMPONENT = Component(
-    name="antenna_sway", needs=("ranging",), fits="uwb.antenna_sway_* (each anchor's los_std_m keeps the white rest)",
+    name="antenna_sway", needs=("ranging",),
+    data="the LOS rows of every (run, anchor) with a trusted truth, their times, distance travelled and angle turned",
+    fits="uwb.antenna_sway_* (each anchor's los_std_m keeps the white rest)",
     fit=lambda ctx: antenna_sway_step(ctx.fitted["ranging"].channels, ctx.report))

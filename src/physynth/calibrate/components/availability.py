@@ -163,6 +163,7 @@ def assemble_availability(inp: CalibrationInputs, avail: AvailabilityFit, timing
 
 COMPONENT = Component(
     name="availability", needs=("link_availability", "timing"),
+    data="the per-anchor dropout and outage fits, the tag and long outages, the burst rate",
     fits="availability, availability_per_anchor (dropouts, outages, tag outages, long outages)",
     fit=lambda ctx: assemble_availability(ctx.inputs, ctx.fitted["link_availability"], ctx.fitted["timing"],
                                           ctx.report, long_outages=ctx.options.long_outages))

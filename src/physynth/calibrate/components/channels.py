@@ -184,4 +184,5 @@ def _fit(ctx: CalibrationContext) -> ChannelSet:
 
 COMPONENT = Component(
     name="channels", needs=("ranging", "link_availability", "timing", "nlos_episodes", "antenna_sway", "tag_nlos"),
+    data="the per-anchor mixtures, link fits, NLOS episodes, sway and tag NLOS",
     fits="channel, channel_per_anchor (LOS, NLOS modes, rate_hz, max_range_m, edge_width_m)", fit=_fit)

@@ -71,5 +71,6 @@ def fit_geometry(inp: CalibrationInputs, path_kind: PathKind, report: ReportBuil
 
 
 COMPONENT = Component(
-    name="geometry", fits="path, path.perturbation, motion (speed profile, dwells, spreads, jitter)",
+    name="geometry", data="the ground truth of every UWB recording",
+    fits="path, path.perturbation, motion (speed profile, dwells, spreads, jitter)",
     fit=lambda ctx: fit_geometry(ctx.inputs, ctx.options.path_kind, ctx.report, ctx.progress))

@@ -43,4 +43,5 @@ def _fit(ctx: CalibrationContext) -> ImuParams:
     return fit_imu_step(inp, ctx.report, ctx.progress)
 
 
-COMPONENT = Component(name="imu", fits="imu (white noise, bias random walk, vibration)", fit=_fit)
+COMPONENT = Component(name="imu", data="IMU samples beside a ground truth (the IMU-only recordings included)",
+                      fits="imu (white noise, bias random walk, vibration)", fit=_fit)

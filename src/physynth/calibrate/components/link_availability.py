@@ -33,5 +33,6 @@ def fit_link_availability(inp: CalibrationInputs, ranging: RangingFit, timing: T
 
 COMPONENT = Component(
     name="link_availability", needs=("ranging", "timing"), step="fitting availability (link range, dropouts, outages)",
+    data="every ranging attempt (recorded or inferred from the burst schedule) with its true range",
     fits="per-anchor link range, attempt rate, dropout and outage fits; tag and long outages (assembled later)",
     fit=lambda ctx: fit_link_availability(ctx.inputs, ctx.fitted["ranging"], ctx.fitted["timing"], ctx.report))

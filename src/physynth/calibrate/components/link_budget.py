@@ -80,5 +80,7 @@ def _off(ctx: CalibrationContext) -> str | None:
     return None if ctx.options.static_sweeps is not None else "no static sweeps"
 
 
-COMPONENT = Component(name="link_budget", needs=("channels", "availability"), fit=_fit, off=_off,
-                      fits="channel.link_budget (every anchor), availability dropouts without its losses")
+COMPONENT = Component(
+    name="link_budget", needs=("channels", "availability"), fit=_fit, off=_off,
+    data="the static sweeps (received power, detection against distance) and the recordings' losses",
+    fits="channel.link_budget (every anchor), availability dropouts without its losses")

@@ -298,4 +298,5 @@ def _fit(ctx: CalibrationContext) -> NlosEpisodes:
 
 COMPONENT = Component(
     name="nlos_episodes", needs=("ranging", "link_availability"), fit=_fit,
+    data="each anchor's rows classified LOS or NLOS mode, in time order per run",
     fits="uwb.nlos_dwell_s, each NLOS mode's dwell_s, fixed_dwell, held_jitter_m")

@@ -178,5 +178,6 @@ def _fit(ctx: CalibrationContext) -> RangingFit:
 
 COMPONENT = Component(
     name="ranging", needs=("timing",), step="fitting LOS/NLOS ranging errors per anchor", fit=_fit,
+    data="UWB ranges against the truth's distance, per anchor and run (and the static sweeps when given)",
     fits=("channel_per_anchor LOS/NLOS errors, uwb.time_offset_s (refined), uwb.time_offset_std_s, "
           "uwb.run_*offset_std_m, uwb.run_*slope_std_m, uwb.tag_pattern_m, static.*"))

@@ -69,6 +69,7 @@ def tag_nlos_step(chan: Channels, ids: Sequence[str], burst_rate_hz: float, rep:
 
 
 COMPONENT = Component(
-    name="tag_nlos", needs=("ranging", "timing"), fits="uwb.tag_nlos_prob",
+    name="tag_nlos", needs=("ranging", "timing"), data="each anchor's NLOS rows burst by burst",
+    fits="uwb.tag_nlos_prob",
     fit=lambda ctx: tag_nlos_step(ctx.fitted["ranging"].channels, ctx.inputs.anchor_ids,
                                   ctx.fitted["timing"].burst_rate_hz, ctx.report))

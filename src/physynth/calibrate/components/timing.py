@@ -62,5 +62,6 @@ def late_burst_params(bf: dict[str, Any]) -> dict[str, float]:
 
 
 COMPONENT = Component(
-    name="timing", fits="uwb.time_offset_s (grid), uwb.burst_*, uwb.slot_s, uwb.late_burst_*",
+    name="timing", data="UWB stamps and ranges against the truth",
+    fits="uwb.time_offset_s (grid), uwb.burst_*, uwb.slot_s, uwb.late_burst_*",
     fit=lambda ctx: fit_timing(ctx.inputs, ctx.report, ctx.progress))
