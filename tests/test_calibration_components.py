@@ -54,11 +54,32 @@ def test_run_components_fits_in_order_and_says_what_was_not_fitted():
         run_components(comps[1:], _Ctx(link=True))
 
 
-def test_the_report_says_per_component_whether_it_was_fitted():
+@pytest.fixture(scope="module")
+def calibrated():
     cs = compile_scenario(load_scenario("cablecar-descending"))
-    res = calibrate([generate_trace(cs, i, 5) for i in range(2)], name="c")
+    return calibrate([generate_trace(cs, i, 5) for i in range(2)], name="c")
+
+
+def test_the_report_says_per_component_whether_it_was_fitted(calibrated):
+    res = calibrated
     comp = res.report["components"]
     assert list(comp) == [c.name for c in COMPONENTS]
     assert comp["link_budget"] == {"fits": comp["link_budget"]["fits"], "data": comp["link_budget"]["data"],
                                    "fitted": False, "why": "link_budget=False"}
     assert all(v["fitted"] for k, v in comp.items() if k != "link_budget")
+
+
+def test_without_takes_out_the_optional_effect_and_nothing_else(calibrated):
+    scn, rep = calibrated.scenario, calibrated.report
+    hooks = {c.name: c.without for c in COMPONENTS if c.without is not None}
+    assert set(hooks) == {"timing", "ranging", "antenna_sway", "tag_nlos", "link_budget"}
+    assert hooks["timing"](scn, rep).uwb.late_burst_prob == 0.0
+    assert hooks["tag_nlos"](scn, rep).uwb.tag_nlos_prob == 0.0
+    ranging = hooks["ranging"](scn, rep)
+    assert ranging.uwb.run_offset_std_m == ranging.uwb.time_offset_std_s == 0.0
+    assert ranging.channel == scn.channel and ranging.path == scn.path
+    assert hooks["link_budget"](scn, rep) == scn  # not applied: nothing to take out
+    sway = hooks["antenna_sway"](scn, rep)
+    assert sway.uwb.antenna_sway_std_m == 0.0
+    if rep["antenna_sway"]["identifiable"]:  # the white twin: the LOS std given back the swaying part
+        assert sway.channel.los_std_m > scn.channel.los_std_m

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 TOOLS = Path(__file__).resolve().parents[1] / "tools"
-KEPT = sorted(p.stem for p in TOOLS.glob("*.py"))
+KEPT = sorted(p.stem for p in TOOLS.glob("*.py") if not p.name.startswith("_"))  # _x.py: helpers of the tools
 
 
 def _run(*args: str, cwd: Path | None = None) -> str:

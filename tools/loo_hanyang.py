@@ -27,6 +27,7 @@ the band.
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -34,26 +35,13 @@ from pathlib import Path
 import numpy as np
 
 from physynth.calibrate import calibrate
-from physynth.io import write_dataset
-from physynth.io.importers import import_hanyang
-from physynth.scenario import Scenario, scenario_from_dict, scenario_to_dict
+from physynth.calibrate.components.antenna_sway import without_sway
+from physynth.calibrate.components.tag_nlos import without_tag_nlos
 from physynth.validate.render import write_report
 from physynth.workflows import validate_datasets
 
-RUNS = (("LOS", "Case_1"), ("LOS", "Case_2"), ("NLOS", "Case_1"), ("NLOS", "Case_2"))
-DEFAULT_DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hanyang-uwb"
-
-
-def white_twin(scn: Scenario, slow_share: float) -> Scenario:
-    """The scenario without the sway, each LOS std given back the swaying part (the model before the sway)."""
-    d = scenario_to_dict(scn)
-    f = 1.0 / np.sqrt(1.0 - slow_share)
-    d["uwb"]["antenna_sway_std_m"] = 0.0
-    d["channel"]["los_std_m"] *= f
-    for over in d["channel_per_anchor"].values():
-        if over.get("los_std_m"):
-            over["los_std_m"] *= f
-    return scenario_from_dict(d, "white twin")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _hanyang import DEFAULT_DATA, import_runs  # noqa: E402
 
 
 def main() -> None:
@@ -85,14 +73,7 @@ def main() -> None:
     args = ap.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:
-        dirs, traces = {}, {}
-        for env, case in RUNS:
-            name = f"{env} {case}"
-            trace, _ = import_hanyang(args.data / "Dynamic_measurements" / env / "Trajectory_A" / case,
-                                      crop_to_uwb=True)
-            dirs[name] = Path(tmp) / f"{env}-{case}"
-            write_dataset(dirs[name], [trace], meta={"kind": "real", "source": "hanyang-uwb"})
-            traces[name] = trace
+        dirs, traces = import_runs(args.data, Path(tmp))
         rows = []
         for left in traces:
             t0 = time.perf_counter()
@@ -103,12 +84,12 @@ def main() -> None:
                             trusted_truth=args.trusted_truth,
                             static_sweeps=args.data / "Static_measurements" if args.link_budget else None)
             scn = res.scenario
-            if args.white_twin and res.report["antenna_sway"]["identifiable"]:
-                scn = white_twin(scn, res.report["antenna_sway"]["slow_share"])
+            if args.white_twin:
+                scn = without_sway(scn, res.report)  # the white twin: no-op where no sway was identified
             if args.sway_clock != "auto":
                 scn = with_sway_clock(scn, res.report["antenna_sway"], args.sway_clock)
             if args.no_tag_nlos:
-                scn = scn.model_copy(update={"uwb": scn.uwb.model_copy(update={"tag_nlos_prob": 0.0})})
+                scn = without_tag_nlos(scn, res.report)
             rep = validate_datasets(dirs[left], scenario=scn, n=args.n, seed=args.seed, transfer=True,
                                     all_truth=args.all_truth)
             if args.out is not None:

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from ..progress import ProgressCallback
+from ..scenario import Scenario
 from .geometry import AnchorPolicy, PathKind
 from .inputs import CalibrationInputs
 from .report import ReportBuilder
@@ -70,7 +71,10 @@ class Component:
     line; ``needs``: the components whose results it reads
     (they come before it in the list); ``fit(ctx)`` -> its result, its report section and parameters
     written into ``ctx.report``; ``step``: the progress message said before it runs (None: it says its
-    own); ``off(ctx)`` -> why it does not run for these options (None: it runs).
+    own); ``off(ctx)`` -> why it does not run for these options (None: it runs); ``without(scenario,
+    report)`` -> the calibrated scenario with the component's optional effect taken out (its fields
+    at the values that switch it off; None: the component is no optional effect), what the held-out
+    evidence compares against (``tools/component_evidence.py``).
     """
 
     name: str
@@ -80,6 +84,7 @@ class Component:
     needs: tuple[str, ...] = ()
     step: str | None = None
     off: Callable[[CalibrationContext], str | None] = always
+    without: Callable[[Scenario, dict[str, Any]], Scenario] | None = None
 
 
 def run_components(components: tuple[Component, ...], ctx: CalibrationContext) -> dict[str, dict[str, Any]]:

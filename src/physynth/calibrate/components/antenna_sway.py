@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from ...scenario import Scenario, scenario_from_dict
 from .._base import rounded
 from ..anchor_channels import Channels
 from ..component import Component
@@ -65,7 +66,24 @@ def sway_params(sway: dict[str, Any]) -> dict[str, float]:
     return {"antenna_sway_std_m": rounded(sway["std_m"], 4), "antenna_sway_tau_s": rounded(sway["tau_s"], 3)}
 
 
+def without_sway(scn: Scenario, report: dict[str, Any]) -> Scenario:
+    """``scn`` without the sway, each LOS std given back the swaying part (the white twin: the model before
+    the sway)."""
+    fit = report.get("antenna_sway", {})
+    if not fit.get("identifiable"):
+        return scn
+    d = scn.model_dump(mode="json")
+    f = 1.0 / np.sqrt(1.0 - fit["slow_share"])
+    d["uwb"]["antenna_sway_std_m"] = 0.0
+    d["channel"]["los_std_m"] *= f
+    for over in d["channel_per_anchor"].values():
+        if over.get("los_std_m"):
+            over["los_std_m"] *= f
+    return scenario_from_dict(d, "without the antenna sway")
+
+
 COMPONENT = Component(
+    without=without_sway,
     name="antenna_sway", needs=("ranging",),
     data="the LOS rows of every (run, anchor) with a trusted truth, their times, distance travelled and angle turned",
     fits="uwb.antenna_sway_* (each anchor's los_std_m keeps the white rest)",

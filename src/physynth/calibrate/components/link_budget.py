@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, replace
+from typing import Any
 
 from ...models.availability import AvailabilityOverride
+from ...scenario import Scenario, scenario_from_dict
 from .._base import rounded
 from ..component import CalibrationContext, Component
 from ..inputs import CalibrationInputs
@@ -80,7 +82,23 @@ def _off(ctx: CalibrationContext) -> str | None:
     return None if ctx.options.static_sweeps is not None else "no static sweeps"
 
 
+def without_link_budget(scn: Scenario, report: dict[str, Any]) -> Scenario:
+    """``scn`` without the link budget, every anchor's dropout probability as fitted before it."""
+    lb = report.get("link_budget", {})
+    if not lb.get("applied"):
+        return scn
+    d = scn.model_dump(mode="json")
+    d["channel"]["link_budget"] = None
+    for over in d["channel_per_anchor"].values():
+        over.pop("link_budget", None)
+    for aid, p in (lb.get("dropout_prob_before") or {}).items():
+        if aid in d["availability_per_anchor"]:
+            d["availability_per_anchor"][aid]["dropout_prob"] = p
+    return scenario_from_dict(d, "without the link budget")
+
+
 COMPONENT = Component(
+    without=without_link_budget,
     name="link_budget", needs=("channels", "availability"), fit=_fit, off=_off,
     data="the static sweeps (received power, detection against distance) and the recordings' losses",
     fits="channel.link_budget (every anchor), availability dropouts without its losses")

@@ -15,6 +15,7 @@ from typing import Any, Literal
 import numpy as np
 
 from ...records import untrusted_truth
+from ...scenario import Scenario
 from .._base import CalibrationError
 from ..anchor_channels import Channels, fit_channels
 from ..component import CalibrationContext, Component
@@ -176,7 +177,18 @@ def _fit(ctx: CalibrationContext) -> RangingFit:
     return replace(ranging, static=static)
 
 
+RUN_TO_RUN_FIELDS = ("time_offset_std_s", "run_offset_std_m", "run_anchor_offset_std_m", "run_slope_std_m",
+                     "run_anchor_slope_std_m")
+"""The run-to-run spreads the ranging component fits: the lag, the ranging offsets and the range-law tilts."""
+
+
+def without_run_to_run(scn: Scenario, report: dict[str, Any]) -> Scenario:  # noqa: ARG001
+    """``scn`` with every run alike: no run-to-run spread of the lag, the ranging offsets or the tilts."""
+    return scn.model_copy(update={"uwb": scn.uwb.model_copy(update=dict.fromkeys(RUN_TO_RUN_FIELDS, 0.0))})
+
+
 COMPONENT = Component(
+    without=without_run_to_run,
     name="ranging", needs=("timing",), step="fitting LOS/NLOS ranging errors per anchor", fit=_fit,
     data="UWB ranges against the truth's distance, per anchor and run (and the static sweeps when given)",
     fits=("channel_per_anchor LOS/NLOS errors, uwb.time_offset_s (refined), uwb.time_offset_std_s, "

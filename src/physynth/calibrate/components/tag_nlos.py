@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from ...models.uwb import tag_mode_index
+from ...scenario import Scenario
 from ..anchor_channels import Channels
 from ..component import Component
 from ..report import ReportBuilder
@@ -68,7 +69,13 @@ def tag_nlos_step(chan: Channels, ids: Sequence[str], burst_rate_hz: float, rep:
     return fit
 
 
+def without_tag_nlos(scn: Scenario, report: dict[str, Any]) -> Scenario:  # noqa: ARG001
+    """``scn`` with no tag-side NLOS (its NLOS time all per anchor, as before the tag-side process)."""
+    return scn.model_copy(update={"uwb": scn.uwb.model_copy(update={"tag_nlos_prob": 0.0})})
+
+
 COMPONENT = Component(
+    without=without_tag_nlos,
     name="tag_nlos", needs=("ranging", "timing"), data="each anchor's NLOS rows burst by burst",
     fits="uwb.tag_nlos_prob",
     fit=lambda ctx: tag_nlos_step(ctx.fitted["ranging"].channels, ctx.inputs.anchor_ids,

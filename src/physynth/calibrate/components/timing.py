@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ...progress import ProgressCallback
+from ...scenario import Scenario
 from .._base import Fit, rounded
 from ..component import Component
 from ..inputs import CalibrationInputs
@@ -61,7 +62,13 @@ def late_burst_params(bf: dict[str, Any]) -> dict[str, float]:
             "late_burst_delay_s": rounded(bf["late_burst_delay_s"], 4)}
 
 
+def without_late_stamps(scn: Scenario, report: dict[str, Any]) -> Scenario:  # noqa: ARG001
+    """``scn`` without late stamps (every burst's ranges stamped in their slot)."""
+    return scn.model_copy(update={"uwb": scn.uwb.model_copy(update={"late_burst_prob": 0.0})})
+
+
 COMPONENT = Component(
+    without=without_late_stamps,
     name="timing", data="UWB stamps and ranges against the truth",
     fits="uwb.time_offset_s (grid), uwb.burst_*, uwb.slot_s, uwb.late_burst_*",
     fit=lambda ctx: fit_timing(ctx.inputs, ctx.report, ctx.progress))
