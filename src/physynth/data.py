@@ -195,7 +195,7 @@ def fetch(name: str, root: str | os.PathLike | None = None, base_url: str | None
 
     label = f"fetching {ds.name}"
     report(label, 0, len(files))
-    with _quiet_pooch():
+    with _quiet_pooch(), _no_empty_folders_left(folder):
         for i, f in enumerate(files, 1):
             try:
                 store.fetch(f, processor=record, downloader=downloader)
@@ -235,6 +235,23 @@ def _reason(exc: BaseException) -> str:
     if isinstance(exc, requests.exceptions.ConnectionError):
         return "the server is unreachable"
     return type(exc).__name__
+
+
+@contextlib.contextmanager
+def _no_empty_folders_left(folder: Path) -> Iterator[None]:
+    """A fetch that fails removes the folders it made and left empty (files fetched before are kept)."""
+    made = [p for p in (folder, *folder.parents) if not p.exists()]
+    try:
+        yield
+    except BaseException:
+        if folder.is_dir():
+            for sub in sorted((p for p in folder.rglob("*") if p.is_dir()), key=lambda p: -len(p.parts)):
+                with contextlib.suppress(OSError):
+                    sub.rmdir()  # only an empty folder goes
+        for p in made:
+            with contextlib.suppress(OSError):
+                p.rmdir()
+        raise
 
 
 @contextlib.contextmanager

@@ -85,9 +85,9 @@ def _register_commands() -> None:
     global _registered
     if _registered:
         return
-    from . import bench, calibrate, export, generate, imports, study, validate, verify
+    from . import bench, calibrate, data, export, generate, imports, study, validate, verify
 
-    for module in (generate, imports, calibrate, validate, study, export, bench, verify):
+    for module in (generate, imports, calibrate, validate, study, export, bench, verify, data):
         module.register(app)
     use_command_class(app)
     _registered = True

@@ -182,6 +182,8 @@ PARAMETER_FLAGS = (
     (re.compile(r"\bekf_prior\b"), "--ekf-prior"),
     (re.compile(r"\bweight_average\b"), "--weight-average"),
     (re.compile(r"\bfigures=False\b"), "--no-figures"),
+    (re.compile(r"\bphysynth\.data\.fetch\('([\w-]+)'\)"), r"physynth data fetch \1"),
+    (re.compile(r"\bbase_url\b"), "--base-url"),
 )
 """Library parameter names (which the library's errors and notes name) and the options that set them."""
 
