@@ -99,21 +99,45 @@ class StudyResult:
 
 
 def default_data_root() -> Path:
-    """``../shared/data`` beside the repository (``PHYSYNTH_SHARED_DATA`` overrides it)."""
+    """The folder holding the real datasets (``hanyang-uwb/``, ...): ``PHYSYNTH_SHARED_DATA`` (the older
+    name) or ``PHYSYNTH_DATA_DIR`` when set; else ``shared/data`` beside a PhySynth clone when it holds the
+    Hanyang runs (the developers' copy); else the user's cache, where :func:`physynth.data.fetch` puts
+    them (:func:`physynth.data.data_root`)."""
+    from ..data import DATA_DIR_ENV, data_root
+
     env = os.environ.get("PHYSYNTH_SHARED_DATA")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parents[3].parent / "shared" / "data"
+    if not os.environ.get(DATA_DIR_ENV):
+        beside = Path(__file__).resolve().parents[3].parent / "shared" / "data"
+        if (beside / "hanyang-uwb").is_dir():
+            return beside
+    return data_root()
 
 
 def hanyang_default_runs(data_root: Path | None = None) -> tuple[list[StudyRun], StudyRun]:
-    """The default split: Hanyang Trajectory_A LOS Case_1, LOS Case_2, NLOS Case_1 / NLOS Case_2."""
+    """The default split: Hanyang Trajectory_A LOS Case_1, LOS Case_2, NLOS Case_1 / NLOS Case_2.
+
+    The runs are read from dataset ``hanyang-uwb`` under ``data_root`` (default: :func:`default_data_root`);
+    only the files of these four runs need to be there."""
+    from ..data import dataset_path, get_dataset, missing_files
+    from ..errors import DatasetError
     from ..io.importers import import_hanyang
 
-    root = (data_root or default_data_root()) / "hanyang-uwb" / "Dynamic_measurements"
-    if not root.is_dir():
-        raise PhySynthError(f"default Hanyang runs not found under {root}; give training and test datasets, or "
-                            "set PHYSYNTH_SHARED_DATA to the folder that holds hanyang-uwb")
+    base = Path(data_root) if data_root is not None else default_data_root()
+    runs_dir = "Dynamic_measurements"
+    needed = {f: h for f, h in get_dataset("hanyang-uwb").registry().items()
+              if any(f.startswith(f"{runs_dir}/{rel}/") for rel in HANYANG_RUNS)}
+    try:
+        root = dataset_path("hanyang-uwb", base, registry=needed) / runs_dir
+    except DatasetError:
+        missing = missing_files("hanyang-uwb", base, registry=needed)
+        what = ("dataset hanyang-uwb is not fetched" if len(missing) == len(needed)
+                else f"{len(missing)} of their {len(needed)} files are missing (first: {missing[0]})")
+        raise PhySynthError(f"default Hanyang runs not found under {base / 'hanyang-uwb' / runs_dir}: {what}; "
+                            "fetch them with physynth.data.fetch('hanyang-uwb'), give training and test "
+                            "datasets, or set PHYSYNTH_SHARED_DATA (or PHYSYNTH_DATA_DIR) to the folder that "
+                            "holds hanyang-uwb") from None
     runs = []
     for rel in HANYANG_RUNS:
         trace, _ = import_hanyang(root / rel, crop_to_uwb=True)
