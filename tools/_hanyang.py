@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from physynth.io import write_dataset
@@ -23,3 +24,10 @@ def import_runs(data: Path, tmp: Path) -> tuple[dict[str, Path], dict[str, Trace
         write_dataset(dirs[name], [trace], meta={"kind": "real", "source": "hanyang-uwb"})
         traces[name] = trace
     return dirs, traces
+
+
+def loo_arguments(ap: argparse.ArgumentParser, n: int) -> None:
+    """The options every Hanyang leave-one-out tool takes: the data folder, traces per validation, the seed."""
+    ap.add_argument("--data", type=Path, default=DEFAULT_DATA, help="hanyang-uwb folder")
+    ap.add_argument("--n", type=int, default=n, help="synthetic traces per validation")
+    ap.add_argument("--seed", type=int, default=1)

@@ -30,7 +30,7 @@ from physynth.calibrate.pipeline import COMPONENTS
 from physynth.workflows import validate_datasets
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _hanyang import DEFAULT_DATA, import_runs  # noqa: E402
+from _hanyang import import_runs, loo_arguments  # noqa: E402
 
 MEASURES = ("KS x 100", "UWB>=1 dev. %", "mean AoI dev. %", "|median diff.| cm")
 
@@ -44,9 +44,7 @@ def deviations(rep) -> np.ndarray:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=DEFAULT_DATA, help="hanyang-uwb folder")
-    ap.add_argument("--n", type=int, default=20, help="synthetic traces per validation")
-    ap.add_argument("--seed", type=int, default=1)
+    loo_arguments(ap, n=20)
     ap.add_argument("--runs", default="0,1,2,3", help="indices of the left-out runs (LOS 1, LOS 2, NLOS 1, NLOS 2)")
     ap.add_argument("--components", default=None, help="only these components (names, comma-separated)")
     ap.add_argument("--link-budget", action="store_true", help="calibrate with link_budget=True (static sweeps)")

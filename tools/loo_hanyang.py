@@ -41,14 +41,12 @@ from physynth.validate.render import write_report
 from physynth.workflows import validate_datasets
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _hanyang import DEFAULT_DATA, import_runs  # noqa: E402
+from _hanyang import import_runs, loo_arguments  # noqa: E402
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=DEFAULT_DATA, help="hanyang-uwb folder")
-    ap.add_argument("--n", type=int, default=50, help="synthetic traces per validation")
-    ap.add_argument("--seed", type=int, default=1)
+    loo_arguments(ap, n=50)
     ap.add_argument("--long-outages", action="store_true", help="calibrate with long_outages=True")
     ap.add_argument("--tag-pattern", action="store_true", help="calibrate with tag_pattern=True")
     ap.add_argument("--run-slopes", action="store_true", help="calibrate with run_slopes=True")
