@@ -166,7 +166,8 @@ class FetchResult:
 
 
 def fetch(name: str, root: str | os.PathLike | None = None, base_url: str | None = None,
-          progress: ProgressCallback | None = None, registry: Mapping[str, str] | None = None) -> FetchResult:
+          progress: ProgressCallback | None = None, registry: Mapping[str, str] | None = None,
+          retries: int = 1) -> FetchResult:
     """Download every file of dataset ``name`` that is missing or fails its SHA-256 check into the data root.
 
     Files already present with the right hash are kept as they are (a complete local copy needs no
@@ -174,8 +175,10 @@ def fetch(name: str, root: str | os.PathLike | None = None, base_url: str | None
     like a data root: file ``p`` of the dataset is fetched from ``<base_url>/<name>/<p>``. ``registry``
     (path -> ``sha256:...``) restricts the fetch to those files (default: the shipped registry, every
     file). Each download goes to a temporary file beside its target and is moved into place only once its
-    hash matches; a :class:`DownloadError` names the first file that could not be fetched.
+    hash matches; a file that fails is tried ``retries`` more times, then a :class:`DownloadError` names it.
     """
+    if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+        raise ArgumentError(f"retries must be a whole number >= 0, not {retries!r}")
     ds = get_dataset(name)
     files = _registry_of(name, registry)
     report = progress or no_progress
@@ -184,7 +187,7 @@ def fetch(name: str, root: str | os.PathLike | None = None, base_url: str | None
     import pooch
     import requests
 
-    store = pooch.create(path=folder, base_url=base, registry=dict(files), retry_if_failed=1,
+    store = pooch.create(path=folder, base_url=base, registry=dict(files), retry_if_failed=retries,
                          urls={f: base + quote(f) for f in files})
     downloader = pooch.HTTPDownloader(progressbar=False, timeout=TIMEOUT_S)
     actions: list[str] = []
