@@ -16,9 +16,9 @@ from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import pytest
+from test_cli import run  # physynth.cli.main in process: (exit code, stdout, stderr)
 
 from physynth import data
-from physynth.cli import main
 from physynth.errors import ArgumentError, DatasetError
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -77,14 +77,6 @@ def dead_url() -> str:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     return f"http://127.0.0.1:{port}"
-
-
-def run(capsys, *args):
-    with pytest.raises(SystemExit) as exc:
-        main([*map(str, args)])
-        raise SystemExit(0)
-    out = capsys.readouterr()
-    return exc.value.code or 0, out.out, out.err
 
 
 def test_shipped_registry_covers_every_shared_file():
