@@ -108,8 +108,10 @@ def default_data_root() -> Path:
     env = os.environ.get("PHYSYNTH_SHARED_DATA")
     if env:
         return Path(env)
-    if not os.environ.get(DATA_DIR_ENV):
-        beside = Path(__file__).resolve().parents[3].parent / "shared" / "data"
+    here = Path(__file__).resolve()
+    clone = here.parents[3]  # <clone>/src/physynth/studies/tracking.py, not an installed package
+    if not os.environ.get(DATA_DIR_ENV) and here.parents[2].name == "src" and (clone / "pyproject.toml").is_file():
+        beside = clone.parent / "shared" / "data"
         if (beside / "hanyang-uwb").is_dir():
             return beside
     return data_root()
