@@ -65,6 +65,7 @@ def fetch_cmd(
     Files already there with the right hash are kept; run it again to finish an interrupted fetch.
     """
     from ..data import DownloadError, fetch, get_dataset
+    from ..errors import Interrupted
 
     ds = get_dataset(name)  # an unknown name: exit 2 before anything is drawn
     try:
@@ -72,6 +73,9 @@ def fetch_cmd(
             result = fetch(ds.name, root=data_root, base_url=base_url, progress=progress)
     except DownloadError as exc:
         fail(str(exc), EXIT_SYSTEM)
+    except Interrupted as exc:  # physynth.cli.main prints one line and exits 128 + signal
+        exc.note = f"the file being downloaded was removed, those done are kept: fetch {ds.name} again to finish"
+        raise
     fresh = f"{result.downloaded} downloaded" if result.downloaded else "nothing to download"
     typer.echo(f"{ds.name}: {result.verified} files verified ({fresh}) in {result.path}")
     typer.echo(f"licence {ds.licence}; cite: {ds.citation}")
