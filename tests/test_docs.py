@@ -1,0 +1,189 @@
+"""The documentation cannot drift from the code (issue 47).
+
+- The site builds with ``mkdocs build --strict`` (every warning an error: a broken link, a page missing
+  from the nav, an API reference that no longer resolves).
+- The generated reference pages (``docs/reference/commands.md`` from the typer app's ``--help``,
+  ``docs/reference/scenario.md`` from the pydantic models and ``physynth.bounds.BOUNDS``) equal what
+  ``tools/make_docs_reference.py`` writes now.
+- Every ```` ```bash ```` and ```` ```python ```` block of the README and of the tutorials runs, in page
+  order, in a scratch folder laid out like a clone (``docs/`` beside it, the real data at
+  ``../shared/data``, ``PHYSYNTH_DATA_DIR`` pointing there). The convention (docs/index.md, "Examples that
+  run") is an HTML comment on the line before a block:
+
+  - ``<!-- docs-test: tiny "FIND" "REPLACE" ... -->``: the test replaces each FIND by its REPLACE (tiny
+    sizes) before running the block, and fails if a FIND is not in the block;
+  - ``<!-- docs-test: skip REASON -->``: the block is not run (set-up commands that install).
+
+  Any other fence (```` ```text ````, ```` ```yaml ````) is not run.
+- The notebook tutorial (``docs/tutorials/train-a-tracker.ipynb``) runs with nbclient, its cell tagged
+  ``parameters`` replaced by tiny sizes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+SHARED = ROOT.parent / "shared" / "data"
+EXECUTED = ["README.md", *sorted(str(p.relative_to(ROOT)) for p in (DOCS / "tutorials").glob("*.md"))]
+FENCE = re.compile(r"^```(\w*)[^\n]*\n(.*?)^```\s*$", re.M | re.S)
+MARK = re.compile(r"^<!--\s*docs-test:\s*(\w+)([^\n]*?)-->$")  # one line, right above the fence
+
+
+def blocks(page: Path) -> list[tuple[str, str, str | None, list[tuple[str, str]]]]:
+    """(language, code, skip reason or None, substitutions) of every bash/python block of a page."""
+    text = page.read_text(encoding="utf-8")
+    found = []
+    for m in FENCE.finditer(text):
+        lang, code = m.group(1), m.group(2)
+        if lang not in ("bash", "python"):
+            continue
+        before = text[: m.start()]
+        mark = MARK.match(before.rstrip("\n").rsplit("\n", 1)[-1])
+        skip, subs = None, []
+        if mark is not None:
+            kind, rest = mark.group(1), mark.group(2).strip()
+            if kind == "skip":
+                skip = rest or "no reason given"
+            elif kind == "tiny":
+                args = shlex.split(rest)
+                assert args and len(args) % 2 == 0, f"{page.name}: tiny needs FIND REPLACE pairs: {rest!r}"
+                subs = list(zip(args[::2], args[1::2], strict=True))
+            else:
+                raise AssertionError(f"{page.name}: unknown docs-test marker {kind!r}")
+        found.append((lang, code, skip, subs))
+    return found
+
+
+def tiny(code: str, subs: list[tuple[str, str]], where: str) -> str:
+    for find, repl in subs:
+        assert find in code, f"{where}: the tiny substitution {find!r} is not in its block (the page changed?)"
+        code = code.replace(find, repl)
+    return code
+
+
+def scratch(tmp_path: Path) -> tuple[Path, dict[str, str]]:
+    """A folder laid out like a clone: docs/ in it, ../shared/data beside it; the venv's commands on PATH."""
+    work = tmp_path / "clone"
+    work.mkdir()
+    (work / "docs").symlink_to(DOCS)
+    if SHARED.is_dir():
+        (tmp_path / "shared").mkdir()
+        (tmp_path / "shared" / "data").symlink_to(SHARED)
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
+           "PHYSYNTH_DATA_DIR": str(SHARED), "MPLBACKEND": "Agg", "PYTHONHASHSEED": "0"}
+    env.pop("PHYSYNTH_SHARED_DATA", None)
+    return work, env
+
+
+def test_marker_parsing_finds_skips_and_substitutions(tmp_path):
+    page = tmp_path / "p.md"
+    page.write_text("x\n<!-- docs-test: tiny \"-n 50\" \"-n 2\" -->\n```bash\nphysynth generate -n 50\n```\n\n"
+                    "<!-- docs-test: skip installs -->\n```bash\nmake run\n```\n```text\nnot run\n```\n"
+                    "```python\nprint(1)\n```\n", encoding="utf-8")
+    got = blocks(page)
+    assert [(lang, skip, subs) for lang, _, skip, subs in got] == [
+        ("bash", None, [("-n 50", "-n 2")]), ("bash", "installs", []), ("python", None, [])]
+    assert tiny(got[0][1], got[0][3], "p") == "physynth generate -n 2\n"
+    with pytest.raises(AssertionError, match="not in its block"):
+        tiny("physynth generate -n 20\n", [("-n 50", "-n 2")], "p")
+
+
+@pytest.mark.parametrize("page", EXECUTED)
+def test_page_examples_run(page, tmp_path):
+    path = ROOT / page
+    found = blocks(path)
+    assert any(skip is None for _, _, skip, _ in found), f"{page}: no runnable example"
+    text = path.read_text(encoding="utf-8")
+    if ("physynth data" in text or "../shared/data" in text) and not SHARED.is_dir():
+        pytest.skip(f"{page} uses the real data, and {SHARED} is absent")
+    work, env = scratch(tmp_path)
+    for k, (lang, code, skip, subs) in enumerate(found):
+        if skip is not None:
+            continue
+        where = f"{page}, block {k + 1}"
+        code = tiny(code, subs, where)
+        if lang == "bash":
+            cmd = ["bash", "-euo", "pipefail", "-c", code]
+        else:
+            script = tmp_path / f"block{k + 1}.py"
+            script.write_text(code, encoding="utf-8")
+            cmd = [sys.executable, str(script)]
+        proc = subprocess.run(cmd, cwd=work, env=env, capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, f"{where} failed:\n{code}\n--- stderr:\n{proc.stderr[-3000:]}"
+
+
+def test_generated_reference_pages_are_current():
+    proc = subprocess.run([sys.executable, str(ROOT / "tools" / "make_docs_reference.py"), "--check"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_reference_pages_name_every_command_and_bounded_field():
+    from physynth.bounds import BOUNDS
+
+    commands = (DOCS / "reference" / "commands.md").read_text(encoding="utf-8")
+    for name in ("generate", "calibrate", "validate", "import hanyang", "study tracking", "data fetch"):
+        assert f"## `physynth {name}`" in commands, name
+    assert "--vary-site" in commands and "--crop-to-uwb" in commands
+    scenario = (DOCS / "reference" / "scenario.md").read_text(encoding="utf-8")
+    rows = set(re.findall(r"^\| `([^`]+)` \|", scenario, re.M))
+    covered = {k for k in BOUNDS if re.sub(r"(\[\])+$", "", k) in rows}
+    assert not set(BOUNDS) - covered, sorted(set(BOUNDS) - covered)[:10]
+
+
+def test_site_builds_strict(tmp_path):
+    pytest.importorskip("mkdocs")
+    pytest.importorskip("mkdocstrings")
+    mkdocs = Path(sys.executable).parent / "mkdocs"
+    cmd = [str(mkdocs)] if mkdocs.exists() else [sys.executable, "-m", "mkdocs"]
+    proc = subprocess.run([*cmd, "build", "--strict", "--site-dir", str(tmp_path / "site")], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    assert (tmp_path / "site" / "index.html").exists()
+    assert (tmp_path / "site" / "reference" / "api" / "index.html").exists()
+    api = (tmp_path / "site" / "reference" / "api" / "index.html").read_text(encoding="utf-8")
+    assert "generate_traces" in api and "load_scenario" in api
+    assert (tmp_path / "site" / "img" / "hanyang-case2-transfer-residuals.png").exists()
+
+
+def test_every_page_is_in_the_nav():
+    import yaml
+
+    nav = json.dumps(yaml.safe_load((ROOT / "mkdocs.yml").read_text(encoding="utf-8"))["nav"])
+    pages = sorted(str(p.relative_to(DOCS)) for p in DOCS.rglob("*.md"))
+    assert pages and not [p for p in pages if f'"{p}"' not in nav]
+
+
+def test_notebook_tutorial_runs(tmp_path):
+    nbformat = pytest.importorskip("nbformat")
+    nbclient = pytest.importorskip("nbclient")
+    if not SHARED.is_dir():
+        pytest.skip(f"the notebook scores on a real run, and {SHARED} is absent")
+    nb = nbformat.read(DOCS / "tutorials" / "train-a-tracker.ipynb", as_version=4)
+    params = [c for c in nb.cells if "parameters" in c.get("metadata", {}).get("tags", [])]
+    assert len(params) == 1, "the notebook needs one cell tagged 'parameters'"
+    params[0].source = tiny(params[0].source, [("PRETRAIN_TRACES = 64", "PRETRAIN_TRACES = 2"),
+                                               ("PRETRAIN_EPOCHS = 5", "PRETRAIN_EPOCHS = 1"),
+                                               ("FINETUNE_EPOCHS = 20", "FINETUNE_EPOCHS = 1"),
+                                               ("WINDOWS_PER_TRACE = 32", "WINDOWS_PER_TRACE = 2")], "notebook")
+    work, env = scratch(tmp_path)
+    old = dict(os.environ)
+    os.environ.update(env)
+    try:
+        nbclient.NotebookClient(nb, timeout=300, kernel_name="python3",
+                                resources={"metadata": {"path": str(work)}}).execute()
+    finally:
+        os.environ.clear()
+        os.environ.update(old)
+    out = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
+    assert "RMSE" in out, out[-2000:]
