@@ -1,4 +1,5 @@
-"""The one small interface every tracker follows, and the registry of tracker names.
+"""The one small interface every tracker follows, and the tracker names (:func:`physynth.track.trackers.make_tracker`
+builds one by name).
 
 A tracker is fitted on a sequence of :class:`~physynth.track.inputs.TrackInput` (training traces on the
 grid) and predicts one position per grid step of another::
@@ -11,11 +12,10 @@ grid) and predicts one position per grid step of another::
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 
-from ...errors import PhySynthError
 from ..inputs import TrackInput
 
 ProgressFn = Callable[[str], None]
@@ -31,20 +31,3 @@ class Tracker(Protocol):
     def fit(self, inputs: Sequence[TrackInput], *, progress: ProgressFn | None = None) -> Tracker: ...
 
     def predict(self, inp: TrackInput) -> np.ndarray: ...
-
-
-def make_tracker(name: str, **options: Any) -> Tracker:
-    """A tracker by name (``aoi-fusion``, ``bilstm``, ``ls``, ``ekf``) with its keyword options."""
-    if name == "ls":
-        from .ls import LsTracker
-
-        return LsTracker(**options)
-    if name == "ekf":
-        from .ekf import EkfTracker
-
-        return EkfTracker(**options)
-    if name in ("aoi-fusion", "bilstm"):
-        from .nets import NetTracker
-
-        return NetTracker(arch=name, **options)
-    raise PhySynthError(f"unknown tracker '{name}' (choose from {', '.join(TRACKER_NAMES)})")
