@@ -73,7 +73,7 @@ def test_switch_counts_doubles_until_the_span_is_covered():
 def test_switch_counts_are_searchsorted_counts():
     """The counts placed by switch (sorted times) equal numpy.searchsorted(switches, t, "right") exactly,
     with ties, times outside the switches, unsorted times and NaN (which take the plain search)."""
-    from physynth.models.renewal import _count_at_or_before
+    from physynth.models.renewal import count_at_or_before
 
     rng = np.random.default_rng(3)
     for trial in range(300):
@@ -85,7 +85,7 @@ def test_switch_counts_are_searchsorted_counts():
             rng.shuffle(t)
         if trial % 7 == 2:
             t[rng.integers(0, t.size)] = np.nan
-        got = _count_at_or_before(switches, t)
+        got = count_at_or_before(switches, t)
         want = np.searchsorted(switches, t, side="right")
         assert got.dtype == want.dtype
         np.testing.assert_array_equal(got, want)

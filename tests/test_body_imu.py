@@ -268,7 +268,7 @@ def test_imu_only_scenario_needs_an_explicit_empty_anchor_list():
 
 
 def test_unwrap_matches_numpy_bit_for_bit():
-    from physynth.models.attitude import _unwrap
+    from physynth.models.attitude import unwrap
 
     rng = np.random.default_rng(3)
     cases = [np.arctan2(rng.standard_normal(500), rng.standard_normal(500)),
@@ -276,12 +276,12 @@ def test_unwrap_matches_numpy_bit_for_bit():
              np.array([0.0, np.pi, 0.0, -np.pi, 0.0, 2 * np.pi, 1.0, 4.0]), np.array([3.0, -3.0, 3.0]),
              np.array([-0.0, 0.0]), np.array([1.0]), np.zeros(0)]
     for c in cases:
-        want, got = np.unwrap(c), _unwrap(c)
+        want, got = np.unwrap(c), unwrap(c)
         assert np.array_equal(want, got) and np.array_equal(np.signbit(want), np.signbit(got))
 
 
 def test_speed_threshold_matches_hypot_bit_for_bit():
-    from physynth.models.attitude import _at_least
+    from physynth.models.attitude import at_least
 
     rng = np.random.default_rng(5)
     for limit in (0.05, 1.0, 3.7e-7, 1e-120, 1e120):
@@ -293,8 +293,8 @@ def test_speed_threshold_matches_hypot_bit_for_bit():
         x[:5] = [np.nan, np.inf, -np.inf, 0.0, -0.0]
         y[:5] = [1.0, np.nan, 2.0, -0.0, limit]
         want = np.hypot(x, y) >= limit
-        assert np.array_equal(_at_least(x, y, limit), want)
-        assert np.array_equal(_at_least(np.array(y), np.array(x), limit), np.hypot(y, x) >= limit)
+        assert np.array_equal(at_least(x, y, limit), want)
+        assert np.array_equal(at_least(np.array(y), np.array(x), limit), np.hypot(y, x) >= limit)
 
 
 def test_gyro_vibration_grows_with_the_acceleration_per_body_axis():
@@ -353,12 +353,12 @@ def test_body_specific_force_is_scipys_apply_bit_for_bit(kind):
 def test_the_tumble_attitude_is_the_running_product_of_its_steps():
     from scipy.spatial.transform import Rotation
 
-    from physynth.models.attitude import _cumulative_compose
+    from physynth.models.attitude import cumulative_compose
 
     rng = np.random.default_rng(7)
     first = Rotation.random(random_state=8)
     steps = Rotation.from_rotvec(rng.normal(0.0, 0.05, (777, 3)))  # not a power of two
-    got = _cumulative_compose(first, steps)
+    got = cumulative_compose(first, steps)
     expected, cur = [first.as_matrix()], first
     for k in range(len(steps)):  # the definition, one composition at a time (777 steps, test only)
         cur = cur * steps[k]

@@ -1,16 +1,16 @@
 """The polynomial path evaluated as one matrix product (physynth.models.path._products_cf): the values of
-Horner's steps (_polyval_cf) to rounding, and Horner's own where the product does not apply."""
+Horner's steps (polyval_cf) to rounding, and Horner's own where the product does not apply."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from physynth.io.scenario_file import load_scenario
-from physynth.models.path import _polyval_cf, compile_path
+from physynth.models.path import polyval_cf, compile_path
 
 
 def _horner(geo, s):
-    return [_polyval_cf(s, c, True) for c in (geo.coeffs_s, geo._d1, geo._d2)]
+    return [polyval_cf(s, c, True) for c in (geo.coeffs_s, geo._d1, geo._d2)]
 
 
 def test_products_match_horner_to_rounding():
@@ -27,6 +27,6 @@ def test_non_finite_and_huge_arguments_take_horners_steps():
     for s in (np.array([0.0, np.nan, 10.0]), np.array([0.0, 1e40])):  # a NaN; s^10 beyond 1e300
         with np.errstate(over="ignore"):  # Horner's steps overflow to inf on the huge argument
             got = geo.evaluate_cf(s)
-            ref = [_polyval_cf(s, c, bool(np.isfinite(s.sum()))) for c in (geo.coeffs_s, geo._d1, geo._d2)]
+            ref = [polyval_cf(s, c, bool(np.isfinite(s.sum()))) for c in (geo.coeffs_s, geo._d1, geo._d2)]
         for g, r in zip(got, ref, strict=True):
             assert np.array_equal(g, r, equal_nan=True)

@@ -314,7 +314,7 @@ def test_zone_prob_near_the_zones_equals_the_full_interpolation():
     of the path or beyond it, overlapping zones, a non-monotone path coordinate, unsorted times."""
     from dataclasses import replace
 
-    from physynth.models.uwb.nlos import _zone_nlos_prob, zone_nlos_prob_at
+    from physynth.models.uwb.nlos import zone_nlos_prob, zone_nlos_prob_at
 
     ch0 = compile_scenario(simple_scenario()).channel
     rng = np.random.default_rng(11)
@@ -331,9 +331,9 @@ def test_zone_prob_near_the_zones_equals_the_full_interpolation():
             t = np.sort(rng.uniform(-1.0, grid_t[-1] + 1.0, 3000))
             t[100:110] = grid_t[500:510]  # on the knots
             t = np.sort(t)
-            want = _zone_nlos_prob(np.interp(t, grid_t, s_grid), ch)
+            want = zone_nlos_prob(np.interp(t, grid_t, s_grid), ch)
             np.testing.assert_array_equal(zone_nlos_prob_at(t, grid_t, s_grid, ch), want)
             np.testing.assert_array_equal(zone_nlos_prob_at(t, grid_t, s_grid, ch, ascending=True), want)
             shuffled = rng.permutation(t)
             np.testing.assert_array_equal(zone_nlos_prob_at(shuffled, grid_t, s_grid, ch),
-                                          _zone_nlos_prob(np.interp(shuffled, grid_t, s_grid), ch))
+                                          zone_nlos_prob(np.interp(shuffled, grid_t, s_grid), ch))

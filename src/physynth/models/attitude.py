@@ -92,7 +92,7 @@ def heading_rad(vel_enu_mps: np.ndarray, min_speed_mps: float) -> np.ndarray:
     motion; 0 = east when the tag never moves).
     """
     v = np.asarray(vel_enu_mps, dtype=float)
-    moving = _at_least(v[:, 0], v[:, 1], min_speed_mps)
+    moving = at_least(v[:, 0], v[:, 1], min_speed_mps)
     if not moving.any():
         return np.zeros(v.shape[0])
     # arctan2 of every sample (elementwise: the same values as of the samples it is read from), then
@@ -103,15 +103,15 @@ def heading_rad(vel_enu_mps: np.ndarray, min_speed_mps: float) -> np.ndarray:
         still, moved = np.flatnonzero(~moving), np.flatnonzero(moving)
         last = np.searchsorted(moved, still) - 1  # moving samples before each slow one, minus one
         heading[still] = heading[moved[np.maximum(last, 0)]]
-    return _unwrap(heading)
+    return unwrap(heading)
 
 
 _SQUARE_MARGIN = 1e-9
-"""Relative margin around min_speed^2 outside which the squared speed decides :func:`_at_least` (its
+"""Relative margin around min_speed^2 outside which the squared speed decides :func:`at_least` (its
 rounding error is below 4e-16 relative; hypot's below one ulp)."""
 
 
-def _at_least(x: np.ndarray, y: np.ndarray, limit: float) -> np.ndarray:
+def at_least(x: np.ndarray, y: np.ndarray, limit: float) -> np.ndarray:
     """``numpy.hypot(x, y) >= limit``, bit for bit, with hypot (16x dearer than a square) evaluated only
     where x^2 + y^2 lies within :data:`_SQUARE_MARGIN` of limit^2 or is not finite (NaN). Squares
     decide only for 1e-100 < limit < 1e100, where limit^2 is normal: a square's underflow then errs by
@@ -154,7 +154,7 @@ def limit_turn_rate(yaw: np.ndarray, t_s: np.ndarray, max_rate_radps: float) -> 
     return out
 
 
-def _unwrap(p: np.ndarray) -> np.ndarray:
+def unwrap(p: np.ndarray) -> np.ndarray:
     """``numpy.unwrap(p)`` of a 1-D float64 array, bit for bit, with the modular correction computed only
     at the steps it changes (|step| >= pi or NaN; a heading has a handful, where numpy.unwrap's full-length
     np.mod pass dominates)."""
@@ -225,7 +225,7 @@ def _quat_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
                      aw * bw - ax * bx - ay * by - az * bz], axis=1)
 
 
-def _cumulative_compose(first: Rotation, steps: Rotation) -> Rotation:
+def cumulative_compose(first: Rotation, steps: Rotation) -> Rotation:
     """R_0 = first, R_{k+1} = R_k * steps[k]: a prefix product in log2(K) vectorised compositions
     (quaternion products in NumPy: scipy's composition costs ~20 ms per pass over 50,000 rotations)."""
     from scipy.spatial.transform import Rotation
@@ -298,7 +298,7 @@ def simulate_attitude(t_s: np.ndarray, vel_enu_mps: np.ndarray, acc_enu_mps2: np
         first = Rotation.random(random_state=rng)
         if n == 1:
             return Attitude.from_rotation(Rotation.concatenate([first]), omega)
-        rot = _cumulative_compose(first, Rotation.from_rotvec(omega[:-1] * np.diff(t)[:, None]))
+        rot = cumulative_compose(first, Rotation.from_rotvec(omega[:-1] * np.diff(t)[:, None]))
         omega[-1] = omega[-2]
         return Attitude.from_rotation(rot, omega)
     yaw = limit_turn_rate(heading_rad(vel_enu_mps, params.min_speed_mps), t, params.max_turn_rate_radps)

@@ -62,7 +62,7 @@ class PathParams(ParamsModel):
 UP = np.array([0.0, 0.0, 1.0])
 
 
-def _polyval_cf(x: np.ndarray, c: np.ndarray, x_finite: bool = False) -> np.ndarray:
+def polyval_cf(x: np.ndarray, c: np.ndarray, x_finite: bool = False) -> np.ndarray:
     """``numpy.polynomial.polynomial.polyval(x, c)`` for (deg+1, C) coefficients -> (C, N), bit for bit,
     with Horner's steps done in place (three times faster: no temporary per degree).
 
@@ -97,7 +97,7 @@ def _products_cf(s_m: np.ndarray, stack: np.ndarray) -> tuple[np.ndarray, np.nda
     """p, dp/ds, d2p/ds2 (each (3, N), rows of one (9, N) array) at finite 1-D ``s_m`` as one matrix
     product of the (9, K) coefficient rows (:attr:`PathGeometry._stack`) with the powers s^k (K, N).
 
-    Three times faster than Horner's 27 steps per sample (:func:`_polyval_cf`), and as accurate (both
+    Three times faster than Horner's 27 steps per sample (:func:`polyval_cf`), and as accurate (both
     within a few ulp of the largest term; the values differ from Horner's in the last bits). None when a
     power s^(K-1) would not be finite (then Horner's steps decide).
     """
@@ -153,8 +153,8 @@ class PathGeometry:
             out = _products_cf(s_m, self._stack)
             if out is not None:
                 return out
-        return (_polyval_cf(s_m, self.coeffs_s, finite), _polyval_cf(s_m, self._d1, finite),
-                _polyval_cf(s_m, self._d2, finite))
+        return (polyval_cf(s_m, self.coeffs_s, finite), polyval_cf(s_m, self._d1, finite),
+                polyval_cf(s_m, self._d2, finite))
 
     def lateral_direction(self) -> np.ndarray:
         """Horizontal unit vector normal to the chord between the end stations (E, N, 0)."""

@@ -36,7 +36,7 @@ def switch_counts(t_s: np.ndarray, draw: PairDraw, n_pairs: int, *,
         if switches[-1] > t_s[-1]:
             break
         n_pairs *= 2
-    return _count_at_or_before(switches, t_s, ascending), payload
+    return count_at_or_before(switches, t_s, ascending), payload
 
 
 def is_ascending(t_s: np.ndarray) -> bool:
@@ -44,7 +44,7 @@ def is_ascending(t_s: np.ndarray) -> bool:
     return t_s.shape[0] < 2 or bool((t_s[1:] >= t_s[:-1]).all())
 
 
-def _count_at_or_before(switches: np.ndarray, t_s: np.ndarray, ascending: bool | None = None) -> np.ndarray:
+def count_at_or_before(switches: np.ndarray, t_s: np.ndarray, ascending: bool | None = None) -> np.ndarray:
     """``numpy.searchsorted(switches, t_s, side="right")`` for sorted ``switches``: with ``t_s`` sorted
     (the usual case), each switch is placed among the times instead (a few hundred searches instead of
     thousands) and the counts are a cumulative sum; the same integers. ``ascending``: as in

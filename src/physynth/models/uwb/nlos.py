@@ -97,7 +97,7 @@ def nlos_states(t_s: np.ndarray, anchor: np.ndarray, s_m: np.ndarray | None, ch:
         _write_episodes(parts, nlos, mode, episode)
     forced = nlos if forced_out is None else forced_out  # the zone and obstacle rows: into nlos, or apart
     if ch.zone_s_m.size:
-        p_zone = _zone_nlos_prob(s_m, ch) if zone_prob is None else zone_prob
+        p_zone = zone_nlos_prob(s_m, ch) if zone_prob is None else zone_prob
         forced |= rng.random(t_s.shape[0]) < p_zone
     if blocked is not None:
         forced |= blocked
@@ -138,7 +138,7 @@ def _write_episodes(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, bool]]
     episode[dest] = pair
 
 
-def _zone_nlos_prob(s_m: np.ndarray, ch: ChannelArrays) -> np.ndarray:
+def zone_nlos_prob(s_m: np.ndarray, ch: ChannelArrays) -> np.ndarray:
     """(N,) NLOS probability of the zones at path coordinates ``s_m``: the largest of the zones that
     contain each point, 0 outside every zone. One zone at a time (no (N, Z) temporaries)."""
     p = None
@@ -158,7 +158,7 @@ looks for the rows near it (interpolation rounds by a few ulp, some 1e-16 relati
 
 def zone_nlos_prob_at(t_s: np.ndarray, grid_t_s: np.ndarray, grid_s_m: np.ndarray, ch: ChannelArrays, *,
                       ascending: bool | None = None) -> np.ndarray:
-    """``_zone_nlos_prob(numpy.interp(t_s, grid_t_s, grid_s_m), ch)`` (the zones' NLOS probability at the
+    """``zone_nlos_prob(numpy.interp(t_s, grid_t_s, grid_s_m), ch)`` (the zones' NLOS probability at the
     sorted times ``t_s`` of a run whose path coordinate is ``grid_s_m`` at ``grid_t_s``), bit for bit.
 
     When the path coordinate is monotone (the usual run: forwards or backwards along the path), each
@@ -168,11 +168,11 @@ def zone_nlos_prob_at(t_s: np.ndarray, grid_t_s: np.ndarray, grid_s_m: np.ndarra
     """
     n, m = t_s.shape[0], grid_s_m.shape[0]
     if n == 0 or m < 2 or not (is_ascending(t_s) if ascending is None else ascending):
-        return _zone_nlos_prob(np.interp(t_s, grid_t_s, grid_s_m), ch)
+        return zone_nlos_prob(np.interp(t_s, grid_t_s, grid_s_m), ch)
     forwards = bool(grid_s_m[0] <= grid_s_m[-1])
     key = grid_s_m if forwards else np.negative(grid_s_m)  # ascending when the run is monotone
     if not is_ascending(key):
-        return _zone_nlos_prob(np.interp(t_s, grid_t_s, grid_s_m), ch)
+        return zone_nlos_prob(np.interp(t_s, grid_t_s, grid_s_m), ch)
     scale = 1.0 + max(abs(float(key[0])), abs(float(key[-1])))
     p = np.zeros(n)
     for z_s, half, prob in zip(ch.zone_s_m.tolist(), ch.zone_half_width_m.tolist(), ch.zone_nlos_prob.tolist(),
