@@ -15,7 +15,7 @@ import pytest
 from helpers import simple_scenario
 
 from physynth.calibrate import calibrate
-from physynth.calibrate.uwb_fit import _robust_line
+from physynth.calibrate.uwb_fit import robust_line
 from physynth.errors import RecordingError
 from physynth.evaluate.metrics import residuals
 from physynth.generate import generate_traces
@@ -80,7 +80,7 @@ def test_hanyang_ranges_scatter_more_where_the_rtk_truth_is_not_fixed():
     dev = np.empty_like(res)
     for k in range(len(tr.anchors)):
         s = idx == k
-        mu, beta, _, _ = _robust_line(res[s], range_decades(rng[s]), True)
+        mu, beta, _, _ = robust_line(res[s], range_decades(rng[s]), True)
         dev[s] = res[s] - mu - beta * range_decades(rng[s])
     bad = untrusted_truth(spans.meta, t)
     near = np.abs(dev) < 1.0

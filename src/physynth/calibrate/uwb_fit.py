@@ -268,7 +268,7 @@ class MixtureFit:
                               self.range_bias_per_decade_m)
 
 
-def _robust_line(r: np.ndarray, g: np.ndarray, fit_slope: bool) -> tuple[float, float, float, np.ndarray]:
+def robust_line(r: np.ndarray, g: np.ndarray, fit_slope: bool) -> tuple[float, float, float, np.ndarray]:
     """Iteratively trimmed least-squares line r = mu + beta g; returns mu, beta, sigma, inlier mask."""
     med = np.median(r)
     sig = max(1.4826 * np.median(np.abs(r - med)), 1e-3)
@@ -300,7 +300,7 @@ def fit_mixture(r: np.ndarray, g: np.ndarray, k: int, *, fit_slope: bool = True,
     n = r.size
     slope_free = fit_slope and fixed_slope is None and np.ptp(g) > 1.0
     g = range_decades(g) if law == "log" else g  # the regressor; the EM below is the same for both laws
-    mu, beta, sig, inl = _robust_line(r - (fixed_slope or 0.0) * g, g, slope_free)
+    mu, beta, sig, inl = robust_line(r - (fixed_slope or 0.0) * g, g, slope_free)
     if fixed_slope is not None:
         beta = fixed_slope
     out = r[~inl]
