@@ -23,7 +23,7 @@ from physynth.generate import compile_scenario, generate_trace
 from physynth.io import read_dataset, write_dataset
 from physynth.io.importers import import_csv
 from physynth.scenario import scenario_from_dict
-from physynth.testing.fuzz import _parent, _paths, base_scenario, fuzz, write_base_recording
+from physynth.testing.fuzz import base_scenario, fuzz, key_paths, parent_of, write_base_recording
 
 SETTINGS = settings(max_examples=30, deadline=None, derandomize=True, database=None,
                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
@@ -38,7 +38,7 @@ LEAF = st.one_of(
     st.lists(st.floats(min_value=-1e3, max_value=1e3), max_size=4),
     st.dictionaries(st.text(max_size=3), st.integers(), max_size=2),
 )
-PATHS = _paths(base_scenario())
+PATHS = key_paths(base_scenario())
 
 
 def one_line(exc: BaseException) -> bool:
@@ -51,7 +51,7 @@ def test_scenario_validation_accepts_or_refuses_in_one_line(edits):
     d = base_scenario()
     for path, value in edits:
         try:
-            parent, key = _parent(d, path)
+            parent, key = parent_of(d, path)
             parent[key] = copy.deepcopy(value)
         except (KeyError, IndexError, TypeError):
             continue  # an earlier edit removed this branch

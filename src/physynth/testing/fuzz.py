@@ -118,18 +118,20 @@ SPECIAL = [0, -1, 1, 0.5, 1e-300, -1e-300, 1e300, -1e300, 1e7, 1e9, 2**63, -(2**
            "x", "", None, True, [], {}, [0, 0], [1.0, 2.0, 3.0], "nan", ".inf"]
 
 
-def _paths(obj: Any, prefix: tuple = ()) -> list[tuple]:
+def key_paths(obj: Any, prefix: tuple = ()) -> list[tuple]:
+    """Every path (a tuple of dict keys and list indices) to a node of the nested dicts and lists ``obj``."""
     out = [prefix] if prefix else []
     if isinstance(obj, dict):
         for k, v in obj.items():
-            out += _paths(v, (*prefix, k))
+            out += key_paths(v, (*prefix, k))
     elif isinstance(obj, list):
         for i, v in enumerate(obj):
-            out += _paths(v, (*prefix, i))
+            out += key_paths(v, (*prefix, i))
     return out
 
 
-def _parent(obj: Any, path: tuple) -> tuple[Any, Any]:
+def parent_of(obj: Any, path: tuple) -> tuple[Any, Any]:
+    """The container holding the node at ``path`` in ``obj``, and its key there (``parent[key]`` is the node)."""
     for p in path[:-1]:
         obj = obj[p]
     return obj, path[-1]
@@ -140,9 +142,9 @@ def mutate_scenario(rng: np.random.Generator) -> tuple[str, str]:
     d = base_scenario()
     what = []
     for _ in range(int(rng.integers(1, 4))):
-        paths = _paths(d)
+        paths = key_paths(d)
         path = paths[int(rng.integers(len(paths)))]
-        parent, key = _parent(d, path)
+        parent, key = parent_of(d, path)
         op = rng.choice(["special", "special", "scale", "delete", "unknown", "empty", "kind"])
         name = ".".join(map(str, path))
         if op == "special":
