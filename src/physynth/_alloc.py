@@ -35,7 +35,8 @@ def opted_out() -> bool:
     return os.environ.get(ENV_VAR, "").strip().lower() in {"0", "false", "no", "off"}
 
 
-def _is_glibc() -> bool:
+def is_glibc() -> bool:
+    """True on Linux with glibc (the only place where the tuning applies)."""
     if not sys.platform.startswith("linux"):
         return False
     try:
@@ -66,7 +67,7 @@ def tune_allocator() -> bool:
     if _state["applied"] is not None:
         return bool(_state["applied"])
     applied = False
-    if not opted_out() and _is_glibc():
+    if not opted_out() and is_glibc():
         mallopt = _load_mallopt()
         if mallopt is not None:
             applied = bool(mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)) & bool(
