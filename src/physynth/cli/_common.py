@@ -160,30 +160,40 @@ def counted(n: int, word: str, plural: str | None = None) -> str:
     return f"{n} {word}" if n == 1 else f"{n} {plural or word + 's'}"
 
 
+_OPTION_NAMES = {"n_synth_traces": "--n-synth", "anchor_policy": "--anchor-layout"}
+"""The library parameters whose option is not their name with dashes."""
+
+
+def _option(name: str) -> str:
+    """The command-line option that sets the library parameter ``name`` (``crop_to_uwb``: ``--crop-to-uwb``)."""
+    return _OPTION_NAMES.get(name, "--" + name.replace("_", "-"))
+
+
+def _named(*names: str) -> tuple[tuple[re.Pattern, str], ...]:
+    """A parameter's name wherever it stands, and its option."""
+    return tuple((re.compile(rf"\b{name}\b"), _option(name)) for name in names)
+
+
+def _switched_on(*names: str) -> tuple[tuple[re.Pattern, str], ...]:
+    """``name=True``, and the option that switches it on."""
+    return tuple((re.compile(rf"\b{name}=True\b"), _option(name)) for name in names)
+
+
+def _valued(*names_values: tuple[str, str]) -> tuple[tuple[re.Pattern, str], ...]:
+    """``name='value'`` (value: a regular expression), and the option followed by the value."""
+    return tuple((re.compile(rf"\b{name}='({value})'"), _option(name) + r" \1") for name, value in names_values)
+
+
 PARAMETER_FLAGS = (
     (re.compile(r"\brange_bias='static'"), "--range-bias static"),
-    (re.compile(r"\blayout_from\b"), "--layout-from"),
-    (re.compile(r"\bstatic_sweeps\b"), "--static-sweeps"),
-    (re.compile(r"\blink_budget=True\b"), "--link-budget"),
-    (re.compile(r"\blong_outages=True\b"), "--long-outages"),
-    (re.compile(r"\btag_pattern=True\b"), "--tag-pattern"),
-    (re.compile(r"\brun_slopes=True\b"), "--run-slopes"),
-    (re.compile(r"\btrusted_truth=True\b"), "--trusted-truth"),
-    (re.compile(r"\bpath_kind='([\w-]+)'"), r"--path-kind \1"),
-    (re.compile(r"\banchor_policy='([\w-]+)'"), r"--anchor-layout \1"),
-    (re.compile(r"\brange_bias_law='(\w+)'"), r"--range-bias-law \1"),
-    (re.compile(r"\brange_bias_law\b"), "--range-bias-law"),
-    (re.compile(r"\bcrop_to_uwb\b"), "--crop-to-uwb"),
-    (re.compile(r"\bn_synth_traces\b"), "--n-synth"),
-    (re.compile(r"\bpretrain_epochs\b"), "--pretrain-epochs"),
-    (re.compile(r"\bfinetune_epochs\b"), "--finetune-epochs"),
-    (re.compile(r"\bfinetune_synth_ratio\b"), "--finetune-synth-ratio"),
-    (re.compile(r"\blr_schedule\b"), "--lr-schedule"),
-    (re.compile(r"\bekf_prior\b"), "--ekf-prior"),
-    (re.compile(r"\bweight_average\b"), "--weight-average"),
+    *_named("layout_from", "static_sweeps"),
+    *_switched_on("link_budget", "long_outages", "tag_pattern", "run_slopes", "trusted_truth"),
+    *_valued(("path_kind", r"[\w-]+"), ("anchor_policy", r"[\w-]+"), ("range_bias_law", r"\w+")),
+    *_named("range_bias_law", "crop_to_uwb", "n_synth_traces", "pretrain_epochs", "finetune_epochs",
+            "finetune_synth_ratio", "lr_schedule", "ekf_prior", "weight_average"),
     (re.compile(r"\bfigures=False\b"), "--no-figures"),
     (re.compile(r"\bphysynth\.data\.fetch\('([\w-]+)'\)"), r"physynth data fetch \1"),
-    (re.compile(r"\bbase_url\b"), "--base-url"),
+    *_named("base_url"),
 )
 """Library parameter names (which the library's errors and notes name) and the options that set them."""
 
