@@ -95,23 +95,29 @@ def sensor_truth_acceleration(trace: Trace, cutoff_hz: float, lever_arm_m: Seque
     return tg, acc + lever_arm_acceleration(tg, att[0], w, r), valid & att[1]
 
 
+def _finite_rows(values: np.ndarray | None, at_least: int) -> np.ndarray | None:
+    """The mask of the rows of ``values`` (a truth field, None when the truth has none) that are finite;
+    None without the field or with fewer than ``at_least`` such rows."""
+    if values is None:
+        return None
+    fin = np.all(np.isfinite(values), axis=1)
+    return fin if int(fin.sum()) >= at_least else None
+
+
 def has_truth_rotation(trace: Trace) -> bool:
     """Whether the truth has an attitude and a body rate (at least 10 finite rows of each)."""
-    q, w = trace.truth.quat_wxyz, trace.truth.omega_body_radps
-    return (q is not None and w is not None and int(np.all(np.isfinite(q), axis=1).sum()) >= 10
-            and int(np.all(np.isfinite(w), axis=1).sum()) >= 10)
+    return (_finite_rows(trace.truth.quat_wxyz, 10) is not None
+            and _finite_rows(trace.truth.omega_body_radps, 10) is not None)
 
 
 def truth_attitude_at(trace: Trace, t_q: np.ndarray) -> tuple[Rotation, np.ndarray] | None:
     """The truth attitude (body -> ENU) at times ``t_q``, spherically interpolated between the finite
     truth quaternions, and a mask (False outside them or within a masked span); None without attitude."""
     q = trace.truth.quat_wxyz
-    if q is None:
+    fin = _finite_rows(q, 2)
+    if fin is None:
         return None
     t = trace.truth.t_s
-    fin = np.all(np.isfinite(q), axis=1)
-    if fin.sum() < 2:
-        return None
     slerp = Slerp(t[fin], Rotation.from_quat(q[fin], scalar_first=True))
     tc = np.clip(t_q, t[fin][0], t[fin][-1])
     # a query is valid when both neighbouring truth samples are finite
@@ -139,12 +145,10 @@ def smoothed_body_rate(trace: Trace, t_q: np.ndarray, cutoff_hz: float) -> np.nd
     From the truth's ``omega_body_radps`` (e.g. differentiated optical attitude); None without one.
     """
     w = trace.truth.omega_body_radps
-    if w is None:
+    ok = _finite_rows(w, 10)
+    if ok is None:
         return None
     t = trace.truth.t_s
-    ok = np.all(np.isfinite(w), axis=1)
-    if ok.sum() < 10:
-        return None
     fs = 1.0 / median_step_s(t)
     wf = np.stack([np.interp(t, t[ok], w[ok, k]) for k in range(3)], axis=1)
     wf = sosfiltfilt(butter(4, min(cutoff_hz, 0.45 * fs), fs=fs, output="sos"), wf, axis=0)
