@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from physynth.calibrate._base import CalibrationError
+from physynth.calibrate import CalibrationError
 from physynth.calibrate.imu_fit import compare_imu_along_truth, fit_imu
 from physynth.calibrate.imu_motion_noise import COHERENCE_MIN, coherent_bandwidth_hz
 from physynth.calibrate.lever_arm import fit_lever_arm

@@ -173,8 +173,7 @@ def test_hanyang_link_budget_for_the_dynamic_runs_finds_the_weak_placement():
 
 @pytest.mark.skipif(not STATIC.is_dir(), reason=f"real Hanyang static sweeps not found at {STATIC}")
 def test_calibrate_with_link_budget_puts_it_on_every_anchor_and_takes_its_losses_out_of_the_dropouts():
-    from physynth.calibrate import calibrate
-    from physynth.calibrate._base import CalibrationError
+    from physynth.calibrate import CalibrationError, calibrate
     from physynth.io.importers import import_hanyang
 
     dyn = STATIC.parent / "Dynamic_measurements"

@@ -13,8 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from physynth.calibrate import calibrate
-from physynth.calibrate._base import CalibrationError
+from physynth.calibrate import CalibrationError, calibrate
 from physynth.calibrate.components.run_offsets import run_offset_table
 from physynth.calibrate.geometry import anchor_layout, transfer_scenario
 from physynth.generate import generate_traces
