@@ -48,38 +48,40 @@ class BoxObstacle(ParamsModel):
         return self
 
 
-class WallObstacle(ParamsModel):
+class _Extruded(ParamsModel):
+    """A footprint on the ground plan (E, N) [m] standing from ``base_m`` to ``top_m`` up [m]: what a wall
+    and a prism share (each sets its kind, its least number of vertices, its loss and its label)."""
+
+    kind: str
+    vertices_en_m: list[Vec2]
+    base_m: FiniteFloat = 0.0
+    top_m: FiniteFloat
+    loss_db: NonNegFloat
+    label: str
+
+    @model_validator(mode="after")
+    def _heights(self) -> _Extruded:
+        if self.top_m <= self.base_m:
+            raise ValueError(f"{self.kind} top_m must be above base_m")
+        return self
+
+
+class WallObstacle(_Extruded):
     """A vertical wall along a polyline of the ground plan (E, N) [m], from ``base_m`` to ``top_m`` up [m]."""
 
     kind: Literal["wall"] = "wall"
     vertices_en_m: list[Vec2] = Field(min_length=2)
-    base_m: FiniteFloat = 0.0
-    top_m: FiniteFloat
     loss_db: NonNegFloat = 10.0
     label: str = "wall"
 
-    @model_validator(mode="after")
-    def _heights(self) -> WallObstacle:
-        if self.top_m <= self.base_m:
-            raise ValueError("wall top_m must be above base_m")
-        return self
 
-
-class PrismObstacle(ParamsModel):
+class PrismObstacle(_Extruded):
     """A closed polygon footprint (E, N) [m] extruded from ``base_m`` to ``top_m`` (a building)."""
 
     kind: Literal["prism"] = "prism"
     vertices_en_m: list[Vec2] = Field(min_length=3)
-    base_m: FiniteFloat = 0.0
-    top_m: FiniteFloat
     loss_db: NonNegFloat = 20.0
     label: str = "building"
-
-    @model_validator(mode="after")
-    def _heights(self) -> PrismObstacle:
-        if self.top_m <= self.base_m:
-            raise ValueError("prism top_m must be above base_m")
-        return self
 
 
 Obstacle = Annotated[BoxObstacle | WallObstacle | PrismObstacle, Field(discriminator="kind")]
