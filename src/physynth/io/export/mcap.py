@@ -19,8 +19,11 @@ Format: https://mcap.dev/spec (version 0).
 
 from __future__ import annotations
 
+import functools
+import os
 import struct
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import BinaryIO
 
@@ -97,6 +100,16 @@ def _compressor(compression: str) -> Callable[[bytes], bytes]:
     raise ValueError(f"unknown MCAP chunk compression '{compression}' (choose '', 'zstd' or 'lz4')")
 
 
+@functools.cache
+def _pool_of(pid: int) -> ThreadPoolExecutor:  # noqa: ARG001 (a forked worker makes its own)
+    return ThreadPoolExecutor(max(1, len(os.sched_getaffinity(0))), thread_name_prefix="physynth-mcap")
+
+
+def _pool() -> ThreadPoolExecutor:
+    """Threads that compress chunks (zstd and lz4 release the GIL): one per core this process may use."""
+    return _pool_of(os.getpid())
+
+
 def write_mcap(f: BinaryIO, channels: Sequence[Channel], *, profile: str = "ros2", library: str = "physynth",
                metadata: dict[str, dict[str, str]] | None = None, compression: str = "") -> dict[int, int]:
     """Write an MCAP file of ``channels`` (ids 1, 2, ... in order) to the open binary file ``f``;
@@ -136,11 +149,11 @@ def write_mcap(f: BinaryIO, channels: Sequence[Channel], *, profile: str = "ros2
         step = max(1, CHUNK_BYTES // r.shape[1])
         pieces += [(int(stamps[k][a]), k, a, min(a + step, r.shape[0])) for a in range(0, r.shape[0], step)]
     chunk_indexes = []
-    compress = _compressor(compression)
-    for t0, k, a, b in sorted(pieces):
-        body = rows[k][a:b]
-        size = body.size
-        packed = compress(body.data) if compression else body.data
+    pieces.sort()
+    bodies = [rows[k][a:b].data for _, k, a, b in pieces]
+    packs = _pool().map(_compressor(compression), bodies) if compression else iter(bodies)
+    for (t0, k, a, b), body, packed in zip(pieces, bodies, packs, strict=True):
+        size = body.nbytes
         n_packed = packed.nbytes if isinstance(packed, memoryview) else len(packed)
         t1 = int(stamps[k][b - 1])
         chunk_start = pos
