@@ -205,6 +205,19 @@ def cli_words(message: str) -> str:
     return message
 
 
+def check_run_options(resume: bool, overwrite: bool, scheduler: str | None, workers: int, unfinished: str) -> None:
+    """Refuse ``--resume`` with ``--overwrite`` and ``--scheduler`` with ``--workers`` (``unfinished``: what
+    --resume completes, e.g. ``run of --out``)."""
+    from ..errors import PhySynthError
+
+    if resume and overwrite:
+        raise PhySynthError(f"--resume and --overwrite exclude each other: --resume completes an unfinished "
+                            f"{unfinished}, --overwrite discards it; give one")
+    if scheduler is not None and workers:
+        raise PhySynthError(f"--scheduler and --workers exclude each other: --scheduler runs on the workers of "
+                            f"an existing cluster, --workers {workers} starts its own; give one")
+
+
 def fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
     """Print the first line of ``message`` as ``physynth: error: ...`` on stderr and exit."""
     fail_each([message], code)

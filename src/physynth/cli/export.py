@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 from typing import Literal
 
 import typer
 
-from ._common import progress_bar, resumable
-from .generate import AUTO_CLUSTER_MIN_TRACES
+from ._common import check_run_options, progress_bar, resumable
+from .generate import scheduler_option, worker_processes, workers_option
 
 
 def register(app: typer.Typer) -> None:
@@ -26,14 +25,8 @@ def export_cmd(
     bag_storage: Literal["mcap", "mcap-uncompressed", "sqlite3"] = typer.Option(
         "mcap", "--bag-storage", help="Storage of the ROS 2 bags: mcap (ROS 2's default since Iron, opened natively "
                                       "by Foxglove; zstd-compressed chunks), mcap-uncompressed or sqlite3."),
-    workers: int = typer.Option(0, "--workers", "-w", metavar="N", min=0,
-                                help=f"Worker processes, one part (a shard of the dataset) at a time each. 0 (the "
-                                     f"default) picks for you: all cores for {AUTO_CLUSTER_MIN_TRACES} traces or "
-                                     "more, one process below that. More than one runs an embedded Dask cluster "
-                                     "(needs physynth[scale]); the output is the same for any number of workers."),
-    scheduler: str | None = typer.Option(None, "--scheduler", metavar="ADDRESS",
-                                         help="Run on an existing Dask cluster (e.g. tcp://host:8786) whose "
-                                              "workers see DATASET and --out at the same paths."),
+    workers: int = workers_option(each=", one part (a shard of the dataset) at a time each"),
+    scheduler: str | None = scheduler_option("DATASET and --out at the same paths"),
     resume: bool = typer.Option(False, "--resume", help="Complete a killed export to --out: keep its complete "
                                                         "parts, write the others."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output or discard an unfinished "
@@ -41,21 +34,11 @@ def export_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Export a dataset to HDF5, ROS 2 bags (MCAP; sensor_msgs/Imu, sensor_msgs/Range) or CSV (docs/export.md)."""
-    from ..errors import PhySynthError
     from ..io.dataset import n_traces, read_meta
-    from ..parallel import available_cores
     from ..workflows import export_dataset
 
-    if resume and overwrite:
-        raise PhySynthError("--resume and --overwrite exclude each other: --resume completes an unfinished export "
-                            "to --out, --overwrite discards it; give one")
-    if scheduler is not None and workers:
-        raise PhySynthError(f"--scheduler and --workers exclude each other: --scheduler runs on the workers of "
-                            f"an existing cluster, --workers {workers} starts its own; give one")
-    n = n_traces(read_meta(dataset)) or 0
-    n_workers = workers or (available_cores() if n >= AUTO_CLUSTER_MIN_TRACES else 1)
-    if not workers and n_workers > 1 and importlib.util.find_spec("distributed") is None:
-        n_workers = 1  # the default (all cores) without the optional Dask: one core
+    check_run_options(resume, overwrite, scheduler, workers, "export to --out")
+    n_workers, _ = worker_processes(workers, n_traces(read_meta(dataset)) or 0, scheduler)
     resume_hint = f"complete parts are kept: run the same command with --resume to finish {out}"
     with resumable(resume_hint), progress_bar(not quiet) as progress:
         path = export_dataset(dataset, out, fmt.lower(), overwrite=overwrite, progress=progress,

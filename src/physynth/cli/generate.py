@@ -10,10 +10,38 @@ from typing import Any
 
 import typer
 
-from ._common import counted, format_table, progress_bar, resumable
+from ._common import check_run_options, counted, format_table, progress_bar, resumable
 
 AUTO_CLUSTER_MIN_TRACES = 1000
 """With the default ``--workers 0``, runs of fewer traces stay in this process (no cluster to start)."""
+
+
+def worker_processes(workers: int, n: int, scheduler: str | None) -> tuple[int, bool]:
+    """The worker processes for ``n`` traces (``--workers``; 0: all cores from :data:`AUTO_CLUSTER_MIN_TRACES`
+    traces on, else one), and whether that default fell back to one core because Dask is not installed."""
+    from ..parallel import available_cores
+
+    n_workers = workers or (available_cores() if n >= AUTO_CLUSTER_MIN_TRACES else 1)
+    if not workers and scheduler is None and n_workers > 1 and importlib.util.find_spec("distributed") is None:
+        return 1, True  # the default (all cores) without the optional Dask: one core
+    return n_workers, False
+
+
+def workers_option(each: str = "", below: str = "") -> Any:
+    """The ``--workers`` option of a command run in parts on worker processes (``each``: what a worker does,
+    after "Worker processes"; ``below``: after "one process below that")."""
+    return typer.Option(0, "--workers", "-w", metavar="N", min=0,
+                        help=f"Worker processes{each}. 0 (the default) picks for you: all cores for "
+                             f"{AUTO_CLUSTER_MIN_TRACES} traces or more, one process below that{below}. More than "
+                             "one runs an embedded Dask cluster (needs physynth[scale]); the output is the same "
+                             "for any number of workers.")
+
+
+def scheduler_option(sees: str) -> Any:
+    """The ``--scheduler`` option (``sees``: what the cluster's workers must see at the same path)."""
+    return typer.Option(None, "--scheduler", metavar="ADDRESS",
+                        help=f"Run on an existing Dask cluster (e.g. tcp://host:8786) whose workers see {sees}.")
+
 
 scenario_app = typer.Typer(help="Show built-in scenarios; make one for a surveyed site.", no_args_is_help=True)
 
@@ -37,14 +65,8 @@ def generate_cmd(
     out: Path = typer.Option(Path("runs/default"), "--out", "-o", metavar="DIR", help="Output dataset directory."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset (only a dataset "
                                                               "PhySynth wrote) or discard an unfinished run of it."),
-    workers: int = typer.Option(0, "--workers", "-w", metavar="N", min=0,
-                                help=f"Worker processes. 0 (the default) picks for you: all cores for "
-                                     f"{AUTO_CLUSTER_MIN_TRACES} traces or more, one process below that, since "
-                                     "starting workers takes seconds. More than one runs an embedded Dask cluster "
-                                     "(needs physynth[scale]); the output is the same for any number of workers."),
-    scheduler: str | None = typer.Option(None, "--scheduler", metavar="ADDRESS",
-                                         help="Run on an existing Dask cluster (e.g. tcp://host:8786) whose "
-                                              "workers see --out at the same path."),
+    workers: int = workers_option(below=", since starting workers takes seconds"),
+    scheduler: str | None = scheduler_option("--out at the same path"),
     resume: bool = typer.Option(False, "--resume", help="Complete a killed run of --out: keep its complete "
                                                         "shards, write the others (same seed unless --seed)."),
     shard_traces: int = typer.Option(128, "--shard-traces", metavar="N", min=1,
@@ -61,26 +83,17 @@ def generate_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Generate N synthetic traces from a scenario and write them as a Parquet dataset."""
-    from ..errors import PhySynthError
-    from ..parallel import available_cores
     from ..workflows import generate_dataset
 
-    if resume and overwrite:
-        raise PhySynthError("--resume and --overwrite exclude each other: --resume completes an unfinished run "
-                            "of --out, --overwrite discards it; give one")
-    if scheduler is not None and workers:
-        raise PhySynthError(f"--scheduler and --workers exclude each other: --scheduler runs on the workers of "
-                            f"an existing cluster, --workers {workers} starts its own; give one")
+    check_run_options(resume, overwrite, scheduler, workers, "run of --out")
     scn, added = _prepared_scenario(scenario, regime, vary_site)
     inputs = [Path(scenario)] if Path(scenario).is_file() else []
-    n_workers = workers or (available_cores() if n >= AUTO_CLUSTER_MIN_TRACES else 1)
-    if not workers and scheduler is None and n_workers > 1 and importlib.util.find_spec("distributed") is None:
-        n_workers = 1  # the default (all cores) without the optional Dask: one core, said once
-        if not quiet and n > shard_traces:
-            from ..extras import install_hint
+    n_workers, without_dask = worker_processes(workers, n, scheduler)
+    if without_dask and not quiet and n > shard_traces:  # said once
+        from ..extras import install_hint
 
-            typer.echo(f"physynth: Dask is not installed, generating on one core ({install_hint('scale')} "
-                       "for all cores)", err=True)
+        typer.echo(f"physynth: Dask is not installed, generating on one core ({install_hint('scale')} "
+                   "for all cores)", err=True)
     resume_hint = f"complete shards are kept: run the same command with --resume to finish {out}"
     if resume:
         from ..io.safety import resolve_output
