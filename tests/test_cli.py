@@ -89,9 +89,9 @@ def _command_paths(groups: bool) -> list[list[str]]:
     found in the command tree."""
     import typer
 
-    from physynth.cli import _register_commands, app
+    from physynth.cli import app, register_commands
 
-    _register_commands()
+    register_commands()
     found, todo = [], [([], typer.main.get_command(app))]
     while todo:
         path, cmd = todo.pop()
@@ -202,17 +202,14 @@ def test_generate_workers_help_is_plain_words(capsys):
 
 
 def test_generate_summary_counts_workers_and_traces_grammatically(tmp_path, capsys):
-    from physynth.cli._common import counted
-
     code, out, _ = run(capsys, "generate", "-n", 1, "--seed", 1, "--out", tmp_path / "one")
     assert code == 0 and "wrote 1 trace of " in out and "(root seed 1, 1 worker)" in out and "(s)" not in out
     code, out, _ = run(capsys, "generate", "-n", 3, "--seed", 1, "--out", tmp_path / "three")
     assert code == 0 and "wrote 3 traces of " in out
-    # the summary's counts (a run on two workers starts a Dask cluster: tests/test_scale.py runs one)
-    assert (counted(2, "worker"), counted(1, "worker"), counted(0, "trace")) == ("2 workers", "1 worker", "0 traces")
-    assert (counted(1, "process", "processes"), counted(3, "process", "processes")) == ("1 process", "3 processes")
     code, out, _ = run(capsys, "inspect", tmp_path / "three")
     assert code == 0 and "- 3 traces, " in out and "(s)" not in out
+    code, out, _ = run(capsys, "inspect", tmp_path / "one")
+    assert code == 0 and "- 1 trace, " in out and "(s)" not in out
 
 
 def test_help_shows_meaningful_metavars_everywhere(capsys):

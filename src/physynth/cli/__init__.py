@@ -1,6 +1,7 @@
 """The ``physynth`` command line: thin commands over :mod:`physynth.workflows` and the library.
 
-Every command module has a ``register(app)`` function; :func:`main` registers them all. The library
+Every command module has a ``register(app)`` function; :func:`register_commands` (which :func:`main` calls)
+registers them all. The library
 raises errors that speak of parameters and reports progress through a callback; only this package
 draws progress bars, names options and chooses exit codes:
 
@@ -80,8 +81,9 @@ def _root(version: bool = typer.Option(False, "--version", is_eager=True, callba
     """
 
 
-def _register_commands() -> None:
-    """Every command module adds its commands through the same ``register(app)``."""
+def register_commands() -> None:
+    """Add every command to :data:`app` (each command module through the same ``register(app)``); once per
+    process, before the app runs or its command tree is read."""
     global _registered
     if _registered:
         return
@@ -93,9 +95,12 @@ def _register_commands() -> None:
     _registered = True
 
 
+_register_commands = register_commands  # the old name, still used by tools/make_docs_reference.py
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point: run the app, turning user mistakes into one line on stderr and exit code 2."""
-    _register_commands()
+    register_commands()
     capture_library_logs()  # the libraries' logs, warnings and thread tracebacks: not on stderr
     argv = sys.argv[1:] if argv is None else argv
     try:
