@@ -1,8 +1,13 @@
-"""Small scenarios and statistics helpers shared by the generator tests."""
+"""Small scenarios and statistics helpers shared by the generator tests; the command line run in-process;
+a copy of a real Hanyang run to corrupt."""
 
 from __future__ import annotations
 
+import shutil
+from pathlib import Path
+
 import numpy as np
+import pytest
 
 from physynth.scenario import Scenario, scenario_from_dict
 
@@ -40,3 +45,36 @@ def simple_scenario(**updates) -> Scenario:
 def binomial_tol(p: float, n: int, k: float = 5.0) -> float:
     """k standard errors of a proportion estimated from n independent trials."""
     return k * np.sqrt(p * (1 - p) / n)
+
+
+def run_cli(capsys, *args) -> tuple[int, str, str]:
+    """``physynth ARGS`` run in this process: exit code, stdout, stderr."""
+    from physynth.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main([*map(str, args)])
+        raise SystemExit(0)
+    out = capsys.readouterr()
+    return int(exc.value.code or 0), out.out, out.err
+
+
+def copy_hanyang_run(case: Path, tmp_path: Path) -> Path:
+    """The trajectory and anchor files of the real Hanyang run ``case`` (LOS Trajectory_A Case_1: anchors 3,
+    5, 9, 12) copied to the same relative place under ``tmp_path``."""
+    dst = tmp_path / "LOS" / "Trajectory_A" / "Case_1"
+    dst.mkdir(parents=True)
+    for f in ["trajectory.csv", "A3.csv", "A5.csv", "A9.csv", "A12.csv"]:
+        shutil.copyfile(case / f, dst / f)
+    return dst
+
+
+def edit_csv_columns(path: Path, cols: list[int], fn) -> None:
+    """Every data row of the CSV file ``path`` with ``fn`` applied to the cells of ``cols`` (0-based)."""
+    lines = path.read_text().splitlines()
+    out = [lines[0]]
+    for ln in lines[1:]:
+        p = ln.split(",")
+        for c in cols:
+            p[c] = fn(p[c])
+        out.append(",".join(p))
+    path.write_text("\n".join(out) + "\n")

@@ -7,14 +7,13 @@ problem (exit 2 and one line from the CLI), or imported with the coerced cells c
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import copy_hanyang_run, edit_csv_columns, run_cli
 from scipy.io import loadmat, savemat
 
-from physynth.cli import main
 from physynth.errors import RecordingError
 from physynth.io.importers import import_broad, import_hanyang
 
@@ -26,37 +25,9 @@ hanyang_data = pytest.mark.skipif(not LOS1.is_dir(), reason=f"real Hanyang data 
 broad_data = pytest.mark.skipif(not TRIAL10.is_file(), reason=f"real BROAD data not found at {TRIAL10}")
 
 
-def run_main(args: list[str], capsys) -> tuple[int, str, str]:
-    with pytest.raises(SystemExit) as info:
-        main(args)
-        raise SystemExit(0)
-    out = capsys.readouterr()
-    return int(info.value.code or 0), out.out, out.err
-
-
 # --------------------------------------------------------------------------------------------------
 # Hanyang
 # --------------------------------------------------------------------------------------------------
-
-
-def _copy_run(tmp_path: Path) -> Path:
-    dst = tmp_path / "LOS" / "Trajectory_A" / "Case_1"
-    dst.mkdir(parents=True)
-    for f in ["trajectory.csv", "A3.csv", "A5.csv", "A9.csv", "A12.csv"]:
-        shutil.copyfile(LOS1 / f, dst / f)
-    return dst
-
-
-def _edit_columns(path: Path, cols: list[int], fn) -> None:
-    """Every data row of ``path`` with ``fn`` applied to the cells of ``cols`` (0-based)."""
-    lines = path.read_text().splitlines()
-    out = [lines[0]]
-    for ln in lines[1:]:
-        p = ln.split(",")
-        for c in cols:
-            p[c] = fn(p[c])
-        out.append(",".join(p))
-    path.write_text("\n".join(out) + "\n")
 
 
 def _set_cell(path: Path, row: int, col: int, value: str) -> None:
@@ -78,8 +49,8 @@ def _set_cell(path: Path, row: int, col: int, value: str) -> None:
     ("A12.csv", [1], 1e-6, r"A12\.csv: field\.stamp values around .* are not Unix nanoseconds"),
 ])
 def test_hanyang_column_in_another_unit(tmp_path, file, cols, scale, needle):
-    run = _copy_run(tmp_path)
-    _edit_columns(run / file, cols, lambda v: repr(float(v) * scale))
+    run = copy_hanyang_run(LOS1, tmp_path)
+    edit_csv_columns(run / file, cols, lambda v: repr(float(v) * scale))
     with pytest.raises(RecordingError, match=needle):
         import_hanyang(run)
 
@@ -87,7 +58,7 @@ def test_hanyang_column_in_another_unit(tmp_path, file, cols, scale, needle):
 @hanyang_data
 def test_hanyang_coerced_cells_are_counted(tmp_path):
     real, real_report = import_hanyang(LOS1)
-    run = _copy_run(tmp_path)
+    run = copy_hanyang_run(LOS1, tmp_path)
     _set_cell(run / "A5.csv", 5, 6, "n/a")  # range not a number: kept as an invalid attempt
     _set_cell(run / "A5.csv", 6, 6, "65535")  # a radio's error code: no geometry explains it
     _set_cell(run / "A5.csv", 7, 1, "abc")  # stamp not a number: the row cannot be placed in time
@@ -116,7 +87,7 @@ def test_hanyang_coerced_cells_are_counted(tmp_path):
 @hanyang_data
 @pytest.mark.parametrize("file", ["A3.csv", "trajectory.csv"])
 def test_hanyang_empty_and_header_only_files(tmp_path, file):
-    run = _copy_run(tmp_path)
+    run = copy_hanyang_run(LOS1, tmp_path)
     (run / file).write_text("")
     with pytest.raises(RecordingError, match=rf"{file}: empty file or no header row"):
         import_hanyang(run)
@@ -129,14 +100,14 @@ def test_hanyang_empty_and_header_only_files(tmp_path, file):
 
 @hanyang_data
 def test_hanyang_cli_counts_and_one_line_errors(tmp_path, capsys):
-    run = _copy_run(tmp_path)
+    run = copy_hanyang_run(LOS1, tmp_path)
     _set_cell(run / "A5.csv", 5, 6, "n/a")
     _set_cell(run / "A5.csv", 8, 3, "?")
-    code, out, err = run_main(["import", "hanyang", str(run), "--out", str(tmp_path / "ds")], capsys)
+    code, out, err = run_cli(capsys, "import", "hanyang", str(run), "--out", str(tmp_path / "ds"))
     assert code == 0, err
     assert "A5.csv: read" in out and "repaired anchor_xyz_not_a_number=1" in out and "nan_range=1" in out
-    _edit_columns(run / "A9.csv", [3, 4, 5], lambda v: repr(float(v) * 1000))
-    code, out, err = run_main(["import", "hanyang", str(run), "--out", str(tmp_path / "ds2")], capsys)
+    edit_csv_columns(run / "A9.csv", [3, 4, 5], lambda v: repr(float(v) * 1000))
+    code, out, err = run_cli(capsys, "import", "hanyang", str(run), "--out", str(tmp_path / "ds2"))
     assert code == 2 and err.count("\n") == 1 and "A9.csv: the ranges are" in err and "Traceback" not in err
     assert not (tmp_path / "ds2").exists()
 
@@ -223,11 +194,11 @@ def test_broad_empty_and_truncated_files(tmp_path):
 @broad_data
 def test_broad_cli_one_line_and_counts(tmp_path, capsys, trial10):
     bad = _variant(tmp_path, trial10, imu_gyr=np.degrees(trial10["imu_gyr"]))
-    code, _, err = run_main(["import", "broad", str(bad), "--out", str(tmp_path / "ds")], capsys)
+    code, _, err = run_cli(capsys, "import", "broad", str(bad), "--out", str(tmp_path / "ds"))
     assert code == 2 and err.count("\n") == 1 and "deg/s" in err and "Traceback" not in err
     gyr = trial10["imu_gyr"].copy()
     gyr[5000, 0] = np.inf
     ok = _variant(tmp_path, trial10, imu_gyr=gyr)
-    code, out, err = run_main(["import", "broad", str(ok), "--out", str(tmp_path / "ds2")], capsys)
+    code, out, err = run_cli(capsys, "import", "broad", str(ok), "--out", str(tmp_path / "ds2"))
     assert code == 0, err
     assert "nan_gyro=1" in out

@@ -9,8 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from physynth.cli import main
+from helpers import run_cli
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 HANYANG = DATA / "hanyang-uwb" / "Dynamic_measurements"
@@ -34,18 +33,10 @@ def write_rec(folder: Path, *, range_col: str = "range_m") -> Path:
     return folder
 
 
-def run_main(args: list[str], capsys) -> tuple[int, str, str]:
-    with pytest.raises(SystemExit) as info:
-        main(args)
-        raise SystemExit(0)
-    out = capsys.readouterr()
-    return int(info.value.code or 0), out.out, out.err
-
-
 def test_csv_good_recording(tmp_path, capsys):
     rec = write_rec(tmp_path / "rec")
     out_dir = tmp_path / "ds"
-    code, out, err = run_main(["import", "csv", str(rec), "--out", str(out_dir)], capsys)
+    code, out, err = run_cli(capsys, "import", "csv", str(rec), "--out", str(out_dir))
     assert code == 0, err
     assert "wrote 1 real trace from csv" in out and "uwb.csv: read" in out
     meta = json.loads((out_dir / "dataset.json").read_text())
@@ -53,15 +44,15 @@ def test_csv_good_recording(tmp_path, capsys):
     assert meta["import_report"][0]["rows_read"]["uwb.csv"] > 0
     assert meta["traces"][0]["source"] == "csv"
     # an existing dataset is not replaced without --overwrite
-    code, _, err = run_main(["import", "csv", str(rec), "--out", str(out_dir)], capsys)
+    code, _, err = run_cli(capsys, "import", "csv", str(rec), "--out", str(out_dir))
     assert code == 2 and "already exists" in err
-    code, _, _ = run_main(["import", "csv", str(rec), "--out", str(out_dir), "--overwrite", "-q"], capsys)
+    code, _, _ = run_cli(capsys, "import", "csv", str(rec), "--out", str(out_dir), "--overwrite", "-q")
     assert code == 0
 
 
 def test_csv_bad_recording_one_line_exit_2(tmp_path, capsys):
     rec = write_rec(tmp_path / "rec", range_col="range_mm")
-    code, out, err = run_main(["import", "csv", str(rec), "--out", str(tmp_path / "ds")], capsys)
+    code, out, err = run_cli(capsys, "import", "csv", str(rec), "--out", str(tmp_path / "ds"))
     assert code == 2
     assert err.count("\n") == 1 and err.startswith("physynth: error:") and "range_mm" in err
     assert not (tmp_path / "ds").exists()
@@ -82,7 +73,7 @@ def test_csv_bad_recording_subprocess(tmp_path):
 def test_hanyang_two_runs(tmp_path, capsys):
     runs = [HANYANG / "LOS" / "Trajectory_A" / "Case_1", HANYANG / "NLOS" / "Trajectory_A" / "Case_2"]
     out_dir = tmp_path / "ds"
-    code, out, err = run_main(["import", "hanyang", *map(str, runs), "--out", str(out_dir)], capsys)
+    code, out, err = run_cli(capsys, "import", "hanyang", *map(str, runs), "--out", str(out_dir))
     assert code == 0, err
     assert "wrote 2 real traces from hanyang-uwb" in out and "not corrected" in out
     meta = json.loads((out_dir / "dataset.json").read_text())
@@ -95,7 +86,7 @@ def test_hanyang_two_runs(tmp_path, capsys):
 @pytest.mark.skipif(not (HANYANG / "LOS" / "Trajectory_A" / "Case_1").is_dir(), reason="Hanyang data not found")
 def test_hanyang_note_names_the_option_not_the_parameter(tmp_path, capsys):
     run = HANYANG / "LOS" / "Trajectory_A" / "Case_1"  # its truth continues 2.4 s after the last range
-    code, out, err = run_main(["import", "hanyang", str(run), "--out", str(tmp_path / "ds")], capsys)
+    code, out, err = run_cli(capsys, "import", "hanyang", str(run), "--out", str(tmp_path / "ds"))
     assert code == 0, err
     assert "use --crop-to-uwb to drop it" in out and "crop_to_uwb" not in out
 
@@ -103,21 +94,21 @@ def test_hanyang_note_names_the_option_not_the_parameter(tmp_path, capsys):
 def test_the_same_recording_twice_is_refused(tmp_path, capsys):
     rec = write_rec(tmp_path / "rec")
     for twice in ([str(rec), str(rec)], [str(rec), str(tmp_path / "." / "rec") + "/"]):
-        code, _, err = run_main(["import", "csv", *twice, "--out", str(tmp_path / "ds")], capsys)
+        code, _, err = run_cli(capsys, "import", "csv", *twice, "--out", str(tmp_path / "ds"))
         assert code == 2 and err.count("\n") == 1 and "each recording may be imported once" in err
     assert not (tmp_path / "ds").exists()
 
 
 def test_hanyang_bad_run_folder(tmp_path, capsys):
     (tmp_path / "run").mkdir()
-    code, _, err = run_main(["import", "hanyang", str(tmp_path / "run"), "--out", str(tmp_path / "ds")], capsys)
+    code, _, err = run_cli(capsys, "import", "hanyang", str(tmp_path / "run"), "--out", str(tmp_path / "ds"))
     assert code == 2 and err.count("\n") == 1 and "no A<id>.csv anchor files" in err
 
 
 @pytest.mark.skipif(not BROAD15.is_file(), reason=f"real BROAD data not found at {BROAD15}")
 def test_broad(tmp_path, capsys):
     out_dir = tmp_path / "ds"
-    code, out, err = run_main(["import", "broad", str(BROAD15), "--out", str(out_dir)], capsys)
+    code, out, err = run_cli(capsys, "import", "broad", str(BROAD15), "--out", str(out_dir))
     assert code == 0, err
     assert "optical_dropout=" in out
     meta = json.loads((out_dir / "dataset.json").read_text())
@@ -127,7 +118,7 @@ def test_broad(tmp_path, capsys):
 def test_broad_bad_file_exit_2(tmp_path, capsys):
     bad = tmp_path / "trial.mat"
     bad.write_text("nope")
-    code, _, err = run_main(["import", "broad", str(bad), "--out", str(tmp_path / "ds")], capsys)
+    code, _, err = run_cli(capsys, "import", "broad", str(bad), "--out", str(tmp_path / "ds"))
     assert code == 2 and err.count("\n") == 1 and "trial.mat: cannot read MATLAB file" in err
 
 
@@ -137,7 +128,7 @@ def test_broad_text_sampling_rate_exit_2(tmp_path, capsys):
     bad = tmp_path / "trial.mat"
     savemat(bad, {"imu_acc": np.zeros((20, 3)), "opt_quat": np.tile([1.0, 0, 0, 0], (20, 1)),
                   "opt_pos": np.zeros((20, 3)), "movement": np.zeros(20, np.uint8), "sampling_rate": "abc"})
-    code, _, err = run_main(["import", "broad", str(bad), "--out", str(tmp_path / "ds")], capsys)
+    code, _, err = run_cli(capsys, "import", "broad", str(bad), "--out", str(tmp_path / "ds"))
     assert code == 2 and err.count("\n") == 1, err
     assert err.startswith("physynth: error: ") and "sampling_rate is not a number" in err
     assert not (tmp_path / "ds").exists()

@@ -20,7 +20,7 @@ ANCHORS = {"A1": (-10.0, -10.0, 2.0), "A2": (10.0, -10.0, 2.0), "A3": (10.0, 10.
            "A4": (-10.0, 10.0, 1.0)}
 
 
-def _circle(t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def circle_motion(t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Position [m], velocity [m/s] and acceleration [m/s^2] on a horizontal circle at 1 m height."""
     ph = OMEGA_RADPS * t_s
     z = np.zeros_like(t_s)
@@ -36,17 +36,17 @@ def make_tables(duration_s: float = 20.0) -> dict[str, pd.DataFrame]:
     anchors = pd.DataFrame({"anchor_id": list(ANCHORS), "e_m": [a[0] for a in ANCHORS.values()],
                             "n_m": [a[1] for a in ANCHORS.values()], "u_m": [a[2] for a in ANCHORS.values()]})
     t_truth = np.arange(0.0, duration_s + 1e-9, 0.1)
-    pos, _, _ = _circle(t_truth)
+    pos, _, _ = circle_motion(t_truth)
     truth = pd.DataFrame({"t_s": T0_UNIX_S + t_truth, "e_m": pos[:, 0], "n_m": pos[:, 1], "u_m": pos[:, 2]})
     t_burst = np.arange(0.05, duration_s - 0.1, 0.1)
     t_uwb = (t_burst[:, None] + 0.002 * np.arange(4)).ravel()
     aid = np.tile(np.arange(4), t_burst.size)
     a_pos = np.array(list(ANCHORS.values()))
-    true_r = np.linalg.norm(_circle(t_uwb)[0] - a_pos[aid], axis=1)
+    true_r = np.linalg.norm(circle_motion(t_uwb)[0] - a_pos[aid], axis=1)
     uwb = pd.DataFrame({"t_s": T0_UNIX_S + t_uwb, "anchor_id": np.array(list(ANCHORS))[aid],
                         "range_m": true_r + rng.normal(0.0, 0.01, t_uwb.size)})
     t_imu = np.arange(0.0, duration_s, 0.01)
-    acc = _circle(t_imu)[2]
+    acc = circle_motion(t_imu)[2]
     imu = pd.DataFrame({"t_s": T0_UNIX_S + t_imu, "acc_e_mps2": acc[:, 0], "acc_n_mps2": acc[:, 1],
                         "acc_u_mps2": acc[:, 2]})
     return {"anchors": anchors, "truth": truth, "uwb": uwb, "imu": imu}
@@ -80,7 +80,7 @@ def test_good_recording(tmp_path, tables):
     assert len(trace.uwb) == len(tables["uwb"])
     assert trace.imu is not None and trace.imu.t_s.size == len(tables["imu"])
     # velocity from smoothed differentiation matches the analytic circle velocity
-    _, vel, _ = _circle(trace.truth.t_s)
+    _, vel, _ = circle_motion(trace.truth.t_s)
     inner = slice(5, -5)
     np.testing.assert_allclose(trace.truth.vel_enu_mps[inner], vel[inner], atol=0.01 * RADIUS_M * OMEGA_RADPS)
     # ranges agree with the geometry: residuals are the 1 cm noise
@@ -96,7 +96,7 @@ def test_good_recording(tmp_path, tables):
 
 
 def test_parquet_tables_and_given_velocity(tmp_path, tables):
-    pos, vel, _ = _circle(tables["truth"]["t_s"].to_numpy() - T0_UNIX_S)
+    pos, vel, _ = circle_motion(tables["truth"]["t_s"].to_numpy() - T0_UNIX_S)
     tables["truth"] = tables["truth"].assign(ve_mps=vel[:, 0], vn_mps=vel[:, 1], vu_mps=vel[:, 2])
     rec = write_rec(tmp_path / "rec", tables, fmt="parquet")
     trace, report = import_csv(rec)
@@ -189,30 +189,17 @@ def test_unknown_anchor_in_uwb(tmp_path, tables):
     assert "uwb.csv" in msg and "A9" in msg
 
 
-def test_unreadable_file(tmp_path, tables):
-    rec = write_rec(tmp_path / "rec", tables)
-    (rec / "truth.csv").write_bytes(b"\xff\xfe\x00garbage\x81\x82")
+@pytest.mark.parametrize(("name", "content", "says"), [
+    ("truth.csv", b"\xff\xfe\x00garbage\x81\x82", "truth.csv: not a UTF-8 text CSV"),
+    ("uwb.csv", b"", "uwb.csv: empty file"),
+    ("uwb.parquet", b"not parquet at all", "cannot read Parquet"),
+    ("meta.json", b"{not json", "meta.json: not valid JSON"),
+], ids=["unreadable_file", "empty_file", "unreadable_parquet", "bad_meta_json"])
+def test_a_broken_file_is_named_with_what_is_wrong(tmp_path, tables, name, content, says):
+    rec = write_rec(tmp_path / "rec", {k: v for k, v in tables.items() if name != f"{k}.parquet"})  # no CSV beside
+    (rec / name).write_bytes(content)
     msg = _error(rec)
-    assert "truth.csv" in msg and "not a UTF-8 text CSV" in msg
-
-
-def test_empty_file(tmp_path, tables):
-    rec = write_rec(tmp_path / "rec", tables)
-    (rec / "uwb.csv").write_text("")
-    assert "uwb.csv: empty file" in _error(rec)
-
-
-def test_unreadable_parquet(tmp_path, tables):
-    rec = write_rec(tmp_path / "rec", {k: v for k, v in tables.items() if k != "uwb"})
-    (rec / "uwb.parquet").write_bytes(b"not parquet at all")
-    msg = _error(rec)
-    assert "uwb.parquet" in msg and "cannot read Parquet" in msg
-
-
-def test_bad_meta_json(tmp_path, tables):
-    rec = write_rec(tmp_path / "rec", tables)
-    (rec / "meta.json").write_text("{not json")
-    assert "meta.json: not valid JSON" in _error(rec)
+    assert name in msg and says in msg
 
 
 def test_unsorted_rows_are_sorted_and_counted(tmp_path, tables):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from test_import_csv import OMEGA_RADPS, T0_UNIX_S, _circle, make_tables, write_rec
+from test_import_csv import OMEGA_RADPS, T0_UNIX_S, circle_motion, make_tables, write_rec
 
 from physynth.constants import G0_MPS2
 from physynth.errors import RecordingError
@@ -23,7 +23,7 @@ def _body_tables():
         tables["truth"][f"quat_{c}"] = q[:, k]
     imu = tables["imu"]
     t_imu = imu["t_s"].to_numpy() - T0_UNIX_S
-    acc_w = _circle(t_imu)[2] + np.array([0.0, 0.0, G0_MPS2])
+    acc_w = circle_motion(t_imu)[2] + np.array([0.0, 0.0, G0_MPS2])
     rot = Rotation.from_euler("z", (OMEGA_RADPS * t_imu + np.pi / 2)[:, None])
     f_b = rot.inv().apply(acc_w)
     imu = imu.drop(columns=["acc_e_mps2", "acc_n_mps2", "acc_u_mps2"])

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import copy_hanyang_run, edit_csv_columns
 
 from physynth.errors import RecordingError
 from physynth.evaluate.metrics import residuals
@@ -140,16 +141,8 @@ def test_crop_to_uwb_drops_truth_tail_with_count():
     assert cropped.truth.t_s[-1] <= cropped.uwb.t_s[-1]
 
 
-def _copy_run(tmp_path: Path) -> Path:
-    dst = tmp_path / "LOS" / "Trajectory_A" / "Case_1"
-    dst.mkdir(parents=True)
-    for f in ["trajectory.csv", "A3.csv", "A5.csv", "A9.csv", "A12.csv"]:
-        shutil.copyfile(LOS1 / f, dst / f)
-    return dst
-
-
 def test_truncated_and_negative_rows_in_a_copy(tmp_path):
-    run = _copy_run(tmp_path)
+    run = copy_hanyang_run(LOS1, tmp_path)
     lines = (run / "A5.csv").read_text().splitlines()
     lines[10] = lines[10][:25]  # truncated mid-row
     parts = lines[20].split(",")
@@ -173,14 +166,14 @@ def test_bad_run_folders(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(RecordingError, match="no A<id>.csv anchor files"):
         import_hanyang(tmp_path / "empty")
-    run = _copy_run(tmp_path)
+    run = copy_hanyang_run(LOS1, tmp_path)
     (run / "trajectory.csv").unlink()
     with pytest.raises(RecordingError, match="missing file trajectory.csv"):
         import_hanyang(run)
 
 
 def test_anchor_file_problems(tmp_path):
-    run = _copy_run(tmp_path)
+    run = copy_hanyang_run(LOS1, tmp_path)
     shutil.copyfile(run / "A3.csv", run / "A7.csv")
     with pytest.raises(RecordingError, match=r"A7\.csv: field\.id is 3 but the file name says anchor 7"):
         import_hanyang(run)
@@ -192,27 +185,15 @@ def test_anchor_file_problems(tmp_path):
 
 
 def test_anchor_without_coordinates(tmp_path):
-    run = _copy_run(tmp_path)
-    lines = (run / "A12.csv").read_text().splitlines()
-    out = [lines[0]]
-    for ln in lines[1:]:
-        p = ln.split(",")
-        p[3:6] = ["", "", ""]
-        out.append(",".join(p))
-    (run / "A12.csv").write_text("\n".join(out) + "\n")
+    run = copy_hanyang_run(LOS1, tmp_path)
+    edit_csv_columns(run / "A12.csv", [3, 4, 5], lambda v: "")
     with pytest.raises(RecordingError, match=r"A12\.csv: anchor A12 has no coordinates"):
         import_hanyang(run)
 
 
 def test_ranges_in_millimetres(tmp_path):
-    run = _copy_run(tmp_path)
-    lines = (run / "A3.csv").read_text().splitlines()
-    out = [lines[0]]
-    for ln in lines[1:]:
-        p = ln.split(",")
-        p[6] = str(float(p[6]) * 1000)
-        out.append(",".join(p))
-    (run / "A3.csv").write_text("\n".join(out) + "\n")
+    run = copy_hanyang_run(LOS1, tmp_path)
+    edit_csv_columns(run / "A3.csv", [6], lambda v: str(float(v) * 1000))
     with pytest.raises(RecordingError, match=r"A3\.csv: field\.distanceFromTag .* implausible for metres"):
         import_hanyang(run)
 

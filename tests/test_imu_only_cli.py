@@ -8,22 +8,14 @@ from pathlib import Path
 
 import pytest
 import yaml
+from helpers import run_cli as run
 
-from physynth.cli import main
 from physynth.io.scenario_file import load_scenario
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "broad-imu" / "data_mat"
 T10 = DATA / "10_undisturbed_slow_translation_A.mat"
 T21 = DATA / "21_undisturbed_fast_combined.mat"
 pytestmark = pytest.mark.skipif(not T21.is_file(), reason=f"real BROAD data not found at {DATA}")
-
-
-def run(capsys, *args):
-    with pytest.raises(SystemExit) as exc:
-        main([*map(str, args)])
-        raise SystemExit(0)
-    out = capsys.readouterr()
-    return exc.value.code or 0, out.out, out.err
 
 
 def test_calibrate_and_validate_imu_only_datasets(tmp_path, capsys):

@@ -21,22 +21,14 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import yaml
+from helpers import run_cli as run
 from helpers import simple_scenario_dict
 
-from physynth.cli import main
 from physynth.errors import DatasetError, IntegrityError, OutputLockedError, ScenarioError
 from physynth.io import read_dataset
 from physynth.io.safety import OutputLock, lock_path
 
 CLI = [sys.executable, "-m", "physynth.cli"]
-
-
-def run(capsys, *args):
-    with pytest.raises(SystemExit) as exc:
-        main([*map(str, args)])
-        raise SystemExit(0)
-    out = capsys.readouterr()
-    return exc.value.code or 0, out.out, out.err
 
 
 def one_line(err: str) -> bool:

@@ -7,10 +7,10 @@ import json
 
 import numpy as np
 import pytest
+from helpers import run_cli as run
 from helpers import simple_scenario, simple_scenario_dict
 
 from physynth import bounds
-from physynth.cli import main
 from physynth.cli.study import parse_counts
 from physynth.errors import BudgetError, PhySynthError
 from physynth.evaluate.metrics import compute_metrics
@@ -263,14 +263,6 @@ def test_greedy_placement_picks_the_anchors_that_cover_the_path(tmp_path):
     (tmp_path / "c2.csv").write_text("id,e,n,u\nlow,150,5,3\nhigh,150,10,25\nside,150,-30,3\nfar,150,400,3\n")
     g = greedy_placement(scn, read_candidates(tmp_path / "c2.csv"), k=3, n=2, seed=2, objective="gdop", workers=1)
     assert set(g.chosen) == {"low", "high", "side"} and g.steps[-1]["objective"] < 10.0
-
-
-def run(capsys, *args):
-    with pytest.raises(SystemExit) as exc:
-        main([*map(str, args)])
-        raise SystemExit(0)
-    out = capsys.readouterr()
-    return exc.value.code or 0, out.out, out.err
 
 
 @pytest.mark.parametrize(("args", "needle"), [
