@@ -29,6 +29,14 @@ class Bound:
 _COORD = Bound(-1e7, 1e7, "m", "ENU coordinates in a local or projected (UTM) frame")
 _PROB = Bound(0.0, 1.0, "", "a probability")
 
+_VIBRATION = {  # the structural vibration comb, of the world-frame IMU and of the body-frame one
+    "fundamental_hz": Bound(0.01, 1000.0, "Hz", "structural vibration"),
+    "amplitude_mps2": Bound(0.0, 1000.0, "m/s^2", "vibration RMS"),
+    "harmonic_weights[]": Bound(0.0, 1e6, "", "relative weights"),
+    "bandwidth_hz": Bound(1e-4, 1000.0, "Hz", "spectral line width"),
+    "axis_gain[]": Bound(0.0, 100.0, "", "per-axis gain"),
+}
+
 BOUNDS: dict[str, Bound] = {
     "path.length_m": Bound(1.0, 100_000.0, "m", "a site from 1 m to 100 km"),
     "path.coeffs_enu_m[][]": _COORD,
@@ -84,11 +92,7 @@ BOUNDS: dict[str, Bound] = {
     "imu.white_noise_density_mps2_per_sqrt_hz[]": Bound(0.0, 10.0, "m/s^2/sqrt(Hz)", "accelerometer noise density"),
     "imu.bias_rw_mps2_per_sqrt_s": Bound(0.0, 10.0, "m/s^2/sqrt(s)", "bias random walk"),
     "imu.bias_initial_std_mps2": Bound(0.0, 100.0, "m/s^2", "turn-on bias"),
-    "imu.vibration.fundamental_hz": Bound(0.01, 1000.0, "Hz", "structural vibration"),
-    "imu.vibration.amplitude_mps2": Bound(0.0, 1000.0, "m/s^2", "vibration RMS"),
-    "imu.vibration.harmonic_weights[]": Bound(0.0, 1e6, "", "relative weights"),
-    "imu.vibration.bandwidth_hz": Bound(1e-4, 1000.0, "Hz", "spectral line width"),
-    "imu.vibration.axis_gain[]": Bound(0.0, 100.0, "", "per-axis gain"),
+    **{f"imu.vibration.{k}": b for k, b in _VIBRATION.items()},
     "uwb.burst_rate_hz": Bound(0.1, 1000.0, "Hz", "UWB ranging rates"),
     "uwb.burst_jitter_s": Bound(0.0, 1.0, "s", "burst period jitter"),
     "uwb.burst_phase_s": Bound(0.0, 100.0, "s", "first burst offset"),
@@ -192,11 +196,7 @@ BOUNDS: dict[str, Bound] = {
     "body_imu.gyroscope.quantisation_radps": Bound(0.0, 1.0, "rad/s", "output resolution"),
     "body_imu.gyroscope.vibration_amplitude_radps": Bound(0.0, 100.0, "rad/s", "vibration RMS"),
     "body_imu.gyroscope.g_sensitivity_radps_per_mps2": Bound(0.0, 1.0, "rad/s per m/s^2", "g-sensitivity"),
-    "body_imu.vibration.fundamental_hz": Bound(0.01, 1000.0, "Hz", "structural vibration"),
-    "body_imu.vibration.amplitude_mps2": Bound(0.0, 1000.0, "m/s^2", "vibration RMS"),
-    "body_imu.vibration.harmonic_weights[]": Bound(0.0, 1e6, "", "relative weights"),
-    "body_imu.vibration.bandwidth_hz": Bound(1e-4, 1000.0, "Hz", "spectral line width"),
-    "body_imu.vibration.axis_gain[]": Bound(0.0, 100.0, "", "per-axis gain"),
+    **{f"body_imu.vibration.{k}": b for k, b in _VIBRATION.items()},
     "truth_rate_hz": Bound(1.0, 10_000.0, "Hz", "truth sampling rate"),
     "grid_rate_hz": Bound(1.0, 10_000.0, "Hz", "evaluation grid rate"),
 }
