@@ -341,3 +341,36 @@ def test_docs_say_unknown_nlos_is_written_false_in_hdf5():
     doc = " ".join((Path(__file__).resolve().parents[1] / "docs" / "export.md").read_text().split())
     assert "**Unknown NLOS is written as `nlos = False`.**" in doc and 'attrs["nlos_known"] == False' in doc
     assert "nlos_known = False" in " ".join(hdf5.__doc__.split())
+
+
+@pytest.mark.parametrize("damage", ["changed", "no_label"])
+def test_csv_export_checks_tables_against_the_integrity_record(dataset, tmp_path, capsys, damage):
+    """With an integrity record the CSV export checks the files against it and each table's columns
+    (instead of reading every trace): a changed byte and a table re-recorded without a column both stop it."""
+    import hashlib
+    import shutil
+
+    import pyarrow.parquet as pq
+
+    copy = tmp_path / damage
+    shutil.copytree(dataset[0], copy)
+    name = "uwb/part-00000.parquet"
+    f = copy / name
+    if damage == "changed":
+        raw = bytearray(f.read_bytes())
+        raw[len(raw) // 2] ^= 0xFF
+        f.write_bytes(bytes(raw))
+        needle = "does not match"
+    else:  # the table rewritten without a column, and its record updated to match
+        pq.write_table(pq.read_table(f).drop(["true_range_m"]), f)
+        meta = json.loads((copy / "dataset.json").read_text())
+        rec = meta["files"][name]
+        rec.update(bytes=f.stat().st_size, **{k: hashlib.sha256(f.read_bytes()).hexdigest()
+                                             for k in rec if k not in ("rows", "bytes")})
+        (copy / "dataset.json").write_text(json.dumps(meta))
+        needle = "true_range_m"
+    with pytest.raises(SystemExit) as e:
+        main(["export", str(copy), "-f", "csv", "--out", str(tmp_path / "out"), "-q"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.count("\n") == 1 and needle in err, err
+    assert not (tmp_path / "out").exists()

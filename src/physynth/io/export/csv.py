@@ -6,28 +6,58 @@ tables are copied one Parquet row group at a time by Arrow's CSV writer: floats 
 round-trip form (float64 columns read back exactly; float32 columns of generated datasets as
 float32), ``nan`` for a range not delivered, an empty field for an unknown ``nlos``, strings quoted,
 a header line first (pandas.read_csv and Python's csv module read it as is). The files copied are
-those the dataset's integrity record lists (:func:`~physynth.io.dataset.table_files`), once the part
-being exported has been read trace by trace to check it (:mod:`.parts`: one part per shard of the dataset,
-concatenated when all are written).
+those the dataset's integrity record lists (:func:`~physynth.io.dataset.table_files`), once they have been
+checked against it (:func:`check_tables`: sizes, row counts, SHA-256, trace ids, the columns of each table;
+a dataset without the record is read trace by trace instead, as every reader does); one part per shard of
+the dataset (:mod:`.parts`), concatenated when all are written.
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from ...errors import DatasetError
+from .. import integrity
 from ..dataset import TABLES, iter_trace_meta, table_files
+from ..tables import OPTIONAL_COLUMNS, arrow_schemas, to_numpy
 
 
-def write_csv_tables(dataset: Path, meta: dict[str, Any], path: Path, *, header: bool = True) -> None:
+def check_tables(dataset: Path, meta: dict[str, Any]) -> bool:
+    """Check the tables ``meta`` lists against its integrity record (sizes, row counts, SHA-256 unless
+    ``PHYSYNTH_SKIP_HASHES``, trace ids) and each table file's columns (from its footer); False when
+    ``meta`` has no integrity record (nothing to check against: read the traces instead)."""
+    import pyarrow.parquet as pq
+
+    if not isinstance(meta.get("files"), dict):
+        return False
+    integrity.check_dataset(dataset, meta, hashes=not integrity.environ_skip_hashes())
+    for name in TABLES:
+        optional = {c for group in OPTIONAL_COLUMNS.get(name, {}).values() for c in group}
+        required = [c for c in arrow_schemas()[0][name].names if c not in optional]
+        for f in table_files(dataset, name, meta):
+            missing = sorted(set(required) - set(pq.ParquetFile(f).schema_arrow.names))
+            if missing:
+                raise DatasetError(f"{f}: missing column(s) {', '.join(missing)}")
+    return True
+
+
+def write_csv_tables(dataset: Path, meta: dict[str, Any], path: Path, *, header: bool = True,
+                     on_trace: Callable[[], None] | None = None) -> None:
     """Write the tables of ``dataset`` (the files its ``meta`` lists) as CSV files in the new folder ``path``;
-    ``header``: a header line first (the first part of an export has it, the others are appended to it)."""
+    ``header``: a header line first (the first part of an export has it, the others are appended to it);
+    ``on_trace()`` once per trace, as the rows of its UWB table are written (for the traces without, at
+    the end)."""
     import pyarrow.csv as pcsv
     import pyarrow.parquet as pq
 
     path.mkdir(parents=True)
     options = pcsv.WriteOptions(include_header=header)
+    seen: set[int] = set()
     for name in TABLES:
         writer = None
         try:
@@ -36,10 +66,19 @@ def write_csv_tables(dataset: Path, meta: dict[str, Any], path: Path, *, header:
                 if writer is None:
                     writer = pcsv.CSVWriter(path / f"{name}.csv", pf.schema_arrow, write_options=options)
                 for g in range(pf.metadata.num_row_groups):
-                    writer.write_table(pf.read_row_group(g))
+                    table = pf.read_row_group(g)
+                    writer.write_table(table)
+                    if name == "uwb" and on_trace is not None:
+                        new = set(np.unique(to_numpy(table.column("trace"))).tolist()) - seen
+                        seen |= new
+                        for _ in new:
+                            on_trace()
         finally:
             if writer is not None:
                 writer.close()
+    n = meta.get("n_traces")
+    for _ in range(max(0, n - len(seen)) if on_trace is not None and isinstance(n, int) else 0):
+        on_trace()
 
 
 def finish_csv(dataset: Path, meta: dict[str, Any], path: Path) -> None:

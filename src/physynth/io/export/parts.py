@@ -123,12 +123,14 @@ def export_part(dataset: str, meta: dict[str, Any], part: Part, fmt: str, partia
         with replacing(dest) as tmp:
             write_hdf5(traces(), {k: v for k, v in meta.items() if k != "traces"}, tmp)
     else:
-        from .csv import write_csv_tables
+        from .csv import check_tables, write_csv_tables
 
         dest = partial_p / f"part-{part.k:05d}"
-        deque(traces(), maxlen=0)  # read and checked as by every reader, then copied row group by row group
-        with replacing(dest) as tmp:
-            write_csv_tables(dataset_p, sub, tmp, header=part.k == 0)
+        checked = check_tables(dataset_p, sub)
+        if not checked:  # no integrity record: read and checked trace by trace, as by every reader
+            deque(traces(), maxlen=0)
+        with replacing(dest) as tmp:  # then copied row group by row group
+            write_csv_tables(dataset_p, sub, tmp, header=part.k == 0, on_trace=on_unit if checked else None)
     skipped = {t: n for t, n in skipped.items() if n}
     atomic_write_text(done, json.dumps(skipped))
     return skipped
