@@ -231,17 +231,17 @@ def test_cli_fetch_local_copy_and_failed_download(capsys, tmp_path, mirror):
                                                                                                    "README.md"]
 
 
-def test_tracking_default_runs_say_to_fetch(tmp_path, monkeypatch):
-    from physynth.cli._common import cli_words
+def test_tracking_default_runs_say_to_fetch(tmp_path, monkeypatch, capsys):
     from physynth.errors import PhySynthError
     from physynth.studies.tracking import default_data_root, hanyang_default_runs
 
     monkeypatch.delenv("PHYSYNTH_SHARED_DATA", raising=False)
     monkeypatch.setenv(data.DATA_DIR_ENV, str(tmp_path))
     assert default_data_root() == tmp_path
-    with pytest.raises(PhySynthError, match=r"dataset hanyang-uwb is not fetched") as exc:
+    with pytest.raises(PhySynthError, match=r"dataset hanyang-uwb is not fetched"):
         hanyang_default_runs()
-    assert "fetch them with physynth data fetch hanyang-uwb" in cli_words(str(exc.value))
+    code, _, err = run(capsys, "study", "tracking", "--out", tmp_path / "study")  # the command says it in its words
+    assert code == 2 and "fetch them with physynth data fetch hanyang-uwb" in err
     shutil.copytree(SHARED / "hanyang-uwb" / "Dynamic_measurements" / "LOS", tmp_path / "hanyang-uwb" /
                     "Dynamic_measurements" / "LOS")  # half of the runs: the missing files are counted
     with pytest.raises(PhySynthError, match=r"of their \d+ files are missing \(first: Dynamic_measurements/NLOS/"):
