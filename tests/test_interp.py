@@ -6,7 +6,7 @@ import warnings
 
 import numpy as np
 
-from physynth.models._interp import interp_many
+from physynth.models.interp import interp_many
 
 
 def _same(a: np.ndarray, b: np.ndarray) -> bool:

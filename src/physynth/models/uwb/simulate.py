@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...records import Reason, Uwb
-from .._interp import interp_many
+from ..interp import interp_many
 from ..kinematics import Kinematics
 from ..obstacles import obstacle_losses
 from ..renewal import by_label, is_ascending
