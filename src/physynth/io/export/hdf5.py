@@ -54,10 +54,10 @@ def write_hdf5(traces: Iterable[tuple[int, Trace]], meta: dict[str, Any], path: 
             t = g.create_group("truth")
             t["t_s"] = trace.truth.t_s
             t["pos_enu_m"] = trace.truth.pos_enu_m
-            t["vel_enu_mps"] = trace.truth.vel_enu_mps.astype(vel_dtype)
+            t["vel_enu_mps"] = trace.truth.vel_enu_mps.astype(vel_dtype, copy=False)
             for name in ("quat_wxyz", "omega_body_radps"):  # the truth attitude, when the trace has one
                 if getattr(trace.truth, name) is not None:
-                    t[name] = getattr(trace.truth, name).astype(np.float32 if "quat_w" in f32 else np.float64)
+                    t[name] = getattr(trace.truth, name).astype(np.float32 if "quat_w" in f32 else np.float64, copy=False)
             if trace.imu is not None:
                 i = g.create_group("imu")
                 i["t_s"] = trace.imu.t_s
@@ -65,7 +65,7 @@ def write_hdf5(traces: Iterable[tuple[int, Trace]], meta: dict[str, Any], path: 
                 i.attrs["frames"] = json.dumps(list(trace.imu.frames))
                 for name in ("acc_mps2", "acc_body_mps2", "gyro_body_radps"):  # ENU and/or body-frame sensors
                     if getattr(trace.imu, name) is not None:
-                        i[name] = getattr(trace.imu, name).astype(acc_dtype)
+                        i[name] = getattr(trace.imu, name).astype(acc_dtype, copy=False)
             u = g.create_group("uwb")
             for name in ("t_s", "anchor", "range_m", "true_range_m", "nlos", "burst", "reason"):
                 u[name] = getattr(trace.uwb, name)

@@ -15,7 +15,7 @@ While an export runs, everything lives in a hidden sibling of the output, ``.<na
   complete.
 
 :func:`assemble` turns the complete parts into the output: the bag folders as they are, the HDF5 parts'
-groups copied in trace order into one file (the one part renamed when there is one), the CSV parts
+groups copied in trace order into the first part's file, the CSV parts
 concatenated table by table. The bytes do not depend on which worker wrote which part.
 """
 
@@ -146,20 +146,16 @@ def assemble(fmt: str, dataset: Path, meta: dict[str, Any], partial: Path, parts
         return
     if fmt == "hdf5":
         files = [partial / f"part-{p.k:05d}.h5" for p in parts]
-        if len(files) == 1:
-            os.replace(files[0], tmp)
-            return
-        import h5py
+        os.replace(files[0], tmp)  # the first part is the file; the others' groups are copied into it
+        if len(files) > 1:
+            import h5py
 
-        with h5py.File(tmp, "w") as out:
-            with h5py.File(files[0], "r") as first:
-                for key, value in first.attrs.items():
-                    out.attrs[key] = value
-            root = out.create_group("traces")
-            for f in files:
-                with h5py.File(f, "r") as src:
-                    for name in src["traces"]:
-                        src.copy(src["traces"][name], root, name=name)
+            with h5py.File(tmp, "a") as out:
+                root = out["traces"]
+                for f in files[1:]:
+                    with h5py.File(f, "r") as src:
+                        for name in src["traces"]:
+                            src.copy(src["traces"][name], root, name=name)
         return
     from .csv import finish_csv
 
