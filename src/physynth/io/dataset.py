@@ -388,7 +388,33 @@ def table_files(path: Path, name: str, meta: Mapping[str, Any] | None = None) ->
     return parts
 
 
-def _columns(table: pa.Table, name: str, f: Path) -> dict[str, np.ndarray]:
+class AnchorCodes:
+    """Anchor ids as small integers, the same for every row group a reader reads (each row group's
+    dictionary of ``uwb.anchor_id`` is mapped onto it): a trace's rows then find their anchor by an
+    array lookup, and a trace cut across row groups joins its codes as they are."""
+
+    def __init__(self) -> None:
+        self.ids: list[str] = []
+        self._code: dict[str, int] = {}
+
+    def codes(self, ids: Sequence[str], indices: np.ndarray) -> np.ndarray:
+        """The codes of ``ids[indices]`` (a dictionary and its indices)."""
+        lut = np.array([self._code.setdefault(a, len(self._code)) for a in ids], dtype=np.int32)
+        self.ids = list(self._code)
+        return lut[indices] if len(ids) else np.zeros(len(indices), np.int32)
+
+    def to_index(self, codes: np.ndarray, anchor_ids: Sequence[str]) -> np.ndarray:
+        """Each code's position in ``anchor_ids`` (a trace's anchors; -1 where not among them)."""
+        lut = np.full(len(self._code), -1, dtype=np.int16)
+        for i, a in enumerate(anchor_ids):
+            if a in self._code:
+                lut[self._code[a]] = i
+        return lut[codes]
+
+
+def _columns(table: pa.Table, name: str, f: Path, codes: AnchorCodes) -> dict[str, np.ndarray]:
+    """The columns of one table read from ``f``, as stored (float32 stays float32; null floats read as
+    NaN, in float64); the UWB ``anchor_id`` as ``codes`` (``anchor_code``)."""
     import pyarrow as pa
 
     names = arrow_schemas()[0][name].names
@@ -407,22 +433,27 @@ def _columns(table: pa.Table, name: str, f: Path) -> dict[str, np.ndarray]:
             cols["nlos_known"] = ~to_numpy(col.is_null())
             cols[c] = to_numpy(col)  # unknown (null) reads False
         elif c in ("anchor_id", "name"):
-            enc = col.combine_chunks().dictionary_encode() if len(col) else None
-            cols[c] = (np.asarray(enc.dictionary.to_pylist(), dtype=object)[to_numpy(enc.indices)]
-                       if enc is not None else np.array([], dtype=object))
-        else:  # float32 and null (an optional group this trace does not have) read as float64
-            cols[c] = to_numpy(col, np.float64 if col.null_count or pa.types.is_float32(col.type) else None)
+            arr = col.combine_chunks()
+            enc = (arr if pa.types.is_dictionary(arr.type) else arr.dictionary_encode()) if len(col) else None
+            if enc is None:
+                cols[c if name != "uwb" else "anchor_code"] = np.array([], dtype=object if name != "uwb" else np.int32)
+            elif name == "uwb":
+                cols["anchor_code"] = codes.codes(enc.dictionary.to_pylist(), to_numpy(enc.indices))
+            else:
+                cols[c] = np.asarray(enc.dictionary.to_pylist(), dtype=object)[to_numpy(enc.indices)]
+        else:  # null (an optional group this trace does not have) reads as NaN
+            cols[c] = to_numpy(col)
     return cols
 
 
-def _read_table(files: list[Path], name: str) -> dict[str, np.ndarray]:
+def _read_table(files: list[Path], name: str, codes: AnchorCodes) -> dict[str, np.ndarray]:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     parts = []
     for f in files:
         try:
-            parts.append(_columns(pq.read_table(f), name, f))
+            parts.append(_columns(pq.read_table(f), name, f, codes))
         except (OSError, pa.ArrowException) as exc:
             raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
     return {c: np.concatenate([p[c] for p in parts]) for c in parts[0]}
@@ -468,26 +499,27 @@ def _parquet_file(f: Path) -> pq.ParquetFile:
         raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
 
 
-def _row_group(pf: pq.ParquetFile, g: int, name: str, f: Path) -> dict[str, np.ndarray]:
+def _row_group(pf: pq.ParquetFile, g: int, name: str, f: Path, codes: AnchorCodes) -> dict[str, np.ndarray]:
     import pyarrow as pa
 
     try:
-        return _columns(pf.read_row_group(g), name, f)
+        return _columns(pf.read_row_group(g), name, f, codes)
     except (OSError, pa.ArrowException) as exc:
         raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
 
 
-def _table_stream(path: Path, name: str, meta: Mapping[str, Any]) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
+def _table_stream(path: Path, name: str, meta: Mapping[str, Any],
+                  codes: AnchorCodes) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
     """(trace index, columns) of one table, read one row group at a time, in trace order."""
     files = table_files(path, name, meta)
     if not _row_groups_sorted(files):  # not written by DatasetWriter: read it whole, once
-        yield from sorted(_split(_read_table(files, name)).items())
+        yield from sorted(_split(_read_table(files, name, codes)).items())
         return
     pending: tuple[int, dict[str, np.ndarray]] | None = None
     for f in files:
         pf = _parquet_file(f)
         for g in range(pf.metadata.num_row_groups):
-            groups = sorted(_split(_row_group(pf, g, name, f)).items())
+            groups = sorted(_split(_row_group(pf, g, name, f, codes)).items())
             if pending is not None and groups and groups[0][0] == pending[0]:  # a trace across groups
                 groups[0] = (pending[0], {c: np.concatenate([pending[1][c], v]) for c, v in groups[0][1].items()})
             elif pending is not None and groups:
@@ -499,8 +531,35 @@ def _table_stream(path: Path, name: str, meta: Mapping[str, Any]) -> Iterator[tu
         yield pending
 
 
-def _trace_of(idx: int, tr: dict, an: dict | None, im: dict | None, uw: dict | None,
-              meta: dict[str, Any], trace_meta: dict[str, Any], path: Path) -> Trace:
+@dataclass(frozen=True, slots=True)
+class StoredTrace:
+    """One trace of a dataset as its tables store it: per table its columns (:func:`iter_stored_traces`),
+    None where the table has no row of the trace; ``uwb["anchor_code"]`` the anchors as ``codes``."""
+
+    index: int
+    truth: dict[str, np.ndarray]
+    anchors: dict[str, np.ndarray] | None
+    imu: dict[str, np.ndarray] | None
+    uwb: dict[str, np.ndarray] | None
+    meta: dict[str, Any]
+    codes: AnchorCodes
+
+    def anchor_ids(self) -> tuple[str, ...]:
+        return () if self.anchors is None else tuple(self.anchors["anchor_id"])
+
+    def uwb_anchor(self, path: Path) -> np.ndarray:
+        """The UWB rows' anchors as indexes into :meth:`anchor_ids` (int16)."""
+        if self.uwb is None:
+            return np.array([], np.int16)
+        index = self.codes.to_index(self.uwb["anchor_code"], self.anchor_ids())
+        if index.size and index.min() < 0:
+            unknown = sorted({self.codes.ids[c] for c in np.unique(self.uwb["anchor_code"][index < 0]).tolist()})
+            raise DatasetError(f"dataset {path}: trace {self.index} has UWB rows of unknown anchor(s) {unknown}")
+        return index
+
+
+def _trace_of(st: StoredTrace, meta: dict[str, Any], path: Path) -> Trace:
+    idx, tr, an, im, uw = st.index, st.truth, st.anchors, st.imu, st.uwb
     if an is None:  # an IMU-only recording (e.g. BROAD) has no anchors
         anchors = Anchors(ids=(), pos_enu_m=np.zeros((0, 3)))
     else:
@@ -519,17 +578,11 @@ def _trace_of(idx: int, tr: dict, an: dict | None, im: dict | None, uw: dict | N
     if uw is None:
         uwb = Uwb(t_s=np.array([]), anchor=np.array([], np.int16), range_m=np.array([]))
     else:
-        names, inverse = np.unique(uw["anchor_id"].astype(str), return_inverse=True)
-        unknown = sorted(set(names) - set(anchors.ids))
-        if unknown:
-            raise DatasetError(f"dataset {path}: trace {idx} has UWB rows of unknown anchor(s) {unknown}")
-        to_index = np.array([anchors.index(a) for a in names], dtype=np.int16)
-        uwb = Uwb(t_s=uw["t_s"], anchor=to_index[inverse] if len(names) else np.array([], np.int16),
+        uwb = Uwb(t_s=uw["t_s"], anchor=st.uwb_anchor(path),
                   range_m=uw["range_m"], true_range_m=uw["true_range_m"], nlos=uw["nlos"],
                   burst=uw["burst"], reason=uw["reason"],
                   nlos_known=bool(uw["nlos_known"].all()) if len(uw["nlos_known"]) else False)
-    m = {k: v for k, v in trace_meta.items() if k != "trace"}
-    return Trace(truth=truth, uwb=uwb, anchors=anchors, imu=imu, meta=m)
+    return Trace(truth=truth, uwb=uwb, anchors=anchors, imu=imu, meta=st.meta)
 
 
 def iter_traces(path: str | os.PathLike, meta: dict[str, Any] | None = None) -> Iterator[Trace]:
@@ -547,9 +600,24 @@ def iter_indexed_traces(path: str | os.PathLike, meta: dict[str, Any] | None = N
     """
     path = Path(path)
     meta = read_meta(path) if meta is None else meta
+    for st in iter_stored_traces(path, meta):
+        try:
+            trace = _trace_of(st, meta, path)
+        except ValueError as exc:  # tables that read but do not make valid records (unsorted times, ...)
+            raise DatasetError(f"dataset {path}: trace {st.index} is invalid: {str(exc).splitlines()[0]}") from None
+        yield st.index, trace
+
+
+def iter_stored_traces(path: str | os.PathLike, meta: dict[str, Any] | None = None) -> Iterator[StoredTrace]:
+    """The traces of a dataset directory as stored (:class:`StoredTrace`), one at a time, in trace order,
+    once its files are checked against ``dataset.json`` (sizes, row counts, hashes, trace ids): what
+    :func:`iter_indexed_traces` makes records of, and what an export copies without making them."""
+    path = Path(path)
+    meta = read_meta(path) if meta is None else meta
     # integrity hook (physynth.io.integrity): sizes, row counts, hashes and trace ids against dataset.json
     integrity.check_dataset(path, meta, hashes=not integrity.environ_skip_hashes())
-    streams = {name: _table_stream(path, name, meta) for name in TABLES}
+    codes = AnchorCodes()
+    streams = {name: _table_stream(path, name, meta, codes) for name in TABLES}
     streams["meta"] = iter_trace_meta(path, meta)
     heads: dict[str, tuple[int, dict] | None] = {name: next(streams[name], None) for name in streams if name != "truth"}
 
@@ -565,12 +633,8 @@ def iter_indexed_traces(path: str | os.PathLike, meta: dict[str, Any] | None = N
     n = 0
     for idx, tr in streams["truth"]:
         n += 1
-        try:
-            trace = _trace_of(idx, tr, take("anchors", idx), take("imu", idx), take("uwb", idx), meta,
-                              take("meta", idx) or {}, path)
-        except ValueError as exc:  # tables that read but do not make valid records (unsorted times, ...)
-            raise DatasetError(f"dataset {path}: trace {idx} is invalid: {str(exc).splitlines()[0]}") from None
-        yield idx, trace
+        trace_meta = {k: v for k, v in (take("meta", idx) or {}).items() if k != "trace"}
+        yield StoredTrace(idx, tr, take("anchors", idx), take("imu", idx), take("uwb", idx), trace_meta, codes)
     if n == 0:
         raise DatasetError(f"dataset {path} holds no traces")
 
