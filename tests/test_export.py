@@ -374,3 +374,66 @@ def test_csv_export_checks_tables_against_the_integrity_record(dataset, tmp_path
     err = capsys.readouterr().err
     assert e.value.code == 2 and err.count("\n") == 1 and needle in err, err
     assert not (tmp_path / "out").exists()
+
+
+def _assert_hdf5_holds_the_records(f, traces, stored_f32):
+    """Every array of every trace group equals the dataset reader's record, in the record's type (float64,
+    int16/int64/int8/bool for UWB) or float32 where the dataset stores float32; the attributes too."""
+    for index, tr in traces:
+        g = f["traces"][f"{index:08d}"]
+        assert {k: g.attrs[k] for k in g.attrs if k != "trace"} == {
+            k: (v if isinstance(v, (int, float, str, bool)) else json.dumps(v)) for k, v in tr.meta.items()}
+        expect = {"truth/t_s": tr.truth.t_s, "truth/pos_enu_m": tr.truth.pos_enu_m,
+                  "truth/vel_enu_mps": tr.truth.vel_enu_mps, "truth/quat_wxyz": tr.truth.quat_wxyz,
+                  "truth/omega_body_radps": tr.truth.omega_body_radps,
+                  **{f"uwb/{c}": getattr(tr.uwb, c) for c in ("t_s", "anchor", "range_m", "true_range_m", "nlos",
+                                                              "burst", "reason")},
+                  "anchors/pos_enu_m": tr.anchors.pos_enu_m}
+        if tr.imu is not None:
+            expect |= {"imu/t_s": tr.imu.t_s, **{f"imu/{c}": getattr(tr.imu, c)
+                                                   for c in ("acc_mps2", "acc_body_mps2", "gyro_body_radps")}}
+            assert g["imu"].attrs["frame"] == tr.imu.frame
+            assert json.loads(g["imu"].attrs["frames"]) == list(tr.imu.frames)
+        else:
+            assert "imu" not in g
+        for name, value in expect.items():
+            if value is None:
+                assert name not in g, name
+                continue
+            want = value.astype(np.float32) if name in stored_f32 else value
+            got = g[name][()]
+            assert got.dtype == want.dtype and got.shape == want.shape, (name, got.dtype, want.dtype)
+            np.testing.assert_array_equal(got, want, err_msg=name)
+        assert bool(g["uwb"].attrs["nlos_known"]) == tr.uwb.nlos_known
+        assert [s.decode() for s in g["anchors/ids"][()]] == list(tr.anchors.ids)
+        assert [s.decode() for s in g["anchors/names"][()]] == list(tr.anchors.names)
+
+
+def test_hdf5_copies_the_stored_tables_as_the_reader_makes_records_of_them(body_dataset, tmp_path):
+    """The HDF5 export copies the tables as stored (no record per trace); what it writes is what the records
+    of the dataset's reader hold, type for type, for generated traces with both IMU frames and attitude."""
+    h5py = pytest.importorskip("h5py")
+    from physynth.io.dataset import iter_indexed_traces
+
+    p_both = body_dataset[0]
+    f32 = {"truth/vel_enu_mps", "truth/quat_wxyz", "truth/omega_body_radps", "imu/acc_mps2", "imu/acc_body_mps2",
+           "imu/gyro_body_radps"}
+    with h5py.File(export_dataset(p_both, tmp_path / "b.h5", "hdf5"), "r") as f:
+        _assert_hdf5_holds_the_records(f, list(iter_indexed_traces(p_both)), f32)
+
+
+@pytest.mark.skipif(not (HANYANG := __import__("pathlib").Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+                         / "hanyang-uwb" / "Dynamic_measurements" / "NLOS" / "Trajectory_A" / "Case_1").is_dir(),
+                    reason="real Hanyang data not found")
+def test_hdf5_of_an_imported_recording_holds_its_records(tmp_path):
+    """An imported run (float64 throughout, NLOS unknown, anchors with names)."""
+    h5py = pytest.importorskip("h5py")
+    from physynth.io.dataset import iter_indexed_traces, write_dataset
+    from physynth.io.importers import import_hanyang
+
+    trace, _ = import_hanyang(HANYANG)
+    path = write_dataset(tmp_path / "ds", [trace], meta={"kind": "real", "source": "hanyang-uwb"})
+    with h5py.File(export_dataset(path, tmp_path / "r.h5", "hdf5"), "r") as f:
+        traces = list(iter_indexed_traces(path))
+        assert not traces[0][1].uwb.nlos_known
+        _assert_hdf5_holds_the_records(f, traces, set())

@@ -601,11 +601,21 @@ def iter_indexed_traces(path: str | os.PathLike, meta: dict[str, Any] | None = N
     path = Path(path)
     meta = read_meta(path) if meta is None else meta
     for st in iter_stored_traces(path, meta):
-        try:
-            trace = _trace_of(st, meta, path)
-        except ValueError as exc:  # tables that read but do not make valid records (unsorted times, ...)
-            raise DatasetError(f"dataset {path}: trace {st.index} is invalid: {str(exc).splitlines()[0]}") from None
-        yield st.index, trace
+        yield st.index, trace_of(st, meta, path)
+
+
+def trace_of(st: StoredTrace, meta: dict[str, Any], path: Path) -> Trace:
+    """The record of a stored trace of the dataset at ``path`` (whose ``dataset.json`` is ``meta``).
+
+    Raises
+    ------
+    DatasetError
+        When its tables read but do not make a valid record (unsorted times, unknown anchors, ...).
+    """
+    try:
+        return _trace_of(st, meta, path)
+    except ValueError as exc:
+        raise DatasetError(f"dataset {path}: trace {st.index} is invalid: {str(exc).splitlines()[0]}") from None
 
 
 def iter_stored_traces(path: str | os.PathLike, meta: dict[str, Any] | None = None) -> Iterator[StoredTrace]:

@@ -65,10 +65,11 @@ def export_dataset(dataset: str | os.PathLike, out: str | os.PathLike, fmt: str,
       ``bag_storage="sqlite3"``, SQLite3;
     - ``csv``: a folder with one CSV file per table (:mod:`.csv`).
 
-    Every format checks the dataset before its output appears: HDF5 and ROS 2 bags read it as every
-    reader does (:func:`~physynth.io.dataset.iter_indexed_traces`: files against ``dataset.json``, columns,
-    valid traces); CSV, which copies the tables as stored, checks the files against the integrity record
-    and each table's columns (:func:`.csv.check_tables`; without a record, it reads the traces too). The ROS 2 export
+    Every format checks the dataset before its output appears: ROS 2 bags read it as every reader does
+    (:func:`~physynth.io.dataset.iter_indexed_traces`: files against ``dataset.json``, columns, valid
+    traces); HDF5 and CSV, which copy the tables as stored, check the files against the integrity record
+    (:func:`~physynth.io.dataset.iter_stored_traces`; CSV also each table's columns, :func:`.csv.check_tables`)
+    and, for a dataset without one, make every trace's record too. The ROS 2 export
     leaves out messages with a NaN field or stamped before time 0 and says how many through ``progress``.
     ``resume``: complete an unfinished (killed) export of the same dataset to ``out``, keeping its complete
     parts. ``run``: where the parts run (:data:`Runner`; default: one after the other in this process).

@@ -27,50 +27,98 @@ from typing import Any
 
 import numpy as np
 
-from ...records import Trace
+from ...constants import IMU_BODY_FRAME, IMU_FRAME
+from ...errors import DatasetError
+from ..dataset import StoredTrace
+from ..tables import OPTIONAL_COLUMNS
 
 
 def _attr(value: Any) -> Any:
     return value if isinstance(value, (int, float, str, bool)) else json.dumps(value)
 
 
-def write_hdf5(traces: Iterable[tuple[int, Trace]], meta: dict[str, Any], path: Path) -> None:
-    """Write ``(index, trace)`` pairs to the HDF5 file ``path``."""
+def _vectors(cols: dict[str, np.ndarray], names: Iterable[str], dtype: Any) -> np.ndarray:
+    return np.stack([cols[c] for c in names], axis=1).astype(dtype, copy=False)
+
+
+def _group(cols: dict[str, np.ndarray], table: str, attr: str, dtype: Any) -> np.ndarray | None:
+    """An optional group of columns as (N, k) in ``dtype``, None when absent or NaN throughout (as the
+    dataset's reader takes it)."""
+    names = OPTIONAL_COLUMNS[table][attr]
+    if any(c not in cols for c in names):
+        return None
+    arr = _vectors(cols, names, dtype)
+    return None if arr.size and np.all(np.isnan(arr)) else arr
+
+
+def _uwb_columns(st: StoredTrace, path: Path) -> tuple[dict[str, np.ndarray], bool]:
+    """The UWB group's arrays in the types of the trace records (:class:`~physynth.records.Uwb`)."""
+    uw = st.uwb
+    if uw is None:
+        empty = {"t_s": np.float64, "anchor": np.int16, "range_m": np.float64, "true_range_m": np.float64,
+                 "nlos": np.bool_, "burst": np.int64, "reason": np.int8}
+        return {k: np.zeros(0, dtype=d) for k, d in empty.items()}, False
+    out = {"t_s": uw["t_s"].astype(np.float64, copy=False), "anchor": st.uwb_anchor(path),
+           "range_m": uw["range_m"].astype(np.float64, copy=False),
+           "true_range_m": uw["true_range_m"].astype(np.float64, copy=False),
+           "nlos": uw["nlos"].astype(np.bool_, copy=False), "burst": uw["burst"].astype(np.int64, copy=False),
+           "reason": uw["reason"].astype(np.int8, copy=False)}
+    return out, bool(uw["nlos_known"].all()) if len(uw["nlos_known"]) else False
+
+
+def write_hdf5(traces: Iterable[StoredTrace], meta: dict[str, Any], path: Path, dataset: Path) -> None:
+    """Write the stored traces of ``dataset`` (:func:`~physynth.io.dataset.iter_stored_traces`) to the HDF5
+    file ``path``: each array in the type the dataset's reader gives it (float64), or float32 where the
+    dataset stores float32 (velocities, attitude, IMU samples of generated datasets), copied as stored."""
     import h5py
 
     f32 = set(meta.get("float32_columns", []))
     acc_dtype = np.float32 if "acc_e_mps2" in f32 else np.float64
     vel_dtype = np.float32 if "vel_e_mps" in f32 else np.float64
+    att_dtype = np.float32 if "quat_w" in f32 else np.float64
     str_dtype = h5py.string_dtype("utf-8")
     with h5py.File(path, "w") as f:
         f.attrs["dataset_json"] = json.dumps({k: v for k, v in meta.items() if k != "traces"})
         f.attrs["format"] = "physynth-hdf5/1"
         root = f.create_group("traces")
-        for idx, trace in traces:
-            g = root.create_group(f"{idx:08d}")
-            g.attrs["trace"] = idx
-            for k, v in trace.meta.items():
+        for st in traces:
+            g = root.create_group(f"{st.index:08d}")
+            g.attrs["trace"] = st.index
+            for k, v in st.meta.items():
                 g.attrs[k] = _attr(v)
+            tr = st.truth
             t = g.create_group("truth")
-            t["t_s"] = trace.truth.t_s
-            t["pos_enu_m"] = trace.truth.pos_enu_m
-            t["vel_enu_mps"] = trace.truth.vel_enu_mps.astype(vel_dtype, copy=False)
+            t["t_s"] = tr["t_s"].astype(np.float64, copy=False)
+            t["pos_enu_m"] = _vectors(tr, ("pos_e_m", "pos_n_m", "pos_u_m"), np.float64)
+            t["vel_enu_mps"] = _vectors(tr, ("vel_e_mps", "vel_n_mps", "vel_u_mps"), vel_dtype)
             for name in ("quat_wxyz", "omega_body_radps"):  # the truth attitude, when the trace has one
-                if getattr(trace.truth, name) is not None:
-                    t[name] = getattr(trace.truth, name).astype(np.float32 if "quat_w" in f32 else np.float64, copy=False)
-            if trace.imu is not None:
+                arr = _group(tr, "truth", name, att_dtype)
+                if arr is not None:
+                    t[name] = arr
+            if st.imu is not None:
+                groups = {a: _group(st.imu, "imu", a, acc_dtype) for a in OPTIONAL_COLUMNS["imu"]}
+                if all(v is None for v in groups.values()):
+                    raise DatasetError(f"dataset {dataset}: trace {st.index} has IMU rows without any value")
+                frame = meta.get("imu_frame", IMU_FRAME)
+                frames = ((frame,) if groups["acc_mps2"] is not None else ()) + (
+                    (IMU_BODY_FRAME,) if groups["acc_body_mps2"] is not None or groups["gyro_body_radps"] is not None
+                    else ())
                 i = g.create_group("imu")
-                i["t_s"] = trace.imu.t_s
-                i.attrs["frame"] = trace.imu.frame
-                i.attrs["frames"] = json.dumps(list(trace.imu.frames))
+                i["t_s"] = st.imu["t_s"].astype(np.float64, copy=False)
+                i.attrs["frame"] = frame
+                i.attrs["frames"] = json.dumps(list(frames))
                 for name in ("acc_mps2", "acc_body_mps2", "gyro_body_radps"):  # ENU and/or body-frame sensors
-                    if getattr(trace.imu, name) is not None:
-                        i[name] = getattr(trace.imu, name).astype(acc_dtype, copy=False)
+                    if groups[name] is not None:
+                        i[name] = groups[name]
             u = g.create_group("uwb")
-            for name in ("t_s", "anchor", "range_m", "true_range_m", "nlos", "burst", "reason"):
-                u[name] = getattr(trace.uwb, name)
-            u.attrs["nlos_known"] = bool(trace.uwb.nlos_known)
+            cols, nlos_known = _uwb_columns(st, dataset)
+            for name, arr in cols.items():
+                u[name] = arr
+            u.attrs["nlos_known"] = nlos_known
             a = g.create_group("anchors")
-            a.create_dataset("ids", data=list(trace.anchors.ids), dtype=str_dtype)
-            a.create_dataset("names", data=list(trace.anchors.names), dtype=str_dtype)
-            a["pos_enu_m"] = trace.anchors.pos_enu_m
+            ids = st.anchor_ids()
+            a.create_dataset("ids", data=list(ids), dtype=str_dtype)
+            an = st.anchors
+            a.create_dataset("names", data=list(an["name"]) if an is not None and ids else list(ids), dtype=str_dtype)
+            a["pos_enu_m"] = (_vectors(an, ("pos_e_m", "pos_n_m", "pos_u_m"), np.float64) if an is not None
+                              else np.zeros((0, 3)))

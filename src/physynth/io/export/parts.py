@@ -33,7 +33,7 @@ from typing import Any
 from ... import __version__
 from ...errors import PhySynthError
 from ..atomic import atomic_write_text
-from ..dataset import iter_indexed_traces
+from ..dataset import iter_indexed_traces, iter_stored_traces, trace_of
 from ..safety import replacing
 
 
@@ -106,6 +106,15 @@ def export_part(dataset: str, meta: dict[str, Any], part: Part, fmt: str, partia
             if on_unit is not None:
                 on_unit()
 
+    def stored():  # the traces as stored; made into records too when no integrity record vouches for them
+        record = not isinstance(sub.get("files"), dict)
+        for st in iter_stored_traces(dataset_p, sub):
+            if record:
+                trace_of(st, sub, dataset_p)
+            yield st
+            if on_unit is not None:
+                on_unit()
+
     skipped: dict[str, int] = {}
     if fmt == "rosbag2":
         from .rosbag2 import write_bag
@@ -121,7 +130,7 @@ def export_part(dataset: str, meta: dict[str, Any], part: Part, fmt: str, partia
 
         dest = partial_p / f"part-{part.k:05d}.h5"
         with replacing(dest) as tmp:
-            write_hdf5(traces(), {k: v for k, v in meta.items() if k != "traces"}, tmp)
+            write_hdf5(stored(), {k: v for k, v in meta.items() if k != "traces"}, tmp, dataset_p)
     else:
         from .csv import check_tables, write_csv_tables
 
