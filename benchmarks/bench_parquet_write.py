@@ -11,7 +11,10 @@ memory:
 - ``rg16+stream``: the SHA-256 taken while writing (``DatasetWriter.hash_while_writing`` now);
 - ``rg64+stream``: both;
 - ``rg64+stream+thread``: and the row groups encoded and written in a writer thread while the next traces
-  are made (``DatasetWriter.write_in_thread``; what ``generate`` does now).
+  are made (``DatasetWriter.write_in_thread``);
+- ``rg16+stream+thread``, ``rg32+stream+thread``: the same with row groups of 16 and 32 traces (the last
+  row group of a shard is written after its last trace is made, while nothing else runs: the smaller, the
+  less of the writing is left without a trace to overlap).
 
 Prints the wall-clock and CPU time (this process) per trace and the rate to Parquet as a fraction of the
 in-memory rate. On a shared machine prefer the CPU figures.
@@ -37,7 +40,8 @@ from physynth.io.scenario_file import load_scenario  # noqa: E402
 from physynth.workflows import generate_dataset  # noqa: E402
 
 VARIANTS = {"rg16+reread": (16, False, False), "rg64+reread": (64, False, False),
-            "rg16+stream": (16, True, False), "rg64+stream": (64, True, False), "rg64+stream+thread": (64, True, True)}
+            "rg16+stream": (16, True, False), "rg64+stream": (64, True, False), "rg64+stream+thread": (64, True, True),
+            "rg16+stream+thread": (16, True, True), "rg32+stream+thread": (32, True, True)}
 
 
 def main() -> None:
