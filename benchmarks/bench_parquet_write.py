@@ -7,7 +7,7 @@ this process (one shard, ``generate_dataset(workers=1, shard_traces=N)``), again
 memory:
 
 - ``rg16+reread``: row groups of 16 traces, tables hashed by reading them again at close (before 2026-12-05);
-- ``rg64+reread``: row groups of 64 traces (``io.shards.ROW_GROUP_TRACES`` now);
+- ``rg64+reread``: row groups of 64 traces;
 - ``rg16+stream``: the SHA-256 taken while writing (``DatasetWriter.hash_while_writing`` now);
 - ``rg64+stream``: both;
 - ``rg64+stream+thread``: and the row groups encoded and written in a writer thread while the next traces

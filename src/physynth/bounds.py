@@ -41,7 +41,8 @@ MIN_TRUTH_SAMPLES = 10
 # bytes per sample: about twice the peak tracemalloc measures on the cablecar preset (3.9 MB per trace)
 _WORK_BYTES = {"truth": 150, "imu": 80, "uwb": 100}
 _TABLE_BYTES = {"truth": 64, "imu": 40, "uwb": 60}
-ROW_GROUP_TRACES = 64
+ROW_GROUP_TRACES = 16
+"""Traces per Parquet row group of a generated dataset (``io.shards`` writes them so; the budget holds one)."""
 # bytes per row on disk, as the Parquet writer stores them: measured 36-44 B per truth row, 12-13 B per IMU
 # row and triad (ENU, body accelerometer, body gyroscope), 18-21 B per UWB row (cablecar-descending,
 # walk-hanyang, handheld-broad), 8-30 % under these; the estimate also takes the longest trip the spreads

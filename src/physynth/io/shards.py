@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .. import __version__
+from .. import __version__, bounds
 from .._json import jsonable
 from ..errors import DatasetError, OutputExistsError, PhySynthError, PhySynthWarning
 from . import integrity
@@ -45,10 +45,12 @@ from .safety import is_vacant, remove_tree, swap_in
 DEFAULT_SHARD_TRACES = 128
 """Traces per shard: small enough that a killed run loses little, large enough to keep files few."""
 
-ROW_GROUP_TRACES = 64
-"""Traces per Parquet row group inside a shard (what a streaming reader holds at a time): two row groups
-per shard of the default 128 traces (16 before 2026-12-05; ``benchmarks/bench_parquet_write.py``); Arrow
-cuts a group of more than 1 Mi rows further (the IMU table of 64 default traces: 2.6 M rows)."""
+ROW_GROUP_TRACES = bounds.ROW_GROUP_TRACES
+"""Traces per Parquet row group inside a shard: what a streaming reader (an export's worker) holds at a
+time, and the writing left to do after a shard's last trace is made (the writer thread overlaps the rest
+with making traces). Eight row groups per shard of the default 128 traces: side by side
+(``benchmarks/bench_parquet_write.py``), 16 writes as fast as 64 and an export's worker holds half the
+memory (``benchmarks/bench_export.py --workers 2``)."""
 
 _SHARD_RE = re.compile(r"^shard-(\d{5,})$")
 
