@@ -187,3 +187,35 @@ def test_notebook_tutorial_runs(tmp_path):
         os.environ.update(old)
     out = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
     assert "RMSE" in out, out[-2000:]
+
+
+PATH_REF = re.compile(r"(?<![\w/.-])((?:tools|benchmarks)/[\w.-]+\.py|docs/[\w./-]+\.md)\b")
+REMOVED_HEADING = "## 2026-12-05: investigations removed from tools/"
+
+
+def named_paths(text: str) -> set[str]:
+    """Every ``tools/*.py``, ``benchmarks/*.py`` and ``docs/*.md`` path a page names, in prose or code."""
+    return set(PATH_REF.findall(text))
+
+
+def test_named_paths_parser():
+    text = "run `python tools/loo_hanyang.py --n 50`, see docs/imu.md and benchmarks/bench_cli.py; not src/tools/x.py"
+    assert named_paths(text) == {"tools/loo_hanyang.py", "docs/imu.md", "benchmarks/bench_cli.py"}
+
+
+def test_every_named_tool_benchmark_and_page_exists():
+    """A script or page named in README.md or docs/ exists; the experiments log may name a removed
+    investigation only in its table of investigations removed from tools/ (``git show`` reads them)."""
+    log = DOCS / "experiments.md"
+    removed = log.read_text(encoding="utf-8").split(REMOVED_HEADING, 1)
+    assert len(removed) == 2, f"docs/experiments.md has no section {REMOVED_HEADING!r}"
+    removed_names = set(re.findall(r"^\| `([\w.-]+\.py)` \|", removed[1].split("\n## ", 1)[0], re.M))
+    missing = []
+    for page in [ROOT / "README.md", *sorted(DOCS.rglob("*.md"))]:
+        for ref in sorted(named_paths(page.read_text(encoding="utf-8"))):
+            if (ROOT / ref).exists():
+                continue
+            if page == log and ref.startswith("tools/") and Path(ref).name in removed_names:
+                continue
+            missing.append(f"{page.relative_to(ROOT)}: {ref}")
+    assert not missing, "named but absent:\n" + "\n".join(missing)
