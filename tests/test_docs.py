@@ -15,8 +15,11 @@
   - ``<!-- docs-test: skip REASON -->``: the block is not run (set-up commands that install).
 
   Any other fence (```` ```text ````, ```` ```yaml ````) is not run.
-- The notebook tutorial (``docs/tutorials/train-a-tracker.ipynb``) runs with nbclient, its cell tagged
-  ``parameters`` replaced by tiny sizes.
+- The notebook tutorial (``docs/tutorials/train-a-tracker.ipynb``) runs with nbclient in a process of its
+  own, its cell tagged ``parameters`` replaced by tiny sizes.
+- The pages and the notebook run side by side, ``PHYSYNTH_DOCS_TEST_JOBS`` at a time (2 by default), each
+  in its own scratch clone; nothing is skipped.
+- Every ``tools/*.py``, ``benchmarks/*.py`` and ``docs/*.md`` path named in README.md and docs/ exists.
 """
 
 from __future__ import annotations
@@ -80,7 +83,10 @@ def scratch(tmp_path: Path) -> tuple[Path, dict[str, str]]:
         (tmp_path / "shared").mkdir()
         (tmp_path / "shared" / "data").symlink_to(SHARED)
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}",
-           "PHYSYNTH_DATA_DIR": str(SHARED), "MPLBACKEND": "Agg", "PYTHONHASHSEED": "0"}
+           "PHYSYNTH_DATA_DIR": str(SHARED), "MPLBACKEND": "Agg", "PYTHONHASHSEED": "0",
+           # one thread per process, as the command line runs (docs/scale.md, "BLAS threads"): the notebook and
+           # the Python blocks use the API, which leaves the environment alone, and threads only spin here
+           "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     env.pop("PHYSYNTH_SHARED_DATA", None)
     return work, env
 
@@ -98,16 +104,15 @@ def test_marker_parsing_finds_skips_and_substitutions(tmp_path):
         tiny("physynth generate -n 20\n", [("-n 50", "-n 2")], "p")
 
 
-@pytest.mark.parametrize("page", EXECUTED)
-def test_page_examples_run(page, tmp_path):
-    path = ROOT / page
-    found = blocks(path)
-    assert any(skip is None for _, _, skip, _ in found), f"{page}: no runnable example"
-    text = path.read_text(encoding="utf-8")
-    if ("physynth data" in text or "../shared/data" in text) and not SHARED.is_dir():
-        pytest.skip(f"{page} uses the real data, and {SHARED} is absent")
-    work, env = scratch(tmp_path)
-    for k, (lang, code, skip, subs) in enumerate(found):
+def uses_real_data(page: str) -> bool:
+    text = (ROOT / page).read_text(encoding="utf-8")
+    return "physynth data" in text or "../shared/data" in text
+
+
+def run_page(page: str, tmp: Path) -> str | None:
+    """Run every runnable block of a page in order in its own scratch clone; the failure, or None."""
+    work, env = scratch(tmp)
+    for k, (lang, code, skip, subs) in enumerate(blocks(ROOT / page)):
         if skip is not None:
             continue
         where = f"{page}, block {k + 1}"
@@ -115,11 +120,94 @@ def test_page_examples_run(page, tmp_path):
         if lang == "bash":
             cmd = ["bash", "-euo", "pipefail", "-c", code]
         else:
-            script = tmp_path / f"block{k + 1}.py"
+            script = tmp / f"block{k + 1}.py"
             script.write_text(code, encoding="utf-8")
             cmd = [sys.executable, str(script)]
         proc = subprocess.run(cmd, cwd=work, env=env, capture_output=True, text=True, timeout=300)
-        assert proc.returncode == 0, f"{where} failed:\n{code}\n--- stderr:\n{proc.stderr[-3000:]}"
+        if proc.returncode != 0:
+            return f"{where} failed:\n{code}\n--- stderr:\n{proc.stderr[-3000:]}"
+    return None
+
+
+NOTEBOOK = DOCS / "tutorials" / "train-a-tracker.ipynb"
+NOTEBOOK_TINY = [("PRETRAIN_TRACES = 64", "PRETRAIN_TRACES = 2"), ("PRETRAIN_EPOCHS = 5", "PRETRAIN_EPOCHS = 1"),
+                 ("FINETUNE_EPOCHS = 20", "FINETUNE_EPOCHS = 1"), ("WINDOWS_PER_TRACE = 32", "WINDOWS_PER_TRACE = 2")]
+# executes a notebook in a process of its own (its environment the scratch clone's), writes it with outputs
+NOTEBOOK_RUNNER = """
+import sys
+import nbclient
+import nbformat
+nb = nbformat.read(sys.argv[1], as_version=4)
+nbclient.NotebookClient(nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": sys.argv[2]}}).execute()
+nbformat.write(nb, sys.argv[3])
+"""
+
+
+def run_notebook(tmp: Path) -> str:
+    """The notebook tutorial run with its ``parameters`` cell made tiny; the text of its outputs."""
+    import nbformat
+
+    nb = nbformat.read(NOTEBOOK, as_version=4)
+    params = [c for c in nb.cells if "parameters" in c.get("metadata", {}).get("tags", [])]
+    assert len(params) == 1, "the notebook needs one cell tagged 'parameters'"
+    params[0].source = tiny(params[0].source, NOTEBOOK_TINY, "notebook")
+    work, env = scratch(tmp)
+    nbformat.write(nb, tmp / "in.ipynb")
+    cmd = [sys.executable, "-c", NOTEBOOK_RUNNER, str(tmp / "in.ipynb"), str(work), str(tmp / "out.ipynb")]
+    proc = subprocess.run(cmd, cwd=work, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, f"the notebook failed:\n{proc.stderr[-4000:]}"
+    out = nbformat.read(tmp / "out.ipynb", as_version=4)
+    return "".join(o.get("text", "") for c in out.cells if c.cell_type == "code" for o in c.get("outputs", []))
+
+
+def notebook_runs_here() -> str | None:
+    """Why the notebook cannot run here, or None."""
+    for mod in ("nbformat", "nbclient", "ipykernel"):
+        try:
+            __import__(mod)
+        except ImportError:
+            return f"{mod} is not installed"
+    if not SHARED.is_dir():
+        return f"the notebook scores on a real run, and {SHARED} is absent"
+    return None
+
+
+# The pages and the notebook are independent (each in a scratch clone of its own), so they run side by side,
+# PHYSYNTH_DOCS_TEST_JOBS at a time (2 by default; 1 runs them one after the other), longest first; every
+# block still runs, in page order. Each test below waits for its own page.
+JOBS = max(1, int(os.environ.get("PHYSYNTH_DOCS_TEST_JOBS", "2")))
+LONGEST_FIRST = ["README.md", "docs/tutorials/calibrate-your-site.md", "notebook"]
+
+
+@pytest.fixture(scope="module")
+def executed(tmp_path_factory):
+    from concurrent.futures import ThreadPoolExecutor
+
+    jobs = [j for j in LONGEST_FIRST if j == "notebook" or j in EXECUTED]
+    jobs += [p for p in EXECUTED if p not in jobs]
+    pool = ThreadPoolExecutor(max_workers=JOBS)
+    futures = {}
+    for job in jobs:
+        tmp = tmp_path_factory.mktemp(re.sub(r"\W+", "-", job))
+        if job == "notebook":
+            if notebook_runs_here() is None:
+                futures[job] = pool.submit(run_notebook, tmp)
+        elif not (uses_real_data(job) and not SHARED.is_dir()):
+            futures[job] = pool.submit(run_page, job, tmp)
+    yield futures
+    for f in futures.values():
+        f.cancel()
+    pool.shutdown(wait=True)
+
+
+@pytest.mark.parametrize("page", EXECUTED)
+def test_page_examples_run(page, executed):
+    found = blocks(ROOT / page)
+    assert any(skip is None for _, _, skip, _ in found), f"{page}: no runnable example"
+    if uses_real_data(page) and not SHARED.is_dir():
+        pytest.skip(f"{page} uses the real data, and {SHARED} is absent")
+    failure = executed[page].result()
+    assert failure is None, failure
 
 
 def test_generated_reference_pages_are_current():
@@ -164,28 +252,11 @@ def test_every_page_is_in_the_nav():
     assert pages and not [p for p in pages if f'"{p}"' not in nav]
 
 
-def test_notebook_tutorial_runs(tmp_path):
-    nbformat = pytest.importorskip("nbformat")
-    nbclient = pytest.importorskip("nbclient")
-    if not SHARED.is_dir():
-        pytest.skip(f"the notebook scores on a real run, and {SHARED} is absent")
-    nb = nbformat.read(DOCS / "tutorials" / "train-a-tracker.ipynb", as_version=4)
-    params = [c for c in nb.cells if "parameters" in c.get("metadata", {}).get("tags", [])]
-    assert len(params) == 1, "the notebook needs one cell tagged 'parameters'"
-    params[0].source = tiny(params[0].source, [("PRETRAIN_TRACES = 64", "PRETRAIN_TRACES = 2"),
-                                               ("PRETRAIN_EPOCHS = 5", "PRETRAIN_EPOCHS = 1"),
-                                               ("FINETUNE_EPOCHS = 20", "FINETUNE_EPOCHS = 1"),
-                                               ("WINDOWS_PER_TRACE = 32", "WINDOWS_PER_TRACE = 2")], "notebook")
-    work, env = scratch(tmp_path)
-    old = dict(os.environ)
-    os.environ.update(env)
-    try:
-        nbclient.NotebookClient(nb, timeout=300, kernel_name="python3",
-                                resources={"metadata": {"path": str(work)}}).execute()
-    finally:
-        os.environ.clear()
-        os.environ.update(old)
-    out = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
+def test_notebook_tutorial_runs(executed):
+    why = notebook_runs_here()
+    if why is not None:
+        pytest.skip(why)
+    out = executed["notebook"].result()
     assert "RMSE" in out, out[-2000:]
 
 
