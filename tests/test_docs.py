@@ -15,8 +15,9 @@
   - ``<!-- docs-test: skip REASON -->``: the block is not run (set-up commands that install).
 
   Any other fence (```` ```text ````, ```` ```yaml ````) is not run.
-- The notebook tutorial (``docs/tutorials/train-a-tracker.ipynb``) runs with nbclient in a process of its
-  own, its cell tagged ``parameters`` replaced by tiny sizes.
+- The notebook tutorial (``docs/tutorials/train-a-tracker-notebook.ipynb``) runs with nbclient in a process
+  of its own, its cell tagged ``parameters`` replaced by tiny sizes; the site renders it as a page
+  (mkdocs-jupyter, not executed there).
 - The pages and the notebook run side by side, ``PHYSYNTH_DOCS_TEST_JOBS`` at a time (2 by default), each
   in its own scratch clone; nothing is skipped.
 - Every ``tools/*.py``, ``benchmarks/*.py`` and ``docs/*.md`` path named in README.md and docs/ exists.
@@ -129,7 +130,7 @@ def run_page(page: str, tmp: Path) -> str | None:
     return None
 
 
-NOTEBOOK = DOCS / "tutorials" / "train-a-tracker.ipynb"
+NOTEBOOK = DOCS / "tutorials" / "train-a-tracker-notebook.ipynb"
 NOTEBOOK_TINY = [("PRETRAIN_TRACES = 64", "PRETRAIN_TRACES = 2"), ("PRETRAIN_EPOCHS = 5", "PRETRAIN_EPOCHS = 1"),
                  ("FINETUNE_EPOCHS = 20", "FINETUNE_EPOCHS = 1"), ("WINDOWS_PER_TRACE = 32", "WINDOWS_PER_TRACE = 2")]
 # executes a notebook in a process of its own (its environment the scratch clone's), writes it with outputs
@@ -180,11 +181,16 @@ LONGEST_FIRST = ["README.md", "docs/tutorials/calibrate-your-site.md", "notebook
 
 
 @pytest.fixture(scope="module")
-def executed(tmp_path_factory):
+def executed(request, tmp_path_factory):
     from concurrent.futures import ThreadPoolExecutor
 
-    jobs = [j for j in LONGEST_FIRST if j == "notebook" or j in EXECUTED]
-    jobs += [p for p in EXECUTED if p not in jobs]
+    selected = set()  # only what the tests selected in this session wait for (pytest -k ...)
+    for item in request.session.items:
+        if item.module is request.module and "executed" in getattr(item, "fixturenames", ()):
+            callspec = getattr(item, "callspec", None)
+            selected.add(callspec.params["page"] if callspec is not None else "notebook")
+    jobs = [j for j in LONGEST_FIRST if j in selected]
+    jobs += [p for p in EXECUTED if p in selected and p not in jobs]
     pool = ThreadPoolExecutor(max_workers=JOBS)
     futures = {}
     for job in jobs:
@@ -232,6 +238,7 @@ def test_reference_pages_name_every_command_and_bounded_field():
 def test_site_builds_strict(tmp_path):
     pytest.importorskip("mkdocs")
     pytest.importorskip("mkdocstrings")
+    pytest.importorskip("mkdocs_jupyter")
     mkdocs = Path(sys.executable).parent / "mkdocs"
     cmd = [str(mkdocs)] if mkdocs.exists() else [sys.executable, "-m", "mkdocs"]
     proc = subprocess.run([*cmd, "build", "--strict", "--site-dir", str(tmp_path / "site")], cwd=ROOT,
@@ -242,6 +249,14 @@ def test_site_builds_strict(tmp_path):
     api = (tmp_path / "site" / "reference" / "api" / "index.html").read_text(encoding="utf-8")
     assert "generate_traces" in api and "load_scenario" in api
     assert (tmp_path / "site" / "img" / "hanyang-case2-transfer-residuals.png").exists()
+    notebook = tmp_path / "site" / "tutorials" / "train-a-tracker-notebook" / "index.html"
+    assert notebook.exists() and "SyntheticWindows" in notebook.read_text(encoding="utf-8")
+
+
+def test_no_page_and_notebook_share_a_url():
+    """tutorials/x.md and tutorials/x.ipynb would both be tutorials/x/ on the site, one silently lost."""
+    stems = [p.with_suffix("") for p in [*DOCS.rglob("*.md"), *DOCS.rglob("*.ipynb")]]
+    assert len(stems) == len(set(stems)), sorted({str(s) for s in stems if stems.count(s) > 1})
 
 
 def test_every_page_is_in_the_nav():
