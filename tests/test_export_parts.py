@@ -91,6 +91,38 @@ def test_resume_after_a_kill_keeps_the_complete_parts(dataset, tmp_path, fmt):
     assert _same(out, export_dataset(dataset, tmp_path / f"clean{suffix}", fmt))
 
 
+@pytest.mark.parametrize("fmt", ["hdf5", "csv"])
+def test_resume_after_a_kill_while_assembling(dataset, tmp_path, monkeypatch, fmt):
+    """Assembling takes the parts away (the first moved into the output, HDF5's others removed once copied):
+    stopped in the middle, the resumed export redoes exactly the parts taken and gives the same output."""
+    from physynth.io.export import parts as parts_mod
+
+    suffix = ".h5" if fmt == "hdf5" else ""
+    out = tmp_path / f"out{suffix}"
+    consume = parts_mod._consume
+    taken = []
+
+    def killed_after_taking(partial, part, take):  # HDF5: the first two parts; CSV: its one part
+        consume(partial, part, take)
+        taken.append(part.k)
+        if len(taken) == (2 if fmt == "hdf5" else 1):
+            raise _Killed
+
+    monkeypatch.setattr(parts_mod, "_consume", killed_after_taking)
+    if fmt == "csv":  # one part (a one-shard dataset's): the only CSV part that is taken, not copied
+        monkeypatch.setattr(parts_mod, "dataset_parts", lambda meta: [parts_mod.Part(0, meta["n_traces"], None)])
+        monkeypatch.setattr("physynth.io.export.dataset_parts", parts_mod.dataset_parts)
+    with pytest.raises(_Killed):
+        export_dataset(dataset, out, fmt)
+    monkeypatch.setattr(parts_mod, "_consume", consume)
+    assert not out.exists() and partial_dir(out).is_dir()
+    said = []
+    export_dataset(dataset, out, fmt, resume=True, run=lambda fn, tasks, sizes, progress: [
+        said.append(task[2].k) or fn(*task) for task in tasks])
+    assert said == taken  # only the parts the stopped assembly had taken are written again
+    assert _same(out, export_dataset(dataset, tmp_path / f"clean{suffix}", fmt))
+
+
 def test_resume_refuses_another_run(dataset, tmp_path):
     out = tmp_path / "csv"
 

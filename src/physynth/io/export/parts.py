@@ -145,6 +145,13 @@ def export_part(dataset: str, meta: dict[str, Any], part: Part, fmt: str, partia
     return skipped
 
 
+def _consume(partial: Path, part: Part, take: Any) -> None:
+    """``take()`` a complete part's output away (moved into the output, or removed once copied), its
+    marker removed first: an export stopped while assembling then redoes that part when resumed."""
+    marker(partial, part.k).unlink()
+    take()
+
+
 def assemble(fmt: str, dataset: Path, meta: dict[str, Any], partial: Path, parts: list[Part], tmp: Path) -> None:
     """Build the finished output at ``tmp`` (a new path) from the complete parts in ``partial``."""
     if fmt == "rosbag2":
@@ -155,22 +162,23 @@ def assemble(fmt: str, dataset: Path, meta: dict[str, Any], partial: Path, parts
         return
     if fmt == "hdf5":
         files = [partial / f"part-{p.k:05d}.h5" for p in parts]
-        os.replace(files[0], tmp)  # the first part is the file; the others' groups are copied into it
+        _consume(partial, parts[0], lambda: os.replace(files[0], tmp))  # the first part is the file
         if len(files) > 1:
             import h5py
 
-            with h5py.File(tmp, "a") as out:
+            with h5py.File(tmp, "a") as out:  # the others' groups are copied into it
                 root = out["traces"]
-                for f in files[1:]:
+                for p, f in zip(parts[1:], files[1:], strict=True):
                     with h5py.File(f, "r") as src:
                         for name in src["traces"]:
                             src.copy(src["traces"][name], root, name=name)
+                    _consume(partial, p, f.unlink)  # its bytes need not reach the disk
         return
     from .csv import finish_csv
 
     folders = [partial / f"part-{p.k:05d}" for p in parts]
     if len(folders) == 1:
-        os.replace(folders[0], tmp)
+        _consume(partial, parts[0], lambda: os.replace(folders[0], tmp))
     else:
         tmp.mkdir()
         for table in sorted(p.name for p in folders[0].iterdir()):
