@@ -1,13 +1,16 @@
 """Held-out evidence per calibration component: what generating its optional effect gains on a run left out.
 
 For each shared Hanyang Trajectory_A run in turn (or those of ``--runs``): calibrate on the three others,
-validate with ``--transfer`` on the left-out run the scenario as calibrated and, for every component
-whose optional effect the calibration fitted (``Component.without`` in
-``physynth.calibrate.pipeline.COMPONENTS``: late stamps, run-to-run spreads, antenna sway, tag-side NLOS,
-the link budget with ``--link-budget``), the scenario without it. The evidence is computed the same way
-for every component: how much each deviation from the left-out run (KS statistic x 100, UWB >= 1 and
-mean AoI relative deviations in %, the absolute signed-median difference in cm) grows when the effect
-is taken out; positive: the component earns its place on that measure.
+validate with transfer on the left-out run the scenario as calibrated and, for every component whose
+optional effect the calibration fitted (``Component.without`` in ``physynth.calibrate.pipeline.COMPONENTS``:
+late stamps, run-to-run spreads, antenna sway, tag-side NLOS, the link budget with ``--link-budget``), the
+scenario without it. The loop is the library's :func:`physynth.calibrate.held_out.held_out_evidence` (the one
+``physynth calibrate --select-components evidence`` runs on its own input runs). The evidence is computed the
+same way for every component: how much each deviation from the left-out run (KS statistic x 100, UWB >= 1
+and mean AoI relative deviations in %, the absolute signed-median difference in cm) grows when the effect
+is taken out; positive: the component earns its place on that measure. The last rows give each component's
+mean gain, its combined gain (the mean over the measures) and the keep/drop decision of
+``physynth.calibrate.held_out.DROP_RULE``.
 
     .venv/bin/python tools/component_evidence.py [--n 20] [--seed 1] [--runs 0,1,2,3] [--components a,b]
                                                  [--link-budget] [--data ../shared/data/hanyang-uwb]
@@ -23,23 +26,10 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
-from physynth.calibrate import calibrate
-from physynth.calibrate.pipeline import COMPONENTS
-from physynth.workflows import validate_datasets
+from physynth.calibrate.held_out import MEASURES, held_out_evidence
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _hanyang import import_runs, loo_arguments  # noqa: E402
-
-MEASURES = ("KS x 100", "UWB>=1 dev. %", "mean AoI dev. %", "|median diff.| cm")
-
-
-def deviations(rep) -> np.ndarray:
-    """The validation's deviations from the real run, in the units of :data:`MEASURES` (smaller: closer)."""
-    c = rep.comparison
-    return np.array([100.0 * rep.ks_statistic, abs(c["uwb_ge1_frac"]["deviation"]), abs(c["mean_aoi_s"]["deviation"]),
-                     100.0 * abs(c["residual_median_m"]["deviation"])])
 
 
 def main() -> None:
@@ -49,39 +39,33 @@ def main() -> None:
     ap.add_argument("--components", default=None, help="only these components (names, comma-separated)")
     ap.add_argument("--link-budget", action="store_true", help="calibrate with link_budget=True (static sweeps)")
     args = ap.parse_args()
-    chosen = [c for c in COMPONENTS if c.without is not None
-              and (args.components is None or c.name in args.components.split(","))]
-    gains: dict[str, list[np.ndarray]] = {c.name: [] for c in chosen}
     print(f"held-out evidence, {args.n} synthetic traces per validation, seed {args.seed}; gain = deviation "
           "without the component - with it (positive: it helps)")
     print("| left-out run | component | " + " | ".join(f"{m} with / gain" for m in MEASURES) + " |")
     print("|---|---|" + "---|" * len(MEASURES))
-    with tempfile.TemporaryDirectory() as tmp:
-        dirs, traces = import_runs(args.data, Path(tmp))
-        names = list(traces)
-        for k in (int(x) for x in args.runs.split(",")):
-            left = names[k]
-            res = calibrate([traces[o] for o in names if o != left], name="evidence", link_budget=args.link_budget,
-                            static_sweeps=args.data / "Static_measurements" if args.link_budget else None)
-            with_dev = deviations(validate_datasets(dirs[left], scenario=res.scenario, n=args.n, seed=args.seed,
-                                                    transfer=True))
-            for comp in chosen:
-                if not res.report["components"][comp.name]["fitted"]:
-                    print(f"| {left} | {comp.name} | not fitted: {res.report['components'][comp.name].get('why')} |")
-                    continue
-                without = comp.without(res.scenario, res.report)
-                if without == res.scenario:
-                    print(f"| {left} | {comp.name} | nothing generated to take out |")
-                    continue
-                gain = deviations(validate_datasets(dirs[left], scenario=without, n=args.n, seed=args.seed,
-                                                    transfer=True)) - with_dev
-                gains[comp.name].append(gain)
-                print(f"| {left} | {comp.name} | "
+
+    def row(left, res, with_dev, gains) -> None:  # noqa: ARG001
+        for name, gain in gains.items():
+            if isinstance(gain, str):
+                print(f"| {left} | {name} | {gain} |")
+            else:
+                print(f"| {left} | {name} | "
                       + " | ".join(f"{w:.2f} / {g:+.2f}" for w, g in zip(with_dev, gain, strict=True)) + " |")
-    for name, g in gains.items():
-        if g:
-            mean = np.mean(g, axis=0)
-            print(f"| mean over {len(g)} run(s) | {name} | " + " | ".join(f"{x:+.2f}" for x in mean) + " |")
+
+    with tempfile.TemporaryDirectory() as tmp:
+        _, traces = import_runs(args.data, Path(tmp))
+        ev = held_out_evidence(list(traces.values()), labels=list(traces), n=args.n, seed=args.seed,
+                               left_out=[int(x) for x in args.runs.split(",")],
+                               components=None if args.components is None else args.components.split(","),
+                               link_budget=args.link_budget,
+                               static_sweeps=args.data / "Static_measurements" if args.link_budget else None,
+                               on_run=row)
+    for name, c in ev.components.items():
+        if c.mean_gain is not None:
+            print(f"| mean over {len(c.gains)} run(s) | {name} | " + " | ".join(f"{x:+.2f}" for x in c.mean_gain)
+                  + f" | combined {c.combined:+.2f}: {c.decision} |")
+        else:
+            print(f"| no run | {name} | no evidence: kept |")
 
 
 if __name__ == "__main__":

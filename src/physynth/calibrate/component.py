@@ -74,7 +74,8 @@ class Component:
     own); ``off(ctx)`` -> why it does not run for these options (None: it runs); ``without(scenario,
     report)`` -> the calibrated scenario with the component's optional effect taken out (its fields
     at the values that switch it off; None: the component is no optional effect), what the held-out
-    evidence compares against (``tools/component_evidence.py``).
+    evidence compares against (:func:`physynth.calibrate.held_out.held_out_evidence`, which
+    ``tools/component_evidence.py`` and ``physynth calibrate --select-components evidence`` run).
     """
 
     name: str
