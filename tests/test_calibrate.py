@@ -462,11 +462,11 @@ def test_log_law_on_linear_data_is_worse_than_linear_law():
 
 
 def test_the_summary_keeps_parameter_names_whole_in_80_columns(roundtrip, tmp_path, capsys, monkeypatch):
-    from physynth.cli.calibrate import _print_summary
+    from physynth.cli.calibrate import print_summary
 
     _, _, res = roundtrip
     monkeypatch.setenv("COLUMNS", "80")
-    _print_summary(res, tmp_path / "cal.yaml", None)
+    print_summary(res, tmp_path / "cal.yaml", None)
     lines = capsys.readouterr().out.splitlines()
     assert max(len(line) for line in lines) <= 80
     keys = [k for k, _, _ in res.summary_rows()]
@@ -479,11 +479,11 @@ def test_the_summary_keeps_parameter_names_whole_in_80_columns(roundtrip, tmp_pa
 
 def test_the_summary_prints_fields_then_diagnostics_and_options_not_parameters(roundtrip, tmp_path, capsys):
     from physynth.calibrate import CalibrationResult
-    from physynth.cli.calibrate import _print_summary
+    from physynth.cli.calibrate import print_summary
 
     _, _, res = roundtrip
     note = "availability.long_outage_* (fitted and reported; not generated unless long_outages=True)"
-    _print_summary(CalibrationResult(scenario=res.scenario, report={**res.report, "not_identifiable": [note]}),
+    print_summary(CalibrationResult(scenario=res.scenario, report={**res.report, "not_identifiable": [note]}),
                    tmp_path / "cal.yaml", None)
     out = " ".join(capsys.readouterr().out.split())  # lines wrapped at the terminal's width
     assert "not generated unless --long-outages" in out and "long_outages=True" not in out
@@ -492,11 +492,11 @@ def test_the_summary_prints_fields_then_diagnostics_and_options_not_parameters(r
 
 
 def test_a_wide_terminal_keeps_the_table(roundtrip, tmp_path, capsys, monkeypatch):
-    from physynth.cli.calibrate import _print_summary
+    from physynth.cli.calibrate import print_summary
 
     _, _, res = roundtrip
     monkeypatch.setenv("COLUMNS", "200")
-    _print_summary(res, tmp_path / "cal.yaml", None)
+    print_summary(res, tmp_path / "cal.yaml", None)
     out = capsys.readouterr().out
     assert "uncertainty / samples" in out and max(len(line) for line in out.splitlines()) <= 200
 

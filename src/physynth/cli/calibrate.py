@@ -5,23 +5,30 @@
                        [--anchor-layout per-run|strict|first] [--layout-from RUN]
                        [--static-sweeps DIR] [--range-bias dynamic|static] [--link-budget]
                        [--long-outages] [--trusted-truth]
+                       [--select-components all|evidence] [--evidence-traces N]
                        [--overwrite] [--quiet]
 
 The command parses, calls :func:`physynth.workflows.calibrate_datasets`, writes the scenario with
 :func:`physynth.io.scenario_file.save_scenario` (it loads back with ``load_scenario`` and feeds
-``physynth generate``) and the JSON fit report, and prints a short summary table. Bad input raises
+``physynth generate``) and the JSON fit report, and prints a short summary table (:func:`print_summary`).
+``--select-components evidence`` calibrates with
+:func:`physynth.calibrate.held_out.calibrate_selected` instead (the held-out evidence on the datasets' own
+runs first, a progress bar while it runs, then the per-component table in the summary). Bad input raises
 :class:`~physynth.errors.PhySynthError`, which ``physynth.cli.main`` prints as one line (exit code 2).
 """
 
 from __future__ import annotations
 
 import json
+import re
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Literal
 
 import typer
 
-from ._common import cli_words
+from ._common import cli_words, format_table
 
 
 def register(app: typer.Typer) -> None:
@@ -82,6 +89,18 @@ def calibrate_cmd(
                                        help="Fit the ranging errors only on the ranges whose truth the recording "
                                             "trusts (e.g. RTK-fixed; the share is always reported). See "
                                             "docs/calibration.md."),
+    select_components: Literal["all", "evidence"] = typer.Option(
+        "all", "--select-components",
+        help="all: generate every optional component the fit keeps (the default). evidence: first leave each "
+             "run out in turn (calibrate on the others, validate the left-out run with and without each "
+             "optional component: late stamps, run-to-run spreads, antenna sway, tag-side NLOS, link budget), "
+             "then calibrate on all runs and take out the components whose mean held-out gain is negative; "
+             "needs 2 or more runs, and the report gives each component's evidence. Not the default: on the "
+             "four Hanyang walks the selection did not bring the left-out runs closer (docs/calibration.md, "
+             "\"Selecting components by held-out evidence\")."),
+    evidence_traces: int = typer.Option(20, "--evidence-traces", metavar="N",
+                                        help="With --select-components evidence: synthetic traces per "
+                                             "validation of the evidence."),
     allow_mixed: bool = typer.Option(False, "--allow-mixed",
                                      help="Pool datasets even when they are not the same kind of site."),
     overwrite: bool = typer.Option(False, "--overwrite",
@@ -89,11 +108,14 @@ def calibrate_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress display or summary."),
 ) -> None:
     """Calibrate a scenario (path, motion, IMU, UWB, availability) on recorded datasets."""
+    from ..calibrate.held_out import check_selection
     from ..errors import PhySynthError
     from ..io.safety import check_distinct, check_output, guarded_outputs
 
     if layout_from is not None and anchor_layout != "per-run":
         raise PhySynthError("--layout-from needs --anchor-layout per-run")
+    with _option_words():
+        check_selection(select_components, evidence_traces)
     chosen: int | str | None = int(layout_from) if layout_from is not None and layout_from.isdigit() else layout_from
     inputs = [*datasets, *([static_sweeps] if static_sweeps else [])]
     check_distinct([("--out", out), ("--report", report)])
@@ -112,7 +134,9 @@ def calibrate_cmd(
                    static_sweeps=static_sweeps, range_bias=range_bias, range_bias_law=range_bias_law,
                    allow_mixed=allow_mixed,
                    long_outages=long_outages, tag_pattern=tag_pattern, run_slopes=run_slopes,
-                   link_budget=link_budget, trusted_truth=trusted_truth)
+                   link_budget=link_budget, trusted_truth=trusted_truth,
+                   **({"select_components": select_components, "evidence_traces": evidence_traces}
+                      if select_components != "all" else {}))
 
 
 def _calibrate(datasets: list[Path], out: Path, report: Path | None, quiet: bool, real_out: Path,
@@ -122,7 +146,9 @@ def _calibrate(datasets: list[Path], out: Path, report: Path | None, quiet: bool
     from ..io.scenario_file import save_scenario
     from ..workflows import calibrate_datasets
 
-    if quiet:
+    if "select_components" in kwargs:
+        result = _calibrate_selected(datasets, quiet, **kwargs)
+    elif quiet:
         result = calibrate_datasets(datasets, **kwargs)
     else:
         from rich.console import Console
@@ -156,13 +182,45 @@ def _calibrate(datasets: list[Path], out: Path, report: Path | None, quiet: bool
             tmp.unlink(missing_ok=True)
     if quiet:
         return
-    _print_summary(result, out, report)
+    print_summary(result, out, report)
 
 
-def _print_summary(result, out: Path, report: Path | None) -> None:
+def _calibrate_selected(datasets: list[Path], quiet: bool, *, allow_mixed: bool, **kwargs):
+    """The calibration with ``--select-components evidence``: the held-out evidence under a progress bar."""
+    from ..calibrate.held_out import calibrate_selected
+    from ..workflows import read_recordings
+    from ._common import progress_bar
+
+    traces, sources = read_recordings(datasets, allow_mixed=allow_mixed)
+    with progress_bar(enabled=not quiet) as progress, _option_words():
+        return calibrate_selected(traces, sources=sources, progress=progress, **kwargs)
+
+
+@contextmanager
+def _option_words() -> Iterator[None]:
+    """The selection's parameter errors with the options that set them (``evidence_traces``:
+    ``--evidence-traces``), one line through ``physynth.cli.main``."""
+    from ..calibrate import CalibrationError
+    from ..errors import PhySynthError
+
+    try:
+        yield
+    except CalibrationError as exc:
+        if not re.search(r"\b(select_components|evidence_traces)\b", str(exc)):
+            raise
+        words = re.sub(r"\b(select_components|evidence_traces)\b", lambda m: "--" + m.group(1).replace("_", "-"),
+                       str(exc))
+        raise PhySynthError(words.replace("--select-components='evidence'", "--select-components evidence")) from None
+
+
+def print_summary(result, out: Path, report: Path | None, console=None) -> None:
+    """What ``physynth calibrate`` prints after writing ``out`` (and ``report``): the scenario's fitted fields
+    (parameter, value, uncertainty), the fit diagnostics, what is not identifiable, the warnings and, when
+    the components were selected by held-out evidence, one row per optional component. ``console``: a rich
+    Console (default: standard output at the terminal's width)."""
     from rich.console import Console
 
-    console = Console()
+    console = console or Console()
     _print_rows(console, f"calibrated scenario '{result.scenario.name}'", result.summary_rows())
     diagnostics = result.summary_rows(fields=False)
     if diagnostics:  # goodness of fit, per-anchor fits the scenario pools, ...: no scenario field
@@ -172,7 +230,26 @@ def _print_summary(result, out: Path, report: Path | None) -> None:
         console.print(cli_words(f"not identifiable ({len(missing)}): " + "; ".join(missing)), highlight=False)
     for w in result.report.get("warnings", []):
         console.print(f"warning: {cli_words(w)}", highlight=False)
+    if "component_selection" in result.report:
+        _print_selection(console, result.report)
     console.print(f"wrote {out}" + (f" and {report}" if report else ""))
+
+
+def _print_selection(console, report: dict) -> None:
+    """One row per optional component: fitted or not, its mean held-out gain, kept or taken out."""
+    sel = report["component_selection"]
+    rows = []
+    for name, entry in report["components"].items():
+        ev = entry.get("held_out")
+        if ev is None:
+            continue
+        fitted = "yes" if entry["fitted"] else f"no ({cli_words(str(entry.get('why')))})"
+        gain = "-" if ev["combined_gain"] is None else f"{ev['combined_gain']:+.2f}"
+        rows.append((name, fitted, gain, "taken out" if name in sel["taken_out"] else ev["decision"]))
+    console.print(f"components by held-out evidence ({len(sel['held_out_runs'])} runs left out in turn, "
+                  f"{sel['n_traces']} traces each; combined gain: mean over runs and measures, > 0 helps)",
+                  highlight=False)
+    console.print(format_table(("component", "fitted", "combined gain", "selection"), rows), highlight=False)
 
 
 def _print_rows(console, title: str, rows: list[tuple[str, str, str]]) -> None:

@@ -1,0 +1,162 @@
+"""Components selected by held-out evidence (physynth.calibrate.held_out, ``calibrate --select-components``).
+
+The evidence leaves each input run out in turn; here three synthetic walks (walk-hanyang, which
+generates late stamps, run-to-run spreads, antenna sway and tag-side NLOS; two for the command, whose
+one-run folds have no run-to-run spread to take out) and one synthetic trace per validation keep it to
+seconds.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from helpers import run_cli
+
+from physynth.calibrate import CalibrationError, calibrate
+from physynth.calibrate.held_out import (
+    DROP_RULE,
+    MEASURES,
+    ComponentEvidence,
+    calibrate_selected,
+    held_out_evidence,
+    optional_components,
+    take_out,
+)
+from physynth.generate import generate_trace
+from physynth.io.scenario_file import load_scenario
+
+GENERATED = ("timing", "ranging", "antenna_sway", "tag_nlos")  # walk-hanyang generates these effects
+
+
+@pytest.fixture(scope="module")
+def walks():
+    scn = load_scenario("walk-hanyang")
+    return [generate_trace(scn, i, 7) for i in range(3)]
+
+
+@pytest.fixture(scope="module")
+def evidence(walks):
+    calls = []
+    ev = held_out_evidence(walks, n=1, seed=1, progress=lambda m, d=None, t=None: calls.append((m, d, t)))
+    return ev, calls
+
+
+def test_evidence_gives_each_optional_component_a_gain_per_left_out_run(evidence):
+    ev, calls = evidence
+    assert list(ev.components) == [c.name for c in optional_components()]
+    assert ev.runs == ["trace 0", "trace 1", "trace 2"]
+    for name in GENERATED:
+        c = ev.components[name]
+        assert set(c.gains) == set(ev.runs), (name, c.skipped)
+        assert all(len(g) == len(MEASURES) and np.all(np.isfinite(g)) for g in c.gains.values())
+        assert c.combined == pytest.approx(np.mean(list(c.gains.values())))
+        assert c.decision == ("drop" if c.combined < 0 else "keep")
+    # the link budget needs static sweeps: not fitted in any fold, no evidence, kept
+    lb = ev.components["link_budget"]
+    assert not lb.gains and set(lb.skipped) == set(ev.runs) and "link_budget=False" in lb.skipped["trace 0"]
+    assert lb.decision == "no evidence" and "link_budget" not in ev.dropped
+    counted = [(d, t) for m, d, t in calls if d is not None]
+    assert counted[-1] == (t := counted[0][1], t) and t == 3 * (2 + len(ev.components))
+    assert [d for d, _ in counted] == sorted(d for d, _ in counted)  # the count only grows
+
+
+def test_the_rule_drops_a_component_whose_mean_gain_is_negative():
+    assert "negative" in DROP_RULE
+    worse = ComponentEvidence("x", gains={"a": [1.0, 0.0, 0.0, 0.0], "b": [-3.0, -1.0, 0.0, 0.0]})
+    assert worse.combined == pytest.approx(-0.375) and worse.decision == "drop"
+    better = ComponentEvidence("y", gains={"a": [-1.0, 0.0, 0.0, 0.0], "b": [2.0, 0.0, 0.0, 0.0]})
+    assert better.decision == "keep" and better.mean_gain == [0.5, 0.0, 0.0, 0.0]
+    assert ComponentEvidence("z", skipped={"a": "not fitted"}).decision == "no evidence"
+
+
+def test_taking_a_component_out_writes_the_scenario_and_report_without_it(walks):
+    res = calibrate(walks[:2], name="both")
+    before = res.scenario.uwb.tag_nlos_prob
+    assert before > 0
+    out = take_out(res, ["tag_nlos"])
+    assert out.scenario.uwb.tag_nlos_prob == 0.0 and out.scenario.name == "both"
+    item = out.report["parameters"]["uwb.tag_nlos_prob"]
+    assert item["value"] == 0.0 and item["fitted"] == pytest.approx(before) and "component selection" in item["why"]
+    assert out.scenario.uwb.late_burst_prob == res.scenario.uwb.late_burst_prob  # the others untouched
+
+
+def test_all_is_the_calibration_as_before(walks):
+    a, b = calibrate(walks[:1], name="one"), calibrate_selected(walks[:1], select_components="all", name="one")
+    da, db = a.scenario.model_dump(mode="json"), b.scenario.model_dump(mode="json")
+    for d in (da, db):
+        del d["provenance"]["created_utc"]
+    assert da == db and "component_selection" not in b.report
+
+
+@pytest.mark.parametrize(("call", "needle"), [
+    (lambda w: held_out_evidence(w[:1], n=1), "traces"),
+    (lambda w: held_out_evidence(w, n=0), "n:"),
+    (lambda w: held_out_evidence(w, n=1, left_out=[5]), "left_out"),
+    (lambda w: held_out_evidence(w, n=1, components=["imu"]), "components"),
+    (lambda w: calibrate_selected(w[:1]), "select_components='evidence' needs at least 2 runs"),
+    (lambda w: calibrate_selected(w, select_components="best"), "select_components"),
+    (lambda w: calibrate_selected(w, evidence_traces=0), "evidence_traces"),
+])
+def test_parameter_errors_name_the_parameter(walks, call, needle):
+    with pytest.raises(CalibrationError, match=needle):
+        call(walks)
+
+
+@pytest.fixture(scope="module")
+def two_run_dataset(tmp_path_factory):
+    from physynth.cli import main
+
+    ds = tmp_path_factory.mktemp("sel") / "walks"
+    with pytest.raises(SystemExit) as exc:
+        main(["generate", "--scenario", "walk-hanyang", "-n", "2", "--seed", "7", "--out", str(ds), "--quiet"])
+        raise SystemExit(0)
+    assert not exc.value.code
+    return ds
+
+
+def test_the_option_writes_the_per_component_section(two_run_dataset, tmp_path, capsys):
+    code, out, err = run_cli(capsys, "calibrate", two_run_dataset, "--out", tmp_path / "s.yaml", "--report",
+                             tmp_path / "r.json", "--select-components", "evidence", "--evidence-traces", 1)
+    assert code == 0, err
+    rep = json.loads((tmp_path / "r.json").read_text())
+    sel = rep["component_selection"]
+    assert sel["n_traces"] == 1 and len(sel["held_out_runs"]) == 2 and sel["rule"] == DROP_RULE
+    comps = rep["components"]
+    assert "held_out" not in comps["geometry"] and comps["geometry"]["fitted"]  # not an optional component
+    assert comps["ranging"]["held_out"]["skipped"]  # one-run folds: no run-to-run spread to take out
+    for name in ("timing", "antenna_sway", "tag_nlos"):
+        ev = comps[name]["held_out"]
+        assert comps[name]["fitted"] and len(ev["per_run"]) == 2 and ev["combined_gain"] is not None
+        assert comps[name]["selected"] == (name not in sel["taken_out"]) == (ev["decision"] != "drop")
+    assert comps["link_budget"]["fitted"] is False and comps["link_budget"]["why"]
+    assert comps["link_budget"]["held_out"]["decision"] == "no evidence"
+    # the summary's table: every optional component with its gain and what the selection did
+    assert "components by held-out evidence" in out
+    for name in ("timing", "antenna_sway", "tag_nlos"):
+        line = next(ln for ln in out.splitlines() if ln.startswith(name + " "))
+        assert ("taken out" in line) == (name in sel["taken_out"])
+    scn = load_scenario(tmp_path / "s.yaml")
+    if "tag_nlos" in sel["taken_out"]:
+        assert scn.uwb.tag_nlos_prob == 0.0
+
+
+@pytest.mark.parametrize(("args", "needle"), [
+    (["--select-components", "best"], "--select-components"),
+    (["--select-components", "evidence", "--evidence-traces", "0"], "--evidence-traces"),
+])
+def test_bad_option_values_exit_2_with_one_line(two_run_dataset, tmp_path, capsys, args, needle):
+    code, _, err = run_cli(capsys, "calibrate", two_run_dataset, "--out", tmp_path / "s.yaml", *args)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and needle in err, err
+    assert not (tmp_path / "s.yaml").exists()
+
+
+def test_one_run_with_evidence_exits_2_naming_the_option(tmp_path, capsys):
+    code, _, _ = run_cli(capsys, "generate", "--scenario", "walk-hanyang", "-n", 1, "--seed", 3, "--out",
+                         tmp_path / "one", "--quiet")
+    assert code == 0
+    code, _, err = run_cli(capsys, "calibrate", tmp_path / "one", "--out", tmp_path / "s.yaml",
+                           "--select-components", "evidence", "--quiet")
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert "--select-components evidence needs at least 2 runs" in err
