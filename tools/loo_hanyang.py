@@ -14,6 +14,10 @@ difference over lags 1..10 and the autocorrelation of the residuals within 0.5 m
 median (``residual_acf_inliers``) at lags 1, 5 and 10, and the std of the within-burst deviation of the
 residuals (``residual_burst_deviation_std_m``, the error of the range differences). ``--no-tag-nlos``
 validates each calibration with its tag-side NLOS fraction set to 0 (the model before it).
+``--select-components evidence`` calibrates each fold as ``physynth calibrate --select-components evidence``
+does (:func:`physynth.calibrate.held_out.calibrate_selected`): the held-out evidence on the fold's three
+calibration runs only (nested leave-one-out, ``--evidence-n`` traces per validation), then the three runs'
+calibration with the components it drops taken out; the left-out run is never seen by the selection.
 Targets (issue 12): KS <= 0.10, UWB >= 1 and mean AoI within 15 %, median within 3 cm, real P95 inside
 the band.
 
@@ -21,6 +25,7 @@ the band.
                                           [--run-slopes] [--link-budget] [--trusted-truth] [--all-truth]
                                           [--out DIR]
                                           [--white-twin] [--no-tag-nlos] [--sway-clock auto|time|motion]
+                                          [--select-components all|evidence] [--evidence-n 20]
                                           [--data ../shared/data/hanyang-uwb]
 """
 
@@ -34,9 +39,9 @@ from pathlib import Path
 
 import numpy as np
 
-from physynth.calibrate import calibrate
 from physynth.calibrate.components.antenna_sway import without_sway
 from physynth.calibrate.components.tag_nlos import without_tag_nlos
+from physynth.calibrate.held_out import SELECT_CHOICES, calibrate_selected
 from physynth.validate.render import write_report
 from physynth.workflows import validate_datasets
 
@@ -68,20 +73,28 @@ def main() -> None:
     ap.add_argument("--sway-clock", choices=("auto", "time", "motion"), default="auto",
                     help="validate with the antenna sway on this clock, fitted on it (auto: the one calibrate "
                          "picks; motion: the motion or distance fit; the LOS white std stays that of the pick)")
+    ap.add_argument("--select-components", choices=SELECT_CHOICES, default="all",
+                    help="calibrate each fold with this component selection (evidence: nested leave-one-out on the "
+                         "fold's calibration runs)")
+    ap.add_argument("--evidence-n", type=int, default=20,
+                    help="with --select-components evidence: synthetic traces per validation of the selection")
     args = ap.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:
         dirs, traces = import_runs(args.data, Path(tmp))
-        rows = []
+        rows, dropped = [], []
         for left in traces:
             t0 = time.perf_counter()
             others = [traces[k] for k in traces if k != left]
-            res = calibrate(others, name=f"loo-without-{left.replace(' ', '-')}", long_outages=args.long_outages,
+            res = calibrate_selected(others, select_components=args.select_components, evidence_traces=args.evidence_n,
+                            evidence_seed=args.seed,
+                            name=f"loo-without-{left.replace(' ', '-')}", long_outages=args.long_outages,
                             tag_pattern=args.tag_pattern, run_slopes=args.run_slopes,
                             range_bias_law=args.range_bias_law, link_budget=args.link_budget,
                             trusted_truth=args.trusted_truth,
                             static_sweeps=args.data / "Static_measurements" if args.link_budget else None)
             scn = res.scenario
+            dropped.append(res.report.get("component_selection", {}).get("taken_out", []))
             if args.white_twin:
                 scn = without_sway(scn, res.report)  # the white twin: no-op where no sway was identified
             if args.sway_clock != "auto":
@@ -107,7 +120,7 @@ def main() -> None:
                          acf["real"][:3], acf["synthetic"][:3], rep.extended["residual_acf_inliers"],
                          rep.extended["residual_burst_deviation_std_m"], rep.extended["residual_still_correlation"],
                          time.perf_counter() - t0))
-    print(f"leave-one-out, {args.n} synthetic traces per run, seed {args.seed}")
+    print(f"leave-one-out, {args.n} synthetic traces per run, seed {args.seed}, components: {args.select_components}")
     print("| left-out run | KS | UWB>=1 dev. % | mean AoI dev. % | AoI dev. of the per-trace median % "
           "| AoI real in band | median diff. cm | P95 real (band) | P95 in band | ACF max diff (lags 1-10) "
           "| ACF lag 1/2/3 real | synth | inlier ACF lag 1/5/10 real | synth | burst deviation cm real / synth "
@@ -120,6 +133,9 @@ def main() -> None:
               f"| {'/'.join(f'{x:.2f}' for x in acf_r)} | {'/'.join(f'{x:.2f}' for x in acf_s)} "
               f"| {inl[0]} | {inl[1]} | {100 * bd['real']:.1f} / {100 * bd['synthetic']:.1f} "
               f"| {_corr(sc, 'real')} | {_corr(sc, 'synthetic')} |")
+    if args.select_components != "all":
+        print("components taken out by the selection: "
+              + "; ".join(f"{name}: {', '.join(d) or 'none'}" for name, d in zip(traces, dropped, strict=True)))
     print(f"wall time per run: {', '.join(f'{r[-1]:.0f} s' for r in rows)}")
 
 
