@@ -95,8 +95,10 @@ def calibrate_cmd(
              "run out in turn (calibrate on the others, validate the left-out run with and without each "
              "optional component: late stamps, run-to-run spreads, antenna sway, tag-side NLOS, link budget), "
              "then calibrate on all runs and take out the components whose mean held-out gain is negative; "
-             "needs 2 or more runs, and the report gives each component's evidence. Not the default: on the "
-             "four Hanyang walks the selection did not bring the left-out runs closer (docs/calibration.md, "
+             "needs 2 or more runs, and the report gives each component's evidence. Not the default: measured "
+             "by leave-one-out on the four Hanyang walks it did not bring the left-out runs closer (mean "
+             "deviation 12.69 against 12.61 with all, seed 1; 13.42 against 13.43, seed 2), put the real P95 "
+             "outside the band more often and widened the within-burst spread (docs/calibration.md, "
              "\"Selecting components by held-out evidence\")."),
     evidence_traces: int = typer.Option(20, "--evidence-traces", metavar="N",
                                         help="With --select-components evidence: synthetic traces per "
