@@ -180,7 +180,7 @@ def _problems(path: Path, meta: Mapping[str, Any], *, hashes: bool, totals: list
     """The problems of a dataset, one line each, lazily (the first comes before later files are read);
     ``totals`` gathers the rows and bytes of the files that match their records; ``strays``: also the
     Parquet files the record does not list."""
-    from .dataset import TABLES
+    from .tables import TABLES  # from io.tables, not io.dataset: io.dataset imports this module
 
     files = meta.get("files")
     if files is None:
