@@ -15,7 +15,7 @@ from physynth.generate import compile_scenario, generate_traces
 from physynth.validate.compare import compare, read_report
 from physynth.validate.figures import available_figures, render_figures
 from physynth.validate.render import render_html, render_markdown, write_report
-from physynth.validate.tables import table_per_anchor, table_validation
+from physynth.validate.tables import band_cells, table_per_anchor, table_validation
 
 
 @pytest.fixture(scope="module")
@@ -70,12 +70,10 @@ def test_write_report_round_trips_and_refuses_to_replace(report, tmp_path):
 
 
 def test_a_narrow_band_shows_enough_digits_to_tell_its_ends_apart():
-    from physynth.validate.tables import _band_cells
-
-    band, inside = _band_cells({"band_5_95": [0.0771, 0.0838], "real_in_band": False}, 2)
+    band, inside = band_cells({"band_5_95": [0.0771, 0.0838], "real_in_band": False}, 2)
     assert band == "0.077 – 0.084" and inside == "NO"  # at two digits both ends read 0.08
-    assert _band_cells({"band_5_95": [1.0, 1.0], "real_in_band": True}, 2)[0] == "1.00 – 1.00"
-    assert _band_cells({"band_5_95": [0.10, 0.35], "real_in_band": True}, 2)[0] == "0.10 – 0.35"
+    assert band_cells({"band_5_95": [1.0, 1.0], "real_in_band": True}, 2)[0] == "1.00 – 1.00"
+    assert band_cells({"band_5_95": [0.10, 0.35], "real_in_band": True}, 2)[0] == "0.10 – 0.35"
 
 
 def test_the_fidelity_score_note_says_it_uses_absolute_differences(report):

@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import PhySynthError
-from .compare import ValidationReport
 from .evidence import Evidence, SideEvidence
+from .report_model import ValidationReport
 from .tables import _fmt
 
 REAL_COLOR = "#222222"
@@ -469,7 +469,7 @@ def render_imu_figures(series: dict[str, dict[str, Any]]) -> dict[str, bytes]:
     """The figures of an IMU-only report (:data:`IMU_FIGURES`) as PNG bytes, from its ``series`` (per error
     kind, the real and synthetic pooled PSD and Allan deviation); the Allan figure only where both sides
     have an Allan deviation. Raises PhySynthError without matplotlib."""
-    from .imu_report import ALLAN_TAUS_S
+    from .imu_errors import ALLAN_TAUS_S
 
     Figure, Canvas = require_matplotlib()
     out = {"imu_error_psd": figure_png(_imu_psd_figure(Figure, series), Canvas)}

@@ -1,7 +1,7 @@
 """Validation report files: ``report.json``, ``report.md`` (the paper's Tables I-II), ``report.html``
 (one self-contained page, figures embedded as base64 PNG) and the figures as PNG files.
 
-The numbers come from a :class:`~physynth.validate.compare.ValidationReport`, the tables from
+The numbers come from a :class:`~physynth.validate.report_model.ValidationReport`, the tables from
 :mod:`~physynth.validate.tables` and the figures from :mod:`~physynth.validate.figures`.
 """
 
@@ -15,8 +15,8 @@ from pathlib import Path
 from ..errors import OutputExistsError, PhySynthError
 from ..io.atomic import atomic_write_bytes, atomic_write_text
 from ..io.scenario_file import mapping_to_yaml
-from .compare import ValidationReport
 from .figures import FIGURES, REPORT_FILES, available_figures, render_figures, require_matplotlib
+from .report_model import ValidationReport
 from .tables import _inputs_lines, _Table, _tables, _transfer_lines, table_imu
 
 __all__ = ["FIGURES", "REPORT_FILES", "available_figures", "render_figures", "render_html", "render_markdown",

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from .compare import EXTENDED_STATISTICS, MIN_BAND_TRACES, ValidationReport, band_note, truth_past_uwb_line
+from .report_model import EXTENDED_STATISTICS, MIN_BAND_TRACES, ValidationReport, band_note, truth_past_uwb_line
 
 
 def _fmt(x: Any, digits: int = 3) -> str:
@@ -78,7 +78,11 @@ def _deviation_cell(c: dict[str, Any] | None, digits: int) -> str:
     return _pct(c.get("deviation"))
 
 
-def _band_cells(c: dict[str, Any] | None, digits: int) -> tuple[str, str]:
+def band_cells(c: dict[str, Any] | None, digits: int) -> tuple[str, str]:
+    """The two band cells of Table II for one metric's comparison ``c`` (an entry of
+    ``report.comparison``): the synthetic 5-95 % band as ``"lo – hi"`` and whether the real value lies
+    inside (``yes``, ``NO``, or ``—`` when unknown); ``("—", "—")`` without a band. The ends get
+    ``digits`` decimals, up to 3 more while two different ends would read the same (a narrow band)."""
     if not c or c.get("band_5_95") is None:
         return "—", "—"
     lo, hi = c["band_5_95"]
@@ -106,7 +110,7 @@ def table_validation(report: ValidationReport) -> _Table:
         synth = _fmt(report.synthetic[key], digits)
         if c.get("typical") is not None:  # heavy-tailed: the deviation is against the median synthetic run
             synth += f" (median run {_fmt(c['typical'], digits + 1)})"
-        rows.append((label, _fmt(report.real[key], digits), synth, _deviation_cell(c, digits), *_band_cells(c, digits)))
+        rows.append((label, _fmt(report.real[key], digits), synth, _deviation_cell(c, digits), *band_cells(c, digits)))
     rows.append(("Fidelity score S", "—", _fmt(report.fidelity_score), "—", "—", "—"))
     few = few_band_traces(report)
     return _Table("Table II. Generator validation",
