@@ -1,4 +1,5 @@
-"""No import cycle between the files of calibrate/, models/, bounds.py and scenario.py.
+"""No import cycle between the files of the package ``physynth`` (and, kept on its own, none between
+those of calibrate/, models/, bounds.py and scenario.py).
 
 Every import counts (module level, inside a function, under ``TYPE_CHECKING``): a cycle a lazy import
 hides is still two files that each need the other. Records both sides need move down a floor.
@@ -13,14 +14,16 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 AREAS = ("physynth.calibrate", "physynth.models", "physynth.bounds", "physynth.scenario")
 
 
-def _module_name(path: Path) -> str:
-    parts = list(path.relative_to(SRC).with_suffix("").parts)
+def _module_name(path: Path, src: Path = SRC) -> str:
+    parts = list(path.relative_to(src).with_suffix("").parts)
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def import_graph() -> dict[str, set[str]]:
-    """Module -> the modules of the package it imports (``from .x import y`` counts x.y when y is a module)."""
-    files = {_module_name(p): p for p in (SRC / "physynth").rglob("*.py")}
+def import_graph(package: Path = SRC / "physynth") -> dict[str, set[str]]:
+    """Module -> the modules of the package it imports (``from .x import y`` counts x.y when y is a module).
+
+    ``package``: the package's folder (``physynth`` under ``src/`` unless told)."""
+    files = {_module_name(p, package.parent): p for p in package.rglob("*.py")}
     graph: dict[str, set[str]] = {}
     for mod, path in files.items():
         pkg = mod.split(".") if path.name == "__init__.py" else mod.split(".")[:-1]
@@ -85,6 +88,33 @@ def test_no_import_cycle_in_calibrate_models_bounds_scenario():
     area = {m: {d for d in deps if _in_area(d) and d not in inits} for m, deps in graph.items()
             if _in_area(m) and m not in inits}
     assert cycles(area) == []
+
+
+def test_no_import_cycle_in_the_whole_package():
+    # every module of physynth, package __init__ files included: a module that imports its own
+    # package's __init__ (``from . import x`` of a name, not a module) while that __init__ imports it
+    # is a cycle too
+    found = cycles(import_graph())
+    assert found == [], "import cycles: " + "; ".join(" <-> ".join(c) for c in found)
+
+
+def test_a_cycle_through_a_lazy_or_type_checking_import_is_found(tmp_path):
+    """The checker itself: a cycle that only a function-level import or a ``TYPE_CHECKING`` block closes
+    is reported, so the whole-package test fails when one comes back."""
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "sub" / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from .b import B\n")
+    (pkg / "b.py").write_text("B = 1\n\ndef f():\n    from .a import B as A\n    return A\n")
+    (pkg / "sub" / "c.py").write_text("from typing import TYPE_CHECKING\n\nif TYPE_CHECKING:\n"
+                                      "    from ..d import D\n")
+    (pkg / "d.py").write_text("from .sub import c\n\nD = 1\n")
+    (pkg / "e.py").write_text("from . import a, d\n")  # imports both, part of no cycle
+    assert cycles(import_graph(pkg)) == [["pkg.a", "pkg.b"], ["pkg.d", "pkg.sub.c"]]
+    (pkg / "b.py").write_text("B = 1\n")
+    (pkg / "d.py").write_text("D = 1\n")
+    assert cycles(import_graph(pkg)) == []
 
 
 if __name__ == "__main__":
