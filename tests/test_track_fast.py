@@ -25,7 +25,7 @@ from physynth.generate import compile_scenario, generate_trace
 from physynth.io.scenario_file import load_scenario
 from physynth.track.inputs import track_input
 from physynth.track.trackers.ekf import EkfTracker
-from physynth.track.trackers.ls import LsTracker, _cost_terms, multilaterate
+from physynth.track.trackers.ls import LsTracker, cost_terms, multilaterate
 
 RUN = (Path(__file__).resolve().parents[1].parent / "shared" / "data" / "hanyang-uwb" / "Dynamic_measurements"
        / "LOS" / "Trajectory_A" / "Case_1")
@@ -108,7 +108,7 @@ def _costs(inp, stride: int) -> tuple[np.ndarray, np.ndarray]:
     new = multilaterate(r[rows], use[rows], inp.anchor_pos_rel_m, warm)
     old = reference_multilaterate(r[rows], use[rows], inp.anchor_pos_rel_m, warm)
     args = (r[rows], use[rows], inp.anchor_pos_rel_m, np.broadcast_to(warm, (rows.size, 3)), 0.3, 1e-2, "soft_l1")
-    return _cost_terms(new, *args)[0], _cost_terms(old, *args)[0]
+    return cost_terms(new, *args)[0], cost_terms(old, *args)[0]
 
 
 @pytest.mark.parametrize("name", ["cablecar", "hanyang"])

@@ -470,14 +470,14 @@ def test_an_ensemble_member_that_dies_without_a_word_is_an_error():
     import multiprocessing as mp
     import os
 
-    from physynth.studies.tracking import _next_message
+    from physynth.studies.tracking import next_member_message
 
     ctx = mp.get_context("spawn")
     proc = ctx.Process(target=os._exit, args=(3,))
     proc.start()
     proc.join()
     with pytest.raises(PhySynthError, match=r"ensemble member 1 \(seed 7\) ended without a result \(exit code 3\)"):
-        _next_message(ctx.Queue(), {0: proc}, [StudyConfig(**TINY, seed=7)])
+        next_member_message(ctx.Queue(), {0: proc}, [StudyConfig(**TINY, seed=7)])
 
 
 def test_every_test_run_is_saved_and_plotted_with_its_own_rmse(runs, tmp_path):

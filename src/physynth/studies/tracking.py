@@ -186,16 +186,16 @@ def check_runs(train: Sequence[StudyRun], test: Sequence[StudyRun], cfg: StudyCo
 
 def _check_disjoint(train: Sequence[StudyRun], test: Sequence[StudyRun]) -> None:
     """Refuse a test run that is also a training run: the same samples (the calibration's test for one
-    recording given twice, :func:`physynth.calibrate.pipeline._fingerprint`), or the same source
+    recording given twice, :func:`physynth.calibrate.inputs.fingerprint`), or the same source
     recording (``meta["path"]`` of an import) over overlapping times, which also finds a test run that
     was turned or cropped."""
-    from ..calibrate.pipeline import _fingerprint
+    from ..calibrate.inputs import fingerprint
 
     def span(t: Trace) -> tuple[float, float]:  # truth time span in the recording's own time base [s]
         t0 = float(t.meta.get("time_origin_s") or 0.0)
         return t0 + float(t.truth.t_s[0]), t0 + float(t.truth.t_s[-1])
 
-    prints = {id(r): _fingerprint(r.trace) for r in (*train, *test)}
+    prints = {id(r): fingerprint(r.trace) for r in (*train, *test)}
     for r in test:
         for q in train:
             source = r.trace.meta.get("path")
@@ -499,7 +499,7 @@ def studies_at_once(specs: Sequence[StudySpec], prefixes: list[str], jobs: int,
                 running[j] = ctx.Process(target=_member_main, name=f"physynth-study-{j + 1}",
                                          args=(j, *specs[j], messages))
                 running[j].start()
-            kind, j, payload = _next_message(messages, running, configs)
+            kind, j, payload = next_member_message(messages, running, configs)
             if kind == "say":
                 say(prefixes[j] + payload)
             elif kind == "done":
@@ -515,8 +515,12 @@ def studies_at_once(specs: Sequence[StudySpec], prefixes: list[str], jobs: int,
     return [done[j][0] for j in range(len(configs))], float(sum(c for _, c in done.values()))
 
 
-def _next_message(messages: Any, running: dict[int, Any], configs: list[StudyConfig]) -> tuple[str, int, Any]:
-    """The next ``(kind, j, payload)`` from the members; an error for a member that died without a word."""
+def next_member_message(messages: Any, running: dict[int, Any],
+                        configs: list[StudyConfig]) -> tuple[str, int, Any]:
+    """The next ``(kind, j, payload)`` the study processes of :func:`studies_at_once` put on ``messages``
+    (``running``: their processes by index; ``configs``: their configurations); a
+    :class:`~physynth.errors.PhySynthError` naming the member and its exit code for one that ended without
+    a word."""
     import queue
 
     while True:

@@ -63,11 +63,15 @@ def _loss(z: np.ndarray, loss: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     raise PhySynthError(f"unknown loss '{loss}' (choose from {', '.join(LOSSES)})")
 
 
-def _cost_terms(p: np.ndarray, ranges: np.ndarray, use: np.ndarray, anchors: np.ndarray, warm: np.ndarray,
-                fs: float, w: np.ndarray, loss: str) -> tuple[np.ndarray, ...]:
+def cost_terms(p: np.ndarray, ranges: np.ndarray, use: np.ndarray, anchors: np.ndarray, warm: np.ndarray,
+               fs: float, w: np.ndarray, loss: str) -> tuple[np.ndarray, ...]:
     """Per-step robust cost (N,) at positions ``p`` (N, 3) and what the Newton step needs there: unit
     vectors u (N, A, 3), the weights of u u^T (N, A) and of I (N,) in the Hessian of the ranges, the
-    gradient weights of u (N, A), and the prior's gradient (N, 3) and Hessian diagonal (N, 3)."""
+    gradient weights of u (N, A), and the prior's gradient (N, 3) and Hessian diagonal (N, 3).
+
+    ``ranges``/``use`` (N, A): the ranges [m] and which of them count; ``anchors`` (A, 3); ``warm`` (N, 3)
+    the prior's centre, ``w`` (3,) its weight per axis; ``fs`` the robust loss's scale [m] and ``loss`` its
+    name (:data:`LOSSES`). The cost :func:`multilaterate` minimises, step by step."""
     diff = p[:, None, :] - anchors[None]  # (N, A, 3)
     d = np.maximum(np.sqrt(np.einsum("nai,nai->na", diff, diff)), 1e-9)
     f = np.where(use, d - ranges, 0.0)
@@ -132,7 +136,7 @@ def multilaterate(ranges_m: np.ndarray, use: np.ndarray, anchor_pos_m: np.ndarra
     floor = 0.5 * float(w.min()) ** 2  # eigenvalues of the Hessian at least half the prior's weakest curvature
     todo = np.arange(n)  # the working set: steps not yet converged, compressed as they finish
     p, warm, r, us = p_all, warm_all, ranges, use
-    cost, *terms = _cost_terms(p, r, us, anchors, warm, fs, w, loss)
+    cost, *terms = cost_terms(p, r, us, anchors, warm, fs, w, loss)
     radius = np.full(n, INITIAL_RADIUS_M)
     eye = np.eye(3)
     for _ in range(MAX_ITER):
@@ -144,7 +148,7 @@ def multilaterate(ranges_m: np.ndarray, use: np.ndarray, anchor_pos_m: np.ndarra
         dx *= np.minimum(1.0, radius / np.maximum(step, 1e-300))[:, None]
         step = np.minimum(step, radius)
         p_new = p + dx
-        c_new, *t_new = _cost_terms(p_new, r, us, anchors, warm, fs, w, loss)
+        c_new, *t_new = cost_terms(p_new, r, us, anchors, warm, fs, w, loss)
         ok = c_new <= cost
         p = np.where(ok[:, None], p_new, p)
         cost = np.where(ok, c_new, cost)
@@ -186,7 +190,7 @@ def _loss_one(z: float, loss: str) -> tuple[float, float, float]:
 
 def _terms_one(p: list[float], rs: list[float], an: list[list[float]], warm: list[float], fs: float,
                w: list[float], loss: str) -> tuple[float, list[tuple[float, ...]], list[tuple[float, float, float]]]:
-    """:func:`_cost_terms` of one step in plain floats: cost, per range (f, d, ux, uy, uz, rho', weight)
+    """:func:`cost_terms` of one step in plain floats: cost, per range (f, d, ux, uy, uz, rho', weight)
     and per axis of the prior (fp, rho', weight)."""
     cost = 0.0
     rows = []
