@@ -170,3 +170,24 @@ def test_generated_columns_use_the_measured_encodings_and_read_back_exactly(tmp_
         np.testing.assert_array_equal(b.truth.pos_enu_m, a.truth.pos_enu_m)
         np.testing.assert_array_equal(b.imu.t_s, a.imu.t_s)
         np.testing.assert_array_equal(b.imu.acc_mps2, a.imu.acc_mps2.astype(np.float32))
+
+
+def test_files_together_appear_together_or_not_at_all(tmp_path):
+    """A scenario and its report (physynth calibrate): both renamed into place at the end, or, when the
+    block fails after writing one, neither (the old files stay, no temporary is left)."""
+    import pytest
+
+    from physynth.io.atomic import files_together
+
+    a, b = tmp_path / "scenario.yaml", tmp_path / "report.json"
+    a.write_text("old a")
+    with pytest.raises(RuntimeError), files_together([a, b]) as (ta, tb):
+        ta.write_text("new a")
+        raise RuntimeError("interrupted before the report")
+    assert a.read_text() == "old a" and not b.exists() and sorted(p.name for p in tmp_path.iterdir()) == [a.name]
+    with files_together([a, b]) as (ta, tb):
+        ta.write_text("new a")
+        tb.write_text("new b")
+        assert a.read_text() == "old a"  # nothing moves before the block ends
+    assert (a.read_text(), b.read_text()) == ("new a", "new b")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([a.name, b.name])

@@ -165,23 +165,15 @@ def _calibrate(datasets: list[Path], out: Path, report: Path | None, quiet: bool
             result = calibrate_datasets(datasets, progress=progress, **kwargs)
     header = (f"Calibrated by physynth calibrate on {', '.join(str(d) for d in datasets)}\n"
               f"Fit report: {report if report else '(not written; use --report)'}")
-    # both files are written under temporary names first, then renamed together: an interruption never
-    # leaves a new scenario without its report
-    import os
+    # both files written under temporary names, then renamed together: an interruption never leaves a new
+    # scenario without its report
+    from ..io.atomic import atomic_write_text, files_together
 
-    from ..io.atomic import atomic_write_text, temp_sibling
-
-    pending = [(temp_sibling(real_out), real_out)] + ([(temp_sibling(real_report), real_report)] if real_report else [])
-    try:
-        save_scenario(result.scenario, pending[0][0], header=header)
+    with files_together([real_out, *([real_report] if real_report else [])]) as tmp:
+        save_scenario(result.scenario, tmp[0], header=header)
         if real_report:
             marked = {"generator": {"name": "physynth", "version": __version__}, **result.report}  # safety marker
-            atomic_write_text(pending[1][0], json.dumps(jsonable(marked), indent=1))
-        for tmp, final in pending:
-            os.replace(tmp, final)
-    finally:
-        for tmp, _ in pending:
-            tmp.unlink(missing_ok=True)
+            atomic_write_text(tmp[1], json.dumps(jsonable(marked), indent=1))
     if quiet:
         return
     print_summary(result, out, report)

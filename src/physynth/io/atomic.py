@@ -9,6 +9,8 @@ POSIX and Windows. Directories (datasets) use the same temporary name and are sw
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 
@@ -32,3 +34,18 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     """Write a UTF-8 text file atomically."""
     atomic_write_bytes(path, text.encode("utf-8"))
+
+
+@contextmanager
+def files_together(paths: Sequence[str | os.PathLike]) -> Iterator[list[Path]]:
+    """Write several files as one output (a scenario and its fit report): the block writes the yielded
+    temporary siblings of ``paths``, which are renamed onto ``paths`` once it ends; if it fails (or is
+    interrupted) none is renamed and every temporary is removed, so no new file appears without the others."""
+    pending = [(temp_sibling(Path(p)), Path(p)) for p in paths]
+    try:
+        yield [tmp for tmp, _ in pending]
+        for tmp, final in pending:
+            os.replace(tmp, final)
+    finally:
+        for tmp, _ in pending:
+            tmp.unlink(missing_ok=True)
