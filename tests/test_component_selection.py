@@ -160,3 +160,10 @@ def test_one_run_with_evidence_exits_2_naming_the_option(tmp_path, capsys):
                            "--select-components", "evidence", "--quiet")
     assert code == 2 and len(err.strip().splitlines()) == 1, err
     assert "--select-components evidence needs at least 2 runs" in err
+
+
+def test_leave_one_out_gives_each_item_and_the_others_in_order():
+    from physynth.calibrate.held_out import leave_one_out
+
+    assert list(leave_one_out("abc")) == [(0, "a", ["b", "c"]), (1, "b", ["a", "c"]), (2, "c", ["a", "b"])]
+    assert list(leave_one_out([10, 20, 30], order=[2, 0])) == [(2, 30, [10, 20]), (0, 10, [20, 30])]

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from physynth.calibrate import calibrate, fit_motion, fit_path
+from physynth.calibrate.held_out import leave_one_out
 from physynth.generate import generate_traces
 from physynth.io import write_dataset
 from physynth.io.importers import import_broad
@@ -103,10 +104,11 @@ def main() -> None:
     print("|---|---|---|" + "---|" * len(KEYS))
     worst = {"as calibrated": 0.0, "constant gyro": 0.0}
     with tempfile.TemporaryDirectory() as tmp:
-        for i, (f, left) in enumerate(zip(files, traces, strict=True)):
+        for i, left, others in leave_one_out(traces):
+            f = files[i]
             real = Path(tmp) / f.stem
             write_dataset(real, [left], meta={"kind": "real", "source": "broad-imu"})
-            res = calibrate([t for j, t in enumerate(traces) if j != i], name=f"loo-without-{f.stem[:2]}")
+            res = calibrate(others, name=f"loo-without-{f.stem[:2]}")
             variants = (("as calibrated", res.scenario), ("constant gyro", _without_gyro_acc_gain(res.scenario)))
             for label, scn in variants:
                 rep = validate_datasets(real, scenario=scn, n=args.n, seed=args.seed, transfer=True).to_dict()
@@ -126,10 +128,10 @@ def _free_motion(files, traces, args) -> None:
     print("| left-out trial | motion | ENU acc | gyro | median abs(a), synthetic (real) |")
     print("|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
-        for i, (f, left) in enumerate(zip(files, traces, strict=True)):
+        for i, left, train in leave_one_out(traces):
+            f = files[i]
             real = Path(tmp) / f.stem
             write_dataset(real, [left], meta={"kind": "real", "source": "broad-imu"})
-            train = [t for j, t in enumerate(traces) if j != i]
             scn = calibrate(train, name=f"loo-without-{f.stem[:2]}").scenario
             ou = scn.model_copy(update={"attitude": scn.attitude.model_copy(update={"tumble_spectrum": "ou"})})
             for label, s in (("in place + jitter", scn), ("folded path", _folded_path(scn, train)),

@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from physynth.calibrate.held_out import leave_one_out
 from physynth.calibrate.imu_fit import compare_imu_along_truth, fit_imu
 from physynth.io.importers import import_broad
 
@@ -80,8 +81,8 @@ def main() -> None:
     print(f"{'left out':34s} {'model':9s} {'real std e/n/u [m/s^2]':24s} {'synthetic std':22s} "
           f"{'rel. dev. [%]':22s} max|dev|")
     worst: dict[str, list[float]] = {m: [] for m, _, _ in models}
-    for left in calib:
-        rest = [traces[k] for k in calib if k != left]
+    for _, left, rest_names in leave_one_out(calib):
+        rest = [traces[k] for k in rest_names]
         for name, opts, cmp in models:
             params = fit_imu(rest, **opts).params
             r = compare_imu_along_truth(traces[left], params, REFERENCE_CUTOFF_HZ,

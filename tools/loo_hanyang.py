@@ -41,7 +41,7 @@ import numpy as np
 
 from physynth.calibrate.components.antenna_sway import without_sway
 from physynth.calibrate.components.tag_nlos import without_tag_nlos
-from physynth.calibrate.held_out import SELECT_CHOICES, calibrate_selected
+from physynth.calibrate.held_out import SELECT_CHOICES, calibrate_selected, leave_one_out
 from physynth.validate.render import write_report
 from physynth.workflows import validate_datasets
 
@@ -83,9 +83,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         dirs, traces = import_runs(args.data, Path(tmp))
         rows, dropped = [], []
-        for left in traces:
+        for _, left, other_names in leave_one_out(list(traces)):
             t0 = time.perf_counter()
-            others = [traces[k] for k in traces if k != left]
+            others = [traces[k] for k in other_names]
             res = calibrate_selected(others, select_components=args.select_components, evidence_traces=args.evidence_n,
                             evidence_seed=args.seed,
                             name=f"loo-without-{left.replace(' ', '-')}", long_outages=args.long_outages,

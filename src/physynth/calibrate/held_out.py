@@ -24,9 +24,9 @@ measures the selection itself on runs it never saw.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 import numpy as np
 
@@ -40,6 +40,8 @@ from .pipeline import COMPONENTS, calibrate
 from .report import CalibrationResult
 from .report_fields import same_number, written_value
 
+T = TypeVar("T")
+
 MEASURES = ("KS x 100", "UWB>=1 dev. %", "mean AoI dev. %", "|median diff.| cm")
 """The validation's deviations from a held-out run the evidence compares (smaller: closer)."""
 SELECT_CHOICES = ("all", "evidence")
@@ -52,6 +54,13 @@ STEP = "held-out evidence"
 """The counted progress message of :func:`held_out_evidence` (one unit per calibration and validation)."""
 DEFAULT_N = 20
 DEFAULT_SEED = 1
+
+
+def leave_one_out(items: Sequence[T], order: Sequence[int] | None = None) -> Iterator[tuple[int, T, list[T]]]:
+    """Each item in turn (those of ``order``, indices; default all): ``(index, item, the others in their
+    order)``: the one leave-one-out loop of the calibration's evidence and of the maintainers' tools."""
+    for k in range(len(items)) if order is None else order:
+        yield k, items[k], [x for j, x in enumerate(items) if j != k]
 
 
 def optional_components(names: Sequence[str] | None = None) -> tuple[Component, ...]:
@@ -204,11 +213,11 @@ def held_out_evidence(traces: Sequence[Trace], *, n: int = DEFAULT_N, seed: int 
     total, done = len(order) * (2 + len(chosen)), 0
     result = HeldOutEvidence(components={c.name: ComponentEvidence(c.name) for c in chosen},
                              runs=[names[k] for k in order], deviations={}, n=int(n), seed=int(seed))
-    for k in order:
+    for k, _, others in leave_one_out(trs, order):
         left = names[k]
         say(f"held-out evidence: leaving out {left}")
         say(STEP, done, total)
-        res = calibrate([t for j, t in enumerate(trs) if j != k], name="held-out", **options)
+        res = calibrate(others, name="held-out", **options)
         done += 1
         say(STEP, done, total)
         with_dev = deviations(validate_on(res.scenario, trs[k], n=n, seed=seed))
