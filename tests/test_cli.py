@@ -280,10 +280,10 @@ def test_study_tracking_refuses_an_option_no_chosen_method_uses(tmp_path, capsys
 
 
 def test_study_tracking_knows_which_methods_are_networks():
-    from physynth.cli.track import _NETWORKS
     from physynth.studies.tracking import NETWORK_METHODS
+    from physynth.studies.tracking_setup import METHOD_SETTINGS, NETWORKS
 
-    assert set(_NETWORKS) == NETWORK_METHODS
+    assert set(NETWORKS) == NETWORK_METHODS and set(METHOD_SETTINGS["frame"]) == NETWORK_METHODS
 
 
 def test_bench_warns_when_the_scaling_run_is_too_short(capsys):

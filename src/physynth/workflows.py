@@ -8,7 +8,7 @@ result; none draws anything or knows the command line. Long ones take a ``progre
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -30,6 +30,7 @@ from .scenario import Scenario, scenario_to_dict
 if TYPE_CHECKING:
     from .calibrate import CalibrationResult
     from .evaluate.metrics import Metrics
+    from .studies.tracking_setup import TrackingStudyRun
     from .validate.compare import ValidationReport
 
 
@@ -553,3 +554,132 @@ def placement_study(scenario: str | Path | Scenario, candidates: str | Path, *, 
     root = new_root_seed() if seed is None else int(seed)
     return greedy_placement(scn, cands, k=k, objective=objective, n=n, seed=root, workers=workers,
                             progress=progress, force=force)
+
+
+_PARAMETER_SETTINGS = frozenset({"seed", "methods", "ensemble", "jobs", "quick", "random_isometry", "route_frame",
+                                 "height", "tag_height_m", "tag_height_std_m"})
+"""Study settings that :func:`tracking_study` takes as parameters of their own (``frame``, the height's)."""
+
+
+def tracking_study(out: str | os.PathLike, *, train: Sequence[str | os.PathLike] | None = None,
+                   test: Sequence[str | os.PathLike] | None = None, scenario: ScenarioLike | None = None,
+                   methods: Sequence[str] | None = None, seed: int = 0, seeds: int = 3, protocol: str | None = None,
+                   quick: bool = False, config: str | os.PathLike | None = None,
+                   settings: Mapping[str, Any] | None = None, frame: str | None = None,
+                   synth_nlos_spread: float | None = None, synth_layouts: str | None = None,
+                   tag_height: float | None = None, tag_height_std: float = 0.2, no_height: bool = False,
+                   turn_test: float = 0.0, mirror_test: bool = False, ensemble: int = 1, jobs: int | None = None,
+                   overwrite: bool = False, progress: Callable[[str], None] | None = None) -> TrackingStudyRun:
+    """The tracking study (:mod:`physynth.studies.tracking`) under a protocol (:mod:`physynth.studies.protocol`),
+    its files written to the folder ``out`` (``results.json``, ``results.md``, figures): ``physynth study
+    tracking`` from Python.
+
+    Parameters
+    ----------
+    train, test : sequences of dataset directories, optional
+        Training and test datasets (every trace one run). Neither: the default Hanyang runs
+        (:func:`physynth.studies.tracking.hanyang_default_runs`; :func:`~physynth.studies.tracking_setup.load_runs`).
+    scenario : preset name, scenario file, mapping or Scenario, optional
+        SYNTH_PHY pre-trains on it instead of a scenario calibrated on the training runs (survey-only: all
+        the study trains on).
+    methods : sequence of str, optional
+        Methods to run (default: the configuration file's, else all of :data:`~physynth.studies.tracking.METHODS`).
+    seed, seeds : int
+        Every fold runs for seeds ``seed`` .. ``seed + seeds - 1``.
+    protocol : str, optional
+        How runs are held out (:data:`~physynth.studies.protocol.PROTOCOLS`; default from the runs).
+    quick : bool
+        The quick schedule (:func:`~physynth.studies.tracking_config.quick_config`) for what is not set.
+    config : path, optional
+        A study configuration file (:func:`~physynth.studies.tracking_config.read_study_settings`).
+    settings : mapping, optional
+        :class:`~physynth.studies.tracking_config.StudyConfig` fields for this study (e.g. ``{"epochs": 40,
+        "net": {"lr_schedule": "cosine"}}``); they win over the file's (``net`` merged into the file's). A
+        setting that sets up methods none of which runs (:data:`~physynth.studies.tracking_setup.METHOD_SETTINGS`)
+        is refused; None values count as not given.
+    frame : str, optional
+        How the networks see direction (:data:`~physynth.studies.tracking_setup.FRAMES`).
+    synth_nlos_spread, synth_layouts : optional
+        The pre-training variation's NLOS spread and layouts (:func:`~physynth.studies.tracking_setup.synth_variation`).
+    tag_height, tag_height_std, no_height
+        The tag height prior: given [m] with its spread, or none (default: from the training runs' truth).
+    turn_test, mirror_test
+        Every test run turned by ``turn_test`` degrees about its anchor centroid, mirrored first with
+        ``mirror_test``.
+    ensemble : int
+        Score the mean of ``ensemble`` seeds' estimates (a seed ensemble).
+    jobs : int, optional
+        Studies (folds and seeds) run at once, each in a process of its own (default: one per CPU core), or
+        with an ensemble its members trained at once (default 1). The results do not depend on it.
+    progress : callable, optional
+        ``progress(line)`` for every step of every study.
+
+    Returns the :class:`~physynth.studies.tracking_setup.TrackingStudyRun`: the protocol's result, the files
+    written and the studies' warnings.
+
+    Raises
+    ------
+    PhySynthError
+        Bad arguments (:class:`~physynth.studies.tracking_setup.TrackingArgumentError`, naming the
+        parameters), an output that may not be written, datasets that cannot be read or runs unfit for the
+        study, PyTorch missing for a network method.
+    """
+    from .studies import tracking_setup as setup
+    from .studies.protocol import PROTOCOLS, plan, run_protocol
+    from .studies.protocol_report import write_protocol_results
+    from .studies.tracking_config import NETWORK_METHODS, StudyConfig, read_study_settings
+    from .track import require_torch
+
+    seed = check_int(seed, "seed", what="the seed")
+    seeds = check_int(seeds, "seeds", minimum=1, what="the number of seeds")
+    ensemble = check_int(ensemble, "ensemble", minimum=1, what="the ensemble's size")
+    if jobs is not None:
+        jobs = check_int(jobs, "jobs", minimum=1, what="the number of studies at once")
+    given = dict(settings or {})
+    odd = sorted(k for k in given if k in _PARAMETER_SETTINGS or k not in StudyConfig.__dataclass_fields__)
+    if odd:
+        raise setup.TrackingArgumentError(f"{{settings}}: {', '.join(odd)} not a study setting (or one given "
+                                          "by a parameter of its own)")
+    safety.check_study_output(out, marker="results.json", what="a tracking study", overwrite=overwrite,  # first
+                              inputs=[*(train or []), *(test or [])])
+    file_settings = read_study_settings(config) if config is not None else {}
+    over: dict[str, Any] = {"seed": seed, **setup.frame_settings(frame)}
+    net = {**file_settings.get("net", {}), **{k: v for k, v in (given.pop("net", None) or {}).items()
+                                              if v is not None}}
+    over |= {"methods": tuple(methods)} if methods is not None else {}
+    over |= {k: v for k, v in given.items() if v is not None}
+    over |= {"ensemble": ensemble} if ensemble > 1 else {}
+    over |= {"jobs": jobs} if jobs is not None and jobs > 1 and ensemble > 1 else {}
+    over |= setup.synth_variation(synth_nlos_spread, synth_layouts, file_settings.get("variation"))
+    over |= setup.height_settings(tag_height, tag_height_std, no_height)
+    over |= {"net": net} if net else {}
+    cfg = setup.study_config(over, quick, None if protocol == "survey-only" else scenario, frame,  # survey-only:
+                             given={"synth_nlos_spread": synth_nlos_spread, "synth_layouts": synth_layouts},
+                             base=file_settings)  # the scenario is every method's
+    if NETWORK_METHODS & set(cfg.methods):
+        require_torch()
+    if protocol is not None and protocol not in PROTOCOLS:
+        raise setup.TrackingArgumentError(f"{{protocol}} must be one of {', '.join(PROTOCOLS)}, got '{protocol}'")
+    if protocol == "survey-only" and scenario is None:
+        raise setup.TrackingArgumentError("{protocol} survey-only needs {scenario}: the site's scenario (its "
+                                          "anchors, route and channel) is all it trains on")
+    train_runs, test_runs = setup.load_runs(train, test, protocol)
+    scn = None if scenario is None else load_scenario(scenario)
+    if turn_test or mirror_test:
+        if not test_runs:
+            raise setup.TrackingArgumentError("{turn_test} and {mirror_test} turn the {test} runs: give {test}")
+        test_runs = setup.turned_runs(test_runs, turn_test, mirror_test)
+    seed_list = list(range(seed, seed + seeds))
+    _, folds, used = plan(train_runs, test_runs, protocol, seed_list, cfg)
+    n_studies = len(folds) * len(used)
+    if jobs is not None and jobs > 1 and ensemble == 1 and n_studies == 1:
+        raise setup.TrackingArgumentError(f"{{jobs}} {jobs} runs several studies at once, and this is one study "
+                                          "(one fold, one seed): give {seeds} N, or {ensemble} K to train K "
+                                          "members at once")
+    # with an ensemble, jobs trains its members at once; else the studies, by default one per core
+    study_jobs = 1 if ensemble > 1 else jobs or min(n_studies, len(os.sched_getaffinity(0)))
+    res = run_protocol(train_runs, test_runs, protocol=protocol, seeds=seed_list, scenario=scn, config=cfg,
+                       jobs=study_jobs, progress=progress)
+    files = setup.write_single(res, out) if len(res.studies) == 1 else write_protocol_results(res, out)
+    warnings = list(dict.fromkeys(w for s in res.studies for w in s.data.get("warnings", [])))
+    return setup.TrackingStudyRun(res, files, warnings)

@@ -1,44 +1,30 @@
 """``physynth study tracking``: the tracking case study (Table IV) on real runs.
 
-Parses the options, calls :func:`physynth.studies.tracking.run_tracking_study`, writes the results and
-prints the table. Bad input (no truth in the test run, a training run without UWB, an unknown method,
-torch missing) is one line on stderr and exit 2 (raised as ``PhySynthError`` and turned into that line
-by :func:`physynth.cli.main`).
+Parses the options, calls :func:`physynth.workflows.tracking_study` (which sets up, runs and writes the
+study) and prints the tables. Bad input (no truth in the test run, a training run without UWB, an unknown
+method, torch missing) is one line on stderr and exit 2 (raised as ``PhySynthError`` and turned into that
+line by :func:`physynth.cli.main`); the library's errors name its parameters, said here with the options.
 
 The command joins the ``study`` group of :mod:`physynth.cli.study`.
 """
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
-from typing import Any
 
 import typer
 
 from ..errors import PhySynthError
 
-FRAMES = {"route": {"route_frame": True, "random_isometry": False},
-          "turned": {"route_frame": False, "random_isometry": True},
-          "compass": {"route_frame": False, "random_isometry": False}}
-"""``--frame`` choices and the study settings each one stands for."""
-
-_NETWORKS = ("NOAUG", "AUG_GAN", "SYNTH_PHY", "bilstm")  # studies.tracking.NETWORK_METHODS, not imported here
-_SYNTH = ("SYNTH_PHY",)
-METHOD_OPTIONS = {"epochs": ("--epochs", ("NOAUG", "AUG_GAN", "bilstm")), "scenario": ("--scenario", _SYNTH),
-                  "pretrain_epochs": ("--pretrain-epochs", _SYNTH), "finetune_epochs": ("--finetune-epochs", _SYNTH),
-                  "n_synth_traces": ("--n-synth", _SYNTH), "synth_windows_per_trace": ("--synth-windows", _SYNTH),
-                  "finetune_synth_ratio": ("--finetune-synth-ratio", _SYNTH), "ekf_prior": ("--ekf-prior", _NETWORKS),
-                  "lr_schedule": ("--lr-schedule", _NETWORKS), "weight_average": ("--weight-average", _NETWORKS),
-                  "frame": ("--frame", _NETWORKS), "ensemble": ("--ensemble", _NETWORKS),
-                  "synth_nlos_spread": ("--synth-nlos-spread", _SYNTH), "synth_layouts": ("--synth-layouts", _SYNTH)}
-"""Options (by the study setting they give) that set up some methods only, with those methods: given without
-any of them, an option is refused, not silently ignored. ``--frame``
-sets up how the networks see direction; ``--ensemble`` averages seeds, and the classical trackers draw none."""
+OPTIONS = {"n_synth_traces": "--n-synth", "synth_windows_per_trace": "--synth-windows"}
+"""The options of the library's parameters and settings whose option is not their name with dashes."""
 
 
-SYNTH_LAYOUTS = ("drawn", "training")
-"""``--synth-layouts`` choices."""
+def _option(name: str) -> str:
+    """The option that gives the parameter or setting ``name`` of :func:`physynth.workflows.tracking_study`."""
+    return OPTIONS.get(name, "--" + name.replace("_", "-"))
+
+
 _PROTOCOL_HELP = ("How runs are held out: leave-one-layout-out (the default where the runs hold two or more anchor "
                   "layouts: each layout in turn is tested, trained on the others), leave-one-run-out (the default "
                   "for one layout), split (--train against --test; the default when --test is given) or "
@@ -142,199 +128,42 @@ def tracking_cmd(
     Research settings (schedules, network and pre-training options) go in a --config file; their older
     options still work and are listed in docs/tracking.md.
     """
-    from ..io.safety import check_study_output
-    from ..studies.protocol import PROTOCOLS, plan, run_protocol
-    from ..studies.protocol_report import write_protocol_results
-    from ..studies.tracking import NETWORK_METHODS
-    from ..track import require_torch
+    from functools import partial
 
-    check_study_output(out, marker="results.json", what="a tracking study", overwrite=overwrite,  # before the work
-                       inputs=[*(train or []), *(test or [])])
-    from ..studies.tracking_config import read_study_settings
+    from ..studies.tracking_setup import PARAMETERS, TrackingArgumentError
+    from ..workflows import tracking_study
 
-    file_settings = read_study_settings(config) if config is not None else {}
     # "" is no method, as "," is (StudyConfig refuses it); leaving --methods out runs the file's or all
     chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods is not None else None
-    if frame is not None and frame not in FRAMES:
-        raise PhySynthError(f"--frame must be one of {', '.join(FRAMES)}, got '{frame}'")
-    over = {"seed": seed, **FRAMES.get(frame, {})}
-    over |= _given(methods=chosen, threads=threads, epochs=epochs, pretrain_epochs=pretrain_epochs,
-                   finetune_epochs=finetune_epochs,
-                   n_synth_traces=n_synth, synth_windows_per_trace=synth_windows, ekf_prior=ekf_prior,
-                   finetune_synth_ratio=finetune_synth_ratio, train_trusted_truth=train_trusted_truth or None,
-                   ensemble=ensemble if ensemble > 1 else None,
-                   jobs=jobs if jobs is not None and jobs > 1 and ensemble > 1 else None)
-    over |= _synth_variation(synth_nlos_spread, synth_layouts, file_settings.get("variation"))
-    over |= _height(tag_height, tag_height_std, no_height)
-    net = {**file_settings.get("net", {}), **_given(lr_schedule=lr_schedule, weight_average=weight_average)}
-    over |= {"net": net} if net else {}
-    cfg = _config(over, quick, None if protocol == "survey-only" else scenario, frame,  # survey-only: every method's
-                  flags={"synth_nlos_spread": synth_nlos_spread, "synth_layouts": synth_layouts}, base=file_settings)
-    if NETWORK_METHODS & set(cfg.methods):
-        require_torch()
-    if protocol is not None and protocol not in PROTOCOLS:
-        raise PhySynthError(f"--protocol must be one of {', '.join(PROTOCOLS)}, got '{protocol}'")
-    if protocol == "survey-only" and scenario is None:
-        raise PhySynthError("--protocol survey-only needs --scenario: the site's scenario (its anchors, route and "
-                            "channel) is all it trains on")
-    train_runs, test_runs = _load_runs(train, test, protocol)
-    scn = _scenario(scenario)
-    if turn_test or mirror_test:
-        if not test_runs:
-            raise PhySynthError("--turn-test and --mirror-test turn the --test runs: give --test")
-        test_runs = _turned(test_runs, turn_test, mirror_test)
-    seed_list = list(range(seed, seed + seeds))
-    _, folds, used = plan(train_runs, test_runs, protocol, seed_list, cfg)
-    n_studies = len(folds) * len(used)
-    if jobs is not None and jobs > 1 and ensemble == 1 and n_studies == 1:
-        raise PhySynthError(f"--jobs {jobs} runs several studies at once, and this is one study (one fold, one "
-                            "seed): give --seeds N, or --ensemble K to train K members at once")
-    # with an ensemble, --jobs trains its members at once; else the studies, by default one per core
-    study_jobs = 1 if ensemble > 1 else jobs or min(n_studies, len(os.sched_getaffinity(0)))
-    if quiet:
-        res = run_protocol(train_runs, test_runs, protocol=protocol, seeds=seed_list, scenario=scn, config=cfg,
-                           jobs=study_jobs)
-    else:
-        from ._common import status_lines
+    settings = {"threads": threads, "epochs": epochs, "pretrain_epochs": pretrain_epochs,
+                "finetune_epochs": finetune_epochs, "n_synth_traces": n_synth, "synth_windows_per_trace": synth_windows,
+                "ekf_prior": ekf_prior, "finetune_synth_ratio": finetune_synth_ratio,
+                "train_trusted_truth": train_trusted_truth or None,
+                "net": {"lr_schedule": lr_schedule, "weight_average": weight_average}}
+    study = partial(tracking_study, out, train=train, test=test, scenario=scenario, methods=chosen, seed=seed,
+                    seeds=seeds, protocol=protocol, quick=quick, config=config, settings=settings, frame=frame,
+                    synth_nlos_spread=synth_nlos_spread, synth_layouts=synth_layouts, tag_height=tag_height,
+                    tag_height_std=tag_height_std, no_height=no_height, turn_test=turn_test,
+                    mirror_test=mirror_test, ensemble=ensemble, jobs=jobs, overwrite=overwrite)
+    try:
+        if quiet:
+            run = study()
+        else:
+            from ._common import status_lines
 
-        with status_lines("tracking study") as say:
-            res = run_protocol(train_runs, test_runs, protocol=protocol, seeds=seed_list, scenario=scn, config=cfg,
-                               jobs=study_jobs, progress=say)
-    single = len(res.studies) == 1
-    files = write_single(res, out) if single else write_protocol_results(res, out)
-    warnings = dict.fromkeys(w for s in res.studies for w in s.data.get("warnings", []))
-    for warning in warnings:  # even with --quiet: these seconds are in every row
+            with status_lines("tracking study") as say:
+                run = study(progress=say)
+    except TrackingArgumentError as exc:  # said with the options
+        raise PhySynthError(exc.worded({name: _option(name) for name in PARAMETERS})) from None
+    for warning in run.warnings:  # even with --quiet: these seconds are in every row
         typer.echo(f"warning: {warning}", err=True)
     if quiet:
         return
-    if single:
+    res = run.result
+    if run.single:
         _print_table(res.studies[0], [i.label for i in res.studies[0].test_inputs])
     _print_runs(res)
-    typer.echo(f"wrote {', '.join(str(f) for f in files.values())} (wall time {res.wall_time_s:.0f} s)")
-
-
-def _config(over: dict[str, Any], quick: bool, scenario: str | None, frame: str | None = None,
-            flags: dict[str, Any] | None = None, base: dict[str, Any] | None = None) -> Any:
-    """The study's configuration from the settings of the options given (``over``), over those of a
-    configuration file (``base``; ``--quick``: its schedule for the rest); an option of :data:`METHOD_OPTIONS`
-    given when none of the methods it sets up runs is refused (``flags``: options given that are not settings
-    of their own, such as the parts of ``variation``); a file's settings are not options, and not refused."""
-    from ..studies.tracking import StudyConfig, quick_config
-
-    def make(settings: dict[str, Any]) -> Any:
-        merged = {**(base or {}), **settings}
-        return quick_config(**merged) if quick else StudyConfig(**merged)
-
-    # bad values first, then options without use (named by their flag), then the ensemble's own settings
-    cfg = make({k: v for k, v in over.items() if k not in ("ensemble", "jobs")})
-    given = {**over, **over.get("net", {}), "scenario": scenario, "frame": frame, **(flags or {})}
-    for name, (flag, users) in METHOD_OPTIONS.items():
-        if given.get(name) is not None and not set(users) & set(cfg.methods):
-            which = users[0] if len(users) == 1 else f"{', '.join(users[:-1])} or {users[-1]}"
-            raise PhySynthError(f"{flag} only matters for {which}, which --methods leaves out "
-                                f"({','.join(cfg.methods)}): add {'it' if len(users) == 1 else 'one'} or leave {flag} "
-                                "out")
-    return make(over)
-
-
-def _scenario(name: str | None):
-    """The ``--scenario`` given (a preset name or a file), or None: SYNTH_PHY calibrates its own."""
-    if name is None:
-        return None
-    from ..io.scenario_file import load_scenario
-
-    return load_scenario(name)
-
-
-def _synth_variation(nlos_spread: float | None, layouts: str | None = None, base: Any = None) -> dict[str, Any]:
-    """``--synth-nlos-spread`` and ``--synth-layouts``: the study's pre-training variation (``base``, a
-    configuration file's, else the default) with that NLOS spread and those layouts ({} when neither is given)."""
-    if nlos_spread is None and layouts is None:
-        return {}
-    from ..studies.tracking import StudyConfig
-
-    if layouts not in (None, *SYNTH_LAYOUTS):
-        raise PhySynthError(f"--synth-layouts must be one of {', '.join(SYNTH_LAYOUTS)}, got '{layouts}'")
-    v = base if base is not None else StudyConfig().variation
-    if nlos_spread is not None:
-        v = v.model_copy(update={"nlos_log_std": nlos_spread})
-    if layouts == "training":
-        v = v.model_copy(update={"layout_distribution": None})
-    return {"variation": v}
-
-
-def _given(**options: object) -> dict[str, object]:
-    """The options the user gave (None: left to the schedule's default)."""
-    return {k: v for k, v in options.items() if v is not None}
-
-
-def _load_runs(train: list[Path] | None, test: list[Path] | None, protocol: str | None) -> tuple[list, list]:
-    """The runs and the test runs: the datasets given, or the default Hanyang runs (all four, held out by
-    the protocol; the split protocol trains on the first three and tests on the last)."""
-    from ..studies.tracking import hanyang_default_runs, runs_from_dataset
-
-    def runs(paths: list[Path] | None) -> list:
-        return [r for p in paths or [] for r in runs_from_dataset(p)]
-
-    if protocol == "survey-only":
-        if train:
-            raise PhySynthError("--protocol survey-only trains on no real run: leave --train out")
-        if test:
-            return [], runs(test)
-        train_runs, test_run = hanyang_default_runs()
-        return [], [*train_runs, test_run]
-    if test and not train:
-        raise PhySynthError("--test needs --train (or --protocol survey-only with --scenario)")
-    if train:
-        if protocol == "split" and not test:
-            raise PhySynthError("--protocol split trains on --train and scores --test: give --test")
-        return runs(train), runs(test)
-    train_runs, test_run = hanyang_default_runs()
-    if protocol == "split":
-        return train_runs, [test_run]
-    return [*train_runs, test_run], []
-
-
-def _turned(runs: list, turn_deg: float, mirror: bool) -> list:
-    """``--turn-test`` / ``--mirror-test``: the test runs turned about their anchor centroids."""
-    import dataclasses
-    import math
-
-    from ..transform import turn_trace
-
-    if not math.isfinite(turn_deg):
-        raise PhySynthError(f"--turn-test must be a finite angle in degrees, got {turn_deg}")
-    how = f"turned {turn_deg:g} deg" + (", mirrored" if mirror else "")
-    return [dataclasses.replace(r, label=f"{r.label} ({how})",
-                                trace=turn_trace(r.trace, math.radians(turn_deg), mirror=mirror)) for r in runs]
-
-
-def _height(tag_height: float | None, tag_height_std: float, no_height: bool) -> dict[str, Any]:
-    """The study's height settings of ``--tag-height`` / ``--tag-height-std`` / ``--no-height``."""
-    if no_height and tag_height is not None:
-        raise PhySynthError("--no-height and --tag-height exclude each other")
-    if no_height:
-        return {"height": "none"}
-    if tag_height is None:
-        return {}
-    return {"height": "given", "tag_height_m": tag_height, "tag_height_std_m": tag_height_std}
-
-
-def write_single(res, out: Path) -> dict[str, Path]:
-    """One study's files (:func:`physynth.studies.tracking_report.write_results`) with the per-run table in
-    ``results.json`` (``per_run``) and ``results.md``."""
-    import json
-
-    from ..io.atomic import atomic_write_text
-    from ..studies.protocol_report import protocol_markdown
-    from ..studies.tracking_report import write_results
-
-    files = write_results(res.studies[0], out)
-    data = json.loads(files["json"].read_text())
-    data["protocol"] = {k: v for k, v in res.to_json().items() if k != "config"}
-    atomic_write_text(files["json"], json.dumps(data, indent=1, allow_nan=True) + "\n")
-    atomic_write_text(files["md"], files["md"].read_text() + "\n" + protocol_markdown(res))
-    return files
+    typer.echo(f"wrote {', '.join(str(f) for f in run.files.values())} (wall time {res.wall_time_s:.0f} s)")
 
 
 def _print_runs(res) -> None:
