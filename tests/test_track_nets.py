@@ -119,6 +119,31 @@ def test_training_is_deterministic_and_state_round_trips(inputs):
         NetTracker.from_state({**old, "weights": weights})
 
 
+def test_net_config_holds_its_window_and_takes_the_window_settings_by_name():
+    """NetConfig keeps the windows in a WindowSpec; its settings name the window's fields as before
+    (``window_steps``, ``route_frame``, ...), and a saved state's flat config reads back."""
+    from physynth.track.trackers.nets import NET_SETTINGS, WINDOW_SETTINGS, NetConfig
+
+    cfg = NetConfig.from_settings(window_steps=12, stride_steps=4, decimation=5, use_imu=True, route_frame=True,
+                                  ekf_prior="residual", hidden=16, heads=2, burn_in_steps=2)
+    assert cfg.window == WindowSpec(length=12, stride=4, decimation=5, use_imu=True, route_frame=True,
+                                    ekf_prior=True)  # the windows carry the prior the network uses
+    assert NetTracker(config=cfg).window_spec() is cfg.window
+    d = cfg.to_dict()
+    assert d["window"]["length"] == 12 and NetConfig(**d) == cfg and NetConfig.from_settings(**d) == cfg
+    flat = {k: v for k, v in d.items() if k != "window"} | {k: d["window"][f] for k, f in WINDOW_SETTINGS.items()}
+    assert set(flat) == NET_SETTINGS and NetConfig.from_settings(**flat) == cfg  # a state saved before the window
+    assert cfg.with_settings(ekf_prior="none").window.ekf_prior is False
+    assert NetTracker(config=cfg, window_steps=16).config.window.length == 16
+    assert set(WINDOW_SETTINGS.values()) <= set(WindowSpec.__dataclass_fields__)
+    with pytest.raises(PhySynthError, match="burn_in_steps must be smaller than window_steps"):
+        NetConfig.from_settings(window_steps=2, burn_in_steps=2)
+    with pytest.raises(PhySynthError, match="invalid WindowSpec"):
+        NetConfig.from_settings(stride_steps=0)
+    with pytest.raises(PhySynthError, match="exclude each other"):
+        NetConfig.from_settings(route_frame=True, random_isometry=True)
+
+
 def _all_items(ds, workers):
     loader = torch.utils.data.DataLoader(ds, batch_size=5, shuffle=False, num_workers=workers,
                                          collate_fn=collate_windows)

@@ -290,9 +290,9 @@ def run_tracking_study(train: Sequence[StudyRun], test: StudyRun | Sequence[Stud
 def _net(cfg: StudyConfig, arch: str = "aoi-fusion", **extra: Any) -> Any:
     from ..track.trackers.nets import NetConfig, NetTracker
 
-    net_cfg = NetConfig(**{"seed": cfg.seed, "epochs": cfg.epochs, "lr": cfg.lr,
-                           "random_isometry": cfg.random_isometry, "route_frame": cfg.route_frame,
-                           "ekf_prior": cfg.ekf_prior, **cfg.net, **extra})
+    net_cfg = NetConfig.from_settings(**{"seed": cfg.seed, "epochs": cfg.epochs, "lr": cfg.lr,
+                                         "random_isometry": cfg.random_isometry, "route_frame": cfg.route_frame,
+                                         "ekf_prior": cfg.ekf_prior, **cfg.net, **extra})
     return NetTracker(arch, net_cfg)
 
 

@@ -73,8 +73,9 @@ class StudyConfig:
     """SYNTH_PHY fine-tuning keeps ``ratio`` synthetic pre-training windows per real window in its
     training set (a fixed random subset, drawn from the seed); 0 fine-tunes on the real runs only."""
     net: dict[str, Any] = field(default_factory=dict)
-    """Overrides of :class:`~physynth.track.trackers.nets.NetConfig` for every network (e.g.
-    ``{"age_weighted_direction": False}``)."""
+    """Overrides of :class:`~physynth.track.trackers.nets.NetConfig` for every network, by setting name
+    (:data:`~physynth.track.trackers.nets.NET_SETTINGS`: its fields, and its window's by their names there,
+    e.g. ``{"age_weighted_direction": False, "window_steps": 32}``)."""
     variation: SiteVariationParams = STUDY_VARIATION
     """How the synthetic pre-training traces vary around the calibrated site: every trace its own whole anchor
     layout drawn from :data:`STUDY_LAYOUTS` (each anchor the channel of one of the calibrated anchors), path
@@ -162,12 +163,12 @@ class StudyConfig:
 def check_net_overrides(net: dict[str, Any]) -> None:
     """The ``net`` overrides checked before any work: an unknown key or a bad value fails here, not after
     the calibration (the networks are built late)."""
-    from ..track.trackers.nets import NetConfig
+    from ..track.trackers.nets import NET_SETTINGS, NetConfig
 
-    unknown = sorted(set(net) - {f.name for f in fields(NetConfig)})
+    unknown = sorted(set(net) - NET_SETTINGS)
     if unknown:
         raise PhySynthError(f"unknown network setting(s) {', '.join(unknown)}")
-    NetConfig(**net)
+    NetConfig.from_settings(**net)
 
 
 def quick_config(**overrides: Any) -> StudyConfig:

@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import ArgumentError
 from ..transform import isometry_matrix
 from . import require_torch
 from .features import NetArrays, network_arrays, route_frame, window_starts
@@ -59,7 +60,7 @@ class WindowSpec:
 
     def __post_init__(self) -> None:
         if min(self.length, self.stride, self.decimation) < 1 or self.length_scale_m <= 0:
-            raise ValueError(f"invalid WindowSpec: {self!r}")
+            raise ArgumentError(f"invalid WindowSpec: {self!r}")
 
 
 def window_item(arr: NetArrays, start: int, length: int) -> dict[str, Any]:

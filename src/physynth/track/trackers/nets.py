@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
 import numpy as np
@@ -50,6 +50,7 @@ from ..features import (
     window_starts,
 )
 from ..inputs import TrackInput
+from ..torch_data import WindowSpec
 from .base import ProgressFn
 
 torch = require_torch()
@@ -61,7 +62,7 @@ F = torch.nn.functional
 class NetConfig:
     """Architecture, windows and schedule of a learned tracker (lengths in network steps).
 
-    ``age_weighted_direction``: the far-field direction input weights each range by its age
+    ``window.age_weighted_direction``: the far-field direction input weights each range by its age
     (:func:`~physynth.track.features.network_arrays`); False restores the unweighted solve.
     ``random_isometry``: every training window is turned about the vertical through the anchor
     centroid by a uniform angle and mirrored with probability 1/2
@@ -70,7 +71,7 @@ class NetConfig:
     works (docs/tracking.md, "Runs in other directions"). Such a network also predicts on
     ``test_isometries`` copies of the test run (1, 2, 4 or 8: the turns by multiples of 90 deg, with their
     mirror images from 2 on) and averages the predictions moved back (test-time augmentation; 1: none).
-    ``route_frame``: every run, for training and for prediction, is turned so that its route heading,
+    ``window.route_frame``: every run, for training and for prediction, is turned so that its route heading,
     estimated from its own ranges, points east (:func:`~physynth.track.features.route_frame`): the network
     learns the shape of the routes relative to their heading, not their compass heading, and is lost on
     a route of another shape (docs/tracking.md, the synthetic loop). Excludes ``random_isometry``.
@@ -80,11 +81,10 @@ class NetConfig:
     heads: int = 4
     rnn: str = "gru"
     layers: int = 1
-    decimation: int = 10
-    length_scale_m: float = 10.0
-    anchor_scale_m: float = 2.0
-    window_steps: int = 64
-    stride_steps: int = 16
+    window: WindowSpec = WindowSpec()
+    """The windows the network reads and how their features are built (length and stride in network steps,
+    the decimation, the scales, IMU, direction weighting, route frame); its ``ekf_prior`` follows
+    :attr:`ekf_prior` (``none``: False)."""
     burn_in_steps: int = 8
     batch_size: int = 32
     epochs: int = 200
@@ -104,11 +104,8 @@ class NetConfig:
     per-step input (:func:`~physynth.track.features.ekf_prior_rel_m`); ``residual``: that input, and the
     network's output is added to it, so the network learns a correction of the filter (where it coasts
     through an outage or follows a wrong range) instead of the position itself."""
-    use_imu: bool = False
-    age_weighted_direction: bool = True
     random_isometry: bool = False
     test_isometries: int = 8
-    route_frame: bool = False
     likelihood: bool = True
     """The head gives a mean and a log-variance per axis, trained with the beta-NLL (Gaussian negative
     log-likelihood weighted by the detached variance to the power ``nll_beta``, so the mean learns as
@@ -119,9 +116,15 @@ class NetConfig:
     device: str = "auto"
 
     def __post_init__(self) -> None:
+        if isinstance(self.window, dict):  # as :meth:`to_dict` gives it
+            object.__setattr__(self, "window", WindowSpec(**self.window))
+        if not isinstance(self.window, WindowSpec):
+            raise PhySynthError(f"window must be a WindowSpec, got {type(self.window).__name__}")
+        if self.window.ekf_prior != (self.ekf_prior != "none"):  # the windows carry the prior the net uses
+            object.__setattr__(self, "window", replace(self.window, ekf_prior=self.ekf_prior != "none"))
         if self.test_isometries not in (1, 2, 4, 8):
             raise PhySynthError(f"test_isometries must be 1, 2, 4 or 8, got {self.test_isometries}")
-        if self.route_frame and self.random_isometry:
+        if self.window.route_frame and self.random_isometry:
             raise PhySynthError("route_frame and random_isometry exclude each other (a route frame keeps the "
                                 "routes' heading relative to themselves; random turns remove it)")
         if self.lr_schedule not in ("constant", "cosine"):
@@ -133,19 +136,51 @@ class NetConfig:
             raise PhySynthError(f"nll_beta must be in [0, 1], got {self.nll_beta}")
         if self.rnn not in ("gru", "lstm"):
             raise PhySynthError(f"unknown recurrent model '{self.rnn}' (gru or lstm)")
-        if self.burn_in_steps >= self.window_steps:
+        if self.burn_in_steps >= self.window.length:
             raise PhySynthError("burn_in_steps must be smaller than window_steps")
-        if min(self.hidden, self.heads, self.layers, self.decimation, self.window_steps, self.stride_steps,
-               self.batch_size) < 1 or self.hidden % self.heads:
+        if min(self.hidden, self.heads, self.layers, self.batch_size) < 1 or self.hidden % self.heads:
             raise PhySynthError(f"invalid network configuration: {self!r}")
 
+    @classmethod
+    def from_settings(cls, **settings: Any) -> NetConfig:
+        """A configuration from its settings by name (:data:`NET_SETTINGS`: the fields, with the window's
+        by their own names, ``window_steps=32``; see :meth:`with_settings`)."""
+        return cls().with_settings(**settings)
+
+    def with_settings(self, **settings: Any) -> NetConfig:
+        """This configuration with ``settings`` changed: fields of its own, or the fields of its window by
+        their names in :data:`WINDOW_SETTINGS` (``window_steps``, ``stride_steps``, ``decimation``,
+        ``length_scale_m``, ``anchor_scale_m``, ``use_imu``, ``age_weighted_direction``, ``route_frame``);
+        ``window`` itself as a :class:`~physynth.track.torch_data.WindowSpec` or a mapping of the fields it
+        changes. How a study's ``net`` overrides, ``NetTracker(**overrides)`` and a saved state (:meth:`to_dict`)
+        set a configuration."""
+        own = {k: v for k, v in settings.items() if k not in WINDOW_SETTINGS}
+        window = own.pop("window", self.window)
+        if isinstance(window, dict):
+            window = replace(self.window, **window)
+        moved = {WINDOW_SETTINGS[k]: v for k, v in settings.items() if k in WINDOW_SETTINGS}
+        return replace(self, window=replace(window, **moved) if moved else window, **own)
+
     def to_dict(self) -> dict[str, Any]:
+        """The fields, the window's as a mapping of its own: ``NetConfig(**d)`` and :meth:`from_settings`
+        take it back (a saved state's; one of a release before the window, with the window's fields
+        among the others, reads back with :meth:`from_settings`)."""
         return asdict(self)
 
     @property
     def n_global(self) -> int:
         """Per-step features the networks read (``g``): 12, 15 with the ``ekf`` prior."""
         return N_GLOBAL_FEATURES + (N_EKF_FEATURES if self.ekf_prior != "none" else 0)
+
+
+WINDOW_SETTINGS = {"window_steps": "length", "stride_steps": "stride", "decimation": "decimation",
+                   "length_scale_m": "length_scale_m", "anchor_scale_m": "anchor_scale_m", "use_imu": "use_imu",
+                   "age_weighted_direction": "age_weighted_direction", "route_frame": "route_frame"}
+"""The settings of :class:`NetConfig` that are fields of its window (:attr:`NetConfig.window`), by setting
+name: the field of :class:`~physynth.track.torch_data.WindowSpec` each one sets."""
+NET_SETTINGS = frozenset({*(f.name for f in fields(NetConfig) if f.name != "window"), *WINDOW_SETTINGS})
+"""The settings of a :class:`NetConfig` by name (:meth:`NetConfig.with_settings`): a study's ``net``
+overrides (:class:`~physynth.studies.tracking_config.StudyConfig`), ``NetTracker(**overrides)``."""
 
 
 LOG_VAR_RANGE = (-12.0, 6.0)
@@ -269,20 +304,15 @@ class NetTracker:
             raise PhySynthError(f"unknown network '{arch}' (aoi-fusion or bilstm)")
         self.arch = arch
         self.name = arch
-        self.config = replace(config or NetConfig(), **overrides)
+        self.config = (config or NetConfig()).with_settings(**overrides)
         self.model: Any = None
         self.n_anchors = 0
         self.history: list[dict[str, Any]] = []
 
     # ------------------------------------------------------------------ training
-    def window_spec(self) -> Any:
-        from ..torch_data import WindowSpec
-
-        c = self.config
-        return WindowSpec(length=c.window_steps, stride=c.stride_steps, decimation=c.decimation,
-                          length_scale_m=c.length_scale_m, anchor_scale_m=c.anchor_scale_m, use_imu=c.use_imu,
-                          age_weighted_direction=c.age_weighted_direction, route_frame=c.route_frame,
-                          ekf_prior=c.ekf_prior != "none")
+    def window_spec(self) -> WindowSpec:
+        """The windows the network reads (``config.window``)."""
+        return self.config.window
 
     def device(self) -> Any:
         """``config.device``; ``auto``: the GPU when one is present, else the CPU (deterministic there)."""
@@ -347,7 +377,7 @@ class NetTracker:
             if swa is not None and ep >= epochs // 2:
                 swa.update_parameters(self.model)
             if progress is not None:
-                rmse = math.sqrt(max(losses[-1], 0.0)) * c.length_scale_m
+                rmse = math.sqrt(max(losses[-1], 0.0)) * c.window.length_scale_m
                 progress(f"{self.name} {stage}: epoch {ep + 1}/{epochs}, training RMSE {rmse:.3f} m")
         if swa is not None:
             self.model.load_state_dict(swa.module.state_dict())
@@ -355,7 +385,8 @@ class NetTracker:
                              "final_lr": float(opt.param_groups[0]["lr"]), "windows": len(dataset),
                              "weight_average": c.weight_average,
                              "averaged_epochs": 0 if swa is None else int(swa.n_averaged),
-                             "random_isometry": c.random_isometry, "route_frame": c.route_frame, "loss": losses})
+                             "random_isometry": c.random_isometry, "route_frame": c.window.route_frame,
+                             "loss": losses})
         self.model.eval()
         return losses
 
@@ -378,9 +409,9 @@ class NetTracker:
         c = self.config
         arr = self.window_spec().arrays(inp, turn=False)
         frame = np.eye(3)
-        if c.route_frame:
+        if c.window.route_frame:
             arr, frame = route_frame(arr)
-        n, w, burn = arr.x.shape[0], c.window_steps, c.burn_in_steps
+        n, w, burn = arr.x.shape[0], c.window.length, c.burn_in_steps
         starts = window_starts(n, w, w - burn)
         idx = np.minimum(starts[:, None] + np.arange(w), n - 1)
         dev = self.device()
@@ -395,10 +426,10 @@ class NetTracker:
         for j, s in enumerate(starts):  # each window's warm steps (all of the first window)
             keep = np.arange(w) >= (0 if s == 0 else burn)
             out[idx[j][keep]] = pred[j][keep]
-        mean = (out[:, :3] @ frame) * c.length_scale_m  # back from the route frame
+        mean = (out[:, :3] @ frame) * c.window.length_scale_m  # back from the route frame
         var = np.full_like(mean, np.nan)
         if c.likelihood:
-            var = (out[:, 3:] @ (frame * frame)) * c.length_scale_m**2
+            var = (out[:, 3:] @ (frame * frame)) * c.window.length_scale_m**2
             mean, var = self._fallback(inp, arr, mean, var)
         pos = upsample(inp, arr.step, mean)
         var_k = upsample(inp, arr.step, var) - inp.ref_enu_m if c.likelihood else np.full_like(pos, np.nan)
@@ -464,7 +495,7 @@ class NetTracker:
     @classmethod
     def from_state(cls, state: dict[str, Any]) -> NetTracker:
         # a state saved before the likelihood head has none: its config leaves the field out
-        tr = cls(state["arch"], NetConfig(**{"likelihood": False, **state["config"]}))
+        tr = cls(state["arch"], NetConfig.from_settings(**{"likelihood": False, **state["config"]}))
         tr._build(state["n_anchors"])
         try:
             tr.model.load_state_dict(state["weights"])
