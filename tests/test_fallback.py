@@ -134,8 +134,8 @@ def test_ekf_restarts_where_it_lost_the_path_and_the_ranges_say_so(flat_site):
     upd = np.flatnonzero(inp.fresh.any(axis=1) & (inp.t_s >= inp.first_range_s))
     truth = inp.pos_rel_m[upd]
     start = truth[0] * [-1.0, -1.0, 1.0]  # the mirror image of the start through the anchors' centroid
-    lost, _ = ekf._filter(inp, int(upd[0]), start, upd)
-    kept, _ = ekf._filter(inp, int(upd[0]), start, upd, ls=truth)  # a multilateration that is right
+    lost, _ = ekf.filter_updates(inp, int(upd[0]), start, upd)
+    kept, _ = ekf.filter_updates(inp, int(upd[0]), start, upd, ls=truth)  # a multilateration that is right
     tail = slice(len(upd) // 2, None)
     err_lost = np.linalg.norm(lost[tail, :3] - truth[tail], axis=1).mean()
     err_kept = np.linalg.norm(kept[tail, :3] - truth[tail], axis=1).mean()

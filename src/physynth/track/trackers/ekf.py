@@ -105,7 +105,7 @@ class EkfTracker:
         x0 = LsTracker(block_steps=32).solve_step(inp, k0)
         upd = k0 + np.flatnonzero(fresh_any[k0:])  # steps with a fresh range; upd[0] == k0
         ls = LsTracker().predict_rel(inp)[upd] if math.isfinite(self.reinit_m) else None
-        states, pz = self._filter(inp, k0, x0, upd, ls)
+        states, pz = self.filter_updates(inp, k0, x0, upd, ls)
         # every step from the last update step's state, propagated without noise (vectorised)
         steps = np.arange(k0, inp.n_steps)
         j = np.searchsorted(upd, steps, side="right") - 1
@@ -138,10 +138,14 @@ class EkfTracker:
         dp = dt * dt * (d_cum[k] - d_cum[m] - (k - m)[:, None] * s_cum[m] - 0.5 * ds)
         return dp, dt * ds
 
-    def _filter(self, inp: TrackInput, k0: int, x0: np.ndarray, upd: np.ndarray,
-                ls: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def filter_updates(self, inp: TrackInput, k0: int, x0: np.ndarray, upd: np.ndarray,
+                       ls: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """States (len(upd), 6) after the range updates (and the height update, with a height prior) of
-        each step of ``upd``, and (len(upd), 3) their ``P_zz, P_zv, P_vv`` of the vertical.
+        each step of ``upd``, and (len(upd), 3) their ``P_zz, P_zv, P_vv`` of the vertical: the filter
+        started at step ``k0`` (``upd[0]``) at position ``x0`` (3,) [m, relative to ``inp.ref_enu_m``] at
+        rest. ``ls`` (len(upd), 3): a multilateration at the update steps, where the filter restarts when
+        it has lost the path (``reinit_m``); None: no restart. :meth:`predict_rel_var` runs it from the
+        first fix.
 
         Between two update steps T = n dt apart the filter is linear: one jump with F(T) = [[I, T I],
         [0, I]], Q(T) = q [[T^3/3 I, T^2/2 I], [T^2/2 I, T I]] (the exact composition of n grid steps)
