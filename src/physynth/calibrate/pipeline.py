@@ -53,7 +53,6 @@ from .components.ranging import RangingFit
 from .components.timing import TimingFit, late_burst_params
 from .geometry import AnchorPolicy, PathKind
 from .inputs import CalibrationInputs, is_imu_only, prepare_inputs
-from .inputs import fingerprint as _fingerprint  # noqa: F401  (studies/tracking.py imports this name)
 from .report import CalibrationResult, ReportBuilder
 from .report_fields import reconcile_parameters, unused_option_notes
 from .uwb_fit import RANGE_BIAS_LAWS
