@@ -109,14 +109,14 @@ def _one_dark_run(heard_until: int, b_back: int, n: int = 600) -> tuple:
     dark = [tag_fit.dark_runs(tab, ok)]
     seqs = tag_fit.anchor_sequences([["A0", "A1"]], [tab], [ok])
     cand = [(dark[0][1] - dark[0][0]) >= RATE_HZ - 1e-9]
-    pos = [tag_fit._boundary_positions(dark[0][0][cand[0]], dark[0][1][cand[0]], int(np.ceil(RATE_HZ - 1e-9)))]
+    pos = [tag_fit.boundary_positions(dark[0][0][cand[0]], dark[0][1][cand[0]], int(np.ceil(RATE_HZ - 1e-9)))]
     return [tab], dark, cand, pos, seqs, [np.zeros(n, dtype=bool)]
 
 
 def _tag_length(chain: tuple[float, float, float], heard_until: int = 100, b_back: int = 400) -> tuple[float, float]:
     tabs, dark, cand, pos, seqs, masks = _one_dark_run(heard_until, b_back)
     tag_chain = tag_fit.from_rates(TRUE["tag_outage_onset_prob"] * RATE_HZ, TRUE["tag_outage_mean_s"], 1 / RATE_HZ)
-    odds, lengths = tag_fit._tag_e_step(tabs, dark, cand, pos, seqs, masks, {"A0": chain, "A1": chain}, tag_chain)
+    odds, lengths = tag_fit.tag_e_step(tabs, dark, cand, pos, seqs, masks, {"A0": chain, "A1": chain}, tag_chain)
     return float(odds[0][0]), float(lengths[0][0])
 
 
@@ -140,18 +140,18 @@ def test_tag_posterior_sums_over_every_placement():
     tag_chain = tag_fit.from_rates(TRUE["tag_outage_onset_prob"] * RATE_HZ, TRUE["tag_outage_mean_s"], 1 / RATE_HZ)
     tabs, dark, cand, pos, seqs, masks = _one_dark_run(100, 400)
     s, e = dark[0][0][cand[0]], dark[0][1][cand[0]]
-    whole_only = tag_fit._boundary_positions(s, e, int(e[0] - s[0]))  # the single placement [s, e)
-    odds_whole, len_whole = tag_fit._tag_e_step(tabs, dark, cand, [whole_only], seqs, masks,
+    whole_only = tag_fit.boundary_positions(s, e, int(e[0] - s[0]))  # the single placement [s, e)
+    odds_whole, len_whole = tag_fit.tag_e_step(tabs, dark, cand, [whole_only], seqs, masks,
                                                {"A0": chain, "A1": chain}, tag_chain)
-    odds_all, _ = tag_fit._tag_e_step(tabs, dark, cand, pos, seqs, masks, {"A0": chain, "A1": chain}, tag_chain)
+    odds_all, _ = tag_fit.tag_e_step(tabs, dark, cand, pos, seqs, masks, {"A0": chain, "A1": chain}, tag_chain)
     assert len_whole[0][0] == pytest.approx(300.0)
     assert odds_all[0][0] > odds_whole[0][0] + 1e-3
     # the single placement is the old whole-run formula: tag chain plus each anchor's split run
-    nb = [tag_fit._run_neighbours(sq, s, e, masks[0]) for sq in seqs]
-    ll1 = sum(tag_fit._split_logp(chain, x["left_heard"], x["ps"] - x["prev"] - 1, "left")
-              + tag_fit._split_logp(chain, x["right_heard"], x["nxt"] - x["pe"], "right") for x in nb)
-    ll0 = sum(tag_fit._whole_logp(chain, x["left_heard"], x["right_heard"], x["nxt"] - x["prev"] - 1) for x in nb)
-    expect = tag_fit._tag_log_odds(s, e, 600, *tag_chain) + ll1 - ll0
+    nb = [tag_fit.run_neighbours(sq, s, e, masks[0]) for sq in seqs]
+    ll1 = sum(tag_fit.split_logp(chain, x["left_heard"], x["ps"] - x["prev"] - 1, "left")
+              + tag_fit.split_logp(chain, x["right_heard"], x["nxt"] - x["pe"], "right") for x in nb)
+    ll0 = sum(tag_fit.whole_logp(chain, x["left_heard"], x["right_heard"], x["nxt"] - x["prev"] - 1) for x in nb)
+    expect = tag_fit.tag_log_odds(s, e, 600, *tag_chain) + ll1 - ll0
     assert odds_whole[0][0] == pytest.approx(float(expect[0]), rel=1e-9)
 
 
@@ -177,7 +177,7 @@ def test_tag_m_step_counts_an_outage_under_way_at_the_start_as_ended_not_begun()
         tabs.append(AttemptTable(t_s=t, attempted=empty, heard=empty, recorded=True, burst_rate_hz=RATE_HZ))
         dark.append((s, e, (s == 0) | (e == nb)))
         w.append(np.ones(s.size))
-    tag = tag_fit._tag_m_step(tabs, dark, w, 1.0 / RATE_HZ)
+    tag = tag_fit.tag_m_step(tabs, dark, w, 1.0 / RATE_HZ)
     n_end = sum(int(np.sum(e < nb)) for _, e, _ in dark)
     assert n_end > 1000
     # relative standard errors 1 / sqrt(events); K of them

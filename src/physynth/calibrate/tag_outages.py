@@ -109,7 +109,7 @@ def _chain_of_fit(fit: dict[str, Any], burst_rate_hz: float) -> tuple[float, flo
     return 0.0, 1.0, pd
 
 
-def _run_neighbours(seq: AnchorSequence, s: np.ndarray, e: np.ndarray, masked: np.ndarray) -> dict[str, np.ndarray]:
+def run_neighbours(seq: AnchorSequence, s: np.ndarray, e: np.ndarray, masked: np.ndarray) -> dict[str, np.ndarray]:
     """Where the anchor's run of misses through each dark run [s, e) begins and ends (attempt indices).
 
     ``prev`` / ``nxt``: its last / next attempt with a code other than "missed" before / from the run
@@ -134,16 +134,18 @@ def _run_neighbours(seq: AnchorSequence, s: np.ndarray, e: np.ndarray, masked: n
             "right_heard": has_next & (code[np.minimum(nxt, n - 1)] == 1)}
 
 
-def _split_logp(chain: tuple[float, float, float], heard: np.ndarray, m: np.ndarray, side: str) -> np.ndarray:
-    """Log-probability of the piece of an anchor's run of misses on one side of a tag outage: m misses
-    after a heard attempt (or the block start) up to the outage (``left``), or from the outage's end to
-    a heard attempt (or the block end) (``right``)."""
+def split_logp(chain: tuple[float, float, float], heard: np.ndarray, m: np.ndarray, side: str) -> np.ndarray:
+    """Log-probability of the piece of an anchor's run of misses on one side (``side``) of a tag outage.
+
+    ``left``: m misses after a heard attempt (or the block start) up to the outage; ``right``: m misses
+    from the outage's end to a heard attempt (or the block end).
+    """
     al, be, pd = chain
     cut = "trailing" if side == "left" else "leading"
     return np.where(heard, _run_logp(al, be, pd, cut, m), _run_logp(al, be, pd, "full", m))
 
 
-def _whole_logp(chain: tuple[float, float, float], lh: np.ndarray, rh: np.ndarray, m: np.ndarray) -> np.ndarray:
+def whole_logp(chain: tuple[float, float, float], lh: np.ndarray, rh: np.ndarray, m: np.ndarray) -> np.ndarray:
     """Log-probability of an anchor's whole run of m misses through a dark run (no tag outage)."""
     al, be, pd = chain
     out = np.zeros(m.shape)
@@ -172,15 +174,18 @@ def _tag_log_odds_parts(p: np.ndarray, q: np.ndarray, n_bursts: int, alpha: floa
     return t_p, t_q
 
 
-def _tag_log_odds(s: np.ndarray, e: np.ndarray, n_bursts: int, alpha: float, beta: float) -> np.ndarray:
+def tag_log_odds(s: np.ndarray, e: np.ndarray, n_bursts: int, alpha: float, beta: float) -> np.ndarray:
     """log P(tag off exactly over [s, e), up around it) - log P(tag up throughout), per burst-grid run."""
     t_p, t_q = _tag_log_odds_parts(s, e, n_bursts, alpha, beta)
     return t_p + t_q
 
 
-def _boundary_positions(s: np.ndarray, e: np.ndarray, min_len: int) -> tuple[np.ndarray, ...]:
-    """Every possible start p in [s_k, e_k - min_len] and end q in [s_k + min_len, e_k] of a tag outage
-    inside each dark run k: (p, run of p, q, run of q), flat over the runs."""
+def boundary_positions(s: np.ndarray, e: np.ndarray, min_len: int) -> tuple[np.ndarray, ...]:
+    """Every possible start and end of a tag outage of at least ``min_len`` bursts inside each dark run.
+
+    Starts p in [s_k, e_k - min_len] and ends q in [s_k + min_len, e_k] of each dark run k, returned as
+    (p, run of p, q, run of q), flat over the runs.
+    """
     n_pos = np.maximum(e - s - min_len + 1, 0)
     run = np.repeat(np.arange(s.size), n_pos)
     off = np.arange(run.size) - np.repeat(np.cumsum(n_pos) - n_pos, n_pos)
@@ -197,15 +202,15 @@ def _anchor_boundary_terms(seq: AnchorSequence, s: np.ndarray, e: np.ndarray, ma
     ``pos``, g at every end, the log-probability of the whole run without tag outage), zero where the
     anchor says nothing about the run.
     """
-    nb = _run_neighbours(seq, s, e, masked)
+    nb = run_neighbours(seq, s, e, masked)
     p, rp, q, rq = pos
     m1 = np.searchsorted(seq.burst, p) - nb["prev"][rp] - 1
     m2 = nb["nxt"][rq] - np.searchsorted(seq.burst, q)
     m0 = nb["nxt"] - nb["prev"] - 1
     use = nb["use"]
-    f = np.where(use[rp], _split_logp(chain, nb["left_heard"][rp], m1, "left"), 0.0)
-    g = np.where(use[rq], _split_logp(chain, nb["right_heard"][rq], m2, "right"), 0.0)
-    whole = np.where(use, _whole_logp(chain, nb["left_heard"], nb["right_heard"], m0), 0.0)
+    f = np.where(use[rp], split_logp(chain, nb["left_heard"][rp], m1, "left"), 0.0)
+    g = np.where(use[rq], split_logp(chain, nb["right_heard"][rq], m2, "right"), 0.0)
+    whole = np.where(use, whole_logp(chain, nb["left_heard"], nb["right_heard"], m0), 0.0)
     return f, g, whole
 
 
@@ -236,9 +241,9 @@ def _tag_posterior(s: np.ndarray, e: np.ndarray, n_bursts: int, f: np.ndarray, g
     return odds, length
 
 
-def _tag_m_step(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarray, ...]], w: list[np.ndarray],
+def tag_m_step(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarray, ...]], w: list[np.ndarray],
                 period: float, lengths: list[np.ndarray] | None = None) -> dict[str, Any]:
-    """Exponential tag outages seen only above TAG_OUTAGE_MIN_S: onset rate and mean of the dark runs.
+    """The EM's M-step: onset rate and mean of exponential tag outages seen only above TAG_OUTAGE_MIN_S.
 
     ``w`` weights each dark run by the probability that it is a tag outage (0 or 1 for a hard split);
     ``lengths`` (bursts, per dark run) are the tag outages' expected lengths inside the runs (the E-step's),
@@ -286,12 +291,15 @@ def _masks(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarray, ...]],
     return masks
 
 
-def _tag_e_step(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarray, ...]], cand: list[np.ndarray],
+def tag_e_step(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarray, ...]], cand: list[np.ndarray],
                 pos: list[tuple[np.ndarray, ...]], seqs: Sequence[AnchorSequence], masks: list[np.ndarray],
                 chains: dict[str, tuple[float, float, float]], tag_chain: tuple[float, float]
                 ) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Per trace, every dark run's log-odds of holding a tag outage (-inf for runs shorter than the
-    minimum) and the tag outage's expected length in bursts (the run's own length where not a candidate)."""
+    """The EM's E-step: per trace, each dark run's log-odds of holding a tag outage and its expected length.
+
+    The log-odds are -inf for runs shorter than the minimum; the expected length [bursts] is the run's
+    own length where it is not a candidate.
+    """
     n_pos = [p[0].size for p in pos]
     f = [np.zeros(n) for n in n_pos]
     g = [np.zeros(n) for n in n_pos]
@@ -349,13 +357,13 @@ def fit_tag_outages(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarra
     period = 1.0 / burst_rate_hz
     d_min_bursts = TAG_OUTAGE_MIN_S * burst_rate_hz - 1e-9
     cand = [(e - s) >= d_min_bursts for s, e, _ in dark]
-    pos = [_boundary_positions(s[c], e[c], int(np.ceil(d_min_bursts))) for (s, e, _), c in zip(dark, cand, strict=True)]
+    pos = [boundary_positions(s[c], e[c], int(np.ceil(d_min_bursts))) for (s, e, _), c in zip(dark, cand, strict=True)]
     lengths: list[np.ndarray] | None = None
     no_ex = [np.zeros(t.t_s.size, dtype=bool) for t in tabs]
     n_cand = int(sum(c.sum() for c in cand))
     ll_indep = float(sum(f.get("log_likelihood", 0.0) for f in fits.values()))
     if not n_cand:
-        tag = _tag_m_step(tabs, dark, [np.zeros(c.size) for c in cand], period)
+        tag = tag_m_step(tabs, dark, [np.zeros(c.size) for c in cand], period)
         tag["note"] = f"no run of >= {TAG_OUTAGE_MIN_S:.3g} s without any in-range anchor: no tag outage"
         return tag, no_ex, None, None
     w = [c.astype(float) for c in cand]
@@ -373,7 +381,7 @@ def fit_tag_outages(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarra
             else:
                 stats_t, cur_fits = None, fits
             z_fitted = [zz.copy() for zz in z]
-        tag = _tag_m_step(tabs, dark, w, period, lengths)
+        tag = tag_m_step(tabs, dark, w, period, lengths)
         history.append(round(tag["events"], 2))
         if not tag["onset_prob"]:
             break
@@ -383,7 +391,7 @@ def fit_tag_outages(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarra
         prev = par
         al_t, be_t = from_rates(tag["onset_prob"] * burst_rate_hz, tag["mean_s"], period)
         # E-step: over where in each dark run the tag outage begins and ends
-        odds, lengths = _tag_e_step(tabs, dark, cand, pos, seqs, masks,
+        odds, lengths = tag_e_step(tabs, dark, cand, pos, seqs, masks,
                                     {a: _chain_of_fit(f, burst_rate_hz) for a, f in cur_fits.items()}, (al_t, be_t))
         w = [np.where(c, expit(o), 0.0) for o, c in zip(odds, cand, strict=True)]
         z = [ww > 0.5 for ww in w]
@@ -392,7 +400,7 @@ def fit_tag_outages(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarra
     if n_tag and tag["onset_prob"]:
         al_t, be_t = from_rates(tag["onset_prob"] * burst_rate_hz, tag["mean_s"], period)
         # tag chain: up -> up on every transition, plus each attributed run's log-odds against staying up
-        ll_tag = float(sum((tab.t_s.size - 1) * np.log1p(-al_t) + np.sum(_tag_log_odds(s[zz], e[zz], tab.t_s.size,
+        ll_tag = float(sum((tab.t_s.size - 1) * np.log1p(-al_t) + np.sum(tag_log_odds(s[zz], e[zz], tab.t_s.size,
                                                                                         al_t, be_t))
                            for tab, (s, e, _), zz in zip(tabs, dark, z_fitted or z, strict=True)))
     ll_joint = float(sum(f.get("log_likelihood", 0.0) for f in cur_fits.values())) + ll_tag
@@ -404,7 +412,7 @@ def fit_tag_outages(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarra
                n_candidates=n_cand, em_iterations=len(history), events_per_iteration=history,
                lr_statistic=float(lr))
     if n_tag == 0 or lr < TAG_LR_MIN:
-        tag = _tag_m_step(tabs, dark, [np.zeros(c.size) for c in cand], period)
+        tag = tag_m_step(tabs, dark, [np.zeros(c.size) for c in cand], period)
         tag.update(n_candidates=n_cand, lr_statistic=float(lr),
                    note=(f"{n_cand} dark runs of >= {TAG_OUTAGE_MIN_S:.3g} s, explained by overlapping per-anchor "
                          f"outages (tag process LR {lr:.1f} < {TAG_LR_MIN:g}): no tag outage"))
