@@ -95,9 +95,6 @@ def register_commands() -> None:
     _registered = True
 
 
-_register_commands = register_commands  # the old name, still used by tools/make_docs_reference.py
-
-
 def main(argv: list[str] | None = None) -> None:
     """Entry point: run the app, turning user mistakes into one line on stderr and exit code 2."""
     register_commands()
