@@ -20,9 +20,9 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from physynth.calibrate import calibrate  # noqa: E402
+from physynth.data import HANYANG_TRAJECTORY_A_RUNS as RUNS  # noqa: E402
 from physynth.io.importers import import_hanyang  # noqa: E402
 
-RUNS = ("LOS/Trajectory_A/Case_1", "LOS/Trajectory_A/Case_2", "NLOS/Trajectory_A/Case_1", "NLOS/Trajectory_A/Case_2")
 TARGET_S = 30.0
 
 

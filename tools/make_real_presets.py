@@ -28,12 +28,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
 from physynth.calibrate import calibrate  # noqa: E402
+from physynth.data import HANYANG_TRAJECTORY_A_RUNS  # noqa: E402
 from physynth.io.importers import import_broad, import_hanyang  # noqa: E402
 from physynth.io.scenario_file import save_scenario  # noqa: E402
 from physynth.scenario import scenario_from_dict, scenario_to_dict  # noqa: E402
 
-HANYANG_RUNS = ("LOS/Trajectory_A/Case_1", "LOS/Trajectory_A/Case_2", "NLOS/Trajectory_A/Case_1",
-                "NLOS/Trajectory_A/Case_2")
 BROAD_TRIALS = ("10_undisturbed_slow_translation_A", "15_undisturbed_fast_translation_A",
                 "21_undisturbed_fast_combined")
 
@@ -76,14 +75,14 @@ def main() -> None:
                     help="folder of hanyang-uwb and broad-imu")
     args = ap.parse_args()
     runs = [import_hanyang(args.data / "hanyang-uwb" / "Dynamic_measurements" / r, crop_to_uwb=True)[0]
-            for r in HANYANG_RUNS]
+            for r in HANYANG_TRAJECTORY_A_RUNS]
     trials = [import_broad(args.data / "broad-imu" / "data_mat" / f"{t}.mat")[0] for t in BROAD_TRIALS]
     handheld = scenario_to_dict(calibrate(trials, name="handheld-broad", sources=list(BROAD_TRIALS)).scenario)
-    walk = scenario_to_dict(calibrate(runs, name="walk-hanyang", sources=list(HANYANG_RUNS)).scenario)
+    walk = scenario_to_dict(calibrate(runs, name="walk-hanyang", sources=list(HANYANG_TRAJECTORY_A_RUNS)).scenario)
     handheld["description"] = HANDHELD_DESCRIPTION
     walk = walk_imu(walk, handheld)
     walk["description"] = WALK_DESCRIPTION
-    for data, what in ((walk, "Hanyang Trajectory_A: " + ", ".join(HANYANG_RUNS)),
+    for data, what in ((walk, "Hanyang Trajectory_A: " + ", ".join(HANYANG_TRAJECTORY_A_RUNS)),
                        (handheld, "BROAD: " + ", ".join(BROAD_TRIALS))):
         for key in ("created_utc",):  # a rebuilt preset differs only where the calibration differs
             data["provenance"].pop(key, None)

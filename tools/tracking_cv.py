@@ -52,7 +52,11 @@ from pathlib import Path
 
 import numpy as np
 
-RUNS = ("LOS/Case_1", "LOS/Case_2", "NLOS/Case_1", "NLOS/Case_2")
+from physynth.data import HANYANG_TRAJECTORY_A_RUNS, hanyang_run_label
+
+RUN_PATHS = {hanyang_run_label(r): r for r in HANYANG_TRAJECTORY_A_RUNS}
+"""The runs by their ``--runs`` label (``LOS/Case_1``) -> path under ``Dynamic_measurements``."""
+RUNS = tuple(RUN_PATHS)
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hanyang-uwb" / "Dynamic_measurements"
 CLI = [sys.executable, "-m", "physynth.cli"]
 ORDER = ("NOAUG", "AUG_GAN", "SYNTH_PHY (synthetic only)", "SYNTH_PHY", "bilstm", "ls", "ekf", "ekf prior",
@@ -116,10 +120,9 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     ds = {}
     for run in runs:  # the runs as datasets
-        env, case = run.split("/")
         ds[run] = args.out / "data" / _name(run)
         if not (ds[run] / "dataset.json").is_file():
-            _run(CLI + ["import", "hanyang", str(args.data / env / "Trajectory_A" / case), "--crop-to-uwb",
+            _run(CLI + ["import", "hanyang", str(args.data / RUN_PATHS[run]), "--crop-to-uwb",
                         "--out", str(ds[run]), "--quiet"], args.out / f"import-{_name(run)}.log")
     extra = ["--frame", args.frame]
     if args.turn_test:

@@ -102,6 +102,19 @@ DATASETS: dict[str, Dataset] = {
 }
 """The datasets :func:`fetch` knows, by name."""
 
+HANYANG_TRAJECTORY_A_RUNS = ("LOS/Trajectory_A/Case_1", "LOS/Trajectory_A/Case_2", "NLOS/Trajectory_A/Case_1",
+                             "NLOS/Trajectory_A/Case_2")
+"""The four walks of ``hanyang-uwb`` the project calibrates and scores on (Trajectory_A, LOS and NLOS, two
+cases each), as paths under the dataset's ``Dynamic_measurements`` folder, in this fixed order: the runs
+of the shipped ``walk-hanyang`` preset and of the tracking study's default split (the last one is its test
+run)."""
+
+
+def hanyang_run_label(run: str) -> str:
+    """The short label of a Hanyang run, without its trajectory: ``LOS/Case_1`` for ``LOS/Trajectory_A/Case_1``."""
+    env, _trajectory, case = run.split("/")
+    return f"{env}/{case}"
+
 
 def list_datasets() -> list[Dataset]:
     """The datasets that can be fetched, in a fixed order."""
