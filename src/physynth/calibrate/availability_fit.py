@@ -1,6 +1,6 @@
 """Calibration of availability: link range, per-burst dropout, outage onset and duration, tag outages.
 
-The generator (:mod:`physynth.availability`, :mod:`physynth.uwb`) lets each anchor alternate between
+The generator (:mod:`physynth.models.availability`, :mod:`physynth.models.uwb`) lets each anchor alternate between
 *up* and *outage* in continuous time (onset rate ``outage_onset_prob * burst_rate_hz`` per second of
 up time, exponential outages of mean ``outage_mean_s``), drops each attempt while up with probability
 ``dropout_prob``, and refuses the link with probability ``1 - 1 / (1 + exp((r - max_range_m) /

@@ -2,11 +2,11 @@
 anchor layout from ground truth; and :func:`transfer_scenario`, which moves a scenario's sensor,
 channel and availability models onto the geometry and motion of real recordings.
 
-Conventions are the generator's (:mod:`physynth.path`, :mod:`physynth.motion`):
+Conventions are the generator's (:mod:`physynth.models.path`, :mod:`physynth.models.motion`):
 
 - a polynomial path is a power series in the normalised arc length u = s / L, rows E, N, U;
 - a waypoints path is a natural cubic spline through ``waypoints_enu_m``, re-parameterised by arc
-  length (:func:`physynth.path.compile_path`);
+  length (:func:`physynth.models.path.compile_path`);
 - the speed is v(t) = v_c g(u) over normalised trip time u, g with maximum 1, so the trip lasts
   T = L / (v_c mean(g)); dwells at the stations come before and after the trip;
 - per-run spreads are half-widths of uniform distributions (+-frac).

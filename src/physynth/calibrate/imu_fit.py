@@ -1,6 +1,6 @@
 """Calibration of the IMU error model from the IMU error = IMU minus truth-derived acceleration.
 
-The generator's accelerometer (:mod:`physynth.imu`, ENU, gravity-free) adds to the true acceleration
+The generator's accelerometer (:mod:`physynth.models.imu`, ENU, gravity-free) adds to the true acceleration
 
 - white noise of one-sided PSD 2 sigma_w^2 per axis (per-sample standard deviation sigma_w sqrt(fs));
 - a bias random walk b(t) = sigma_b W(t) (Allan variance sigma_b^2 tau / 3, PSD sigma_b^2 / (2 pi^2 f^2));
@@ -245,7 +245,7 @@ def fit_imu(traces: Trace | Sequence[Trace], *, cutoff_hz: float | None = None, 
 def simulate_imu_on(t_s: np.ndarray, acc_enu_mps2: np.ndarray, params: ImuParams, *,
                     rng: np.random.Generator, omega_body_radps: np.ndarray | None = None,
                     attitude: Rotation | None = None) -> Imu:
-    """The generator's IMU model (:func:`physynth.imu.simulate_imu`) applied to a given acceleration track.
+    """The generator's IMU model (:func:`physynth.models.imu.simulate_imu`) applied to a given acceleration track.
 
     ``t_s`` (T,) uniform times [s] and ``acc_enu_mps2`` (T, 3) the true acceleration (e.g. derived
     from a real trial's truth, NaN spans filled); the IMU is sampled at ``params.rate_hz`` from t_s[0].

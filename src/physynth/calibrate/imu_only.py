@@ -54,7 +54,7 @@ def body_truth(trace: Trace, cutoff_hz: float, offset_s: float = 0.0, *,
 
     f_b = R_wb^T (a_w - g_w): a_w the low-passed, twice-differentiated truth position, R_wb the truth
     attitude (nearest sample), g_w = (0, 0, -G0). The body rate is the truth's, low-passed. With
-    ``lever_arm_m`` a_w is the sensor point's (:func:`~physynth.calibrate.imu_fit.sensor_truth_acceleration`).
+    ``lever_arm_m`` a_w is the sensor point's (:func:`~physynth.calibrate.imu_truth.sensor_truth_acceleration`).
     """
     return _body_truth_parts(trace, cutoff_hz, offset_s, lever_arm_m)[1:]
 

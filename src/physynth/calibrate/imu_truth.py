@@ -70,7 +70,7 @@ def imu_error(trace: Trace, cutoff_hz: float, offset_s: float = 0.0, *, lever_ar
     ends. The IMU is assumed to be ENU, gravity-free (the trace's ``imu.frame``). ``offset_s``: the
     IMU sample at t is compared with the truth at t - offset (an IMU clock lagging the truth).
     ``lever_arm_m`` (body frame [m]): the rotational acceleration of a sensor there
-    (:func:`lever_arm_design`) counts as part of the truth; needs the truth attitude.
+    (:func:`~.lever_arm.lever_arm_design`) counts as part of the truth; needs the truth attitude.
     """
     if trace.imu is None or trace.imu.acc_mps2 is None:
         raise CalibrationError("trace has no ENU (gravity-free) IMU samples")

@@ -26,7 +26,7 @@ def fit_static_range_bias(sweeps: str | os.PathLike | pd.DataFrame, *, environme
     Parameters
     ----------
     sweeps
-        The ``Static_measurements`` folder (read with :func:`physynth.importers.import_hanyang_static`)
+        The ``Static_measurements`` folder (read with :func:`physynth.io.importers.import_hanyang_static`)
         or the table it returns.
     environment
         ``"LOS"``, ``"NLOS"`` or ``"all"``.

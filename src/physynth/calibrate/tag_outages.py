@@ -79,7 +79,7 @@ def _log_vbw(b: np.ndarray, v: np.ndarray, w: np.ndarray, m: np.ndarray) -> np.n
 
 
 def _run_logp(alpha: float, beta: float, pd: float, kind: str, m: np.ndarray) -> np.ndarray:
-    """Log-probability of runs of m missed attempts of one anchor (the kinds of :class:`RunStats`).
+    """Log-probability of runs of m missed attempts of one anchor (the kinds of :class:`~.dropout_outage.RunStats`).
 
     internal: heard, m misses, heard (the first heard not counted); leading: block start, m misses,
     heard; trailing: heard, m misses, block end; full: block start, m misses, block end (m = 0: no block).
@@ -339,7 +339,7 @@ def fit_tag_outages(tabs: Sequence[AttemptTable], dark: Sequence[tuple[np.ndarra
     """Tag outages and per-anchor outages jointly: which dark runs are tag outages (EM).
 
     Model: every anchor alternates up/outage on its own (the per-anchor chain of
-    :func:`fit_dropout_outage`); a tag process of the same kind, on the burst grid, silences every
+    :func:`~.dropout_outage.fit_dropout_outage`); a tag process of the same kind, on the burst grid, silences every
     anchor while it lasts. A *dark run* (no anchor heard, >= TAG_OUTAGE_MIN_S) is either a tag outage
     or holds a tag outage of at least TAG_OUTAGE_MIN_S, over the whole run or part of it (the anchors'
     own outages filling the edges). E-step: for each dark run the log-odds of the two, summed over every

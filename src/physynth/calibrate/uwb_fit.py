@@ -1,6 +1,6 @@
 """Calibration of the UWB model: time offset, burst schedule, per-anchor LOS/NLOS ranging errors.
 
-Conventions are the generator's (:mod:`physynth.uwb`):
+Conventions are the generator's (:mod:`physynth.models.uwb`):
 
 - stamps lag true time: ``stamp = true time + uwb.time_offset_s``, so the residual of a row is
   ``range - |p(stamp - offset) - a_i|``;
