@@ -251,12 +251,6 @@ def compute_metrics(traces: Iterable[Trace], rate_hz: float = DEFAULT_GRID_RATE_
     return acc.result()
 
 
-def pooled_residuals(traces: Iterable[Trace]) -> np.ndarray:
-    """All signed residuals of the traces, concatenated [m]."""
-    parts = [residuals(t)[0] for t in traces]
-    return np.concatenate(parts) if parts else np.array([])
-
-
 def relative_deviation_pct(real: float, synth: float) -> float:
     """|synth - real| / |real| * 100 (NaN when real is 0 and synth is not)."""
     if real == synth:

@@ -94,15 +94,6 @@ class QuantileSketch:
         if self._n_buffered > self.exact_limit:
             self._fold()
 
-    def merge(self, other: QuantileSketch) -> None:
-        """Add every value of another sketch (folded bins stay folded)."""
-        for p in other._parts:
-            self.add(p)
-        if other._keys.size:
-            self._fold()
-            self._merge_bins(other._keys, other._counts)
-            self.n += int(other._counts.sum())
-
     @staticmethod
     def _key(x: np.ndarray) -> np.ndarray:
         a = np.abs(x)

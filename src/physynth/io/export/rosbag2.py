@@ -34,14 +34,13 @@ A row with a NaN (or infinite) value in a message's fields (an imported recordin
 for instance) has no message: ROS messages cannot say "unknown". Nor has a row stamped before time 0
 (an imported recording's few UWB ranges before its first truth sample, for instance): a ROS time is
 never negative (``rclcpp::Time`` throws), and the other rows keep their stamps rather than being
-shifted, so every bag keeps the dataset's time base. :func:`write_rosbag2` returns how many it left
+shifted, so every bag keeps the dataset's time base. :func:`write_bag` counts how many it leaves
 out per topic (``"<topic> (before 0 s)"`` for the early rows).
 """
 
 from __future__ import annotations
 
 import functools
-from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -292,18 +291,3 @@ def write_bag(folder: Path, trace: Trace, storage: str, skipped: dict[str, int])
     else:
         _write_mcap_bag(folder, topics, MCAP_COMPRESSION[storage])
 
-
-def write_rosbag2(traces: Iterable[tuple[int, Trace]], meta: dict[str, Any], path: Path,
-                  storage: str = "mcap") -> dict[str, int]:
-    """Write one ROS 2 bag per trace into the folder ``path`` (created when absent).
-
-    Returns the number of messages left out per topic (topics with none left out are not named): a
-    row with a NaN (or infinite) value in a message's fields is not written, since a ROS message has
-    no way to say "unknown" (an imported recording's optical dropouts, for instance), nor is a row
-    stamped before time 0 (counted as ``"<topic> (before 0 s)"``), since a ROS time is never negative.
-    """
-    skipped: dict[str, int] = {}
-    path.mkdir(parents=True, exist_ok=True)
-    for index, trace in traces:
-        write_bag(path / f"trace_{index:08d}", trace, storage, skipped)
-    return {topic: n for topic, n in skipped.items() if n}
