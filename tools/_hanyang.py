@@ -5,11 +5,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from physynth.data import HANYANG_TRAJECTORY_A_RUNS
 from physynth.io import write_dataset
 from physynth.io.importers import import_hanyang
 from physynth.records import Trace
 
-RUNS = (("LOS", "Case_1"), ("LOS", "Case_2"), ("NLOS", "Case_1"), ("NLOS", "Case_2"))
 DEFAULT_DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "hanyang-uwb"
 
 
@@ -17,9 +17,10 @@ def import_runs(data: Path, tmp: Path) -> tuple[dict[str, Path], dict[str, Trace
     """Each run imported with ``crop_to_uwb`` and written as a dataset under ``tmp`` (as
     ``physynth import hanyang RUN --crop-to-uwb`` does): (run name -> dataset folder, run name -> trace)."""
     dirs, traces = {}, {}
-    for env, case in RUNS:
+    for rel in HANYANG_TRAJECTORY_A_RUNS:
+        env, _, case = rel.split("/")
         name = f"{env} {case}"
-        trace, _ = import_hanyang(data / "Dynamic_measurements" / env / "Trajectory_A" / case, crop_to_uwb=True)
+        trace, _ = import_hanyang(data / "Dynamic_measurements" / rel, crop_to_uwb=True)
         dirs[name] = Path(tmp) / f"{env}-{case}"
         write_dataset(dirs[name], [trace], meta={"kind": "real", "source": "hanyang-uwb"})
         traces[name] = trace

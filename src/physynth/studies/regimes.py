@@ -75,10 +75,6 @@ REGIME_SUMMARY = {
 }
 
 
-def regime_names() -> list[str]:
-    return list(REGIMES)
-
-
 def describe_regime(name: str) -> dict[str, Any]:
     """JSON-able description of a regime: one-line summary and its changes."""
     return {"summary": REGIME_SUMMARY[check_regime(name)], "changes": [c.describe() for c in REGIMES[name]]}

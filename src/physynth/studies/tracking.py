@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
+from ..data import HANYANG_TRAJECTORY_A_RUNS as HANYANG_RUNS  # the default runs: train on the first three
 from ..errors import PhySynthError
 from ..records import TRUTH_UNTRUSTED_KEY, Trace, untrusted_truth
 from ..scenario import Scenario, scenario_to_dict
@@ -57,9 +58,6 @@ from .tracking_config import (  # noqa: F401  (the study's settings, importable 
 
 ProgressFn = Callable[[str], None]
 
-HANYANG_RUNS = ("LOS/Trajectory_A/Case_1", "LOS/Trajectory_A/Case_2", "NLOS/Trajectory_A/Case_1",
-                "NLOS/Trajectory_A/Case_2")
-"""The default runs (under ``hanyang-uwb/Dynamic_measurements``): train on the first three, test on the last."""
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -21,7 +21,6 @@ The networks' features of these inputs are in :mod:`physynth.track.features`.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -78,10 +77,6 @@ class TrackInput:
     @property
     def anchor_pos_enu_m(self) -> np.ndarray:
         return self.anchor_pos_rel_m + self.ref_enu_m
-
-    @property
-    def has_truth(self) -> bool:
-        return bool(np.any(np.all(np.isfinite(self.pos_rel_m), axis=1)))
 
     def eval_mask(self) -> np.ndarray:
         """(K,) steps that are scored: truth known and at or after the first valid range."""
@@ -146,6 +141,3 @@ def track_input(trace: Trace, *, time_offset_s: float = 0.0, rate_hz: float = DE
     )
 
 
-def max_anchors(inputs: Sequence[TrackInput]) -> int:
-    """Largest anchor count over the inputs."""
-    return max((i.n_anchors for i in inputs), default=0)
