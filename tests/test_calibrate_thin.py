@@ -74,7 +74,7 @@ def test_the_same_recording_twice_is_refused():
     import pytest
 
     from physynth.calibrate import calibrate
-    from physynth.calibrate._base import CalibrationError
+    from physynth.calibrate import CalibrationError
 
     trace = next(generate_traces(load_scenario("cablecar-descending"), 1, seed=1))
     with pytest.raises(CalibrationError, match="hold the same recording"):
@@ -128,10 +128,10 @@ def test_lengths_must_cover_the_attempts():
 
 
 def test_a_soft_edge_wider_than_the_ranges_keeps_attempts_in_range():
-    from physynth.calibrate.availability_fit import _in_range_limit
+    from physynth.calibrate.availability_fit import in_range_limit
 
     link = {"max_range_m": 359.0, "edge_width_m": 92.7}  # its 0.999 point lies at -281 m
     r = np.linspace(50.0, 450.0, 1000)
-    assert _in_range_limit(link, r) == 359.0 and "in_range_note" in link
+    assert in_range_limit(link, r) == 359.0 and "in_range_note" in link
     sharp = {"max_range_m": 400.0, "edge_width_m": 5.0}
-    assert abs(_in_range_limit(sharp, r) - (400.0 - 5.0 * np.log(999.0))) < 1e-9 and "in_range_note" not in sharp
+    assert abs(in_range_limit(sharp, r) - (400.0 - 5.0 * np.log(999.0))) < 1e-9 and "in_range_note" not in sharp

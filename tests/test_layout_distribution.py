@@ -8,7 +8,7 @@ from pydantic import ValidationError
 
 from physynth.bounds import estimate_size
 from physynth.errors import ScenarioError
-from physynth.generate import _vary_site, compile_scenario, generate_trace, generate_traces
+from physynth.generate import vary_site, compile_scenario, generate_trace, generate_traces
 from physynth.io.scenario_file import load_scenario
 from physynth.models.variation import (
     LayoutDistribution,
@@ -176,7 +176,7 @@ def test_each_drawn_anchor_takes_a_pool_anchors_channel_and_availability(cableca
     assert len({c.model_dump_json() for c in pool_channels}) == 6  # distinct: a mix-up would show
     used = set()
     for i in range(8):
-        compiled, rec = _vary_site(cs, i, SEED)
+        compiled, rec = vary_site(cs, i, SEED)
         pool = rec["layout_drawn"]["pool"]
         used |= set(pool)
         assert compiled.anchors.ids == compiled.scenario.anchor_ids
@@ -205,7 +205,7 @@ def test_per_anchor_arrays_follow_the_drawn_count():
     study = SiteVariationParams(layout_distribution={**WIDE, "anchor_count": [5, 8]})
     cs = compile_scenario(with_variation(base, **study.model_dump()))
     for i in range(3):
-        compiled, rec = _vary_site(cs, i, SEED)
+        compiled, rec = vary_site(cs, i, SEED)
         n = rec["layout_drawn"]["anchor_count"]
         assert n >= 5 and compiled.channel.link.boresight_enu.shape == (n, 3)
         assert compiled.channel.tag_join.shape == (n,)

@@ -82,7 +82,7 @@ def _compiled(scn: Scenario | CompiledScenario) -> CompiledScenario:
     return scn if isinstance(scn, CompiledScenario) else compile_scenario(scn)
 
 
-def _vary_site(cs: CompiledScenario, index: int, root_seed: int) -> tuple[CompiledScenario, dict]:
+def vary_site(cs: CompiledScenario, index: int, root_seed: int) -> tuple[CompiledScenario, dict]:
     """The compiled scenario of trace ``index`` with its own anchor layout and path (the scenario's
     ``variation``, :func:`physynth.models.variation.draw_site`), and the record of the draw.
 
@@ -139,7 +139,7 @@ def generate_trace(scn: Scenario | CompiledScenario, index: int, root_seed: int)
     cs = _compiled(scn)
     site = None
     if cs.scenario.variation is not None:  # this trace's own anchor layout and path
-        cs, site = _vary_site(cs, index, root_seed)
+        cs, site = vary_site(cs, index, root_seed)
     s = cs.scenario
     pert = draw_perturbation(s.path.perturbation, rng=component_rng(root_seed, index, "path"))
     run = draw_run(s.motion, rng=component_rng(root_seed, index, "motion"))

@@ -220,7 +220,7 @@ LINK_MIN_IN_RANGE_FRAC = 0.1
 """Share of an anchor's attempts that must lie within its in-range limit; below it the limit is R itself."""
 
 
-def _in_range_limit(link: dict[str, Any], range_m: np.ndarray) -> float:
+def in_range_limit(link: dict[str, Any], range_m: np.ndarray) -> float:
     """The range [m] up to which an anchor's attempts count as in link range for the dropout/outage fit:
     where the fitted link probability is :data:`LINK_IN_RANGE_PROB`, or the horizon R itself when that
     leaves fewer than :data:`LINK_MIN_IN_RANGE_FRAC` of the attempts (a soft edge as wide as the ranges
@@ -259,7 +259,7 @@ def fit_availability(traces: Sequence[Trace], offset_s: float, burst_rate_hz: fl
         rng_tab.append(r_all)
     links = {a: fit_link(np.concatenate(ranges[a]), np.concatenate(heards[a]), [x.size for x in ranges[a]])
              for a in anchor_ids if ranges[a]}
-    limits = {a: _in_range_limit(lk, np.concatenate(ranges[a])) for a, lk in links.items() if lk.get("identifiable")}
+    limits = {a: in_range_limit(lk, np.concatenate(ranges[a])) for a, lk in links.items() if lk.get("identifiable")}
     in_range = []
     for tr, r_all in zip(traces, rng_tab, strict=True):
         ok = np.isfinite(r_all)
