@@ -39,10 +39,10 @@ from .tables import (  # the tables' Arrow side, named here as before
     _check_declared,
     _column_options,
     _held_groups,
-    _optional_group,
     _schema,
     _tables_of,
     arrow_schemas,
+    optional_group,
     to_numpy,
 )
 from .tables import NULLABLE_COLUMNS as NULLABLE_COLUMNS
@@ -567,11 +567,11 @@ def _trace_of(st: StoredTrace, meta: dict[str, Any], path: Path) -> Trace:
                           pos_enu_m=np.stack([an[f"pos_{c}_m"] for c in "enu"], axis=1))
     truth = Truth(t_s=tr["t_s"], pos_enu_m=np.stack([tr[f"pos_{c}_m"] for c in "enu"], axis=1),
                   vel_enu_mps=np.stack([tr[f"vel_{c}_mps"] for c in "enu"], axis=1),
-                  quat_wxyz=_optional_group(tr, "truth", "quat_wxyz"),
-                  omega_body_radps=_optional_group(tr, "truth", "omega_body_radps"))
+                  quat_wxyz=optional_group(tr, "truth", "quat_wxyz"),
+                  omega_body_radps=optional_group(tr, "truth", "omega_body_radps"))
     imu = None
     if im is not None:
-        groups = {a: _optional_group(im, "imu", a) for a in OPTIONAL_COLUMNS["imu"]}
+        groups = {a: optional_group(im, "imu", a) for a in OPTIONAL_COLUMNS["imu"]}
         if all(g is None for g in groups.values()):
             raise DatasetError(f"dataset {path}: trace {idx} has IMU rows without any value")
         imu = Imu(t_s=im["t_s"], frame=meta.get("imu_frame", IMU_FRAME), **groups)

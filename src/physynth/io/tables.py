@@ -245,12 +245,13 @@ def _check_declared(trace: Trace, held: Mapping[str, set[str]], declared: bool) 
                                    "declared to hold")
 
 
-def _optional_group(cols: dict[str, np.ndarray], table: str, attr: str) -> np.ndarray | None:
-    """A group of optional columns read back as (N, k), or None when absent or null throughout."""
+def optional_group(cols: dict[str, np.ndarray], table: str, attr: str, dtype: Any = np.float64) -> np.ndarray | None:
+    """A group of optional columns read back as (N, k) in ``dtype``, or None when absent or null throughout
+    (what the reader's records and the HDF5 export take)."""
     names = OPTIONAL_COLUMNS[table][attr]
     if any(c not in cols for c in names):
         return None
-    arr = np.stack([cols[c] for c in names], axis=1).astype(np.float64)
+    arr = np.stack([cols[c] for c in names], axis=1).astype(dtype, copy=False)
     if arr.size and np.all(np.isnan(arr)):
         return None
     return arr

@@ -30,7 +30,7 @@ import numpy as np
 from ...constants import IMU_BODY_FRAME, IMU_FRAME
 from ...errors import DatasetError
 from ..dataset import StoredTrace
-from ..tables import OPTIONAL_COLUMNS
+from ..tables import OPTIONAL_COLUMNS, optional_group
 
 
 def _attr(value: Any) -> Any:
@@ -39,16 +39,6 @@ def _attr(value: Any) -> Any:
 
 def _vectors(cols: dict[str, np.ndarray], names: Iterable[str], dtype: Any) -> np.ndarray:
     return np.stack([cols[c] for c in names], axis=1).astype(dtype, copy=False)
-
-
-def _group(cols: dict[str, np.ndarray], table: str, attr: str, dtype: Any) -> np.ndarray | None:
-    """An optional group of columns as (N, k) in ``dtype``, None when absent or NaN throughout (as the
-    dataset's reader takes it)."""
-    names = OPTIONAL_COLUMNS[table][attr]
-    if any(c not in cols for c in names):
-        return None
-    arr = _vectors(cols, names, dtype)
-    return None if arr.size and np.all(np.isnan(arr)) else arr
 
 
 def _uwb_columns(st: StoredTrace, path: Path) -> tuple[dict[str, np.ndarray], bool]:
@@ -92,11 +82,11 @@ def write_hdf5(traces: Iterable[StoredTrace], meta: dict[str, Any], path: Path, 
             t["pos_enu_m"] = _vectors(tr, ("pos_e_m", "pos_n_m", "pos_u_m"), np.float64)
             t["vel_enu_mps"] = _vectors(tr, ("vel_e_mps", "vel_n_mps", "vel_u_mps"), vel_dtype)
             for name in ("quat_wxyz", "omega_body_radps"):  # the truth attitude, when the trace has one
-                arr = _group(tr, "truth", name, att_dtype)
+                arr = optional_group(tr, "truth", name, att_dtype)
                 if arr is not None:
                     t[name] = arr
             if st.imu is not None:
-                groups = {a: _group(st.imu, "imu", a, acc_dtype) for a in OPTIONAL_COLUMNS["imu"]}
+                groups = {a: optional_group(st.imu, "imu", a, acc_dtype) for a in OPTIONAL_COLUMNS["imu"]}
                 if all(v is None for v in groups.values()):
                     raise DatasetError(f"dataset {dataset}: trace {st.index} has IMU rows without any value")
                 frame = meta.get("imu_frame", IMU_FRAME)
