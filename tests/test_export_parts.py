@@ -14,8 +14,8 @@ from physynth.io.scenario_file import load_scenario
 from physynth.workflows import export_dataset as export_on_workers
 from physynth.workflows import generate_dataset
 
-FORMATS = [f for f, mod in (("csv", None), ("hdf5", "h5py"), ("rosbag2", "rosbags"))
-           if mod is None or importlib.util.find_spec(mod) is not None]
+FORMATS = [f for f, mod in (("csv", "polars"), ("hdf5", "h5py"), ("rosbag2", "rosbags"))
+           if importlib.util.find_spec(mod) is not None]
 
 
 @pytest.fixture(scope="module")
@@ -121,6 +121,38 @@ def test_resume_after_a_kill_while_assembling(dataset, tmp_path, monkeypatch, fm
         said.append(task[2].k) or fn(*task) for task in tasks])
     assert said == taken  # only the parts the stopped assembly had taken are written again
     assert _same(out, export_dataset(dataset, tmp_path / f"clean{suffix}", fmt))
+
+
+@pytest.mark.parametrize("stop", ["while appending", "before marking"])
+def test_csv_parts_appended_in_place_resume_after_a_stop(dataset, tmp_path, stop):
+    """Parts run one after the other append their CSV rows to the export's tables as they go (nothing is
+    copied when assembling); a stop in the middle of a part's rows, or after its rows and sizes but before
+    its marker, is cut back and written again: the same bytes as an export that ran through."""
+    from physynth.io.export import parts as parts_mod
+
+    out = tmp_path / "csv"
+    partial = partial_dir(out)
+
+    def stopped(fn, tasks, sizes, progress):
+        fn(*tasks[0])
+        fn(*tasks[1])
+        assert sorted(p.name for p in partial.iterdir()) == ["part-00000.json", "part-00001.json", "run.json",
+                                                             "tables", "tables.json"]  # no part of its own
+        if stop == "while appending":
+            with open(partial / parts_mod.APPENDED / "imu.csv", "ab") as fh:
+                fh.write(b"2,0.5,1.0,2.0")  # a part's first rows, cut short
+        else:
+            parts_mod.marker(partial, 1).unlink()
+        raise _Killed
+
+    with pytest.raises(_Killed):
+        export_dataset(dataset, out, "csv", run=stopped)
+    said = []
+    export_dataset(dataset, out, "csv", resume=True, run=lambda fn, tasks, sizes, progress: [
+        said.append(task[2].k) or fn(*task) for task in tasks])
+    assert said == ([2] if stop == "while appending" else [1, 2])
+    assert _same(out, export_dataset(dataset, tmp_path / "clean", "csv"))
+    assert not partial.exists()
 
 
 def test_resume_refuses_another_run(dataset, tmp_path):

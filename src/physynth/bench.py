@@ -161,11 +161,11 @@ def _scaling(scn: Scenario, ns: int, workers: int, repeat: int, tmp: Path,
 
 
 def export_formats() -> list[str]:
-    """The export formats whose libraries are installed (CSV always)."""
+    """The export formats whose libraries are installed."""
     import importlib.util
 
-    return [fmt for fmt, module in (("hdf5", "h5py"), ("csv", None), ("rosbag2", "rosbags"))
-            if module is None or importlib.util.find_spec(module) is not None]
+    return [fmt for fmt, module in (("hdf5", "h5py"), ("csv", "polars"), ("rosbag2", "rosbags"))
+            if importlib.util.find_spec(module) is not None]
 
 
 def _exports(scn: Scenario, n: int, repeat: int, tmp: Path, progress: ProgressCallback) -> dict[str, Any]:

@@ -4,8 +4,8 @@ Each export is cut into parts, one per shard of the dataset (:mod:`.parts`), wri
 sibling of the output that is renamed into place when every part is complete, so an interrupted export
 leaves nothing that looks finished and can be resumed; the parts may run on several workers (``run``:
 :func:`physynth.workflows.export_dataset` passes the workers of ``generate``), with the same bytes for any
-number of workers. HDF5 needs ``h5py`` and ROS 2 bags need ``rosbags`` (the extra ``physynth[export]``);
-CSV needs nothing beyond PhySynth.
+number of workers. HDF5 needs ``h5py``, ROS 2 bags need ``rosbags`` and CSV needs ``polars`` (the extra
+``physynth[export]`` installs them).
 """
 
 from __future__ import annotations
@@ -87,6 +87,8 @@ def export_dataset(dataset: str | os.PathLike, out: str | os.PathLike, fmt: str,
         _require("h5py")
     elif fmt == "rosbag2":
         _require("rosbags")
+    else:
+        _require("polars")
     meta = read_meta(dataset)
     # the same rules as every writer (docs/reliability.md): never the input, the current folder or a
     # parent of it; replaced only when it is an export PhySynth wrote (overwrite); locked; temporary

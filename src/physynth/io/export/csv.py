@@ -2,10 +2,12 @@
 
 ``truth.csv``, ``imu.csv``, ``uwb.csv``, ``anchors.csv`` (each with a ``trace`` column),
 ``dataset.json`` and, for a dataset of several shards, ``traces.jsonl`` (per-trace metadata). The
-tables are copied one Parquet row group at a time by Arrow's CSV writer: floats in their shortest
-round-trip form (float64 columns read back exactly; float32 columns of generated datasets as
-float32), ``nan`` for a range not delivered, an empty field for an unknown ``nlos``, strings quoted,
-a header line first (pandas.read_csv and Python's csv module read it as is). The files copied are
+tables are copied one Parquet row group at a time by polars' CSV writer (which formats on every core,
+three to four times faster than Arrow's: ``benchmarks/bench_export.py``): floats in their shortest
+round-trip form (float64 columns read back exactly; float32 columns of generated datasets as float32;
+a whole number keeps its ``.0``), ``NaN`` for a range not delivered, an empty field for an unknown
+``nlos``, ``true``/``false``, strings quoted only where they hold a comma, quote or line break, a
+header line first (pandas.read_csv and Python's csv module read it as is). The files copied are
 those the dataset's integrity record lists (:func:`~physynth.io.dataset.table_files`), once they have been
 checked against it (:func:`check_tables`: sizes, row counts, SHA-256, trace ids, the columns of each table;
 a dataset without the record is read trace by trace instead, as every reader does); one part per shard of
@@ -47,35 +49,37 @@ def check_tables(dataset: Path, meta: dict[str, Any]) -> bool:
 
 
 def write_csv_tables(dataset: Path, meta: dict[str, Any], path: Path, *, header: bool = True,
-                     on_trace: Callable[[], None] | None = None) -> None:
-    """Write the tables of ``dataset`` (the files its ``meta`` lists) as CSV files in the new folder ``path``;
-    ``header``: a header line first (the first part of an export has it, the others are appended to it);
-    ``on_trace()`` once per trace, as the rows of its UWB table are written (for the traces without, at
-    the end)."""
-    import pyarrow.csv as pcsv
+                     on_trace: Callable[[], None] | None = None, append: bool = False) -> None:
+    """Write the tables of ``dataset`` (the files its ``meta`` lists) as CSV files in the new folder ``path``
+    or, with ``append``, append their rows to the CSV files in the folder ``path``; ``header``: a header
+    line first (the first part of an export has it, the others are appended to it); ``on_trace()`` once
+    per trace, as the rows of its UWB table are written (for the traces without, at the end)."""
+    import polars as pl
     import pyarrow.parquet as pq
 
-    path.mkdir(parents=True)
-    options = pcsv.WriteOptions(include_header=header)
+    if not append:
+        path.mkdir(parents=True)
     seen: set[int] = set()
     for name in TABLES:
-        writer = None
-        try:
-            for f in table_files(dataset, name, meta):
+        files = table_files(dataset, name, meta)
+        if not files:
+            continue
+        with open(path / f"{name}.csv", "ab" if append else "wb") as fh:
+            first = header
+            for f in files:
                 pf = pq.ParquetFile(f)
-                if writer is None:
-                    writer = pcsv.CSVWriter(path / f"{name}.csv", pf.schema_arrow, write_options=options)
                 for g in range(pf.metadata.num_row_groups):
                     table = pf.read_row_group(g)
-                    writer.write_table(table)
+                    pl.from_arrow(table).write_csv(fh, include_header=first)
+                    first = False
                     if name == "uwb" and on_trace is not None:
                         new = set(np.unique(to_numpy(table.column("trace"))).tolist()) - seen
                         seen |= new
                         for _ in new:
                             on_trace()
-        finally:
-            if writer is not None:
-                writer.close()
+                if first:  # a table without rows: its header line alone
+                    pl.from_arrow(pf.schema_arrow.empty_table()).write_csv(fh, include_header=True)
+                    first = False
     n = meta.get("n_traces")
     for _ in range(max(0, n - len(seen)) if on_trace is not None and isinstance(n, int) else 0):
         on_trace()
