@@ -6,8 +6,8 @@ Per repetition: ``physynth generate -n N`` (to Parquet, ``--workers W``), then `
 dataset to hdf5, csv and rosbag2 (MCAP, the default storage) with ``--workers W``, each a process of its
 own (start-up and imports included, as a user runs them); every output is removed once timed. Prints the
 best time of each over the repetitions, its ratio to the generation's, and the peak resident memory of
-the command's whole process tree (workers, Dask scheduler and nannies included; sampled every 0.1 s). ``physynth bench --exports``
-measures the same in one process (no start-up).
+the command's whole process tree (workers, Dask scheduler and nannies included; sampled every 0.1 s).
+``physynth bench --exports`` measures the same in one process (no start-up).
 """
 
 from __future__ import annotations

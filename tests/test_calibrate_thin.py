@@ -73,8 +73,7 @@ def test_a_link_heard_less_at_every_range_keeps_a_positive_horizon():
 def test_the_same_recording_twice_is_refused():
     import pytest
 
-    from physynth.calibrate import calibrate
-    from physynth.calibrate import CalibrationError
+    from physynth.calibrate import CalibrationError, calibrate
 
     trace = next(generate_traces(load_scenario("cablecar-descending"), 1, seed=1))
     with pytest.raises(CalibrationError, match="hold the same recording"):

@@ -8,7 +8,7 @@ from pydantic import ValidationError
 
 from physynth.bounds import estimate_size
 from physynth.errors import ScenarioError
-from physynth.generate import vary_site, compile_scenario, generate_trace, generate_traces
+from physynth.generate import compile_scenario, generate_trace, generate_traces, vary_site
 from physynth.io.scenario_file import load_scenario
 from physynth.models.variation import (
     LayoutDistribution,

@@ -12,8 +12,8 @@ While an export runs, everything lives in a hidden sibling of the output, ``.<na
 - per part ``k``, its output, renamed into place when complete: the bags ``trace_<index>/`` (rosbag2;
   each bag renamed into place as it is finished), ``part-<k>.h5`` (hdf5); for csv, its rows appended to
   the tables in ``tables/`` when the parts before it are complete there (sizes after each part in
-  ``tables.json``), else the folder ``part-<k>/``; then ``part-<k>.json`` (the messages left out, see :mod:`.rosbag2`), which marks the part
-  complete.
+  ``tables.json``), else the folder ``part-<k>/``; then ``part-<k>.json`` (the messages left out, see
+  :mod:`.rosbag2`), which marks the part complete.
 
 :func:`assemble` turns the complete parts into the output: the bag folders as they are, the HDF5 parts'
 groups copied in trace order into the first part's file; the CSV tables are those its first parts were
