@@ -191,3 +191,26 @@ def test_files_together_appear_together_or_not_at_all(tmp_path):
         assert a.read_text() == "old a"  # nothing moves before the block ends
     assert (a.read_text(), b.read_text()) == ("new a", "new b")
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([a.name, b.name])
+
+
+def test_read_ahead_keeps_order_and_raises_at_the_item_that_failed():
+    """The row groups are read one ahead on a reader thread: results in item order, the work done
+    off the caller's thread, and a failure raised when the caller reaches that item (not before)."""
+    import threading
+
+    from physynth.io.dataset import read_ahead
+
+    threads = set()
+
+    def work(x):
+        threads.add(threading.current_thread().name)
+        if x == 3:
+            raise ValueError("item 3")
+        return x * x
+
+    got = []
+    with pytest.raises(ValueError, match="item 3"):
+        for v in read_ahead(work, range(6)):
+            got.append(v)
+    assert got == [0, 1, 4] and threads and threading.current_thread().name not in threads
+    assert list(read_ahead(work, [])) == [] and list(read_ahead(work, [5])) == [25]

@@ -13,12 +13,14 @@ on first use (:func:`arrow_schemas`).
 from __future__ import annotations
 
 import datetime as _dt
+import functools
 import itertools
 import json
 import math
 import os
 import shutil
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -508,6 +510,29 @@ def _row_group(pf: pq.ParquetFile, g: int, name: str, f: Path, codes: AnchorCode
         raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
 
 
+@functools.cache
+def _reader_of(pid: int) -> ThreadPoolExecutor:  # noqa: ARG001 (a forked worker makes its own)
+    return ThreadPoolExecutor(1, thread_name_prefix="physynth-read")
+
+
+def read_ahead(fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[Any]:
+    """``fn(item)`` of each item in order, the next one computed on a reader thread (one per process,
+    shared by every stream, so calls never overlap) while the caller works on the current one: Parquet
+    decodes without the GIL, so a reader's decoding overlaps the export's writing."""
+    pool = _reader_of(os.getpid())
+    it = iter(items)
+    try:
+        first = next(it)
+    except StopIteration:
+        return
+    ahead = pool.submit(fn, first)
+    for item in it:
+        current = ahead.result()
+        ahead = pool.submit(fn, item)
+        yield current
+    yield ahead.result()
+
+
 def _table_stream(path: Path, name: str, meta: Mapping[str, Any],
                   codes: AnchorCodes) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
     """(trace index, columns) of one table, read one row group at a time, in trace order."""
@@ -516,17 +541,16 @@ def _table_stream(path: Path, name: str, meta: Mapping[str, Any],
         yield from sorted(_split(_read_table(files, name, codes)).items())
         return
     pending: tuple[int, dict[str, np.ndarray]] | None = None
-    for f in files:
-        pf = _parquet_file(f)
-        for g in range(pf.metadata.num_row_groups):
-            groups = sorted(_split(_row_group(pf, g, name, f, codes)).items())
-            if pending is not None and groups and groups[0][0] == pending[0]:  # a trace across groups
-                groups[0] = (pending[0], {c: np.concatenate([pending[1][c], v]) for c, v in groups[0][1].items()})
-            elif pending is not None and groups:
-                yield pending
-            if groups:
-                pending = groups.pop()
-            yield from groups
+    where = ((pf, g, f) for f in files for pf in (_parquet_file(f),) for g in range(pf.metadata.num_row_groups))
+    for cols in read_ahead(lambda w: _row_group(w[0], w[1], name, w[2], codes), where):
+        groups = sorted(_split(cols).items())
+        if pending is not None and groups and groups[0][0] == pending[0]:  # a trace across groups
+            groups[0] = (pending[0], {c: np.concatenate([pending[1][c], v]) for c, v in groups[0][1].items()})
+        elif pending is not None and groups:
+            yield pending
+        if groups:
+            pending = groups.pop()
+        yield from groups
     if pending is not None:
         yield pending
 
