@@ -23,7 +23,7 @@ import functools
 import os
 import struct
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import BinaryIO
 
@@ -113,8 +113,18 @@ def _pool() -> ThreadPoolExecutor:
 def write_mcap(f: BinaryIO, channels: Sequence[Channel], *, profile: str = "ros2", library: str = "physynth",
                metadata: dict[str, dict[str, str]] | None = None, compression: str = "") -> dict[int, int]:
     """Write an MCAP file of ``channels`` (ids 1, 2, ... in order) to the open binary file ``f``;
-    returns the message count of each channel id. ``metadata``: named metadata records (name -> map);
-    ``compression``: of every chunk ("" none, "zstd" at level 1, "lz4").
+    returns the message count of each channel id (:func:`prepare_mcap`, then its :meth:`PreparedMcap.write`)."""
+    return prepare_mcap(channels, profile=profile, library=library, metadata=metadata,
+                        compression=compression).write(f)
+
+
+def prepare_mcap(channels: Sequence[Channel], *, profile: str = "ros2", library: str = "physynth",
+                 metadata: dict[str, dict[str, str]] | None = None, compression: str = "") -> PreparedMcap:
+    """Lay out an MCAP file of ``channels`` (ids 1, 2, ... in order) and start compressing its chunks on
+    the threads of :func:`_pool`; :meth:`PreparedMcap.write` writes it once they are done. The caller may
+    prepare the next file meanwhile (what the ROS 2 export does: one bag's chunks compress while the next
+    trace's messages are built). ``metadata``: named metadata records (name -> map); ``compression``: of
+    every chunk ("" none, "zstd" at level 1, "lz4").
 
     Each chunk holds consecutive messages of one channel (in time order, about :data:`CHUNK_BYTES`), so
     that its bytes are a slice of the channel's records; the chunks are written in the order of their
@@ -131,70 +141,99 @@ def write_mcap(f: BinaryIO, channels: Sequence[Channel], *, profile: str = "ros2
                                        + _s(ch.schema_encoding) + _s(ch.schema_text)))
         channel_recs.append(_record(0x04, struct.pack("<HH", cid, schemas[ch.schema_name]) + _s(ch.topic)
                                     + _s("cdr") + _map(ch.metadata)))
-    pos = 0
-
-    def put(b: bytes | memoryview) -> None:
-        nonlocal pos
-        f.write(b)
-        pos += b.nbytes if isinstance(b, memoryview) else len(b)
-
-    put(MAGIC)
-    put(_record(0x01, _s(profile) + _s(library)))
-    for r in (*schema_recs, *channel_recs):
-        put(r)
     rows = [_message_rows(ch, cid) for cid, ch in enumerate(channels, 1)]
     stamps = [np.asarray(ch.stamps, dtype=np.int64) for ch in channels]
     pieces = []  # (first stamp, channel index, first row, end row)
     for k, r in enumerate(rows):
         step = max(1, CHUNK_BYTES // r.shape[1])
         pieces += [(int(stamps[k][a]), k, a, min(a + step, r.shape[0])) for a in range(0, r.shape[0], step)]
-    chunk_indexes = []
     pieces.sort()
     bodies = [rows[k][a:b].data for _, k, a, b in pieces]
-    packs = _pool().map(_compressor(compression), bodies) if compression else iter(bodies)
-    for (t0, k, a, b), body, packed in zip(pieces, bodies, packs, strict=True):
-        size = body.nbytes
-        n_packed = packed.nbytes if isinstance(packed, memoryview) else len(packed)
-        t1 = int(stamps[k][b - 1])
-        chunk_start = pos
-        put(struct.pack("<BQ", 0x06, 8 * 3 + 4 + 4 + len(compression) + 8 + n_packed))
-        put(struct.pack("<QQQI", t0, t1, size, 0) + _s(compression) + struct.pack("<Q", n_packed))
-        put(packed)
-        chunk_end = pos
-        pairs = np.empty((b - a, 2), dtype="<u8")
-        pairs[:, 0] = stamps[k][a:b]
-        pairs[:, 1] = np.arange(b - a, dtype=np.uint64) * np.uint64(rows[k].shape[1])
-        put(_record(0x07, struct.pack("<HI", k + 1, pairs.nbytes) + pairs.tobytes()))
-        chunk_indexes.append(_record(0x08, struct.pack("<QQQQ", t0, t1, chunk_start, chunk_end - chunk_start)
-                                     + struct.pack("<I", 10) + struct.pack("<HQ", k + 1, chunk_end)
-                                     + struct.pack("<Q", pos - chunk_end) + _s(compression)
-                                     + struct.pack("<QQ", n_packed, size)))
-    meta_index = []
-    for name, entries in (metadata or {}).items():
-        start = pos
-        put(_record(0x0C, _s(name) + _map(entries)))
-        meta_index.append(_record(0x0D, struct.pack("<QQ", start, pos - start) + _s(name)))
-    put(_record(0x0F, struct.pack("<I", 0)))  # data end
-    summary_start = pos
-    groups = []
-    for op, recs in ((0x03, schema_recs), (0x04, channel_recs), (0x08, chunk_indexes), (0x0D, meta_index)):
-        if recs:
+    packs: list[Future | memoryview] = (
+        [_pool().submit(_compressor(compression), body) for body in bodies] if compression else list(bodies))
+    return PreparedMcap(profile, library, metadata or {}, compression, len(schemas), schema_recs, channel_recs,
+                        rows, stamps, pieces, bodies, packs)
+
+
+@dataclass
+class PreparedMcap:
+    """An MCAP file laid out by :func:`prepare_mcap`, its chunks compressing (futures) or not."""
+
+    profile: str
+    library: str
+    metadata: dict[str, dict[str, str]]
+    compression: str
+    n_schemas: int
+    schema_recs: list[bytes]
+    channel_recs: list[bytes]
+    rows: list[np.ndarray]
+    stamps: list[np.ndarray]
+    pieces: list[tuple[int, int, int, int]]
+    bodies: list[memoryview]
+    packs: list[Future | memoryview]
+
+    def write(self, f: BinaryIO) -> dict[int, int]:
+        """Write the file to the open binary file ``f`` (waiting for each chunk's compression as it comes
+        to it); returns the message count of each channel id."""
+        compression, rows, stamps = self.compression, self.rows, self.stamps
+        pos = 0
+
+        def put(b: bytes | memoryview) -> None:
+            nonlocal pos
+            f.write(b)
+            pos += b.nbytes if isinstance(b, memoryview) else len(b)
+
+        put(MAGIC)
+        put(_record(0x01, _s(self.profile) + _s(self.library)))
+        for r in (*self.schema_recs, *self.channel_recs):
+            put(r)
+        chunk_indexes = []
+        for (t0, k, a, b), body, pack in zip(self.pieces, self.bodies, self.packs, strict=True):
+            packed = pack.result() if isinstance(pack, Future) else pack
+            size = body.nbytes
+            n_packed = packed.nbytes if isinstance(packed, memoryview) else len(packed)
+            t1 = int(stamps[k][b - 1])
+            chunk_start = pos
+            put(struct.pack("<BQ", 0x06, 8 * 3 + 4 + 4 + len(compression) + 8 + n_packed))
+            put(struct.pack("<QQQI", t0, t1, size, 0) + _s(compression) + struct.pack("<Q", n_packed))
+            put(packed)
+            chunk_end = pos
+            pairs = np.empty((b - a, 2), dtype="<u8")
+            pairs[:, 0] = stamps[k][a:b]
+            pairs[:, 1] = np.arange(b - a, dtype=np.uint64) * np.uint64(rows[k].shape[1])
+            put(_record(0x07, struct.pack("<HI", k + 1, pairs.nbytes) + pairs.tobytes()))
+            chunk_indexes.append(_record(0x08, struct.pack("<QQQQ", t0, t1, chunk_start, chunk_end - chunk_start)
+                                         + struct.pack("<I", 10) + struct.pack("<HQ", k + 1, chunk_end)
+                                         + struct.pack("<Q", pos - chunk_end) + _s(compression)
+                                         + struct.pack("<QQ", n_packed, size)))
+        meta_index = []
+        for name, entries in self.metadata.items():
             start = pos
-            for r in recs:
-                put(r)
-            groups.append((op, start, pos - start))
-    counts = {cid: int(s.size) for cid, s in enumerate(stamps, 1)}
-    nonempty = [s for s in stamps if s.size]
-    t_min = min(int(s[0]) for s in nonempty) if nonempty else 0
-    t_max = max(int(s[-1]) for s in nonempty) if nonempty else 0
-    cnt = b"".join(struct.pack("<HQ", cid, n) for cid, n in counts.items())
-    start = pos
-    put(_record(0x0B, struct.pack("<QHIIII", sum(counts.values()), len(schemas), len(channels), 0, len(meta_index),
-                                  len(chunk_indexes)) + struct.pack("<QQI", t_min, t_max, len(cnt)) + cnt))
-    groups.append((0x0B, start, pos - start))
-    offset_start = pos
-    for op, start, length in groups:
-        put(_record(0x0E, struct.pack("<BQQ", op, start, length)))
-    put(_record(0x02, struct.pack("<QQI", summary_start, offset_start, 0)))
-    put(MAGIC)
-    return counts
+            put(_record(0x0C, _s(name) + _map(entries)))
+            meta_index.append(_record(0x0D, struct.pack("<QQ", start, pos - start) + _s(name)))
+        put(_record(0x0F, struct.pack("<I", 0)))  # data end
+        summary_start = pos
+        groups = []
+        for op, recs in ((0x03, self.schema_recs), (0x04, self.channel_recs), (0x08, chunk_indexes),
+                         (0x0D, meta_index)):
+            if recs:
+                start = pos
+                for r in recs:
+                    put(r)
+                groups.append((op, start, pos - start))
+        counts = {cid: int(s.size) for cid, s in enumerate(stamps, 1)}
+        nonempty = [s for s in stamps if s.size]
+        t_min = min(int(s[0]) for s in nonempty) if nonempty else 0
+        t_max = max(int(s[-1]) for s in nonempty) if nonempty else 0
+        cnt = b"".join(struct.pack("<HQ", cid, n) for cid, n in counts.items())
+        start = pos
+        put(_record(0x0B, struct.pack("<QHIIII", sum(counts.values()), self.n_schemas, len(self.channel_recs), 0,
+                                      len(meta_index), len(chunk_indexes))
+                    + struct.pack("<QQI", t_min, t_max, len(cnt)) + cnt))
+        groups.append((0x0B, start, pos - start))
+        offset_start = pos
+        for op, start, length in groups:
+            put(_record(0x0E, struct.pack("<BQQ", op, start, length)))
+        put(_record(0x02, struct.pack("<QQI", summary_start, offset_start, 0)))
+        put(MAGIC)
+        return counts

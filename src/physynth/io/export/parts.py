@@ -165,14 +165,23 @@ def export_part(dataset: str, meta: dict[str, Any], part: Part, fmt: str, partia
 
     skipped: dict[str, int] = {}
     if fmt == "rosbag2":
-        from .rosbag2 import write_bag
+        from .rosbag2 import prepare_bag
 
+        def finish(dest: Path, write: Any) -> None:
+            with replacing(dest, nested=True) as tmp:  # the bag's files are named after its folder
+                write(tmp / dest.name)
+
+        pending = None  # the bag prepared before: written once the next one's messages are built
         for index, trace in traces():
             dest = partial_p / f"trace_{index:08d}"
             if dest.is_dir():  # written before the run was stopped
                 continue
-            with replacing(dest, nested=True) as tmp:  # the bag's files are named after its folder
-                write_bag(tmp / dest.name, trace, storage, skipped)
+            write = prepare_bag(trace, storage, skipped)  # its chunks compress while the next bag is built
+            if pending is not None:
+                finish(*pending)
+            pending = (dest, write)
+        if pending is not None:
+            finish(*pending)
     elif fmt == "hdf5":
         from .hdf5 import write_hdf5
 

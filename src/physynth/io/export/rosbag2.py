@@ -41,6 +41,7 @@ out per topic (``"<topic> (before 0 s)"`` for the early rows).
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -255,17 +256,26 @@ def _typestore() -> Any:
     return get_typestore(Stores.ROS2_HUMBLE)
 
 
-def _write_mcap_bag(folder: Path, topics: list[Topic], compression: str) -> None:
-    from .mcap import Channel, write_mcap
+def _mcap_bag(topics: list[Topic], compression: str) -> Callable[[Path], None]:
+    """Lay out the MCAP bag of ``topics`` (its chunks start compressing on other threads); returns the
+    function that writes it as a new folder."""
+    from .mcap import Channel, prepare_mcap
 
-    info = _bag_metadata(folder.name, "mcap", topics)
     channels = [Channel(t.name, t.msgtype, _type_info(t.msgtype)[0], "ros2msg",
                         {"offered_qos_profiles": _qos_text(t.qos)}, t.stamps, t.data) for t in topics]
-    folder.mkdir()
-    with open(folder / f"{folder.name}.mcap", "xb") as f:
-        write_mcap(f, channels, library="physynth", compression=compression,
-                   metadata={"rosbag2": {"serialized_metadata": _yaml(info).strip()}})
-    (folder / "metadata.yaml").write_text(_yaml({"rosbag2_bagfile_information": info}), encoding="utf-8")
+    serialized = {"serialized_metadata": ""}  # filled in when the bag's name is known
+    prepared = prepare_mcap(channels, library="physynth", compression=compression,
+                            metadata={"rosbag2": serialized})
+
+    def write(folder: Path) -> None:
+        info = _bag_metadata(folder.name, "mcap", topics)  # it names the bag's file
+        serialized["serialized_metadata"] = _yaml(info).strip()
+        folder.mkdir()
+        with open(folder / f"{folder.name}.mcap", "xb") as f:
+            prepared.write(f)
+        (folder / "metadata.yaml").write_text(_yaml({"rosbag2_bagfile_information": info}), encoding="utf-8")
+
+    return write
 
 
 def _write_sqlite3_bag(folder: Path, topics: list[Topic]) -> None:
@@ -282,12 +292,17 @@ def _write_sqlite3_bag(folder: Path, topics: list[Topic]) -> None:
             w.write(conns[which[k]], int(stamps[k]), topics[which[k]].data[row[k], HEAD:].tobytes())
 
 
+def prepare_bag(trace: Trace, storage: str, skipped: dict[str, int]) -> Callable[[Path], None]:
+    """Build the messages of one trace's bag (``storage``: one of :data:`STORAGES`) and, for compressed
+    MCAP, start compressing its chunks on other threads; returns the function that writes the bag as a
+    new folder. Messages left out are counted in ``skipped``."""
+    topics = trace_topics(_typestore(), trace, skipped)
+    if storage == "sqlite3":
+        return functools.partial(_write_sqlite3_bag, topics=topics)
+    return _mcap_bag(topics, MCAP_COMPRESSION[storage])
+
+
 def write_bag(folder: Path, trace: Trace, storage: str, skipped: dict[str, int]) -> None:
     """Write the bag of one trace as the new folder ``folder`` (``storage``: one of :data:`STORAGES`);
     messages left out are counted in ``skipped``."""
-    topics = trace_topics(_typestore(), trace, skipped)
-    if storage == "sqlite3":
-        _write_sqlite3_bag(folder, topics)
-    else:
-        _write_mcap_bag(folder, topics, MCAP_COMPRESSION[storage])
-
+    prepare_bag(trace, storage, skipped)(folder)
