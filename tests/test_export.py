@@ -123,14 +123,15 @@ def test_export_cli_errors_are_one_line(dataset, tmp_path, capsys):
     assert e.value.code == 2 and "--overwrite" in capsys.readouterr().err
 
 
-def test_missing_extra_is_named_in_one_line(dataset, tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize(("fmt", "module", "name"), [("hdf5", "h5py", "x.h5"), ("csv", "polars", "x")])
+def test_missing_extra_is_named_in_one_line(dataset, tmp_path, capsys, monkeypatch, fmt, module, name):
     path, _ = dataset
-    monkeypatch.setitem(sys.modules, "h5py", None)  # as if h5py were not installed: import raises ImportError
+    monkeypatch.setitem(sys.modules, module, None)  # as if it were not installed: import raises ImportError
     with pytest.raises(SystemExit) as e:
-        main(["export", str(path), "--format", "hdf5", "--out", str(tmp_path / "x.h5")])
+        main(["export", str(path), "--format", fmt, "--out", str(tmp_path / name)])
     err = capsys.readouterr().err
-    assert e.value.code == 2 and "physynth[export]" in err and err.count("\n") == 1
-    assert not (tmp_path / "x.h5").exists()
+    assert e.value.code == 2 and "physynth[export]" in err and module in err and err.count("\n") == 1
+    assert not (tmp_path / name).exists()
 
 
 @pytest.fixture(scope="module")
