@@ -25,7 +25,7 @@ import numpy as np
 
 from ...errors import DatasetError
 from .. import integrity
-from ..dataset import TABLES, iter_trace_meta, table_files
+from ..dataset import TABLES, iter_trace_meta, read_ahead, table_files
 from ..tables import OPTIONAL_COLUMNS, arrow_schemas, to_numpy
 
 
@@ -68,8 +68,7 @@ def write_csv_tables(dataset: Path, meta: dict[str, Any], path: Path, *, header:
             first = header
             for f in files:
                 pf = pq.ParquetFile(f)
-                for g in range(pf.metadata.num_row_groups):
-                    table = pf.read_row_group(g)
+                for table in read_ahead(pf.read_row_group, range(pf.metadata.num_row_groups)):
                     pl.from_arrow(table).write_csv(fh, include_header=first)
                     first = False
                     if name == "uwb" and on_trace is not None:
