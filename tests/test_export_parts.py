@@ -178,3 +178,31 @@ def test_export_cli_options_are_checked_in_one_line(dataset, tmp_path, capsys):
         err = capsys.readouterr().err
         assert e.value.code == 2 and needle in err and err.count("\n") == 1, err
     assert not (tmp_path / "x").exists()
+
+
+def test_csv_export_picks_one_process_where_other_formats_pick_all_cores(dataset, tmp_path, monkeypatch, capsys):
+    """Without --workers, a dataset large enough for all cores exports to CSV in one process (polars formats on
+    every core, and parts run one after the other are appended in place instead of copied); HDF5 takes all."""
+    import physynth.workflows
+    from physynth.cli import generate as cli_generate
+
+    monkeypatch.setattr(cli_generate, "AUTO_CLUSTER_MIN_TRACES", 1)  # as if the dataset were large
+    monkeypatch.setattr("physynth.parallel.available_cores", lambda: 2)
+    asked = {}
+    real = physynth.workflows.export_dataset
+
+    class _Asked(Exception):
+        pass
+
+    def recording(dataset, out, fmt, **kw):
+        asked[fmt] = kw["workers"]
+        if kw["workers"] > 1:
+            raise _Asked  # the choice is what is tested; no cluster started for it (the command exits 3)
+        return real(dataset, out, fmt, **kw)
+
+    monkeypatch.setattr(physynth.workflows, "export_dataset", recording)
+    main(["export", str(dataset), "-f", "csv", "-o", str(tmp_path / "csv"), "-q"])
+    with pytest.raises(SystemExit):
+        main(["export", str(dataset), "-f", "hdf5", "-o", str(tmp_path / "x.h5"), "-q"])
+    capsys.readouterr()
+    assert asked == {"csv": 1, "hdf5": 2} and (tmp_path / "csv" / "uwb.csv").is_file()

@@ -25,7 +25,8 @@ def export_cmd(
     bag_storage: Literal["mcap", "mcap-uncompressed", "sqlite3"] = typer.Option(
         "mcap", "--bag-storage", help="Storage of the ROS 2 bags: mcap (ROS 2's default since Iron, opened natively "
                                       "by Foxglove; zstd-compressed chunks), mcap-uncompressed or sqlite3."),
-    workers: int = workers_option(each=", one part (a shard of the dataset) at a time each"),
+    workers: int = workers_option(each=", one part (a shard of the dataset) at a time each",
+                                  below="; csv: one process (its writer formats on every core)"),
     scheduler: str | None = scheduler_option("DATASET and --out at the same paths"),
     resume: bool = typer.Option(False, "--resume", help="Complete a killed export to --out: keep its complete "
                                                         "parts, write the others."),
@@ -38,7 +39,10 @@ def export_cmd(
     from ..workflows import export_dataset
 
     check_run_options(resume, overwrite, scheduler, workers, "export to --out")
-    n_workers, _ = worker_processes(workers, n_traces(read_meta(dataset)) or 0, scheduler)
+    # CSV picks one process: polars' writer already formats on every core, and parts run one after the
+    # other append their rows in place, where parts from several workers are copied (docs/export.md)
+    n_workers = (1 if fmt.lower() == "csv" and not workers and scheduler is None
+                 else worker_processes(workers, n_traces(read_meta(dataset)) or 0, scheduler)[0])
     resume_hint = f"complete parts are kept: run the same command with --resume to finish {out}"
     with resumable(resume_hint), progress_bar(not quiet) as progress:
         path = export_dataset(dataset, out, fmt.lower(), overwrite=overwrite, progress=progress,
