@@ -155,6 +155,58 @@ def test_csv_parts_appended_in_place_resume_after_a_stop(dataset, tmp_path, stop
     assert not partial.exists()
 
 
+@pytest.mark.parametrize("taken", [1, 2])
+def test_csv_resume_after_a_kill_while_assembling_parts_appended_in_place(dataset, tmp_path, monkeypatch, taken):
+    """The tables of parts appended in place are taken with the first part's marker last: a stop after one or
+    two markers (of three parts) leaves the parts before them complete, and the resumed export writes again
+    exactly the unmarked ones, with the same bytes."""
+    from physynth.io.export import parts as parts_mod
+
+    out = tmp_path / "csv"
+    consume = parts_mod._consume
+    unmarked = []
+
+    def killed_after(partial, part, take):
+        consume(partial, part, take)
+        unmarked.append(part.k)
+        if len(unmarked) == taken:
+            raise _Killed
+
+    monkeypatch.setattr(parts_mod, "_consume", killed_after)
+    with pytest.raises(_Killed):
+        export_dataset(dataset, out, "csv")
+    monkeypatch.setattr(parts_mod, "_consume", consume)
+    said = []
+    export_dataset(dataset, out, "csv", resume=True, run=lambda fn, tasks, sizes, progress: [
+        said.append(task[2].k) or fn(*task) for task in tasks])
+    assert unmarked == [2, 1][:taken] and said == sorted(unmarked)
+    assert _same(out, export_dataset(dataset, tmp_path / "clean", "csv"))
+
+
+def test_csv_part_written_again_before_parts_appended_after_it_writes_those_again(dataset, tmp_path):
+    """Should the first part lose its marker while the parts after it were appended (no stop does that; a
+    file removed by hand), writing it again cuts their rows off and unmarks them, and the export writes them
+    again in the same run: the same bytes, no missing marker."""
+    from physynth.io.export import parts as parts_mod
+
+    out = tmp_path / "csv"
+    partial = partial_dir(out)
+
+    def all_parts_then_killed(fn, tasks, sizes, progress):
+        for task in tasks:
+            fn(*task)
+        raise _Killed
+
+    with pytest.raises(_Killed):
+        export_dataset(dataset, out, "csv", run=all_parts_then_killed)
+    parts_mod.marker(partial, 0).unlink()
+    said = []
+    export_dataset(dataset, out, "csv", resume=True, run=lambda fn, tasks, sizes, progress: [
+        said.append(task[2].k) or fn(*task) for task in tasks])
+    assert said == [0, 1, 2]
+    assert _same(out, export_dataset(dataset, tmp_path / "clean", "csv"))
+
+
 def test_resume_refuses_another_run(dataset, tmp_path):
     out = tmp_path / "csv"
 

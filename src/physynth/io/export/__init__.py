@@ -141,6 +141,12 @@ def _export(dataset: Path, meta: dict, out: Path, fmt: str, progress: ProgressCa
     try:
         run(export_part, [(str(dataset), light, p, fmt, str(partial), storage) for p in todo],
             [p.n_traces for p in todo], lambda done: progress(message, already + done, total))
+        # a CSV part written again cuts off the rows of any part appended after it, which is then unmarked
+        # (io.export.parts: never so after a stop, whose markers go from the last; written again here)
+        again = [p for p in parts if not marker(partial, p.k).is_file()]
+        if again:
+            run(export_part, [(str(dataset), light, p, fmt, str(partial), storage) for p in again],
+                [p.n_traces for p in again], lambda done: None)
     except Exception:  # not an interruption: an interrupted export stays resumable
         if not any(marker(partial, p.k).is_file() for p in parts):
             remove_tree(partial)

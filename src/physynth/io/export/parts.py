@@ -243,9 +243,9 @@ def assemble(fmt: str, dataset: Path, meta: dict[str, Any], partial: Path, parts
     if sizes:
         for f in (partial / APPENDED).iterdir():  # what a stopped attempt at the next part left is cut off
             os.truncate(f, sizes[-1].get(f.name, 0))
-    for p in parts[:m - 1]:  # their rows are in the tables taken with the next
-        _consume(partial, p, lambda: None)
-    _consume(partial, parts[m - 1], lambda: os.replace(partial / APPENDED if sizes else folders[0], tmp))
+    for p in reversed(parts[1:m]):  # their rows are in the tables, taken with the first part's; the last
+        _consume(partial, p, lambda: None)  # marker goes first, so a stop leaves parts 0 .. j to resume on
+    _consume(partial, parts[0], lambda: os.replace(partial / APPENDED if sizes else folders[0], tmp))
     tables = sorted(f.name for f in tmp.iterdir())
     for p, folder in zip(parts[m:], folders[m:], strict=True):  # the others' rows appended to them
         for table in tables:
