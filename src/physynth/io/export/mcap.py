@@ -2,7 +2,7 @@
 
 The Python MCAP writers (``mcap``'s and the one inside ``rosbags``) take one call per message, 4 us
 each here (2026-12-05, 2-core machine): with ~66,000 messages in a default trace that alone is 5x the time
-of generating the trace. :func:`write_mcap` takes each channel's messages as one ``(n, size)`` uint8
+of generating the trace. :func:`prepare_mcap` takes each channel's messages as one ``(n, size)`` uint8
 array of CDR bytes (:mod:`.cdr`) and one int64 array of stamps and lays out the records with NumPy:
 
 - the header, then the schemas and channels (in the data section, before the first chunk);
@@ -43,7 +43,7 @@ MESSAGE_HEAD = _MSG_HEAD.itemsize
 class Channel:
     """One topic: its name, message type (schema), schema text and encoding, its metadata, and its
     messages (``stamps`` int64 ns, sorted; ``data`` an ``(n, MESSAGE_HEAD + size)`` C-contiguous uint8
-    array, one row per message: :data:`MESSAGE_HEAD` bytes that :func:`write_mcap` fills in place, then
+    array, one row per message: :data:`MESSAGE_HEAD` bytes that :func:`prepare_mcap` fills in place, then
     the message's bytes)."""
 
     topic: str
@@ -108,14 +108,6 @@ def _pool_of(pid: int) -> ThreadPoolExecutor:  # noqa: ARG001 (a forked worker m
 def _pool() -> ThreadPoolExecutor:
     """Threads that compress chunks (zstd and lz4 release the GIL): one per core this process may use."""
     return _pool_of(os.getpid())
-
-
-def write_mcap(f: BinaryIO, channels: Sequence[Channel], *, profile: str = "ros2", library: str = "physynth",
-               metadata: dict[str, dict[str, str]] | None = None, compression: str = "") -> dict[int, int]:
-    """Write an MCAP file of ``channels`` (ids 1, 2, ... in order) to the open binary file ``f``;
-    returns the message count of each channel id (:func:`prepare_mcap`, then its :meth:`PreparedMcap.write`)."""
-    return prepare_mcap(channels, profile=profile, library=library, metadata=metadata,
-                        compression=compression).write(f)
 
 
 def prepare_mcap(channels: Sequence[Channel], *, profile: str = "ros2", library: str = "physynth",

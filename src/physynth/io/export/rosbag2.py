@@ -34,7 +34,7 @@ A row with a NaN (or infinite) value in a message's fields (an imported recordin
 for instance) has no message: ROS messages cannot say "unknown". Nor has a row stamped before time 0
 (an imported recording's few UWB ranges before its first truth sample, for instance): a ROS time is
 never negative (``rclcpp::Time`` throws), and the other rows keep their stamps rather than being
-shifted, so every bag keeps the dataset's time base. :func:`write_bag` counts how many it leaves
+shifted, so every bag keeps the dataset's time base. :func:`prepare_bag` counts how many it leaves
 out per topic (``"<topic> (before 0 s)"`` for the early rows).
 """
 
@@ -301,8 +301,3 @@ def prepare_bag(trace: Trace, storage: str, skipped: dict[str, int]) -> Callable
         return functools.partial(_write_sqlite3_bag, topics=topics)
     return _mcap_bag(topics, MCAP_COMPRESSION[storage])
 
-
-def write_bag(folder: Path, trace: Trace, storage: str, skipped: dict[str, int]) -> None:
-    """Write the bag of one trace as the new folder ``folder`` (``storage``: one of :data:`STORAGES`);
-    messages left out are counted in ``skipped``."""
-    prepare_bag(trace, storage, skipped)(folder)
