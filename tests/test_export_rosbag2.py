@@ -79,6 +79,7 @@ def test_every_topic_of_a_trace_matches_rosbags_serialiser(body_dataset):
     """Each topic's rows, rebuilt as rosbags messages from the trace's own arrays and serialised by rosbags."""
     tr = body_dataset[1].traces[1]
     topics = {t.name: t for t in trace_topics(TS, tr, {})}
+    data = {name: t.messages.rows() for name, t in topics.items()}
     assert {"/imu", "/imu/body", "/truth", "/truth/orientation", "/tf_static"} <= set(topics)
     rows = np.random.default_rng(0).choice(tr.imu.t_s.size, 25, replace=False)
     no, zero = np.array([-1.0] + [0.0] * 8), np.zeros(9)
@@ -93,8 +94,8 @@ def test_every_topic_of_a_trace_matches_rosbags_serialiser(body_dataset):
                                         angular_velocity=_v(*g), angular_velocity_covariance=zero,
                                         linear_acceleration=_v(*b), linear_acceleration_covariance=zero)
         assert topics["/imu"].stamps[k] == ns
-        assert topics["/imu"].data[k, HEAD:].tobytes() == bytes(TS.serialize_cdr(enu, enu.__msgtype__))
-        assert topics["/imu/body"].data[k, HEAD:].tobytes() == bytes(TS.serialize_cdr(body, body.__msgtype__))
+        assert data["/imu"][k, HEAD:].tobytes() == bytes(TS.serialize_cdr(enu, enu.__msgtype__))
+        assert data["/imu/body"][k, HEAD:].tobytes() == bytes(TS.serialize_cdr(body, body.__msgtype__))
     for k in (rows % tr.truth.t_s.size).tolist()[:10]:
         ns = int(np.round(tr.truth.t_s[k] * 1e9))
         p = T["geometry_msgs/msg/PointStamped"](header=_header(ns, "enu"), point=T["geometry_msgs/msg/Point"](
@@ -102,8 +103,8 @@ def test_every_topic_of_a_trace_matches_rosbags_serialiser(body_dataset):
         w, x, y, z = tr.truth.quat_wxyz[k]
         q = T["geometry_msgs/msg/QuaternionStamped"](header=_header(ns, "enu"),
                                                     quaternion=T["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w))
-        assert topics["/truth"].data[k, HEAD:].tobytes() == bytes(TS.serialize_cdr(p, p.__msgtype__))
-        assert topics["/truth/orientation"].data[k, HEAD:].tobytes() == bytes(TS.serialize_cdr(q, q.__msgtype__))
+        assert data["/truth"][k, HEAD:].tobytes() == bytes(TS.serialize_cdr(p, p.__msgtype__))
+        assert data["/truth/orientation"][k, HEAD:].tobytes() == bytes(TS.serialize_cdr(q, q.__msgtype__))
     ok = np.isfinite(tr.uwb.range_m)
     max_range = float(tr.uwb.range_m[ok].max())
     for a_idx, a_id in enumerate(tr.anchors.ids):
@@ -119,7 +120,7 @@ def test_every_topic_of_a_trace_matches_rosbags_serialiser(body_dataset):
                                            field_of_view=float(np.float32(2 * np.pi)), min_range=0.0,
                                            max_range=float(np.float32(max_range)),
                                            range=float(np.float32(tr.uwb.range_m[sel[j]])))
-            assert topic.data[j, HEAD:].tobytes() == bytes(TS.serialize_cdr(m, m.__msgtype__))
+            assert data[f"/uwb/{a_id}"][j, HEAD:].tobytes() == bytes(TS.serialize_cdr(m, m.__msgtype__))
 
 
 def _mcap_messages(path):
@@ -164,3 +165,31 @@ def test_mcap_bags_read_by_mcap_and_rosbags_and_same_messages_as_sqlite3(body_da
             by_rosbags[folder.parent.name] = collections.Counter(got)
         assert by_rosbags["mcap"] == by_rosbags["sqlite"]  # the same messages, byte for byte, in both storages
         assert by_rosbags["mcap"] == collections.Counter(msgs)  # and as the mcap library reads them
+
+
+def test_an_mcap_written_into_a_buffer_given_back_by_the_one_before_is_rewritten_byte_for_byte(body_dataset,
+                                                                                                 tmp_path):
+    """MCAP files reuse the buffers of those written before (``mcap._buffer``): every byte of the records,
+    padding and record heads included, is written again, whatever the buffer held."""
+    import os
+
+    from physynth.io.export import mcap
+
+    tr = body_dataset[1].traces[0]
+
+    def write(name):
+        channels = [mcap.Channel(t.name, t.msgtype, "", "ros2msg", {}, t.stamps, t.messages)
+                    for t in trace_topics(TS, tr, {})]
+        prepared = mcap.prepare_mcap(channels, compression="")
+        with open(tmp_path / name, "wb") as f:
+            prepared.write(f)
+        return prepared.buffer, (tmp_path / name).read_bytes()
+
+    mcap._free_of(os.getpid())[1].clear()
+    first_buffer, first = write("first.mcap")
+    assert any(b is first_buffer for b in mcap._free_of(os.getpid())[1])  # given back once written
+    first_buffer[:] = 0xAB  # what a file before left there, as bytes no record holds
+    buffer, again = write("again.mcap")
+    assert buffer is first_buffer and again == first
+    _, msgs = _mcap_messages(tmp_path / "again.mcap")
+    assert len(msgs) == sum(t.stamps.size for t in trace_topics(TS, tr, {}))

@@ -5,16 +5,20 @@ every message of a topic) has one byte layout for all its messages: a NumPy stru
 explicit offsets. :func:`layout` computes those offsets by the rules of CDR (XCDR1, little endian, as
 ROS 2 writes it): a 4-byte encapsulation header ``00 01 00 00``, then every primitive aligned to its own
 size counted from the end of the encapsulation header, a string as a uint32 length (with the NUL) and
-its bytes with the NUL, no padding after the last field. :func:`records` fills one row per message and
-returns them as an ``(n, size)`` uint8 array.
+its bytes with the NUL, no padding after the last field. :func:`messages` describes a topic's messages
+(the bytes they share as one template row, the fields that vary as arrays); :meth:`Messages.fill` writes
+any slice of their rows into a uint8 array (the MCAP export fills each chunk on the thread that then
+compresses it, while the rows are in that core's cache) and :func:`records` lays them all out at once as
+an ``(n, size)`` uint8 array.
 
 Every layout here is checked byte for byte against ``rosbags``' own serialiser (``Typestore.serialize_cdr``)
-in ``tests/test_export_cdr.py``.
+in ``tests/test_export_rosbag2.py``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -74,19 +78,84 @@ def layout(fields: Sequence[Field], reserve: int = 0) -> np.dtype:
     return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": reserve + 4 + pos})
 
 
-def records(fields: Sequence[Field], stamps_ns: np.ndarray, frame: bytes, *, reserve: int = 0,
-            **values: object) -> np.ndarray:
-    """The CDR bytes of ``len(stamps_ns)`` messages of one layout, as an ``(n, size)`` uint8 array.
+@dataclass(frozen=True)
+class Messages:
+    """Messages of one fixed layout, their bytes written on demand (:meth:`fill`), a slice of rows at a
+    time: the MCAP export fills and compresses each chunk's rows on its own thread (:mod:`.mcap`).
+
+    ``dtype``: :func:`layout`; ``template``: the bytes every message shares (encapsulation, frame id,
+    constant fields, zero padding); ``stamps``: int64 ns; ``varying``: the fields that differ per message
+    (arrays of ``n`` rows)."""
+
+    dtype: np.dtype
+    template: np.ndarray
+    stamps: np.ndarray
+    varying: dict[str, np.ndarray]
+
+    @property
+    def n(self) -> int:
+        """Number of messages."""
+        return int(self.stamps.shape[0])
+
+    @property
+    def size(self) -> int:
+        """Bytes per row (reserved bytes and the message)."""
+        return int(self.dtype.itemsize)
+
+    def fill(self, rows: np.ndarray, start: int = 0) -> np.ndarray:
+        """Write messages ``start .. start + len(rows) - 1`` into ``rows``, a C-contiguous ``(m, size)``
+        uint8 array (every byte: reserved ones zero), and return it."""
+        m = rows.shape[0]
+        rows.reshape(-1).view(self.template.dtype)[:] = self.template[0]  # raw bytes, padding included
+        out = rows.reshape(-1).view(self.dtype)
+        ns = self.stamps[start:start + m]
+        out["sec"] = ns // 1_000_000_000
+        out["nanosec"] = ns % 1_000_000_000
+        for name, value in self.varying.items():
+            out[name] = value[start:start + m]
+        return rows
+
+    def rows(self) -> np.ndarray:
+        """All messages as one ``(n, size)`` uint8 array."""
+        return self.fill(np.empty((self.n, self.size), dtype=np.uint8))
+
+
+@dataclass(frozen=True)
+class Prebuilt:
+    """Messages already serialised, as an ``(n, size)`` uint8 array (e.g. by ``rosbags``), with the
+    interface of :class:`Messages`."""
+
+    data: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.data.shape[0])
+
+    @property
+    def size(self) -> int:
+        return int(self.data.shape[1])
+
+    def fill(self, rows: np.ndarray, start: int = 0) -> np.ndarray:
+        rows[:] = self.data[start:start + rows.shape[0]]
+        return rows
+
+    def rows(self) -> np.ndarray:
+        return self.data
+
+
+def messages(fields: Sequence[Field], stamps_ns: np.ndarray, frame: bytes, *, reserve: int = 0,
+             **values: object) -> Messages:
+    """``len(stamps_ns)`` messages of one layout, to be filled (:meth:`Messages.fill`) or laid out at once
+    (:meth:`Messages.rows`, :func:`records`).
 
     ``stamps_ns`` (int64, >= 0) fill the header stamp; ``frame`` is the header's frame id (ASCII or UTF-8,
-    no NUL); every other field takes ``values[name]`` (a scalar or an array broadcast to its rows);
+    no NUL); every other field takes ``values[name]`` (a scalar or an array of one value per message);
     fields not given are zero. ``reserve``: zero bytes in front of every row (a container's record head,
-    e.g. :data:`physynth.io.export.mcap.MESSAGE_HEAD`), which fills them in place.
+    e.g. :data:`physynth.io.export.mcap.MESSAGE_HEAD`, which the container fills in place).
     """
     dt = layout(fields, reserve)
-    n = int(stamps_ns.shape[0])
     # the fields that are the same in every message (encapsulation, frame id, constants such as covariances)
-    # go into one template row, repeated with one contiguous copy; then only the varying fields are written
+    # go into one template row, copied into every row as raw bytes; then only the varying fields are written
     template = np.zeros(1, dtype=dt)
     template["encapsulation"] = ENCAPSULATION
     template["frame_len"] = len(frame) + 1
@@ -94,13 +163,15 @@ def records(fields: Sequence[Field], stamps_ns: np.ndarray, frame: bytes, *, res
     varying = {}
     for name, value in values.items():
         if np.ndim(value) > len(dt[name].shape):
-            varying[name] = value
+            varying[name] = np.asarray(value)
         else:
             template[name] = value
-    out = np.repeat(template, n)
-    ns = np.asarray(stamps_ns, dtype=np.int64)
-    out["sec"] = ns // 1_000_000_000
-    out["nanosec"] = ns % 1_000_000_000
-    for name, value in varying.items():
-        out[name] = value
-    return out.view(np.uint8).reshape(n, dt.itemsize)
+    return Messages(dt, template.view(np.dtype((np.void, dt.itemsize))), np.asarray(stamps_ns, dtype=np.int64),
+                    varying)
+
+
+def records(fields: Sequence[Field], stamps_ns: np.ndarray, frame: bytes, *, reserve: int = 0,
+            **values: object) -> np.ndarray:
+    """The CDR bytes of ``len(stamps_ns)`` messages of one layout, as an ``(n, size)`` uint8 array
+    (:func:`messages`, laid out at once)."""
+    return messages(fields, stamps_ns, frame, reserve=reserve, **values).rows()

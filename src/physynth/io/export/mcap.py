@@ -1,9 +1,12 @@
-"""An MCAP file written from whole topics at once (NumPy): every message record built in one array.
+"""An MCAP file written from whole topics at once (NumPy): the message records built chunk by chunk.
 
 The Python MCAP writers (``mcap``'s and the one inside ``rosbags``) take one call per message, 4 us
 each here (2026-12-05, 2-core machine): with ~66,000 messages in a default trace that alone is 5x the time
-of generating the trace. :func:`prepare_mcap` takes each channel's messages as one ``(n, size)`` uint8
-array of CDR bytes (:mod:`.cdr`) and one int64 array of stamps and lays out the records with NumPy:
+of generating the trace. :func:`prepare_mcap` takes each channel's messages as a description of their
+CDR bytes (:class:`.cdr.Messages`) and one int64 array of stamps and lays out the records with NumPy, one
+chunk per task on a pool of threads (the rows filled, their record heads written, then compressed while
+they are in that core's cache), into a buffer that a file written before gave back (fresh memory is
+faulted in page by page):
 
 - the header, then the schemas and channels (in the data section, before the first chunk);
 - chunks of about :data:`CHUNK_BYTES` of one channel's message records each (a slice of that channel's
@@ -22,10 +25,11 @@ from __future__ import annotations
 import functools
 import os
 import struct
+import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -42,9 +46,10 @@ MESSAGE_HEAD = _MSG_HEAD.itemsize
 @dataclass(frozen=True)
 class Channel:
     """One topic: its name, message type (schema), schema text and encoding, its metadata, and its
-    messages (``stamps`` int64 ns, sorted; ``data`` an ``(n, MESSAGE_HEAD + size)`` C-contiguous uint8
-    array, one row per message: :data:`MESSAGE_HEAD` bytes that :func:`prepare_mcap` fills in place, then
-    the message's bytes)."""
+    messages (``stamps`` int64 ns, sorted; ``messages`` writes their rows on demand: ``.n`` rows of
+    ``.size`` bytes, ``.fill(rows, start)`` writes rows ``start ..`` into a C-contiguous uint8 array, as
+    :class:`physynth.io.export.cdr.Messages`: :data:`MESSAGE_HEAD` bytes that :func:`prepare_mcap` fills
+    in place, then the message's bytes)."""
 
     topic: str
     schema_name: str
@@ -52,7 +57,7 @@ class Channel:
     schema_encoding: str
     metadata: dict[str, str]
     stamps: np.ndarray
-    data: np.ndarray
+    messages: Any
 
 
 def _s(text: str | bytes) -> bytes:
@@ -69,30 +74,72 @@ def _record(op: int, body: bytes) -> bytes:
     return struct.pack("<BQ", op, len(body)) + body
 
 
-def _message_rows(ch: Channel, cid: int) -> np.ndarray:
-    """The channel's message records: its rows (:data:`MESSAGE_HEAD` bytes reserved in front of each
-    message's bytes) with the record heads filled in place (the constant part in one 2-D copy, then the
-    log and publish times)."""
-    n, width = ch.data.shape
+def _fill_heads(rows: np.ndarray, cid: int, stamps: np.ndarray) -> None:
+    """Fill the record heads of message rows (:data:`MESSAGE_HEAD` bytes reserved in front of each
+    message's bytes) in place: the constant part in one 2-D copy, then the log and publish times."""
+    n, width = rows.shape
     head = np.zeros(1, dtype=_MSG_HEAD)
     head["op"], head["length"], head["channel"] = 0x05, width - 9, cid
     const = _MSG_HEAD.fields["log_time"][1]  # op, length, channel and sequence: the bytes before the times
-    ch.data[:, :const] = head.view(np.uint8)[:const]
-    times = np.repeat(np.asarray(ch.stamps, dtype="<u8"), 2).view(np.uint8).reshape(n, 16)
-    ch.data[:, const:MESSAGE_HEAD] = times
-    return ch.data
+    rows[:, :const] = head.view(np.uint8)[:const]
+    rows[:, const:MESSAGE_HEAD] = np.repeat(np.asarray(stamps, dtype="<u8"), 2).view(np.uint8).reshape(n, 16)
 
 
-def _compressor(compression: str) -> Callable[[bytes], bytes]:
-    """The chunk compressor of ``compression`` ("", "zstd" at level 1, or "lz4")."""
+def _chunk(messages: Any, rows: np.ndarray, start: int, cid: int, stamps: np.ndarray,
+           compress: Callable[[memoryview], bytes] | None) -> bytes | memoryview:
+    """One chunk's records (what a thread of :func:`_pool` makes): rows ``start ..`` of a channel's
+    messages written into ``rows`` (a slice of the channel's records), their heads filled, compressed or
+    not. Built and compressed while in the core's cache."""
+    messages.fill(rows, start)
+    _fill_heads(rows, cid, stamps)
+    return rows.data if compress is None else compress(rows.data)
+
+
+ZSTD_LEVEL = 1
+"""zstd level of compressed chunks: ROS 2's MCAP storage writes level 1 by default."""
+ZSTD_HASH_LOG, ZSTD_MIN_MATCH = 7, 7
+"""zstd's match finder sized for message records (level 1 otherwise): a hash table of 2^7 entries and
+matches of at least 7 bytes. Records of one layout repeat every few hundred bytes, so a small table finds
+the same matches: a default trace's chunks compress about a fifth faster and 3 % smaller than with level
+1's own table (2^14) and minimum (6), same format (``benchmarks/bench_export.py``)."""
+
+
+def _zstd() -> Any:
+    try:
+        from compression import zstd  # Python 3.14
+    except ImportError:
+        from backports import zstd  # what rosbags installs before 3.14
+    return zstd
+
+
+def _zstd_compressor() -> Callable[[bytes | memoryview], bytes]:
+    """zstd compression of one chunk into one frame, with one compression context per thread (made once:
+    creating one per chunk cost 5 %)."""
+    zstd = _zstd()
+    opt = zstd.CompressionParameter
+    options = {opt.compression_level: ZSTD_LEVEL, opt.hash_log: ZSTD_HASH_LOG, opt.min_match: ZSTD_MIN_MATCH}
+    local = threading.local()
+
+    def compress(data: bytes | memoryview) -> bytes:
+        c = getattr(local, "compressor", None)
+        if c is None:
+            c = local.compressor = zstd.ZstdCompressor(options=options)
+        try:
+            return c.compress(data, mode=zstd.ZstdCompressor.FLUSH_FRAME)
+        except BaseException:
+            local.compressor = None  # a frame left unfinished: the next chunk starts a new context
+            raise
+
+    return compress
+
+
+@functools.cache
+def _compressor(compression: str) -> Callable[[bytes | memoryview], bytes]:
+    """The chunk compressor of ``compression`` ("", "zstd" at level 1, or "lz4"), made once per process."""
     if compression == "":
         return bytes
     if compression == "zstd":
-        try:
-            from compression import zstd  # Python 3.14
-        except ImportError:
-            from backports import zstd  # what rosbags installs before 3.14
-        return lambda data: zstd.compress(data, 1)
+        return _zstd_compressor()
     if compression == "lz4":
         import lz4.frame
 
@@ -110,12 +157,41 @@ def _pool() -> ThreadPoolExecutor:
     return _pool_of(os.getpid())
 
 
+KEEP_BUFFERS = 4
+"""Buffers of written files kept for the next files (per process): about the files in flight at once."""
+
+
+@functools.cache
+def _free_of(pid: int) -> tuple[threading.Lock, list[np.ndarray]]:  # noqa: ARG001 (a forked worker: its own)
+    return threading.Lock(), []
+
+
+def _buffer(nbytes: int) -> np.ndarray:
+    """A uint8 buffer of at least ``nbytes``: one a file written before gave back (:func:`_give_back`) or a
+    new one, a quarter larger (the next traces may be longer). Fresh memory is faulted in by the kernel page
+    by page (about 2 ms for a default trace's 17 MB), reused memory is not."""
+    lock, free = _free_of(os.getpid())
+    with lock:
+        for i, b in enumerate(free):
+            if b.nbytes >= nbytes:
+                return free.pop(i)
+    return np.empty(nbytes + nbytes // 4, dtype=np.uint8)
+
+
+def _give_back(buffer: np.ndarray) -> None:
+    lock, free = _free_of(os.getpid())
+    with lock:
+        free.append(buffer)
+        free.sort(key=lambda b: b.nbytes)  # the smallest that fits is taken first
+        del free[:-KEEP_BUFFERS]
+
+
 def prepare_mcap(channels: Sequence[Channel], *, profile: str = "ros2", library: str = "physynth",
                  metadata: dict[str, dict[str, str]] | None = None, compression: str = "") -> PreparedMcap:
-    """Lay out an MCAP file of ``channels`` (ids 1, 2, ... in order) and start compressing its chunks on
-    the threads of :func:`_pool`; :meth:`PreparedMcap.write` writes it once they are done. The caller may
-    prepare the next file meanwhile (what the ROS 2 export does: one bag's chunks compress while the next
-    trace's messages are built). ``metadata``: named metadata records (name -> map); ``compression``: of
+    """Lay out an MCAP file of ``channels`` (ids 1, 2, ... in order) and start building and compressing its
+    chunks on the threads of :func:`_pool`; :meth:`PreparedMcap.write` writes it once they are done. The
+    caller may prepare the next file meanwhile (what the ROS 2 export does: one bag's chunks are built while
+    the next trace's messages are described). ``metadata``: named metadata records (name -> map); ``compression``: of
     every chunk ("" none, "zstd" at level 1, "lz4").
 
     Each chunk holds consecutive messages of one channel (in time order, about :data:`CHUNK_BYTES`), so
@@ -133,23 +209,27 @@ def prepare_mcap(channels: Sequence[Channel], *, profile: str = "ros2", library:
                                        + _s(ch.schema_encoding) + _s(ch.schema_text)))
         channel_recs.append(_record(0x04, struct.pack("<HH", cid, schemas[ch.schema_name]) + _s(ch.topic)
                                     + _s("cdr") + _map(ch.metadata)))
-    rows = [_message_rows(ch, cid) for cid, ch in enumerate(channels, 1)]
+    sizes = [ch.messages.n * ch.messages.size for ch in channels]
+    buffer = _buffer(sum(sizes))  # every channel's records, filled chunk by chunk on the pool
+    ends = np.cumsum([0, *sizes]).tolist()
+    rows = [buffer[ends[k]:ends[k + 1]].reshape(ch.messages.n, ch.messages.size) for k, ch in enumerate(channels)]
     stamps = [np.asarray(ch.stamps, dtype=np.int64) for ch in channels]
     pieces = []  # (first stamp, channel index, first row, end row)
     for k, r in enumerate(rows):
         step = max(1, CHUNK_BYTES // r.shape[1])
         pieces += [(int(stamps[k][a]), k, a, min(a + step, r.shape[0])) for a in range(0, r.shape[0], step)]
     pieces.sort()
-    bodies = [rows[k][a:b].data for _, k, a, b in pieces]
-    packs: list[Future | memoryview] = (
-        [_pool().submit(_compressor(compression), body) for body in bodies] if compression else list(bodies))
+    compress = _compressor(compression) if compression else None
+    packs = [_pool().submit(_chunk, channels[k].messages, rows[k][a:b], a, k + 1, stamps[k][a:b], compress)
+             for _, k, a, b in pieces]
     return PreparedMcap(profile, library, metadata or {}, compression, len(schemas), schema_recs, channel_recs,
-                        rows, stamps, pieces, bodies, packs)
+                        buffer, rows, stamps, pieces, packs)
 
 
 @dataclass
 class PreparedMcap:
-    """An MCAP file laid out by :func:`prepare_mcap`, its chunks compressing (futures) or not."""
+    """An MCAP file laid out by :func:`prepare_mcap`: its chunks being built (futures) in ``buffer``, given back
+    for the next file once written."""
 
     profile: str
     library: str
@@ -158,11 +238,11 @@ class PreparedMcap:
     n_schemas: int
     schema_recs: list[bytes]
     channel_recs: list[bytes]
+    buffer: np.ndarray
     rows: list[np.ndarray]
     stamps: list[np.ndarray]
     pieces: list[tuple[int, int, int, int]]
-    bodies: list[memoryview]
-    packs: list[Future | memoryview]
+    packs: list[Future]
 
     def write(self, f: BinaryIO) -> dict[int, int]:
         """Write the file to the open binary file ``f`` (waiting for each chunk's compression as it comes
@@ -180,9 +260,9 @@ class PreparedMcap:
         for r in (*self.schema_recs, *self.channel_recs):
             put(r)
         chunk_indexes = []
-        for (t0, k, a, b), body, pack in zip(self.pieces, self.bodies, self.packs, strict=True):
-            packed = pack.result() if isinstance(pack, Future) else pack
-            size = body.nbytes
+        for (t0, k, a, b), pack in zip(self.pieces, self.packs, strict=True):
+            packed = pack.result()
+            size = (b - a) * rows[k].shape[1]
             n_packed = packed.nbytes if isinstance(packed, memoryview) else len(packed)
             t1 = int(stamps[k][b - 1])
             chunk_start = pos
@@ -228,4 +308,6 @@ class PreparedMcap:
             put(_record(0x0E, struct.pack("<BQQ", op, start, length)))
         put(_record(0x02, struct.pack("<QQI", summary_start, offset_start, 0)))
         put(MAGIC)
+        self.packs = []  # every chunk written: the buffer is free for the next file
+        _give_back(self.buffer)
         return counts

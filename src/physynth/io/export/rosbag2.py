@@ -91,15 +91,15 @@ ZERO_COV, NO_COV = np.zeros(9), np.array([-1.0] + [0.0] * 8)
 
 @dataclass(frozen=True)
 class Topic:
-    """One topic of a bag: name, message type, offered QoS profiles, and its messages (stamps in ns,
-    rows of an ``(n, HEAD + size)`` uint8 array: :data:`HEAD` bytes reserved for the MCAP record head,
-    then the message's CDR bytes)."""
+    """One topic of a bag: name, message type, offered QoS profiles, and its messages (stamps in ns;
+    ``messages`` lays out their rows on demand, :class:`.cdr.Messages`: :data:`HEAD` bytes reserved for the
+    MCAP record head, then the message's CDR bytes)."""
 
     name: str
     msgtype: str
     qos: tuple[Any, ...]
     stamps: np.ndarray
-    data: np.ndarray
+    messages: cdr.Messages | cdr.Prebuilt
 
 
 def _finite_rows(n: int, *arrays: np.ndarray | None) -> np.ndarray:
@@ -142,8 +142,8 @@ def _imu_topics(imu: Any, skipped: dict[str, int]) -> list[Topic]:
                 kept = arr[ok]
                 values.update({f"{name}_{c}": kept[:, k] for k, c in enumerate("xyz")})
         f = frame.encode()
-        rows = cdr.records(cdr.imu_fields(f), ns, f, reserve=HEAD, **values)
-        out.append(Topic(topic, "sensor_msgs/msg/Imu", (), ns, rows))
+        msgs = cdr.messages(cdr.imu_fields(f), ns, f, reserve=HEAD, **values)
+        out.append(Topic(topic, "sensor_msgs/msg/Imu", (), ns, msgs))
     return out
 
 
@@ -159,7 +159,7 @@ def _uwb_topics(trace: Trace, skipped: dict[str, int]) -> list[Topic]:
             continue
         sel[sel] = _kept(skipped, f"/uwb/{a_id}", u.t_s[sel])
         ns, f = _stamps_ns(u.t_s[sel]), a_id.encode()
-        out.append(Topic(f"/uwb/{a_id}", "sensor_msgs/msg/Range", (), ns, cdr.records(
+        out.append(Topic(f"/uwb/{a_id}", "sensor_msgs/msg/Range", (), ns, cdr.messages(
             cdr.range_fields(f), ns, f, reserve=HEAD, radiation_type=RADIO, field_of_view=2 * np.pi,
             max_range=max_range, range=u.range_m[sel])))
     return out
@@ -178,7 +178,7 @@ def _anchor_frames(ts: Any, trace: Trace, ns: int) -> Topic:
         translation=Vector3(x=p[0], y=p[1], z=p[2]), rotation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)))
         for a_id, p in zip(trace.anchors.ids, trace.anchors.pos_enu_m.tolist(), strict=True)]
     data = np.frombuffer(bytes(HEAD) + bytes(ts.serialize_cdr(TFMessage(transforms=transforms), tf_type)), np.uint8)
-    return Topic("/tf_static", tf_type, (_latched_qos(),), np.array([ns], np.int64), data[None, :].copy())
+    return Topic("/tf_static", tf_type, (_latched_qos(),), np.array([ns], np.int64), cdr.Prebuilt(data[None, :].copy()))
 
 
 def _truth_topics(ts: Any, trace: Trace, skipped: dict[str, int]) -> list[Topic]:
@@ -187,7 +187,7 @@ def _truth_topics(ts: Any, trace: Trace, skipped: dict[str, int]) -> list[Topic]
     ok = _kept(skipped, "/truth", truth.t_s, truth.pos_enu_m)
     ns = _stamps_ns(truth.t_s[ok])
     pos = truth.pos_enu_m[ok]
-    out = [Topic("/truth", "geometry_msgs/msg/PointStamped", (), ns, cdr.records(
+    out = [Topic("/truth", "geometry_msgs/msg/PointStamped", (), ns, cdr.messages(
         cdr.point_stamped_fields(b"enu"), ns, b"enu", reserve=HEAD,
         **{f"point_{c}": pos[:, k] for k, c in enumerate("xyz")}))]
     if len(trace.anchors):
@@ -195,7 +195,7 @@ def _truth_topics(ts: Any, trace: Trace, skipped: dict[str, int]) -> list[Topic]
     if truth.quat_wxyz is not None:
         ok = _kept(skipped, "/truth/orientation", truth.t_s, truth.quat_wxyz)
         ns, q = _stamps_ns(truth.t_s[ok]), truth.quat_wxyz[ok]  # stored scalar-first (w, x, y, z)
-        out.append(Topic("/truth/orientation", "geometry_msgs/msg/QuaternionStamped", (), ns, cdr.records(
+        out.append(Topic("/truth/orientation", "geometry_msgs/msg/QuaternionStamped", (), ns, cdr.messages(
             cdr.quaternion_stamped_fields(b"enu"), ns, b"enu", reserve=HEAD,
             **{f"quaternion_{c}": q[:, k] for k, c in enumerate("wxyz")})))
     return out
@@ -262,7 +262,7 @@ def _mcap_bag(topics: list[Topic], compression: str) -> Callable[[Path], None]:
     from .mcap import Channel, prepare_mcap
 
     channels = [Channel(t.name, t.msgtype, _type_info(t.msgtype)[0], "ros2msg",
-                        {"offered_qos_profiles": _qos_text(t.qos)}, t.stamps, t.data) for t in topics]
+                        {"offered_qos_profiles": _qos_text(t.qos)}, t.stamps, t.messages) for t in topics]
     serialized = {"serialized_metadata": ""}  # filled in when the bag's name is known
     prepared = prepare_mcap(channels, library="physynth", compression=compression,
                             metadata={"rosbag2": serialized})
@@ -288,8 +288,9 @@ def _write_sqlite3_bag(folder: Path, topics: list[Topic]) -> None:
         stamps = np.concatenate([t.stamps for t in topics])
         which = np.repeat(np.arange(len(topics)), [t.stamps.size for t in topics])
         row = np.concatenate([np.arange(t.stamps.size) for t in topics])
+        data = [t.messages.rows() for t in topics]
         for k in np.argsort(stamps, kind="stable").tolist():  # a bag is written in time order
-            w.write(conns[which[k]], int(stamps[k]), topics[which[k]].data[row[k], HEAD:].tobytes())
+            w.write(conns[which[k]], int(stamps[k]), data[which[k]][row[k], HEAD:].tobytes())
 
 
 def prepare_bag(trace: Trace, storage: str, skipped: dict[str, int]) -> Callable[[Path], None]:
