@@ -102,26 +102,37 @@ class Topic:
     messages: cdr.Messages | cdr.Prebuilt
 
 
-def _finite_rows(n: int, *arrays: np.ndarray | None) -> np.ndarray:
-    """Rows whose every value in the (n, k) ``arrays`` (None: absent) is finite, as a mask."""
-    ok = np.ones(n, dtype=bool)
+def _finite_rows(n: int, *arrays: np.ndarray | None) -> np.ndarray | None:
+    """Rows whose every value in the (n, k) ``arrays`` (None: absent) is finite, as a mask; None when all
+    are (the usual case, found with one pass over each array)."""
+    ok = None
     for a in arrays:
         if a is not None:
-            ok &= np.isfinite(a).all(axis=1)
+            finite = np.isfinite(a)
+            if not finite.all():
+                ok = finite.all(axis=1) if ok is None else ok & finite.all(axis=1)
     return ok
 
 
-def _kept(skipped: dict[str, int], topic: str, t_s: np.ndarray, *arrays: np.ndarray | None) -> np.ndarray:
-    """The rows of a topic's message fields to write; those with a NaN (or infinite) field are counted
-    in ``skipped`` (a message cannot say "unknown": e.g. an optical tracker's dropouts in a recording),
-    and so, under ``"<topic> (before 0 s)"``, are the other rows stamped before time 0 (a ROS time is
-    never negative)."""
-    ok = _finite_rows(t_s.shape[0], *arrays)
-    skipped[topic] = skipped.get(topic, 0) + int(t_s.shape[0] - ok.sum())
-    early = ok & (_stamps_ns(t_s) < 0)
+def _kept(skipped: dict[str, int], topic: str, t_s: np.ndarray,
+          *arrays: np.ndarray | None) -> tuple[np.ndarray | slice, np.ndarray]:
+    """The rows of a topic's message fields to write (a mask, or ``slice(None)`` when all are), and their
+    stamps in ns; those with a NaN (or infinite) field are counted in ``skipped`` (a message cannot say
+    "unknown": e.g. an optical tracker's dropouts in a recording), and so, under ``"<topic> (before 0 s)"``,
+    are the other rows stamped before time 0 (a ROS time is never negative)."""
+    n = t_s.shape[0]
+    ns = _stamps_ns(t_s)
+    finite = _finite_rows(n, *arrays)
+    skipped[topic] = skipped.get(topic, 0) + (0 if finite is None else int(n - finite.sum()))
+    early = ns < 0
+    if finite is not None:
+        early &= finite
     key = f"{topic} (before 0 s)"
     skipped[key] = skipped.get(key, 0) + int(early.sum())
-    return ok & ~early
+    if finite is None and not early.any():
+        return slice(None), ns
+    ok = ~early if finite is None else finite & ~early
+    return ok, ns[ok]
 
 
 def _imu_topics(imu: Any, skipped: dict[str, int]) -> list[Topic]:
@@ -132,8 +143,7 @@ def _imu_topics(imu: Any, skipped: dict[str, int]) -> list[Topic]:
             ("/imu", "enu", imu.acc_mps2, None), ("/imu/body", "body", imu.acc_body_mps2, imu.gyro_body_radps))
         if acc is not None or gyro is not None]
     for topic, frame, acc, gyro in channels:
-        ok = _kept(skipped, topic, imu.t_s, acc, gyro)
-        ns = _stamps_ns(imu.t_s[ok])
+        ok, ns = _kept(skipped, topic, imu.t_s, acc, gyro)
         values: dict[str, Any] = {"orientation_w": 1.0, "orientation_covariance": NO_COV,
                                   "angular_velocity_covariance": NO_COV if gyro is None else ZERO_COV,
                                   "linear_acceleration_covariance": NO_COV if acc is None else ZERO_COV}
@@ -157,8 +167,10 @@ def _uwb_topics(trace: Trace, skipped: dict[str, int]) -> list[Topic]:
         sel = ok & (u.anchor == a_idx)
         if not sel.any():
             continue
-        sel[sel] = _kept(skipped, f"/uwb/{a_id}", u.t_s[sel])
-        ns, f = _stamps_ns(u.t_s[sel]), a_id.encode()
+        rows, ns = _kept(skipped, f"/uwb/{a_id}", u.t_s[sel])
+        if isinstance(rows, np.ndarray):
+            sel[sel] = rows
+        f = a_id.encode()
         out.append(Topic(f"/uwb/{a_id}", "sensor_msgs/msg/Range", (), ns, cdr.messages(
             cdr.range_fields(f), ns, f, reserve=HEAD, radiation_type=RADIO, field_of_view=2 * np.pi,
             max_range=max_range, range=u.range_m[sel])))
@@ -184,8 +196,7 @@ def _anchor_frames(ts: Any, trace: Trace, ns: int) -> Topic:
 def _truth_topics(ts: Any, trace: Trace, skipped: dict[str, int]) -> list[Topic]:
     """``/truth`` positions, the ``/tf_static`` anchor layout and ``/truth/orientation`` (in this order)."""
     truth = trace.truth
-    ok = _kept(skipped, "/truth", truth.t_s, truth.pos_enu_m)
-    ns = _stamps_ns(truth.t_s[ok])
+    ok, ns = _kept(skipped, "/truth", truth.t_s, truth.pos_enu_m)
     pos = truth.pos_enu_m[ok]
     out = [Topic("/truth", "geometry_msgs/msg/PointStamped", (), ns, cdr.messages(
         cdr.point_stamped_fields(b"enu"), ns, b"enu", reserve=HEAD,
@@ -193,8 +204,8 @@ def _truth_topics(ts: Any, trace: Trace, skipped: dict[str, int]) -> list[Topic]
     if len(trace.anchors):
         out.append(_anchor_frames(ts, trace, max(0, int(_stamps_ns(truth.t_s[:1])[0]))))
     if truth.quat_wxyz is not None:
-        ok = _kept(skipped, "/truth/orientation", truth.t_s, truth.quat_wxyz)
-        ns, q = _stamps_ns(truth.t_s[ok]), truth.quat_wxyz[ok]  # stored scalar-first (w, x, y, z)
+        ok, ns = _kept(skipped, "/truth/orientation", truth.t_s, truth.quat_wxyz)
+        q = truth.quat_wxyz[ok]  # stored scalar-first (w, x, y, z)
         out.append(Topic("/truth/orientation", "geometry_msgs/msg/QuaternionStamped", (), ns, cdr.messages(
             cdr.quaternion_stamped_fields(b"enu"), ns, b"enu", reserve=HEAD,
             **{f"quaternion_{c}": q[:, k] for k, c in enumerate("wxyz")})))
