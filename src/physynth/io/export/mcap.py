@@ -4,9 +4,10 @@ The Python MCAP writers (``mcap``'s and the one inside ``rosbags``) take one cal
 each here (2026-12-05, 2-core machine): with ~66,000 messages in a default trace that alone is 5x the time
 of generating the trace. :func:`prepare_mcap` takes each channel's messages as a description of their
 CDR bytes (:class:`.cdr.Messages`) and one int64 array of stamps and lays out the records with NumPy, one
-chunk per task on a pool of threads (the rows filled, their record heads written, then compressed while
-they are in that core's cache), into a buffer that a file written before gave back (fresh memory is
-faulted in page by page):
+chunk per task on a pool of threads: the chunk's rows filled and their record heads written in the
+thread's scratch buffer, then compressed while they are in that core's cache (a chunk built in a buffer
+of the whole file, cold since the file before, took twice the CPU time); uncompressed, into one buffer of
+the whole file, given back for the next file once written (fresh memory is faulted in page by page):
 
 - the header, then the schemas and channels (in the data section, before the first chunk);
 - chunks of about :data:`CHUNK_BYTES` of one channel's message records each (a slice of that channel's
@@ -85,14 +86,30 @@ def _fill_heads(rows: np.ndarray, cid: int, stamps: np.ndarray) -> None:
     rows[:, const:MESSAGE_HEAD] = np.repeat(np.asarray(stamps, dtype="<u8"), 2).view(np.uint8).reshape(n, 16)
 
 
-def _chunk(messages: Any, rows: np.ndarray, start: int, cid: int, stamps: np.ndarray,
+def _chunk(messages: Any, rows: np.ndarray | None, start: int, end: int, cid: int, stamps: np.ndarray,
            compress: Callable[[memoryview], bytes] | None) -> bytes | memoryview:
     """One chunk's records (what a thread of :func:`_pool` makes): rows ``start ..`` of a channel's
     messages written into ``rows`` (a slice of the channel's records), their heads filled, compressed or
     not. Built and compressed while in the core's cache."""
+    if rows is None:  # compressed: built in this thread's scratch buffer, in its core's cache since the last chunk
+        rows = _scratch((end - start) * messages.size).reshape(end - start, messages.size)
     messages.fill(rows, start)
     _fill_heads(rows, cid, stamps)
     return rows.data if compress is None else compress(rows.data)
+
+
+@functools.cache
+def _local_of(pid: int) -> threading.local:  # noqa: ARG001 (a forked worker: its own)
+    return threading.local()
+
+
+def _scratch(nbytes: int) -> np.ndarray:
+    """This thread's scratch buffer (the records of the chunk it compresses), ``nbytes`` of it."""
+    local = _local_of(os.getpid())
+    buf = getattr(local, "scratch", None)
+    if buf is None or buf.nbytes < nbytes:
+        buf = local.scratch = np.empty(max(nbytes, CHUNK_BYTES + (1 << 16)), dtype=np.uint8)
+    return buf[:nbytes]
 
 
 ZSTD_LEVEL = 1
@@ -209,27 +226,30 @@ def prepare_mcap(channels: Sequence[Channel], *, profile: str = "ros2", library:
                                        + _s(ch.schema_encoding) + _s(ch.schema_text)))
         channel_recs.append(_record(0x04, struct.pack("<HH", cid, schemas[ch.schema_name]) + _s(ch.topic)
                                     + _s("cdr") + _map(ch.metadata)))
-    sizes = [ch.messages.n * ch.messages.size for ch in channels]
-    buffer = _buffer(sum(sizes))  # every channel's records, filled chunk by chunk on the pool
-    ends = np.cumsum([0, *sizes]).tolist()
-    rows = [buffer[ends[k]:ends[k + 1]].reshape(ch.messages.n, ch.messages.size) for k, ch in enumerate(channels)]
+    widths = [ch.messages.size for ch in channels]
     stamps = [np.asarray(ch.stamps, dtype=np.int64) for ch in channels]
     pieces = []  # (first stamp, channel index, first row, end row)
-    for k, r in enumerate(rows):
-        step = max(1, CHUNK_BYTES // r.shape[1])
-        pieces += [(int(stamps[k][a]), k, a, min(a + step, r.shape[0])) for a in range(0, r.shape[0], step)]
+    for k, ch in enumerate(channels):
+        n, step = ch.messages.n, max(1, CHUNK_BYTES // widths[k])
+        pieces += [(int(stamps[k][a]), k, a, min(a + step, n)) for a in range(0, n, step)]
     pieces.sort()
     compress = _compressor(compression) if compression else None
-    packs = [_pool().submit(_chunk, channels[k].messages, rows[k][a:b], a, k + 1, stamps[k][a:b], compress)
-             for _, k, a, b in pieces]
+    buffer, rows = None, [None] * len(channels)
+    if compress is None:  # the records are written as they are: every channel's, in one buffer until then
+        sizes = [ch.messages.n * w for ch, w in zip(channels, widths, strict=True)]
+        buffer = _buffer(sum(sizes))
+        ends = np.cumsum([0, *sizes]).tolist()
+        rows = [buffer[ends[k]:ends[k + 1]].reshape(-1, widths[k]) for k in range(len(channels))]
+    packs = [_pool().submit(_chunk, channels[k].messages, None if rows[k] is None else rows[k][a:b], a, b, k + 1,
+                            stamps[k][a:b], compress) for _, k, a, b in pieces]
     return PreparedMcap(profile, library, metadata or {}, compression, len(schemas), schema_recs, channel_recs,
-                        buffer, rows, stamps, pieces, packs)
+                        buffer, widths, stamps, pieces, packs)
 
 
 @dataclass
 class PreparedMcap:
-    """An MCAP file laid out by :func:`prepare_mcap`: its chunks being built (futures) in ``buffer``, given back
-    for the next file once written."""
+    """An MCAP file laid out by :func:`prepare_mcap`: its chunks being built (futures); uncompressed, in
+    ``buffer``, given back for the next file once written."""
 
     profile: str
     library: str
@@ -238,8 +258,8 @@ class PreparedMcap:
     n_schemas: int
     schema_recs: list[bytes]
     channel_recs: list[bytes]
-    buffer: np.ndarray
-    rows: list[np.ndarray]
+    buffer: np.ndarray | None
+    widths: list[int]
     stamps: list[np.ndarray]
     pieces: list[tuple[int, int, int, int]]
     packs: list[Future]
@@ -247,7 +267,7 @@ class PreparedMcap:
     def write(self, f: BinaryIO) -> dict[int, int]:
         """Write the file to the open binary file ``f`` (waiting for each chunk's compression as it comes
         to it); returns the message count of each channel id."""
-        compression, rows, stamps = self.compression, self.rows, self.stamps
+        compression, widths, stamps = self.compression, self.widths, self.stamps
         pos = 0
 
         def put(b: bytes | memoryview) -> None:
@@ -262,7 +282,7 @@ class PreparedMcap:
         chunk_indexes = []
         for (t0, k, a, b), pack in zip(self.pieces, self.packs, strict=True):
             packed = pack.result()
-            size = (b - a) * rows[k].shape[1]
+            size = (b - a) * widths[k]
             n_packed = packed.nbytes if isinstance(packed, memoryview) else len(packed)
             t1 = int(stamps[k][b - 1])
             chunk_start = pos
@@ -272,7 +292,7 @@ class PreparedMcap:
             chunk_end = pos
             pairs = np.empty((b - a, 2), dtype="<u8")
             pairs[:, 0] = stamps[k][a:b]
-            pairs[:, 1] = np.arange(b - a, dtype=np.uint64) * np.uint64(rows[k].shape[1])
+            pairs[:, 1] = np.arange(b - a, dtype=np.uint64) * np.uint64(widths[k])
             put(_record(0x07, struct.pack("<HI", k + 1, pairs.nbytes) + pairs.tobytes()))
             chunk_indexes.append(_record(0x08, struct.pack("<QQQQ", t0, t1, chunk_start, chunk_end - chunk_start)
                                          + struct.pack("<I", 10) + struct.pack("<HQ", k + 1, chunk_end)
@@ -309,5 +329,6 @@ class PreparedMcap:
         put(_record(0x02, struct.pack("<QQI", summary_start, offset_start, 0)))
         put(MAGIC)
         self.packs = []  # every chunk written: the buffer is free for the next file
-        _give_back(self.buffer)
+        if self.buffer is not None:
+            _give_back(self.buffer)
         return counts
