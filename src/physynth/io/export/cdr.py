@@ -102,11 +102,16 @@ class Messages:
         """Bytes per row (reserved bytes and the message)."""
         return int(self.dtype.itemsize)
 
-    def fill(self, rows: np.ndarray, start: int = 0) -> np.ndarray:
+    def fill(self, rows: np.ndarray, start: int = 0, prefix: bytes = b"") -> np.ndarray:
         """Write messages ``start .. start + len(rows) - 1`` into ``rows``, a C-contiguous ``(m, size)``
-        uint8 array (every byte: reserved ones zero), and return it."""
+        uint8 array (every byte: reserved ones zero, or ``prefix`` over the first of them), and return it."""
         m = rows.shape[0]
-        rows.reshape(-1).view(self.template.dtype)[:] = self.template[0]  # raw bytes, padding included
+        template = self.template[0]
+        if prefix:  # e.g. the constant part of a container's record head, written with the rest
+            row = bytearray(template.tobytes())
+            row[:len(prefix)] = prefix
+            template = np.void(bytes(row))
+        rows.reshape(-1).view(self.template.dtype)[:] = template  # raw bytes, padding included
         out = rows.reshape(-1).view(self.dtype)
         ns = self.stamps[start:start + m]
         out["sec"] = ns // 1_000_000_000
@@ -135,8 +140,9 @@ class Prebuilt:
     def size(self) -> int:
         return int(self.data.shape[1])
 
-    def fill(self, rows: np.ndarray, start: int = 0) -> np.ndarray:
+    def fill(self, rows: np.ndarray, start: int = 0, prefix: bytes = b"") -> np.ndarray:
         rows[:] = self.data[start:start + rows.shape[0]]
+        rows[:, :len(prefix)] = np.frombuffer(prefix, dtype=np.uint8)
         return rows
 
     def rows(self) -> np.ndarray:

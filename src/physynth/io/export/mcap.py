@@ -75,26 +75,30 @@ def _record(op: int, body: bytes) -> bytes:
     return struct.pack("<BQ", op, len(body)) + body
 
 
-def _fill_heads(rows: np.ndarray, cid: int, stamps: np.ndarray) -> None:
-    """Fill the record heads of message rows (:data:`MESSAGE_HEAD` bytes reserved in front of each
-    message's bytes) in place: the constant part in one 2-D copy, then the log and publish times."""
-    n, width = rows.shape
+_TIMES = MESSAGE_HEAD - 16
+"""Offset of a message record's log and publish times (after op, length, channel and sequence)."""
+
+
+def _head_prefix(width: int, cid: int) -> bytes:
+    """The constant part of the record heads of a channel's messages (rows of ``width`` bytes): op,
+    length, channel and sequence (0), the bytes before the log and publish times."""
     head = np.zeros(1, dtype=_MSG_HEAD)
     head["op"], head["length"], head["channel"] = 0x05, width - 9, cid
-    const = _MSG_HEAD.fields["log_time"][1]  # op, length, channel and sequence: the bytes before the times
-    rows[:, :const] = head.view(np.uint8)[:const]
-    rows[:, const:MESSAGE_HEAD] = np.repeat(np.asarray(stamps, dtype="<u8"), 2).view(np.uint8).reshape(n, 16)
+    return head.tobytes()[:_TIMES]
 
 
 def _chunk(messages: Any, rows: np.ndarray | None, start: int, end: int, cid: int, stamps: np.ndarray,
            compress: Callable[[memoryview], bytes] | None) -> bytes | memoryview:
-    """One chunk's records (what a thread of :func:`_pool` makes): rows ``start ..`` of a channel's
-    messages written into ``rows`` (a slice of the channel's records), their heads filled, compressed or
-    not. Built and compressed while in the core's cache."""
+    """One chunk's records (what a thread of :func:`_pool` makes): rows ``start .. end - 1`` of a channel's
+    messages written into ``rows`` (a slice of the channel's records; None: this thread's scratch buffer)
+    with their record heads (the constant part with the messages' shared bytes, then the times), compressed
+    or not. Built and compressed while in the core's cache."""
+    width = messages.size
     if rows is None:  # compressed: built in this thread's scratch buffer, in its core's cache since the last chunk
-        rows = _scratch((end - start) * messages.size).reshape(end - start, messages.size)
-    messages.fill(rows, start)
-    _fill_heads(rows, cid, stamps)
+        rows = _scratch((end - start) * width).reshape(end - start, width)
+    messages.fill(rows, start, prefix=_head_prefix(width, cid))
+    times = np.dtype({"names": ["t"], "formats": ["V16"], "offsets": [_TIMES], "itemsize": width})
+    rows.reshape(-1).view(times)["t"] = np.repeat(np.asarray(stamps, dtype="<u8"), 2).view("V16")
     return rows.data if compress is None else compress(rows.data)
 
 
