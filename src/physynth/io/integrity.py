@@ -177,7 +177,8 @@ def _result(meta: Mapping[str, Any], totals: list[int], problems: tuple[str, ...
 
 def _problems(path: Path, meta: Mapping[str, Any], *, hashes: bool, totals: list[int],
               strays: bool = False) -> Iterator[str]:
-    """The problems of a dataset, one line each, lazily (the first comes before later files are read);
+    """The problems of a dataset, one line each, lazily (the first comes before later files are checked;
+    their hashes are taken ahead on other threads, and no more once the caller stops);
     ``totals`` gathers the rows and bytes of the files that match their records; ``strays``: also the
     Parquet files the record does not list."""
     from .tables import TABLES  # from io.tables, not io.dataset: io.dataset imports this module
@@ -197,8 +198,8 @@ def _problems(path: Path, meta: Mapping[str, Any], *, hashes: bool, totals: list
                f"table(s) {', '.join(lacking)}")
     truth = table_records(files, "truth")
     truth_intact = True
-    for name, rec in files.items():
-        problem = _file_problem(path, name, rec, hashes=hashes)
+    for (name, rec), digest in zip(files.items(), _digests(path, list(files), hashes=hashes), strict=True):
+        problem = _file_problem(path, name, rec, hashes=hashes, digest=digest)
         if problem is None:
             totals[0] += int(rec["rows"])
             totals[1] += int(rec["bytes"])
@@ -216,8 +217,32 @@ def _problems(path: Path, meta: Mapping[str, Any], *, hashes: bool, totals: list
                "does not list (added after the dataset was written; readers ignore it)")
 
 
-def _file_problem(path: Path, name: str, rec: Any, *, hashes: bool) -> str | None:
-    """How the file ``name`` disagrees with its record ``rec`` (its first disagreement), or None."""
+def _digest_or_none(f: Path) -> str | None:
+    try:
+        return file_sha256(f)
+    except OSError:  # missing or unreadable: _file_problem says which
+        return None
+
+
+def _digests(path: Path, names: list[str], *, hashes: bool) -> Iterator[str | None]:
+    """The SHA-256 of each file ``names`` (None: not asked, or not readable), in order, taken on one thread
+    per core while the caller checks the files before (hashlib releases the GIL)."""
+    if not hashes or len(names) < 2:
+        yield from (None for _ in names)
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    pool = ThreadPoolExecutor(min(len(names), len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+                                  else os.cpu_count() or 1), thread_name_prefix="physynth-sha256")
+    try:
+        yield from pool.map(_digest_or_none, [path / n for n in names])
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)  # a caller that stopped at a problem: the rest not hashed
+
+
+def _file_problem(path: Path, name: str, rec: Any, *, hashes: bool, digest: str | None = None) -> str | None:
+    """How the file ``name`` disagrees with its record ``rec`` (its first disagreement), or None;
+    ``digest``: its SHA-256 when already taken."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -230,7 +255,7 @@ def _file_problem(path: Path, name: str, rec: Any, *, hashes: bool) -> str | Non
     if size != rec["bytes"]:
         return (f"dataset {path} is damaged: {name} has {size} bytes, dataset.json records {rec['bytes']} "
                 "(truncated or changed after it was written)")
-    if hashes and file_sha256(f) != rec[HASH]:
+    if hashes and (digest or file_sha256(f)) != rec[HASH]:
         return (f"dataset {path} is damaged: {name} does not match its {HASH} in dataset.json "
                 "(changed after it was written)")
     if name.endswith(".parquet"):
