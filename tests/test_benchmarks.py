@@ -26,6 +26,7 @@ TINY = {
     "bench_generate": (["-n", "2", "--repeat", "1"], "to Parquet:"),
     "bench_validate": (["-n", "2", "--repeat", "1"], "generate + reduce + statistics"),
     "bench_cli": (["--repeat", "1"], "first trace"),
+    "bench_bag_zstd": (["-n", "1", "--repeat", "1"], "ms CPU per trace"),
 }
 HELP_ONLY = {"bench_anchor_study", "bench_calibrate", "bench_dask_overhead", "bench_imu_vs_imusim", "bench_inspect"}
 
