@@ -74,7 +74,7 @@ def _latched_qos() -> Any:
 
 STORAGES = ("mcap", "mcap-uncompressed", "sqlite3")
 """Storage formats of the bags; the first is the default: MCAP with zstd-compressed chunks (level 1; a
-default trace's bag 2 MB instead of 17 MB, and faster to write than the bytes it saves), MCAP without
+default trace's bag 2.5 MB instead of 16 MB), MCAP without
 compression, SQLite3."""
 
 MCAP_COMPRESSION = {"mcap": "zstd", "mcap-uncompressed": ""}
