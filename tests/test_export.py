@@ -438,3 +438,30 @@ def test_hdf5_of_an_imported_recording_holds_its_records(tmp_path):
         traces = list(iter_indexed_traces(path))
         assert not traces[0][1].uwb.nlos_known
         _assert_hdf5_holds_the_records(f, traces, set())
+
+
+def test_csv_tables_written_side_by_side_stop_and_fail_together(dataset, tmp_path, monkeypatch):
+    """The CSV tables are written at the same time (``csv.write_csv_tables``): a table's thread stops at its
+    next row group once told to, and an error on any table's thread is the export's error."""
+    import threading
+
+    from physynth.io.dataset import read_meta
+    from physynth.io.export import csv as csv_export
+
+    path, _ = dataset
+    meta = read_meta(path)
+    stop = threading.Event()
+    stop.set()
+    (tmp_path / "stopped").mkdir()
+    csv_export._write_table(path, meta, tmp_path / "stopped", "imu", True, False, stop, None, set())
+    assert (tmp_path / "stopped" / "imu.csv").stat().st_size == 0  # not a row written
+
+    files = csv_export.table_files
+
+    def broken(dataset, name, meta):  # the IMU table's files point nowhere: its thread fails
+        return [p.with_name("missing.parquet") for p in files(dataset, name, meta)] if name == "imu" else \
+            files(dataset, name, meta)
+
+    monkeypatch.setattr(csv_export, "table_files", broken)
+    with pytest.raises(OSError, match="missing.parquet"):
+        csv_export.write_csv_tables(path, meta, tmp_path / "failed")
