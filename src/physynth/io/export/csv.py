@@ -1,17 +1,18 @@
 """CSV export: a folder with one CSV file per table, the same columns as the Parquet tables.
 
 ``truth.csv``, ``imu.csv``, ``uwb.csv``, ``anchors.csv`` (each with a ``trace`` column),
-``dataset.json`` and, for a dataset of several shards, ``traces.jsonl`` (per-trace metadata). The
-tables are copied one Parquet row group at a time by polars' CSV writer (which formats on every core,
-three to four times faster than Arrow's: ``benchmarks/bench_export.py``): floats in their shortest
-round-trip form (float64 columns read back exactly; float32 columns of generated datasets as float32;
-a whole number keeps its ``.0``), ``NaN`` for a range not delivered, an empty field for an unknown
-``nlos``, ``true``/``false``, strings quoted only where they hold a comma, quote or line break, a
-header line first (pandas.read_csv and Python's csv module read it as is). The files copied are
-those the dataset's integrity record lists (:func:`~physynth.io.dataset.table_files`), once they have been
-checked against it (:func:`check_tables`: sizes, row counts, SHA-256, trace ids, the columns of each table;
-a dataset without the record is read trace by trace instead, as every reader does); one part per shard of
-the dataset (:mod:`.parts`), concatenated when all are written.
+``dataset.json`` and, for a dataset of several shards, ``traces.jsonl`` (per-trace metadata). The tables
+are copied one Parquet row group at a time by polars' CSV writer (which formats on every core, three to
+four times faster than Arrow's: ``benchmarks/bench_export.py``), the tables at the same time
+(:func:`write_csv_tables`): floats in their shortest round-trip form (float64 columns read back exactly;
+float32 columns of generated datasets as float32; a whole number keeps its ``.0``), ``NaN`` for a range
+not delivered, an empty field for an unknown ``nlos``, ``true``/``false``, strings quoted only where
+they hold a comma, quote or line break, a header line first (pandas.read_csv and Python's csv module
+read it as is). The files copied are those the dataset's integrity record lists
+(:func:`~physynth.io.dataset.table_files`), once they have been checked against it
+(:func:`check_tables`: sizes, row counts, SHA-256, trace ids, the columns of each table; a dataset
+without the record is read trace by trace instead, as every reader does); one part per shard of the
+dataset (:mod:`.parts`), concatenated when all are written.
 """
 
 from __future__ import annotations
