@@ -178,8 +178,9 @@ def _pool() -> ThreadPoolExecutor:
     return _pool_of(os.getpid())
 
 
-KEEP_BUFFERS = 4
-"""Buffers of written files kept for the next files (per process): about the files in flight at once."""
+KEEP_BUFFERS = 2
+"""Buffers of written uncompressed files kept for the next files (per process): the files in flight at once
+(one being filled while the one before is written)."""
 
 
 @functools.cache
