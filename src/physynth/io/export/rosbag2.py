@@ -102,7 +102,7 @@ class Topic:
     messages: cdr.Messages | cdr.Prebuilt
 
 
-def _finite_rows(n: int, *arrays: np.ndarray | None) -> np.ndarray | None:
+def _finite_rows(*arrays: np.ndarray | None) -> np.ndarray | None:
     """Rows whose every value in the (n, k) ``arrays`` (None: absent) is finite, as a mask; None when all
     are (the usual case, found with one pass over each array)."""
     ok = None
@@ -122,7 +122,7 @@ def _kept(skipped: dict[str, int], topic: str, t_s: np.ndarray,
     are the other rows stamped before time 0 (a ROS time is never negative)."""
     n = t_s.shape[0]
     ns = _stamps_ns(t_s)
-    finite = _finite_rows(n, *arrays)
+    finite = _finite_rows(*arrays)
     skipped[topic] = skipped.get(topic, 0) + (0 if finite is None else int(n - finite.sum()))
     early = ns < 0
     if finite is not None:
