@@ -8,7 +8,8 @@ memory:
 
 - ``rg16+reread``: row groups of 16 traces, tables hashed by reading them again at close (before 2026-12-05);
 - ``rg64+reread``: row groups of 64 traces;
-- ``rg16+stream``: the SHA-256 taken while writing (``DatasetWriter.hash_while_writing`` now);
+- ``rg16+stream``: the SHA-256 taken while writing, row group by row group (``DatasetWriter.hash_while_writing``
+  now; read back right behind pyarrow's own file, ``integrity.TrailingHash``);
 - ``rg64+stream``: both;
 - ``rg64+stream+thread``: and the row groups encoded and written in a writer thread while the next traces
   are made (``DatasetWriter.write_in_thread``);

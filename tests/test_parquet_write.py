@@ -26,6 +26,40 @@ def test_hashes_taken_while_writing_match_the_files(tmp_path, monkeypatch):
     integrity.check_dataset(path, read_meta(path), hashes=True)
 
 
+def test_trailing_hash_follows_an_appending_writer(tmp_path):
+    import hashlib
+    import os
+
+    path = tmp_path / "f.bin"
+    chunks = [os.urandom(n) for n in (0, 1, (1 << 20) - 1, 3 << 20, 17)]  # across its 1 MiB reads
+    with open(path, "wb", buffering=0) as f:
+        h = integrity.TrailingHash(path)
+        for c in chunks:
+            f.write(c)
+            h.update()
+            assert h.size == f.tell()
+        h.update()  # nothing new
+        f.write(b"footer")
+    h.close()  # the bytes written after the last update too
+    whole = b"".join(chunks) + b"footer"
+    assert h.hexdigest() == hashlib.sha256(whole).hexdigest() and h.size == len(whole)
+
+
+def test_hashes_taken_row_group_by_row_group(tmp_path, monkeypatch):
+    seen = []
+    update = integrity.TrailingHash.update
+
+    def spy(self):
+        update(self)
+        seen.append(self.size)
+
+    monkeypatch.setattr(integrity.TrailingHash, "update", spy)
+    generate_dataset("cablecar-descending", 2 * ROW_GROUP_TRACES + 1, tmp_path / "ds", seed=2,
+                     shard_traces=2 * ROW_GROUP_TRACES + 1)
+    assert len(seen) >= 4 * 3  # four tables, two row groups and the footer each
+    assert sum(1 for s in seen if s > 0) >= 4 * 2
+
+
 def test_row_groups_and_the_writer_thread(tmp_path, monkeypatch):
     n = ROW_GROUP_TRACES + 3
     path, _ = generate_dataset("cablecar-descending", n, tmp_path / "ds", seed=2, shard_traces=n)

@@ -84,9 +84,12 @@ FRAMES = {
 REASONS = {"0": "ok", "1": "dropout", "2": "outage", "3": "no link (range/visibility)", "4": "invalid"}
 
 
-def _write_group(writers: Mapping[str, pq.ParquetWriter], group: Mapping[str, pa.Table]) -> None:
+def _write_group(writers: Mapping[str, pq.ParquetWriter], group: Mapping[str, pa.Table],
+                 hashes: Mapping[str, integrity.TrailingHash]) -> None:
     for name, table in group.items():
         writers[name].write_table(table)
+        if name in hashes:
+            hashes[name].update()
 
 
 class DatasetWriter:
@@ -110,8 +113,9 @@ class DatasetWriter:
     """
 
     hash_while_writing = True
-    """The SHA-256 of each table taken as it is written (False: by reading the file again at close, as
-    before 2026-12-05; ``benchmarks/bench_parquet_write.py`` measures both)."""
+    """The SHA-256 of each table taken as it is written, row group by row group, by the thread that writes
+    it (:class:`~physynth.io.integrity.TrailingHash`; False: by reading the file again at close, as before
+    2026-12-05; ``benchmarks/bench_parquet_write.py`` measures both)."""
     write_in_thread = True
     """Row groups encoded and written in a writer thread while the caller makes the next traces (pyarrow
     and hashlib release the GIL), False: in the caller's thread, as before 2026-12-05."""
@@ -141,7 +145,8 @@ class DatasetWriter:
         self._compact = compact
         self._schemas: dict[str, pa.Schema] = {}
         self._writers: dict[str, pq.ParquetWriter] = {}  # opened by _open_writers
-        self._sinks: dict[str, integrity.HashingFile] = {}
+        self._sinks: dict[str, Any] = {}  # pyarrow's own files (no Python call per page written)
+        self._hashes: dict[str, integrity.TrailingHash] = {}
         self._thread: Any = None  # the writer thread (a one-thread pool), started by the first row group
         self._writing: Any = None  # the future of the row group being written
         self._unconverted: tuple[Trace, int] | None = None  # the last trace added, converted by the next add
@@ -173,13 +178,16 @@ class DatasetWriter:
     def _open_writers(self) -> dict[str, pq.ParquetWriter]:
         """The Parquet writers of the tables, opened on the first call (the first conversion, or close)."""
         if len(self._writers) < len(TABLES):
+            import pyarrow as pa
             import pyarrow.parquet as pq
 
             self._schemas = self._schemas or {name: _schema(name, self._compact, self._held[name], self._declared)
                                              for name in TABLES}
             for name in (n for n in TABLES if n not in self._writers):
-                # integrity hook: the file's SHA-256 taken as it is written (no second read at close)
-                self._sinks[name] = integrity.HashingFile(self.tmp / f"{name}.parquet")
+                path = self.tmp / f"{name}.parquet"
+                self._sinks[name] = pa.OSFile(str(path), "wb")
+                if self.hash_while_writing:  # integrity hook: the SHA-256 taken as it is written
+                    self._hashes[name] = integrity.TrailingHash(path)
                 self._writers[name] = pq.ParquetWriter(
                     self._sinks[name], self._schemas[name], store_schema=False,
                     **_column_options(self._schemas[name], self._compact))
@@ -212,13 +220,13 @@ class DatasetWriter:
         if not group:
             return
         if not self.write_in_thread:
-            _write_group(writers, group)
+            _write_group(writers, group, self._hashes)
             return
         if self._thread is None:
             from concurrent.futures import ThreadPoolExecutor
 
             self._thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix="physynth-parquet")
-        self._writing = self._thread.submit(_write_group, writers, group)
+        self._writing = self._thread.submit(_write_group, writers, group, self._hashes)
 
     def _wait(self) -> None:
         """Wait for the row group being written in the writer thread (re-raising its error)."""
@@ -246,6 +254,8 @@ class DatasetWriter:
         for name, w in self._writers.items():
             w.close()
             self._sinks[name].close()
+            if name in self._hashes:
+                self._hashes[name].close()  # the footer hashed too
         meta = {
             "schema_version": SCHEMA_VERSION,
             "generator": {"name": "physynth", "version": __version__},
@@ -260,8 +270,7 @@ class DatasetWriter:
             "traces": self._trace_meta,
             # integrity hook (physynth.io.integrity): row counts and SHA-256 of every table
             "files": integrity.file_records(self.tmp, {f"{name}.parquet": n for name, n in self._rows.items()},
-                                            {f"{name}.parquet": sink for name, sink in self._sinks.items()}
-                                            if self.hash_while_writing else None),
+                                            {f"{name}.parquet": h for name, h in self._hashes.items()}),
         }
         (self.tmp / "dataset.json").write_text(json.dumps(meta, indent=1), encoding="utf-8")
         safety.swap_in(self.tmp, self.path)
@@ -281,7 +290,7 @@ class DatasetWriter:
         except Exception:  # noqa: BLE001 - failing already: the row group being written is discarded
             pass
         self._stop_thread()
-        for w in (*self._writers.values(), *self._sinks.values()):
+        for w in (*self._writers.values(), *self._sinks.values(), *self._hashes.values()):
             try:
                 w.close()
             except Exception:  # noqa: BLE001 - best effort clean-up of a failed write

@@ -298,16 +298,30 @@ def replacing(dest: Path, *, nested: bool = False) -> Iterator[Path]:
     from .atomic import temp_sibling
 
     tmp = temp_sibling(dest)
-    remove_tree(tmp)
+    if os.path.lexists(tmp):  # left by a run that was killed
+        remove_tree(tmp)
     register_temporary(tmp)
+    done = False
     try:
         if nested:
             tmp.mkdir()
         yield tmp
         os.replace(tmp / dest.name if nested else tmp, dest)
+        done = True
     finally:
-        remove_tree(tmp)  # what is left of it: all of it after an exception, the empty folder when nested
+        if not (done and (not nested or _removed_empty(tmp))):
+            remove_tree(tmp)  # what is left of it after an exception
         unregister_temporary(tmp)
+
+
+def _removed_empty(folder: Path) -> bool:
+    """Remove ``folder`` if it is empty (one call, where a tree walk takes a dozen: a bag export empties one
+    for every trace); False when it could not be."""
+    try:
+        folder.rmdir()
+    except OSError:
+        return False
+    return True
 
 
 def remove_registered() -> None:

@@ -88,18 +88,32 @@ def _head_prefix(width: int, cid: int) -> bytes:
 
 
 def _chunk(messages: Any, rows: np.ndarray | None, start: int, end: int, cid: int, stamps: np.ndarray,
-           compress: Callable[[memoryview], bytes] | None) -> bytes | memoryview:
-    """One chunk's records (what a thread of :func:`_pool` makes): rows ``start .. end - 1`` of a channel's
-    messages written into ``rows`` (a slice of the channel's records; None: this thread's scratch buffer)
-    with their record heads (the constant part with the messages' shared bytes, then the times), compressed
-    or not. Built and compressed while in the core's cache."""
-    width = messages.size
+           compression: str) -> tuple[list[bytes | memoryview], int]:
+    """One chunk (what a thread of :func:`_pool` makes): rows ``start .. end - 1`` of a channel's messages
+    written into ``rows`` (a slice of the channel's records; None: this thread's scratch buffer) with their
+    record heads (the constant part with the messages' shared bytes, then the times), compressed or not,
+    and laid out as the chunk record followed by its message index record. Returns those bytes (one piece
+    when compressed, else the chunk's head, its records as they lie in ``rows`` and the index) and the
+    length of the chunk's (compressed) records. Built and compressed while in the core's cache; the caller only writes."""
+    width, n = messages.size, end - start
     if rows is None:  # compressed: built in this thread's scratch buffer, in its core's cache since the last chunk
-        rows = _scratch((end - start) * width).reshape(end - start, width)
+        rows = _scratch(n * width).reshape(n, width)
     messages.fill(rows, start, prefix=_head_prefix(width, cid))
     times = np.dtype({"names": ["t"], "formats": ["V16"], "offsets": [_TIMES], "itemsize": width})
-    rows.reshape(-1).view(times)["t"] = np.repeat(np.asarray(stamps, dtype="<u8"), 2).view("V16")
-    return rows.data if compress is None else compress(rows.data)
+    stamps = np.asarray(stamps, dtype="<u8")
+    rows.reshape(-1).view(times)["t"] = np.repeat(stamps, 2).view("V16")
+    packed = _compressor(compression)(rows.data) if compression else rows.data
+    n_packed = packed.nbytes if isinstance(packed, memoryview) else len(packed)
+    head = (struct.pack("<BQ", 0x06, 8 * 3 + 4 + 4 + len(compression) + 8 + n_packed)
+            + struct.pack("<QQQI", int(stamps[0]), int(stamps[-1]), n * width, 0) + _s(compression)
+            + struct.pack("<Q", n_packed))
+    pairs = np.empty((n, 2), dtype="<u8")  # the message index: (log time, offset in the chunk's records)
+    pairs[:, 0] = stamps
+    pairs[:, 1] = np.arange(0, n * width, width, dtype=np.uint64)
+    index = struct.pack("<BQHI", 0x07, 2 + 4 + pairs.nbytes, cid, pairs.nbytes) + pairs.tobytes()
+    if compression:  # one piece: the caller makes one write per chunk
+        return [b"".join((head, packed, index))], n_packed
+    return [head, packed, index], n_packed
 
 
 @functools.cache
@@ -238,15 +252,16 @@ def prepare_mcap(channels: Sequence[Channel], *, profile: str = "ros2", library:
         n, step = ch.messages.n, max(1, CHUNK_BYTES // widths[k])
         pieces += [(int(stamps[k][a]), k, a, min(a + step, n)) for a in range(0, n, step)]
     pieces.sort()
-    compress = _compressor(compression) if compression else None
+    if compression:
+        _compressor(compression)  # an unknown compression fails here, not on a thread
     buffer, rows = None, [None] * len(channels)
-    if compress is None:  # the records are written as they are: every channel's, in one buffer until then
+    if not compression:  # the records are written as they are: every channel's, in one buffer until then
         sizes = [ch.messages.n * w for ch, w in zip(channels, widths, strict=True)]
         buffer = _buffer(sum(sizes))
         ends = np.cumsum([0, *sizes]).tolist()
         rows = [buffer[ends[k]:ends[k + 1]].reshape(-1, widths[k]) for k in range(len(channels))]
     packs = [_pool().submit(_chunk, channels[k].messages, None if rows[k] is None else rows[k][a:b], a, b, k + 1,
-                            stamps[k][a:b], compress) for _, k, a, b in pieces]
+                            stamps[k][a:b], compression) for _, k, a, b in pieces]
     return PreparedMcap(profile, library, metadata or {}, compression, len(schemas), schema_recs, channel_recs,
                         buffer, widths, stamps, pieces, packs)
 
@@ -286,23 +301,17 @@ class PreparedMcap:
             put(r)
         chunk_indexes = []
         for (t0, k, a, b), pack in zip(self.pieces, self.packs, strict=True):
-            packed = pack.result()
-            size = (b - a) * widths[k]
-            n_packed = packed.nbytes if isinstance(packed, memoryview) else len(packed)
-            t1 = int(stamps[k][b - 1])
+            pieces, n_packed = pack.result()
             chunk_start = pos
-            put(struct.pack("<BQ", 0x06, 8 * 3 + 4 + 4 + len(compression) + 8 + n_packed))
-            put(struct.pack("<QQQI", t0, t1, size, 0) + _s(compression) + struct.pack("<Q", n_packed))
-            put(packed)
-            chunk_end = pos
-            pairs = np.empty((b - a, 2), dtype="<u8")
-            pairs[:, 0] = stamps[k][a:b]
-            pairs[:, 1] = np.arange(b - a, dtype=np.uint64) * np.uint64(widths[k])
-            put(_record(0x07, struct.pack("<HI", k + 1, pairs.nbytes) + pairs.tobytes()))
-            chunk_indexes.append(_record(0x08, struct.pack("<QQQQ", t0, t1, chunk_start, chunk_end - chunk_start)
+            for piece in pieces:
+                put(piece)
+            chunk_len = 9 + 8 * 3 + 4 + 4 + len(compression) + 8 + n_packed  # the chunk record, then its index
+            chunk_end = chunk_start + chunk_len
+            chunk_indexes.append(_record(0x08, struct.pack("<QQQQ", t0, int(stamps[k][b - 1]), chunk_start,
+                                                           chunk_len)
                                          + struct.pack("<I", 10) + struct.pack("<HQ", k + 1, chunk_end)
                                          + struct.pack("<Q", pos - chunk_end) + _s(compression)
-                                         + struct.pack("<QQ", n_packed, size)))
+                                         + struct.pack("<QQ", n_packed, (b - a) * widths[k])))
         meta_index = []
         for name, entries in self.metadata.items():
             start = pos
