@@ -453,7 +453,7 @@ def test_csv_tables_written_side_by_side_stop_and_fail_together(dataset, tmp_pat
     stop = threading.Event()
     stop.set()
     (tmp_path / "stopped").mkdir()
-    csv_export._write_table(path, meta, tmp_path / "stopped", "imu", True, False, stop, None, set())
+    csv_export._write_table(path, meta, tmp_path / "stopped", "imu", True, False, False, stop, None, set())
     assert (tmp_path / "stopped" / "imu.csv").stat().st_size == 0  # not a row written
 
     files = csv_export.table_files

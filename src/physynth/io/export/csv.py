@@ -28,6 +28,7 @@ import numpy as np
 from ...errors import DatasetError
 from .. import integrity
 from ..dataset import TABLES, iter_trace_meta, read_ahead, table_files
+from ..pagecache import WriteBehind
 from ..tables import OPTIONAL_COLUMNS, arrow_schemas, to_numpy
 
 
@@ -51,11 +52,13 @@ def check_tables(dataset: Path, meta: dict[str, Any]) -> bool:
 
 
 def write_csv_tables(dataset: Path, meta: dict[str, Any], path: Path, *, header: bool = True,
-                     on_trace: Callable[[], None] | None = None, append: bool = False) -> None:
+                     on_trace: Callable[[], None] | None = None, append: bool = False,
+                     behind: bool = False) -> None:
     """Write the tables of ``dataset`` (the files its ``meta`` lists) as CSV files in the new folder ``path``
     or, with ``append``, append their rows to the CSV files in the folder ``path``; ``header``: a header
     line first (the first part of an export has it, the others are appended to it); ``on_trace()`` once
-    per trace, as the rows of its UWB table are written (for the traces without, at the end).
+    per trace, as the rows of its UWB table are written (for the traces without, at the end); ``behind``:
+    the files are the export's own, not read again, and written behind (:mod:`physynth.io.pagecache`).
 
     The tables are written at the same time, each file by one thread in row order (polars formats without
     the GIL; one table at a time left a core idle a quarter of the time): the UWB table, which reports the
@@ -70,11 +73,11 @@ def write_csv_tables(dataset: Path, meta: dict[str, Any], path: Path, *, header:
     stop = threading.Event()
     seen: set[int] = set()
     with ThreadPoolExecutor(max(1, len(others)), thread_name_prefix="physynth-csv") as pool:
-        futures = [pool.submit(_write_table, dataset, meta, path, name, header, append, stop, None, seen)
+        futures = [pool.submit(_write_table, dataset, meta, path, name, header, append, behind, stop, None, seen)
                    for name in others]
         try:
             if "uwb" in names:
-                _write_table(dataset, meta, path, "uwb", header, append, stop, on_trace, seen)
+                _write_table(dataset, meta, path, "uwb", header, append, behind, stop, on_trace, seen)
             for f in futures:
                 f.result()
         finally:
@@ -85,7 +88,7 @@ def write_csv_tables(dataset: Path, meta: dict[str, Any], path: Path, *, header:
 
 
 def _write_table(dataset: Path, meta: dict[str, Any], path: Path, name: str, header: bool, append: bool,
-                 stop: threading.Event, on_trace: Callable[[], None] | None, seen: set[int]) -> None:
+                 behind: bool, stop: threading.Event, on_trace: Callable[[], None] | None, seen: set[int]) -> None:
     """One table of :func:`write_csv_tables`, row group by row group (``on_trace`` for each new trace id,
     gathered in ``seen``); returns early once ``stop`` is set."""
     import polars as pl
@@ -93,6 +96,7 @@ def _write_table(dataset: Path, meta: dict[str, Any], path: Path, name: str, hea
 
     with open(path / f"{name}.csv", "ab" if append else "wb") as fh:
         first = header
+        written = WriteBehind(fh.fileno(), fh.tell()) if behind else None
         for f in table_files(dataset, name, meta):
             pf = pq.ParquetFile(f)
             for table in read_ahead(pf.read_row_group, range(pf.metadata.num_row_groups)):
@@ -100,6 +104,9 @@ def _write_table(dataset: Path, meta: dict[str, Any], path: Path, name: str, hea
                     return
                 pl.from_arrow(table).write_csv(fh, include_header=first)
                 first = False
+                if written is not None:  # gigabytes that nothing reads back soon
+                    fh.flush()
+                    written.advance(fh.tell())
                 if on_trace is not None:
                     new = set(np.unique(to_numpy(table.column("trace"))).tolist()) - seen
                     seen |= new

@@ -129,11 +129,11 @@ def _append_csv_part(dataset: Path, sub: dict[str, Any], k: int, partial: Path, 
     if k == 0:
         remove_tree(tables)
         with replacing(tables) as tmp:
-            write_csv_tables(dataset, sub, tmp, on_trace=on_trace)
+            write_csv_tables(dataset, sub, tmp, on_trace=on_trace, behind=True)
     else:
         for f in tables.iterdir():  # what a stopped attempt at this part left is cut off
             os.truncate(f, sizes[-1].get(f.name, 0))
-        write_csv_tables(dataset, sub, tables, header=False, on_trace=on_trace, append=True)
+        write_csv_tables(dataset, sub, tables, header=False, on_trace=on_trace, append=True, behind=True)
     sizes = [*sizes, {f.name: f.stat().st_size for f in sorted(tables.iterdir())}]
     atomic_write_text(partial / APPENDED_SIZES, json.dumps(sizes))
 

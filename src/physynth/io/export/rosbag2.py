@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 
 from ...records import Trace
+from ..pagecache import write_behind
 from . import cdr
 from .mcap import MESSAGE_HEAD
 
@@ -284,6 +285,8 @@ def _mcap_bag(topics: list[Topic], compression: str) -> Callable[[Path], None]:
         folder.mkdir()
         with open(folder / f"{folder.name}.mcap", "xb") as f:
             prepared.write(f)
+            f.flush()
+            write_behind(f.fileno())  # the bag written out now, not piled up in the page cache (io.pagecache)
         (folder / "metadata.yaml").write_text(_yaml({"rosbag2_bagfile_information": info}), encoding="utf-8")
 
     return write
