@@ -13,9 +13,9 @@ mcap_reader = pytest.importorskip("mcap.reader")
 
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
-from physynth.io.dataset import read_dataset  # noqa: E402
+from physynth.io.dataset import DatasetWriter, iter_stored_traces, read_dataset  # noqa: E402
 from physynth.io.export import cdr, export_dataset  # noqa: E402
-from physynth.io.export.rosbag2 import HEAD, trace_topics  # noqa: E402
+from physynth.io.export.rosbag2 import HEAD, BagColumns, trace_topics  # noqa: E402
 from physynth.io.scenario_file import load_scenario  # noqa: E402
 from physynth.workflows import generate_dataset  # noqa: E402
 
@@ -193,3 +193,43 @@ def test_an_mcap_written_into_a_buffer_given_back_by_the_one_before_is_rewritten
     assert buffer is first_buffer and again == first
     _, msgs = _mcap_messages(tmp_path / "again.mcap")
     assert len(msgs) == sum(t.stamps.size for t in trace_topics(TS, tr, {}))
+
+
+def test_bags_from_stored_columns_equal_bags_from_records(body_dataset, tmp_path):
+    """The export builds messages from the stored columns (float32 where stored so, no record built): every
+    topic's bytes, stamps and left-out counts equal those built from the trace's record, with NaN fields
+    and rows stamped before 0 s among them."""
+    import dataclasses
+
+    tr = body_dataset[1].traces[0]
+    pos, quat, acc = tr.truth.pos_enu_m.copy(), tr.truth.quat_wxyz.copy(), tr.imu.acc_body_mps2.copy()
+    pos[5:9] = np.nan
+    quat[[3, 40]] = np.nan
+    acc[100:104, 2] = np.nan
+    delivered = np.flatnonzero(np.isfinite(tr.uwb.range_m))
+    t0 = float(tr.uwb.t_s[delivered[4]])  # the first ranges and truth and IMU samples stamped before 0 s
+    shifted = dataclasses.replace(
+        tr, truth=dataclasses.replace(tr.truth, t_s=tr.truth.t_s - t0, pos_enu_m=pos, quat_wxyz=quat),
+        imu=dataclasses.replace(tr.imu, t_s=tr.imu.t_s - t0, acc_body_mps2=acc),
+        uwb=dataclasses.replace(tr.uwb, t_s=tr.uwb.t_s - t0))
+    with DatasetWriter(tmp_path / "ds", compact=True) as w:  # float32 columns, as generate writes them
+        w.add(shifted)
+        w.add(tr)
+    src = tmp_path / "ds"
+    stored = list(iter_stored_traces(src))
+    for record, st in zip(read_dataset(src).traces, stored, strict=True):
+        skipped_r, skipped_s = {}, {}
+        by_record = trace_topics(TS, record, skipped_r)
+        by_columns = trace_topics(TS, BagColumns.of_stored(st, src), skipped_s)
+        assert [t.name for t in by_record] == [t.name for t in by_columns]
+        for a, b in zip(by_record, by_columns, strict=True):
+            np.testing.assert_array_equal(a.stamps, b.stamps)
+            assert a.messages.rows().tobytes() == b.messages.rows().tobytes(), a.name
+        assert skipped_r == skipped_s
+    assert sum(skipped_s.values()) == 0 and sum(skipped_r.values()) == 0  # the second trace: nothing left out
+    first = {}
+    trace_topics(TS, BagColumns.of_stored(stored[0], src), first)
+    assert first["/truth"] == 4 and first["/truth/orientation"] == 2 and first["/imu/body"] == 4
+    early = sum(v for k, v in first.items() if k.startswith("/uwb/") and k.endswith("(before 0 s)"))
+    assert early == int(np.sum(tr.uwb.t_s[delivered] < t0)) >= 4
+    assert first["/truth (before 0 s)"] == int(np.sum(tr.truth.t_s < t0)) - 4 * (tr.truth.t_s[8] < t0)

@@ -165,18 +165,19 @@ def export_part(dataset: str, meta: dict[str, Any], part: Part, fmt: str, partia
 
     skipped: dict[str, int] = {}
     if fmt == "rosbag2":
-        from .rosbag2 import prepare_bag
+        from .rosbag2 import BagColumns, prepare_bag
 
         def finish(dest: Path, write: Any) -> None:
             with replacing(dest, nested=True) as tmp:  # the bag's files are named after its folder
                 write(tmp / dest.name)
 
         pending = None  # the bag prepared before: written once the next one's messages are built
-        for index, trace in traces():
-            dest = partial_p / f"trace_{index:08d}"
+        for st in stored():  # the stored columns, as the messages take them (no record built and taken apart)
+            dest = partial_p / f"trace_{st.index:08d}"
             if dest.is_dir():  # written before the run was stopped
                 continue
-            write = prepare_bag(trace, storage, skipped)  # its chunks compress while the next bag is built
+            write = prepare_bag(BagColumns.of_stored(st, dataset_p), storage, skipped)  # its chunks compress
+            # while the next bag is built
             if pending is not None:
                 finish(*pending)
             pending = (dest, write)

@@ -41,7 +41,7 @@ out per topic (``"<topic> (before 0 s)"`` for the early rows).
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -49,7 +49,9 @@ from typing import Any
 import numpy as np
 
 from ...records import Trace
+from ..dataset import StoredTrace
 from ..pagecache import write_behind
+from ..tables import OPTIONAL_COLUMNS
 from . import cdr
 from .mcap import MESSAGE_HEAD
 
@@ -103,27 +105,32 @@ class Topic:
     messages: cdr.Messages | cdr.Prebuilt
 
 
-def _finite_rows(*arrays: np.ndarray | None) -> np.ndarray | None:
-    """Rows whose every value in the (n, k) ``arrays`` (None: absent) is finite, as a mask; None when all
-    are (the usual case, found with one pass over each array)."""
+Columns = Sequence[np.ndarray]
+"""The components of a vector quantity, one 1-D array each (x, y, z or w, x, y, z): what a dataset stores,
+and column views of a record's (n, k) arrays."""
+
+
+def _finite_rows(*groups: Columns | None) -> np.ndarray | None:
+    """Rows whose every value in the column ``groups`` (None: absent) is finite, as a mask; None when all
+    are (the usual case, found with one pass over each column)."""
     ok = None
-    for a in arrays:
-        if a is not None:
+    for cols in groups:
+        for a in cols or ():
             finite = np.isfinite(a)
             if not finite.all():
-                ok = finite.all(axis=1) if ok is None else ok & finite.all(axis=1)
+                ok = finite if ok is None else ok & finite
     return ok
 
 
 def _kept(skipped: dict[str, int], topic: str, t_s: np.ndarray,
-          *arrays: np.ndarray | None) -> tuple[np.ndarray | slice, np.ndarray]:
+          *groups: Columns | None) -> tuple[np.ndarray | slice, np.ndarray]:
     """The rows of a topic's message fields to write (a mask, or ``slice(None)`` when all are), and their
     stamps in ns; those with a NaN (or infinite) field are counted in ``skipped`` (a message cannot say
     "unknown": e.g. an optical tracker's dropouts in a recording), and so, under ``"<topic> (before 0 s)"``,
     are the other rows stamped before time 0 (a ROS time is never negative)."""
     n = t_s.shape[0]
     ns = _stamps_ns(t_s)
-    finite = _finite_rows(*arrays)
+    finite = _finite_rows(*groups)
     skipped[topic] = skipped.get(topic, 0) + (0 if finite is None else int(n - finite.sum()))
     early = ns < 0
     if finite is not None:
@@ -136,49 +143,97 @@ def _kept(skipped: dict[str, int], topic: str, t_s: np.ndarray,
     return ok, ns[ok]
 
 
-def _imu_topics(imu: Any, skipped: dict[str, int]) -> list[Topic]:
+@dataclass(frozen=True)
+class BagColumns:
+    """What a trace's bag is made of, as columns: a :class:`~physynth.records.Trace`'s arrays seen column
+    by column (:meth:`of_trace`), or a stored trace's columns as the dataset holds them (:meth:`of_stored`,
+    no record built: an export of a dataset whose integrity record vouches for it). Optional groups are
+    None where the trace lacks them."""
+
+    imu_t_s: np.ndarray | None
+    imu_acc: Columns | None  # the ENU channel
+    imu_acc_body: Columns | None
+    imu_gyro_body: Columns | None
+    uwb_t_s: np.ndarray
+    uwb_anchor: np.ndarray  # indexes into anchor_ids
+    uwb_range_m: np.ndarray
+    anchor_ids: tuple[str, ...]
+    anchor_pos: Columns  # e, n, u
+    truth_t_s: np.ndarray
+    truth_pos: Columns
+    truth_quat: Columns | None  # w, x, y, z
+
+    @classmethod
+    def of_trace(cls, trace: Trace) -> BagColumns:
+        def cols(a: np.ndarray | None) -> Columns | None:
+            return None if a is None else [a[:, k] for k in range(a.shape[1])]
+
+        im, u, a, tr = trace.imu, trace.uwb, trace.anchors, trace.truth
+        return cls(None if im is None else im.t_s, None if im is None else cols(im.acc_mps2),
+                   None if im is None else cols(im.acc_body_mps2), None if im is None else cols(im.gyro_body_radps),
+                   u.t_s, u.anchor, u.range_m, tuple(a.ids), cols(a.pos_enu_m), tr.t_s, cols(tr.pos_enu_m),
+                   cols(tr.quat_wxyz))
+
+    @classmethod
+    def of_stored(cls, st: StoredTrace, path: Path) -> BagColumns:
+        def group(cols: dict[str, np.ndarray] | None, table: str, attr: str) -> Columns | None:
+            names = OPTIONAL_COLUMNS[table][attr]  # as a record reads them: None when absent or all NaN
+            if cols is None or any(c not in cols for c in names):
+                return None
+            out = [cols[c] for c in names]
+            return None if out[0].size and all(np.isnan(c).all() for c in out) else out
+
+        im, u, an, tr = st.imu, st.uwb, st.anchors, st.truth
+        ids = st.anchor_ids()
+        pos = [an[f"pos_{c}_m"] for c in "enu"] if an is not None else [np.zeros(0)] * 3
+        return cls(None if im is None else im["t_s"], group(im, "imu", "acc_mps2"), group(im, "imu", "acc_body_mps2"),
+                   group(im, "imu", "gyro_body_radps"),
+                   np.array([]) if u is None else u["t_s"], st.uwb_anchor(path),
+                   np.array([]) if u is None else u["range_m"], ids, pos, tr["t_s"],
+                   [tr[f"pos_{c}_m"] for c in "enu"], group(tr, "truth", "quat_wxyz"))
+
+
+def _imu_topics(b: BagColumns, skipped: dict[str, int]) -> list[Topic]:
     """``/imu`` (ENU) and ``/imu/body`` (body-frame sensor) of a trace's IMU."""
     out = []
-    channels = [] if imu is None else [
+    channels = [] if b.imu_t_s is None else [
         (topic, frame, acc, gyro) for topic, frame, acc, gyro in (
-            ("/imu", "enu", imu.acc_mps2, None), ("/imu/body", "body", imu.acc_body_mps2, imu.gyro_body_radps))
+            ("/imu", "enu", b.imu_acc, None), ("/imu/body", "body", b.imu_acc_body, b.imu_gyro_body))
         if acc is not None or gyro is not None]
     for topic, frame, acc, gyro in channels:
-        ok, ns = _kept(skipped, topic, imu.t_s, acc, gyro)
+        ok, ns = _kept(skipped, topic, b.imu_t_s, acc, gyro)
         values: dict[str, Any] = {"orientation_w": 1.0, "orientation_covariance": NO_COV,
                                   "angular_velocity_covariance": NO_COV if gyro is None else ZERO_COV,
                                   "linear_acceleration_covariance": NO_COV if acc is None else ZERO_COV}
-        for name, arr in (("linear_acceleration", acc), ("angular_velocity", gyro)):
-            if arr is not None:
-                kept = arr[ok]
-                values.update({f"{name}_{c}": kept[:, k] for k, c in enumerate("xyz")})
+        for name, cols in (("linear_acceleration", acc), ("angular_velocity", gyro)):
+            if cols is not None:
+                values.update({f"{name}_{c}": col[ok] for col, c in zip(cols, "xyz", strict=True)})
         f = frame.encode()
         msgs = cdr.messages(cdr.imu_fields(f), ns, f, reserve=HEAD, **values)
         out.append(Topic(topic, "sensor_msgs/msg/Imu", (), ns, msgs))
     return out
 
 
-def _uwb_topics(trace: Trace, skipped: dict[str, int]) -> list[Topic]:
+def _uwb_topics(b: BagColumns, skipped: dict[str, int]) -> list[Topic]:
     """``/uwb/<anchor id>``: one message per delivered range stamped at or after time 0."""
-    u = trace.uwb
-    ok = np.isfinite(u.range_m)
-    max_range = float(np.max(u.range_m[ok])) if ok.any() else 0.0
+    ok = np.isfinite(b.uwb_range_m)
+    max_range = float(np.max(b.uwb_range_m[ok])) if ok.any() else 0.0
     out = []
-    for a_idx, a_id in enumerate(trace.anchors.ids):
-        sel = ok & (u.anchor == a_idx)
+    for a_idx, a_id in enumerate(b.anchor_ids):
+        sel = ok & (b.uwb_anchor == a_idx)
         if not sel.any():
             continue
-        rows, ns = _kept(skipped, f"/uwb/{a_id}", u.t_s[sel])
+        rows, ns = _kept(skipped, f"/uwb/{a_id}", b.uwb_t_s[sel])
         if isinstance(rows, np.ndarray):
             sel[sel] = rows
         f = a_id.encode()
         out.append(Topic(f"/uwb/{a_id}", "sensor_msgs/msg/Range", (), ns, cdr.messages(
             cdr.range_fields(f), ns, f, reserve=HEAD, radiation_type=RADIO, field_of_view=2 * np.pi,
-            max_range=max_range, range=u.range_m[sel])))
+            max_range=max_range, range=b.uwb_range_m[sel])))
     return out
 
 
-def _anchor_frames(ts: Any, trace: Trace, ns: int) -> Topic:
+def _anchor_frames(ts: Any, b: BagColumns, ns: int) -> Topic:
     """``/tf_static``: one message with a transform ``enu`` -> ``<anchor id>`` per anchor (one message per
     trace, so serialised by ``rosbags``)."""
     tf_type = "tf2_msgs/msg/TFMessage"
@@ -187,36 +242,35 @@ def _anchor_frames(ts: Any, trace: Trace, ns: int) -> Topic:
     Quaternion, Header = ts.types["geometry_msgs/msg/Quaternion"], ts.types["std_msgs/msg/Header"]
     hdr = Header(stamp=ts.types["builtin_interfaces/msg/Time"](sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000),
                  frame_id="enu")
+    pos = np.stack(b.anchor_pos, axis=1).astype(np.float64).tolist()
     transforms = [TransformStamped(header=hdr, child_frame_id=a_id, transform=Transform(
         translation=Vector3(x=p[0], y=p[1], z=p[2]), rotation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)))
-        for a_id, p in zip(trace.anchors.ids, trace.anchors.pos_enu_m.tolist(), strict=True)]
+        for a_id, p in zip(b.anchor_ids, pos, strict=True)]
     data = np.frombuffer(bytes(HEAD) + bytes(ts.serialize_cdr(TFMessage(transforms=transforms), tf_type)), np.uint8)
     return Topic("/tf_static", tf_type, (_latched_qos(),), np.array([ns], np.int64), cdr.Prebuilt(data[None, :].copy()))
 
 
-def _truth_topics(ts: Any, trace: Trace, skipped: dict[str, int]) -> list[Topic]:
+def _truth_topics(ts: Any, b: BagColumns, skipped: dict[str, int]) -> list[Topic]:
     """``/truth`` positions, the ``/tf_static`` anchor layout and ``/truth/orientation`` (in this order)."""
-    truth = trace.truth
-    ok, ns = _kept(skipped, "/truth", truth.t_s, truth.pos_enu_m)
-    pos = truth.pos_enu_m[ok]
+    ok, ns = _kept(skipped, "/truth", b.truth_t_s, b.truth_pos)
     out = [Topic("/truth", "geometry_msgs/msg/PointStamped", (), ns, cdr.messages(
         cdr.point_stamped_fields(b"enu"), ns, b"enu", reserve=HEAD,
-        **{f"point_{c}": pos[:, k] for k, c in enumerate("xyz")}))]
-    if len(trace.anchors):
-        out.append(_anchor_frames(ts, trace, max(0, int(_stamps_ns(truth.t_s[:1])[0]))))
-    if truth.quat_wxyz is not None:
-        ok, ns = _kept(skipped, "/truth/orientation", truth.t_s, truth.quat_wxyz)
-        q = truth.quat_wxyz[ok]  # stored scalar-first (w, x, y, z)
+        **{f"point_{c}": col[ok] for col, c in zip(b.truth_pos, "xyz", strict=True)}))]
+    if b.anchor_ids:
+        out.append(_anchor_frames(ts, b, max(0, int(_stamps_ns(b.truth_t_s[:1])[0]))))
+    if b.truth_quat is not None:
+        ok, ns = _kept(skipped, "/truth/orientation", b.truth_t_s, b.truth_quat)
         out.append(Topic("/truth/orientation", "geometry_msgs/msg/QuaternionStamped", (), ns, cdr.messages(
-            cdr.quaternion_stamped_fields(b"enu"), ns, b"enu", reserve=HEAD,
-            **{f"quaternion_{c}": q[:, k] for k, c in enumerate("wxyz")})))
+            cdr.quaternion_stamped_fields(b"enu"), ns, b"enu", reserve=HEAD,  # stored scalar-first (w, x, y, z)
+            **{f"quaternion_{c}": col[ok] for col, c in zip(b.truth_quat, "wxyz", strict=True)})))
     return out
 
 
-def trace_topics(ts: Any, trace: Trace, skipped: dict[str, int]) -> list[Topic]:
-    """Every topic of a trace's bag, in the order of their connections; rows left out are counted in
-    ``skipped``."""
-    return [*_imu_topics(trace.imu, skipped), *_uwb_topics(trace, skipped), *_truth_topics(ts, trace, skipped)]
+def trace_topics(ts: Any, trace: Trace | BagColumns, skipped: dict[str, int]) -> list[Topic]:
+    """Every topic of a trace's bag (a record, or its :class:`BagColumns`), in the order of their
+    connections; rows left out are counted in ``skipped``."""
+    b = trace if isinstance(trace, BagColumns) else BagColumns.of_trace(trace)
+    return [*_imu_topics(b, skipped), *_uwb_topics(b, skipped), *_truth_topics(ts, b, skipped)]
 
 
 def _bag_metadata(name: str, storage: str, topics: list[Topic]) -> dict[str, Any]:
@@ -307,10 +361,10 @@ def _write_sqlite3_bag(folder: Path, topics: list[Topic]) -> None:
             w.write(conns[which[k]], int(stamps[k]), data[which[k]][row[k], HEAD:].tobytes())
 
 
-def prepare_bag(trace: Trace, storage: str, skipped: dict[str, int]) -> Callable[[Path], None]:
-    """Build the messages of one trace's bag (``storage``: one of :data:`STORAGES`) and, for compressed
-    MCAP, start compressing its chunks on other threads; returns the function that writes the bag as a
-    new folder. Messages left out are counted in ``skipped``."""
+def prepare_bag(trace: Trace | BagColumns, storage: str, skipped: dict[str, int]) -> Callable[[Path], None]:
+    """Build the messages of one trace's bag (a record, or its :class:`BagColumns`; ``storage``: one of
+    :data:`STORAGES`) and, for compressed MCAP, start compressing its chunks on other threads; returns the
+    function that writes the bag as a new folder. Messages left out are counted in ``skipped``."""
     topics = trace_topics(_typestore(), trace, skipped)
     if storage == "sqlite3":
         return functools.partial(_write_sqlite3_bag, topics=topics)
