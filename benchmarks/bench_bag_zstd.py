@@ -37,7 +37,8 @@ def chunks_of(path: Path) -> list[bytes]:
             for a in range(0, n, step):
                 b = min(a + step, n)
                 rows = np.empty((b - a, width), dtype=np.uint8)
-                out.append(bytes(mcap._chunk(topic.messages, rows, a, b, cid, topic.stamps[a:b], None)))
+                pieces, _ = mcap._chunk(topic.messages, rows, a, b, cid, topic.stamps[a:b], "")  # uncompressed:
+                out.append(bytes(pieces[1]))  # the chunk's head, its records, its message index
     return out
 
 
