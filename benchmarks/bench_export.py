@@ -1,12 +1,14 @@
 """Each export against generating the same traces to Parquet, as whole commands, side by side (issue 45).
 
-    python benchmarks/bench_export.py [-n N] [--repeat R] [--workers W] [--formats hdf5,csv,rosbag2]
+    python benchmarks/bench_export.py [-n N] [--repeat R] [--workers W] [--formats hdf5,csv,rosbag2] [--dir D]
 
 Per repetition: ``physynth generate -n N`` (to Parquet, ``--workers W``), then ``physynth export`` of that
 dataset to hdf5, csv and rosbag2 (MCAP, the default storage) with ``--workers W``, each a process of its
 own (start-up and imports included, as a user runs them); every output is removed once timed. Prints the
 best time of each over the repetitions, its ratio to the generation's, and the peak resident memory of
 the command's whole process tree (workers, Dask scheduler and nannies included; sampled every 0.1 s).
+Every command starts after ``sync`` (what the one before wrote is on disk: no command pays for another's
+writeback); the files go to a new folder in ``--dir`` (default: the system's temporary folder).
 ``physynth bench --exports`` measures the same in one process (no start-up).
 """
 
@@ -14,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import os
 import shutil
 import subprocess
 import sys
@@ -38,6 +41,7 @@ def tree_rss(proc: psutil.Process) -> int:
 def timed(argv: list[str], peaks: dict[str, float], key: str) -> float:
     """Run ``physynth argv`` as a process of its own; its wall time, and the peak of its process tree's
     resident memory (sampled every 0.1 s) kept in ``peaks[key]`` [GB]."""
+    os.sync()  # the writes of the command before on disk first
     t0 = time.perf_counter()
     child = subprocess.Popen([sys.executable, "-m", "physynth", *argv, "-q"])
     proc, peak = psutil.Process(child.pid), 0
@@ -57,10 +61,11 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--formats", default="hdf5,csv,rosbag2", help="the exports to time (comma-separated)")
+    ap.add_argument("--dir", default=None, help="where the datasets and exports are written")
     args = ap.parse_args()
     formats = [f for f, m in (("hdf5", "h5py"), ("csv", None), ("rosbag2", "rosbags"))
                if f in args.formats.split(",") and (m is None or importlib.util.find_spec(m) is not None)]
-    tmp = Path(tempfile.mkdtemp(prefix="bench-export-"))
+    tmp = Path(tempfile.mkdtemp(prefix="bench-export-", dir=args.dir))
     best = {k: float("inf") for k in ("parquet", *formats)}
     peaks: dict[str, float] = {}
     try:

@@ -465,3 +465,15 @@ def test_csv_tables_written_side_by_side_stop_and_fail_together(dataset, tmp_pat
     monkeypatch.setattr(csv_export, "table_files", broken)
     with pytest.raises(OSError, match="missing.parquet"):
         csv_export.write_csv_tables(path, meta, tmp_path / "failed")
+
+
+def test_csv_progress_trace_ids_match_numpy_unique():
+    """The CSV export counts the traces of each row group by runs of equal ids (no sort): the same set as
+    np.unique, for rows grouped by trace as written and for any other order."""
+    from physynth.io.export.csv import _trace_ids
+
+    rng = np.random.default_rng(3)
+    grouped = np.repeat(np.array([4, 7, 8, 20], np.int32), [3, 1, 5, 2])
+    for ids in (np.array([], np.int32), np.array([9], np.int32), grouped, rng.permutation(grouped),
+                rng.integers(0, 50, 1000).astype(np.int32)):
+        assert _trace_ids(ids) == set(np.unique(ids).tolist())

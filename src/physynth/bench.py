@@ -16,7 +16,8 @@
 - ``export_vs_parquet`` (with ``exports``): per export format (``hdf5``, ``csv``, ``rosbag2`` in MCAP,
   those whose libraries are installed), the time to export the ``n`` traces in this process divided by the
   time to generate the same traces to Parquet in this process, measured alternately in the same run
-  (best of ``repeat`` each); ``export_s`` and ``parquet_s`` hold the times.
+  (best of ``repeat`` each; each after ``sync``, so that none pays for the writeback of the one before);
+  ``export_s`` and ``parquet_s`` hold the times.
 
 The figures depend on the machine and on what else runs on it: run on a quiet machine, and compare
 ratios measured side by side in one run.
@@ -177,12 +178,14 @@ def _exports(scn: Scenario, n: int, repeat: int, tmp: Path, progress: ProgressCa
     formats = export_formats()
     best = {k: float("inf") for k in ("parquet", *formats)}
     for r in range(repeat):
+        _sync()
         t0 = time.perf_counter()
         src, _ = generate_dataset(scn, n, tmp / "src", seed=r, workers=1, overwrite=True,
                                   progress=lambda m, d=None, t=None: progress("to Parquet (exports)", d, t))
         best["parquet"] = min(best["parquet"], time.perf_counter() - t0)
         for fmt in formats:
             dest = tmp / f"export.{fmt}"
+            _sync()
             t0 = time.perf_counter()
             export_dataset(src, dest, fmt, progress=lambda m, d=None, t=None, fmt=fmt: progress(
                 f"export to {fmt}", d, t) if d is not None else None)
@@ -191,6 +194,12 @@ def _exports(scn: Scenario, n: int, repeat: int, tmp: Path, progress: ProgressCa
     return {"ratios": {fmt: round(best[fmt] / best["parquet"], 2) for fmt in formats},
             "export_s": {fmt: round(best[fmt], 2) for fmt in formats}, "parquet_s": round(best["parquet"], 2),
             "rosbag2_storage": "mcap"}
+
+
+def _sync() -> None:
+    """What was written before on disk (``os.sync``, where there is one)."""
+    if hasattr(os, "sync"):
+        os.sync()
 
 
 def _cpu_name() -> str:

@@ -108,13 +108,21 @@ def _write_table(dataset: Path, meta: dict[str, Any], path: Path, name: str, hea
                     fh.flush()
                     written.advance(fh.tell())
                 if on_trace is not None:
-                    new = set(np.unique(to_numpy(table.column("trace"))).tolist()) - seen
+                    new = _trace_ids(to_numpy(table.column("trace"))) - seen
                     seen |= new
                     for _ in new:
                         on_trace()
             if first:  # a table without rows: its header line alone
                 pl.from_arrow(pf.schema_arrow.empty_table()).write_csv(fh, include_header=True)
                 first = False
+
+
+def _trace_ids(trace: np.ndarray) -> set[int]:
+    """The trace ids of a table's rows: the first of each run of equal ids (rows are grouped by trace, so a
+    run per trace; one pass, where ``np.unique`` sorts: a tenth of the CSV export's time on its main thread)."""
+    if trace.size == 0:
+        return set()
+    return set(trace[np.concatenate([[0], np.flatnonzero(trace[1:] != trace[:-1]) + 1])].tolist())
 
 
 def finish_csv(dataset: Path, meta: dict[str, Any], path: Path) -> None:
