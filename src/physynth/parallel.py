@@ -20,13 +20,15 @@ import signal
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ._children import TERMINAL_SIGNALS, apart
 from .errors import PhySynthError
-from .generate import CompiledScenario, compile_scenario, generate_trace
 from .io.shards import ShardPlan, write_shard
 from .scenario import Scenario, scenario_from_dict, scenario_to_dict
+
+if TYPE_CHECKING:
+    from .generate import CompiledScenario
 
 
 def available_cores() -> int:
@@ -40,12 +42,16 @@ def available_cores() -> int:
 @functools.lru_cache(maxsize=4)
 def _compiled(scenario_json: str) -> CompiledScenario:
     """A scenario compiled once per worker process (tasks of one run share it)."""
+    from .generate import compile_scenario  # here: exports run tasks too, without the generator
+
     return compile_scenario(scenario_from_dict(json.loads(scenario_json)))
 
 
 def shard_task(scenario_json: str, root_seed: int, partial: str, k: int, start: int, stop: int,
                meta: dict[str, Any], on_unit: Callable[[], None] | None = None) -> int:
     """Generate traces ``start .. stop - 1`` and write them as shard ``k`` (what a worker runs)."""
+    from .generate import generate_trace
+
     cs = _compiled(scenario_json)
 
     def traces():

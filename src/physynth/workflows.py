@@ -12,11 +12,9 @@ from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from . import generate as _generate
 from ._args import check_int, check_number, check_seed
 from .bounds import check_budget
 from .errors import AnchorMismatchError, PhySynthError
-from .generate import CompiledScenario, compile_scenario, dataset_meta
 from .io import safety
 from .io.dataset import iter_traces, n_traces, read_dataset, read_meta, recorded_grid_rate_hz, table_files
 from .io.scenario_file import load_scenario
@@ -30,6 +28,7 @@ from .scenario import Scenario, scenario_to_dict
 if TYPE_CHECKING:
     from .calibrate import CalibrationResult
     from .evaluate.metrics import Metrics
+    from .generate import CompiledScenario
     from .studies.tracking_setup import TrackingStudyRun
     from .validate.compare import ValidationReport
 
@@ -41,20 +40,26 @@ ScenarioLike = str | os.PathLike | Scenario | dict[str, Any]
 # ---------------------------------------------------------------- generate
 def _scenario(scenario: ScenarioLike | CompiledScenario) -> Scenario | CompiledScenario:
     """The scenario of a preset name, file or mapping (:func:`load_scenario`); a compiled one as it is."""
+    from .generate import CompiledScenario
+
     return scenario if isinstance(scenario, CompiledScenario) else load_scenario(scenario)
 
 
 def generate_trace(scenario: ScenarioLike | CompiledScenario, index: int, root_seed: int) -> Trace:
     """:func:`physynth.generate.generate_trace` on a scenario given also as a preset name, a scenario file
     or a mapping (``physynth.generate_trace``)."""
-    return _generate.generate_trace(_scenario(scenario), index, root_seed)
+    from . import generate
+
+    return generate.generate_trace(_scenario(scenario), index, root_seed)
 
 
 def generate_traces(scenario: ScenarioLike | CompiledScenario, n: int, seed: int | None = None,
                     start: int = 0) -> Iterator[Trace]:
     """:func:`physynth.generate.generate_traces` on a scenario given also as a preset name, a scenario file
     or a mapping (``physynth.generate_traces``); bad arguments are refused at the call."""
-    return _generate.generate_traces(_scenario(scenario), n, seed=seed, start=start)
+    from . import generate
+
+    return generate.generate_traces(_scenario(scenario), n, seed=seed, start=start)
 
 
 def generate_dataset(scn: ScenarioLike, n: int, out: str | Path, *, seed: int | None = None,
@@ -93,6 +98,7 @@ def generate_dataset(scn: ScenarioLike, n: int, out: str | Path, *, seed: int | 
     Returns the dataset path and the root seed used (drawn from OS entropy when ``seed`` is None and
     there is nothing to resume). ``progress(message, done, total)`` reports traces written.
     """
+    from .generate import dataset_meta
     from .io import shards
 
     n = check_int(n, "n", minimum=1, what="the number of traces")
@@ -471,7 +477,9 @@ def _synthetic_from_scenario(scenario: str | Path | Scenario, real: str | Path, 
     root = new_root_seed() if seed is None else int(seed)
     provenance = {"scenario": source, "scenario_name": scn.name, "n_traces": int(n), "root_seed": root,
                   "transfer": bool(transfer), "scenario_config": scenario_to_dict(scn)}
-    traces: Iterable[Trace] = _generate.generate_traces(compile_scenario(scn), n, seed=root)
+    from .generate import compile_scenario, generate_traces
+
+    traces: Iterable[Trace] = generate_traces(compile_scenario(scn), n, seed=root)
     if subset is not None:
         traces = (restrict_to_anchors(t, subset) for t in traces)
     return traces, n, provenance, transfer_info

@@ -94,7 +94,8 @@ def _chunk(messages: Any, rows: np.ndarray | None, start: int, end: int, cid: in
     record heads (the constant part with the messages' shared bytes, then the times), compressed or not,
     and laid out as the chunk record followed by its message index record. Returns those bytes (one piece
     when compressed, else the chunk's head, its records as they lie in ``rows`` and the index) and the
-    length of the chunk's (compressed) records. Built and compressed while in the core's cache; the caller only writes."""
+    length of the chunk's (compressed) records. Built and compressed while in the core's cache; the caller
+    only writes."""
     width, n = messages.size, end - start
     if rows is None:  # compressed: built in this thread's scratch buffer, in its core's cache since the last chunk
         rows = _scratch(n * width).reshape(n, width)
