@@ -25,10 +25,10 @@ from typing import TYPE_CHECKING, Any
 from ._children import TERMINAL_SIGNALS, apart
 from .errors import PhySynthError
 from .io.shards import ShardPlan, write_shard
-from .scenario import Scenario, scenario_from_dict, scenario_to_dict
 
 if TYPE_CHECKING:
     from .generate import CompiledScenario
+    from .scenario import Scenario
 
 
 def available_cores() -> int:
@@ -43,6 +43,7 @@ def available_cores() -> int:
 def _compiled(scenario_json: str) -> CompiledScenario:
     """A scenario compiled once per worker process (tasks of one run share it)."""
     from .generate import compile_scenario  # here: exports run tasks too, without the generator
+    from .scenario import scenario_from_dict
 
     return compile_scenario(scenario_from_dict(json.loads(scenario_json)))
 
@@ -179,6 +180,8 @@ def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, to
     progress : callable, optional
         ``progress(traces_done)`` after each trace (in this process) or each shard (on a cluster).
     """
+    from .scenario import scenario_to_dict
+
     scenario_json = json.dumps(scenario_to_dict(scn))
     partial = Path(partial).absolute()  # workers of a remote cluster may run in another directory
     tasks = [(scenario_json, root_seed, str(partial), k, *plan.bounds(k), meta) for k in todo]

@@ -17,27 +17,40 @@ from .bounds import check_budget
 from .errors import AnchorMismatchError, PhySynthError
 from .io import safety
 from .io.dataset import iter_traces, n_traces, read_dataset, read_meta, recorded_grid_rate_hz, table_files
-from .io.scenario_file import load_scenario
 from .io.shards import DEFAULT_SHARD_TRACES
 from .parallel import check_not_bootstrapping, require_dask, run_shards
 from .progress import ProgressCallback
 from .records import Trace
 from .rng import new_root_seed
-from .scenario import Scenario, scenario_to_dict
 
 if TYPE_CHECKING:
     from .calibrate import CalibrationResult
     from .evaluate.metrics import Metrics
     from .generate import CompiledScenario
+    from .scenario import Scenario
     from .studies.tracking_setup import TrackingStudyRun
     from .validate.compare import ValidationReport
 
 
-ScenarioLike = str | os.PathLike | Scenario | dict[str, Any]
+ScenarioLike = "str | os.PathLike | Scenario | dict[str, Any]"
 """A scenario as the workflows take it: a preset name, a scenario file, a mapping or a Scenario."""
 
 
 # ---------------------------------------------------------------- generate
+def load_scenario(scenario: ScenarioLike) -> Scenario:
+    """:func:`physynth.io.scenario_file.load_scenario`, imported on first use (the scenario model and its
+    presets: an export, which needs none, starts without them)."""
+    from .io.scenario_file import load_scenario as load
+
+    return load(scenario)
+
+
+def scenario_to_dict(scn: Scenario) -> dict[str, Any]:
+    from .scenario import scenario_to_dict as to_dict
+
+    return to_dict(scn)
+
+
 def _scenario(scenario: ScenarioLike | CompiledScenario) -> Scenario | CompiledScenario:
     """The scenario of a preset name, file or mapping (:func:`load_scenario`); a compiled one as it is."""
     from .generate import CompiledScenario
