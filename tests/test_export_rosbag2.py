@@ -233,3 +233,21 @@ def test_bags_from_stored_columns_equal_bags_from_records(body_dataset, tmp_path
     early = sum(v for k, v in first.items() if k.startswith("/uwb/") and k.endswith("(before 0 s)"))
     assert early == int(np.sum(tr.uwb.t_s[delivered] < t0)) >= 4
     assert first["/truth (before 0 s)"] == int(np.sum(tr.truth.t_s < t0)) - 4 * (tr.truth.t_s[8] < t0)
+
+
+def test_the_stored_message_types_are_those_rosbags_makes():
+    """ros2_types.json (the bags' message definitions and RIHS01 hashes, read instead of made per process):
+    rosbags makes the same for every type the export writes (else: python tools/ros2_types.py)."""
+    from physynth.io.export import rosbag2
+
+    table = rosbag2._type_table()
+    assert set(table) == set(rosbag2.MESSAGE_TYPES)
+    for msgtype in rosbag2.MESSAGE_TYPES:
+        assert rosbag2._type_info(msgtype) == rosbag2._type_info_of(msgtype), msgtype
+
+
+def test_every_message_type_written_is_in_the_stored_table(body_dataset):
+    from physynth.io.export import rosbag2
+
+    written = {t.msgtype for tr in body_dataset[1].traces for t in trace_topics(TS, tr, {})}
+    assert written <= set(rosbag2.MESSAGE_TYPES)

@@ -89,6 +89,11 @@ def test_to_numpy_reads_buffers_with_offsets_and_nulls():
     assert to_numpy(pa.array([True, None, True]).is_null()).tolist() == [False, True, False]
     i = pa.array(np.arange(10, dtype=np.int16))[4:7]
     assert to_numpy(i).tolist() == [4, 5, 6] and to_numpy(i).dtype == np.int16
+    from physynth.io.tables import valid_mask
+
+    mixed = pa.chunked_array([pa.array([None, 2.0])[1:], pa.nulls(2, pa.float64())])
+    for col in (f, b, i, pa.nulls(3, pa.bool_()), mixed):
+        assert valid_mask(col).tolist() == [v is not None for v in col.to_pylist()]
 
 
 def test_reading_a_dataset_does_not_import_pandas(tmp_path):

@@ -46,6 +46,7 @@ from .tables import (  # the tables' Arrow side, named here as before
     arrow_schemas,
     optional_group,
     to_numpy,
+    valid_mask,
 )
 from .tables import NULLABLE_COLUMNS as NULLABLE_COLUMNS
 from .tables import SENSOR_COLUMNS as SENSOR_COLUMNS
@@ -441,17 +442,15 @@ def _columns(table: pa.Table, name: str, f: Path, codes: AnchorCodes) -> dict[st
             continue
         col = table.column(c)
         if c == "nlos":
-            cols["nlos_known"] = ~to_numpy(col.is_null())
+            cols["nlos_known"] = valid_mask(col)
             cols[c] = to_numpy(col)  # unknown (null) reads False
-        elif c in ("anchor_id", "name"):
+        elif c in ("anchor_id", "name") and name != "uwb":  # a few strings per trace
+            cols[c] = np.asarray(col.to_pylist(), dtype=object).reshape(-1)
+        elif c == "anchor_id":  # read as a dictionary (:func:`_parquet_file`), as it is stored
             arr = col.combine_chunks()
             enc = (arr if pa.types.is_dictionary(arr.type) else arr.dictionary_encode()) if len(col) else None
-            if enc is None:
-                cols[c if name != "uwb" else "anchor_code"] = np.array([], dtype=object if name != "uwb" else np.int32)
-            elif name == "uwb":
-                cols["anchor_code"] = codes.codes(enc.dictionary.to_pylist(), to_numpy(enc.indices))
-            else:
-                cols[c] = np.asarray(enc.dictionary.to_pylist(), dtype=object)[to_numpy(enc.indices)]
+            cols["anchor_code"] = (np.array([], dtype=np.int32) if enc is None
+                                   else codes.codes(enc.dictionary.to_pylist(), to_numpy(enc.indices)))
         else:  # null (an optional group this trace does not have) reads as NaN
             cols[c] = to_numpy(col)
     return cols
@@ -500,12 +499,14 @@ def _row_groups_sorted(files: list[Path]) -> bool:
     return True
 
 
-def _parquet_file(f: Path) -> pq.ParquetFile:
+def _parquet_file(f: Path, dictionary: Sequence[str] = ()) -> pq.ParquetFile:
+    """``f`` opened, its ``dictionary`` columns to be read as Arrow dictionaries (the UWB anchor ids, stored
+    dictionary-encoded: read so, they need no encoding again, which would import pyarrow.compute)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     try:
-        return pq.ParquetFile(f)
+        return pq.ParquetFile(f, read_dictionary=list(dictionary) or None)
     except (OSError, pa.ArrowException) as exc:
         raise DatasetError(f"cannot read {f}: {str(exc).splitlines()[0]}") from None
 
@@ -550,7 +551,9 @@ def _table_stream(path: Path, name: str, meta: Mapping[str, Any],
         yield from sorted(_split(_read_table(files, name, codes)).items())
         return
     pending: tuple[int, dict[str, np.ndarray]] | None = None
-    where = ((pf, g, f) for f in files for pf in (_parquet_file(f),) for g in range(pf.metadata.num_row_groups))
+    dictionary = ("anchor_id",) if name == "uwb" else ()
+    where = ((pf, g, f) for f in files for pf in (_parquet_file(f, dictionary),)
+             for g in range(pf.metadata.num_row_groups))
     for cols in read_ahead(lambda w: _row_group(w[0], w[1], name, w[2], codes), where):
         groups = sorted(_split(cols).items())
         if pending is not None and groups and groups[0][0] == pending[0]:  # a trace across groups

@@ -279,21 +279,34 @@ def _tables_of(trace: Trace, index: int, schemas: Mapping[str, pa.Schema]) -> di
     return out
 
 
+def valid_mask(col: Any) -> np.ndarray:
+    """Which values of an Arrow column (array or chunked array) are not null, as a NumPy bool array, read
+    from its validity bitmap (``col.is_valid()`` would import pyarrow.compute, 30 ms of a reader's start)."""
+    import pyarrow as pa
+
+    arr = col.combine_chunks() if isinstance(col, pa.ChunkedArray) else col
+    n, off = len(arr), arr.offset
+    validity = arr.buffers()[0] if arr.buffers() else None
+    if not arr.null_count or validity is None:
+        return np.full(n, not arr.null_count)
+    return np.unpackbits(np.frombuffer(validity, dtype=np.uint8), bitorder="little", count=off + n)[off:].astype(bool)
+
+
 def to_numpy(col: Any, dtype: Any = None) -> np.ndarray:
     """A fixed-width or boolean Arrow column (array or chunked array) as a NumPy array, read from its
     buffers: pyarrow's own ``to_numpy`` imports pandas (half a second) on first use, which a reader does
-    not need. Nulls read as NaN (floats; as False for booleans, use ``col.is_null()`` for the mask);
+    not need. Nulls read as NaN (floats; as False for booleans, :func:`valid_mask` for the mask);
     ``dtype``: the result's type (default: the column's)."""
     import pyarrow as pa
 
     arr = col.combine_chunks() if isinstance(col, pa.ChunkedArray) else col
     n, off = len(arr), arr.offset
-    validity, data = arr.buffers()[0], arr.buffers()[1]
+    data = arr.buffers()[1]
     if pa.types.is_boolean(arr.type):
         bits = np.frombuffer(data, dtype=np.uint8) if data is not None else np.zeros(0, np.uint8)
         out = np.unpackbits(bits, bitorder="little", count=off + n)[off:].astype(bool)
         if arr.null_count:
-            out &= to_numpy(arr.is_valid())
+            out &= valid_mask(arr)
         return out if dtype is None else out.astype(dtype)
     np_type = _numpy_of().get(arr.type)
     if np_type is None:
@@ -301,7 +314,6 @@ def to_numpy(col: Any, dtype: Any = None) -> np.ndarray:
     out = np.frombuffer(data, dtype=np_type, count=n, offset=off * np.dtype(np_type).itemsize)
     if dtype is not None or arr.null_count:
         out = out.astype(np.float64 if dtype is None else dtype)
-    if arr.null_count and validity is not None:
-        valid = np.unpackbits(np.frombuffer(validity, dtype=np.uint8), bitorder="little", count=off + n)[off:]
-        out[~valid.astype(bool)] = np.nan
+    if arr.null_count:
+        out[~valid_mask(arr)] = np.nan
     return out

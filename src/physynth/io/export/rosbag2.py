@@ -41,6 +41,7 @@ out per topic (``"<topic> (before 0 s)"`` for the early rows).
 from __future__ import annotations
 
 import functools
+import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -301,9 +302,34 @@ def _yaml(data: Any) -> str:
     return yaml.dump(data, Dumper=getattr(yaml, "CSafeDumper", yaml.SafeDumper), default_flow_style=False)
 
 
+MESSAGE_TYPES = ("sensor_msgs/msg/Imu", "sensor_msgs/msg/Range", "geometry_msgs/msg/PointStamped",
+                 "geometry_msgs/msg/QuaternionStamped", "tf2_msgs/msg/TFMessage")
+"""The message types of the bags."""
+
+
+@functools.cache
+def _type_table() -> dict[str, dict[str, str]]:
+    """``ros2_types.json`` beside this module: the definition and RIHS01 hash of each of
+    :data:`MESSAGE_TYPES`, as ``rosbags`` makes them (``tools/ros2_types.py`` writes the file; the tests make
+    them again and compare)."""
+    try:
+        return json.loads((Path(__file__).with_name("ros2_types.json")).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+
+
 @functools.lru_cache(maxsize=64)
 def _type_info(msgtype: str) -> tuple[str, str]:
-    """(message definition text, RIHS01 hash) of a message type of the Humble type store, once per type."""
+    """(message definition text, RIHS01 hash) of a message type of ROS 2 Humble: from :func:`_type_table`
+    (``rosbags`` takes about 0.1 s to make those of a bag's five types), else made by ``rosbags``."""
+    known = _type_table().get(msgtype)
+    if known is not None:
+        return known["msgdef"], known["rihs01"]
+    return _type_info_of(msgtype)
+
+
+def _type_info_of(msgtype: str) -> tuple[str, str]:
+    """(message definition text, RIHS01 hash) of a message type, made by ``rosbags`` from its Humble type store."""
     ts = _typestore()
     return ts.generate_msgdef(msgtype, ros_version=2)[0], ts.hash_rihs01(msgtype)
 
