@@ -53,3 +53,10 @@ def test_make_cablecar_presets_rebuilds_the_shipped_presets(tmp_path):
         # the cable polynomial is solved numerically: its last digits depend on the machine's floating point
         np.testing.assert_allclose(a["path"].pop("coeffs_enu_m"), b["path"].pop("coeffs_enu_m"), rtol=1e-8, atol=1e-9)
         assert a == b, name
+
+
+def test_ros2_types_check_finds_the_shipped_table_up_to_date():
+    pytest.importorskip("rosbags")
+    out = subprocess.run([sys.executable, str(TOOLS / "ros2_types.py"), "--check"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "up to date" in out.stdout
