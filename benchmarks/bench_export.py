@@ -6,7 +6,8 @@ Per repetition: ``physynth generate -n N`` (to Parquet, ``--workers W``), then `
 dataset to hdf5, csv and rosbag2 (MCAP, the default storage) with ``--workers W``, each a process of its
 own (start-up and imports included, as a user runs them); every output is removed once timed. Prints the
 best time of each over the repetitions, its ratio to the generation's, and the peak resident memory of
-the command's whole process tree (workers, Dask scheduler and nannies included; sampled every 0.1 s).
+the command's whole process tree (workers, Dask scheduler and nannies included; sampled every 0.1 s on
+a thread of its own: the time is taken when the command ends, not at the next sample).
 Every command starts after ``sync`` (what the one before wrote is on disk: no command pays for another's
 writeback); the files go to a new folder in ``--dir`` (default: the system's temporary folder).
 ``physynth bench --exports`` measures the same in one process (no start-up).
@@ -21,6 +22,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -44,11 +46,24 @@ def timed(argv: list[str], peaks: dict[str, float], key: str) -> float:
     os.sync()  # the writes of the command before on disk first
     t0 = time.perf_counter()
     child = subprocess.Popen([sys.executable, "-m", "physynth", *argv, "-q"])
-    proc, peak = psutil.Process(child.pid), 0
-    while child.poll() is None:
-        peak = max(peak, tree_rss(proc))
-        time.sleep(0.1)
+    proc, peak, done = psutil.Process(child.pid), [0], threading.Event()
+
+    def sample() -> None:  # on a thread, so that the end of the command is seen at once, not at the next sample
+        while True:
+            try:
+                peak[0] = max(peak[0], tree_rss(proc))
+            except psutil.Error:  # the command ended meanwhile
+                return
+            if done.wait(0.1):
+                return
+
+    sampler = threading.Thread(target=sample, daemon=True)
+    sampler.start()
+    child.wait()
     wall = time.perf_counter() - t0
+    done.set()
+    sampler.join()
+    peak = peak[0]
     if child.returncode:
         raise SystemExit(f"physynth {' '.join(argv)} failed (exit {child.returncode})")
     peaks[key] = max(peaks.get(key, 0.0), peak / 1e9)
