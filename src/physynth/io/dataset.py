@@ -291,11 +291,13 @@ class DatasetWriter:
         except Exception:  # noqa: BLE001 - failing already: the row group being written is discarded
             pass
         self._stop_thread()
-        for w in (*self._writers.values(), *self._sinks.values(), *self._hashes.values()):
+        for w in (*self._writers.values(), *self._sinks.values()):
             try:
                 w.close()
             except Exception:  # noqa: BLE001 - best effort clean-up of a failed write
                 pass
+        for h in self._hashes.values():
+            h.close(rest=False)
         shutil.rmtree(self.tmp, ignore_errors=True)
         safety.unregister_temporary(self.tmp)
         self._closed = True

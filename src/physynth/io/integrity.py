@@ -67,9 +67,12 @@ class TrailingHash:
             self._h.update(view[:n])
             self.size += n
 
-    def close(self) -> None:
+    def close(self, *, rest: bool = True) -> None:
+        """Hash what was appended since the last update (unless ``rest`` is False: a write given up) and
+        close the file."""
         if not self._f.closed:
-            self.update()
+            if rest:
+                self.update()
             self._f.close()
 
     def hexdigest(self) -> str:
