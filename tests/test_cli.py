@@ -348,3 +348,28 @@ def test_python_dash_m_physynth_is_the_command(tmp_path):
     from physynth.io import read_meta
 
     assert read_meta(tmp_path / "d")["n_traces"] == 4
+
+
+def test_bench_writes_in_the_folder_asked_and_leaves_nothing(tmp_path, capsys, monkeypatch):
+    import tempfile as _tempfile
+
+    from physynth.bench import run_bench
+    from physynth.errors import PhySynthError
+    from physynth.io.scenario_file import load_scenario
+
+    made = []
+    mkdtemp = _tempfile.mkdtemp
+
+    def spy(*args, **kwargs):
+        made.append(mkdtemp(*args, **kwargs))
+        return made[-1]
+
+    monkeypatch.setattr(_tempfile, "mkdtemp", spy)
+    res = run_bench(load_scenario("cablecar-descending"), n=1, workers=1, exports=True, directory=tmp_path)
+    assert made and all(m.startswith(str(tmp_path)) for m in made)
+    assert list(tmp_path.iterdir()) == []  # removed after
+    assert set(res["export_vs_parquet"]["ratios"]) >= {"hdf5"} and res["traces_per_s_parquet"] > 0
+    with pytest.raises(PhySynthError, match="not an existing folder"):
+        run_bench(load_scenario("cablecar-descending"), n=1, workers=1, directory=tmp_path / "nowhere")
+    code, out, err = run(capsys, "bench", "-n", 1, "-w", 1, "--dir", tmp_path / "nowhere")
+    assert code == 2 and "nowhere" in err and "Traceback" not in err

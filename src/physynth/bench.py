@@ -34,6 +34,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from .errors import PhySynthError
 from .generate import compile_scenario, generate_trace
 from .progress import ProgressCallback, no_progress
 from .scenario import Scenario
@@ -61,7 +62,8 @@ def peak_rss_mb() -> float:
 
 
 def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int = 0, repeat: int = 1,
-              exports: bool = False, progress: ProgressCallback = no_progress) -> dict[str, Any]:
+              exports: bool = False, directory: str | os.PathLike | None = None,
+              progress: ProgressCallback = no_progress) -> dict[str, Any]:
     """Measure the generator; returns the figures of the module docstring plus the machine.
 
     Parameters
@@ -74,6 +76,10 @@ def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int =
         NumPy, pyarrow and Dask), so small runs understate the scaling of long ones.
     workers : int
         Workers of the scaling measurement (0: all cores; 1 skips it).
+    directory : path, optional
+        Folder in which the measurements write their datasets and exports (a new folder inside it, removed
+        at the end; default: the system's temporary folder): the disk you will write to, since writing
+        speeds differ from disk to disk (and on some machines the temporary folder is slow to create files).
     repeat : int
         Repetitions of every measurement; the best rate of each is kept. The scaling runs alternate
         (one worker, ``workers``, one worker, ...), so that the machine's slower and faster spells
@@ -85,6 +91,8 @@ def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int =
 
     n, repeat = check_int(n, "n", minimum=1), check_int(repeat, "repeat", minimum=1)
     n_scaling, workers = check_int(n_scaling, "n_scaling"), check_int(workers, "workers")
+    if directory is not None and not Path(directory).is_dir():
+        raise PhySynthError(f"directory {directory} is not an existing folder")
     cores = available_cores()
     workers = workers or cores
     cs = compile_scenario(scn)
@@ -96,7 +104,7 @@ def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int =
             generate_trace(cs, i, r)
             progress("in memory", r * n + i + 1, repeat * n)
         best_mem = max(best_mem, n / (time.perf_counter() - t0))
-    tmp = Path(tempfile.mkdtemp(prefix="physynth-bench-"))
+    tmp = Path(tempfile.mkdtemp(prefix="physynth-bench-", dir=directory))
     out: dict[str, Any] = {}
     try:
         best_pq, size = 0.0, 0

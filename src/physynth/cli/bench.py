@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import typer
 
@@ -31,6 +32,11 @@ def bench_cmd(
                                                        "traces_per_s_parquet, scaling_efficiency, "
                                                        "scaling_efficiency_steady, cluster_start_stop_s, "
                                                        "scaling_caveat, peak_rss_mb, export_vs_parquet)."),
+    directory: Path = typer.Option(None, "--dir", metavar="DIR", exists=True, file_okay=False, dir_okay=True,
+                                   writable=True, help="Folder to write the measured datasets and exports in "
+                                                       "(a new folder inside, removed after; default: the "
+                                                       "system's temporary folder): measure on the disk you "
+                                                       "will write to."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
     """Measure generation speed: traces/s in memory and to Parquet on one core, scaling, peak memory, and
@@ -44,7 +50,7 @@ def bench_cmd(
         require_dask()
     with progress_bar(not quiet and not as_json) as progress:
         res = run_bench(scn, n=n, n_scaling=n_scaling, workers=workers, repeat=repeat, exports=exports,
-                        progress=progress)
+                        directory=directory, progress=progress)
     if res["scaling_caveat"]:  # one line on stderr, also with --json (where the key holds it too)
         typer.echo(f"physynth: warning: {res['scaling_caveat']} (raise --n-scaling)", err=True)
     if as_json:
