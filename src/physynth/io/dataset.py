@@ -45,6 +45,7 @@ from .tables import (  # the tables' Arrow side, named here as before
     _tables_of,
     arrow_schemas,
     optional_group,
+    run_starts,
     to_numpy,
     valid_mask,
 )
@@ -476,7 +477,7 @@ def _split(cols: dict[str, np.ndarray]) -> dict[int, dict[str, np.ndarray]]:
     if trace.size == 0:
         return {}
     if trace.size == 1 or bool(np.all(trace[1:] >= trace[:-1])):  # as written: slices, no copy
-        starts = np.concatenate([[0], np.flatnonzero(trace[1:] != trace[:-1]) + 1])
+        starts = run_starts(trace)
         ends = np.append(starts[1:], trace.size)
         return {int(trace[s]): {c: v[s:e] for c, v in cols.items()} for s, e in zip(starts, ends, strict=True)}
     order = np.argsort(trace, kind="stable")

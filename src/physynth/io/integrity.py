@@ -285,11 +285,10 @@ def check_trace_ids(path: Path, meta: Mapping[str, Any], tables: Iterable[str] =
     tables = [t for t in tables if (path / t).is_file()]
     if not tables:
         return
-    import numpy as np
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from .tables import to_numpy  # from the column's buffers: pyarrow's own to_numpy would import pandas
+    from .tables import run_starts, to_numpy  # from the buffers: pyarrow's own to_numpy would import pandas
 
     found: set[int] = set()
     nulls = False
@@ -300,8 +299,7 @@ def check_trace_ids(path: Path, meta: Mapping[str, Any], tables: Iterable[str] =
             raise IntegrityError(f"dataset {path} is damaged: cannot read {name} ({type(exc).__name__})") from None
         nulls = nulls or col.null_count > 0
         rows = to_numpy(col.drop_null() if col.null_count else col)
-        if rows.size:  # rows grouped by trace: the first id of each run (one pass, no sort)
-            found.update(rows[np.concatenate([[0], np.flatnonzero(rows[1:] != rows[:-1]) + 1])].tolist())
+        found.update(rows[run_starts(rows)].tolist())  # the first id of each run of equal ids
     name = tables[0] if len(tables) == 1 else f"{tables[0].split('/')[0]}/*"
     if nulls:
         raise IntegrityError(f"dataset {path} is damaged: {name} has rows without a trace id")

@@ -279,6 +279,14 @@ def _tables_of(trace: Trace, index: int, schemas: Mapping[str, pa.Schema]) -> di
     return out
 
 
+def run_starts(values: np.ndarray) -> np.ndarray:
+    """Indexes where a run of equal values starts (0 first; empty for no values): rows grouped by trace
+    give one run per trace, found in one pass, no sort."""
+    if values.size == 0:
+        return np.zeros(0, dtype=np.intp)
+    return np.concatenate([[0], np.flatnonzero(values[1:] != values[:-1]) + 1])
+
+
 def valid_mask(col: Any) -> np.ndarray:
     """Which values of an Arrow column (array or chunked array) are not null, as a NumPy bool array, read
     from its validity bitmap (``col.is_valid()`` would import pyarrow.compute, 30 ms of a reader's start)."""
