@@ -144,6 +144,8 @@ def test_mcap_bags_read_by_mcap_and_rosbags_and_same_messages_as_sqlite3(body_da
         assert (mc / bag / f"{bag}.mcap").is_file() and (sq / bag / f"{bag}.db3").is_file()
         summary, msgs = _mcap_messages(mc / bag / f"{bag}.mcap")
         assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
+        imu_chunks = [c for c in summary.chunk_indexes if set(c.message_index_offsets) == {1}]
+        assert len(imu_chunks) >= 2  # a topic longer than a chunk is cut into several (merged by the readers)
         raw_summary, raw_msgs = _mcap_messages(raw / bag / f"{bag}.mcap")
         assert {c.compression for c in raw_summary.chunk_indexes} == {""} and raw_msgs == msgs
         stamps = [m[2] for m in msgs]
@@ -233,6 +235,24 @@ def test_bags_from_stored_columns_equal_bags_from_records(body_dataset, tmp_path
     early = sum(v for k, v in first.items() if k.startswith("/uwb/") and k.endswith("(before 0 s)"))
     assert early == int(np.sum(tr.uwb.t_s[delivered] < t0)) >= 4
     assert first["/truth (before 0 s)"] == int(np.sum(tr.truth.t_s < t0)) - 4 * (tr.truth.t_s[8] < t0)
+
+
+def test_a_bag_is_written_as_a_new_folder_its_files_named_after_the_bag(body_dataset, tmp_path):
+    """``prepare_bag``'s writer makes the folder it is given and names the files after the bag, not after
+    that folder (the MCAP export writes a temporary folder then renamed into place); SQLite3 bags, which
+    rosbags names after their folder, refuse a folder named otherwise."""
+    from physynth.io.export.rosbag2 import prepare_bag
+
+    tr = body_dataset[1].traces[0]
+    prepare_bag(tr, "mcap", {})(tmp_path / ".tmp-1", "trace_00000007")
+    assert sorted(p.name for p in (tmp_path / ".tmp-1").iterdir()) == ["metadata.yaml", "trace_00000007.mcap"]
+    meta = (tmp_path / ".tmp-1" / "metadata.yaml").read_text(encoding="utf-8")
+    assert "- trace_00000007.mcap" in meta and ".tmp-1" not in meta
+    summary, msgs = _mcap_messages(tmp_path / ".tmp-1" / "trace_00000007.mcap")
+    assert summary.statistics.message_count == len(msgs) > 0
+    with pytest.raises(ValueError, match="named after the bag"):
+        prepare_bag(tr, "sqlite3", {})(tmp_path / ".tmp-2", "trace_00000007")
+    assert not (tmp_path / ".tmp-2").exists()
 
 
 def test_the_stored_message_types_are_those_rosbags_makes():

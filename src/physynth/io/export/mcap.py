@@ -35,8 +35,10 @@ from typing import Any, BinaryIO
 import numpy as np
 
 MAGIC = b"\x89MCAP0\r\n"
-CHUNK_BYTES = 1 << 20
-"""Message bytes per chunk (as rosbags and ROS 2 write: readers load one chunk at a time)."""
+CHUNK_BYTES = 2 << 20
+"""Message bytes per chunk (readers load one chunk at a time; ROS 2 writes 768 KiB, rosbags 1 MiB). Each chunk
+is a task of the pool, and its threads take turns at the GIL between NumPy calls: with 1 MiB chunks a
+1,000-trace export spent about a tenth more time per bag (2026-12-06, 2-core machine)."""
 
 _MSG_HEAD = np.dtype([("op", "u1"), ("length", "<u8"), ("channel", "<u2"), ("sequence", "<u4"),
                       ("log_time", "<u8"), ("publish_time", "<u8")])  # packed: 31 bytes

@@ -165,11 +165,13 @@ def export_part(dataset: str, meta: dict[str, Any], part: Part, fmt: str, partia
 
     skipped: dict[str, int] = {}
     if fmt == "rosbag2":
-        from .rosbag2 import BagColumns, prepare_bag
+        from .rosbag2 import NAMED_AFTER_FOLDER, BagColumns, prepare_bag
+
+        nested = storage in NAMED_AFTER_FOLDER
 
         def finish(dest: Path, write: Any) -> None:
-            with replacing(dest, nested=True) as tmp:  # the bag's files are named after its folder
-                write(tmp / dest.name)
+            with replacing(dest, nested=nested) as tmp:  # the bag's files are named after dest
+                write(tmp / dest.name if nested else tmp, dest.name)
 
         pending = None  # the bag prepared before: written once the next one's messages are built
         for st in stored():  # the stored columns, as the messages take them (no record built and taken apart)

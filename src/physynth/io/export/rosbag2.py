@@ -83,6 +83,11 @@ compression, SQLite3."""
 
 MCAP_COMPRESSION = {"mcap": "zstd", "mcap-uncompressed": ""}
 
+NAMED_AFTER_FOLDER = frozenset({"sqlite3"})
+"""Storages whose files ``rosbags`` names after the bag's folder: written in a folder named as the bag (inside
+a temporary one); the MCAP bags are written as a temporary folder renamed into place (a folder made and
+removed less per bag: 2-3 ms on the 2-core machine's disk)."""
+
 BAG_VERSION = 8
 """rosbag2 metadata version written (as ``rosbags``' writer: ROS 2 Iron and later)."""
 
@@ -348,7 +353,7 @@ def _typestore() -> Any:
     return get_typestore(Stores.ROS2_HUMBLE)
 
 
-def _mcap_bag(topics: list[Topic], compression: str) -> Callable[[Path], None]:
+def _mcap_bag(topics: list[Topic], compression: str) -> Callable[[Path, str], None]:
     """Lay out the MCAP bag of ``topics`` (its chunks start compressing on other threads); returns the
     function that writes it as a new folder."""
     from .mcap import Channel, prepare_mcap
@@ -359,11 +364,11 @@ def _mcap_bag(topics: list[Topic], compression: str) -> Callable[[Path], None]:
     prepared = prepare_mcap(channels, library="physynth", compression=compression,
                             metadata={"rosbag2": serialized})
 
-    def write(folder: Path) -> None:
-        info = _bag_metadata(folder.name, "mcap", topics)  # it names the bag's file
+    def write(folder: Path, name: str) -> None:
+        info = _bag_metadata(name, "mcap", topics)  # it names the bag's file
         serialized["serialized_metadata"] = _yaml(info).strip()
         folder.mkdir()
-        with open(folder / f"{folder.name}.mcap", "xb") as f:
+        with open(folder / f"{name}.mcap", "xb") as f:
             prepared.write(f)
             f.flush()
             write_behind(f.fileno())  # the bag written out now, not piled up in the page cache (io.pagecache)
@@ -372,9 +377,13 @@ def _mcap_bag(topics: list[Topic], compression: str) -> Callable[[Path], None]:
     return write
 
 
-def _write_sqlite3_bag(folder: Path, topics: list[Topic]) -> None:
-    """The same bytes through ``rosbags``' writer (SQLite3 storage), one call per message in time order."""
+def _write_sqlite3_bag(folder: Path, name: str, topics: list[Topic]) -> None:
+    """The same bytes through ``rosbags``' writer (SQLite3 storage), one call per message in time order.
+    ``rosbags`` names the file after the folder: ``folder``'s name must be ``name``."""
     from rosbags.rosbag2 import StoragePlugin, Writer
+
+    if folder.name != name:
+        raise ValueError(f"a SQLite3 bag's folder is named after the bag: {folder.name!r} is not {name!r}")
 
     with Writer(folder, version=BAG_VERSION, storage_plugin=StoragePlugin.SQLITE3) as w:
         conns = [w.add_connection(t.name, t.msgtype, typestore=_typestore(),
@@ -387,12 +396,13 @@ def _write_sqlite3_bag(folder: Path, topics: list[Topic]) -> None:
             w.write(conns[which[k]], int(stamps[k]), data[which[k]][row[k], HEAD:].tobytes())
 
 
-def prepare_bag(trace: Trace | BagColumns, storage: str, skipped: dict[str, int]) -> Callable[[Path], None]:
+def prepare_bag(trace: Trace | BagColumns, storage: str, skipped: dict[str, int]) -> Callable[[Path, str], None]:
     """Build the messages of one trace's bag (a record, or its :class:`BagColumns`; ``storage``: one of
     :data:`STORAGES`) and, for compressed MCAP, start compressing its chunks on other threads; returns the
-    function that writes the bag as a new folder. Messages left out are counted in ``skipped``."""
+    function ``write(folder, name)`` that writes the bag as the new folder ``folder``, its files named after
+    ``name`` (for SQLite3, which ``rosbags`` names after the folder: :data:`NAMED_AFTER_FOLDER`, the folder's
+    own name). Messages left out are counted in ``skipped``."""
     topics = trace_topics(_typestore(), trace, skipped)
     if storage == "sqlite3":
         return functools.partial(_write_sqlite3_bag, topics=topics)
     return _mcap_bag(topics, MCAP_COMPRESSION[storage])
-
