@@ -294,7 +294,8 @@ def replacing(dest: Path, *, nested: bool = False) -> Iterator[Path]:
     (an interrupt included) removes it. Registered meanwhile, so a forced exit removes it too.
 
     ``nested``: the temporary is a new folder and the block writes ``<temporary>/<dest's name>`` in it (for
-    writers whose files are named after their folder, such as a ROS 2 bag's), which becomes ``dest``."""
+    writers whose files are named after their folder, such as ``rosbags``' SQLite3 bag writer), which becomes
+    ``dest``."""
     from .atomic import temp_sibling
 
     tmp = temp_sibling(dest)
