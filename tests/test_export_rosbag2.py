@@ -255,6 +255,25 @@ def test_a_bag_is_written_as_a_new_folder_its_files_named_after_the_bag(body_dat
     assert not (tmp_path / ".tmp-2").exists()
 
 
+@pytest.mark.parametrize("name", ["trace_00000000", "trace_12345678", "b", "Trace 1", "a: b"])
+def test_bag_metadata_texts_are_yaml_dumps_of_the_metadata_byte_for_byte(body_dataset, name):
+    """The bag's metadata texts, filled into a text dumped once per layout of topics, equal ``yaml.dump`` of
+    the metadata (the /tf_static QoS text folded over lines among them); names YAML would quote too."""
+    import yaml
+
+    from physynth.io.export import rosbag2
+
+    for tr in body_dataset[1].traces:
+        topics = trace_topics(TS, tr, {})
+        info = rosbag2._bag_metadata(name, "mcap", topics)
+        inner, outer = rosbag2._metadata_texts(name, topics)
+        assert outer == rosbag2._yaml({"rosbag2_bagfile_information": info}) and inner == rosbag2._yaml(info).strip()
+        assert yaml.safe_load(outer)["rosbag2_bagfile_information"] == info
+        template = rosbag2._metadata_template(tuple((t.name, t.msgtype, t.qos) for t in topics))
+        assert template is not None and "trace" not in template[1]  # filled in, not dumped, for plain names
+        assert "/tf_static" in outer and info["message_count"] == sum(t.stamps.size for t in topics) > 0
+
+
 def test_the_stored_message_types_are_those_rosbags_makes():
     """ros2_types.json (the bags' message definitions and RIHS01 hashes, read instead of made per process):
     rosbags makes the same for every type the export writes (else: python tools/ros2_types.py)."""

@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import functools
 import json
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -279,12 +280,19 @@ def trace_topics(ts: Any, trace: Trace | BagColumns, skipped: dict[str, int]) ->
     return [*_imu_topics(b, skipped), *_uwb_topics(b, skipped), *_truth_topics(ts, b, skipped)]
 
 
-def _bag_metadata(name: str, storage: str, topics: list[Topic]) -> dict[str, Any]:
-    """The ``rosbag2_bagfile_information`` of a bag (what ``rosbags``' writer puts in ``metadata.yaml``)."""
+def _bag_numbers(topics: list[Topic]) -> list[int]:
+    """The numbers of a bag's metadata: start and duration (ns), message count, then each topic's."""
     stamps = [t.stamps for t in topics if t.stamps.size]
     start = int(min(s[0] for s in stamps)) if stamps else 0
     duration = max(0, int(max(s.max() for s in stamps)) - start) if stamps else 0
-    count = sum(int(t.stamps.size) for t in topics)
+    counts = [int(t.stamps.size) for t in topics]
+    return [start, duration, sum(counts), *counts]
+
+
+def _bag_metadata(name: str, storage: str, topics: list[Topic], numbers: Sequence[int] | None = None) -> dict[str, Any]:
+    """The ``rosbag2_bagfile_information`` of a bag (what ``rosbags``' writer puts in ``metadata.yaml``);
+    ``numbers``: those of :func:`_bag_numbers` (by default the topics')."""
+    start, duration, count, *counts = _bag_numbers(topics) if numbers is None else numbers
     fname = f"{name}.{'db3' if storage == 'sqlite3' else 'mcap'}"
     return {"version": BAG_VERSION, "storage_identifier": "sqlite3" if storage == "sqlite3" else "mcap",
             "relative_file_paths": [fname],
@@ -294,7 +302,7 @@ def _bag_metadata(name: str, storage: str, topics: list[Topic]) -> dict[str, Any
                 {"topic_metadata": {"name": t.name, "type": t.msgtype, "serialization_format": "cdr",
                                     "offered_qos_profiles": _qos_text(t.qos),
                                     "type_description_hash": _type_info(t.msgtype)[1]},
-                 "message_count": int(t.stamps.size)} for t in topics],
+                 "message_count": n} for t, n in zip(topics, counts, strict=True)],
             "compression_format": "", "compression_mode": "",
             "files": [{"path": fname, "starting_time": {"nanoseconds_since_epoch": start},
                        "duration": {"nanoseconds": duration}, "message_count": count}],
@@ -305,6 +313,48 @@ def _yaml(data: Any) -> str:
     import yaml
 
     return yaml.dump(data, Dumper=getattr(yaml, "CSafeDumper", yaml.SafeDumper), default_flow_style=False)
+
+
+_NAME_MARK = "physynthbagname"
+_NUMBER_MARK = 1_234_567_890_123_400_000
+"""Marks standing for a bag's name and numbers (19 digits each) in :func:`_metadata_texts`'s texts."""
+_PLAIN_NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
+
+
+@functools.lru_cache(maxsize=64)
+def _metadata_template(topics: tuple[tuple[str, str, tuple[Any, ...]], ...]) -> tuple[str, str] | None:
+    """The texts of :func:`_metadata_texts` for bags of ``topics`` (name, type, QoS of each), marks in place of
+    the name and numbers; None when a mark does not appear where, and only where, it stands."""
+    stub = [Topic(n, m, q, np.zeros(0, np.int64), cdr.Prebuilt(np.zeros((0, 0), np.uint8))) for n, m, q in topics]
+    marks = [_NUMBER_MARK + k for k in range(3 + len(topics))]
+    info = _bag_metadata(_NAME_MARK, "mcap", stub, marks)
+    texts = _yaml(info).strip(), _yaml({"rosbag2_bagfile_information": info})
+    uses = [2, 2, 2, *[1] * len(topics)]  # start and duration: the bag's and its file's; so the count
+    for text in texts:
+        if text.count(_NAME_MARK) != 2 or any(text.count(str(m)) != u for m, u in zip(marks, uses, strict=True)):
+            return None
+    return texts
+
+
+def _metadata_texts(name: str, topics: list[Topic]) -> tuple[str, str]:
+    """An MCAP bag's metadata as the ``rosbag2`` metadata record holds it and as ``metadata.yaml`` (the same
+    dictionary under ``rosbag2_bagfile_information``): ``yaml.dump`` of :func:`_bag_metadata`, byte for byte.
+    Dumped once per layout of topics, with marks for the name and numbers then replaced (PyYAML's
+    representer, pure Python, took about 1 ms per bag on the main thread, which the chunk threads wait on
+    for the GIL)."""
+    numbers = _bag_numbers(topics)
+    template = _metadata_template(tuple((t.name, t.msgtype, t.qos) for t in topics)) if _PLAIN_NAME.match(name) \
+        else None
+    if template is None:  # a name YAML would quote (or marks that did not come out as planned)
+        info = _bag_metadata(name, "mcap", topics, numbers)
+        return _yaml(info).strip(), _yaml({"rosbag2_bagfile_information": info})
+    out = []
+    for text in template:
+        text = text.replace(_NAME_MARK, name)
+        for k, n in enumerate(numbers):
+            text = text.replace(str(_NUMBER_MARK + k), str(n))
+        out.append(text)
+    return out[0], out[1]
 
 
 MESSAGE_TYPES = ("sensor_msgs/msg/Imu", "sensor_msgs/msg/Range", "geometry_msgs/msg/PointStamped",
@@ -365,14 +415,13 @@ def _mcap_bag(topics: list[Topic], compression: str) -> Callable[[Path, str], No
                             metadata={"rosbag2": serialized})
 
     def write(folder: Path, name: str) -> None:
-        info = _bag_metadata(name, "mcap", topics)  # it names the bag's file
-        serialized["serialized_metadata"] = _yaml(info).strip()
+        serialized["serialized_metadata"], yaml_text = _metadata_texts(name, topics)  # they name the bag's file
         folder.mkdir()
         with open(folder / f"{name}.mcap", "xb") as f:
             prepared.write(f)
             f.flush()
             write_behind(f.fileno())  # the bag written out now, not piled up in the page cache (io.pagecache)
-        (folder / "metadata.yaml").write_text(_yaml({"rosbag2_bagfile_information": info}), encoding="utf-8")
+        (folder / "metadata.yaml").write_text(yaml_text, encoding="utf-8")
 
     return write
 
