@@ -13,7 +13,7 @@ from scipy.signal import butter, coherence, sosfiltfilt
 
 from ..records import Trace
 from ._base import CalibrationError, median_step_s
-from .imu_truth import error_against, imu_error, sensor_truth_acceleration, smoothed_body_rate, truth_acceleration
+from .imu_truth import errors_at_offsets, imu_error, sensor_truth_acceleration, smoothed_body_rate, truth_acceleration
 
 MOTION_WINDOW_S = 2.0
 """Window of the motion-noise regression: mean squared error against mean |a|^2 and |w|^2 [s]."""
@@ -31,8 +31,9 @@ def fit_time_offset(traces: Sequence[Trace], cutoff_hz: float, *, max_offset_s: 
     cost = np.zeros(grid.size)
     for tr in traces:  # a handful of recordings, each vectorised
         ta = sensor_truth_acceleration(tr, cutoff_hz, lever_arm_m)
+        error_at = errors_at_offsets(tr, ta)
         for j, off in enumerate(grid):  # ~80 offsets
-            e, ok, _ = error_against(tr, ta, float(off))
+            e, ok, _ = error_at(float(off))
             cost[j] += float(np.sum(np.var(e[ok], axis=0))) * int(ok.sum())
     j = int(np.clip(np.argmin(cost), 1, grid.size - 2))
     y0, y1, y2 = cost[j - 1:j + 2]

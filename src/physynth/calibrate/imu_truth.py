@@ -4,7 +4,7 @@ differentiated twice), the truth attitude and body rate, and the IMU error again
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
@@ -129,14 +129,30 @@ def truth_attitude_at(trace: Trace, t_q: np.ndarray) -> tuple[Rotation, np.ndarr
 
 def error_against(trace: Trace, truth_acc: tuple[np.ndarray, np.ndarray, np.ndarray], offset_s: float
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    tg, a_truth, valid = truth_acc
-    ti = trace.imu.t_s - offset_s
-    a_i = np.stack([np.interp(ti, tg, np.where(valid, a_truth[:, k], 0.0)) for k in range(3)], axis=1)
-    v_i = np.interp(ti, tg, valid.astype(float)) > 0.999
-    err = trace.imu.acc_mps2 - a_i
-    ok = v_i & np.all(np.isfinite(err), axis=1)
+    err, ok, ti = errors_at_offsets(trace, truth_acc)(offset_s)
     err[~ok] = np.nan
     return err, ok, ti
+
+
+def errors_at_offsets(trace: Trace, truth_acc: tuple[np.ndarray, np.ndarray, np.ndarray]
+                      ) -> Callable[[float], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """:func:`error_against` for one trace at offset after offset (a grid search): the truth's masked
+    samples zeroed once, not per offset; the rows outside ``ok`` are left as computed (not NaN)."""
+    tg, a_truth, valid = truth_acc
+    cols = [np.where(valid, a_truth[:, k], 0.0) for k in range(3)]
+    valid_f = valid.astype(float)
+    acc, t_imu = trace.imu.acc_mps2, trace.imu.t_s
+
+    def at(offset_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        ti = t_imu - offset_s
+        err = np.empty(acc.shape)
+        ok = np.interp(ti, tg, valid_f) > 0.999
+        for k, c in enumerate(cols):  # column by column: no stacked copy, no reduction over the 3 axes
+            err[:, k] = acc[:, k] - np.interp(ti, tg, c)
+            ok &= np.isfinite(err[:, k])
+        return err, ok, ti
+
+    return at
 
 
 def smoothed_body_rate(trace: Trace, t_q: np.ndarray, cutoff_hz: float) -> np.ndarray | None:
