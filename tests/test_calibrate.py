@@ -507,7 +507,9 @@ def test_gross_ranges_are_left_out_and_counted_not_fitted_as_a_mode():
     from physynth.calibrate.uwb_fit import GROSS_RESIDUAL_M
 
     scn = load_scenario("walk-hanyang")
-    clean = generate_trace(scn, 0, 3)
+    # without its IMU samples: the UWB fit does not use them (the same scenario but for its imu section, and
+    # the same gross_residuals report and warnings about them, checked for both calibrations)
+    clean = dataclasses.replace(generate_trace(scn, 0, 3), imu=None)
     r = clean.uwb.range_m.copy()
     rows = np.flatnonzero(np.isfinite(r))[100:111]
     r[rows] = 65535.0  # a radio's "no range" code, 11 rows
