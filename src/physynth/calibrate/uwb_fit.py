@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 from scipy.optimize import minimize
+from scipy.special import logsumexp
 
 from ..bounds import BOUNDS
 from ..models.uwb import los_error_mean, range_decades, range_error_log_components
@@ -53,36 +54,10 @@ bias: the path loss grows 20 dB per decade of range; on the Hanyang static sweep
 # --------------------------------------------------------------------------------------------------
 
 
-def logsumexp_rows(a: np.ndarray) -> np.ndarray:
-    """``scipy.special.logsumexp(a, axis=0)`` of a real 2-D float array, the same numbers (its steps, in its
-    order: the largest term taken out of the sum, log1p of the rest) without its overheads: the direct sum
-    it also computes for every column is computed here only for the columns whose result is not finite."""
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        a_max = a.max(axis=0, keepdims=True)
-        mask = a == a_max
-        m = mask.sum(axis=0, keepdims=True, dtype=a.dtype)
-        s = np.exp(np.where(mask, -np.inf, a) - a_max).sum(axis=0, keepdims=True)
-        s = np.where(s == 0, s, s / m)
-        sgn = np.sign(s + 1) * np.sign(m)
-        s = np.where(s < -1, -s - 2, s)
-        out = (np.log1p(s) + np.log(np.abs(m)) + a_max)[0]
-        out[sgn[0] < 0] = np.nan
-        bad = ~np.isfinite(out)
-        if bad.any():
-            out[bad] = np.log(np.exp(a[:, bad]).sum(axis=0))
-    return out
-
-
 def geometric_range(trace: Trace, t_s: np.ndarray, anchor: np.ndarray) -> np.ndarray:
     """|p_truth(t) - a_i| [m] for times ``t_s`` (any shape) and anchor indices of the same shape."""
-    return _norm3(trace.truth.position_at(t_s) - trace.anchors.pos_enu_m[anchor])
-
-
-def _norm3(d: np.ndarray) -> np.ndarray:
-    """``np.linalg.norm(d, axis=-1)`` of (..., 3) vectors, the same numbers (the squares summed in order),
-    squaring ``d`` in place instead of through two temporaries."""
-    d *= d
-    return np.sqrt(d[..., 0] + d[..., 1] + d[..., 2])
+    pos = trace.truth.position_at(t_s)
+    return np.linalg.norm(pos - trace.anchors.pos_enu_m[anchor], axis=-1)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -147,8 +122,7 @@ def _mad_curve(trace: Trace, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarra
         if rows.sum() < 5:
             continue
         tq = t[rows][None, :] - offsets[:, None]
-        # geometric_range with the one anchor broadcast (no (K, N, 3) copy of its position)
-        r = rng[rows][None, :] - _norm3(trace.truth.position_at(tq) - trace.anchors.pos_enu_m[i])
+        r = rng[rows][None, :] - geometric_range(trace, tq, np.full(tq.shape, i))
         good = np.all(np.isfinite(r), axis=0)
         r = r[:, good]
         if r.shape[1] < 5:
@@ -347,7 +321,7 @@ def fit_mixture(r: np.ndarray, g: np.ndarray, k: int, *, fit_slope: bool = True,
     for _ in range(max_iter):  # EM iterations, each vectorised over rows
         lp = range_error_log_components(r, g, los_mean_m=mu, range_bias_per_m=beta, los_std_m=sig, nlos_prob=p,
                                         mode_weights=w, mode_mean_m=means, mode_std_m=stds)
-        tot = logsumexp_rows(lp)
+        tot = logsumexp(lp, axis=0)
         ll = float(tot.sum())
         resp = np.exp(lp - tot)
         g0 = resp[0]
@@ -409,7 +383,7 @@ def nlos_responsibility(fit: MixtureFit, r: np.ndarray, g: np.ndarray, los_std_m
         nlos_prob=fit.nlos_prob, mode_weights=np.array([m.weight for m in fit.modes]),
         mode_mean_m=np.array([m.mean_m for m in fit.modes]), mode_std_m=np.array([m.std_m for m in fit.modes]),
         range_bias_per_decade_m=fit.range_bias_per_decade_m)
-    return 1.0 - np.exp(lp[0] - logsumexp_rows(lp))
+    return 1.0 - np.exp(lp[0] - logsumexp(lp, axis=0))
 
 
 def select_mixture(r: np.ndarray, g: np.ndarray, *, max_modes: int = MAX_NLOS_MODES, fit_slope: bool = True,
