@@ -255,7 +255,8 @@ def test_a_bag_is_written_as_a_new_folder_its_files_named_after_the_bag(body_dat
     assert not (tmp_path / ".tmp-2").exists()
 
 
-@pytest.mark.parametrize("name", ["trace_00000000", "trace_12345678", "b", "Trace 1", "a: b"])
+@pytest.mark.parametrize("name", ["trace_00000000", "trace_12345678", "b", "trace_1234567890123400001",
+                                  "Trace 1", "a: b"])
 def test_bag_metadata_texts_are_yaml_dumps_of_the_metadata_byte_for_byte(body_dataset, name):
     """The bag's metadata texts, filled into a text dumped once per layout of topics, equal ``yaml.dump`` of
     the metadata (the /tf_static QoS text folded over lines among them); names YAML would quote too."""

@@ -317,7 +317,9 @@ def _yaml(data: Any) -> str:
 
 _NAME_MARK = "physynthbagname"
 _NUMBER_MARK = 1_234_567_890_123_400_000
-"""Marks standing for a bag's name and numbers (19 digits each) in :func:`_metadata_texts`'s texts."""
+"""Marks standing for a bag's name and numbers (mark + k for number k: 19 digits each) in the texts of
+:func:`_metadata_template`, replaced in one pass (:data:`_MARKS`)."""
+_MARKS = re.compile(rf"{_NAME_MARK}|{_NUMBER_MARK // 1000}\d{{3}}")
 _PLAIN_NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
 
 
@@ -325,13 +327,16 @@ _PLAIN_NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
 def _metadata_template(topics: tuple[tuple[str, str, tuple[Any, ...]], ...]) -> tuple[str, str] | None:
     """The texts of :func:`_metadata_texts` for bags of ``topics`` (name, type, QoS of each), marks in place of
     the name and numbers; None when a mark does not appear where, and only where, it stands."""
+    if 3 + len(topics) > 1000:  # more numbers than marks
+        return None
     stub = [Topic(n, m, q, np.zeros(0, np.int64), cdr.Prebuilt(np.zeros((0, 0), np.uint8))) for n, m, q in topics]
     marks = [_NUMBER_MARK + k for k in range(3 + len(topics))]
     info = _bag_metadata(_NAME_MARK, "mcap", stub, marks)
     texts = _yaml(info).strip(), _yaml({"rosbag2_bagfile_information": info})
     uses = [2, 2, 2, *[1] * len(topics)]  # start and duration: the bag's and its file's; so the count
     for text in texts:
-        if text.count(_NAME_MARK) != 2 or any(text.count(str(m)) != u for m, u in zip(marks, uses, strict=True)):
+        if text.count(_NAME_MARK) != 2 or any(text.count(str(m)) != u for m, u in zip(marks, uses, strict=True)) \
+                or len(_MARKS.findall(text)) != 2 + sum(uses):
             return None
     return texts
 
@@ -348,13 +353,9 @@ def _metadata_texts(name: str, topics: list[Topic]) -> tuple[str, str]:
     if template is None:  # a name YAML would quote (or marks that did not come out as planned)
         info = _bag_metadata(name, "mcap", topics, numbers)
         return _yaml(info).strip(), _yaml({"rosbag2_bagfile_information": info})
-    out = []
-    for text in template:
-        text = text.replace(_NAME_MARK, name)
-        for k, n in enumerate(numbers):
-            text = text.replace(str(_NUMBER_MARK + k), str(n))
-        out.append(text)
-    return out[0], out[1]
+    values = {str(_NUMBER_MARK + k): str(n) for k, n in enumerate(numbers)} | {_NAME_MARK: name}
+    inner, outer = (_MARKS.sub(lambda m: values[m.group()], text) for text in template)
+    return inner, outer
 
 
 MESSAGE_TYPES = ("sensor_msgs/msg/Imu", "sensor_msgs/msg/Range", "geometry_msgs/msg/PointStamped",
