@@ -42,6 +42,16 @@ def simple_scenario(**updates) -> Scenario:
     return scenario_from_dict(simple_scenario_dict(**updates), "test")
 
 
+def uwb_only_traces(scn: Scenario, n: int, seed: int) -> list:
+    """``n`` traces of ``scn`` without their IMU samples: for calibration tests of the UWB fit, which does not
+    use them (the IMU calibration would add a third to such a test's time)."""
+    from dataclasses import replace
+
+    from physynth.generate import generate_traces
+
+    return [replace(t, imu=None) for t in generate_traces(scn, n, seed=seed)]
+
+
 def binomial_tol(p: float, n: int, k: float = 5.0) -> float:
     """k standard errors of a proportion estimated from n independent trials."""
     return k * np.sqrt(p * (1 - p) / n)

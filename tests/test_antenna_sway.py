@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
-from helpers import simple_scenario
+from helpers import simple_scenario, uwb_only_traces
 
 from physynth.calibrate import calibrate
 from physynth.calibrate.antenna_sway import fit_antenna_sway
-from physynth.generate import generate_trace, generate_traces
+from physynth.generate import generate_trace
 from physynth.models.uwb import antenna_sway, travelled_m
 
 
@@ -50,18 +48,11 @@ def test_each_range_sees_the_offset_along_its_line_of_sight():
     np.testing.assert_array_equal(plain.uwb.true_range_m, u.true_range_m)  # no other draw moved
 
 
-def _uwb_only(scn, n, seed):
-    """``n`` traces of ``scn`` without their IMU samples: the UWB fit does not use them (for every calibration
-    below, scenario.uwb, scenario.channel and the report's antenna_sway section the same to the last digit
-    with them and without, checked), and the IMU calibration would add a third to each test's time."""
-    return [replace(t, imu=None) for t in generate_traces(scn, n, seed=seed)]
-
-
 def test_calibration_recovers_the_sway_and_keeps_the_white_rest():
     std, tau, white = 0.06, 2.0, 0.02
     scn = simple_scenario(**{"uwb.antenna_sway_std_m": std, "uwb.antenna_sway_tau_s": tau,
                              "channel.los_std_m": white, "motion.cruise_speed_mps": 1.0})
-    traces = _uwb_only(scn, 3, 7)
+    traces = uwb_only_traces(scn, 3, 7)
     fit = calibrate(traces)
     sc = fit.scenario
     span = sum(t.duration_s for t in traces)
@@ -73,7 +64,7 @@ def test_calibration_recovers_the_sway_and_keeps_the_white_rest():
 
 
 def test_white_errors_give_no_sway():
-    traces = _uwb_only(simple_scenario(**{"channel.los_std_m": 0.06}), 2, 8)
+    traces = uwb_only_traces(simple_scenario(**{"channel.los_std_m": 0.06}), 2, 8)
     fit = calibrate(traces)
     assert fit.scenario.uwb.antenna_sway_std_m == 0.0
     assert not fit.report["antenna_sway"]["identifiable"]
@@ -202,7 +193,7 @@ def test_calibration_tells_the_clocks_apart_when_the_tag_stops(clock):
                              "channel.los_std_m": white, "motion.cruise_speed_mps": 1.0,
                              "motion.dwell_start_s": 15.0, "motion.dwell_end_s": 15.0,
                              "uwb.burst_rate_hz": 10.0, "channel.rate_hz": 10.0})  # fewer rows: a faster fit
-    fit = calibrate(_uwb_only(scn, 4, 7))
+    fit = calibrate(uwb_only_traces(scn, 4, 7))
     sw = fit.report["antenna_sway"]
     other = "distance" if clock == "time" else "time"
     assert sw["clock"] == clock, sw["fits"]
@@ -224,7 +215,7 @@ def test_calibration_finds_the_motion_clock_of_a_turning_carrier():
         "uwb.antenna_sway_length_m": 20.0, "uwb.antenna_sway_turn_rad": 0.4, "channel.los_std_m": 0.02,
         "motion.cruise_speed_mps": 1.0, "attitude.kind": "tangent", "motion.dwell_start_s": 10.0,
         "motion.dwell_end_s": 10.0, "uwb.burst_rate_hz": 10.0, "channel.rate_hz": 10.0})
-    fit = calibrate(_uwb_only(scn, 3, 7))
+    fit = calibrate(uwb_only_traces(scn, 3, 7))
     sw = fit.report["antenna_sway"]
     other = [k for k in sw["fits"] if k != clock]
     assert sw["clock"] == clock and sw["fits"][clock]["mse_m4"] < 0.5 * sw["fits"][other[0]]["mse_m4"]

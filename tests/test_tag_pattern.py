@@ -3,15 +3,13 @@ heading (``uwb.tag_pattern_m``), in the generator and in calibration."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
-from helpers import simple_scenario
+from helpers import simple_scenario, uwb_only_traces
 
 from physynth.calibrate import calibrate
 from physynth.calibrate.tag_pattern import WALD_MIN, fit_tag_pattern
-from physynth.generate import generate_trace, generate_traces
+from physynth.generate import generate_trace
 from physynth.models.uwb import heading_unit, relative_bearing
 
 ZIGZAG = {"kind": "waypoints", "perturbation": {"lateral_std_m": 0.0, "sag_std_m": 0.0},
@@ -65,11 +63,6 @@ def test_every_range_carries_the_pattern_at_its_bearing():
     np.testing.assert_array_equal(plain.uwb.true_range_m, u.true_range_m)  # deterministic: no draw moved
 
 
-def _uwb_only(scn, n, seed):
-    """``n`` traces of ``scn`` without their IMU samples (the IMU fit is not under test here)."""
-    return [dataclasses.replace(t, imu=None) for t in generate_traces(scn, n, seed=seed)]
-
-
 def _walk(**extra):
     return simple_scenario(path=ZIGZAG, anchors=ANCHORS, **{
         "uwb.antenna_sway_std_m": 0.05, "uwb.antenna_sway_clock": "motion", "uwb.antenna_sway_length_m": 20.0,
@@ -82,7 +75,7 @@ def test_calibration_recovers_the_pattern_through_the_sway():
     walks of the zigzag: the fitted term within 3 jackknife standard errors and kept; the absent terms
     within 4 standard errors of 0 and set to 0 (a term is kept beyond 3: on these walks the slow sway
     alone happens to give sin phi -12 mm, measured on the true errors, which a 2-standard-error rule kept)."""
-    traces = _uwb_only(_walk(**{"uwb.tag_pattern_m": [0.0, 0.0, 0.025, 0.0]}), 4, 11)
+    traces = uwb_only_traces(_walk(**{"uwb.tag_pattern_m": [0.0, 0.0, 0.025, 0.0]}), 4, 11)
     fit = calibrate(traces, tag_pattern=True)
     rep = fit.report["tag_pattern"]
     assert rep["kept"] and rep["applied"] and rep["wald"] > WALD_MIN
@@ -105,7 +98,7 @@ def test_no_pattern_is_found_where_there_is_none():
     """The same walks without a pattern: the Wald test (p = 0.001) keeps nothing, the slow sway on the
     motion clock notwithstanding (it changes at the turns, like a pattern would, but with no sign tied to
     the bearing)."""
-    fit = calibrate(_uwb_only(_walk(), 4, 12), tag_pattern=True)
+    fit = calibrate(uwb_only_traces(_walk(), 4, 12), tag_pattern=True)
     rep = fit.report["tag_pattern"]
     assert rep["identifiable"] and not rep["kept"], rep["wald"]
     assert fit.scenario.uwb.tag_pattern_m == [0.0, 0.0, 0.0, 0.0]
