@@ -49,8 +49,10 @@ def _compiled(scenario_json: str) -> CompiledScenario:
 
 
 def shard_task(scenario_json: str, root_seed: int, partial: str, k: int, start: int, stop: int,
-               meta: dict[str, Any], on_unit: Callable[[], None] | None = None) -> int:
-    """Generate traces ``start .. stop - 1`` and write them as shard ``k`` (what a worker runs)."""
+               meta: dict[str, Any], on_unit: Callable[[], None] | None = None,
+               writer: Callable[..., Any] | None = None) -> int:
+    """Generate traces ``start .. stop - 1`` and write them as shard ``k`` (what a worker runs; ``writer``: see
+    :func:`~physynth.io.shards.write_shard`)."""
     from .generate import generate_trace
 
     cs = _compiled(scenario_json)
@@ -61,7 +63,7 @@ def shard_task(scenario_json: str, root_seed: int, partial: str, k: int, start: 
             if on_unit is not None:
                 on_unit()
 
-    return write_shard(partial, k, traces(), meta)
+    return write_shard(partial, k, traces(), meta, writer)
 
 
 WORKER_CONFIG = {
@@ -185,7 +187,14 @@ def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, to
     scenario_json = json.dumps(scenario_to_dict(scn))
     partial = Path(partial).absolute()  # workers of a remote cluster may run in another directory
     tasks = [(scenario_json, root_seed, str(partial), k, *plan.bounds(k), meta) for k in todo]
-    run_tasks(shard_task, tasks, [t[5] - t[4] for t in tasks], workers=workers, scheduler=scheduler,
+    sizes = [t[5] - t[4] for t in tasks]
+    if scheduler is None and (workers <= 1 or len(tasks) <= 1):  # here, with a writer process on a spare core
+        from .io.writer_process import local_writers
+
+        with local_writers(available_cores()) as writer:
+            run_tasks(functools.partial(shard_task, writer=writer), tasks, sizes, progress=progress)
+        return
+    run_tasks(shard_task, tasks, sizes, workers=workers, scheduler=scheduler,
               progress=progress, name="physynth-shard", unfinished=(partial, ".shard-*.tmp-*"))
 
 

@@ -30,6 +30,7 @@ import os
 import re
 import shutil
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -80,17 +81,21 @@ class ShardPlan:
         return start, min(start + self.shard_traces, self.n_traces)
 
 
-def write_shard(partial: str | os.PathLike, k: int, traces: Any, meta: dict[str, Any]) -> int:
+def write_shard(partial: str | os.PathLike, k: int, traces: Any, meta: dict[str, Any],
+                writer: Callable[..., Any] | None = None) -> int:
     """Write shard ``k`` (an iterable of ``(index, Trace)``) atomically into ``partial``; returns its trace count.
 
-    A shard that is already complete is left alone (a resumed run never writes a trace twice).
+    A shard that is already complete is left alone (a resumed run never writes a trace twice). ``writer``:
+    what makes the dataset writer, :class:`~physynth.io.dataset.DatasetWriter` (None) or a writer process's
+    (:func:`physynth.io.writer_process.local_writers`); the files are the same.
     """
     dest = Path(partial) / shard_name(k)
     if dest.is_dir():
         return 0
     n = 0
     groups = generated_column_groups(meta["imu_frames"]) if "imu_frames" in meta else None
-    with DatasetWriter(dest, meta=meta, row_group_traces=ROW_GROUP_TRACES, compact=True, column_groups=groups) as w:
+    with (writer or DatasetWriter)(dest, meta=meta, row_group_traces=ROW_GROUP_TRACES, compact=True,
+                                   column_groups=groups) as w:
         for index, trace in traces:
             w.add(trace, index=index)
             n += 1

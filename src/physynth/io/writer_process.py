@@ -1,0 +1,293 @@
+"""Datasets written by a process of their own while this one generates the traces.
+
+A :class:`~physynth.io.dataset.DatasetWriter` converts, encodes, compresses and hashes about as much CPU time
+per trace as generating the trace takes. Its writer thread runs beside the generating thread, but threads of
+one process slow each other down (``benchmarks/bench_writer_interference.py``): a generating thread beside a
+Parquet-writing thread lost 21-40 % of its speed where beside a writing *process* it lost nothing. So a run on
+one worker of a machine with a core to spare (:func:`local_writers`) hands its traces to a writer process:
+
+- the process is ``python -m physynth.io.writer_process`` (a subprocess of its own, not :mod:`multiprocessing`,
+  whose ``spawn`` would run a user's script again), started once per run and given one dataset after another;
+- each trace goes through a pipe as a pickle whose NumPy arrays follow out of band (protocol 5), one message per
+  array (:class:`multiprocessing.connection.Connection` frames them); the process writes it with the same
+  :class:`~physynth.io.dataset.DatasetWriter`, so the files are the same, byte for byte;
+- it runs in a session of its own (a terminal's Ctrl-C reaches only this process, which stops it) with its
+  output sent where the worker processes' goes (:mod:`physynth._children`); it aborts the dataset it is writing
+  (its temporary folder removed) and exits when this process says so or its end of the pipe closes, so it
+  never outlives a killed run;
+- an error there (a full disk, a held lock) comes back as the same exception class with its message, raised by
+  the :meth:`RemoteDatasetWriter.add` or :meth:`RemoteDatasetWriter.close` that finds it.
+
+The environment variable :data:`ENV_VAR` set to ``0`` (or ``false``, ``no``, ``off``) keeps the writing in this
+process (:class:`~physynth.io.dataset.DatasetWriter`'s thread), as on a machine of one core.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import pickle
+import subprocess
+import sys
+from collections.abc import Callable, Iterator
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+from .. import errors
+from .._children import output_fd
+from ..errors import DatasetError, PhySynthError
+from . import safety
+
+ENV_VAR = "PHYSYNTH_WRITER_PROCESS"
+PIPE_BYTES = 1 << 20
+"""Size asked for the pipe that carries the traces (Linux; 64 KiB otherwise): fewer turns between the two
+processes per trace of about 2.5 MB."""
+STOP_WAIT_S = 10.0
+"""How long :meth:`WriterProcess.stop` waits for the process to abort and exit before it kills it."""
+
+
+def opted_out() -> bool:
+    """True when :data:`ENV_VAR` asks to keep the writing in this process."""
+    return os.environ.get(ENV_VAR, "").strip().lower() in {"0", "false", "no", "off"}
+
+
+def _error_of(reply: tuple[Any, ...]) -> BaseException:
+    """The exception a reply ``("error", class name, message)`` stands for: the PhySynth error class of that
+    name, an :class:`OSError` as a :class:`DatasetError` with its message, anything else as a RuntimeError."""
+    _, name, message = reply
+    cls = getattr(errors, name, None)
+    if isinstance(cls, type) and issubclass(cls, PhySynthError):
+        return cls(message)
+    if name in {"OSError", "PermissionError", "FileNotFoundError", "IsADirectoryError", "NotADirectoryError"}:
+        return DatasetError(message)
+    return RuntimeError(f"the writer process failed: {name}: {message}")
+
+
+class WriterProcess:
+    """A writer process (module docstring) and the two ends of its pipes in this process.
+
+    >>> with WriterProcess() as proc:                                      # doctest: +SKIP
+    ...     with proc.writer(out, meta={"kind": "synthetic"}) as w:
+    ...         for i, trace in enumerate(traces):
+    ...             w.add(trace, index=i)
+    """
+
+    def __init__(self) -> None:
+        import fcntl
+
+        to_child_r, to_child_w = os.pipe()
+        from_child_r, from_child_w = os.pipe()
+        with contextlib.suppress(OSError, AttributeError):  # a larger pipe where the system allows it
+            fcntl.fcntl(to_child_w, fcntl.F_SETPIPE_SZ, PIPE_BYTES)
+        package_root = str(Path(__file__).resolve().parents[2])  # the folder holding the physynth package
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH", "")) if p)
+        out = output_fd()
+        try:
+            self._proc = subprocess.Popen(
+                [sys.executable, "-m", "physynth.io.writer_process", str(to_child_r), str(from_child_w)],
+                pass_fds=(to_child_r, from_child_w), stdin=subprocess.DEVNULL, stdout=out, stderr=out,
+                env=env, start_new_session=True)
+        except BaseException:
+            for fd in (to_child_r, to_child_w, from_child_r, from_child_w):
+                os.close(fd)
+            raise
+        finally:
+            os.close(out)
+        os.close(to_child_r)
+        os.close(from_child_w)
+        self._send = Connection(to_child_w, readable=False)
+        self._recv = Connection(from_child_r, writable=False)
+        self._failed: BaseException | None = None
+        self.broken = False
+        """True once a message was cut short or a reply not awaited (an interrupt): only :meth:`stop` is left."""
+
+    def writer(self, path: str | os.PathLike, **options: Any) -> RemoteDatasetWriter:
+        """A :class:`RemoteDatasetWriter` of a new dataset ``path``; ``options`` are those of
+        :class:`~physynth.io.dataset.DatasetWriter` (it is opened there, by the process)."""
+        self._post(("open", str(path), options))
+        return RemoteDatasetWriter(self, Path(path))
+
+    def _post(self, message: tuple[Any, ...], buffers: list[pickle.PickleBuffer] = ()) -> None:  # type: ignore[assignment]
+        """Send ``message`` (and the out-of-band ``buffers`` that follow it); a process that has ended
+        raises its error instead. Anything that stops a send half way (an interrupt) leaves the pipe
+        holding part of a message: the process is then only stopped (:attr:`broken`)."""
+        self._check()
+        try:
+            self._send.send(message)
+            for buf in buffers:
+                self._send.send_bytes(buf.raw())
+        except (BrokenPipeError, ConnectionResetError, OSError):
+            raise self._fail() from None
+        except BaseException:
+            self.broken = True
+            raise
+
+    def _reply(self, timeout_s: float | None = None) -> tuple[Any, ...]:
+        """The process's next reply; its error raised, or a DatasetError when it ended without one (or gave
+        none within ``timeout_s``)."""
+        self._check()
+        try:
+            waited = 0.0
+            while not self._recv.poll(1.0):
+                waited += 1.0
+                if self._proc.poll() is not None and not self._recv.poll(0):
+                    raise self._fail()
+                if timeout_s is not None and waited >= timeout_s:
+                    self.broken = True
+                    raise DatasetError(f"the writer process gave no answer within {timeout_s:g} s")
+            reply = self._recv.recv()
+        except (EOFError, OSError):
+            raise self._fail() from None
+        except BaseException:
+            self.broken = True  # an interrupt while waiting: the reply may come later, out of turn
+            raise
+        if reply[0] == "error":
+            self._failed = _error_of(reply)
+            raise self._failed
+        return reply
+
+    def _check(self) -> None:
+        if self._failed is not None:
+            raise self._failed
+        if self.broken:
+            raise DatasetError("the writer process was stopped by an interruption")
+
+    def _fail(self) -> BaseException:
+        """The error that ended the process: the one it sent, or one that says how it ended."""
+        if self._failed is None:
+            with contextlib.suppress(EOFError, OSError):
+                while self._recv.poll(0):
+                    reply = self._recv.recv()
+                    if reply[0] == "error":
+                        self._failed = _error_of(reply)
+                        return self._failed
+            code = self._proc.wait()
+            how = f"signal {-code}" if code < 0 else f"exit code {code}"
+            self._failed = DatasetError(f"the writer process ended unexpectedly ({how}); nothing was lost that "
+                                        "a resumed run would not write again")
+        return self._failed
+
+    def stop(self) -> None:
+        """Tell the process to abort what it writes and exit; wait for it (killed after :data:`STOP_WAIT_S`)."""
+        with contextlib.suppress(OSError):
+            self._send.close()  # its end of the pipe closes: it aborts and exits
+        try:
+            self._proc.wait(timeout=STOP_WAIT_S)
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+            self._proc.wait()
+        finally:
+            with contextlib.suppress(OSError):
+                self._recv.close()
+
+    def __enter__(self) -> WriterProcess:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+class RemoteDatasetWriter:
+    """What :class:`~physynth.io.dataset.DatasetWriter` does, done by a :class:`WriterProcess`: :meth:`add`
+    sends a trace, :meth:`close` waits until the dataset is in place, :meth:`abort` removes what was written."""
+
+    def __init__(self, proc: WriterProcess, path: Path) -> None:
+        self._proc = proc
+        self.path = path
+        self._done = False
+
+    def add(self, trace: Any, index: int) -> None:
+        safety.check_interrupted()
+        buffers: list[pickle.PickleBuffer] = []
+        header = pickle.dumps((int(index), trace), protocol=5, buffer_callback=buffers.append)
+        self._proc._post(("trace", header, len(buffers)), buffers)
+
+    def close(self) -> Path:
+        self._done = True
+        self._proc._post(("close",))
+        return Path(self._proc._reply()[1])
+
+    def abort(self) -> None:
+        """Remove what was written. After an interruption that cut a message short, the process is stopped
+        instead (its end of the pipe closes: it aborts the dataset and exits)."""
+        if self._done:
+            return
+        self._done = True
+        if not self._proc.broken and self._proc._failed is None:
+            with contextlib.suppress(Exception):
+                self._proc._post(("abort",))
+                self._proc._reply(timeout_s=STOP_WAIT_S)
+        if self._proc.broken:
+            self._proc.stop()
+
+    def __enter__(self) -> RemoteDatasetWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+@contextlib.contextmanager
+def local_writers(cores: int) -> Iterator[Callable[..., Any] | None]:
+    """The dataset writer factory for a run in this process on a machine of ``cores`` cores: a
+    :class:`WriterProcess`'s :meth:`~WriterProcess.writer` when a core is to spare (and :data:`ENV_VAR` does
+    not opt out), else None (write here, with :class:`~physynth.io.dataset.DatasetWriter`). The process is
+    stopped when the block ends."""
+    if cores < 2 or opted_out() or os.name != "posix":  # pass_fds: POSIX only
+        yield None
+        return
+    with WriterProcess() as proc:
+        yield proc.writer
+
+
+def _serve(recv: Connection, send: Connection) -> None:
+    """The writer process's loop: open, fill and close datasets as told, until told to stop or the pipe closes."""
+    from .dataset import DatasetWriter
+
+    writer: DatasetWriter | None = None
+    try:
+        while True:
+            try:
+                message = recv.recv()
+            except EOFError:
+                return  # the other process stopped us, or ended: abort what is being written (finally)
+            kind = message[0]
+            if kind == "trace":
+                _, header, n = message
+                index, trace = pickle.loads(header, buffers=[recv.recv_bytes() for _ in range(n)])
+                writer.add(trace, index=index)  # type: ignore[union-attr]
+            elif kind == "open":
+                _, path, options = message
+                writer = DatasetWriter(path, **options)
+            elif kind == "close":
+                path = writer.close()  # type: ignore[union-attr]
+                writer = None
+                send.send(("closed", str(path)))
+            elif kind == "abort":
+                if writer is not None:
+                    writer.abort()
+                    writer = None
+                send.send(("aborted",))
+    except Exception as exc:  # noqa: BLE001 - every error goes back to the other process, which raises it
+        message = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        if isinstance(exc, OSError) and exc.filename:
+            message = f"cannot write {exc.filename}: {message}"
+        with contextlib.suppress(OSError):
+            send.send(("error", type(exc).__name__, message))
+    finally:
+        if writer is not None:
+            writer.abort()
+
+
+def main(argv: list[str]) -> None:
+    """Entry point of ``python -m physynth.io.writer_process RECV_FD SEND_FD``."""
+    _serve(Connection(int(argv[0]), writable=False), Connection(int(argv[1]), readable=False))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

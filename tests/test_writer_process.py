@@ -1,0 +1,209 @@
+"""The writer process (physynth.io.writer_process): the same files as writing in this process, its errors
+raised here with their class and message, and nothing left behind when either process stops early."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from physynth.constants import IMU_FRAME
+from physynth.errors import DatasetError, OutputExistsError
+from physynth.generate import compile_scenario, generate_trace
+from physynth.io.dataset import DatasetWriter, iter_trace_meta
+from physynth.io.scenario_file import load_scenario
+from physynth.io.shards import partial_dir, write_shard
+from physynth.io.writer_process import ENV_VAR, WriterProcess, local_writers
+from physynth.workflows import generate_dataset
+
+SEED = 11
+
+
+@pytest.fixture(scope="module")
+def traces():
+    cs = compile_scenario(load_scenario("cablecar-descending"))
+    return [(i, generate_trace(cs, i, SEED)) for i in range(5)]
+
+
+def _files(path: Path) -> dict[str, bytes]:
+    """Every file of a dataset by relative path; dataset.json without its creation time."""
+    out = {}
+    for p in sorted(path.rglob("*")):
+        if p.is_file():
+            data = p.read_bytes()
+            if p.name == "dataset.json":
+                meta = json.loads(data)
+                meta.pop("created_utc")
+                data = json.dumps(meta).encode()
+            out[str(p.relative_to(path))] = data
+    return out
+
+
+def _leftovers(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if p.name.startswith("."))
+
+
+def test_a_shard_written_by_the_process_is_the_same_file_for_file(traces, tmp_path):
+    meta = {"kind": "synthetic", "imu_frames": [IMU_FRAME]}  # the preset's IMU stream
+    assert write_shard(tmp_path / "here", 0, traces, meta) == len(traces)
+    with WriterProcess() as proc:
+        assert write_shard(tmp_path / "there", 0, traces, meta, proc.writer) == len(traces)
+        assert write_shard(tmp_path / "there", 1, traces[:2], meta, proc.writer) == 2  # one process, many datasets
+    here, there = _files(tmp_path / "here" / "shard-00000"), _files(tmp_path / "there" / "shard-00000")
+    assert len(here) == 5 and here == there
+    assert sorted(_files(tmp_path / "there" / "shard-00001")) == sorted(here)
+
+
+def test_generate_on_one_worker_writes_the_same_files_with_and_without_the_process(tmp_path, monkeypatch):
+    import physynth.parallel as par
+
+    monkeypatch.setattr(par, "available_cores", lambda: 2)  # a core to spare, on any machine
+    used = []
+    real = WriterProcess.writer
+    monkeypatch.setattr(WriterProcess, "writer", lambda self, path, **kw: used.append(path) or real(self, path, **kw))
+    a, _ = generate_dataset("cablecar-descending", 7, tmp_path / "a", seed=SEED, shard_traces=3)
+    assert len(used) == 3  # every shard went through the writer process
+    monkeypatch.setenv(ENV_VAR, "0")
+    b, _ = generate_dataset("cablecar-descending", 7, tmp_path / "b", seed=SEED, shard_traces=3)
+    assert len(used) == 3
+    assert _files(a) == _files(b)
+    assert [m["trace"] for _, m in iter_trace_meta(a)] == list(range(7))
+
+
+def test_local_writers_only_with_a_core_to_spare(monkeypatch):
+    with local_writers(1) as writer:
+        assert writer is None
+    monkeypatch.setenv(ENV_VAR, "off")
+    with local_writers(2) as writer:
+        assert writer is None
+    monkeypatch.delenv(ENV_VAR)
+    with local_writers(2) as writer:
+        assert writer is not None and isinstance(writer.__self__, WriterProcess)
+
+
+def test_an_error_in_the_process_is_raised_here_with_its_class_and_message(traces, tmp_path):
+    taken = tmp_path / "taken"
+    with DatasetWriter(taken) as w:
+        w.add(traces[0][1])
+    with WriterProcess() as proc:
+        w = proc.writer(taken)  # exists, no overwrite: refused there
+        with pytest.raises(OutputExistsError, match="taken"):
+            for i, trace in traces:
+                w.add(trace, index=i)
+            w.close()
+        with pytest.raises(OutputExistsError):  # the process has ended: every later call says why
+            proc.writer(tmp_path / "other")
+    assert _leftovers(tmp_path) == []
+
+
+def test_abort_removes_what_was_written_and_the_process_goes_on(traces, tmp_path):
+    with WriterProcess() as proc:
+        with pytest.raises(KeyboardInterrupt), proc.writer(tmp_path / "stopped", meta={}) as w:
+            for i, trace in traces:
+                w.add(trace, index=i)
+            raise KeyboardInterrupt
+        with proc.writer(tmp_path / "next") as w:
+            w.add(traces[0][1], index=0)
+    assert not (tmp_path / "stopped").exists() and (tmp_path / "next" / "dataset.json").is_file()
+    assert _leftovers(tmp_path) == []
+
+
+def test_a_killed_process_is_an_error_that_says_so(traces, tmp_path):
+    with WriterProcess() as proc:
+        w = proc.writer(tmp_path / "out")
+        w.add(traces[0][1], index=0)
+        proc._proc.send_signal(signal.SIGKILL)
+        proc._proc.wait()
+        with pytest.raises(DatasetError, match="writer process ended unexpectedly .signal 9"):
+            for i, trace in traces * 4:  # the pipe may take a few before it is found broken
+                w.add(trace, index=i)
+            w.close()
+
+
+KILLED_PARENT = """
+import sys
+from physynth.generate import compile_scenario, generate_trace
+from physynth.io.scenario_file import load_scenario
+from physynth.io.writer_process import WriterProcess
+cs = compile_scenario(load_scenario("cablecar-descending"))
+proc = WriterProcess()
+print(proc._proc.pid, flush=True)
+w = proc.writer(sys.argv[1])
+i = 0
+while True:
+    w.add(generate_trace(cs, i, 1), index=i)
+    i += 1
+"""
+
+
+def test_the_process_removes_its_work_and_exits_when_this_one_is_killed(tmp_path):
+    out = tmp_path / "out"
+    parent = subprocess.Popen([sys.executable, "-c", KILLED_PARENT, str(out)], stdout=subprocess.PIPE, text=True)
+    try:
+        child = int(parent.stdout.readline())
+        deadline = time.monotonic() + 60
+        while not any(p.name.startswith(".out") for p in tmp_path.iterdir()):  # the child is writing
+            assert time.monotonic() < deadline and parent.poll() is None
+            time.sleep(0.05)
+        time.sleep(0.5)
+    finally:
+        parent.kill()
+        parent.wait()
+    deadline = time.monotonic() + 20
+    while Path(f"/proc/{child}").exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    still = Path(f"/proc/{child}").exists()
+    if still:
+        os.kill(child, signal.SIGKILL)
+    assert not still, "the writer process outlived the process that started it"
+    assert not out.exists() and _leftovers(tmp_path) == []
+
+
+def test_a_run_stopped_midway_resumes_to_the_same_files(tmp_path, monkeypatch):
+    import physynth.parallel as par
+
+    monkeypatch.setattr(par, "available_cores", lambda: 2)
+
+    def stop(message, done=None, total=None):
+        if done is not None and done >= 5:
+            raise KeyboardInterrupt
+
+    out = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        generate_dataset("cablecar-descending", 9, out, seed=SEED, shard_traces=2, progress=stop)
+    part = partial_dir(out)
+    assert sorted(p.name for p in part.iterdir() if p.name.startswith(".shard")) == []
+    assert 1 <= len(list(part.glob("shard-*"))) <= 2
+    generate_dataset("cablecar-descending", 9, out, seed=SEED, shard_traces=2, resume=True)
+    monkeypatch.setenv(ENV_VAR, "0")
+    ref, _ = generate_dataset("cablecar-descending", 9, tmp_path / "ref", seed=SEED, shard_traces=2)
+    assert _files(out) == _files(ref)
+
+
+def test_an_interrupt_in_the_middle_of_a_message_stops_the_process(traces, tmp_path, monkeypatch):
+    proc = WriterProcess()
+    try:
+        w = proc.writer(tmp_path / "out")
+        w.add(traces[0][1], index=0)
+
+        def cut(buf):  # a signal's exception once half of an array is in the pipe (Connection's frame: !i size)
+            data = bytes(buf)
+            os.write(proc._send.fileno(), struct.pack("!i", len(data)) + data[: len(data) // 2])
+            raise KeyboardInterrupt
+
+        monkeypatch.setattr(proc._send, "send_bytes", cut)
+        t0 = time.monotonic()
+        with pytest.raises(KeyboardInterrupt), w:
+            w.add(traces[1][1], index=1)
+        assert proc.broken and proc._proc.poll() is not None  # stopped, not asked (it waits for the rest)
+        assert time.monotonic() - t0 < 10
+    finally:
+        proc.stop()
+    assert not (tmp_path / "out").exists() and _leftovers(tmp_path) == []
