@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 import signal
 import struct
 import subprocess
@@ -59,6 +60,31 @@ def test_a_shard_written_by_the_process_is_the_same_file_for_file(traces, tmp_pa
     here, there = _files(tmp_path / "here" / "shard-00000"), _files(tmp_path / "there" / "shard-00000")
     assert len(here) == 5 and here == there
     assert sorted(_files(tmp_path / "there" / "shard-00001")) == sorted(here)
+
+
+def test_traces_too_large_for_the_ring_go_through_the_pipe(traces, tmp_path, monkeypatch):
+    import physynth.io.writer_process as wp
+
+    meta = {"kind": "synthetic", "imu_frames": [IMU_FRAME]}
+    write_shard(tmp_path / "here", 0, traces, meta)
+    monkeypatch.setattr(wp, "RING_BYTES", 1 << 20)  # a default trace has about 2.5 MB of arrays
+    with WriterProcess() as proc:
+        assert proc._ring is not None and len(proc._ring) == 1 << 20
+        write_shard(tmp_path / "there", 0, traces, meta, proc.writer)
+        assert proc._seq == 0  # none went through the ring
+    assert _files(tmp_path / "here" / "shard-00000") == _files(tmp_path / "there" / "shard-00000")
+
+
+def test_the_ring_is_reused_when_the_process_has_freed_it(traces, tmp_path, monkeypatch):
+    import physynth.io.writer_process as wp
+
+    meta = {"kind": "synthetic", "imu_frames": [IMU_FRAME]}
+    write_shard(tmp_path / "here", 0, traces * 3, meta)
+    monkeypatch.setattr(wp, "RING_BYTES", 8 << 20)  # room for about three traces: later ones wait for a place
+    with WriterProcess() as proc:
+        write_shard(tmp_path / "there", 0, traces * 3, meta, proc.writer)
+        assert proc._seq == 15 and not proc._busy  # every trace through the ring, every place freed by the close
+    assert _files(tmp_path / "here" / "shard-00000") == _files(tmp_path / "there" / "shard-00000")
 
 
 def test_generate_on_one_worker_writes_the_same_files_with_and_without_the_process(tmp_path, monkeypatch):
@@ -193,12 +219,12 @@ def test_an_interrupt_in_the_middle_of_a_message_stops_the_process(traces, tmp_p
         w = proc.writer(tmp_path / "out")
         w.add(traces[0][1], index=0)
 
-        def cut(buf):  # a signal's exception once half of an array is in the pipe (Connection's frame: !i size)
-            data = bytes(buf)
+        def cut(message):  # a signal's exception once half a message is in the pipe (Connection's frame: !i size)
+            data = pickle.dumps(message)
             os.write(proc._send.fileno(), struct.pack("!i", len(data)) + data[: len(data) // 2])
             raise KeyboardInterrupt
 
-        monkeypatch.setattr(proc._send, "send_bytes", cut)
+        monkeypatch.setattr(proc._send, "send", cut)
         t0 = time.monotonic()
         with pytest.raises(KeyboardInterrupt), w:
             w.add(traces[1][1], index=1)

@@ -8,9 +8,13 @@ one worker of a machine with a core to spare (:func:`local_writers`) hands its t
 
 - the process is ``python -m physynth.io.writer_process`` (a subprocess of its own, not :mod:`multiprocessing`,
   whose ``spawn`` would run a user's script again), started once per run and given one dataset after another;
-- each trace goes through a pipe as a pickle whose NumPy arrays follow out of band (protocol 5), one message per
-  array (:class:`multiprocessing.connection.Connection` frames them); the process writes it with the same
-  :class:`~physynth.io.dataset.DatasetWriter`, so the files are the same, byte for byte;
+- each trace goes as a pickle whose NumPy arrays are out of band (protocol 5): the arrays are copied into a ring
+  of shared memory (:data:`RING_BYTES`, an anonymous ``memfd`` both processes map; Linux), the pickle and where
+  the arrays lie go through a pipe (:class:`multiprocessing.connection.Connection` frames the messages), and
+  the process copies the arrays out and frees their place before it writes them. A trace larger than half the
+  ring, or a system without ``memfd``, sends its arrays through the pipe (a copy more, in the kernel). The
+  process writes with the same :class:`~physynth.io.dataset.DatasetWriter`, so the files are the same, byte
+  for byte;
 - it runs in a session of its own (a terminal's Ctrl-C reaches only this process, which stops it) with its
   output sent where the worker processes' goes (:mod:`physynth._children`); it aborts the dataset it is writing
   (its temporary folder removed) and exits when this process says so or its end of the pipe closes, so it
@@ -24,7 +28,9 @@ process (:class:`~physynth.io.dataset.DatasetWriter`'s thread), as on a machine 
 
 from __future__ import annotations
 
+import collections
 import contextlib
+import mmap
 import os
 import pickle
 import subprocess
@@ -43,6 +49,10 @@ ENV_VAR = "PHYSYNTH_WRITER_PROCESS"
 PIPE_BYTES = 1 << 20
 """Size asked for the pipe that carries the traces (Linux; 64 KiB otherwise): fewer turns between the two
 processes per trace of about 2.5 MB."""
+RING_BYTES = 32 << 20
+"""Shared memory between the processes for the arrays of the traces on their way (a default trace has about
+2.5 MB): several traces, so that this process rarely waits for the other to free a place."""
+ALIGN = 64
 STOP_WAIT_S = 10.0
 """How long :meth:`WriterProcess.stop` waits for the process to abort and exit before it kills it."""
 
@@ -80,21 +90,28 @@ class WriterProcess:
         from_child_r, from_child_w = os.pipe()
         with contextlib.suppress(OSError, AttributeError):  # a larger pipe where the system allows it
             fcntl.fcntl(to_child_w, fcntl.F_SETPIPE_SZ, PIPE_BYTES)
+        ring_fd = _memfd(RING_BYTES)
+        self._ring = mmap.mmap(ring_fd, RING_BYTES) if ring_fd is not None else None
+        self._head = 0  # where the next trace's arrays go in the ring
+        self._busy: collections.deque[tuple[int, int, int]] = collections.deque()  # (seq, start, end) not yet freed
+        self._seq = 0
+        passed = (to_child_r, from_child_w) + (() if ring_fd is None else (ring_fd,))
         package_root = str(Path(__file__).resolve().parents[2])  # the folder holding the physynth package
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH", "")) if p)
         out = output_fd()
         try:
             self._proc = subprocess.Popen(
-                [sys.executable, "-m", "physynth.io.writer_process", str(to_child_r), str(from_child_w)],
-                pass_fds=(to_child_r, from_child_w), stdin=subprocess.DEVNULL, stdout=out, stderr=out,
-                env=env, start_new_session=True)
+                [sys.executable, "-m", "physynth.io.writer_process", *map(str, passed), str(RING_BYTES)],
+                pass_fds=passed, stdin=subprocess.DEVNULL, stdout=out, stderr=out, env=env, start_new_session=True)
         except BaseException:
-            for fd in (to_child_r, to_child_w, from_child_r, from_child_w):
+            for fd in (to_child_w, from_child_r, *passed):
                 os.close(fd)
             raise
         finally:
             os.close(out)
+            if ring_fd is not None:
+                os.close(ring_fd)  # the mapping stays
         os.close(to_child_r)
         os.close(from_child_w)
         self._send = Connection(to_child_w, readable=False)
@@ -124,10 +141,48 @@ class WriterProcess:
             self.broken = True
             raise
 
-    def _reply(self, timeout_s: float | None = None) -> tuple[Any, ...]:
+    def _post_trace(self, index: int, trace: Any) -> None:
+        """Send a trace: its arrays into the ring (or the pipe), its pickle and their places through the pipe."""
+        buffers: list[pickle.PickleBuffer] = []
+        header = pickle.dumps((int(index), trace), protocol=5, buffer_callback=buffers.append)
+        raws = [b.raw() for b in buffers]
+        offsets, end = [], 0
+        for r in raws:
+            offsets.append(end)
+            end += -(-r.nbytes // ALIGN) * ALIGN
+        if self._ring is None or end > len(self._ring) // 2:
+            self._post(("trace", header, len(raws), None), buffers)
+            return
+        start = self._head if self._head + end <= len(self._ring) else 0
+        while any(s < start + end and start < e for _, s, e in self._busy):  # wait until the process freed it
+            self._reply(timeout_s=None, until_freed=True)
+        for r, off in zip(raws, offsets, strict=True):
+            self._ring[start + off:start + off + r.nbytes] = r
+        self._seq += 1
+        self._busy.append((self._seq, start, start + end))
+        self._head = start + end
+        spans = [(start + off, r.nbytes) for r, off in zip(raws, offsets, strict=True)]
+        self._post(("trace", header, self._seq, spans))
+
+    def _reply(self, timeout_s: float | None = None, until_freed: bool = False) -> tuple[Any, ...]:
         """The process's next reply; its error raised, or a DatasetError when it ended without one (or gave
-        none within ``timeout_s``)."""
+        none within ``timeout_s``). Notes that a place in the ring is free are taken on the way (and, with
+        ``until_freed``, the first one is the reply)."""
         self._check()
+        while True:
+            reply = self._next(timeout_s)
+            if reply[0] == "error":
+                self._failed = _error_of(reply)
+                raise self._failed
+            if reply[0] != "freed":
+                return reply
+            while self._busy and self._busy[0][0] <= reply[1]:
+                self._busy.popleft()
+            if until_freed:
+                return reply
+
+    def _next(self, timeout_s: float | None) -> tuple[Any, ...]:
+        """The next message from the process, waited for while it runs (at most ``timeout_s``)."""
         try:
             waited = 0.0
             while not self._recv.poll(1.0):
@@ -137,16 +192,12 @@ class WriterProcess:
                 if timeout_s is not None and waited >= timeout_s:
                     self.broken = True
                     raise DatasetError(f"the writer process gave no answer within {timeout_s:g} s")
-            reply = self._recv.recv()
+            return self._recv.recv()
         except (EOFError, OSError):
             raise self._fail() from None
         except BaseException:
             self.broken = True  # an interrupt while waiting: the reply may come later, out of turn
             raise
-        if reply[0] == "error":
-            self._failed = _error_of(reply)
-            raise self._failed
-        return reply
 
     def _check(self) -> None:
         if self._failed is not None:
@@ -181,6 +232,9 @@ class WriterProcess:
         finally:
             with contextlib.suppress(OSError):
                 self._recv.close()
+            if self._ring is not None:
+                self._ring.close()
+                self._ring = None
 
     def __enter__(self) -> WriterProcess:
         return self
@@ -200,9 +254,7 @@ class RemoteDatasetWriter:
 
     def add(self, trace: Any, index: int) -> None:
         safety.check_interrupted()
-        buffers: list[pickle.PickleBuffer] = []
-        header = pickle.dumps((int(index), trace), protocol=5, buffer_callback=buffers.append)
-        self._proc._post(("trace", header, len(buffers)), buffers)
+        self._proc._post_trace(index, trace)
 
     def close(self) -> Path:
         self._done = True
@@ -245,7 +297,21 @@ def local_writers(cores: int) -> Iterator[Callable[..., Any] | None]:
         yield proc.writer
 
 
-def _serve(recv: Connection, send: Connection) -> None:
+def _memfd(size: int) -> int | None:
+    """A new anonymous file of ``size`` bytes in memory, or None where the system has none (not Linux)."""
+    try:
+        fd = os.memfd_create("physynth-writer", os.MFD_CLOEXEC)
+    except (AttributeError, OSError):
+        return None
+    try:
+        os.ftruncate(fd, size)
+    except OSError:
+        os.close(fd)
+        return None
+    return fd
+
+
+def _serve(recv: Connection, send: Connection, ring: mmap.mmap | None) -> None:
     """The writer process's loop: open, fill and close datasets as told, until told to stop or the pipe closes."""
     from .dataset import DatasetWriter
 
@@ -258,8 +324,13 @@ def _serve(recv: Connection, send: Connection) -> None:
                 return  # the other process stopped us, or ended: abort what is being written (finally)
             kind = message[0]
             if kind == "trace":
-                _, header, n = message
-                index, trace = pickle.loads(header, buffers=[recv.recv_bytes() for _ in range(n)])
+                _, header, seq, spans = message
+                if spans is None:  # the arrays follow through the pipe
+                    buffers = [recv.recv_bytes() for _ in range(seq)]
+                else:  # copied out of the ring, whose place is then free
+                    buffers = [ring[off:off + n] for off, n in spans]  # type: ignore[index]
+                    send.send(("freed", seq))
+                index, trace = pickle.loads(header, buffers=buffers)
                 writer.add(trace, index=index)  # type: ignore[union-attr]
             elif kind == "open":
                 _, path, options = message
@@ -285,8 +356,9 @@ def _serve(recv: Connection, send: Connection) -> None:
 
 
 def main(argv: list[str]) -> None:
-    """Entry point of ``python -m physynth.io.writer_process RECV_FD SEND_FD``."""
-    _serve(Connection(int(argv[0]), writable=False), Connection(int(argv[1]), readable=False))
+    """Entry point of ``python -m physynth.io.writer_process RECV_FD SEND_FD [RING_FD] RING_BYTES``."""
+    ring = mmap.mmap(int(argv[2]), int(argv[3])) if len(argv) == 4 else None
+    _serve(Connection(int(argv[0]), writable=False), Connection(int(argv[1]), readable=False), ring)
 
 
 if __name__ == "__main__":
