@@ -21,7 +21,7 @@ from physynth.generate import compile_scenario, generate_trace
 from physynth.io.dataset import DatasetWriter, iter_trace_meta
 from physynth.io.scenario_file import load_scenario
 from physynth.io.shards import partial_dir, write_shard
-from physynth.io.writer_process import ENV_VAR, WriterProcess, local_writers
+from physynth.io.writer_process import ENV_VAR, WriterProcess, _error_of, _error_record, local_writers
 from physynth.workflows import generate_dataset
 
 SEED = 11
@@ -83,6 +83,7 @@ def test_the_ring_is_reused_when_the_process_has_freed_it(traces, tmp_path, monk
     monkeypatch.setattr(wp, "RING_BYTES", 8 << 20)  # room for about three traces: later ones wait for a place
     with WriterProcess() as proc:
         write_shard(tmp_path / "there", 0, traces * 3, meta, proc.writer)
+        proc.finish()
         assert proc._seq == 15 and not proc._busy  # every trace through the ring, every place freed by the close
     assert _files(tmp_path / "here" / "shard-00000") == _files(tmp_path / "there" / "shard-00000")
 
@@ -120,13 +121,27 @@ def test_an_error_in_the_process_is_raised_here_with_its_class_and_message(trace
         w.add(traces[0][1])
     with WriterProcess() as proc:
         w = proc.writer(taken)  # exists, no overwrite: refused there
-        with pytest.raises(OutputExistsError, match="taken"):
+        with pytest.raises(OutputExistsError, match="taken") as raised:
             for i, trace in traces:
                 w.add(trace, index=i)
-            w.close()
+            w.close()  # returns at once: the datasets are in place when the process has finished
+            proc.finish()
+        assert str(raised.value) == f"{taken} already exists" and raised.value.path == str(taken)  # as raised there
         with pytest.raises(OutputExistsError):  # the process has ended: every later call says why
             proc.writer(tmp_path / "other")
     assert _leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("exc", [PermissionError(13, "Permission denied", "/data/out"), OSError("disk full"),
+                                 OutputExistsError("/data/out", "holds a dataset"), ValueError("a bug")])
+def test_errors_keep_their_class_message_and_attributes_across_the_pipe(exc):
+    back = _error_of(pickle.loads(pickle.dumps(_error_record(exc))))
+    if isinstance(exc, ValueError):
+        assert type(back) is RuntimeError and str(back) == "the writer process failed: ValueError: a bug"
+    else:
+        assert type(back) is type(exc) and str(back) == str(exc) and vars(back) == vars(exc)
+        assert getattr(back, "errno", None) == getattr(exc, "errno", None)
+        assert getattr(back, "filename", None) == getattr(exc, "filename", None)
 
 
 def test_abort_removes_what_was_written_and_the_process_goes_on(traces, tmp_path):
@@ -151,6 +166,7 @@ def test_a_killed_process_is_an_error_that_says_so(traces, tmp_path):
             for i, trace in traces * 4:  # the pipe may take a few before it is found broken
                 w.add(trace, index=i)
             w.close()
+            proc.finish()
 
 
 KILLED_PARENT = """

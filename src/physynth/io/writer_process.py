@@ -62,15 +62,31 @@ def opted_out() -> bool:
     return os.environ.get(ENV_VAR, "").strip().lower() in {"0", "false", "no", "off"}
 
 
+def _error_record(exc: Exception) -> tuple[Any, ...]:
+    """What the writer process sends of an error: ``("error", class name, message, attributes)``."""
+    if isinstance(exc, OSError):
+        return ("error", "OSError", str(exc), {"errno": exc.errno, "strerror": exc.strerror,
+                                                "filename": None if exc.filename is None else str(exc.filename)})
+    return ("error", type(exc).__name__, str(exc),
+            {k: v for k, v in vars(exc).items() if isinstance(v, (str, int, float, Path))})
+
+
 def _error_of(reply: tuple[Any, ...]) -> BaseException:
-    """The exception a reply ``("error", class name, message)`` stands for: the PhySynth error class of that
-    name, an :class:`OSError` as a :class:`DatasetError` with its message, anything else as a RuntimeError."""
-    _, name, message = reply
+    """The exception a reply ``("error", class name, message, attributes)`` stands for: the PhySynth error of
+    that class, message and attributes (e.g. :class:`~physynth.errors.OutputExistsError`'s ``path``); an
+    :class:`OSError` (a full disk, a permission) with its errno, text and file name; anything else as a
+    RuntimeError."""
+    _, name, message, attributes = reply
     cls = getattr(errors, name, None)
     if isinstance(cls, type) and issubclass(cls, PhySynthError):
-        return cls(message)
-    if name in {"OSError", "PermissionError", "FileNotFoundError", "IsADirectoryError", "NotADirectoryError"}:
-        return DatasetError(message)
+        exc = cls.__new__(cls)
+        Exception.__init__(exc, message)  # not the class's own __init__, which would format the message again
+        exc.__dict__.update(attributes)
+        return exc
+    if name == "OSError":  # errno picks the subclass (PermissionError, ...), as the failed call there raised it
+        if attributes["errno"] is None:
+            return OSError(message)
+        return OSError(attributes["errno"], attributes["strerror"], attributes["filename"])
     return RuntimeError(f"the writer process failed: {name}: {message}")
 
 
@@ -95,6 +111,7 @@ class WriterProcess:
         self._head = 0  # where the next trace's arrays go in the ring
         self._busy: collections.deque[tuple[int, int, int]] = collections.deque()  # (seq, start, end) not yet freed
         self._seq = 0
+        self._closing = 0  # datasets asked to close, not yet reported closed
         passed = (to_child_r, from_child_w) + (() if ring_fd is None else (ring_fd,))
         package_root = str(Path(__file__).resolve().parents[2])  # the folder holding the physynth package
         env = dict(os.environ)
@@ -155,7 +172,7 @@ class WriterProcess:
             return
         start = self._head if self._head + end <= len(self._ring) else 0
         while any(s < start + end and start < e for _, s, e in self._busy):  # wait until the process freed it
-            self._reply(timeout_s=None, until_freed=True)
+            self._reply("freed")
         for r, off in zip(raws, offsets, strict=True):
             self._ring[start + off:start + off + r.nbytes] = r
         self._seq += 1
@@ -164,22 +181,27 @@ class WriterProcess:
         spans = [(start + off, r.nbytes) for r, off in zip(raws, offsets, strict=True)]
         self._post(("trace", header, self._seq, spans))
 
-    def _reply(self, timeout_s: float | None = None, until_freed: bool = False) -> tuple[Any, ...]:
-        """The process's next reply; its error raised, or a DatasetError when it ended without one (or gave
-        none within ``timeout_s``). Notes that a place in the ring is free are taken on the way (and, with
-        ``until_freed``, the first one is the reply)."""
+    def _reply(self, until: str, timeout_s: float | None = None) -> tuple[Any, ...]:
+        """Read the process's messages until one of kind ``until`` (``"freed"``, ``"closed"``, ``"aborted"``);
+        its error raised, or a DatasetError when it ended without one (or sent nothing for ``timeout_s``).
+        Notes on the way are taken into account: a place in the ring freed, a dataset closed."""
         self._check()
         while True:
             reply = self._next(timeout_s)
             if reply[0] == "error":
-                self._failed = _error_of(reply)
-                raise self._failed
-            if reply[0] != "freed":
+                raise self._failing(_error_of(reply))
+            if reply[0] == "freed":
+                while self._busy and self._busy[0][0] <= reply[1]:
+                    self._busy.popleft()
+            elif reply[0] == "closed":
+                self._closing -= 1
+            if reply[0] == until:
                 return reply
-            while self._busy and self._busy[0][0] <= reply[1]:
-                self._busy.popleft()
-            if until_freed:
-                return reply
+
+    def finish(self) -> None:
+        """Wait until every dataset this process was asked to close is in place (raising its error)."""
+        while self._closing:
+            self._reply("closed")
 
     def _next(self, timeout_s: float | None) -> tuple[Any, ...]:
         """The next message from the process, waited for while it runs (at most ``timeout_s``)."""
@@ -212,13 +234,18 @@ class WriterProcess:
                 while self._recv.poll(0):
                     reply = self._recv.recv()
                     if reply[0] == "error":
-                        self._failed = _error_of(reply)
-                        return self._failed
+                        return self._failing(_error_of(reply))
             code = self._proc.wait()
             how = f"signal {-code}" if code < 0 else f"exit code {code}"
-            self._failed = DatasetError(f"the writer process ended unexpectedly ({how}); nothing was lost that "
-                                        "a resumed run would not write again")
-        return self._failed
+            self._failing(DatasetError(f"the writer process ended unexpectedly ({how}); nothing was lost that "
+                                       "a resumed run would not write again"))
+        return self._failed  # type: ignore[return-value]
+
+    def _failing(self, exc: BaseException) -> BaseException:
+        """Record the error that ended the process (raised by every later call; no dataset will close)."""
+        self._failed = exc
+        self._closing = 0
+        return exc
 
     def stop(self) -> None:
         """Tell the process to abort what it writes and exit; wait for it (killed after :data:`STOP_WAIT_S`)."""
@@ -239,8 +266,12 @@ class WriterProcess:
     def __enter__(self) -> WriterProcess:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            if exc_type is None:
+                self.finish()
+        finally:
+            self.stop()
 
 
 class RemoteDatasetWriter:
@@ -257,9 +288,13 @@ class RemoteDatasetWriter:
         self._proc._post_trace(index, trace)
 
     def close(self) -> Path:
+        """Ask the process to finish the dataset, and return at once: the traces of the next dataset are made
+        while it writes the last row group of this one. :meth:`WriterProcess.finish` waits until every
+        dataset is in place (an error shows there, or at the next call)."""
         self._done = True
         self._proc._post(("close",))
-        return Path(self._proc._reply()[1])
+        self._proc._closing += 1
+        return self.path
 
     def abort(self) -> None:
         """Remove what was written. After an interruption that cut a message short, the process is stopped
@@ -270,7 +305,7 @@ class RemoteDatasetWriter:
         if not self._proc.broken and self._proc._failed is None:
             with contextlib.suppress(Exception):
                 self._proc._post(("abort",))
-                self._proc._reply(timeout_s=STOP_WAIT_S)
+                self._proc._reply("aborted", timeout_s=STOP_WAIT_S)
         if self._proc.broken:
             self._proc.stop()
 
@@ -288,8 +323,8 @@ class RemoteDatasetWriter:
 def local_writers(cores: int) -> Iterator[Callable[..., Any] | None]:
     """The dataset writer factory for a run in this process on a machine of ``cores`` cores: a
     :class:`WriterProcess`'s :meth:`~WriterProcess.writer` when a core is to spare (and :data:`ENV_VAR` does
-    not opt out), else None (write here, with :class:`~physynth.io.dataset.DatasetWriter`). The process is
-    stopped when the block ends."""
+    not opt out), else None (write here, with :class:`~physynth.io.dataset.DatasetWriter`). When the block ends
+    every dataset is in place (or its error raised) and the process stopped."""
     if cores < 2 or opted_out() or os.name != "posix":  # pass_fds: POSIX only
         yield None
         return
@@ -335,6 +370,7 @@ def _serve(recv: Connection, send: Connection, ring: mmap.mmap | None) -> None:
             elif kind == "open":
                 _, path, options = message
                 writer = DatasetWriter(path, **options)
+                writer.write_in_thread = False  # one thread: this process has one core, the other generates
             elif kind == "close":
                 path = writer.close()  # type: ignore[union-attr]
                 writer = None
@@ -345,11 +381,8 @@ def _serve(recv: Connection, send: Connection, ring: mmap.mmap | None) -> None:
                     writer = None
                 send.send(("aborted",))
     except Exception as exc:  # noqa: BLE001 - every error goes back to the other process, which raises it
-        message = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
-        if isinstance(exc, OSError) and exc.filename:
-            message = f"cannot write {exc.filename}: {message}"
         with contextlib.suppress(OSError):
-            send.send(("error", type(exc).__name__, message))
+            send.send(_error_record(exc))
     finally:
         if writer is not None:
             writer.abort()
