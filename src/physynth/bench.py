@@ -1,9 +1,12 @@
 """Throughput of the generator: what ``physynth bench`` measures and prints.
 
 - ``traces_per_s_memory``: traces of the scenario generated in memory, in this process (one core);
-- ``traces_per_s_parquet``: traces generated and written as a dataset, in this process (one core);
+- ``traces_per_s_parquet``: traces generated and written as a dataset by one worker, as ``generate -w 1``
+  does: generated in this process, written by its writer process where a core is to spare
+  (:mod:`physynth.io.writer_process`);
 - ``scaling_efficiency``: rate with ``workers`` worker processes on an embedded Dask cluster divided by
-  ``workers`` times the one-worker rate of the same run (``n_scaling`` traces, shards of a quarter per
+  ``workers`` times the one-core rate of the same run (one worker writing in its own process, no writer
+  process: one core) (``n_scaling`` traces, shards of a quarter per
   worker), both end to end: the cluster's start is included; with ``repeat`` > 1 the two runs alternate
   and the best rate of each is kept;
 - ``peak_rss_mb``: the largest resident memory of this process or of any worker process it waited for;
@@ -150,6 +153,7 @@ def _scaling(scn: Scenario, ns: int, workers: int, repeat: int, tmp: Path,
         for w in (1, workers):
             t0 = time.perf_counter()
             path, _ = generate_dataset(scn, ns, tmp / f"w{w}", seed=1, workers=w, shard_traces=shard,
+                                       writer_process=False,  # one worker on one core: the per-core rate
                                        progress=lambda m, d=None, t=None, w=w: progress(
                                            f"scaling, {w} worker(s)", d, t))
             best_s[w] = min(best_s[w], time.perf_counter() - t0)

@@ -170,7 +170,7 @@ def _local_cluster(distributed: Any, n_workers: int) -> Any:
 
 def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, todo: Sequence[int],
                meta: dict[str, Any], *, workers: int = 1, scheduler: str | None = None,
-               progress: Callable[[int], None] | None = None) -> None:
+               progress: Callable[[int], None] | None = None, writer_process: bool = True) -> None:
     """Write the shards ``todo`` of ``plan`` into ``partial``.
 
     Parameters
@@ -181,6 +181,9 @@ def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, to
         Address of an existing Dask scheduler (e.g. ``tcp://10.0.0.5:8786``); ``workers`` is then ignored.
     progress : callable, optional
         ``progress(traces_done)`` after each trace (in this process) or each shard (on a cluster).
+    writer_process : bool
+        In this process, write the shards in a writer process on a spare core
+        (:func:`physynth.io.writer_process.local_writers`); False: here.
     """
     from .scenario import scenario_to_dict
 
@@ -191,7 +194,7 @@ def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, to
     if scheduler is None and (workers <= 1 or len(tasks) <= 1):  # here, with a writer process on a spare core
         from .io.writer_process import local_writers
 
-        with local_writers(available_cores()) as writer:
+        with local_writers(available_cores() if writer_process else 1) as writer:
             run_tasks(functools.partial(shard_task, writer=writer), tasks, sizes, progress=progress)
         return
     run_tasks(shard_task, tasks, sizes, workers=workers, scheduler=scheduler,

@@ -79,7 +79,7 @@ def generate_dataset(scn: ScenarioLike, n: int, out: str | Path, *, seed: int | 
                      overwrite: bool = False, progress: ProgressCallback | None = None, workers: int = 1,
                      scheduler: str | None = None, resume: bool = False,
                      shard_traces: int = DEFAULT_SHARD_TRACES, force: bool = False,
-                     inputs: Sequence[str | os.PathLike] = ()) -> tuple[Path, int]:
+                     inputs: Sequence[str | os.PathLike] = (), writer_process: bool = True) -> tuple[Path, int]:
     """Generate ``n`` traces and write them as a dataset directory (atomically), in shards.
 
     Every argument is checked before the output is touched (:class:`~physynth.errors.ArgumentError` for
@@ -101,6 +101,9 @@ def generate_dataset(scn: ScenarioLike, n: int, out: str | Path, *, seed: int | 
         Without ``seed`` the unfinished run's root seed is used.
     shard_traces : int
         Traces per shard (:mod:`physynth.io.shards`). The output is the same for any ``workers``.
+    writer_process : bool
+        On one worker, write the shards in a process of its own (:mod:`physynth.io.writer_process`) when the
+        machine has a core to spare; False writes them in this process (one core). The files are the same.
     force : bool
         Go ahead when the size estimate exceeds the budget (:func:`physynth.bounds.check_budget`, checked
         before any work).
@@ -154,7 +157,8 @@ def generate_dataset(scn: ScenarioLike, n: int, out: str | Path, *, seed: int | 
         meta = dataset_meta(scn, root)
         try:
             run_shards(scn, root, partial, plan, todo, meta, workers=workers, scheduler=scheduler,
-                       progress=None if progress is None else (lambda done: progress(message, already + done, n)))
+                       progress=None if progress is None else (lambda done: progress(message, already + done, n)),
+                       writer_process=writer_process)
         except Exception:  # not an interruption: a killed or interrupted run stays resumable
             if not complete and not any(partial.glob("shard-*")):  # nothing generated (e.g. no scheduler,
                 safety.remove_tree(partial)  # workers that did not start): nothing a later run must resume

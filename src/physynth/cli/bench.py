@@ -18,7 +18,7 @@ def register(app: typer.Typer) -> None:
 def bench_cmd(
     scenario: str = typer.Option("cablecar-descending", "--scenario", "-s", metavar="SCENARIO",
                                  help="Preset name or scenario file."),
-    n: int = typer.Option(200, "-n", "--n-traces", metavar="N", min=1, help="Traces per one-core measurement."),
+    n: int = typer.Option(200, "-n", "--n-traces", metavar="N", min=1, help="Traces per one-worker measurement."),
     workers: int = typer.Option(0, "--workers", "-w", metavar="N", min=0,
                                 help="Workers of the scaling measurement (0 = all cores, 1 = skip it)."),
     n_scaling: int = typer.Option(0, "--n-scaling", metavar="N", min=0,
@@ -39,8 +39,9 @@ def bench_cmd(
                                                        "will write to."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
-    """Measure generation speed: traces/s in memory and to Parquet on one core, scaling, peak memory, and
-    with --exports each export's time against generating the same traces to Parquet."""
+    """Measure generation speed: traces/s in memory on one core and to Parquet on one worker (its writer on a
+    spare core), scaling, peak memory, and with --exports each export's time against generating the same
+    traces to Parquet."""
     from ..bench import run_bench
     from ..io.scenario_file import load_scenario
     from ..parallel import available_cores, require_dask
@@ -60,7 +61,7 @@ def bench_cmd(
     m = res["machine"]
     rows = [
         ("in memory, 1 core", f"{res['traces_per_s_memory']:.1f} traces/s"),
-        ("to Parquet, 1 core", f"{res['traces_per_s_parquet']:.1f} traces/s"),
+        ("to Parquet, 1 worker", f"{res['traces_per_s_parquet']:.1f} traces/s"),
         ("on disk", f"{res['mb_per_trace_on_disk']:.2f} MB/trace"),
         (f"scaling, {m['workers']} worker{'s' if m['workers'] != 1 else ''}",
          "-" if eff is None else f"{100 * eff:.0f} %"),
