@@ -191,6 +191,8 @@ def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, to
     partial = Path(partial).absolute()  # workers of a remote cluster may run in another directory
     tasks = [(scenario_json, root_seed, str(partial), k, *plan.bounds(k), meta) for k in todo]
     sizes = [t[5] - t[4] for t in tasks]
+    if not tasks:
+        return
     if scheduler is None and (workers <= 1 or len(tasks) <= 1):  # here, with a writer process on a spare core
         from .io.writer_process import local_writers
 

@@ -325,8 +325,8 @@ def local_writers(cores: int) -> Iterator[Callable[..., Any] | None]:
     :class:`WriterProcess`'s :meth:`~WriterProcess.writer` when a core is to spare (and :data:`ENV_VAR` does
     not opt out), else None (write here, with :class:`~physynth.io.dataset.DatasetWriter`). When the block ends
     every dataset is in place (or its error raised) and the process stopped."""
-    if cores < 2 or opted_out() or os.name != "posix":  # pass_fds: POSIX only
-        yield None
+    if cores < 2 or opted_out() or os.name != "posix" or not sys.executable or getattr(sys, "frozen", False):
+        yield None  # no core to spare, asked not to, no pass_fds (POSIX only), no interpreter to start
         return
     with WriterProcess() as proc:
         yield proc.writer
