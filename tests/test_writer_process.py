@@ -249,3 +249,15 @@ def test_an_interrupt_in_the_middle_of_a_message_stops_the_process(traces, tmp_p
     finally:
         proc.stop()
     assert not (tmp_path / "out").exists() and _leftovers(tmp_path) == []
+
+
+def test_a_process_that_cannot_start_leaves_no_descriptor_open(monkeypatch):
+    import physynth.io.writer_process as wp
+
+    before = set(os.listdir("/proc/self/fd"))
+    monkeypatch.setattr(wp.sys, "executable", "/nonexistent/python")
+    with pytest.raises(OSError):
+        WriterProcess()
+    assert set(os.listdir("/proc/self/fd")) == before
+    with local_writers(2) as writer:  # a run then writes in its own process
+        assert writer is None

@@ -122,8 +122,10 @@ class WriterProcess:
                 [sys.executable, "-m", "physynth.io.writer_process", *map(str, passed), str(RING_BYTES)],
                 pass_fds=passed, stdin=subprocess.DEVNULL, stdout=out, stderr=out, env=env, start_new_session=True)
         except BaseException:
-            for fd in (to_child_w, from_child_r, *passed):
+            for fd in (to_child_r, to_child_w, from_child_r, from_child_w):
                 os.close(fd)
+            if self._ring is not None:
+                self._ring.close()
             raise
         finally:
             os.close(out)
@@ -328,7 +330,12 @@ def local_writers(cores: int) -> Iterator[Callable[..., Any] | None]:
     if cores < 2 or opted_out() or os.name != "posix" or not sys.executable or getattr(sys, "frozen", False):
         yield None  # no core to spare, asked not to, no pass_fds (POSIX only), no interpreter to start
         return
-    with WriterProcess() as proc:
+    try:
+        proc = WriterProcess()
+    except OSError:  # the interpreter cannot be started (a deleted virtual environment): write here
+        yield None
+        return
+    with proc:
         yield proc.writer
 
 
