@@ -35,7 +35,7 @@ import os
 import pickle
 import subprocess
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
@@ -145,7 +145,7 @@ class WriterProcess:
         self._post(("open", str(path), options))
         return RemoteDatasetWriter(self, Path(path))
 
-    def _post(self, message: tuple[Any, ...], buffers: list[pickle.PickleBuffer] = ()) -> None:  # type: ignore[assignment]
+    def _post(self, message: tuple[Any, ...], buffers: Sequence[pickle.PickleBuffer] = ()) -> None:
         """Send ``message`` (and the out-of-band ``buffers`` that follow it); a process that has ended
         raises its error instead. Anything that stops a send half way (an interrupt) leaves the pipe
         holding part of a message: the process is then only stopped (:attr:`broken`)."""
@@ -154,7 +154,7 @@ class WriterProcess:
             self._send.send(message)
             for buf in buffers:
                 self._send.send_bytes(buf.raw())
-        except (BrokenPipeError, ConnectionResetError, OSError):
+        except OSError:  # a broken pipe: the process has ended
             raise self._fail() from None
         except BaseException:
             self.broken = True
@@ -200,6 +200,20 @@ class WriterProcess:
             if reply[0] == until:
                 return reply
 
+    def _close_dataset(self) -> None:
+        self._post(("close",))
+        self._closing += 1
+
+    def _abort_dataset(self) -> None:
+        """Ask the process to abort the dataset it writes and wait for it; stop the process instead when a
+        message was cut short (it then aborts the dataset as its pipe closes)."""
+        if not self.broken and self._failed is None:
+            with contextlib.suppress(Exception):
+                self._post(("abort",))
+                self._reply("aborted", timeout_s=STOP_WAIT_S)
+        if self.broken:
+            self.stop()
+
     def finish(self) -> None:
         """Wait until every dataset this process was asked to close is in place (raising its error)."""
         while self._closing:
@@ -237,7 +251,11 @@ class WriterProcess:
                     reply = self._recv.recv()
                     if reply[0] == "error":
                         return self._failing(_error_of(reply))
-            code = self._proc.wait()
+            try:
+                code = self._proc.wait(timeout=STOP_WAIT_S)
+            except subprocess.TimeoutExpired:  # its pipe closed, it still runs: it will not write for us again
+                self._proc.kill()
+                code = self._proc.wait()
             how = f"signal {-code}" if code < 0 else f"exit code {code}"
             self._failing(DatasetError(f"the writer process ended unexpectedly ({how}); nothing was lost that "
                                        "a resumed run would not write again"))
@@ -278,7 +296,8 @@ class WriterProcess:
 
 class RemoteDatasetWriter:
     """What :class:`~physynth.io.dataset.DatasetWriter` does, done by a :class:`WriterProcess`: :meth:`add`
-    sends a trace, :meth:`close` waits until the dataset is in place, :meth:`abort` removes what was written."""
+    sends a trace, :meth:`close` asks for the dataset to be finished (:meth:`WriterProcess.finish` waits for
+    it), :meth:`abort` removes what was written."""
 
     def __init__(self, proc: WriterProcess, path: Path) -> None:
         self._proc = proc
@@ -294,22 +313,14 @@ class RemoteDatasetWriter:
         while it writes the last row group of this one. :meth:`WriterProcess.finish` waits until every
         dataset is in place (an error shows there, or at the next call)."""
         self._done = True
-        self._proc._post(("close",))
-        self._proc._closing += 1
+        self._proc._close_dataset()
         return self.path
 
     def abort(self) -> None:
-        """Remove what was written. After an interruption that cut a message short, the process is stopped
-        instead (its end of the pipe closes: it aborts the dataset and exits)."""
-        if self._done:
-            return
-        self._done = True
-        if not self._proc.broken and self._proc._failed is None:
-            with contextlib.suppress(Exception):
-                self._proc._post(("abort",))
-                self._proc._reply("aborted", timeout_s=STOP_WAIT_S)
-        if self._proc.broken:
-            self._proc.stop()
+        """Remove what was written (after an interruption that cut a message short, by stopping the process)."""
+        if not self._done:
+            self._done = True
+            self._proc._abort_dataset()
 
     def __enter__(self) -> RemoteDatasetWriter:
         return self
