@@ -21,7 +21,14 @@ from physynth.generate import compile_scenario, generate_trace
 from physynth.io.dataset import DatasetWriter, iter_trace_meta
 from physynth.io.scenario_file import load_scenario
 from physynth.io.shards import partial_dir, write_shard
-from physynth.io.writer_process import ENV_VAR, WriterProcess, _error_of, _error_record, local_writers
+from physynth.io.writer_process import (
+    ENV_VAR,
+    MIN_TRACES,
+    WriterProcess,
+    _error_of,
+    _error_record,
+    local_writers,
+)
 from physynth.workflows import generate_dataset
 
 SEED = 11
@@ -89,9 +96,11 @@ def test_the_ring_is_reused_when_the_process_has_freed_it(traces, tmp_path, monk
 
 
 def test_generate_on_one_worker_writes_the_same_files_with_and_without_the_process(tmp_path, monkeypatch):
+    import physynth.io.writer_process as wp
     import physynth.parallel as par
 
     monkeypatch.setattr(par, "available_cores", lambda: 2)  # a core to spare, on any machine
+    monkeypatch.setattr(wp, "MIN_TRACES", 1)  # and a run of 7 traces would do
     used = []
     real = WriterProcess.writer
     monkeypatch.setattr(WriterProcess, "writer", lambda self, path, **kw: used.append(path) or real(self, path, **kw))
@@ -104,14 +113,16 @@ def test_generate_on_one_worker_writes_the_same_files_with_and_without_the_proce
     assert [m["trace"] for _, m in iter_trace_meta(a)] == list(range(7))
 
 
-def test_local_writers_only_with_a_core_to_spare(monkeypatch):
-    with local_writers(1) as writer:
+def test_local_writers_only_with_a_core_to_spare_and_enough_traces(monkeypatch):
+    with local_writers(1, 1000) as writer:
+        assert writer is None
+    with local_writers(2, MIN_TRACES - 1) as writer:
         assert writer is None
     monkeypatch.setenv(ENV_VAR, "off")
-    with local_writers(2) as writer:
+    with local_writers(2, 1000) as writer:
         assert writer is None
     monkeypatch.delenv(ENV_VAR)
-    with local_writers(2) as writer:
+    with local_writers(2, MIN_TRACES) as writer:
         assert writer is not None and isinstance(writer.__self__, WriterProcess)
 
 
@@ -209,9 +220,11 @@ def test_the_process_removes_its_work_and_exits_when_this_one_is_killed(tmp_path
 
 
 def test_a_run_stopped_midway_resumes_to_the_same_files(tmp_path, monkeypatch):
+    import physynth.io.writer_process as wp
     import physynth.parallel as par
 
     monkeypatch.setattr(par, "available_cores", lambda: 2)
+    monkeypatch.setattr(wp, "MIN_TRACES", 1)
 
     def stop(message, done=None, total=None):
         if done is not None and done >= 5:
@@ -259,5 +272,5 @@ def test_a_process_that_cannot_start_leaves_no_descriptor_open(monkeypatch):
     with pytest.raises(OSError):
         WriterProcess()
     assert set(os.listdir("/proc/self/fd")) == before
-    with local_writers(2) as writer:  # a run then writes in its own process
+    with local_writers(2, 1000) as writer:  # a run then writes in its own process
         assert writer is None

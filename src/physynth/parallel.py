@@ -196,7 +196,7 @@ def run_shards(scn: Scenario, root_seed: int, partial: Path, plan: ShardPlan, to
     if scheduler is None and (workers <= 1 or len(tasks) <= 1):  # here, with a writer process on a spare core
         from .io.writer_process import local_writers
 
-        with local_writers(available_cores() if writer_process else 1) as writer:
+        with local_writers(available_cores() if writer_process else 1, sum(sizes)) as writer:
             run_tasks(functools.partial(shard_task, writer=writer), tasks, sizes, progress=progress)
         return
     run_tasks(shard_task, tasks, sizes, workers=workers, scheduler=scheduler,

@@ -4,7 +4,8 @@ A :class:`~physynth.io.dataset.DatasetWriter` converts, encodes, compresses and 
 per trace as generating the trace takes. Its writer thread runs beside the generating thread, but threads of
 one process slow each other down (``benchmarks/bench_writer_interference.py``): a generating thread beside a
 Parquet-writing thread lost 21-40 % of its speed where beside a writing *process* it lost nothing. So a run on
-one worker of a machine with a core to spare (:func:`local_writers`) hands its traces to a writer process:
+one worker of a machine with a core to spare, of at least :data:`MIN_TRACES` traces (:func:`local_writers`),
+hands its traces to a writer process:
 
 - the process is ``python -m physynth.io.writer_process`` (a subprocess of its own, not :mod:`multiprocessing`,
   whose ``spawn`` would run a user's script again), started once per run and given one dataset after another;
@@ -52,6 +53,9 @@ processes per trace of about 2.5 MB."""
 RING_BYTES = 32 << 20
 """Shared memory between the processes for the arrays of the traces on their way (a default trace has about
 2.5 MB): several traces, so that this process rarely waits for the other to free a place."""
+MIN_TRACES = 64
+"""Runs of fewer traces write in their own process: the writer process's start (about 0.3 s: Python, NumPy,
+pyarrow) would outlast the writing it takes over."""
 ALIGN = 64
 STOP_WAIT_S = 10.0
 """How long :meth:`WriterProcess.stop` waits for the process to abort and exit before it kills it."""
@@ -333,13 +337,15 @@ class RemoteDatasetWriter:
 
 
 @contextlib.contextmanager
-def local_writers(cores: int) -> Iterator[Callable[..., Any] | None]:
-    """The dataset writer factory for a run in this process on a machine of ``cores`` cores: a
-    :class:`WriterProcess`'s :meth:`~WriterProcess.writer` when a core is to spare (and :data:`ENV_VAR` does
-    not opt out), else None (write here, with :class:`~physynth.io.dataset.DatasetWriter`). When the block ends
-    every dataset is in place (or its error raised) and the process stopped."""
-    if cores < 2 or opted_out() or os.name != "posix" or not sys.executable or getattr(sys, "frozen", False):
-        yield None  # no core to spare, asked not to, no pass_fds (POSIX only), no interpreter to start
+def local_writers(cores: int, n_traces: int) -> Iterator[Callable[..., Any] | None]:
+    """The dataset writer factory for a run of ``n_traces`` in this process on a machine of ``cores`` cores:
+    a :class:`WriterProcess`'s :meth:`~WriterProcess.writer` when a core is to spare and the run has at least
+    :data:`MIN_TRACES` (and :data:`ENV_VAR` does not opt out), else None (write here, with
+    :class:`~physynth.io.dataset.DatasetWriter`). When the block ends every dataset is in place (or its error
+    raised) and the process stopped."""
+    if (cores < 2 or n_traces < MIN_TRACES or opted_out() or os.name != "posix" or not sys.executable
+            or getattr(sys, "frozen", False)):
+        yield None  # no core to spare, too short a run, asked not to, no pass_fds (POSIX), no interpreter
         return
     try:
         proc = WriterProcess()
