@@ -28,6 +28,21 @@ def undisturbed():
     return {f.stem: import_broad(f)[0] for f in files}
 
 
+def _worst_axis(left, params, **cmp) -> float:
+    """Worst per-axis relative deviation of the synthetic error std from the left-out trial's (10 Hz truth)."""
+    r = compare_imu_along_truth(left, params, 10.0, rng=np.random.default_rng(1), **cmp)
+    return float(np.max(np.abs(r["std_synth"] / r["std_real"] - 1.0)))
+
+
+@pytest.fixture(scope="module")
+def constant_worst(undisturbed):
+    """The constant model's worst axis on each left-out trial (calibrated on the others): the reference of
+    both leave-one-out tests below, computed once for the two (the same fit, comparison and seed)."""
+    return [_worst_axis(undisturbed[left], fit_imu([t for k, t in undisturbed.items() if k != left],
+                                                   motion_dependent=False).params)
+            for left in undisturbed]
+
+
 def test_imu_lags_the_optical_truth_by_a_few_milliseconds(undisturbed):
     for name in ("10_undisturbed_slow_translation_A", "15_undisturbed_fast_translation_A"):
         offset, diag = fit_time_offset([undisturbed[name]], 10.0)
@@ -35,14 +50,11 @@ def test_imu_lags_the_optical_truth_by_a_few_milliseconds(undisturbed):
         assert diag["error_variance_reduction_frac"] > 0.01
 
 
-def test_motion_scaled_error_predicts_left_out_trials_better_than_a_constant_model(undisturbed):
-    worst = {"constant": [], "motion": []}
+def test_motion_scaled_error_predicts_left_out_trials_better_than_a_constant_model(undisturbed, constant_worst):
+    worst = {"constant": constant_worst, "motion": []}
     for left in undisturbed:
         rest = [t for k, t in undisturbed.items() if k != left]
-        for name, motion in (("constant", False), ("motion", True)):
-            params = fit_imu(rest, motion_dependent=motion).params
-            r = compare_imu_along_truth(undisturbed[left], params, 10.0, rng=np.random.default_rng(1))
-            worst[name].append(float(np.max(np.abs(r["std_synth"] / r["std_real"] - 1.0))))
+        worst["motion"].append(_worst_axis(undisturbed[left], fit_imu(rest, motion_dependent=True).params))
     # measured (docs/imu.md): worst-axis deviation 0.69 / 0.22 / 0.08 against 2.37 / 0.32 / 0.25;
     # one synthetic realisation of ~100 s per trial: its error std scatters by ~1 %
     assert np.mean(worst["motion"]) < 0.5 * np.mean(worst["constant"])
@@ -52,21 +64,15 @@ def test_motion_scaled_error_predicts_left_out_trials_better_than_a_constant_mod
 INPUT_CUTOFF_HZ = 14.0  # tools/broad_imu_loo.py: the widest band where the optics still follow the IMU
 
 
-def test_lever_arm_model_predicts_left_out_trials_within_a_measured_bound(undisturbed):
+def test_lever_arm_model_predicts_left_out_trials_within_a_measured_bound(undisturbed, constant_worst):
     """Calibrated against the 14 Hz truth with the lever arm (fit_imu(..., lever_arm=True)) and fed that
     truth, compared against the 10 Hz one: measured worst axis 48 / 8 / 11 % (mean 22.4 %, 21.8-24.7 %
     over seeds 1-5) against 237 / 32 / 25 % for the constant model (docs/imu.md)."""
-    worst = {"constant": [], "lever": []}
+    worst = {"constant": constant_worst, "lever": []}
     for left in undisturbed:
         rest = [t for k, t in undisturbed.items() if k != left]
-        for name in worst:
-            if name == "constant":
-                params, cmp = fit_imu(rest, motion_dependent=False).params, {}
-            else:
-                params = fit_imu(rest, cutoff_hz=INPUT_CUTOFF_HZ, lever_arm=True).params
-                cmp = {"input_cutoff_hz": INPUT_CUTOFF_HZ}
-            r = compare_imu_along_truth(undisturbed[left], params, 10.0, rng=np.random.default_rng(1), **cmp)
-            worst[name].append(float(np.max(np.abs(r["std_synth"] / r["std_real"] - 1.0))))
+        params = fit_imu(rest, cutoff_hz=INPUT_CUTOFF_HZ, lever_arm=True).params
+        worst["lever"].append(_worst_axis(undisturbed[left], params, input_cutoff_hz=INPUT_CUTOFF_HZ))
     assert np.mean(worst["lever"]) < 0.30
     assert np.mean(worst["lever"]) < 0.5 * np.mean(worst["constant"])
     by_trial = dict(zip(undisturbed, worst["lever"], strict=True))
@@ -74,8 +80,14 @@ def test_lever_arm_model_predicts_left_out_trials_within_a_measured_bound(undist
         assert by_trial[name] < 0.15, (name, by_trial[name])
 
 
-def test_lever_arm_fitted_on_the_real_trials(undisturbed):
-    fit = fit_imu(list(undisturbed.values()), cutoff_hz=INPUT_CUTOFF_HZ, lever_arm=True)
+@pytest.fixture(scope="module")
+def lever_fit(undisturbed):
+    """The lever-arm fit on every undisturbed trial (14 Hz truth), shared by the two tests below."""
+    return fit_imu(list(undisturbed.values()), cutoff_hz=INPUT_CUTOFF_HZ, lever_arm=True)
+
+
+def test_lever_arm_fitted_on_the_real_trials(lever_fit):
+    fit = lever_fit
     lev = fit.diagnostics["lever_arm"]
     r = np.asarray(fit.params.lever_arm_m)
     # measured 2.0 / -1.2 / 9.9 mm pooled (standard error 0.1-0.2 mm), z 8.4-12.4 mm over the
@@ -84,13 +96,13 @@ def test_lever_arm_fitted_on_the_real_trials(undisturbed):
     assert 0.005 < r[2] < 0.013 and np.all(np.abs(r[:2]) < 0.004)
 
 
-def test_enu_fitted_lever_arm_also_explains_the_raw_body_accelerometer(undisturbed):
+def test_enu_fitted_lever_arm_also_explains_the_raw_body_accelerometer(undisturbed, lever_fit):
     """The lever arm fitted on the ENU channel (built with the optical attitude) must also lower the
     error of the raw body-frame accelerometer against the sensor point's truth specific force, on every
     trial: measured -16 / -16 / -28 % of the summed per-axis variance at 10 Hz (trials 10, 15, 21)."""
     from physynth.calibrate.imu_only import body_truth
 
-    p = fit_imu(list(undisturbed.values()), cutoff_hz=INPUT_CUTOFF_HZ, lever_arm=True).params
+    p = lever_fit.params
 
     def var(tr, lever):
         f_b, _, ok, _ = body_truth(tr, 10.0, p.time_offset_s, lever_arm_m=lever)
