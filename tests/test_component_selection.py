@@ -3,16 +3,13 @@
 The evidence leaves each input run out in turn; here three synthetic walks (walk-hanyang, which
 generates late stamps, run-to-run spreads, antenna sway and tag-side NLOS; two for the command, whose
 one-run folds have no run-to-run spread to take out) and one synthetic trace per validation keep it to
-seconds.
+seconds. The command's tests are in test_component_selection_cli.py.
 """
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
-from helpers import run_cli
 
 from physynth.calibrate import CalibrationError, calibrate
 from physynth.calibrate.held_out import (
@@ -38,13 +35,21 @@ def walks():
 
 @pytest.fixture(scope="module")
 def evidence(walks):
-    calls = []
-    ev = held_out_evidence(walks, n=1, seed=1, progress=lambda m, d=None, t=None: calls.append((m, d, t)))
-    return ev, calls
+    calls, folds = [], {}
+    ev = held_out_evidence(walks, n=1, seed=1, progress=lambda m, d=None, t=None: calls.append((m, d, t)),
+                           on_run=lambda label, res, dev, gains: folds.setdefault(label, res))
+    return ev, calls, folds
+
+
+@pytest.fixture(scope="module")
+def two_walks_calibrated(evidence):
+    """``calibrate(walks[:2], name="held-out")``: the fold that leaves out the third walk calibrates exactly
+    that (held_out_evidence hands each fold's calibration to ``on_run``); taken from there, not fitted again."""
+    return evidence[2]["trace 2"]
 
 
 def test_evidence_gives_each_optional_component_a_gain_per_left_out_run(evidence):
-    ev, calls = evidence
+    ev, calls, _ = evidence
     assert list(ev.components) == [c.name for c in optional_components()]
     assert ev.runs == ["trace 0", "trace 1", "trace 2"]
     for name in GENERATED:
@@ -71,12 +76,13 @@ def test_the_rule_drops_a_component_whose_mean_gain_is_negative():
     assert ComponentEvidence("z", skipped={"a": "not fitted"}).decision == "no evidence"
 
 
-def test_taking_a_component_out_writes_the_scenario_and_report_without_it(walks):
-    res = calibrate(walks[:2], name="both")
+def test_taking_a_component_out_writes_the_scenario_and_report_without_it(two_walks_calibrated):
+    res = two_walks_calibrated  # calibrate(walks[:2], name="held-out")
+    assert res.scenario.name == "held-out"
     before = res.scenario.uwb.tag_nlos_prob
     assert before > 0
     out = take_out(res, ["tag_nlos"])
-    assert out.scenario.uwb.tag_nlos_prob == 0.0 and out.scenario.name == "both"
+    assert out.scenario.uwb.tag_nlos_prob == 0.0 and out.scenario.name == "held-out"
     item = out.report["parameters"]["uwb.tag_nlos_prob"]
     assert item["value"] == 0.0 and item["fitted"] == pytest.approx(before) and "component selection" in item["why"]
     assert out.scenario.uwb.late_burst_prob == res.scenario.uwb.late_burst_prob  # the others untouched
@@ -102,64 +108,6 @@ def test_all_is_the_calibration_as_before(walks):
 def test_parameter_errors_name_the_parameter(walks, call, needle):
     with pytest.raises(CalibrationError, match=needle):
         call(walks)
-
-
-@pytest.fixture(scope="module")
-def two_run_dataset(tmp_path_factory):
-    from physynth.cli import main
-
-    ds = tmp_path_factory.mktemp("sel") / "walks"
-    with pytest.raises(SystemExit) as exc:
-        main(["generate", "--scenario", "walk-hanyang", "-n", "2", "--seed", "7", "--out", str(ds), "--quiet"])
-        raise SystemExit(0)
-    assert not exc.value.code
-    return ds
-
-
-def test_the_option_writes_the_per_component_section(two_run_dataset, tmp_path, capsys):
-    code, out, err = run_cli(capsys, "calibrate", two_run_dataset, "--out", tmp_path / "s.yaml", "--report",
-                             tmp_path / "r.json", "--select-components", "evidence", "--evidence-traces", 1)
-    assert code == 0, err
-    rep = json.loads((tmp_path / "r.json").read_text())
-    sel = rep["component_selection"]
-    assert sel["n_traces"] == 1 and len(sel["held_out_runs"]) == 2 and sel["rule"] == DROP_RULE
-    comps = rep["components"]
-    assert "held_out" not in comps["geometry"] and comps["geometry"]["fitted"]  # not an optional component
-    assert comps["ranging"]["held_out"]["skipped"]  # one-run folds: no run-to-run spread to take out
-    for name in ("timing", "antenna_sway", "tag_nlos"):
-        ev = comps[name]["held_out"]
-        assert comps[name]["fitted"] and len(ev["per_run"]) == 2 and ev["combined_gain"] is not None
-        assert comps[name]["selected"] == (name not in sel["taken_out"]) == (ev["decision"] != "drop")
-    assert comps["link_budget"]["fitted"] is False and comps["link_budget"]["why"]
-    assert comps["link_budget"]["held_out"]["decision"] == "no evidence"
-    # the summary's table: every optional component with its gain and what the selection did
-    assert "components by held-out evidence" in out
-    for name in ("timing", "antenna_sway", "tag_nlos"):
-        line = next(ln for ln in out.splitlines() if ln.startswith(name + " "))
-        assert ("taken out" in line) == (name in sel["taken_out"])
-    scn = load_scenario(tmp_path / "s.yaml")
-    if "tag_nlos" in sel["taken_out"]:
-        assert scn.uwb.tag_nlos_prob == 0.0
-
-
-@pytest.mark.parametrize(("args", "needle"), [
-    (["--select-components", "best"], "--select-components"),
-    (["--select-components", "evidence", "--evidence-traces", "0"], "--evidence-traces"),
-])
-def test_bad_option_values_exit_2_with_one_line(two_run_dataset, tmp_path, capsys, args, needle):
-    code, _, err = run_cli(capsys, "calibrate", two_run_dataset, "--out", tmp_path / "s.yaml", *args)
-    assert code == 2 and len(err.strip().splitlines()) == 1 and needle in err, err
-    assert not (tmp_path / "s.yaml").exists()
-
-
-def test_one_run_with_evidence_exits_2_naming_the_option(tmp_path, capsys):
-    code, _, _ = run_cli(capsys, "generate", "--scenario", "walk-hanyang", "-n", 1, "--seed", 3, "--out",
-                         tmp_path / "one", "--quiet")
-    assert code == 0
-    code, _, err = run_cli(capsys, "calibrate", tmp_path / "one", "--out", tmp_path / "s.yaml",
-                           "--select-components", "evidence", "--quiet")
-    assert code == 2 and len(err.strip().splitlines()) == 1, err
-    assert "--select-components evidence needs at least 2 runs" in err
 
 
 def test_leave_one_out_gives_each_item_and_the_others_in_order():
