@@ -13,6 +13,8 @@ checked more sharply, on many events, in tests/test_tag_outages.py.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -31,7 +33,11 @@ TOL_PCT = {k: 100.0 * 3.0 * np.sqrt(2.0) * v for k, v in SEED_SPREAD.items()}
 def recovered():
     preset = load_scenario("cablecar-descending")
     cs = compile_scenario(preset)
-    source = [generate_trace(cs, i, 11) for i in range(N)]
+    # calibrated without the traces' IMU samples: the UWB fit does not use them (checked: the same
+    # scenario.uwb, availability and report sections, and every UWB metric of the traces generated again
+    # equal to the last digit; only the IMU section, which no test here reads, differs), and the IMU
+    # calibration was 15 % of the fixture's time
+    source = [dataclasses.replace(generate_trace(cs, i, 11), imu=None) for i in range(N)]
     res = calibrate(source, name="recovered")
     again = compile_scenario(res.scenario)
     m_preset = compute_metrics(generate_trace(cs, i, 12) for i in range(N))
