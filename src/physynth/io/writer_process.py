@@ -176,6 +176,9 @@ class WriterProcess:
         if self._ring is None or end > len(self._ring) // 2:
             self._post(("trace", header, len(raws), None), buffers)
             return
+        self._take_notes()
+        if not self._busy:  # everything freed: start at the beginning, so that memory is touched only as needed
+            self._head = 0
         start = self._head if self._head + end <= len(self._ring) else 0
         while any(s < start + end and start < e for _, s, e in self._busy):  # wait until the process freed it
             self._reply("freed")
@@ -187,10 +190,15 @@ class WriterProcess:
         spans = [(start + off, r.nbytes) for r, off in zip(raws, offsets, strict=True)]
         self._post(("trace", header, self._seq, spans))
 
+    def _take_notes(self) -> None:
+        """Take the notes the process has sent (places freed, datasets closed) without waiting."""
+        while self._busy and self._recv.poll(0):
+            self._reply("")
+
     def _reply(self, until: str, timeout_s: float | None = None) -> tuple[Any, ...]:
-        """Read the process's messages until one of kind ``until`` (``"freed"``, ``"closed"``, ``"aborted"``);
-        its error raised, or a DatasetError when it ended without one (or sent nothing for ``timeout_s``).
-        Notes on the way are taken into account: a place in the ring freed, a dataset closed."""
+        """Read the process's messages until one of kind ``until`` (``"freed"``, ``"closed"``, ``"aborted"``;
+        ``""``: the next one); its error raised, or a DatasetError when it ended without one (or sent nothing
+        for ``timeout_s``). Notes on the way are taken into account: a place in the ring freed, a dataset closed."""
         self._check()
         while True:
             reply = self._next(timeout_s)
@@ -201,7 +209,7 @@ class WriterProcess:
                     self._busy.popleft()
             elif reply[0] == "closed":
                 self._closing -= 1
-            if reply[0] == until:
+            if reply[0] == until or not until:
                 return reply
 
     def _close_dataset(self) -> None:
@@ -416,6 +424,8 @@ def main(argv: list[str]) -> None:
     """Entry point of ``python -m physynth.io.writer_process RECV_FD SEND_FD [RING_FD] RING_BYTES``."""
     ring = mmap.mmap(int(argv[2]), int(argv[3])) if len(argv) == 4 else None
     _serve(Connection(int(argv[0]), writable=False), Connection(int(argv[1]), readable=False), ring)
+    sys.stderr.flush()
+    os._exit(0)  # every file is closed and every answer sent: no interpreter teardown (0.1 s) to wait for
 
 
 if __name__ == "__main__":
