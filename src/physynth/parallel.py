@@ -239,6 +239,7 @@ def _run_on_cluster(distributed: Any, fn: Callable[..., Any], tasks: Sequence[tu
     try:
         with _signals_held():
             if scheduler is not None:
+                _refuse_closed_port(scheduler)
                 try:
                     client = distributed.Client(scheduler, timeout="10s")
                 except (OSError, TimeoutError, ValueError) as exc:
@@ -265,6 +266,30 @@ def _run_on_cluster(distributed: Any, fn: Callable[..., Any], tasks: Sequence[tu
             if cluster is not None:
                 cluster.close()
     return results
+
+
+def _refuse_closed_port(scheduler: str) -> None:
+    """Fail at once when nothing listens at a TCP scheduler address (the connection is refused), rather than
+    after the 10 s a Dask client spends retrying; other addresses and errors are left to the client."""
+    import socket
+    from urllib.parse import urlsplit
+
+    if "://" in scheduler and not scheduler.startswith("tcp://"):
+        return
+    try:
+        parts = urlsplit(scheduler if "://" in scheduler else f"tcp://{scheduler}")
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        return
+    if host is None or port is None:
+        return
+    try:
+        socket.create_connection((host, port), timeout=2.0).close()
+    except ConnectionRefusedError:
+        raise PhySynthError(f"cannot connect to the Dask scheduler {scheduler}: connection refused (is it "
+                            "running?)") from None
+    except OSError:
+        pass  # unknown host, unreachable, slow: the client says what it finds
 
 
 def _stop_workers_now(cluster: Any, unfinished: tuple[Path, str] | None, wait_s: float = 5.0) -> None:
