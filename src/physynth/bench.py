@@ -5,10 +5,9 @@
   does: generated in this process, written by its writer process where a core is to spare
   (:mod:`physynth.io.writer_process`);
 - ``scaling_efficiency``: rate with ``workers`` worker processes on an embedded Dask cluster divided by
-  ``workers`` times the one-core rate of the same run (one worker writing in its own process, no writer
-  process: one core) (``n_scaling`` traces, shards of a quarter per
-  worker), both end to end: the cluster's start is included; with ``repeat`` > 1 the two runs alternate
-  and the best rate of each is kept;
+  ``workers`` times the rate of one worker on one core (writing in its own process, without a writer
+  process) in the same run (``n_scaling`` traces, shards of a quarter per worker), both end to end: the
+  cluster's start is included; with ``repeat`` > 1 the two runs alternate and the best rate of each is kept;
 - ``peak_rss_mb``: the largest resident memory of this process or of any worker process it waited for;
 - ``scaling_efficiency_steady``: the same ratio with the cluster's start and stop taken off the run with
   workers (``cluster_start_stop_s``: an embedded cluster of ``workers`` started, given one trace each and

@@ -20,8 +20,11 @@ hands its traces to a writer process:
   output sent where the worker processes' goes (:mod:`physynth._children`); it aborts the dataset it is writing
   (its temporary folder removed) and exits when this process says so or its end of the pipe closes, so it
   never outlives a killed run;
-- an error there (a full disk, a held lock) comes back as the same exception class with its message, raised by
-  the :meth:`RemoteDatasetWriter.add` or :meth:`RemoteDatasetWriter.close` that finds it.
+- a dataset's close does not wait for the process to finish it (the next traces are made meanwhile):
+  :meth:`WriterProcess.finish` waits for every one, once, at the end of the run;
+- an error there (a full disk, a held lock) comes back as the same exception class with its message and
+  attributes, raised by the next call here (:meth:`RemoteDatasetWriter.add`, ``close`` or
+  :meth:`WriterProcess.finish`).
 
 The environment variable :data:`ENV_VAR` set to ``0`` (or ``false``, ``no``, ``off``) keeps the writing in this
 process (:class:`~physynth.io.dataset.DatasetWriter`'s thread), as on a machine of one core.
@@ -48,8 +51,8 @@ from . import safety
 
 ENV_VAR = "PHYSYNTH_WRITER_PROCESS"
 PIPE_BYTES = 1 << 20
-"""Size asked for the pipe that carries the traces (Linux; 64 KiB otherwise): fewer turns between the two
-processes per trace of about 2.5 MB."""
+"""Size asked for the pipe (Linux; 64 KiB otherwise): the messages, and the arrays of a trace that does not go
+through the ring, in fewer turns between the two processes."""
 RING_BYTES = 32 << 20
 """Shared memory between the processes for the arrays of the traces on their way (a default trace has about
 2.5 MB): several traces, so that this process rarely waits for the other to free a place."""
@@ -404,13 +407,13 @@ def _serve(recv: Connection, send: Connection, ring: mmap.mmap | None) -> None:
                 writer = DatasetWriter(path, **options)
                 writer.write_in_thread = False  # one thread: this process has one core, the other generates
             elif kind == "close":
-                path = writer.close()  # type: ignore[union-attr]
-                writer = None
+                closing, writer = writer, None  # a close that fails has aborted the dataset itself
+                path = closing.close()  # type: ignore[union-attr]
                 send.send(("closed", str(path)))
             elif kind == "abort":
                 if writer is not None:
-                    writer.abort()
-                    writer = None
+                    aborting, writer = writer, None
+                    aborting.abort()
                 send.send(("aborted",))
     except Exception as exc:  # noqa: BLE001 - every error goes back to the other process, which raises it
         with contextlib.suppress(OSError):
