@@ -155,6 +155,17 @@ def test_errors_keep_their_class_message_and_attributes_across_the_pipe(exc):
         assert getattr(back, "filename", None) == getattr(exc, "filename", None)
 
 
+def test_a_relative_path_is_this_process_s_folder_even_after_a_change_of_folder(traces, tmp_path, monkeypatch):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    monkeypatch.chdir(tmp_path / "a")
+    with WriterProcess() as proc:
+        monkeypatch.chdir(tmp_path / "b")  # after the process started in a/
+        with proc.writer("out") as w:
+            w.add(traces[0][1], index=0)
+    assert (tmp_path / "b" / "out" / "dataset.json").is_file() and not (tmp_path / "a" / "out").exists()
+
+
 def test_abort_removes_what_was_written_and_the_process_goes_on(traces, tmp_path):
     with WriterProcess() as proc:
         with pytest.raises(KeyboardInterrupt), proc.writer(tmp_path / "stopped", meta={}) as w:

@@ -149,8 +149,9 @@ class WriterProcess:
     def writer(self, path: str | os.PathLike, **options: Any) -> RemoteDatasetWriter:
         """A :class:`RemoteDatasetWriter` of a new dataset ``path``; ``options`` are those of
         :class:`~physynth.io.dataset.DatasetWriter` (it is opened there, by the process)."""
+        path = Path(path).absolute()  # the process keeps the folder it started in
         self._post(("open", str(path), options))
-        return RemoteDatasetWriter(self, Path(path))
+        return RemoteDatasetWriter(self, path)
 
     def _post(self, message: tuple[Any, ...], buffers: Sequence[pickle.PickleBuffer] = ()) -> None:
         """Send ``message`` (and the out-of-band ``buffers`` that follow it); a process that has ended
