@@ -12,6 +12,29 @@ import os
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TypeVar
+
+_W = TypeVar("_W", bound="ClosesOrAborts")
+
+
+class ClosesOrAborts:
+    """A writer used as a ``with`` block: :meth:`close` (the output swapped into place) when the block ends,
+    :meth:`abort` (what was written removed) when it raises. Subclasses define both."""
+
+    def close(self) -> object:
+        raise NotImplementedError
+
+    def abort(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self: _W) -> _W:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
 
 
 def temp_sibling(path: Path) -> Path:

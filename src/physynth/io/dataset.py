@@ -33,7 +33,7 @@ from ..constants import DEFAULT_GRID_RATE_HZ, IMU_BODY_FRAME, IMU_FRAME, SCHEMA_
 from ..errors import ArgumentError, DatasetError
 from ..records import Anchors, Imu, Trace, Truth, Uwb, trace_iterable
 from . import integrity, safety
-from .atomic import temp_sibling
+from .atomic import ClosesOrAborts, temp_sibling
 from .tables import (  # the tables' Arrow side, named here as before
     FLOAT32_COLUMNS,
     OPTIONAL_COLUMNS,
@@ -94,7 +94,7 @@ def _write_group(writers: Mapping[str, pq.ParquetWriter], group: Mapping[str, pa
             hashes[name].update()
 
 
-class DatasetWriter:
+class DatasetWriter(ClosesOrAborts):
     """Streams traces into a new dataset directory; the directory appears only on :meth:`close`.
 
     >>> with DatasetWriter(out, meta={"kind": "synthetic"}) as w:   # doctest: +SKIP
@@ -303,15 +303,6 @@ class DatasetWriter:
         safety.unregister_temporary(self.tmp)
         self._closed = True
         self._lock.release()
-
-    def __enter__(self) -> DatasetWriter:
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
 
 def write_dataset(path: str | os.PathLike, traces: Iterable[Trace], *, meta: dict[str, Any] | None = None,

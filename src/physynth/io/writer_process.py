@@ -48,6 +48,7 @@ from .. import errors
 from .._children import output_fd
 from ..errors import DatasetError, PhySynthError
 from . import safety
+from .atomic import ClosesOrAborts
 
 ENV_VAR = "PHYSYNTH_WRITER_PROCESS"
 PIPE_BYTES = 1 << 20
@@ -310,7 +311,7 @@ class WriterProcess:
             self.stop()
 
 
-class RemoteDatasetWriter:
+class RemoteDatasetWriter(ClosesOrAborts):
     """What :class:`~physynth.io.dataset.DatasetWriter` does, done by a :class:`WriterProcess`: :meth:`add`
     sends a trace, :meth:`close` asks for the dataset to be finished (:meth:`WriterProcess.finish` waits for
     it), :meth:`abort` removes what was written."""
@@ -337,15 +338,6 @@ class RemoteDatasetWriter:
         if not self._done:
             self._done = True
             self._proc._abort_dataset()
-
-    def __enter__(self) -> RemoteDatasetWriter:
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
 
 @contextlib.contextmanager
