@@ -19,7 +19,7 @@ import json
 import math
 import os
 import shutil
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Generator, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,7 +30,7 @@ import numpy as np
 from .. import __version__
 from .._json import jsonable
 from ..constants import DEFAULT_GRID_RATE_HZ, IMU_BODY_FRAME, IMU_FRAME, SCHEMA_VERSION
-from ..errors import ArgumentError, DatasetError
+from ..errors import ArgumentError, DatasetError, IntegrityError
 from ..records import Anchors, Imu, Trace, Truth, Uwb, trace_iterable
 from . import integrity, safety
 from .atomic import ClosesOrAborts, temp_sibling
@@ -648,14 +648,68 @@ def trace_of(st: StoredTrace, meta: dict[str, Any], path: Path) -> Trace:
         raise DatasetError(f"dataset {path}: trace {st.index} is invalid: {str(exc).splitlines()[0]}") from None
 
 
-def iter_stored_traces(path: str | os.PathLike, meta: dict[str, Any] | None = None) -> Iterator[StoredTrace]:
+CHECK_THREAD = "physynth-check"
+"""The name (prefix) of the thread that checks a dataset while it is read (``iter_stored_traces(...,
+check_alongside=True)``)."""
+
+
+def iter_stored_traces(path: str | os.PathLike, meta: dict[str, Any] | None = None, *,
+                       check_alongside: bool = False) -> Iterator[StoredTrace]:
     """The traces of a dataset directory as stored (:class:`StoredTrace`), one at a time, in trace order,
-    once its files are checked against ``dataset.json`` (sizes, row counts, hashes, trace ids): what
-    :func:`iter_indexed_traces` makes records of, and what an export copies without making them."""
+    by default once its files are checked against ``dataset.json`` (sizes, row counts, hashes, trace ids): what
+    :func:`iter_indexed_traces` makes records of, and what an export copies without making them.
+
+    ``check_alongside``: the files are checked (:func:`~physynth.io.integrity.check_dataset`) on a thread of
+    their own (:data:`CHECK_THREAD`), started before the first trace is read, while the traces are read and
+    yielded. Traces may then be yielded before the check is done: the caller must not publish anything
+    until the iterator is exhausted without error. The check's :class:`~physynth.errors.IntegrityError`
+    is raised after the last trace (before the iterator ends) and, when reading fails (a damaged file that
+    pyarrow cannot read), instead of the reading error. A caller that stops early (closes the iterator,
+    or drops it after a ``break``) waits for the check to end there, and is not told what it found.
+    """
     path = Path(path)
     meta = read_meta(path) if meta is None else meta
     # integrity hook (physynth.io.integrity): sizes, row counts, hashes and trace ids against dataset.json
-    integrity.check_dataset(path, meta, hashes=not integrity.environ_skip_hashes())
+    hashes = not integrity.environ_skip_hashes()
+    if not check_alongside:
+        integrity.check_dataset(path, meta, hashes=hashes)
+        n = yield from _stored_traces(path, meta)
+    else:
+        n = yield from _checked_alongside(_stored_traces(path, meta),
+                                          lambda: integrity.check_dataset(path, meta, hashes=hashes))
+    if n == 0:
+        raise DatasetError(f"dataset {path} holds no traces")
+
+
+def _checked_alongside(reading: Generator[StoredTrace, None, int],
+                       check: Callable[[], Any]) -> Generator[StoredTrace, None, int]:
+    """The items of ``reading``, while ``check()`` runs on a thread (:data:`CHECK_THREAD`); returns how many.
+    The check's IntegrityError is raised after the last item, and instead of an error of ``reading``."""
+    pool = ThreadPoolExecutor(1, thread_name_prefix=CHECK_THREAD)
+    try:
+        checked = pool.submit(check)
+        pool.shutdown(wait=False)  # its thread ends with the check, even if this generator is never closed
+        n = 0
+        while True:
+            try:
+                st = next(reading)
+            except StopIteration:
+                break
+            except Exception:
+                if isinstance(checked.exception(), IntegrityError):  # waits: the damage explains the failure
+                    raise checked.exception() from None
+                raise
+            n += 1
+            yield st
+        checked.result()  # waits; raises what the check found
+        return n
+    finally:
+        reading.close()
+        pool.shutdown(wait=True)  # a caller that stopped early: the check's thread has ended when it goes on
+
+
+def _stored_traces(path: Path, meta: dict[str, Any]) -> Generator[StoredTrace, None, int]:
+    """The traces of :func:`iter_stored_traces`, read without a check; returns how many."""
     codes = AnchorCodes()
     streams = {name: _table_stream(path, name, meta, codes) for name in TABLES}
     streams["meta"] = iter_trace_meta(path, meta)
@@ -675,8 +729,7 @@ def iter_stored_traces(path: str | os.PathLike, meta: dict[str, Any] | None = No
         n += 1
         trace_meta = {k: v for k, v in (take("meta", idx) or {}).items() if k != "trace"}
         yield StoredTrace(idx, tr, take("anchors", idx), take("imu", idx), take("uwb", idx), trace_meta, codes)
-    if n == 0:
-        raise DatasetError(f"dataset {path} holds no traces")
+    return n
 
 
 TRACE_META_PARTS = "traces/part-*.jsonl"
