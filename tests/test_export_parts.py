@@ -91,36 +91,140 @@ def test_resume_after_a_kill_keeps_the_complete_parts(dataset, tmp_path, fmt):
     assert _same(out, export_dataset(dataset, tmp_path / f"clean{suffix}", fmt))
 
 
-@pytest.mark.parametrize("fmt", ["hdf5", "csv"])
-def test_resume_after_a_kill_while_assembling(dataset, tmp_path, monkeypatch, fmt):
-    """Assembling takes the parts away (the first moved into the output, HDF5's others removed once copied):
-    stopped in the middle, the resumed export redoes exactly the parts taken and gives the same output."""
+def test_resume_after_a_kill_while_assembling(dataset, tmp_path, monkeypatch):
+    """Assembling a CSV export of one part takes the part away (moved into the output): stopped in the
+    middle, the resumed export redoes exactly that part and gives the same output."""
     from physynth.io.export import parts as parts_mod
 
-    suffix = ".h5" if fmt == "hdf5" else ""
-    out = tmp_path / f"out{suffix}"
+    out = tmp_path / "out"
     consume = parts_mod._consume
     taken = []
 
-    def killed_after_taking(partial, part, take):  # HDF5: the first two parts; CSV: its one part
+    def killed_after_taking(partial, part, take):
         consume(partial, part, take)
         taken.append(part.k)
-        if len(taken) == (2 if fmt == "hdf5" else 1):
-            raise _Killed
+        raise _Killed
 
     monkeypatch.setattr(parts_mod, "_consume", killed_after_taking)
-    if fmt == "csv":  # one part (a one-shard dataset's): the only CSV part that is taken, not copied
-        monkeypatch.setattr(parts_mod, "dataset_parts", lambda meta: [parts_mod.Part(0, meta["n_traces"], None)])
-        monkeypatch.setattr("physynth.io.export.dataset_parts", parts_mod.dataset_parts)
+    # one part (a one-shard dataset's): the only CSV part that is taken, not copied
+    monkeypatch.setattr(parts_mod, "dataset_parts", lambda meta: [parts_mod.Part(0, meta["n_traces"], None)])
+    monkeypatch.setattr("physynth.io.export.dataset_parts", parts_mod.dataset_parts)
     with pytest.raises(_Killed):
-        export_dataset(dataset, out, fmt)
+        export_dataset(dataset, out, "csv")
     monkeypatch.setattr(parts_mod, "_consume", consume)
     assert not out.exists() and partial_dir(out).is_dir()
     said = []
-    export_dataset(dataset, out, fmt, resume=True, run=lambda fn, tasks, sizes, progress: [
+    export_dataset(dataset, out, "csv", resume=True, run=lambda fn, tasks, sizes, progress: [
         said.append(task[2].k) or fn(*task) for task in tasks])
-    assert said == taken  # only the parts the stopped assembly had taken are written again
-    assert _same(out, export_dataset(dataset, tmp_path / f"clean{suffix}", fmt))
+    assert said == taken == [0]  # only the part the stopped assembly had taken is written again
+    assert _same(out, export_dataset(dataset, tmp_path / "clean", "csv"))
+
+
+@pytest.mark.skipif("hdf5" not in FORMATS, reason="needs h5py")
+def test_hdf5_parts_run_one_after_the_other_are_appended_in_place(dataset, tmp_path):
+    """Parts run in order go straight into the export's file (nothing written apart, nothing copied when
+    assembling); parts run out of order are written apart and appended when assembling: the same bytes."""
+    from physynth.io.export import parts as parts_mod
+
+    out = tmp_path / "a.h5"
+    partial = partial_dir(out)
+    seen = []
+
+    def in_order(fn, tasks, sizes, progress):
+        for task in tasks:
+            fn(*task)
+            seen.append(sorted(p.name for p in partial.iterdir()))
+        return [{}] * len(tasks)
+
+    export_dataset(dataset, out, "hdf5", run=in_order)
+    assert seen[-1] == [parts_mod.H5_FILE, parts_mod.H5_SIZES, "part-00000.json", "part-00001.json",
+                        "part-00002.json", "run.json"]  # no part of its own, no journal left
+    apart = []
+
+    def reversed_and_seen(fn, tasks, sizes, progress):
+        results = _reversed_runner(fn, tasks, sizes, progress)
+        apart.extend(sorted(p.name for p in partial_dir(tmp_path / "b.h5").glob("part-*.pkl")))
+        return results
+
+    assert _same(out, export_dataset(dataset, tmp_path / "b.h5", "hdf5", run=reversed_and_seen))
+    assert apart == ["part-00001.pkl", "part-00002.pkl"]  # written before part 0: appended when assembling
+
+
+@pytest.mark.skipif("hdf5" not in FORMATS, reason="needs h5py")
+def test_hdf5_stopped_while_assembling_keeps_every_part(dataset, tmp_path, monkeypatch):
+    """A stop in the middle of appending a part written apart restores the file as it was (its undo journal):
+    the resumed export writes no part again, and the same bytes."""
+    from physynth.io.export import parts as parts_mod
+
+    out = tmp_path / "out.h5"
+    pickled = parts_mod._pickled
+
+    def stopped_after_one_trace(path):
+        it = pickled(path)
+        yield next(it)
+        raise _Killed
+
+    monkeypatch.setattr(parts_mod, "_pickled", stopped_after_one_trace)
+    with pytest.raises(_Killed):
+        export_dataset(dataset, out, "hdf5", run=_reversed_runner)
+    monkeypatch.setattr(parts_mod, "_pickled", pickled)
+    partial = partial_dir(out)
+    assert parts_mod._h5_sizes(partial) == [(partial / parts_mod.H5_FILE).stat().st_size]  # part 0 only
+    assert not list(partial.glob("*.undo"))
+    said = []
+    export_dataset(dataset, out, "hdf5", resume=True, run=lambda fn, tasks, sizes, progress: [
+        said.append(task[2].k) or fn(*task) for task in tasks])
+    assert said == []
+    assert _same(out, export_dataset(dataset, tmp_path / "clean.h5", "hdf5"))
+
+
+_SIGKILLED = """
+import os, signal, sys
+from physynth.io.export import export_dataset, hdf5
+
+write = hdf5._write
+
+def write_then_killed(f, traces):  # the part's first trace in the file, flushed (its earlier bytes
+    write(f, [next(iter(traces))])  # rewritten in place), then SIGKILL
+    f.flush()
+    os.kill(os.getpid(), signal.SIGKILL)
+
+calls = []
+
+def run(fn, tasks, sizes, progress):
+    for task in tasks:
+        if task[2].k == 1:
+            hdf5._write = write_then_killed
+        fn(*task)
+
+export_dataset(sys.argv[1], sys.argv[2], "hdf5", run=run)
+"""
+
+
+@pytest.mark.skipif("hdf5" not in FORMATS, reason="needs h5py")
+def test_hdf5_resume_after_sigkill_while_appending_in_place(dataset, tmp_path):
+    """SIGKILL while a part is being appended to the export's file leaves its undo journal: the resumed
+    export rolls the file back to the parts before it and writes that part again, with the same bytes."""
+    import signal
+    import subprocess
+    import sys
+
+    from physynth.io.export import parts as parts_mod
+
+    out = tmp_path / "out.h5"
+    proc = subprocess.run([sys.executable, "-c", _SIGKILLED, str(dataset), str(out)], capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    partial = partial_dir(out)
+    journal = partial / "appended-00001.undo"
+    assert journal.stat().st_size > 100  # bytes of part 0 were rewritten in place and saved first
+    size0 = parts_mod._h5_sizes(partial)[0]
+    assert (partial / parts_mod.H5_FILE).stat().st_size > size0  # part 1's first trace is in the file
+    said = []
+    export_dataset(dataset, out, "hdf5", resume=True, run=lambda fn, tasks, sizes, progress: [
+        said.append(task[2].k) or fn(*task) for task in tasks])
+    assert said == [1, 2]
+    assert _same(out, export_dataset(dataset, tmp_path / "clean.h5", "hdf5"))
 
 
 @pytest.mark.parametrize("stop", ["while appending", "before marking"])
@@ -258,3 +362,32 @@ def test_csv_export_picks_one_process_where_other_formats_pick_all_cores(dataset
         main(["export", str(dataset), "-f", "hdf5", "-o", str(tmp_path / "x.h5"), "-q"])
     capsys.readouterr()
     assert asked == {"csv": 1, "hdf5": 2} and (tmp_path / "csv" / "uwb.csv").is_file()
+
+
+@pytest.mark.parametrize("fmt", [f for f in FORMATS if f != "csv"])
+def test_a_part_whose_file_disagrees_with_its_record_keeps_nothing(dataset, tmp_path, fmt):
+    """The files are checked while they are read: a part whose file reads but disagrees with its recorded
+    SHA-256 leaves none of its bags and nothing of it in the HDF5 file; the parts before it stay complete."""
+    import json
+    import shutil
+
+    from physynth.errors import IntegrityError
+    from physynth.io.export import parts as parts_mod
+
+    copy = tmp_path / "ds"
+    shutil.copytree(dataset, copy)
+    meta = json.loads((copy / "dataset.json").read_text())
+    meta["files"]["uwb/part-00001.parquet"]["sha256"] = "0" * 64  # part 1: traces 2 and 3
+    (copy / "dataset.json").write_text(json.dumps(meta))
+    out = tmp_path / ("out.h5" if fmt == "hdf5" else "bags")
+    with pytest.raises(IntegrityError, match="uwb/part-00001.parquet"):
+        export_dataset(copy, out, fmt)
+    partial = partial_dir(out)
+    assert not out.exists()
+    assert sorted(p.name for p in partial.glob("part-*.json")) == ["part-00000.json"]
+    if fmt == "rosbag2":
+        assert sorted(p.name for p in partial.glob("trace_*")) == ["trace_00000000", "trace_00000001"]
+    else:
+        sizes = parts_mod._h5_sizes(partial)
+        assert len(sizes) == 1 and (partial / parts_mod.H5_FILE).stat().st_size == sizes[0]
+        assert not list(partial.glob("*.undo")) and not list(partial.glob("part-*.pkl"))

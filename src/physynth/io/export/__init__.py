@@ -21,7 +21,7 @@ from ...progress import ProgressCallback, no_progress
 from ..atomic import atomic_write_text, temp_sibling
 from ..dataset import n_traces, read_meta
 from ..safety import prepare_output, register_temporary, remove_tree, swap_in, unregister_temporary
-from .parts import Part, assemble, dataset_parts, export_part, marker, run_record
+from .parts import Part, assemble, dataset_parts, export_part, marker, recover_h5, run_record
 
 FORMATS = ("hdf5", "rosbag2", "csv")
 
@@ -119,6 +119,8 @@ def _prepare_partial(out: Path, record: dict[str, Any], resume: bool, overwrite:
                                 f"{', '.join(diff) or 'run.json'}")
         for junk in partial.glob(".*.tmp-*"):  # a part or bag being written when the export was stopped
             remove_tree(junk)
+        if record["format"] == "hdf5":  # a part being appended to the file in place: rolled back
+            recover_h5(partial)
     else:
         partial.mkdir()
         atomic_write_text(partial / "run.json", json.dumps(record, indent=1))

@@ -10,15 +10,18 @@ While an export runs, everything lives in a hidden sibling of the output, ``.<na
 - ``run.json``: what is exported (format, bag storage, the dataset and its ``dataset.json``'s SHA-256,
   PhySynth's version); a resumed export refuses a run that differs;
 - per part ``k``, its output, renamed into place when complete: the bags ``trace_<index>/`` (rosbag2;
-  each bag renamed into place as it is finished), ``part-<k>.h5`` (hdf5); for csv, its rows appended to
-  the tables in ``tables/`` when the parts before it are complete there (sizes after each part in
-  ``tables.json``), else the folder ``part-<k>/``; then ``part-<k>.json`` (the messages left out, see
-  :mod:`.rosbag2`), which marks the part complete.
+  each bag renamed into place as it is finished); for hdf5, its traces appended in place to the export's
+  file ``appended.h5`` when the parts before it are there (sizes after each part in ``appended.json``;
+  an undo journal ``appended-<k>.undo`` while it is appended), else its trace groups in ``part-<k>.pkl``;
+  for csv, its rows appended to the tables in ``tables/`` when the parts before it are complete there
+  (sizes after each part in ``tables.json``), else the folder ``part-<k>/``; then ``part-<k>.json`` (the
+  messages left out, see :mod:`.rosbag2`), which marks the part complete.
 
-:func:`assemble` turns the complete parts into the output: the bag folders as they are, the HDF5 parts'
-groups copied in trace order into the first part's file; the CSV tables are those its first parts were
-appended to as they were written (:data:`APPENDED`: every part, when they ran one after the other), the
-rows of parts written apart appended to them. The bytes do not depend on which worker wrote which part.
+:func:`assemble` turns the complete parts into the output: the bag folders as they are; the HDF5 file
+with the traces of the parts written apart appended to it in order, as they would have been in place;
+the CSV tables are those its first parts were appended to as they were written (:data:`APPENDED`: every
+part, when they ran one after the other), the rows of parts written apart appended to them. The bytes do
+not depend on which worker wrote which part.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import pickle
 import shutil
 from collections import deque
 from dataclasses import dataclass
@@ -33,7 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from ... import __version__
-from ...errors import PhySynthError
+from ...errors import DatasetError, PhySynthError
 from ..atomic import atomic_write_text
 from ..dataset import iter_indexed_traces, iter_stored_traces, trace_of
 from ..safety import remove_tree, replacing
@@ -155,8 +159,10 @@ def export_part(dataset: str, meta: dict[str, Any], part: Part, fmt: str, partia
                 on_unit()
 
     def stored():  # the traces as stored; made into records too when no integrity record vouches for them
+        # the files are checked while they are read: what is written of them is kept only once the reading
+        # ended without an error (a part is marked, an HDF5 part appended, after; a bag is removed below)
         record = not isinstance(sub.get("files"), dict)
-        for st in iter_stored_traces(dataset_p, sub):
+        for st in iter_stored_traces(dataset_p, sub, check_alongside=True):
             if record:
                 trace_of(st, sub, dataset_p)
             yield st
@@ -174,23 +180,39 @@ def export_part(dataset: str, meta: dict[str, Any], part: Part, fmt: str, partia
                 write(tmp / dest.name if nested else tmp, dest.name)
 
         pending = None  # the bag prepared before: written once the next one's messages are built
-        for st in stored():  # the stored columns, as the messages take them (no record built and taken apart)
-            dest = partial_p / f"trace_{st.index:08d}"
-            if dest.is_dir():  # written before the run was stopped
-                continue
-            write = prepare_bag(BagColumns.of_stored(st, dataset_p), storage, skipped)  # its chunks compress
-            # while the next bag is built
-            if pending is not None:
-                finish(*pending)
-            pending = (dest, write)
+        written: list[Path] = []
+        try:
+            for st in stored():  # the stored columns, as the messages take them (no record built and taken apart)
+                dest = partial_p / f"trace_{st.index:08d}"
+                if dest.is_dir():  # written before the run was stopped
+                    continue
+                write = prepare_bag(BagColumns.of_stored(st, dataset_p), storage, skipped)  # its chunks
+                # compress while the next bag is built
+                if pending is not None:
+                    finish(*pending)
+                    written.append(pending[0])
+                pending = (dest, write)
+        except DatasetError:  # a file of the part disagrees with its record: none of its bags is kept
+            for dest in written:
+                remove_tree(dest)
+            raise
         if pending is not None:
             finish(*pending)
     elif fmt == "hdf5":
-        from .hdf5 import write_hdf5
+        from .hdf5 import trace_groups
 
-        dest = partial_p / f"part-{part.k:05d}.h5"
-        with replacing(dest) as tmp:
-            write_hdf5(stored(), {k: v for k, v in meta.items() if k != "traces"}, tmp, dataset_p)
+        sizes = _h5_sizes(partial_p)
+        if part.k < len(sizes):  # in the file already: stopped before its marker
+            atomic_write_text(done, json.dumps({}))
+            return {}
+        light = {k: v for k, v in meta.items() if k != "traces"}
+        groups = (trace_groups(st, light, dataset_p) for st in stored())
+        if part.k == len(sizes) and all(marker(partial_p, j).is_file() for j in range(part.k)):
+            _append_h5_part(partial_p, part.k, light, groups, sizes)
+        else:  # appended when the export is assembled
+            with replacing(apart_h5(partial_p, part.k)) as tmp, open(tmp, "wb") as fh:
+                for g in groups:
+                    pickle.dump(g, fh, protocol=5)
     else:
         from .csv import check_tables, write_csv_tables
 
@@ -209,6 +231,88 @@ def export_part(dataset: str, meta: dict[str, Any], part: Part, fmt: str, partia
     return skipped
 
 
+H5_FILE = "appended.h5"
+"""HDF5: the export's file, holding its first parts, each appended in place as it is written when the parts
+before it are in the file (always so when the parts run one after the other in one process)."""
+H5_SIZES = "appended.json"
+"""HDF5: the size of :data:`H5_FILE` after each part appended to it (a list, part by part): the parts it
+holds. A part is appended with an undo journal (``appended-<k>.undo``, :mod:`physynth.io.undo`) that is
+removed once its size is recorded; a journal of a part not recorded is rolled back (:func:`recover_h5`)."""
+
+
+def apart_h5(partial: Path, k: int) -> Path:
+    """HDF5: the groups of part ``k`` written apart (one pickle per trace), appended when assembling."""
+    return partial / f"part-{k:05d}.pkl"
+
+
+def _journal(partial: Path, k: int) -> Path:
+    return partial / f"appended-{k:05d}.undo"
+
+
+def _h5_sizes(partial: Path) -> list[int]:
+    try:
+        sizes = json.loads((partial / H5_SIZES).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return []
+    return sizes if isinstance(sizes, list) and all(isinstance(n, int) for n in sizes) else []
+
+
+def recover_h5(partial: Path) -> list[int]:
+    """The sizes of :data:`H5_FILE` after each part it holds (:data:`H5_SIZES`), the file brought back to
+    them first: the journal of a part not recorded (a kill in the middle of appending it) rolled back, a
+    recorded part's removed; no part recorded, no file. A file that still disagrees with its record (a
+    power cut) is removed with the record, and the parts it held are unmarked: they are written again.
+    Only while no part is being appended (before the parts run, or when assembling)."""
+    from ..undo import roll_back
+
+    sizes, f = _h5_sizes(partial), partial / H5_FILE
+    for journal in sorted(partial.glob("appended-*.undo"), reverse=True):
+        if int(journal.stem.removeprefix("appended-")) < len(sizes):
+            journal.unlink()
+        else:
+            roll_back(f, journal)
+    if sizes and (not f.is_file() or f.stat().st_size != sizes[-1]):
+        for k in reversed(range(len(sizes))):
+            marker(partial, k).unlink(missing_ok=True)
+        sizes = []
+    if not sizes:
+        (partial / H5_SIZES).unlink(missing_ok=True)
+        f.unlink(missing_ok=True)
+    return sizes
+
+
+def _append_h5_part(partial: Path, k: int, meta: dict[str, Any], groups: Any, sizes: list[int]) -> None:
+    """Write the trace groups of part ``k`` into :data:`H5_FILE` (which holds parts ``0 .. k - 1``, of
+    ``sizes``; part 0 creates it) and record its size after them."""
+    from ..undo import roll_back
+    from .hdf5 import append, create
+
+    f = partial / H5_FILE
+    if k == 0:
+        f.unlink(missing_ok=True)  # left by a killed attempt at it
+        try:
+            create(f, meta, groups)
+        except BaseException:
+            f.unlink(missing_ok=True)
+            raise
+    else:
+        if _journal(partial, k).exists():  # a killed attempt at this part (its task run again)
+            roll_back(f, _journal(partial, k))
+        append(f, groups, _journal(partial, k))
+    sizes.append(f.stat().st_size)
+    atomic_write_text(partial / H5_SIZES, json.dumps(sizes))
+    _journal(partial, k).unlink(missing_ok=True)
+
+
+def _pickled(path: Path) -> Any:
+    with open(path, "rb") as fh:
+        while True:
+            try:
+                yield pickle.load(fh)
+            except EOFError:
+                return
+
+
 def _consume(partial: Path, part: Part, take: Any) -> None:
     """``take()`` a complete part's output away (moved into the output, or removed once copied), its
     marker removed first: an export stopped while assembling then redoes that part when resumed."""
@@ -225,18 +329,16 @@ def assemble(fmt: str, dataset: Path, meta: dict[str, Any], partial: Path, parts
         os.replace(partial, tmp)
         return
     if fmt == "hdf5":
-        files = [partial / f"part-{p.k:05d}.h5" for p in parts]
-        _consume(partial, parts[0], lambda: os.replace(files[0], tmp))  # the first part is the file
-        if len(files) > 1:
-            import h5py
-
-            with h5py.File(tmp, "a") as out:  # the others' groups are copied into it
-                root = out["traces"]
-                for p, f in zip(parts[1:], files[1:], strict=True):
-                    with h5py.File(f, "r") as src:
-                        for name in src["traces"]:
-                            src.copy(src["traces"][name], root, name=name)
-                    _consume(partial, p, f.unlink)  # its bytes need not reach the disk
+        sizes = recover_h5(partial)
+        for p in parts[len(sizes):]:  # the parts written apart, in order
+            if not sizes or not apart_h5(partial, p.k).is_file():
+                raise PhySynthError(f"the unfinished export in {partial} lacks part {p.k}: overwrite to start over")
+            _append_h5_part(partial, p.k, meta, _pickled(apart_h5(partial, p.k)), sizes)
+            apart_h5(partial, p.k).unlink()
+        for p in reversed(parts):  # the file holds every part: taken, they are written again if stopped here
+            marker(partial, p.k).unlink()
+        (partial / H5_SIZES).unlink()
+        os.replace(partial / H5_FILE, tmp)
         return
     from .csv import finish_csv
 
