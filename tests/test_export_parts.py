@@ -336,9 +336,10 @@ def test_export_cli_options_are_checked_in_one_line(dataset, tmp_path, capsys):
     assert not (tmp_path / "x").exists()
 
 
-def test_csv_export_picks_one_process_where_other_formats_pick_all_cores(dataset, tmp_path, monkeypatch, capsys):
-    """Without --workers, a dataset large enough for all cores exports to CSV in one process (polars formats on
-    every core, and parts run one after the other are appended in place instead of copied); HDF5 takes all."""
+def test_csv_and_hdf5_exports_pick_one_process_where_bags_pick_all_cores(dataset, tmp_path, monkeypatch, capsys):
+    """Without --workers, a dataset large enough for all cores exports to CSV and HDF5 in one process (parts run
+    one after the other are appended in place instead of apart and then appended when assembling); bags take
+    all."""
     import physynth.workflows
     from physynth.cli import generate as cli_generate
 
@@ -358,10 +359,12 @@ def test_csv_export_picks_one_process_where_other_formats_pick_all_cores(dataset
 
     monkeypatch.setattr(physynth.workflows, "export_dataset", recording)
     main(["export", str(dataset), "-f", "csv", "-o", str(tmp_path / "csv"), "-q"])
+    main(["export", str(dataset), "-f", "hdf5", "-o", str(tmp_path / "x.h5"), "-q"])
     with pytest.raises(SystemExit):
-        main(["export", str(dataset), "-f", "hdf5", "-o", str(tmp_path / "x.h5"), "-q"])
+        main(["export", str(dataset), "-f", "rosbag2", "-o", str(tmp_path / "bags"), "-q"])
     capsys.readouterr()
-    assert asked == {"csv": 1, "hdf5": 2} and (tmp_path / "csv" / "uwb.csv").is_file()
+    assert asked == {"csv": 1, "hdf5": 1, "rosbag2": 2}
+    assert (tmp_path / "csv" / "uwb.csv").is_file() and (tmp_path / "x.h5").is_file()
 
 
 @pytest.mark.parametrize("fmt", [f for f in FORMATS if f != "csv"])

@@ -26,7 +26,8 @@ def export_cmd(
         "mcap", "--bag-storage", help="Storage of the ROS 2 bags: mcap (ROS 2's default since Iron, opened natively "
                                       "by Foxglove; zstd-compressed chunks), mcap-uncompressed or sqlite3."),
     workers: int = workers_option(each=", one part (a shard of the dataset) at a time each",
-                                  below="; csv: one process (its writer formats on every core)"),
+                                  below="; hdf5 and csv: one process (parts in order go straight into the "
+                                        "output)"),
     scheduler: str | None = scheduler_option("DATASET and --out at the same paths"),
     resume: bool = typer.Option(False, "--resume", help="Complete a killed export to --out: keep its complete "
                                                         "parts, write the others."),
@@ -39,9 +40,10 @@ def export_cmd(
     from ..workflows import export_dataset
 
     check_run_options(resume, overwrite, scheduler, workers, "export to --out")
-    # CSV picks one process: polars' writer already formats on every core, and parts run one after the
-    # other append their rows in place, where parts from several workers are copied (docs/export.md)
-    n_workers = (1 if fmt.lower() == "csv" and not workers and scheduler is None
+    # HDF5 and CSV pick one process: parts run one after the other go straight into the output, where parts
+    # from several workers are appended to it when assembling, on one core (docs/export.md); polars' CSV
+    # writer formats on every core, and HDF5 reads and checks its input on a second thread
+    n_workers = (1 if fmt.lower() in ("csv", "hdf5") and not workers and scheduler is None
                  else worker_processes(workers, n_traces(read_meta(dataset)) or 0, scheduler)[0])
     resume_hint = f"complete parts are kept: run the same command with --resume to finish {out}"
     with resumable(resume_hint), progress_bar(not quiet) as progress:
