@@ -137,8 +137,8 @@ def test_hdf5_parts_run_one_after_the_other_are_appended_in_place(dataset, tmp_p
         return [{}] * len(tasks)
 
     export_dataset(dataset, out, "hdf5", run=in_order)
-    assert seen[-1] == [parts_mod.H5_FILE, parts_mod.H5_SIZES, "part-00000.json", "part-00001.json",
-                        "part-00002.json", "run.json"]  # no part of its own, no journal left
+    assert seen[-1] == [parts_mod.H5_FILE, parts_mod.H5_SIZES, parts_mod.H5_LOCK, "part-00000.json",
+                        "part-00001.json", "part-00002.json", "run.json"]  # no part of its own, no journal left
     apart = []
 
     def reversed_and_seen(fn, tasks, sizes, progress):
@@ -148,6 +148,56 @@ def test_hdf5_parts_run_one_after_the_other_are_appended_in_place(dataset, tmp_p
 
     assert _same(out, export_dataset(dataset, tmp_path / "b.h5", "hdf5", run=reversed_and_seen))
     assert apart == ["part-00001.pkl", "part-00002.pkl"]  # written before part 0: appended when assembling
+
+
+@pytest.mark.skipif("hdf5" not in FORMATS, reason="needs h5py")
+def test_hdf5_part_whose_predecessors_are_complete_takes_in_those_written_apart(dataset, tmp_path):
+    """Parts finishing out of order (1, then 0, then 2, as two workers may): part 1 is written apart, part 0
+    creates the file, and part 2 appends part 1 from its pickle before itself, so nothing is left to append
+    when assembling; the same bytes as parts run in order."""
+    from physynth.io.export import parts as parts_mod
+
+    out = tmp_path / "out.h5"
+    partial = partial_dir(out)
+    states = []
+
+    def one_zero_two(fn, tasks, sizes, progress):
+        for k in (1, 0, 2):
+            fn(*tasks[k])
+            states.append((sorted(p.name for p in partial.glob("part-*.pkl")), len(parts_mod._h5_sizes(partial))))
+        return [{}] * len(tasks)
+
+    export_dataset(dataset, out, "hdf5", run=one_zero_two)
+    assert states == [(["part-00001.pkl"], 0), (["part-00001.pkl"], 1), ([], 3)]
+    assert _same(out, export_dataset(dataset, tmp_path / "clean.h5", "hdf5"))
+
+
+@pytest.mark.skipif("hdf5" not in FORMATS, reason="needs h5py")
+def test_hdf5_part_finding_the_file_busy_is_written_apart(dataset, tmp_path):
+    """While another process holds the file's lock (it appends a part), a part does not wait: it is written
+    apart, even the first, and assembling appends it; the same bytes."""
+    import fcntl
+    import os
+
+    from physynth.io.export import parts as parts_mod
+
+    out = tmp_path / "out.h5"
+    partial = partial_dir(out)
+    apart = []
+
+    def first_part_while_locked(fn, tasks, sizes, progress):
+        fd = os.open(partial / parts_mod.H5_LOCK, os.O_RDWR | os.O_CREAT)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)  # as another worker would hold it
+            fn(*tasks[0])
+        finally:
+            os.close(fd)
+        apart.extend(sorted(p.name for p in partial.glob("part-*.pkl")))
+        return [fn(*tasks[0]), *(fn(*t) for t in tasks[1:])]
+
+    export_dataset(dataset, out, "hdf5", run=first_part_while_locked)
+    assert apart == ["part-00000.pkl"]
+    assert _same(out, export_dataset(dataset, tmp_path / "clean.h5", "hdf5"))
 
 
 @pytest.mark.skipif("hdf5" not in FORMATS, reason="needs h5py")

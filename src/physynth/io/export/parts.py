@@ -26,12 +26,14 @@ not depend on which worker wrote which part.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
 import pickle
 import shutil
 from collections import deque
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -201,15 +203,12 @@ def export_part(dataset: str, meta: dict[str, Any], part: Part, fmt: str, partia
     elif fmt == "hdf5":
         from .hdf5 import trace_groups
 
-        sizes = _h5_sizes(partial_p)
-        if part.k < len(sizes):  # in the file already: stopped before its marker
-            atomic_write_text(done, json.dumps({}))
-            return {}
         light = {k: v for k, v in meta.items() if k != "traces"}
         groups = (trace_groups(st, light, dataset_p) for st in stored())
-        if part.k == len(sizes) and all(marker(partial_p, j).is_file() for j in range(part.k)):
-            _append_h5_part(partial_p, part.k, light, groups, sizes)
-        else:  # appended when the export is assembled
+        with _h5_lock(partial_p, wait=False) as held:  # taken by another worker: this part is written apart
+            if held and _append_in_order(partial_p, part.k, light, groups):
+                groups = None
+        if groups is not None:  # appended to the file by a later part's worker, or when the export is assembled
             with replacing(apart_h5(partial_p, part.k)) as tmp, open(tmp, "wb") as fh:
                 for g in groups:
                     pickle.dump(g, fh, protocol=5)
@@ -237,7 +236,7 @@ before it are in the file (always so when the parts run one after the other in o
 H5_SIZES = "appended.json"
 """HDF5: the size of :data:`H5_FILE` after each part appended to it (a list, part by part): the parts it
 holds. A part is appended with an undo journal (``appended-<k>.undo``, :mod:`physynth.io.undo`) that is
-removed once its size is recorded; a journal of a part not recorded is rolled back (:func:`recover_h5`)."""
+removed once its size is recorded; a journal of a part not recorded is rolled back (:func:`_recover_h5`)."""
 
 
 def apart_h5(partial: Path, k: int) -> Path:
@@ -258,11 +257,17 @@ def _h5_sizes(partial: Path) -> list[int]:
 
 
 def recover_h5(partial: Path) -> list[int]:
+    """:func:`_recover_h5` with :data:`H5_LOCK` held (waited for)."""
+    with _h5_lock(partial, wait=True):
+        return _recover_h5(partial)
+
+
+def _recover_h5(partial: Path) -> list[int]:
     """The sizes of :data:`H5_FILE` after each part it holds (:data:`H5_SIZES`), the file brought back to
     them first: the journal of a part not recorded (a kill in the middle of appending it) rolled back, a
     recorded part's removed; no part recorded, no file. A file that still disagrees with its record (a
     power cut) is removed with the record, and the parts it held are unmarked: they are written again.
-    Only while no part is being appended (before the parts run, or when assembling)."""
+    Only with :data:`H5_LOCK` held: no other process is appending then."""
     from ..undo import roll_back
 
     sizes, f = _h5_sizes(partial), partial / H5_FILE
@@ -279,6 +284,49 @@ def recover_h5(partial: Path) -> list[int]:
         (partial / H5_SIZES).unlink(missing_ok=True)
         f.unlink(missing_ok=True)
     return sizes
+
+
+H5_LOCK = "appended.lock"
+"""HDF5: the lock of :data:`H5_FILE` (``flock``): held by the one process that appends to it, or rolls back
+what a killed one appended; a worker that finds it held writes its part apart."""
+
+
+@contextlib.contextmanager
+def _h5_lock(partial: Path, *, wait: bool) -> Iterator[bool]:
+    """Hold :data:`H5_LOCK` for the block, yielding True; without ``wait``, False at once when another
+    process holds it. Where ``flock`` does not exist (not POSIX), True only when ``wait`` (the export's
+    own process, once no part runs)."""
+    try:
+        import fcntl
+    except ImportError:
+        yield wait
+        return
+    fd = os.open(partial / H5_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+        except BlockingIOError:
+            yield False
+            return
+        yield True
+    finally:
+        os.close(fd)  # the lock goes with it (and with the process, should it be killed)
+
+
+def _append_in_order(partial: Path, k: int, meta: dict[str, Any], groups: Any) -> bool:
+    """With :data:`H5_LOCK` held: when every part before part ``k`` is complete, append those written apart
+    to :data:`H5_FILE`, in order, then part ``k``'s ``groups`` in place, and return True; else False
+    (nothing written). Part ``k`` already in the file (stopped before its marker): True."""
+    sizes = _recover_h5(partial)  # the lock held: what a killed process left half appended is rolled back
+    if k < len(sizes):
+        return True
+    if not all(marker(partial, j).is_file() for j in range(len(sizes), k)):
+        return False
+    for j in range(len(sizes), k):  # complete, written apart while the file was busy: taken in now
+        _append_h5_part(partial, j, meta, _pickled(apart_h5(partial, j)), sizes)
+        apart_h5(partial, j).unlink()
+    _append_h5_part(partial, k, meta, groups, sizes)
+    return True
 
 
 def _append_h5_part(partial: Path, k: int, meta: dict[str, Any], groups: Any, sizes: list[int]) -> None:
@@ -329,16 +377,19 @@ def assemble(fmt: str, dataset: Path, meta: dict[str, Any], partial: Path, parts
         os.replace(partial, tmp)
         return
     if fmt == "hdf5":
-        sizes = recover_h5(partial)
-        for p in parts[len(sizes):]:  # the parts written apart, in order
-            if not sizes or not apart_h5(partial, p.k).is_file():
-                raise PhySynthError(f"the unfinished export in {partial} lacks part {p.k}: overwrite to start over")
-            _append_h5_part(partial, p.k, meta, _pickled(apart_h5(partial, p.k)), sizes)
-            apart_h5(partial, p.k).unlink()
-        for p in reversed(parts):  # the file holds every part: taken, they are written again if stopped here
-            marker(partial, p.k).unlink()
-        (partial / H5_SIZES).unlink()
-        os.replace(partial / H5_FILE, tmp)
+        light = {k: v for k, v in meta.items() if k != "traces"}
+        with _h5_lock(partial, wait=True):
+            sizes = _recover_h5(partial)
+            for p in parts[len(sizes):]:  # the parts written apart, in order
+                if not apart_h5(partial, p.k).is_file():
+                    raise PhySynthError(f"the unfinished export in {partial} lacks part {p.k}: overwrite to start "
+                                        "over")
+                _append_h5_part(partial, p.k, light, _pickled(apart_h5(partial, p.k)), sizes)
+                apart_h5(partial, p.k).unlink()
+            for p in reversed(parts):  # the file holds every part: taken, they are written again if stopped here
+                marker(partial, p.k).unlink()
+            (partial / H5_SIZES).unlink()
+            os.replace(partial / H5_FILE, tmp)
         return
     from .csv import finish_csv
 
