@@ -11,8 +11,9 @@ While an export runs, everything lives in a hidden sibling of the output, ``.<na
   PhySynth's version); a resumed export refuses a run that differs;
 - per part ``k``, its output, renamed into place when complete: the bags ``trace_<index>/`` (rosbag2;
   each bag renamed into place as it is finished); for hdf5, its traces appended in place to the export's
-  file ``appended.h5`` when the parts before it are there (sizes after each part in ``appended.json``;
-  an undo journal ``appended-<k>.undo`` while it is appended), else its trace groups in ``part-<k>.pkl``;
+  file ``appended.h5`` when the parts before it are complete (those written apart appended first; sizes
+  after each part in ``appended.json``; an undo journal ``appended-<k>.undo`` while it is appended; one
+  process at a time, ``appended.lock``), else its trace groups in ``part-<k>.pkl``;
   for csv, its rows appended to the tables in ``tables/`` when the parts before it are complete there
   (sizes after each part in ``tables.json``), else the folder ``part-<k>/``; then ``part-<k>.json`` (the
   messages left out, see :mod:`.rosbag2`), which marks the part complete.
