@@ -136,7 +136,9 @@ def test_hdf5_parts_run_one_after_the_other_are_appended_in_place(dataset, tmp_p
             seen.append(sorted(p.name for p in partial.iterdir()))
         return [{}] * len(tasks)
 
-    export_dataset(dataset, out, "hdf5", run=in_order)
+    said = []
+    export_dataset(dataset, out, "hdf5", run=in_order, progress=lambda m, done=None, total=None: said.append(m))
+    assert not [m for m in said if "written apart" in m]  # nothing left to append when assembling
     assert seen[-1] == [parts_mod.H5_FILE, parts_mod.H5_SIZES, parts_mod.H5_LOCK, "part-00000.json",
                         "part-00001.json", "part-00002.json", "run.json"]  # no part of its own, no journal left
     apart = []
@@ -146,8 +148,11 @@ def test_hdf5_parts_run_one_after_the_other_are_appended_in_place(dataset, tmp_p
         apart.extend(sorted(p.name for p in partial_dir(tmp_path / "b.h5").glob("part-*.pkl")))
         return results
 
-    assert _same(out, export_dataset(dataset, tmp_path / "b.h5", "hdf5", run=reversed_and_seen))
+    said.clear()
+    assert _same(out, export_dataset(dataset, tmp_path / "b.h5", "hdf5", run=reversed_and_seen,
+                                     progress=lambda m, done=None, total=None: said.append(m)))
     assert apart == ["part-00001.pkl", "part-00002.pkl"]  # written before part 0: appended when assembling
+    assert "appending the 2 part(s) written apart" in said
 
 
 @pytest.mark.skipif("hdf5" not in FORMATS, reason="needs h5py")

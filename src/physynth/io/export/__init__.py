@@ -21,7 +21,7 @@ from ...progress import ProgressCallback, no_progress
 from ..atomic import atomic_write_text, temp_sibling
 from ..dataset import n_traces, read_meta
 from ..safety import prepare_output, register_temporary, remove_tree, swap_in, unregister_temporary
-from .parts import Part, assemble, dataset_parts, export_part, marker, recover_h5, run_record
+from .parts import Part, assemble, dataset_parts, export_part, marker, recover_h5, run_record, written_apart
 
 FORMATS = ("hdf5", "rosbag2", "csv")
 
@@ -161,8 +161,9 @@ def _export(dataset: Path, meta: dict, out: Path, fmt: str, progress: ProgressCa
     remove_tree(tmp)
     register_temporary(tmp)
     try:
-        if len(parts) > 1 and fmt != "rosbag2":
-            progress(f"assembling the {len(parts)} parts")
+        apart = written_apart(fmt, partial)
+        if apart:
+            progress(f"appending the {apart} part(s) written apart")
         assemble(fmt, dataset, meta, partial, parts, tmp)
         swap_in(tmp, out)
     except BaseException:

@@ -362,6 +362,16 @@ def _pickled(path: Path) -> Any:
                 return
 
 
+def written_apart(fmt: str, partial: Path) -> int:
+    """How many complete parts in ``partial`` were written apart (HDF5 pickles, CSV folders): what assembling
+    appends to the output; 0 for bags, which are moved as they are."""
+    if fmt == "hdf5":
+        return sum(1 for _ in partial.glob("part-*.pkl"))
+    if fmt == "csv":
+        return sum(1 for f in partial.glob("part-*") if f.is_dir())
+    return 0
+
+
 def _consume(partial: Path, part: Part, take: Any) -> None:
     """``take()`` a complete part's output away (moved into the output, or removed once copied), its
     marker removed first: an export stopped while assembling then redoes that part when resumed."""
