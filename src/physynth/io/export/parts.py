@@ -306,10 +306,10 @@ def _h5_lock(partial: Path, *, wait: bool) -> Iterator[bool]:
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+            held = True
         except BlockingIOError:
-            yield False
-            return
-        yield True
+            held = False
+        yield held
     finally:
         os.close(fd)  # the lock goes with it (and with the process, should it be killed)
 
