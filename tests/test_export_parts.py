@@ -449,3 +449,34 @@ def test_a_part_whose_file_disagrees_with_its_record_keeps_nothing(dataset, tmp_
         sizes = parts_mod._h5_sizes(partial)
         assert len(sizes) == 1 and (partial / parts_mod.H5_FILE).stat().st_size == sizes[0]
         assert not list(partial.glob("*.undo")) and not list(partial.glob("part-*.pkl"))
+
+
+@pytest.mark.skipif("hdf5" not in FORMATS, reason="needs h5py")
+def test_hdf5_file_larger_than_the_cache_allowance_is_written_behind(dataset, tmp_path, monkeypatch):
+    """Past io.pagecache.cache_allowance() bytes, each appended part asks the kernel to write out the bytes
+    that fell behind the allowance since the part before and to drop those asked out before: windows that
+    follow each other from byte 0 to the allowance before the end; the file is the same."""
+    from physynth.io import pagecache
+    from physynth.io.export import parts as parts_mod
+
+    keep = 100_000
+    asked = []
+    monkeypatch.setattr(pagecache, "cache_allowance", lambda: keep)
+    monkeypatch.setattr(pagecache, "write_behind", lambda fd, start, length: asked.append((start, start + length)))
+    out = export_dataset(dataset, tmp_path / "out.h5", "hdf5")
+    sizes = []
+
+    def record(partial, k, meta, groups, got, real=parts_mod._append_h5_part):
+        real(partial, k, meta, groups, got)
+        sizes.append(got[-1])
+
+    monkeypatch.setattr(parts_mod, "_append_h5_part", record)
+    asked.clear()
+    again = export_dataset(dataset, tmp_path / "again.h5", "hdf5")
+    assert len(sizes) == 3 and sizes[-1] > 2 * keep
+    assert asked == [(0, sizes[0] - keep), (0, sizes[1] - keep), (sizes[0] - keep, sizes[2] - keep)]
+    assert _same(out, again)
+    monkeypatch.setattr(pagecache, "cache_allowance", lambda: 1 << 62)  # a file below it: nothing asked
+    asked.clear()
+    export_dataset(dataset, tmp_path / "small.h5", "hdf5")
+    assert asked == []

@@ -351,6 +351,24 @@ def _append_h5_part(partial: Path, k: int, meta: dict[str, Any], groups: Any, si
     sizes.append(f.stat().st_size)
     atomic_write_text(partial / H5_SIZES, json.dumps(sizes))
     _journal(partial, k).unlink(missing_ok=True)
+    _behind(f, sizes)
+
+
+def _behind(f: Path, sizes: list[int]) -> None:
+    """Write :data:`H5_FILE` behind (:mod:`physynth.io.pagecache`) up to :func:`cache_allowance` bytes before
+    its end: the parts appended before the last two are then on disk and out of the cache (HDF5 rewrites a
+    few kilobytes of them in place, read back from disk once per part); the newest bytes stay in the cache."""
+    from ..pagecache import cache_allowance, write_behind
+
+    keep = cache_allowance()
+    start = max(0, sizes[-3] - keep) if len(sizes) >= 3 else 0  # written out by the call before: dropped now
+    end = sizes[-1] - keep  # from the call before's end: written out now
+    if end > start:
+        fd = os.open(f, os.O_RDONLY)
+        try:
+            write_behind(fd, start, end - start)
+        finally:
+            os.close(fd)
 
 
 def _pickled(path: Path) -> Any:
