@@ -31,9 +31,13 @@ class WriteBehind:
     """Write-behind of a file being appended piece by piece: :meth:`advance` after each piece starts its
     writeback and drops the piece before it (out of the cache once written)."""
 
-    def __init__(self, fd: int, start: int = 0) -> None:
+    def __init__(self, fd: int, start: int = 0, piece: int | None = None) -> None:
+        """``start``: where the piece before the last one starts; ``piece``: where the last one starts (the
+        caller's own record of the pieces so far, for a file appended to by one process after another;
+        None: ``start``, a file without pieces yet)."""
         self.fd = fd
-        self._before = self._piece = start  # start of the piece before the last one, of the last one
+        self._before = start  # start of the piece before the last one
+        self._piece = start if piece is None else piece  # start of the last one
 
     def advance(self, end: int) -> None:
         """The file now ends at ``end``: the piece before the last one is dropped, the last one written out."""

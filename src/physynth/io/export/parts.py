@@ -355,18 +355,18 @@ def _append_h5_part(partial: Path, k: int, meta: dict[str, Any], groups: Any, si
 
 
 def _behind(f: Path, sizes: list[int]) -> None:
-    """Write :data:`H5_FILE` behind (:mod:`physynth.io.pagecache`) up to :func:`cache_allowance` bytes before
-    its end: the parts appended before the last two are then on disk and out of the cache (HDF5 rewrites a
-    few kilobytes of them in place, read back from disk once per part); the newest bytes stay in the cache."""
-    from ..pagecache import cache_allowance, write_behind
+    """Write :data:`H5_FILE` behind (:class:`~physynth.io.pagecache.WriteBehind`, its pieces the parts moved
+    :func:`~physynth.io.pagecache.cache_allowance` bytes back from the file's end): the parts appended
+    before the last two are then on disk and out of the cache (HDF5 rewrites a few kilobytes of them in
+    place, read back from disk once per part); the newest bytes stay in the cache."""
+    from .. import pagecache
 
-    keep = cache_allowance()
-    start = max(0, sizes[-3] - keep) if len(sizes) >= 3 else 0  # written out by the call before: dropped now
-    end = sizes[-1] - keep  # from the call before's end: written out now
-    if end > start:
+    keep = pagecache.cache_allowance()
+    marks = [max(0, n - keep) for n in [0, 0, *sizes]]
+    if marks[-1] > marks[-3]:
         fd = os.open(f, os.O_RDONLY)
         try:
-            write_behind(fd, start, end - start)
+            pagecache.WriteBehind(fd, marks[-3], marks[-2]).advance(marks[-1])
         finally:
             os.close(fd)
 
