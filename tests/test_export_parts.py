@@ -480,3 +480,29 @@ def test_hdf5_file_larger_than_the_cache_allowance_is_written_behind(dataset, tm
     asked.clear()
     export_dataset(dataset, tmp_path / "small.h5", "hdf5")
     assert asked == []
+
+
+@pytest.mark.skipif("hdf5" not in FORMATS, reason="needs h5py")
+def test_hdf5_record_that_does_not_read_has_its_parts_written_again(dataset, tmp_path):
+    """An unfinished export whose record of the file's parts does not read (damaged by hand or by a power
+    cut): the file goes, and the parts marked complete that were only in it are written again on --resume,
+    not taken for complete (before: 'No such file or directory' of a part's pickle, exit 1)."""
+    from physynth.io.export import parts as parts_mod
+
+    out = tmp_path / "out.h5"
+
+    def two_parts_then_killed(fn, tasks, sizes, progress):
+        fn(*tasks[0])
+        fn(*tasks[1])
+        raise _Killed
+
+    with pytest.raises(_Killed):
+        export_dataset(dataset, out, "hdf5", run=two_parts_then_killed)
+    partial = partial_dir(out)
+    assert len(parts_mod._h5_sizes(partial)) == 2
+    (partial / parts_mod.H5_SIZES).write_text("not json")
+    said = []
+    export_dataset(dataset, out, "hdf5", resume=True, run=lambda fn, tasks, sizes, progress: [
+        said.append(task[2].k) or fn(*task) for task in tasks])
+    assert said == [0, 1, 2]
+    assert _same(out, export_dataset(dataset, tmp_path / "clean.h5", "hdf5"))

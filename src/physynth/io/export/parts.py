@@ -267,8 +267,10 @@ def _recover_h5(partial: Path) -> list[int]:
     """The sizes of :data:`H5_FILE` after each part it holds (:data:`H5_SIZES`), the file brought back to
     them first: the journal of a part not recorded (a kill in the middle of appending it) rolled back, a
     recorded part's removed; no part recorded, no file. A file that still disagrees with its record (a
-    power cut) is removed with the record, and the parts it held are unmarked: they are written again.
-    Only with :data:`H5_LOCK` held: no other process is appending then."""
+    power cut), or a record that does not read, is removed with the record; a part marked complete that is
+    then neither in the file nor written apart is unmarked, to be written again.
+    Only with :data:`H5_LOCK` held: no other process is appending then (a part written apart has its
+    pickle in place before its marker, and a pickle is removed only once its part is recorded)."""
     from ..undo import roll_back
 
     sizes, f = _h5_sizes(partial), partial / H5_FILE
@@ -278,12 +280,14 @@ def _recover_h5(partial: Path) -> list[int]:
         else:
             roll_back(f, journal)
     if sizes and (not f.is_file() or f.stat().st_size != sizes[-1]):
-        for k in reversed(range(len(sizes))):
-            marker(partial, k).unlink(missing_ok=True)
         sizes = []
     if not sizes:
         (partial / H5_SIZES).unlink(missing_ok=True)
         f.unlink(missing_ok=True)
+    for done in sorted(partial.glob("part-*.json"), reverse=True):  # the last first, as assembling takes them
+        k = int(done.stem.removeprefix("part-"))
+        if k >= len(sizes) and not apart_h5(partial, k).is_file():
+            done.unlink()
     return sizes
 
 
