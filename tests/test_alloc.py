@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import subprocess
 import sys
@@ -12,6 +13,7 @@ import pytest
 from physynth import _alloc
 from physynth.generate import compile_scenario
 from physynth.io.scenario_file import load_scenario
+from physynth.workflows import generate_dataset
 
 
 @pytest.fixture
@@ -87,3 +89,34 @@ def test_same_traces_with_and_without_tuning():
     if _alloc.is_glibc():
         assert applied_on == "True"
     assert on == off
+
+
+_EXPORT_CHILD = """
+import resource, shutil, sys
+from pathlib import Path
+from physynth.io.export import export_dataset
+out = Path(sys.argv[2])
+for _ in range(3):  # the third export's page faults: after the first has warmed imports and caches
+    shutil.rmtree(out, ignore_errors=True)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    export_dataset(Path(sys.argv[1]), out, "rosbag2")
+print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+"""
+
+
+@pytest.mark.skipif(not _alloc.is_glibc(), reason="the tuning applies on glibc Linux only")
+@pytest.mark.skipif(importlib.util.find_spec("rosbags") is None, reason="needs rosbags (physynth[ros])")
+def test_export_parts_tune_the_allocator_in_a_dask_like_worker(tmp_path):
+    """Dask's nanny starts its workers with MALLOC_TRIM_THRESHOLD_=65536 (distributed's
+    ``nanny.pre-spawn-environ``): glibc then hands freed heap back after every bag and faults it in again
+    (2.8 million page faults for 1,000 traces). An export part sets the thresholds first, as generation
+    does: measured 12,600 against 540 page faults for five traces."""
+    ds, _ = generate_dataset(load_scenario("cablecar-descending"), 5, tmp_path / "ds", seed=3)
+    faults = {}
+    for value in ("0", "1"):
+        env = {**os.environ, _alloc.ENV_VAR: value, "MALLOC_TRIM_THRESHOLD_": "65536"}
+        env["PYTHONPATH"] = os.pathsep.join([str(Path(_alloc.__file__).parents[1]), env.get("PYTHONPATH", "")])
+        out = subprocess.run([sys.executable, "-c", _EXPORT_CHILD, str(ds), str(tmp_path / f"bags{value}")],
+                             env=env, capture_output=True, text=True, check=True)
+        faults[value] = int(out.stdout.split()[-1])
+    assert faults["1"] * 4 < faults["0"], faults

@@ -1,4 +1,4 @@
-"""Allocator tuning for trace generation: glibc's ``mallopt``, once per process (opt-out ``PHYSYNTH_MALLOPT=0``).
+"""Allocator tuning for trace generation and export: glibc's ``mallopt``, once per process (opt-out ``PHYSYNTH_MALLOPT=0``).
 
 A trace allocates and frees dozens of arrays of 0.1-1 MB (41,560 IMU samples x 3 x 8 bytes is 1 MB).
 glibc serves blocks above its mmap threshold (128 kB, raised dynamically up to 32 MB as mmapped blocks
@@ -12,8 +12,10 @@ This is a **process-wide** setting: every later ``malloc`` of the process (NumPy
 library) sees it. The price is memory: up to 32 MB of freed heap may stay mapped instead of going back
 to the system, and blocks up to 4 MB come from the heap, where they can fragment it. It is applied
 the first time :func:`physynth.generate.compile_scenario` runs (every generation path goes through
-it), only on Linux with glibc (a no-op elsewhere, e.g. macOS, Windows, musl), and never when the
-environment variable ``PHYSYNTH_MALLOPT`` is ``0`` (or ``false``, ``no``, ``off``) at that moment.
+it) or an export part starts (:func:`physynth.io.export.parts.export_part`: Dask's nanny starts its
+workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which made a worker writing ROS 2 bags fault its freed
+heap in again, 2,800 page faults per trace), only on Linux with glibc (a no-op elsewhere, e.g. macOS,
+Windows, musl), and never when the environment variable ``PHYSYNTH_MALLOPT`` is ``0`` (or ``false``, ``no``, ``off``) at that moment.
 """
 
 from __future__ import annotations

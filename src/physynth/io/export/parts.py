@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from ... import __version__
+from ..._alloc import tune_allocator
 from ...errors import DatasetError, PhySynthError
 from ..atomic import atomic_write_text
 from ..dataset import iter_indexed_traces, iter_stored_traces, trace_of
@@ -149,6 +150,7 @@ def export_part(dataset: str, meta: dict[str, Any], part: Part, fmt: str, partia
                 on_unit: Any = None) -> dict[str, int]:
     """Write part ``part`` of the export into ``partial`` (what a worker runs); returns the ROS 2 messages
     left out per topic. A part already complete is left alone. ``on_unit()`` after each trace."""
+    tune_allocator()  # as generation does: a Dask worker's glibc otherwise trims (and faults in) every bag
     dataset_p, partial_p = Path(dataset), Path(partial)
     done = marker(partial_p, part.k)
     if done.is_file():
