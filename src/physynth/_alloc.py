@@ -1,4 +1,4 @@
-"""Allocator tuning for trace generation and export: glibc's ``mallopt``, once per process (opt-out ``PHYSYNTH_MALLOPT=0``).
+"""Allocator tuning for generation and export: glibc's ``mallopt``, once per process (``PHYSYNTH_MALLOPT=0``: not).
 
 A trace allocates and frees dozens of arrays of 0.1-1 MB (41,560 IMU samples x 3 x 8 bytes is 1 MB).
 glibc serves blocks above its mmap threshold (128 kB, raised dynamically up to 32 MB as mmapped blocks
@@ -15,7 +15,8 @@ the first time :func:`physynth.generate.compile_scenario` runs (every generation
 it) or an export part starts (:func:`physynth.io.export.parts.export_part`: Dask's nanny starts its
 workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which made a worker writing ROS 2 bags fault its freed
 heap in again, 2,800 page faults per trace), only on Linux with glibc (a no-op elsewhere, e.g. macOS,
-Windows, musl), and never when the environment variable ``PHYSYNTH_MALLOPT`` is ``0`` (or ``false``, ``no``, ``off``) at that moment.
+Windows, musl), and never when the environment variable ``PHYSYNTH_MALLOPT`` is ``0`` (or ``false``, ``no``,
+``off``) at that moment.
 """
 
 from __future__ import annotations
