@@ -2,7 +2,7 @@
 
 An export or a generation streams gigabytes that nothing reads back soon (a 1,000-trace CSV export is
 3.8 GB). Left to the kernel, they pile up as dirty pages in the page cache until its background writeback
-starts (at a tenth of memory), and writing slows down as they do: on the 2-core test machine, files written
+starts (by default at a tenth of memory), and writing slows down as they do: on the 2-core test machine, files written
 in 64 kB pieces went at 2.4 GB/s for the first 650 MB, then at 0.35-0.6 GB/s. Asking, after each piece,
 that the piece be written out now and the piece before it (written out by then) be dropped
 (``posix_fadvise(..., POSIX_FADV_DONTNEED)``, which starts the writeback of dirty pages and frees clean
@@ -46,13 +46,54 @@ class WriteBehind:
         self._before, self._piece = self._piece, end
 
 
-def cache_allowance() -> int:
-    """Bytes of a file being written that may stay in the page cache before writing them behind pays: a tenth
-    of the machine's memory (the share of dirty pages at which Linux starts its own background writeback by
-    default; at twice that it makes writers wait). A file that stays below it is left to the kernel: written
-    out after the command ends, where writing it behind would make the command wait for the disk (a 2 GB
-    HDF5 export took 12 % longer so)."""
+def cache_allowance(proc: str = "/proc", cgroups: str = "/sys/fs/cgroup") -> int:
+    """Bytes of a file being written that may stay in the page cache before writing them behind pays: where
+    Linux starts its own background writeback (``vm.dirty_background_bytes``, or
+    ``vm.dirty_background_ratio`` percent, 10 by default, of the memory this process may use:
+    :func:`memory_bytes`); at twice that it makes writers wait. A file that stays below it is left to the
+    kernel: written out after the command ends, where writing it behind would make the command wait for the
+    disk (a 2 GB HDF5 export took 12 % longer so). ``proc`` and ``cgroups``: where the kernel shows them."""
+    background = _read_int(f"{proc}/sys/vm/dirty_background_bytes")
+    if background:
+        return background
+    ratio = _read_int(f"{proc}/sys/vm/dirty_background_ratio")
+    return memory_bytes(proc, cgroups) * (10 if ratio is None else ratio) // 100
+
+
+def memory_bytes(proc: str = "/proc", cgroups: str = "/sys/fs/cgroup") -> int:
+    """The memory this process may use: the machine's physical memory, or the memory limit of its control
+    group where lower (a container's: cgroup v2 ``memory.max`` or v1 ``memory.limit_in_bytes``, the
+    lowest on the way from the process's group up to the root). Not POSIX: 1 << 62 (nothing is asked)."""
     try:
-        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") // 10
-    except (AttributeError, ValueError, OSError):  # not POSIX: the kernel is left to itself
+        total = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
         return 1 << 62
+    try:
+        with open(f"{proc}/self/cgroup", encoding="utf-8") as fh:
+            lines = fh.read().splitlines()
+    except OSError:  # not Linux
+        return total
+    for line in lines:  # "0::/path" (v2), "4:memory:/path" (v1)
+        _, controllers, path = line.split(":", 2) if line.count(":") >= 2 else ("", "-", "")
+        if controllers == "":
+            where = [(f"{cgroups}{sub}", "memory.max") for sub in ("", "/unified")]
+        elif "memory" in controllers.split(","):
+            where = [(f"{cgroups}/memory", "memory.limit_in_bytes")]
+        else:
+            continue
+        parts = [p for p in path.split("/") if p]
+        for root, name in where:
+            for depth in range(len(parts), -1, -1):
+                limit = _read_int(os.path.join(root, *parts[:depth], name))
+                if limit:
+                    total = min(total, limit)
+    return total
+
+
+def _read_int(path: str) -> int | None:
+    """The whole number a kernel file holds, or None ("max", unreadable, absent)."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return int(fh.read().strip())
+    except (OSError, ValueError):
+        return None
