@@ -7,7 +7,9 @@ dataset to hdf5, csv and rosbag2 (MCAP, the default storage) with ``--workers W`
 own (start-up and imports included, as a user runs them); every output is removed once timed. Prints the
 best time of each over the repetitions, its ratio to the generation's, and the peak resident memory of
 the command's whole process tree (workers, Dask scheduler and nannies included; sampled every 0.1 s on
-a thread of its own: the time is taken when the command ends, not at the next sample).
+a thread of its own: the time is taken when the command ends, not at the next sample), and how quiet
+the machine was: the share of the cores' time other processes took during the run
+(``physynth.bench.OthersCpu``).
 Every command starts after ``sync`` (what the one before wrote is on disk: no command pays for another's
 writeback); the files go to a new folder in ``--dir`` (default: the system's temporary folder).
 ``physynth bench --exports`` measures the same in one process (no start-up).
@@ -80,6 +82,9 @@ def main() -> None:
     args = ap.parse_args()
     formats = [f for f, m in (("hdf5", "h5py"), ("csv", None), ("rosbag2", "rosbags"))
                if f in args.formats.split(",") and (m is None or importlib.util.find_spec(m) is not None)]
+    from physynth.bench import OthersCpu
+
+    others = OthersCpu()
     tmp = Path(tempfile.mkdtemp(prefix="bench-export-", dir=args.dir))
     best = {k: float("inf") for k in ("parquet", *formats)}
     peaks: dict[str, float] = {}
@@ -99,6 +104,9 @@ def main() -> None:
     print(f"{args.n} traces, {args.workers} worker(s), whole commands, best of {args.repeat}")
     for k, v in best.items():
         print(f"{k:10s} {v:8.2f} s  {v / best['parquet']:5.2f}x generate to Parquet   peak memory {peaks[k]:.2f} GB")
+    share = others.share()  # the commands are this process's children, waited for: their time is its own
+    if share is not None:
+        print(f"other processes: {100 * share:.0f} % of the cores during the run")
 
 
 if __name__ == "__main__":

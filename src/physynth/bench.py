@@ -22,7 +22,8 @@
   ``export_s`` and ``parquet_s`` hold the times.
 
 The figures depend on the machine and on what else runs on it: run on a quiet machine, and compare
-ratios measured side by side in one run.
+ratios measured side by side in one run. ``machine.others_cpu_share`` tells how quiet it was: the share of
+the cores' time that other processes took during the run (:class:`OthersCpu`).
 """
 
 from __future__ import annotations
@@ -93,6 +94,7 @@ def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int =
 
     n, repeat = check_int(n, "n", minimum=1), check_int(repeat, "repeat", minimum=1)
     n_scaling, workers = check_int(n_scaling, "n_scaling"), check_int(workers, "workers")
+    others = OthersCpu()
     if directory is not None and not Path(directory).is_dir():
         raise PhySynthError(f"directory {directory} is not an existing folder")
     cores = available_cores()
@@ -130,7 +132,8 @@ def run_bench(scn: Scenario, *, n: int = 200, n_scaling: int = 0, workers: int =
         shutil.rmtree(tmp, ignore_errors=True)
     out["peak_rss_mb"] = round(peak_rss_mb(), 1)
     out["machine"] = {"cores": cores, "workers": workers, "cpu": _cpu_name(), "python": platform.python_version(),
-                      "load_average_1min": round(os.getloadavg()[0], 2) if hasattr(os, "getloadavg") else None}
+                      "load_average_1min": round(os.getloadavg()[0], 2) if hasattr(os, "getloadavg") else None,
+                      "others_cpu_share": others.share()}
     out["scenario"] = scn.name
     out["n"] = n
     return out
@@ -205,6 +208,45 @@ def _exports(scn: Scenario, n: int, repeat: int, tmp: Path, progress: ProgressCa
     return {"ratios": {fmt: round(best[fmt] / best["parquet"], 2) for fmt in formats},
             "export_s": {fmt: round(best[fmt], 2) for fmt in formats}, "parquet_s": round(best["parquet"], 2),
             "rosbag2_storage": "mcap"}
+
+
+class OthersCpu:
+    """The share of the machine's CPU time that went to other processes (not this one, nor the children it
+    waited for) from its making to :meth:`share`: system-wide busy time (Linux ``/proc/stat``; a virtual
+    machine's steal time counts as busy) less this process tree's own (``os.times``), over the cores'
+    time. A load average counts the minute before, and this run's own work in it."""
+
+    def __init__(self, stat: str = "/proc/stat") -> None:
+        self._stat = stat
+        self._start = (_busy_s(stat), _own_s(), time.perf_counter())
+
+    def share(self) -> float | None:
+        """0 (nothing else ran) to 1 (every core busy with others); None where the system does not tell."""
+        busy0, own0, t0 = self._start
+        busy1 = _busy_s(self._stat)
+        wall, cores = time.perf_counter() - t0, os.cpu_count() or 1
+        if busy0 is None or busy1 is None or wall <= 0:
+            return None
+        return round(min(1.0, max(0.0, (busy1 - busy0 - (_own_s() - own0)) / (wall * cores))), 3)
+
+
+def _busy_s(stat: str) -> float | None:
+    """Seconds of CPU time the whole machine spent busy since it started (``/proc/stat``: every state but
+    idle and iowait), or None."""
+    try:
+        with open(stat, encoding="ascii") as fh:
+            fields = fh.readline().split()
+    except OSError:
+        return None
+    if len(fields) < 6 or fields[0] != "cpu":
+        return None
+    ticks = [int(v) for v in fields[1:]]
+    return (sum(ticks) - ticks[3] - ticks[4]) / os.sysconf("SC_CLK_TCK")
+
+
+def _own_s() -> float:
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
 
 
 def _sync() -> None:

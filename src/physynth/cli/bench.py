@@ -75,5 +75,7 @@ def bench_cmd(
         rows += [(f"export {fmt}{' (mcap)' if fmt == 'rosbag2' else ''}", f"{ex['export_s'][fmt]:.2f} s "
                   f"({ratio:.2f}x to Parquet)") for fmt, ratio in ex["ratios"].items()]
     typer.echo(format_table(("measure", "value"), rows))
-    typer.echo(f"{scn.name}, n={n}; {counted(m['cores'], 'core')} {m['cpu']}, load {m['load_average_1min']}")
+    others = m["others_cpu_share"]
+    quiet = "" if others is None else f", other processes {100 * others:.0f} % of the cores during the run"
+    typer.echo(f"{scn.name}, n={n}; {counted(m['cores'], 'core')} {m['cpu']}{quiet}")
     typer.echo("(a busy machine lowers every figure)")
