@@ -214,7 +214,8 @@ class OthersCpu:
     """The share of the machine's CPU time that went to other processes (not this one, nor the children it
     waited for) from its making to :meth:`share`: system-wide busy time (Linux ``/proc/stat``; a virtual
     machine's steal time counts as busy) less this process tree's own (``os.times``), over the cores'
-    time. A load average counts the minute before, and this run's own work in it."""
+    time. The kernel's own threads count as others, among them those writing out what the run wrote. A
+    load average counts the minute before, and this run's own work in it."""
 
     def __init__(self, stat: str = "/proc/stat") -> None:
         self._stat = stat
