@@ -17,6 +17,7 @@ import shutil
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -27,19 +28,23 @@ from physynth.io.scenario_file import load_scenario
 from physynth.workflows import generate_dataset
 
 
+def chunks_of_trace(trace: Any) -> list[bytes]:
+    """Every chunk's uncompressed records of the bag of one trace (as the export builds them)."""
+    out = []
+    for cid, topic in enumerate(trace_topics(_typestore(), trace, {}), 1):
+        n, width = topic.messages.n, topic.messages.size
+        step = max(1, mcap.CHUNK_BYTES // width)
+        for a in range(0, n, step):
+            b = min(a + step, n)
+            rows = np.empty((b - a, width), dtype=np.uint8)
+            pieces, _ = mcap._chunk(topic.messages, rows, a, b, cid, topic.stamps[a:b], "")  # uncompressed:
+            out.append(bytes(pieces[1]))  # the chunk's records
+    return out
+
+
 def chunks_of(path: Path) -> list[bytes]:
     """Every chunk's uncompressed records of the bags of the dataset at ``path``."""
-    out = []
-    for trace in iter_traces(path):
-        for cid, topic in enumerate(trace_topics(_typestore(), trace, {}), 1):
-            n, width = topic.messages.n, topic.messages.size
-            step = max(1, mcap.CHUNK_BYTES // width)
-            for a in range(0, n, step):
-                b = min(a + step, n)
-                rows = np.empty((b - a, width), dtype=np.uint8)
-                pieces, _ = mcap._chunk(topic.messages, rows, a, b, cid, topic.stamps[a:b], "")  # uncompressed:
-                out.append(bytes(pieces[1]))  # the chunk's head, its records, its message index
-    return out
+    return [c for trace in iter_traces(path) for c in chunks_of_trace(trace)]
 
 
 def main() -> None:

@@ -27,6 +27,7 @@ TINY = {
     "bench_validate": (["-n", "2", "--repeat", "1"], "generate + reduce + statistics"),
     "bench_cli": (["--repeat", "1"], "first trace"),
     "bench_bag_zstd": (["-n", "1", "--repeat", "1"], "ms CPU per trace"),
+    "bench_export_floor": (["-n", "2", "--repeat", "1", "--exports"], "export rosbag2"),
     "bench_writer_interference": (["-n", "2", "--repeat", "1", "--settle", "0.2"], "process"),
 }
 HELP_ONLY = {"bench_anchor_study", "bench_calibrate", "bench_dask_overhead", "bench_imu_vs_imusim", "bench_inspect"}
