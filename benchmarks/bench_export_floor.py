@@ -120,6 +120,10 @@ def main() -> None:
     ap.add_argument("--dir", default=None, help="where the dataset is written")
     ap.add_argument("--exports", action="store_true", help="also time the exports themselves (whole commands)")
     args = ap.parse_args()
+    if args.n < 1 or args.repeat < 1:
+        ap.error("-n and --repeat must be at least 1")
+    if args.dir is not None and not Path(args.dir).is_dir():
+        ap.error(f"--dir {args.dir} is not an existing folder")
     from physynth.bench import OthersCpu
 
     others = OthersCpu()
