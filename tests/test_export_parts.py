@@ -383,7 +383,10 @@ def test_export_cli_options_are_checked_in_one_line(dataset, tmp_path, capsys):
     for argv, needle in (
             (["--resume", "--overwrite"], "--resume and --overwrite exclude each other"),
             (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "--scheduler and --workers exclude each other"),
-            (["--bag-storage", "zip"], "'zip' is not one of")):
+            (["--bag-storage", "zip"], "'zip' is not one of"),
+            (["-f", "csv", "--bag-storage", "sqlite3"], "--bag-storage applies to --format rosbag2 only (given with "
+                                                        "--format csv)"),
+            (["-f", "hdf5", "--bag-storage", "mcap"], "--bag-storage applies to --format rosbag2 only")):
         with pytest.raises(SystemExit) as e:
             main(["export", str(dataset), "-f", "rosbag2", "-o", str(tmp_path / "x"), *argv])
         err = capsys.readouterr().err

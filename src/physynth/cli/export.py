@@ -22,9 +22,10 @@ def export_cmd(
                             help="hdf5 (one file, a group per trace), rosbag2 (a folder, a bag per trace) or csv (a "
                                  "folder, a file per table)."),
     out: Path = typer.Option(..., "--out", "-o", metavar="PATH", help="Output file (hdf5) or folder (rosbag2, csv)."),
-    bag_storage: Literal["mcap", "mcap-uncompressed", "sqlite3"] = typer.Option(
-        "mcap", "--bag-storage", help="Storage of the ROS 2 bags: mcap (ROS 2's default since Iron, opened natively "
-                                      "by Foxglove; zstd-compressed chunks), mcap-uncompressed or sqlite3."),
+    bag_storage: Literal["mcap", "mcap-uncompressed", "sqlite3"] | None = typer.Option(
+        None, "--bag-storage", show_default=False,
+        help="Storage of the ROS 2 bags: mcap (the default: ROS 2's since Iron, opened natively by Foxglove; "
+             "zstd-compressed chunks), mcap-uncompressed or sqlite3."),
     workers: int = workers_option(each=", one part (a shard of the dataset) at a time each",
                                   below="; hdf5 and csv: one process (parts in order go straight into the "
                                         "output)"),
@@ -36,10 +37,14 @@ def export_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or summary."),
 ) -> None:
     """Export a dataset to HDF5, ROS 2 bags (MCAP; sensor_msgs/Imu, sensor_msgs/Range) or CSV (docs/export.md)."""
+    from ..errors import PhySynthError
     from ..io.dataset import n_traces, read_meta
     from ..workflows import export_dataset
 
     check_run_options(resume, overwrite, scheduler, workers, "export to --out")
+    if bag_storage is not None and fmt.lower() != "rosbag2":
+        raise PhySynthError(f"--bag-storage applies to --format rosbag2 only (given with --format {fmt})")
+    bag_storage = bag_storage or "mcap"
     # HDF5 and CSV pick one process: parts run one after the other go straight into the output, where parts
     # from several workers are appended to it when assembling, on one core (docs/export.md); polars' CSV
     # writer formats on every core, and HDF5 reads and checks its input on a second thread
