@@ -16,10 +16,11 @@ memory:
 - ``rg16+stream+thread``, ``rg32+stream+thread``: the same with row groups of 16 and 32 traces (the last
   row group of a shard is written after its last trace is made, while nothing else runs: the smaller, the
   less of the writing is left without a trace to overlap);
-- ``rg16+process``: what ``generate`` on one worker does where a core is to spare (since 2026-12-06): this
+- ``rg16+process``: what ``generate`` on one worker does for 500 traces or more where a core is to spare: this
   process generates, a writer process of its own (:mod:`physynth.io.writer_process`, started by the run)
-  writes, with row groups of 16 traces and the streamed hash. The variants above write in this process
-  (``generate_dataset(writer_process=False)``).
+  writes, with row groups of 16 traces and the streamed hash, here whatever ``N`` (``generate`` itself hands
+  runs of fewer than :data:`~physynth.io.writer_process.MIN_TRACES` traces to the writer thread instead, as
+  ``rg16+stream+thread``). The variants above write in this process (``generate_dataset(writer_process=False)``).
 
 Prints the wall-clock and CPU time (this process; for ``rg16+process`` also the writer process's, which
 includes its start) per trace and the rate to Parquet as a fraction of the in-memory rate. On a shared
@@ -41,7 +42,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from physynth.generate import compile_scenario, generate_trace  # noqa: E402
-from physynth.io import shards  # noqa: E402
+from physynth.io import shards, writer_process  # noqa: E402
 from physynth.io.dataset import DatasetWriter  # noqa: E402
 from physynth.io.scenario_file import load_scenario  # noqa: E402
 from physynth.workflows import generate_dataset  # noqa: E402
@@ -74,6 +75,7 @@ def main() -> None:
                 else:
                     (shards.ROW_GROUP_TRACES, DatasetWriter.hash_while_writing,
                      DatasetWriter.write_in_thread) = VARIANTS[name]
+                    writer_process.MIN_TRACES = 1  # the process for any N (only +process asks for it)
                     path, _ = generate_dataset(scn, args.n, tmp / name, seed=r, shard_traces=args.n,
                                                writer_process=name.endswith("+process"))
                     shutil.rmtree(path)

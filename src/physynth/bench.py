@@ -2,7 +2,8 @@
 
 - ``traces_per_s_memory``: traces of the scenario generated in memory, in this process (one core);
 - ``traces_per_s_parquet``: traces generated and written as a dataset by one worker, as ``generate -w 1``
-  does: generated in this process, written by its writer process where a core is to spare
+  does: generated in this process, written by a writer thread, or from
+  :data:`~physynth.io.writer_process.MIN_TRACES` traces on by its writer process where a core is to spare
   (:mod:`physynth.io.writer_process`);
 - ``scaling_efficiency``: rate with ``workers`` worker processes on an embedded Dask cluster divided by
   ``workers`` times the rate of one worker on one core (writing in its own process, without a writer

@@ -57,9 +57,12 @@ through the ring, in fewer turns between the two processes."""
 RING_BYTES = 32 << 20
 """Shared memory between the processes for the arrays of the traces on their way (a default trace has about
 2.5 MB): several traces, so that this process rarely waits for the other to free a place."""
-MIN_TRACES = 64
-"""Runs of fewer traces write in their own process: the writer process's start (about 0.3 s: Python, NumPy,
-pyarrow) would outlast the writing it takes over."""
+MIN_TRACES = 500
+"""Runs of fewer traces write in their own process (a writer thread): the writer process's start (about 0.3 s:
+Python, NumPy, pyarrow) and the copy of every trace into the ring outweigh what it saves the generating thread
+(about 0.5 ms per trace) on shorter runs. Where the two cross depends on the machine (docs/scale.md "Writing on
+a spare core", 2026-12-06): on a 2-core AMD EPYC the thread was as fast or faster up to 500-700 traces, on a
+2-core Intel Xeon the process was faster from 200."""
 ALIGN = 64
 STOP_WAIT_S = 10.0
 """How long :meth:`WriterProcess.stop` waits for the process to abort and exit before it kills it."""
